@@ -1,0 +1,301 @@
+"""Frames (one rotation as a range image), the sensor description they carry, and stacks of frames.
+
+Shapes use R = return slots, H = rows (beams, row 0 = highest elevation), W = columns.
+Every array with a trailing W axis is per column; ``[R, H, W]`` arrays are per pixel and slot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Iterable, Protocol
+
+import numpy as np
+
+from .errors import AnalysisError, CalibrationError
+
+
+class Geometry(Protocol):
+    """Turns a frame's ranges into points; each vendor module provides one."""
+
+    def xyz(self, frame: "Frame") -> np.ndarray:
+        """Points of ``frame`` as float64 ``[R, H, W, 3]`` metres, zeros where there is no return."""
+        ...
+
+
+@dataclass(eq=False)
+class SensorInfo:
+    """What a sensor is and how to read its packets.
+
+    Built from the packets themselves where they say enough (VLP-16 factory bytes,
+    Ouster legacy packet size) and from the Ouster metadata JSON otherwise.
+
+    Attributes:
+        vendor: ``"velodyne"`` or ``"ouster"``.
+        model: e.g. ``"VLP-16"``, ``"OS-1-64"``.
+        rows: H, beams per column.
+        columns_per_frame: W of a full frame. Ouster: exact (512/1024/2048). VLP-16:
+            firing sequences in one rotation at the nominal rate, a guide only (frames vary).
+        return_mode: ``"strongest"``, ``"last"``, ``"dual"`` (VLP-16) or ``"single"``,
+            ``"dual"``, ``"low_data_rate"`` (Ouster).
+        return_labels: the label of each return slot, e.g. ``("last", "strongest")``.
+        beam_altitude_deg: ``float64[H]`` elevation of each row, degrees, row order.
+        beam_azimuth_deg: ``float64[H]`` azimuth offset of each row, degrees, row order.
+        frequency_hz: rotation rate, 10 or 20 typically; ``None`` if unknown.
+        grid_resolution_deg: column width of :meth:`Frame.on_grid` by default.
+        geometry: computes XYZ for frames of this sensor; ``None`` if no calibration.
+        serial, firmware, profile, product_id, init_id: as the sensor reports them, ``None`` if unknown.
+        pixel_shift_by_row: ``int[H]`` Ouster stagger shifts (destaggering), ``None`` otherwise.
+        source: where the packets came from (``"192.168.1.201:2368"``), for reports.
+        metadata: the raw metadata document (Ouster JSON as a dict), empty if none.
+    """
+
+    vendor: str
+    model: str
+    rows: int
+    columns_per_frame: int
+    return_mode: str
+    return_labels: tuple[str, ...]
+    beam_altitude_deg: np.ndarray
+    beam_azimuth_deg: np.ndarray
+    frequency_hz: float | None = None
+    grid_resolution_deg: float | None = None
+    geometry: Geometry | None = None
+    serial: str | None = None
+    firmware: str | None = None
+    profile: str | None = None
+    product_id: int | None = None
+    init_id: int | None = None
+    pixel_shift_by_row: np.ndarray | None = None
+    source: str | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-ready summary (for ``info`` and MCAP metadata records)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            if f.name in ("geometry", "metadata"):
+                continue
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                value = value.tolist()
+            elif isinstance(value, tuple):
+                value = list(value)
+            out[f.name] = value
+        return out
+
+
+@dataclass
+class FrameCounters:
+    """What went wrong while a frame was assembled, counted (never silently dropped)."""
+
+    lost_packets: int = 0  # packets missing inside the frame (gaps in azimuth / measurement id)
+    duplicate_packets: int = 0
+    out_of_order_packets: int = 0
+    late_packets: int = 0  # packets of this frame that arrived after it was released (dropped)
+    malformed_packets: int = 0  # wrong size, bad flag, bad CRC: skipped
+    grid_collisions: int = 0  # on_grid: firings that fell in an occupied bin (first kept)
+
+    def add(self, other: "FrameCounters") -> "FrameCounters":
+        return FrameCounters(**{f.name: getattr(self, f.name) + getattr(other, f.name) for f in fields(self)})
+
+
+_PER_COLUMN = ("column_valid", "column_timestamp_ns", "azimuth_deg", "measurement_id", "status", "encoder_count")
+_PER_PIXEL = ("range_mm", "reflectivity", "signal", "near_ir", "flags", "pixel_time_offset_ns")
+
+
+@dataclass(eq=False)
+class Frame:
+    """One rotation of one sensor as a range image.
+
+    Attributes:
+        sensor: the :class:`SensorInfo` of the sensor that sent it.
+        frame_id: Ouster: the frame id of its packets. VLP-16: rotation counter from the
+            start of the input (0 = the first, possibly partial, rotation).
+        range_mm: ``uint32[R, H, W]`` range in millimetres (exact sensor units converted);
+            0 = the sensor fired and reported no return.
+        reflectivity: ``uint8[R, H, W]`` as the sensor reports it.
+        signal: Ouster ``uint16[R, H, W]`` signal photons, else ``None``.
+        near_ir: Ouster ``uint16[H, W]`` ambient near-infrared, else ``None``.
+        flags: Ouster ``uint8[R, H, W]`` per-pixel flags, else ``None``.
+        return_labels: tuple of R labels (``"strongest"``, ``"last"``, ``"second_strongest"``...).
+        column_valid: ``bool[W]``; False where no packet delivered this column (**no
+            sample**, not the same as no return).
+        column_timestamp_ns: ``int64[W]`` time of each column's first firing, ns since
+            the Unix epoch; 0 for invalid columns.
+        azimuth_deg: ``float64[W]`` measured (VLP-16) or nominal encoder (Ouster) azimuth
+            of each column, degrees in [0, 360).
+        measurement_id: Ouster ``uint16[W]``, else ``None``.
+        status: Ouster ``uint32[W]`` column status, else ``None``.
+        encoder_count: Ouster legacy ``uint32[W]``, else ``None``.
+        pixel_time_offset_ns: ``int64[H, W]`` firing time of each pixel after its
+            column timestamp, where the sensor defines it (VLP-16), else ``None``.
+        partial: True for a frame that does not cover a whole rotation (start or end
+            of a capture, or cut by a lost stretch of packets).
+        counters: :class:`FrameCounters` of this frame.
+        extra: vendor-specific arrays, each with a trailing W axis (gathered with the
+            columns by :meth:`on_grid`); each vendor module documents its keys.
+    """
+
+    sensor: SensorInfo
+    frame_id: int
+    range_mm: np.ndarray
+    reflectivity: np.ndarray
+    return_labels: tuple[str, ...]
+    column_valid: np.ndarray
+    column_timestamp_ns: np.ndarray
+    azimuth_deg: np.ndarray
+    signal: np.ndarray | None = None
+    near_ir: np.ndarray | None = None
+    flags: np.ndarray | None = None
+    measurement_id: np.ndarray | None = None
+    status: np.ndarray | None = None
+    encoder_count: np.ndarray | None = None
+    pixel_time_offset_ns: np.ndarray | None = None
+    partial: bool = False
+    counters: FrameCounters = field(default_factory=FrameCounters)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ shape
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """(R, H, W)."""
+        r, h, w = self.range_mm.shape
+        return int(r), int(h), int(w)
+
+    @property
+    def timestamp_ns(self) -> int:
+        """Time of the first valid column, ns since the Unix epoch (0 if no column is valid)."""
+        valid = self.column_timestamp_ns[self.column_valid]
+        return int(valid[0]) if valid.size else 0
+
+    @property
+    def n_returns(self) -> int:
+        """Number of pixels (over all slots) that hold a return."""
+        return int(np.count_nonzero(self.range_mm))
+
+    # ---------------------------------------------------------------- geometry
+    def xyz(self) -> np.ndarray:
+        """Points as float64 ``[R, H, W, 3]`` metres in the reference tools' frame, zeros where
+        there is no return. Raises :class:`~lidarpkt.errors.CalibrationError` if the sensor has
+        no calibration."""
+        if self.sensor.geometry is None:
+            raise CalibrationError(
+                f"no calibration for {self.sensor.model} from {self.sensor.source}: "
+                "pass the sensor's metadata/calibration file to compute points"
+            )
+        return self.sensor.geometry.xyz(self)
+
+    def on_grid(self, resolution_deg: float | None = None) -> "Frame":
+        """This frame on a fixed azimuth grid, so that pixel (i, j) is the same raypath in every frame.
+
+        Column j covers azimuths [j·res, (j+1)·res). Where two firings fall in one bin the
+        first is kept and the collision is counted in ``counters.grid_collisions``; an empty
+        bin is an invalid column (no sample). Per-column and per-pixel arrays, and every array
+        in ``extra``, move with their columns.
+
+        ``resolution_deg`` defaults to the sensor's ``grid_resolution_deg``. A frame whose
+        columns already are that grid (Ouster) is returned unchanged.
+        """
+        res = resolution_deg if resolution_deg is not None else self.sensor.grid_resolution_deg
+        if res is None:
+            return self
+        n_bins = int(round(360.0 / res))
+        if abs(n_bins * res - 360.0) > 1e-9:
+            raise AnalysisError(f"grid resolution {res}° does not divide 360°")
+        w = self.shape[2]
+        if self.sensor.vendor == "ouster" and n_bins == w:
+            return self
+
+        bins = np.floor(np.mod(self.azimuth_deg, 360.0) / res).astype(np.int64) % n_bins
+        valid_cols = np.flatnonzero(self.column_valid)
+        uniq_bins, first = np.unique(bins[valid_cols], return_index=True)
+        source_col = valid_cols[first]  # first firing in each occupied bin (column order = firing order)
+        collisions = int(valid_cols.size - uniq_bins.size)
+
+        def gather(arr: np.ndarray | None, fill: Any = 0) -> np.ndarray | None:
+            if arr is None:
+                return None
+            out = np.full(arr.shape[:-1] + (n_bins,), fill, dtype=arr.dtype)
+            out[..., uniq_bins] = arr[..., source_col]
+            return out
+
+        azimuth = (np.arange(n_bins) + 0.5) * res
+        azimuth[uniq_bins] = self.azimuth_deg[source_col]
+        updates: dict[str, Any] = {name: gather(getattr(self, name)) for name in _PER_COLUMN + _PER_PIXEL}
+        updates["column_valid"] = gather(self.column_valid, False)
+        updates["azimuth_deg"] = azimuth
+        updates["extra"] = {k: gather(v) for k, v in self.extra.items()}
+        counters = replace(self.counters, grid_collisions=self.counters.grid_collisions + collisions)
+        return replace(self, counters=counters, **updates)
+
+    def destaggered(self, image: np.ndarray) -> np.ndarray:
+        """A staggered ``[..., H, W]`` image of this frame destaggered for display (Ouster).
+
+        ``destaggered[u, (c + shift[u]) % W] = staggered[u, c]``, as ouster-sdk does it.
+        Returns the image unchanged for sensors without a stagger.
+        """
+        shift = self.sensor.pixel_shift_by_row
+        if shift is None:
+            return image
+        h, w = image.shape[-2:]
+        k = np.arange(w)
+        src_col = (k[None, :] - np.asarray(shift)[:, None]) % w  # [H, W]
+        return np.take_along_axis(image, np.broadcast_to(src_col, image.shape), axis=-1)
+
+
+@dataclass(eq=False)
+class FrameStack:
+    """K frames of one sensor on one column grid, stacked along a first axis: the input of
+    the temporal analysis. Pixel (i, j) is the same raypath in every frame.
+
+    Attributes:
+        sensor, return_labels: as in :class:`Frame`.
+        frame_id: ``int64[K]``.
+        range_mm: ``uint32[K, R, H, W]``; reflectivity: ``uint8[K, R, H, W]``.
+        column_valid: ``bool[K, W]``; column_timestamp_ns: ``int64[K, W]``;
+        azimuth_deg: ``float64[K, W]``.
+    """
+
+    sensor: SensorInfo
+    return_labels: tuple[str, ...]
+    frame_id: np.ndarray
+    range_mm: np.ndarray
+    reflectivity: np.ndarray
+    column_valid: np.ndarray
+    column_timestamp_ns: np.ndarray
+    azimuth_deg: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.range_mm.shape[0])
+
+    @classmethod
+    def from_frames(
+        cls, frames: Iterable[Frame], *, resolution_deg: float | None = None, include_partial: bool = False
+    ) -> "FrameStack":
+        """Stack frames after putting each on the grid (see :meth:`Frame.on_grid`).
+
+        Partial frames are left out unless ``include_partial``. Raises
+        :class:`~lidarpkt.errors.AnalysisError` if no frame is left or the frames differ in
+        shape or return labels.
+        """
+        gridded = [f.on_grid(resolution_deg) for f in frames if include_partial or not f.partial]
+        if not gridded:
+            raise AnalysisError("no complete frames to stack (pass include_partial=True to use partial ones)")
+        first = gridded[0]
+        for f in gridded[1:]:
+            if f.shape != first.shape or f.return_labels != first.return_labels:
+                raise AnalysisError(
+                    f"frame {f.frame_id} has shape {f.shape} and returns {f.return_labels}, "
+                    f"unlike frame {first.frame_id} ({first.shape}, {first.return_labels}): "
+                    "stack frames of one sensor and mode only"
+                )
+        return cls(
+            sensor=first.sensor,
+            return_labels=first.return_labels,
+            frame_id=np.array([f.frame_id for f in gridded], dtype=np.int64),
+            range_mm=np.stack([f.range_mm for f in gridded]),
+            reflectivity=np.stack([f.reflectivity for f in gridded]),
+            column_valid=np.stack([f.column_valid for f in gridded]),
+            column_timestamp_ns=np.stack([f.column_timestamp_ns for f in gridded]),
+            azimuth_deg=np.stack([f.azimuth_deg for f in gridded]),
+        )
