@@ -1,0 +1,24 @@
+"""Velodyne VLP-16: packet layouts, batch decoding, frames, XYZ, calibration and the encoder.
+
+Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PACKET_SIZE`,
+:func:`classify`, :func:`describe_stream`, :class:`VelodyneDecoder`, :func:`decode_packets`,
+:func:`decode_position_packets`, :func:`encode_data_packets`, :func:`encode_position_packets`,
+:func:`load_calibration`.
+"""
+
+from __future__ import annotations
+
+from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
+from .encode import encode_data_packets, encode_position_packets
+from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
+
+__all__ = [
+    "DATA_PACKET_SIZE",
+    "POSITION_PACKET_SIZE",
+    "DataPackets",
+    "PositionPackets",
+    "decode_packets",
+    "decode_position_packets",
+    "encode_data_packets",
+    "encode_position_packets",
+]

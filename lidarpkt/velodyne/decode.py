@@ -1,0 +1,117 @@
+"""Batch decoding of VLP-16 payloads into raw field arrays, in the manual's units.
+
+One NumPy pass per batch: the payload array is viewed through the dtypes of
+:mod:`lidarpkt.velodyne.packet` and each field is copied out as a whole column.
+Frame assembly (:mod:`lidarpkt.velodyne.frames`) and the encoder work from these arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .packet import BLOCK_FLAG, as_data_packets, as_position_packets
+
+
+@dataclass(eq=False)
+class DataPackets:
+    """Raw fields of N data packets, exactly as sent (no unit conversion beyond the wire's own).
+
+    Attributes:
+        flag: ``uint16[N, 12]`` block flags (0xEEFF on a VLP-16).
+        azimuth_cdeg: ``uint16[N, 12]`` block azimuth, hundredths of a degree.
+        distance_2mm: ``uint16[N, 12, 32]`` distance in 2 mm units, 0 = no return.
+        reflectivity: ``uint8[N, 12, 32]`` calibrated reflectivity (0–100 diffuse, 101–255 retro-reflector).
+        timestamp_us: ``uint32[N]`` µs past the top of the hour of the first firing.
+        return_mode: ``uint8[N]`` 0x37 strongest, 0x38 last, 0x39 dual.
+        product_id: ``uint8[N]`` 0x22 (VLP-16), 0x21 on early VLP-16 units.
+    """
+
+    flag: np.ndarray
+    azimuth_cdeg: np.ndarray
+    distance_2mm: np.ndarray
+    reflectivity: np.ndarray
+    timestamp_us: np.ndarray
+    return_mode: np.ndarray
+    product_id: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.timestamp_us.shape[0])
+
+    @property
+    def flag_ok(self) -> np.ndarray:
+        """``bool[N]``: every block of the packet carries the 0xEEFF flag and an azimuth below 36000."""
+        return np.all((self.flag == BLOCK_FLAG) & (self.azimuth_cdeg < 36000), axis=1)
+
+    @property
+    def range_mm(self) -> np.ndarray:
+        """``uint32[N, 12, 32]`` distance in millimetres (2 mm units × 2, exact)."""
+        return self.distance_2mm.astype(np.uint32) << 1
+
+    def select(self, rows: np.ndarray) -> "DataPackets":
+        """The chosen packets (boolean mask or indices)."""
+        return DataPackets(**{k: getattr(self, k)[rows] for k in self.__dataclass_fields__})
+
+
+@dataclass(eq=False)
+class PositionPackets:
+    """Raw fields of N position packets.
+
+    Attributes:
+        timestamp_us: ``uint32[N]`` µs past the hour.
+        pps_status: ``uint8[N]`` 0 absent, 1 synchronizing, 2 locked, 3 error.
+        thermal_status, last_shutdown_temperature, powerup_temperature: ``uint8[N]`` (newer firmware; 0 on old).
+        nmea: ``uint8[N, 128]`` the NUL-padded NMEA sentence bytes.
+        unused_head: ``uint8[N, 198]``, unused_tail: ``uint8[N, 178]``: the unused bytes, kept for
+            byte-exact re-encoding (the HDL-32E puts gyro data in the head).
+    """
+
+    timestamp_us: np.ndarray
+    pps_status: np.ndarray
+    thermal_status: np.ndarray
+    last_shutdown_temperature: np.ndarray
+    powerup_temperature: np.ndarray
+    nmea: np.ndarray
+    unused_head: np.ndarray
+    unused_tail: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.timestamp_us.shape[0])
+
+    def sentences(self) -> list[str]:
+        """The NMEA sentences as text, NUL padding and the trailing CR LF removed ('' where empty)."""
+        out = []
+        for row in self.nmea:
+            raw = row.tobytes().split(b"\x00", 1)[0]
+            out.append(raw.decode("ascii", errors="replace").rstrip("\r\n"))
+        return out
+
+
+def decode_packets(payload: np.ndarray) -> DataPackets:
+    """Every field of ``uint8[N, 1206]`` VLP-16 data payloads as arrays (see :class:`DataPackets`).
+
+    No validation beyond the size: check :attr:`DataPackets.flag_ok` to find malformed packets.
+    Raises ``ValueError`` if the payload is not ``[N, 1206]``.
+    """
+    pk = as_data_packets(payload)
+    blocks = pk["blocks"]
+    channels = blocks["channels"]
+    return DataPackets(
+        flag=blocks["flag"].astype(np.uint16),
+        azimuth_cdeg=blocks["azimuth_cdeg"].astype(np.uint16),
+        distance_2mm=channels["distance_2mm"].astype(np.uint16),
+        reflectivity=channels["reflectivity"].astype(np.uint8),
+        timestamp_us=pk["timestamp_us"].astype(np.uint32),
+        return_mode=pk["return_mode"].astype(np.uint8),
+        product_id=pk["product_id"].astype(np.uint8),
+    )
+
+
+def decode_position_packets(payload: np.ndarray) -> PositionPackets:
+    """Every field of ``uint8[N, 512]`` VLP-16 position payloads (see :class:`PositionPackets`).
+
+    Raises ``ValueError`` if the payload is not ``[N, 512]``.
+    """
+    pk = as_position_packets(payload)
+    return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names})

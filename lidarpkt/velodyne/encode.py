@@ -1,0 +1,162 @@
+"""The inverse of :mod:`lidarpkt.velodyne.decode`: raw field arrays → VLP-16 payloads.
+
+Used by the fixture generator for synthetic strongest/last/dual captures and by the
+round-trip tests (``encode(decode(payload)) == payload`` for every real payload).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import NMEAError, PacketFormatError
+from .packet import (
+    BLOCK_FLAG,
+    BLOCKS_PER_PACKET,
+    CHANNELS_PER_BLOCK,
+    DATA_PACKET_DTYPE,
+    DATA_PACKET_SIZE,
+    NMEA_SIZE,
+    POSITION_PACKET_DTYPE,
+    POSITION_PACKET_SIZE,
+    PRODUCT_VLP16,
+    RETURN_MODE_CODES,
+)
+
+
+def _mode_code(return_mode) -> np.ndarray | int:
+    if isinstance(return_mode, str):
+        try:
+            return RETURN_MODE_CODES[return_mode]
+        except KeyError:
+            raise PacketFormatError(
+                f"unknown VLP-16 return mode {return_mode!r}: use one of {sorted(RETURN_MODE_CODES)}"
+            ) from None
+    return np.asarray(return_mode)
+
+
+def _check_range(name: str, values: np.ndarray, upper: int) -> None:
+    values = np.asarray(values)
+    if values.size and (values.min() < 0 or values.max() > upper):
+        raise PacketFormatError(f"{name} must lie in 0..{upper}, got {values.min()}..{values.max()}")
+
+
+def encode_data_packets(
+    azimuth_cdeg: np.ndarray,
+    distance_2mm: np.ndarray,
+    reflectivity: np.ndarray,
+    timestamp_us: np.ndarray,
+    return_mode: str | int | np.ndarray,
+    product_id: int | np.ndarray = PRODUCT_VLP16,
+    *,
+    flag: int | np.ndarray = BLOCK_FLAG,
+) -> np.ndarray:
+    """N VLP-16 data packets from their fields.
+
+    Args:
+        azimuth_cdeg: ``[N, 12]`` block azimuths, 0.01° (0–35999).
+        distance_2mm: ``[N, 12, 32]`` distances in 2 mm units (0 = no return).
+        reflectivity: ``[N, 12, 32]`` 0–255.
+        timestamp_us: ``[N]`` µs past the hour (0–3 599 999 999).
+        return_mode: ``"strongest"``/``"last"``/``"dual"`` or the byte (0x37/0x38/0x39), scalar or ``[N]``.
+            In dual mode blocks 2k and 2k+1 must be the last and strongest returns of the same firings.
+        product_id: 0x22 by default, scalar or ``[N]``.
+        flag: block flag, scalar or ``[N, 12]`` (0xEEFF).
+
+    Returns:
+        ``uint8[N, 1206]`` payloads.
+
+    Raises:
+        PacketFormatError: a shape or a value does not fit its field.
+    """
+    azimuth_cdeg = np.asarray(azimuth_cdeg)
+    if azimuth_cdeg.ndim != 2 or azimuth_cdeg.shape[1] != BLOCKS_PER_PACKET:
+        raise PacketFormatError(f"azimuth_cdeg must be [N, {BLOCKS_PER_PACKET}], got {azimuth_cdeg.shape}")
+    n = azimuth_cdeg.shape[0]
+    shape = (n, BLOCKS_PER_PACKET, CHANNELS_PER_BLOCK)
+    distance_2mm = np.asarray(distance_2mm)
+    reflectivity = np.asarray(reflectivity)
+    if distance_2mm.shape != shape or reflectivity.shape != shape:
+        raise PacketFormatError(
+            f"distance_2mm and reflectivity must be {list(shape)}, got {list(distance_2mm.shape)} "
+            f"and {list(reflectivity.shape)}"
+        )
+    _check_range("azimuth_cdeg", azimuth_cdeg, 0xFFFF)
+    _check_range("distance_2mm", distance_2mm, 0xFFFF)
+    _check_range("reflectivity", reflectivity, 0xFF)
+    _check_range("timestamp_us", timestamp_us, 0xFFFFFFFF)
+    out = np.zeros(n, DATA_PACKET_DTYPE)
+    blocks = out["blocks"]
+    blocks["flag"] = flag
+    blocks["azimuth_cdeg"] = azimuth_cdeg
+    blocks["channels"]["distance_2mm"] = distance_2mm
+    blocks["channels"]["reflectivity"] = reflectivity
+    out["timestamp_us"] = np.broadcast_to(np.asarray(timestamp_us), (n,))
+    out["return_mode"] = _mode_code(return_mode)
+    out["product_id"] = product_id
+    return out.view(np.uint8).reshape(n, DATA_PACKET_SIZE)
+
+
+def _nmea_bytes(nmea: str | bytes | Sequence[str | bytes] | np.ndarray, n: int) -> np.ndarray:
+    if isinstance(nmea, np.ndarray) and nmea.dtype == np.uint8:
+        arr = np.broadcast_to(nmea.reshape(-1, NMEA_SIZE) if nmea.ndim == 1 else nmea, (n, NMEA_SIZE))
+        return arr
+    items = [nmea] * n if isinstance(nmea, (str, bytes)) else list(nmea)
+    if len(items) != n:
+        raise PacketFormatError(f"got {len(items)} NMEA sentences for {n} position packets")
+    out = np.zeros((n, NMEA_SIZE), np.uint8)
+    for i, s in enumerate(items):
+        raw = s.encode("ascii") if isinstance(s, str) else bytes(s)
+        if raw and not raw.endswith(b"\r\n"):
+            raw += b"\r\n"  # the sensor terminates each sentence with CR LF
+        if len(raw) > NMEA_SIZE:
+            raise NMEAError(f"NMEA sentence of {len(raw)} bytes does not fit the {NMEA_SIZE}-byte field: {raw[:40]!r}…")
+        out[i, : len(raw)] = np.frombuffer(raw, np.uint8)
+    return out
+
+
+def encode_position_packets(
+    timestamp_us: np.ndarray | int,
+    pps_status: np.ndarray | int,
+    nmea: str | bytes | Sequence[str | bytes] | np.ndarray,
+    *,
+    thermal_status: np.ndarray | int = 0,
+    last_shutdown_temperature: np.ndarray | int = 0,
+    powerup_temperature: np.ndarray | int = 0,
+    unused_head: np.ndarray | None = None,
+    unused_tail: np.ndarray | None = None,
+) -> np.ndarray:
+    """N VLP-16 position packets.
+
+    Args:
+        timestamp_us: ``[N]`` (or scalar for one packet) µs past the hour.
+        pps_status: 0 absent, 1 synchronizing, 2 locked, 3 error; scalar or ``[N]``.
+        nmea: one sentence for all packets, a list of N sentences (text without or with the
+            trailing CR LF, which is added when missing; ``""`` leaves the field empty), or the raw
+            ``uint8[N, 128]`` field as decoded.
+        thermal_status, last_shutdown_temperature, powerup_temperature: bytes 203–205.
+        unused_head, unused_tail: ``uint8[N, 198]`` / ``[N, 178]`` raw unused bytes (zero by default).
+
+    Returns:
+        ``uint8[N, 512]`` payloads.
+
+    Raises:
+        PacketFormatError, NMEAError: a value does not fit its field.
+    """
+    timestamp_us = np.atleast_1d(np.asarray(timestamp_us))
+    n = timestamp_us.shape[0]
+    _check_range("timestamp_us", timestamp_us, 0xFFFFFFFF)
+    _check_range("pps_status", pps_status, 0xFF)
+    out = np.zeros(n, POSITION_PACKET_DTYPE)
+    out["timestamp_us"] = timestamp_us
+    out["pps_status"] = pps_status
+    out["thermal_status"] = thermal_status
+    out["last_shutdown_temperature"] = last_shutdown_temperature
+    out["powerup_temperature"] = powerup_temperature
+    out["nmea"] = _nmea_bytes(nmea, n)
+    if unused_head is not None:
+        out["unused_head"] = unused_head
+    if unused_tail is not None:
+        out["unused_tail"] = unused_tail
+    return out.view(np.uint8).reshape(n, POSITION_PACKET_SIZE)

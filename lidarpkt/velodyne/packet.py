@@ -1,0 +1,108 @@
+"""The VLP-16 packet layouts, declared once as NumPy structured dtypes.
+
+Everything else in :mod:`lidarpkt.velodyne` (decoding, encoding, classification) views
+payloads through these dtypes; no other module hard-codes a byte offset.
+
+Data packet (VLP-16 user manual, "Data Packet Format"), 1206 bytes::
+
+    12 × data block (100 B):  flag u16 LE (0xEEFF: bytes FF EE), azimuth u16 LE (0.01°),
+                               32 × (distance u16 LE in 2 mm, reflectivity u8)
+    timestamp   u32 LE         µs past the top of the hour
+    return mode u8             0x37 strongest, 0x38 last, 0x39 dual
+    product id  u8             0x22 VLP-16 (early units: 0x21)
+
+Position packet ("Position Packet Format"), 512 bytes::
+
+    0–197    unused (zero on the VLP-16; the HDL-32E puts gyro/temperature/accel here)
+    198–201  timestamp u32 LE, µs past the hour
+    202      PPS status: 0 absent, 1 synchronizing, 2 locked, 3 error
+    203–205  thermal status, last shutdown temperature, power-up temperature (newer firmware)
+    206–333  NMEA sentence ($GPRMC or $GPGGA), NUL-padded
+    334–511  unused
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DATA_PACKET_SIZE = 1206
+POSITION_PACKET_SIZE = 512
+BLOCKS_PER_PACKET = 12
+CHANNELS_PER_BLOCK = 32
+LASERS = 16
+SEQUENCES_PER_BLOCK = CHANNELS_PER_BLOCK // LASERS
+
+BLOCK_FLAG = 0xEEFF  # bytes FF EE read as u16 little-endian
+
+RETURN_MODES = {0x37: "strongest", 0x38: "last", 0x39: "dual"}
+RETURN_MODE_CODES = {name: code for code, name in RETURN_MODES.items()}
+PRODUCT_VLP16 = 0x22
+PRODUCT_HDL32E = 0x21  # also written by early (2014) VLP-16 firmware
+PRODUCT_NAMES = {0x21: "HDL-32E", 0x22: "VLP-16", 0x24: "Puck Hi-Res", 0x28: "VLP-32C", 0x31: "Velarray", 0xA1: "VLS-128"}
+
+PPS_STATUS = {0: "absent", 1: "synchronizing", 2: "locked", 3: "error"}
+
+CHANNEL_DTYPE = np.dtype([("distance_2mm", "<u2"), ("reflectivity", "u1")])  # 3 B, packed
+BLOCK_DTYPE = np.dtype([("flag", "<u2"), ("azimuth_cdeg", "<u2"), ("channels", CHANNEL_DTYPE, (CHANNELS_PER_BLOCK,))])
+DATA_PACKET_DTYPE = np.dtype(
+    [
+        ("blocks", BLOCK_DTYPE, (BLOCKS_PER_PACKET,)),
+        ("timestamp_us", "<u4"),
+        ("return_mode", "u1"),
+        ("product_id", "u1"),
+    ]
+)
+
+NMEA_OFFSET = 206
+NMEA_SIZE = 128
+POSITION_PACKET_DTYPE = np.dtype(
+    {
+        "names": [
+            "unused_head", "timestamp_us", "pps_status", "thermal_status",
+            "last_shutdown_temperature", "powerup_temperature", "nmea", "unused_tail",
+        ],
+        "formats": [
+            ("u1", (198,)), "<u4", "u1", "u1", "u1", "u1", ("u1", (NMEA_SIZE,)),
+            ("u1", (POSITION_PACKET_SIZE - NMEA_OFFSET - NMEA_SIZE,)),
+        ],
+        "offsets": [0, 198, 202, 203, 204, 205, NMEA_OFFSET, NMEA_OFFSET + NMEA_SIZE],
+        "itemsize": POSITION_PACKET_SIZE,
+    }
+)
+
+assert DATA_PACKET_DTYPE.itemsize == DATA_PACKET_SIZE
+assert BLOCK_DTYPE.itemsize == 100
+
+# Laser elevation by laser id (manual, "Laser Angles"), degrees.
+LASER_ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], dtype=np.float64)
+# Row of each laser id in a frame: row 0 = highest elevation (laser 15), row 15 = laser 0.
+LASER_TO_ROW = np.argsort(np.argsort(-LASER_ELEVATION_DEG, kind="stable"), kind="stable")
+ROW_TO_LASER = np.argsort(-LASER_ELEVATION_DEG, kind="stable")
+
+# Firing timing (manual, "Precision Azimuth Calculation" / "Timing"), µs.
+FIRING_SEQUENCE_US = 55.296
+LASER_FIRING_US = 2.304
+SINGLE_PACKET_PERIOD_US = BLOCKS_PER_PACKET * SEQUENCES_PER_BLOCK * FIRING_SEQUENCE_US  # 1327.104
+DUAL_PACKET_PERIOD_US = SINGLE_PACKET_PERIOD_US / 2  # 663.552
+HDL32E_PACKET_PERIOD_US = BLOCKS_PER_PACKET * 46.080  # 552.96
+
+
+def as_data_packets(payload: np.ndarray) -> np.ndarray:
+    """View ``uint8[N, 1206]`` payloads as ``DATA_PACKET_DTYPE[N]`` (no copy when C-contiguous).
+
+    Raises ``ValueError`` if the row length is not 1206.
+    """
+    payload = np.ascontiguousarray(payload, dtype=np.uint8)
+    if payload.ndim != 2 or payload.shape[1] != DATA_PACKET_SIZE:
+        raise ValueError(f"VLP-16 data payloads must be uint8[N, {DATA_PACKET_SIZE}], got shape {payload.shape}")
+    return payload.view(DATA_PACKET_DTYPE)[:, 0]
+
+
+def as_position_packets(payload: np.ndarray) -> np.ndarray:
+    """View ``uint8[N, 512]`` payloads as ``POSITION_PACKET_DTYPE[N]``. Raises ``ValueError`` on another size."""
+    payload = np.ascontiguousarray(payload, dtype=np.uint8)
+    if payload.ndim != 2 or payload.shape[1] != POSITION_PACKET_SIZE:
+        raise ValueError(
+            f"VLP-16 position payloads must be uint8[N, {POSITION_PACKET_SIZE}], got shape {payload.shape}"
+        )
+    return payload.view(POSITION_PACKET_DTYPE)[:, 0]
