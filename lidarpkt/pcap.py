@@ -1,0 +1,1004 @@
+"""Offline packet source: UDP datagrams from pcap and pcapng captures.
+
+Formats (detected by magic number, never by file name): classic libpcap in both byte
+orders with microsecond or nanosecond time stamps (and the 24-byte-record "modified"
+variant), and pcapng (several sections and interfaces, each with its own link type and
+time resolution). Link types: Ethernet (with any number of 802.1Q / 802.1ad tags),
+Linux cooked SLL and SLL2, raw IPv4/IPv6, BSD loopback (null and loop). Network
+layers: UDP over IPv4 (fragments reassembled by :mod:`lidarpkt.reassembly`) and over
+IPv6 (extension headers skipped, fragments reassembled too).
+
+How it is fast: the file is memory-mapped; record headers are walked in chunks
+(a run of records with one capture length is recognised in one strided NumPy
+comparison); the Ethernet/IPv4/UDP headers of all records of a chunk are checked
+with NumPy gathers, and the payloads of plain unfragmented UDP/IPv4 records are cut
+out in one copy per stream. Only the odd records (fragments, VLAN tags, IPv6, other
+link layers, damage) go through the per-record Python parser.
+
+Length fields are never trusted over the captured bytes: a UDP payload ends at the
+UDP length, bounded by what was captured (early VLP-16 position packets carry an
+IPv4 total length of 1234 for a 540-byte datagram). Checksums are not verified.
+
+Damage is reported, not raised, once a file is known to be a capture: a truncated last
+record or a record length beyond the end of the file stops reading there with a
+:class:`~lidarpkt.errors.TruncatedCaptureWarning`; malformed records are counted in
+:class:`ReadStats` and skipped. A file that is not a capture raises
+:class:`~lidarpkt.errors.CaptureFormatError`.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import socket
+import struct
+import warnings
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from .errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
+from .packet import Endpoint, Packet, PacketBatch
+from .reassembly import Reassembler
+
+__all__ = [
+    "PcapReader",
+    "ReadStats",
+    "read_packets",
+    "read_batches",
+    "is_capture",
+    "capture_format",
+    "LINKTYPE_NAMES",
+]
+
+# --- magic numbers --------------------------------------------------------------------
+PCAP_MAGIC_US = 0xA1B2C3D4
+PCAP_MAGIC_NS = 0xA1B23C4D
+PCAP_MAGIC_MODIFIED = 0xA1B2CD34  # Kuznetzov's patched libpcap: 24-byte record headers
+PCAPNG_SHB = 0x0A0D0D0A
+PCAPNG_BOM = 0x1A2B3C4D
+
+# --- link types (tcpdump.org/linktypes.html) --------------------------------------------
+LINKTYPE_NULL = 0
+LINKTYPE_ETHERNET = 1
+LINKTYPE_RAW = 101
+LINKTYPE_RAW_OPENBSD = 14  # DLT_RAW on OpenBSD
+LINKTYPE_RAW_BSD = 12  # DLT_RAW on most BSDs
+LINKTYPE_LOOP = 108
+LINKTYPE_LINUX_SLL = 113
+LINKTYPE_IPV4 = 228
+LINKTYPE_IPV6 = 229
+LINKTYPE_LINUX_SLL2 = 276
+
+LINKTYPE_NAMES: dict[int, str] = {
+    LINKTYPE_NULL: "null",
+    LINKTYPE_ETHERNET: "ethernet",
+    LINKTYPE_RAW: "raw",
+    LINKTYPE_RAW_BSD: "raw",
+    LINKTYPE_RAW_OPENBSD: "raw",
+    LINKTYPE_LOOP: "loop",
+    LINKTYPE_LINUX_SLL: "linux_sll",
+    LINKTYPE_LINUX_SLL2: "linux_sll2",
+    LINKTYPE_IPV4: "ipv4",
+    LINKTYPE_IPV6: "ipv6",
+}
+_RAW_LINKS = (LINKTYPE_RAW, LINKTYPE_RAW_BSD, LINKTYPE_RAW_OPENBSD, LINKTYPE_IPV4, LINKTYPE_IPV6)
+
+ETHERTYPE_IPV4 = 0x0800
+ETHERTYPE_IPV6 = 0x86DD
+_VLAN_TPIDS = (0x8100, 0x88A8, 0x9100, 0x9200)  # 802.1Q, 802.1ad, legacy QinQ tags
+_BSD_AF_INET6 = (10, 24, 28, 30)  # Linux, NetBSD/OpenBSD, FreeBSD, Darwin
+IPPROTO_UDP = 17
+_IPV6_EXT_HEADERS = (0, 43, 60)  # hop-by-hop, routing, destination options
+_IPV6_FRAGMENT = 44
+_IPV6_AH = 51
+
+MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
+MAX_PCAPNG_BLOCK = 1 << 24  # larger "blocks" are taken as corruption, not allocated
+_SEC_NS = 1_000_000_000
+
+
+@dataclass
+class ReadStats:
+    """What a :class:`PcapReader` found. Counts are of records unless the name says otherwise."""
+
+    path: str = ""
+    format: str = ""  # "pcap" or "pcapng"
+    records: int = 0  # packet records read (pcap records, pcapng EPB/SPB/OPB)
+    bytes_read: int = 0  # file bytes walked (headers included)
+    udp_packets: int = 0  # UDP datagrams found (after reassembly, before filters)
+    yielded: int = 0  # datagrams handed out (after filters)
+    filtered: int = 0  # datagrams dropped by the port/address/size filters
+    non_udp: int = 0  # records that are not UDP (ARP, TCP, ICMP, other ethertypes...)
+    fragments: int = 0  # IP fragments seen
+    reassembled: int = 0  # datagrams rebuilt from fragments
+    orphaned_fragments: int = 0  # fragments whose datagram never completed (timed out, evicted, end of file)
+    duplicate_fragments: int = 0
+    malformed: int = 0  # records skipped as damaged (see malformed_reasons)
+    malformed_reasons: Counter = field(default_factory=Counter)
+    truncated: bool = False  # reading stopped at damage before the end of the file
+    truncated_reason: str = ""
+    link_types: Counter = field(default_factory=Counter)  # link type name -> records
+    interfaces: int = 0  # pcapng interfaces (1 for classic pcap)
+    snaplen: int = 0
+    nanosecond: bool = False  # classic pcap with ns time stamps
+    big_endian: bool = False
+
+    def as_dict(self) -> dict:
+        """A JSON-ready copy."""
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        out["malformed_reasons"] = dict(self.malformed_reasons)
+        out["link_types"] = dict(self.link_types)
+        return out
+
+
+def capture_format(path: str | os.PathLike[str]) -> str | None:
+    """``"pcap"``, ``"pcapng"`` or None, from the first four bytes of the file."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError:
+        return None
+    return _format_from_magic(head)
+
+
+def _format_from_magic(head: bytes) -> str | None:
+    if len(head) < 4:
+        return None
+    le, be = struct.unpack_from("<I", head)[0], struct.unpack_from(">I", head)[0]
+    if PCAPNG_SHB in (le, be):
+        return "pcapng"
+    if {le, be} & {PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED}:
+        return "pcap"
+    return None
+
+
+def is_capture(path: str | os.PathLike[str]) -> bool:
+    """True when the file starts with a pcap or pcapng magic number (never raises)."""
+    return capture_format(path) is not None
+
+
+# --- chunks of records ------------------------------------------------------------------
+@dataclass
+class _Chunk:
+    """Records of one chunk: where their link-layer bytes are in the file buffer."""
+
+    data_off: np.ndarray  # int64[n] offset of the first captured byte
+    caplen: np.ndarray  # int64[n]
+    ts_ns: np.ndarray  # int64[n]
+    linktype: np.ndarray  # int64[n]
+
+
+def _gather(buf: np.ndarray, idx: np.ndarray, dtype: str) -> np.ndarray:
+    """Values of ``dtype`` at byte offsets ``idx`` of ``buf`` (offsets must be in range)."""
+    size = np.dtype(dtype).itemsize
+    if size == 1:
+        return buf[idx]
+    return np.ascontiguousarray(buf[idx[:, None] + np.arange(size)]).view(dtype).reshape(-1)
+
+
+def _ipv4_text(values: np.ndarray) -> list[str]:
+    return [socket.inet_ntoa(v.to_bytes(4, "big")) for v in values.tolist()]
+
+
+def _copy_rows(buf: np.ndarray, offs: np.ndarray, length: int) -> np.ndarray:
+    """``uint8[n, length]`` copy of the bytes at each offset (one strided copy when evenly spaced)."""
+    n = offs.shape[0]
+    if n == 0 or length == 0:
+        return np.zeros((n, length), np.uint8)
+    if n == 1:
+        return buf[offs[0] : offs[0] + length].reshape(1, length).copy()
+    steps = np.diff(offs)
+    if steps[0] >= length and (steps == steps[0]).all():
+        view = np.lib.stride_tricks.as_strided(
+            buf[offs[0] :], shape=(n, length), strides=(int(steps[0]), 1), writeable=False
+        )
+        return view.copy()
+    out = np.empty((n, length), np.uint8)
+    cols = np.arange(length)
+    rows = max(1, (1 << 20) // length)  # bound the index temporaries to ~8 MB
+    for i in range(0, n, rows):
+        out[i : i + rows] = buf[offs[i : i + rows, None] + cols]
+    return out
+
+
+class PcapReader:
+    """UDP datagrams of one pcap or pcapng file.
+
+    Args:
+        path: the capture file.
+        ports: keep only datagrams whose *destination* port is one of these.
+        src_addresses: keep only datagrams from these source addresses (text, as in
+            :class:`~lidarpkt.packet.Endpoint`).
+        payload_sizes: keep only datagrams with one of these payload sizes (bytes).
+        batch_packets: records per chunk, and so the most packets in one batch.
+        reassembly_timeout_ns, max_pending_datagrams, max_pending_bytes: bounds of the
+            fragment reassembler (see :class:`lidarpkt.reassembly.Reassembler`).
+
+    Raises:
+        CaptureFormatError: when the file is not a pcap/pcapng capture (the message names
+            the file and its first bytes) or its header is unusable. Opening checks the
+            header at once; damage further in is reported while iterating.
+
+    Each of :meth:`packets` and :meth:`batches` reads the file from the start; :attr:`stats`
+    describes the last complete or partial pass.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        ports: Iterable[int] | None = None,
+        src_addresses: Iterable[str] | None = None,
+        payload_sizes: Iterable[int] | None = None,
+        batch_packets: int = 4096,
+        reassembly_timeout_ns: int = 30_000_000_000,
+        max_pending_datagrams: int = 1024,
+        max_pending_bytes: int = 64 * 1024 * 1024,
+    ) -> None:
+        self.path = os.fspath(path)
+        self.ports = None if ports is None else frozenset(int(p) for p in ports)
+        self.src_addresses = None if src_addresses is None else frozenset(str(a) for a in src_addresses)
+        self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
+        if batch_packets < 1:
+            raise ValueError("batch_packets must be at least 1")
+        self.batch_packets = int(batch_packets)
+        self._reassembly_args = dict(
+            timeout_ns=reassembly_timeout_ns, max_datagrams=max_pending_datagrams, max_bytes=max_pending_bytes
+        )
+        self.stats = ReadStats(path=self.path)
+        try:
+            with open(self.path, "rb") as fh:
+                head = fh.read(64)
+        except FileNotFoundError:
+            raise CaptureFormatError(f"{self.path}: no such file") from None
+        except IsADirectoryError:
+            raise CaptureFormatError(f"{self.path}: is a directory, not a pcap/pcapng capture") from None
+        except OSError as exc:
+            raise CaptureFormatError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
+        self.format = _format_from_magic(head)
+        if self.format is None:
+            if not head:
+                raise CaptureFormatError(f"{self.path}: empty file (0 bytes), not a pcap/pcapng capture")
+            raise CaptureFormatError(
+                f"{self.path}: not a pcap or pcapng capture: first bytes are {head[:8].hex(' ')}"
+                f" ({head[:8]!r}); expected a pcap magic (d4 c3 b2 a1, 4d 3c b2 a1 or swapped) or a "
+                "pcapng section header (0a 0d 0d 0a)"
+            )
+        if self.format == "pcap":
+            self._parse_pcap_header(head)
+
+    # --- public iteration ----------------------------------------------------------------
+    def batches(self) -> Iterator[PacketBatch]:
+        """Same-stream, same-size batches of datagrams.
+
+        Each batch holds consecutive packets (in capture order) of one (src, dst, payload
+        size) stream from one chunk of at most ``batch_packets`` records; ``batch.index`` is
+        the ordinal of each packet among all packets yielded by this pass. Batches come in
+        the order of their first packet, and all packets of a batch precede those of any
+        later batch of the same stream.
+        """
+        for group in self._chunk_batches():
+            yield from group
+
+    def packets(self) -> Iterator[Packet]:
+        """Every datagram as a :class:`~lidarpkt.packet.Packet`, in capture order.
+
+        A reassembled datagram takes the place (and the time stamp) of its last arriving
+        fragment, like a socket would deliver it.
+        """
+        for group in self._chunk_batches():
+            yield from self._merge(group)
+
+    def _chunk_batches(self) -> Iterator[list[PacketBatch]]:
+        """The batches of each chunk of records (their ordinals interleave within a chunk only)."""
+        buf, closer = self._open_buffer()
+        try:
+            self._begin()
+            base = 0
+            for chunk in self._chunks(buf):
+                produced = self._process_chunk(buf, chunk, base)
+                if produced:
+                    base = max(int(b.index[-1]) for b in produced) + 1
+                    yield produced
+            self._finish()
+        finally:
+            closer()
+
+    @staticmethod
+    def _merge(batches: list[PacketBatch]) -> Iterator[Packet]:
+        if not batches:
+            return
+        order = np.argsort(np.concatenate([b.index for b in batches]), kind="stable")
+        which = np.concatenate([np.full(len(b), i, np.int64) for i, b in enumerate(batches)])
+        row = np.concatenate([np.arange(len(b)) for b in batches])
+        for k in order.tolist():
+            b = batches[which[k]]
+            r = row[k]
+            yield Packet(int(b.timestamp_ns[r]), b.src, b.dst, b.payload[r].tobytes())
+
+    def __iter__(self) -> Iterator[Packet]:
+        return self.packets()
+
+    # --- file access -----------------------------------------------------------------------
+    def _open_buffer(self):
+        fh = open(self.path, "rb")
+        try:
+            mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        except (ValueError, OSError):  # empty file, pipe or special file: read it whole
+            data = fh.read()
+            fh.close()
+            return np.frombuffer(data, np.uint8), lambda: None
+        buf = np.frombuffer(mm, np.uint8)
+
+        def close() -> None:
+            try:
+                mm.close()
+            except BufferError:  # a caller still holds a view: let the GC close it
+                pass
+            fh.close()
+
+        return buf, close
+
+    def _begin(self) -> None:
+        old = self.stats
+        self.stats = ReadStats(
+            path=self.path,
+            format=self.format,
+            snaplen=old.snaplen,
+            nanosecond=old.nanosecond,
+            big_endian=old.big_endian,
+        )
+        self._reasm = Reassembler(**self._reassembly_args)
+        self._warned_links: set[int] = set()
+
+    def _finish(self) -> None:
+        self._reasm.flush()
+        self._sync_reassembly_stats()
+        st = self.stats
+        if st.malformed:
+            reasons = ", ".join(f"{k}: {v}" for k, v in st.malformed_reasons.most_common())
+            warnings.warn(
+                SkippedPacketWarning(f"{self.path}: skipped {st.malformed} malformed record(s) ({reasons})"),
+                stacklevel=3,
+            )
+
+    def _sync_reassembly_stats(self) -> None:
+        rs = self._reasm.stats
+        st = self.stats
+        st.fragments = rs.fragments
+        st.reassembled = rs.reassembled
+        st.orphaned_fragments = rs.orphaned_fragments + rs.malformed_fragments
+        st.duplicate_fragments = rs.duplicate_fragments
+
+    def _truncate(self, reason: str) -> None:
+        self.stats.truncated = True
+        self.stats.truncated_reason = reason
+        warnings.warn(TruncatedCaptureWarning(f"{self.path}: {reason}"), stacklevel=4)
+
+    # --- classic pcap --------------------------------------------------------------------------
+    def _parse_pcap_header(self, head: bytes) -> None:
+        if len(head) < 24:
+            raise CaptureFormatError(
+                f"{self.path}: pcap global header cut short ({len(head)} of 24 bytes)"
+            )
+        magic_le = struct.unpack_from("<I", head)[0]
+        if magic_le in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
+            endian = "<"
+        else:
+            endian = ">"
+        magic, major, minor, _zone, _sigfigs, snaplen, network = struct.unpack_from(endian + "IHHiIII", head)
+        if major != 2:
+            raise CaptureFormatError(f"{self.path}: pcap version {major}.{minor} is not supported (expected 2.4)")
+        self._endian = endian
+        self._rec_hdr = 24 if magic == PCAP_MAGIC_MODIFIED else 16
+        self._frac_ns = 1 if magic == PCAP_MAGIC_NS else 1000
+        # the upper 16 bits may carry FCS information; a trailing FCS is harmless (UDP length bounds payloads)
+        self._linktype = network & 0xFFFF
+        if self._linktype not in LINKTYPE_NAMES:
+            raise CaptureFormatError(
+                f"{self.path}: link type {self._linktype} is not supported (supported: Ethernet, Linux SLL/SLL2, "
+                "raw IPv4/IPv6, BSD loopback)"
+            )
+        self.stats.snaplen = snaplen
+        self.stats.nanosecond = magic == PCAP_MAGIC_NS
+        self.stats.big_endian = endian == ">"
+        self.stats.interfaces = 1
+        self._snaplen = snaplen
+
+    def _walk_pcap(self, buf: np.ndarray) -> Iterator[_Chunk]:
+        """Chunks of record offsets of a classic pcap file."""
+        end = buf.shape[0]
+        mv = memoryview(buf)
+        hdr = self._rec_hdr
+        u32 = struct.Struct(self._endian + "I").unpack_from
+        max_cap = max(self._snaplen, MAX_RECORD_BYTES)
+        cap_dtype = np.dtype(self._endian + "u4")
+        chunk = self.batch_packets
+        off = 24
+        window = 64  # speculative run length
+        backoff = 0  # records to walk one by one before speculating again
+        st = self.stats
+        st.bytes_read = min(24, end)
+        if end < 24:
+            self._truncate(f"file ends inside the pcap global header ({end} of 24 bytes)")
+            return
+        done = False
+        while not done:
+            pieces: list[np.ndarray] = []
+            singles: list[int] = []
+            n = 0
+            while n < chunk:
+                if off + hdr > end:
+                    if off != end:
+                        self._truncate(
+                            f"capture cut short: {end - off} byte(s) of a record header at offset {off} "
+                            f"(after {st.records + n} complete records)"
+                        )
+                    done = True
+                    break
+                cap = u32(mv, off + 8)[0]
+                if cap > max_cap:
+                    self._truncate(
+                        f"record at offset {off} claims {cap} captured bytes (more than the snap length "
+                        f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit): the file is corrupt from there; "
+                        f"kept the {st.records + n} records before it"
+                    )
+                    done = True
+                    break
+                stride = hdr + cap
+                if off + stride > end:
+                    self._truncate(
+                        f"last record at offset {off} claims {cap} captured bytes but only {end - off - hdr} "
+                        f"remain in the file (after {st.records + n} complete records)"
+                    )
+                    done = True
+                    break
+                if backoff <= 0:
+                    k_max = min(chunk - n, (end - off) // stride, window)
+                    if k_max >= 8:
+                        caps = np.ndarray((k_max,), cap_dtype, buf, off + 8, (stride,))
+                        bad = np.flatnonzero(caps != cap)
+                        k = int(bad[0]) if bad.size else k_max
+                        if singles:
+                            pieces.append(np.asarray(singles, np.int64))
+                            singles = []
+                        pieces.append(off + stride * np.arange(k, dtype=np.int64))
+                        n += k
+                        off += k * stride
+                        if k == k_max:
+                            window = min(window * 2, 1 << 16)
+                        else:
+                            window = max(64, 2 * k)
+                            backoff = 0 if k >= 32 else 32
+                        continue
+                backoff -= 1
+                singles.append(off)
+                n += 1
+                off += stride
+            if singles:
+                pieces.append(np.asarray(singles, np.int64))
+            if n == 0:
+                break
+            offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
+            st.records += n
+            st.bytes_read = off
+            sec = _gather(buf, offs, self._endian + "u4").astype(np.int64)
+            frac = _gather(buf, offs + 4, self._endian + "u4").astype(np.int64)
+            caplen = _gather(buf, offs + 8, self._endian + "u4").astype(np.int64)
+            yield _Chunk(
+                data_off=offs + hdr,
+                caplen=caplen,
+                ts_ns=sec * _SEC_NS + frac * self._frac_ns,
+                linktype=np.full(n, self._linktype, np.int64),
+            )
+
+    # --- pcapng ----------------------------------------------------------------------------------
+    def _walk_pcapng(self, buf: np.ndarray) -> Iterator[_Chunk]:
+        """Chunks of packet records of a pcapng file (a Python loop over blocks)."""
+        end = buf.shape[0]
+        mv = memoryview(buf)
+        st = self.stats
+        chunk = self.batch_packets
+        off = 0
+        endian = "<"
+        ifaces: list[tuple[int, int, int, int, int]] = []  # (linktype, snaplen, mul, div, offset_s) per section
+        n_ifaces_total = 0
+        offs: list[int] = []
+        caps: list[int] = []
+        tss: list[int] = []
+        links: list[int] = []
+        first = True
+
+        def flush() -> _Chunk:
+            n = len(offs)
+            c = _Chunk(
+                np.asarray(offs, np.int64),
+                np.asarray(caps, np.int64),
+                np.asarray(tss, np.int64),
+                np.asarray(links, np.int64),
+            )
+            st.records += n
+            st.bytes_read = off
+            offs.clear(), caps.clear(), tss.clear(), links.clear()
+            return c
+
+        while True:
+            if off == end:
+                break
+            if off + 12 > end:
+                self._truncate(f"capture cut short: {end - off} byte(s) of a pcapng block header at offset {off}")
+                break
+            btype_le = struct.unpack_from("<I", mv, off)[0]
+            if btype_le == PCAPNG_SHB:
+                if off + 16 > end:
+                    self._truncate(f"capture cut short inside the section header block at offset {off}")
+                    break
+                bom = mv[off + 8 : off + 12].tobytes()
+                if bom == b"\x4d\x3c\x2b\x1a":
+                    endian = "<"
+                elif bom == b"\x1a\x2b\x3c\x4d":
+                    endian = ">"
+                else:
+                    msg = f"pcapng section header at offset {off} has a bad byte-order magic {bom.hex(' ')}"
+                    if first:
+                        raise CaptureFormatError(f"{self.path}: {msg}")
+                    self._truncate(msg + "; stopped there")
+                    break
+                ifaces = []
+                st.big_endian = endian == ">"
+            btype, blen = struct.unpack_from(endian + "II", mv, off)
+            if blen < 12 or blen % 4 or blen > MAX_PCAPNG_BLOCK:
+                msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
+                if first:
+                    raise CaptureFormatError(f"{self.path}: {msg}")
+                self._truncate(msg + f"; kept the {st.records + len(offs)} records before it")
+                break
+            if off + blen > end:
+                self._truncate(
+                    f"pcapng block at offset {off} (type {btype:#x}) claims {blen} bytes but only {end - off} "
+                    f"remain in the file; kept the {st.records + len(offs)} records before it"
+                )
+                break
+            trailer = struct.unpack_from(endian + "I", mv, off + blen - 4)[0]
+            if trailer != blen:
+                msg = (
+                    f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing length "
+                    f"{trailer} differ"
+                )
+                if first:
+                    raise CaptureFormatError(f"{self.path}: {msg}")
+                self._truncate(msg + f"; kept the {st.records + len(offs)} records before it")
+                break
+            first = False
+            body = off + 8
+            body_end = off + blen - 4
+            if btype == 1:  # interface description block
+                if body_end - body < 8:
+                    st.malformed += 1
+                    st.malformed_reasons["short pcapng interface block"] += 1
+                else:
+                    linktype, _res, snaplen = struct.unpack_from(endian + "HHI", mv, body)
+                    mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
+                    for code, val in _pcapng_options(mv, body + 8, body_end, endian):
+                        if code == 9 and len(val) >= 1:
+                            r = val[0]
+                            if r & 0x80:
+                                mul, div = _SEC_NS, 1 << (r & 0x7F)
+                            elif r <= 9:
+                                mul, div = 10 ** (9 - r), 1
+                            else:
+                                mul, div = 1, 10 ** (r - 9)
+                        elif code == 14 and len(val) >= 8:
+                            ts_off = struct.unpack(endian + "q", val[:8])[0]
+                    ifaces.append((linktype, snaplen, mul, div, ts_off))
+                    n_ifaces_total += 1
+                    st.interfaces = n_ifaces_total
+                    st.snaplen = max(st.snaplen, snaplen)
+                    if linktype not in LINKTYPE_NAMES and linktype not in self._warned_links:
+                        self._warned_links.add(linktype)
+            elif btype in (6, 2, 3):  # enhanced, obsolete, simple packet blocks
+                if btype == 3:
+                    if body_end - body < 4:
+                        st.malformed += 1
+                        st.malformed_reasons["short pcapng packet block"] += 1
+                        off += blen
+                        continue
+                    orig = struct.unpack_from(endian + "I", mv, body)[0]
+                    iface, ts_raw, data = 0, None, body + 4
+                    cap = min(orig, body_end - data)
+                else:
+                    if body_end - body < 20:
+                        st.malformed += 1
+                        st.malformed_reasons["short pcapng packet block"] += 1
+                        off += blen
+                        continue
+                    if btype == 6:
+                        iface, hi, lo, cap, _orig = struct.unpack_from(endian + "IIIII", mv, body)
+                    else:
+                        iface, _drops, hi, lo, cap, _orig = struct.unpack_from(endian + "HHIIII", mv, body)
+                    ts_raw = (hi << 32) | lo
+                    data = body + 20
+                if iface >= len(ifaces) or data + cap > body_end:
+                    st.malformed += 1
+                    st.malformed_reasons[
+                        "pcapng packet for an undeclared interface" if iface >= len(ifaces) else
+                        "pcapng packet longer than its block"
+                    ] += 1
+                else:
+                    lt, _snap, mul, div, ts_off = ifaces[iface]
+                    ts_ns = 0 if ts_raw is None else ts_off * _SEC_NS + (ts_raw * mul) // div
+                    offs.append(data)
+                    caps.append(cap)
+                    tss.append(ts_ns)
+                    links.append(lt)
+                    if len(offs) >= chunk:
+                        off += blen
+                        yield flush()
+                        continue
+            off += blen
+        if offs:
+            yield flush()
+        st.bytes_read = off
+
+    def _chunks(self, buf: np.ndarray) -> Iterator[_Chunk]:
+        if self.format == "pcap":
+            return self._walk_pcap(buf)
+        if buf.shape[0] < 12:
+            raise CaptureFormatError(f"{self.path}: pcapng file cut short inside its first block ({buf.shape[0]} bytes)")
+        return self._walk_pcapng(buf)
+
+    # --- per-chunk decoding ------------------------------------------------------------------------
+    def _fast_mask(self, buf: np.ndarray, c: _Chunk) -> tuple[np.ndarray, np.ndarray]:
+        """Records that are plain unfragmented UDP/IPv4 at a fixed link offset, and their IP offsets."""
+        n = c.caplen.shape[0]
+        size = buf.shape[0]
+        lt = c.linktype
+        l2 = np.full(n, -1, np.int64)
+        l2[lt == LINKTYPE_ETHERNET] = 14
+        l2[lt == LINKTYPE_LINUX_SLL] = 16
+        l2[lt == LINKTYPE_LINUX_SLL2] = 20
+        l2[np.isin(lt, _RAW_LINKS)] = 0
+        l2[(lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)] = 4
+        ok = (l2 >= 0) & (c.caplen >= l2 + 28)
+        d = np.where(ok, c.data_off, 0)
+        top = size - 4
+        # link-layer protocol fields
+        eth = lt == LINKTYPE_ETHERNET
+        if eth.any():
+            ok &= ~eth | (_gather(buf, np.minimum(d + 12, top), ">u2") == ETHERTYPE_IPV4)
+        sll = lt == LINKTYPE_LINUX_SLL
+        if sll.any():
+            ok &= ~sll | (_gather(buf, np.minimum(d + 14, top), ">u2") == ETHERTYPE_IPV4)
+        sll2 = lt == LINKTYPE_LINUX_SLL2
+        if sll2.any():
+            ok &= ~sll2 | (_gather(buf, np.minimum(d, top), ">u2") == ETHERTYPE_IPV4)
+        null = (lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)
+        if null.any():
+            fam = _gather(buf, np.minimum(d, top), "<u4")
+            is4 = (fam == 2) | (fam == 0x02000000)
+            ok &= ~null | is4
+        l3 = np.where(ok, d + l2, 0)
+        vihl = buf[np.minimum(l3, size - 1)]
+        ihl = (vihl & 0x0F).astype(np.int64) * 4
+        ok &= ((vihl >> 4) == 4) & (ihl >= 20) & (c.caplen >= l2 + ihl + 8)
+        l3 = np.where(ok, l3, 0)
+        ok &= (_gather(buf, np.minimum(l3 + 6, top), ">u2") & 0x3FFF) == 0  # not a fragment
+        ok &= buf[np.minimum(l3 + 9, size - 1)] == IPPROTO_UDP
+        l4 = np.where(ok, l3 + ihl, 0)
+        udp_len = _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64)
+        ok &= (udp_len >= 8) & (udp_len <= c.caplen - l2 - ihl)
+        return ok, np.where(ok, l4, 0)
+
+    def _process_chunk(self, buf: np.ndarray, c: _Chunk, base: int) -> list[PacketBatch]:
+        st = self.stats
+        n = c.caplen.shape[0]
+        for lt, cnt in zip(*np.unique(c.linktype, return_counts=True)):
+            st.link_types[LINKTYPE_NAMES.get(int(lt), f"linktype {int(lt)}")] += int(cnt)
+        fast, l4 = self._fast_mask(buf, c)
+        fast_pos = np.flatnonzero(fast)
+        l4 = l4[fast_pos]
+        top = buf.shape[0] - 4
+
+        # the general path, record by record, in capture order (reassembly needs the order)
+        slow_pos: list[int] = []
+        slow_pkts: list[tuple[str, int, str, int, bytes]] = []
+        slow_ts: list[int] = []
+        if fast_pos.shape[0] != n:
+            slow = np.flatnonzero(~fast)
+            offs = c.data_off[slow].tolist()
+            caps = c.caplen[slow].tolist()
+            lts = c.linktype[slow].tolist()
+            tss = c.ts_ns[slow].tolist()
+            mv = memoryview(buf)
+            for i, o, cap, lt, ts in zip(slow.tolist(), offs, caps, lts, tss):
+                got = self._parse_record(lt, mv[o : o + cap], ts)
+                if got is not None:
+                    slow_pos.append(i)
+                    slow_pkts.append(got)
+                    slow_ts.append(ts)
+            self._sync_reassembly_stats()
+
+        # the fast path: keys of all plain records at once
+        n_fast = fast_pos.shape[0]
+        if n_fast:
+            # addresses sit 12 and 16 bytes after the IP header start
+            ip_off = self._ip_offsets(c, fast_pos)
+            src_ip = _gather(buf, ip_off + 12, ">u4").astype(np.int64)
+            dst_ip = _gather(buf, ip_off + 16, ">u4").astype(np.int64)
+            ports = _gather(buf, l4, ">u4").astype(np.int64)  # sport << 16 | dport
+            plen = _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64) - 8
+            keep = np.ones(n_fast, bool)
+            if self.ports is not None:
+                keep &= np.isin(ports & 0xFFFF, np.fromiter(self.ports, np.int64))
+            if self.payload_sizes is not None:
+                keep &= np.isin(plen, np.fromiter(self.payload_sizes, np.int64))
+            if self.src_addresses is not None:
+                v4 = [
+                    int.from_bytes(socket.inet_aton(a), "big") for a in self.src_addresses if _is_ipv4_text(a)
+                ]
+                keep &= np.isin(src_ip, np.asarray(v4, np.int64))
+            st.udp_packets += n_fast
+            st.filtered += int(n_fast - keep.sum())
+            if not keep.all():
+                fast_pos, l4, src_ip, dst_ip, ports, plen = (
+                    a[keep] for a in (fast_pos, l4, src_ip, dst_ip, ports, plen)
+                )
+                n_fast = fast_pos.shape[0]
+
+        # ordinals: every kept record yields at most one packet, in record order
+        slow_pos_a = np.asarray(slow_pos, np.int64)
+        all_pos = np.sort(np.concatenate([fast_pos, slow_pos_a]))
+        total = all_pos.shape[0]
+        if total == 0:
+            return []
+        fast_ord = base + np.searchsorted(all_pos, fast_pos)
+        slow_ord = base + np.searchsorted(all_pos, slow_pos_a)
+
+        groups: dict[tuple, dict] = {}
+        if n_fast:
+            k1 = (src_ip << 32) | dst_ip
+            k2 = (ports << 20) | plen
+            if (k1 == k1[0]).all() and (k2 == k2[0]).all():
+                inverse = np.zeros(n_fast, np.int64)
+                firsts = np.zeros(1, np.int64)
+            else:
+                keys = np.empty(n_fast, dtype=[("a", np.int64), ("b", np.int64)])
+                keys["a"], keys["b"] = k1, k2
+                _, firsts, inverse = np.unique(keys, return_index=True, return_inverse=True)
+                inverse = inverse.reshape(-1)
+            for g, first in enumerate(firsts.tolist()):
+                sel = np.flatnonzero(inverse == g) if firsts.shape[0] > 1 else np.arange(n_fast)
+                s_ip, d_ip = _ipv4_text(np.array([src_ip[first], dst_ip[first]]))
+                pp = int(ports[first])
+                key = (s_ip, pp >> 16, d_ip, pp & 0xFFFF, int(plen[first]))
+                groups[key] = {"fast": sel, "slow": []}
+        for j, (s_ip, sport, d_ip, dport, payload) in enumerate(slow_pkts):
+            key = (s_ip, sport, d_ip, dport, len(payload))
+            groups.setdefault(key, {"fast": None, "slow": []})["slow"].append(j)
+
+        out: list[PacketBatch] = []
+        for key, g in groups.items():
+            s_ip, sport, d_ip, dport, size = key
+            fsel = g["fast"]
+            ssel = g["slow"]
+            if fsel is not None and not ssel:
+                payload = _copy_rows(buf, l4[fsel] + 8, size)
+                ts = c.ts_ns[fast_pos[fsel]]
+                idx = fast_ord[fsel]
+            else:
+                f_ord = fast_ord[fsel] if fsel is not None else np.zeros(0, np.int64)
+                s_ord = slow_ord[ssel]
+                idx = np.concatenate([f_ord, s_ord])
+                order = np.argsort(idx, kind="stable")
+                idx = idx[order]
+                payload = np.empty((idx.shape[0], size), np.uint8)
+                ts = np.empty(idx.shape[0], np.int64)
+                nf = f_ord.shape[0]
+                where = np.empty(idx.shape[0], np.int64)
+                where[order] = np.arange(idx.shape[0])
+                if nf:
+                    payload[where[:nf]] = _copy_rows(buf, l4[fsel] + 8, size)
+                    ts[where[:nf]] = c.ts_ns[fast_pos[fsel]]
+                for r, j in zip(where[nf:].tolist(), ssel):
+                    payload[r] = np.frombuffer(slow_pkts[j][4], np.uint8)
+                    ts[r] = slow_ts[j]
+            out.append(PacketBatch(Endpoint(s_ip, sport), Endpoint(d_ip, dport), ts, payload, idx))
+        out.sort(key=lambda b: int(b.index[0]))
+        st.yielded += total
+        return out
+
+    def _ip_offsets(self, c: _Chunk, pos: np.ndarray) -> np.ndarray:
+        lt = c.linktype[pos]
+        l2 = np.zeros(pos.shape[0], np.int64)
+        l2[lt == LINKTYPE_ETHERNET] = 14
+        l2[lt == LINKTYPE_LINUX_SLL] = 16
+        l2[lt == LINKTYPE_LINUX_SLL2] = 20
+        l2[(lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)] = 4
+        return c.data_off[pos] + l2
+
+    # --- the general (per-record) path ----------------------------------------------------------------
+    def _bad(self, reason: str) -> None:
+        self.stats.malformed += 1
+        self.stats.malformed_reasons[reason] += 1
+
+    def _parse_record(self, lt: int, data: memoryview, ts_ns: int):
+        """One record → (src, sport, dst, dport, payload) after filters, or None (counted)."""
+        n = len(data)
+        if lt == LINKTYPE_ETHERNET:
+            if n < 14:
+                return self._bad("frame shorter than an Ethernet header")
+            off = 14
+            etype = (data[12] << 8) | data[13]
+            while etype in _VLAN_TPIDS:
+                if n < off + 4:
+                    return self._bad("frame cut inside a VLAN tag")
+                etype = (data[off + 2] << 8) | data[off + 3]
+                off += 4
+        elif lt == LINKTYPE_LINUX_SLL:
+            if n < 16:
+                return self._bad("frame shorter than a Linux SLL header")
+            etype, off = (data[14] << 8) | data[15], 16
+        elif lt == LINKTYPE_LINUX_SLL2:
+            if n < 20:
+                return self._bad("frame shorter than a Linux SLL2 header")
+            etype, off = (data[0] << 8) | data[1], 20
+        elif lt in _RAW_LINKS:
+            if n < 1:
+                return self._bad("empty raw IP record")
+            version = data[0] >> 4
+            etype = ETHERTYPE_IPV4 if version == 4 else ETHERTYPE_IPV6 if version == 6 else -1
+            off = 0
+        elif lt in (LINKTYPE_NULL, LINKTYPE_LOOP):
+            if n < 4:
+                return self._bad("frame shorter than a loopback header")
+            fam = struct.unpack_from("<I" if lt == LINKTYPE_NULL else ">I", data)[0]
+            if fam > 0xFFFF:  # written by a host of the other byte order
+                fam = struct.unpack_from(">I" if lt == LINKTYPE_NULL else "<I", data)[0]
+            etype = ETHERTYPE_IPV4 if fam == 2 else ETHERTYPE_IPV6 if fam in _BSD_AF_INET6 else -1
+            off = 4
+        else:
+            self.stats.non_udp += 1
+            if lt not in self._warned_links:
+                self._warned_links.add(lt)
+                warnings.warn(
+                    SkippedPacketWarning(f"{self.path}: records of unsupported link type {lt} skipped"), stacklevel=5
+                )
+            return None
+        if etype == ETHERTYPE_IPV4:
+            return self._parse_ipv4(data, off, ts_ns)
+        if etype == ETHERTYPE_IPV6:
+            return self._parse_ipv6(data, off, ts_ns)
+        self.stats.non_udp += 1
+        return None
+
+    def _parse_ipv4(self, data: memoryview, off: int, ts_ns: int):
+        n = len(data)
+        if n < off + 20:
+            return self._bad("IPv4 header cut short")
+        vihl = data[off]
+        ihl = (vihl & 0x0F) * 4
+        if vihl >> 4 != 4 or ihl < 20 or n < off + ihl:
+            return self._bad("bad IPv4 header length or version")
+        total, ident, frag = struct.unpack_from(">HHH", data, off + 2)
+        proto = data[off + 9]
+        src = bytes(data[off + 12 : off + 16])
+        dst = bytes(data[off + 16 : off + 20])
+        if proto != IPPROTO_UDP:
+            self.stats.non_udp += 1
+            return None
+        more = bool(frag & 0x2000)
+        frag_off = (frag & 0x1FFF) * 8
+        if more or frag_off:
+            # fragments: the IP total length is the only end marker; bound it by the capture
+            if total < ihl:
+                return self._bad("IPv4 fragment with total length below its header length")
+            if off + total > n:
+                return self._bad("IPv4 fragment cut short by the snap length")
+            payload = self._reasm.add((4, src, dst, proto, ident), frag_off, more, data[off + ihl : off + total], ts_ns)
+            if payload is None:
+                return None
+            return self._udp(payload, 0, len(payload), socket.inet_ntoa(src), socket.inet_ntoa(dst))
+        return self._udp(data, off + ihl, n, socket.inet_ntoa(src), socket.inet_ntoa(dst))
+
+    def _parse_ipv6(self, data: memoryview, off: int, ts_ns: int):
+        n = len(data)
+        if n < off + 40:
+            return self._bad("IPv6 header cut short")
+        if data[off] >> 4 != 6:
+            return self._bad("bad IPv6 version")
+        src = bytes(data[off + 8 : off + 24])
+        dst = bytes(data[off + 24 : off + 40])
+        nh = data[off + 6]
+        p = off + 40
+        frag = None
+        while True:
+            if nh in _IPV6_EXT_HEADERS or nh == _IPV6_AH:
+                if n < p + 2:
+                    return self._bad("IPv6 extension header cut short")
+                ext = (data[p + 1] + 2) * 4 if nh == _IPV6_AH else (data[p + 1] + 1) * 8
+                nh = data[p]
+                p += ext
+            elif nh == _IPV6_FRAGMENT:
+                if n < p + 8:
+                    return self._bad("IPv6 fragment header cut short")
+                fo, ident = struct.unpack_from(">HI", data, p + 2)
+                frag = (fo & 0xFFF8, bool(fo & 1), ident)
+                nh = data[p]
+                p += 8
+            else:
+                break
+        if p > n:
+            return self._bad("IPv6 extension headers longer than the packet")
+        if nh != IPPROTO_UDP:
+            self.stats.non_udp += 1
+            return None
+        s, d = socket.inet_ntop(socket.AF_INET6, src), socket.inet_ntop(socket.AF_INET6, dst)
+        plen = struct.unpack_from(">H", data, off + 4)[0]
+        end = min(n, off + 40 + plen) if plen else n
+        if frag is not None:
+            frag_off, more, ident = frag
+            if plen and off + 40 + plen > n:
+                return self._bad("IPv6 fragment cut short by the snap length")
+            payload = self._reasm.add((6, src, dst, ident), frag_off, more, data[p:end], ts_ns)
+            if payload is None:
+                return None
+            return self._udp(payload, 0, len(payload), s, d)
+        return self._udp(data, p, n, s, d)
+
+    def _udp(self, data, p: int, end: int, src: str, dst: str):
+        """The UDP datagram at ``data[p:end]`` (end = captured bytes available)."""
+        if end - p < 8:
+            return self._bad("UDP header cut short")
+        sport, dport, ulen = struct.unpack_from(">HHH", data, p)
+        if ulen < 8:
+            return self._bad("UDP length below 8")
+        if p + ulen > end:
+            return self._bad("UDP datagram cut short (snap length or a bad UDP length)")
+        self.stats.udp_packets += 1
+        if (
+            (self.ports is not None and dport not in self.ports)
+            or (self.src_addresses is not None and src not in self.src_addresses)
+            or (self.payload_sizes is not None and ulen - 8 not in self.payload_sizes)
+        ):
+            self.stats.filtered += 1
+            return None
+        return src, sport, dst, dport, bytes(data[p + 8 : p + ulen])
+
+
+def _is_ipv4_text(text: str) -> bool:
+    try:
+        socket.inet_aton(text)
+    except OSError:
+        return False
+    return text.count(".") == 3
+
+
+def _pcapng_options(mv: memoryview, p: int, end: int, endian: str) -> Iterator[tuple[int, bytes]]:
+    """(code, value) of the options in ``mv[p:end]``; stops quietly at a malformed option."""
+    while p + 4 <= end:
+        code, length = struct.unpack_from(endian + "HH", mv, p)
+        if code == 0:
+            return
+        p += 4
+        if p + length > end:
+            return
+        yield code, mv[p : p + length].tobytes()
+        p += (length + 3) & ~3
+
+
+def read_packets(path: str | os.PathLike[str], **filters) -> Iterator[Packet]:
+    """Every UDP datagram of a pcap/pcapng capture, fragments reassembled, in capture order.
+
+    ``filters`` are the keyword arguments of :class:`PcapReader` (``ports``, ``src_addresses``,
+    ``payload_sizes``...). Raises :class:`~lidarpkt.errors.CaptureFormatError` when the file is
+    not a capture; damage inside it gives warnings (see the module docs).
+    """
+    return PcapReader(path, **filters).packets()
+
+
+def read_batches(path: str | os.PathLike[str], **filters) -> Iterator[PacketBatch]:
+    """Same-stream batches of a capture's UDP datagrams (see :meth:`PcapReader.batches`)."""
+    return PcapReader(path, **filters).batches()
