@@ -1,0 +1,34 @@
+"""The multi-return analysis of Rife & Li, "Characterizing Lidar Range-Measurement Ambiguity due
+to Multiple Returns": temporal and spatial range CDFs per raypath, motion compensation, Gaussian
+mixtures, whole-image multi-return statistics and monitor, return-mode comparison, plots.
+
+Input is a :class:`lidarpkt.frame.FrameStack` (``load_stack(path)`` makes one from a capture).
+Plots live in :mod:`analysis.plots` (matplotlib, the ``plot`` extra) and are not imported here.
+"""
+
+from .cdf import RangeCDF, pixel_samples, reflectivity_vs_range, spatial_cdf, temporal_cdf
+from .compare import DistributionComparison, PairedComparison, compare_slots, compare_stacks, ks_image
+from .gmm import DEFAULT_GAP_M, GaussianMixture, fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance
+from .motion import MotionCompensation, motion_compensated_cdf
+from .multireturn import (
+    ImageStatistics,
+    MonitorEvaluation,
+    MultiReturnMap,
+    evaluate_monitor,
+    image_statistics,
+    multireturn_map,
+    spatial_gap_score,
+)
+from .raypath import RaypathAnalysis, analyze, analyze_pixel, analyze_raypath
+from .stack import load_stack, select_frames
+
+__all__ = [
+    "RangeCDF", "pixel_samples", "reflectivity_vs_range", "spatial_cdf", "temporal_cdf",
+    "DistributionComparison", "PairedComparison", "compare_slots", "compare_stacks", "ks_image",
+    "DEFAULT_GAP_M", "GaussianMixture", "fit_auto", "fit_em", "fit_gmm", "fit_thresholds", "gap_thresholds", "ks_distance",
+    "MotionCompensation", "motion_compensated_cdf",
+    "ImageStatistics", "MonitorEvaluation", "MultiReturnMap", "evaluate_monitor", "image_statistics",
+    "multireturn_map", "spatial_gap_score",
+    "RaypathAnalysis", "analyze", "analyze_pixel", "analyze_raypath",
+    "load_stack", "select_frames",
+]

@@ -1,0 +1,211 @@
+"""Return-mode comparison: the two slots of a dual capture, or captures of one scene in different modes.
+
+* Paired (:func:`compare_slots`, and :func:`compare_stacks` with ``paired=True``): frame k of
+  one side and frame k of the other are the same firing. Per pixel: how often the two
+  reports differ (a range that is not equal, or a return on one side only) and by how much
+  (Δ = |r_a − r_b| over the frames where both returned and differ), with a histogram of Δ.
+* Distributional (:func:`compare_stacks`): the frames of two captures are different firings,
+  so per pixel the two temporal CDFs are compared: Kolmogorov–Smirnov distance sup_r |F_a − F_b|
+  (vectorised over the image), difference of median ranges, difference of non-return fractions.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidarpkt.errors import AnalysisError
+from lidarpkt.frame import FrameStack
+
+from .stack import check_stack
+
+_NO_SAMPLE = np.iinfo(np.int64).max
+
+#: Default Δ histogram bin edges, metres: log-spaced from 2 mm (the VLP-16 range step) to 200 m.
+DEFAULT_DELTA_EDGES_M = np.concatenate(([0.0], np.logspace(np.log10(0.002), np.log10(200.0), 51)))
+
+
+@dataclass(frozen=True, eq=False)
+class PairedComparison:
+    """Frame-by-frame comparison of two reports of the same firings; per-pixel arrays are ``[H, W]``.
+
+    Attributes:
+        labels: the two sides (e.g. ``("last", "strongest")``).
+        n_pairs: frames where both sides have a sample (column not lost on either).
+        n_differ: pairs whose reports differ (unequal range, or a return on one side only).
+        n_one_sided: pairs with a return on exactly one side.
+        fraction_differ: n_differ / n_pairs (NaN without pairs).
+        mean_delta_m, max_delta_m: of Δ over the pairs where both returned and differ (NaN if none).
+        delta_edges_m, delta_counts: histogram of every such Δ over the image.
+    """
+
+    labels: tuple[str, str]
+    n_pairs: np.ndarray
+    n_differ: np.ndarray
+    n_one_sided: np.ndarray
+    fraction_differ: np.ndarray
+    mean_delta_m: np.ndarray
+    max_delta_m: np.ndarray
+    delta_edges_m: np.ndarray
+    delta_counts: np.ndarray
+
+    def summary(self) -> dict:
+        pairs = int(self.n_pairs.sum())
+        differ = int(self.n_differ.sum())
+        return {
+            "labels": list(self.labels),
+            "pairs": pairs,
+            "pairs_differ": differ,
+            "pairs_one_sided": int(self.n_one_sided.sum()),
+            "fraction_identical": (pairs - differ) / pairs if pairs else None,
+            "delta_histogram": {"edges_m": self.delta_edges_m.tolist(), "counts": self.delta_counts.tolist()},
+        }
+
+
+def _paired(ra, rb, va, vb, labels, edges) -> PairedComparison:
+    """``ra, rb``: uint32 [K, H, W] (0 = non-return); ``va, vb``: bool [K, W] valid columns."""
+    both_valid = (va & vb)[:, None, :]
+    ret_a, ret_b = ra > 0, rb > 0
+    differ = both_valid & (ra != rb)
+    one_sided = both_valid & (ret_a ^ ret_b)
+    two_sided = differ & ret_a & ret_b
+    delta = np.abs(ra.astype(np.int64) - rb.astype(np.int64)) / 1000.0
+    n_pairs = np.broadcast_to(both_valid.sum(axis=0), ra.shape[1:]).astype(np.int64)
+    n_two = two_sided.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_delta = np.where(n_two > 0, np.where(two_sided, delta, 0.0).sum(axis=0) / n_two, np.nan)
+        frac = differ.sum(axis=0) / n_pairs
+    max_delta = np.where(n_two > 0, np.where(two_sided, delta, -np.inf).max(axis=0), np.nan)
+    edges = np.asarray(DEFAULT_DELTA_EDGES_M if edges is None else edges, np.float64)
+    counts, _ = np.histogram(delta[two_sided], bins=edges)
+    return PairedComparison(tuple(labels), n_pairs, differ.sum(axis=0).astype(np.int64), one_sided.sum(axis=0).astype(np.int64),
+                            frac, mean_delta, max_delta, edges, counts.astype(np.int64))
+
+
+def compare_slots(stack: FrameStack, a: int = 0, b: int = 1, *, delta_edges_m: np.ndarray | None = None) -> PairedComparison:
+    """Compare return slots ``a`` and ``b`` of a dual capture frame by frame.
+
+    Raises AnalysisError when the stack does not have both slots.
+    """
+    check_stack(stack)
+    r = stack.range_mm.shape[1]
+    if not (0 <= a < r and 0 <= b < r) or a == b:
+        raise AnalysisError(
+            f"cannot compare slots {a} and {b}: this capture has {r} return slot(s) {list(stack.return_labels)}; "
+            "slot comparison needs a dual-return capture (or give a second capture to compare modes)"
+        )
+    labels = (stack.return_labels[a], stack.return_labels[b])
+    return _paired(stack.range_mm[:, a], stack.range_mm[:, b], stack.column_valid, stack.column_valid, labels, delta_edges_m)
+
+
+@dataclass(frozen=True, eq=False)
+class DistributionComparison:
+    """Per-pixel comparison of the temporal CDFs of two captures; arrays are ``[H, W]``.
+
+    Attributes:
+        labels: the two sides.
+        ks: sup_r |F_a(r) − F_b(r)| of the two temporal CDFs (non-returns in the denominators;
+            NaN where a side has no sample).
+        median_delta_m: median range of b minus median range of a (NaN where a side has no return).
+        nonreturn_delta: non-return fraction of b minus that of a.
+        n_samples_a, n_samples_b: samples per pixel on each side.
+    """
+
+    labels: tuple[str, str]
+    ks: np.ndarray
+    median_delta_m: np.ndarray
+    nonreturn_delta: np.ndarray
+    n_samples_a: np.ndarray
+    n_samples_b: np.ndarray
+
+    def summary(self) -> dict:
+        finite = np.isfinite(self.ks)
+        md = self.median_delta_m[np.isfinite(self.median_delta_m)]
+        return {
+            "labels": list(self.labels),
+            "pixels_compared": int(finite.sum()),
+            "ks_mean": float(self.ks[finite].mean()) if finite.any() else None,
+            "ks_quantiles": {q: float(np.quantile(self.ks[finite], float(q))) for q in ("0.5", "0.9", "0.99")} if finite.any() else None,
+            "fraction_median_differs": float(np.mean(md != 0)) if md.size else None,
+            "median_delta_abs_m_quantiles": {q: float(np.quantile(np.abs(md), float(q))) for q in ("0.5", "0.9", "0.99")} if md.size else None,
+        }
+
+
+def _samples(range_mm: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[K, H, W] uint32 + [K, W] → values int64 [K, H, W] (sentinel for non-return or missing) and n_samples [H, W]."""
+    v = np.broadcast_to(valid[:, None, :], range_mm.shape)
+    vals = np.where(v & (range_mm > 0), range_mm.astype(np.int64), _NO_SAMPLE)
+    return vals, v.sum(axis=0)
+
+
+def ks_image(a_mm: np.ndarray, a_valid: np.ndarray, b_mm: np.ndarray, b_valid: np.ndarray) -> np.ndarray:
+    """KS distance between the temporal CDFs of every pixel of two ``[K, H, W]`` range stacks
+    (any K each), vectorised: ``float64[H, W]``, NaN where a side has no sample."""
+    va, na = _samples(a_mm, a_valid)
+    vb, nb = _samples(b_mm, b_valid)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wa = np.where(va != _NO_SAMPLE, 1.0 / na, 0.0)
+        wb = np.where(vb != _NO_SAMPLE, -1.0 / nb, 0.0)
+    vals = np.concatenate([va, vb])
+    weights = np.concatenate([wa, wb])
+    order = np.argsort(vals, axis=0, kind="stable")
+    vals = np.take_along_axis(vals, order, axis=0)
+    diff = np.cumsum(np.take_along_axis(weights, order, axis=0), axis=0)
+    # The step functions are compared after the last of equal values, below the non-returns.
+    end_of_run = np.ones_like(vals, bool)
+    end_of_run[:-1] = vals[1:] != vals[:-1]
+    use = end_of_run & (vals != _NO_SAMPLE)
+    ks = np.where(use, np.abs(diff), 0.0).max(axis=0)
+    return np.where((na > 0) & (nb > 0), ks, np.nan)
+
+
+def compare_stacks(
+    a: FrameStack,
+    b: FrameStack,
+    slot_a: int = 0,
+    slot_b: int = 0,
+    *,
+    paired: bool = False,
+    delta_edges_m: np.ndarray | None = None,
+) -> DistributionComparison | tuple[DistributionComparison, PairedComparison]:
+    """Compare slot ``slot_a`` of capture ``a`` with slot ``slot_b`` of capture ``b`` (one scene,
+    two modes) pixel by pixel. With ``paired=True`` (frame k of both is the same firing, as in
+    captures generated from one seed) also return the frame-by-frame :class:`PairedComparison`.
+
+    Raises AnalysisError when the images differ in size, a slot is missing, or paired stacks
+    differ in frame count.
+    """
+    check_stack(a)
+    check_stack(b)
+    if a.range_mm.shape[2:] != b.range_mm.shape[2:]:
+        raise AnalysisError(
+            f"the captures have different range images ({a.range_mm.shape[2]}x{a.range_mm.shape[3]} and "
+            f"{b.range_mm.shape[2]}x{b.range_mm.shape[3]}): compare captures of one sensor on one grid"
+        )
+    for stack, slot, name in ((a, slot_a, "first"), (b, slot_b, "second")):
+        if not 0 <= slot < stack.range_mm.shape[1]:
+            raise AnalysisError(f"the {name} capture has no return slot {slot} (it has {list(stack.return_labels)})")
+    ra, rb = a.range_mm[:, slot_a], b.range_mm[:, slot_b]
+    labels = (a.return_labels[slot_a], b.return_labels[slot_b])
+    ks = ks_image(ra, a.column_valid, rb, b.column_valid)
+    va, na = _samples(ra, a.column_valid)
+    vb, nb = _samples(rb, b.column_valid)
+
+    def median_m(vals):
+        f = np.where(vals != _NO_SAMPLE, vals, np.nan).astype(np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # pixels without a return give NaN, as documented
+            return np.nanmedian(f, axis=0) / 1000.0
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nr_a = (na - (va != _NO_SAMPLE).sum(axis=0)) / na
+        nr_b = (nb - (vb != _NO_SAMPLE).sum(axis=0)) / nb
+    dist = DistributionComparison(labels, ks, median_m(vb) - median_m(va), nr_b - nr_a, na, nb)
+    if not paired:
+        return dist
+    if len(a) != len(b):
+        raise AnalysisError(f"paired comparison needs the same number of frames ({len(a)} and {len(b)})")
+    return dist, _paired(ra, rb, a.column_valid, b.column_valid, labels, delta_edges_m)
+

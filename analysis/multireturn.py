@@ -1,0 +1,257 @@
+"""Whole-image multi-return statistics over a stack of frames, and the paper's multi-return
+monitor (§4.3) with its evaluation.
+
+Everything here is vectorised over the whole ``[K, R, H, W]`` stack: one sort along the frame
+axis gives every pixel's sorted samples, and cluster boundaries are the gaps wider than
+``gap_m`` between consecutive sorted returns (the rule of :func:`analysis.gmm.fit_auto`).
+
+The monitor looks at a single frame: a raypath is flagged when the returns of its n × n
+neighbourhood (its one-frame spatial CDF) hold a gap wider than a threshold, i.e. the
+neighbourhood sees two surfaces. It is scored against the temporal truth of the stack
+(``n_clusters >= 2``) by precision, recall and a ROC curve over the threshold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidarpkt.errors import AnalysisError
+from lidarpkt.frame import FrameStack
+
+from .gmm import DEFAULT_GAP_M
+from .stack import check_stack, destagger, pixel_shift, restagger
+
+_NO_SAMPLE = np.iinfo(np.uint32).max  # sorts after every real range
+
+
+@dataclass(frozen=True, eq=False)
+class ImageStatistics:
+    """Per pixel and return slot statistics of a stack; every array is ``[R, H, W]``.
+
+    Attributes:
+        n_samples: frames with a sample (column not lost), returns + non-returns.
+        n_returns: frames with a return.
+        nonreturn_fraction: (n_samples − n_returns) / n_samples; NaN without samples.
+        mean_m, std_m: mean and (population) standard deviation of the returned ranges, m; NaN without returns.
+        n_clusters: clusters of returns (0 without returns).
+        gap_m: largest gap between two consecutive clusters, m (0 for fewer than two clusters).
+        gap_threshold_m: the gap that separates clusters.
+        return_labels: label of each slot.
+    """
+
+    n_samples: np.ndarray
+    n_returns: np.ndarray
+    nonreturn_fraction: np.ndarray
+    mean_m: np.ndarray
+    std_m: np.ndarray
+    n_clusters: np.ndarray
+    gap_m: np.ndarray
+    gap_threshold_m: float
+    return_labels: tuple[str, ...] = ()
+
+    @property
+    def multi_return(self) -> np.ndarray:
+        """``bool[R, H, W]``: more than one cluster over the stack."""
+        return self.n_clusters >= 2
+
+
+def sorted_samples(stack: FrameStack) -> np.ndarray:
+    """``uint32[K, R, H, W]``: each pixel's returns sorted along the frame axis, in mm, then
+    ``2**32 − 1`` for every non-return or missing frame."""
+    check_stack(stack)
+    present = (stack.range_mm > 0) & stack.column_valid[:, None, None, :]
+    return np.sort(np.where(present, stack.range_mm, np.uint32(_NO_SAMPLE)), axis=0)
+
+
+def image_statistics(stack: FrameStack, *, gap_m: float = DEFAULT_GAP_M) -> ImageStatistics:
+    """Whole-image statistics (number of returns, non-return fraction, std, clusters, largest
+    gap Δ between clusters) for every pixel and slot, vectorised over the stack.
+
+    Raises AnalysisError for an empty stack or a non-positive gap.
+    """
+    if gap_m <= 0:
+        raise AnalysisError(f"cluster gap {gap_m} m must be positive")
+    srt = sorted_samples(stack)
+    k = srt.shape[0]
+    n_samples = np.broadcast_to(stack.column_valid.sum(axis=0), srt.shape[1:]).astype(np.int64)
+    is_ret = srt != _NO_SAMPLE
+    n_ret = is_ret.sum(axis=0)
+    r_m = np.where(is_ret, srt, 0).astype(np.float64) / 1000.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = r_m.sum(axis=0) / n_ret
+        dev = np.where(is_ret, r_m - mean, 0.0)
+        std = np.sqrt((dev * dev).sum(axis=0) / n_ret)
+        nonret = (n_samples - n_ret) / n_samples
+    if k > 1:
+        step = np.diff(srt.astype(np.int64), axis=0)  # mm between consecutive sorted samples
+        boundary = is_ret[1:] & (step > gap_m * 1000.0)  # both sides returns: is_ret is sorted first
+        n_clusters = (n_ret > 0).astype(np.int64) + boundary.sum(axis=0)
+        gap = np.where(boundary, step, 0).max(axis=0) / 1000.0
+    else:
+        n_clusters = (n_ret > 0).astype(np.int64)
+        gap = np.zeros(srt.shape[1:])
+    return ImageStatistics(
+        n_samples=n_samples,
+        n_returns=n_ret.astype(np.int64),
+        nonreturn_fraction=nonret,
+        mean_m=mean,
+        std_m=std,
+        n_clusters=n_clusters,
+        gap_m=gap,
+        gap_threshold_m=float(gap_m),
+        return_labels=tuple(stack.return_labels),
+    )
+
+
+def spatial_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5) -> np.ndarray:
+    """The monitor's score: for every pixel and slot of one frame, the largest gap (m) between
+    consecutive sorted returns of its n × n neighbourhood (rows clipped, azimuth wrapping,
+    taken in the destaggered image). 0 where the neighbourhood has fewer than two returns.
+    ``float64[R, H, W]``, in the stack's (staggered) pixel layout.
+    """
+    check_stack(stack)
+    if n < 1 or n % 2 == 0:
+        raise AnalysisError(f"neighbourhood size {n} must be an odd number >= 1")
+    if not -len(stack) <= frame < len(stack):
+        raise AnalysisError(f"frame {frame} is not in this stack of {len(stack)} frames")
+    shift = pixel_shift(stack)
+    rng = stack.range_mm[frame]
+    present = (rng > 0) & stack.column_valid[frame][None, None, :]
+    img = destagger(np.where(present, rng, np.uint32(_NO_SAMPLE)), shift)  # [R, H, W]
+    r, h, w = img.shape
+    half = n // 2
+    padded = np.full((r, h + 2 * half, w), _NO_SAMPLE, dtype=np.uint32)
+    padded[:, half : half + h] = img
+    # n·n shifted copies of the image: neighbour (di, dj) of every pixel at once.
+    neigh = np.stack(
+        [np.roll(padded[:, half + di : half + di + h], -dj, axis=2) for di in range(-half, half + 1) for dj in range(-half, half + 1)]
+    )
+    neigh.sort(axis=0)
+    step = np.diff(neigh.astype(np.int64), axis=0)
+    ok = neigh[1:] != _NO_SAMPLE
+    score = np.where(ok, step, 0).max(axis=0) / 1000.0
+    return restagger(score, shift)
+
+
+@dataclass(frozen=True, eq=False)
+class MonitorEvaluation:
+    """The monitor scored against the temporal truth.
+
+    Attributes:
+        threshold_m: the operating threshold (flag when score > threshold).
+        precision, recall: at that threshold (NaN when undefined).
+        true_positive, false_positive, false_negative, true_negative: counts at that threshold.
+        roc_threshold_m, roc_tpr, roc_fpr: the ROC curve, one point per distinct score
+            (descending threshold), starting at (0, 0).
+        auc: area under the ROC curve (NaN if only one class is present).
+        n_pixels: pixels evaluated (those with a temporal return).
+    """
+
+    threshold_m: float
+    precision: float
+    recall: float
+    true_positive: int
+    false_positive: int
+    false_negative: int
+    true_negative: int
+    roc_threshold_m: np.ndarray
+    roc_tpr: np.ndarray
+    roc_fpr: np.ndarray
+    auc: float
+    n_pixels: int
+
+    def to_json(self) -> dict:
+        return {
+            "threshold_m": self.threshold_m,
+            "precision": self.precision,
+            "recall": self.recall,
+            "true_positive": self.true_positive,
+            "false_positive": self.false_positive,
+            "false_negative": self.false_negative,
+            "true_negative": self.true_negative,
+            "auc": self.auc,
+            "n_pixels": self.n_pixels,
+            "roc": {"threshold_m": self.roc_threshold_m.tolist(), "tpr": self.roc_tpr.tolist(), "fpr": self.roc_fpr.tolist()},
+        }
+
+
+def evaluate_monitor(score: np.ndarray, truth: np.ndarray, threshold_m: float, mask: np.ndarray | None = None) -> MonitorEvaluation:
+    """Precision, recall and ROC of ``score > threshold`` against boolean ``truth`` over ``mask``."""
+    s = np.asarray(score, np.float64)
+    t = np.asarray(truth, bool)
+    m = np.ones_like(t) if mask is None else np.asarray(mask, bool)
+    s, t = s[m], t[m]
+    flag = s > threshold_m
+    tp = int(np.count_nonzero(flag & t))
+    fp = int(np.count_nonzero(flag & ~t))
+    fn = int(np.count_nonzero(~flag & t))
+    tn = int(np.count_nonzero(~flag & ~t))
+    precision = tp / (tp + fp) if tp + fp else float("nan")
+    recall = tp / (tp + fn) if tp + fn else float("nan")
+    # ROC: thresholds just below each distinct score, from the highest down.
+    order = np.argsort(-s, kind="stable")
+    s_sorted, t_sorted = s[order], t[order]
+    last_of_run = np.r_[np.flatnonzero(np.diff(s_sorted) != 0), s_sorted.size - 1] if s.size else np.zeros(0, int)
+    cum_tp = np.cumsum(t_sorted)[last_of_run]
+    cum_fp = np.cumsum(~t_sorted)[last_of_run]
+    pos, neg = int(t.sum()), int((~t).sum())
+    tpr = np.r_[0.0, cum_tp / pos] if pos else np.r_[0.0, np.full(cum_tp.size, np.nan)]
+    fpr = np.r_[0.0, cum_fp / neg] if neg else np.r_[0.0, np.full(cum_fp.size, np.nan)]
+    thr = np.r_[np.inf, s_sorted[last_of_run]]
+    auc = float(np.sum(np.diff(fpr) * (tpr[1:] + tpr[:-1]) / 2.0)) if pos and neg else float("nan")
+    return MonitorEvaluation(float(threshold_m), precision, recall, tp, fp, fn, tn, thr, tpr, fpr, auc, int(s.size))
+
+
+@dataclass(frozen=True, eq=False)
+class MultiReturnMap:
+    """:func:`multireturn_map`'s result: the statistics, the monitor on one frame, its evaluation per slot."""
+
+    stats: ImageStatistics
+    monitor_score_m: np.ndarray  # float64[R, H, W]
+    monitor_flags: np.ndarray  # bool[R, H, W]
+    monitor_frame: int
+    neighbourhood: int
+    evaluation: list[MonitorEvaluation] = field(default_factory=list)  # one per slot
+
+    def to_npz_dict(self) -> dict[str, np.ndarray]:
+        """Arrays for ``numpy.savez`` (the file ``lidarpkt multireturn -o`` writes)."""
+        s = self.stats
+        out = {
+            "n_samples": s.n_samples, "n_returns": s.n_returns, "nonreturn_fraction": s.nonreturn_fraction,
+            "mean_m": s.mean_m, "std_m": s.std_m, "n_clusters": s.n_clusters, "gap_m": s.gap_m,
+            "multi_return": s.multi_return, "gap_threshold_m": np.float64(s.gap_threshold_m),
+            "return_labels": np.array(s.return_labels), "monitor_score_m": self.monitor_score_m,
+            "monitor_flags": self.monitor_flags, "monitor_frame": np.int64(self.monitor_frame),
+            "neighbourhood": np.int64(self.neighbourhood),
+        }
+        for i, ev in enumerate(self.evaluation):
+            out[f"slot{i}_precision"] = np.float64(ev.precision)
+            out[f"slot{i}_recall"] = np.float64(ev.recall)
+            out[f"slot{i}_auc"] = np.float64(ev.auc)
+            out[f"slot{i}_roc_threshold_m"] = ev.roc_threshold_m
+            out[f"slot{i}_roc_tpr"] = ev.roc_tpr
+            out[f"slot{i}_roc_fpr"] = ev.roc_fpr
+        return out
+
+
+def multireturn_map(
+    stack: FrameStack,
+    *,
+    gap_m: float = DEFAULT_GAP_M,
+    neighbourhood: int = 5,
+    monitor_frame: int = 0,
+    threshold_m: float | None = None,
+) -> MultiReturnMap:
+    """The multi-return map of a scene: :func:`image_statistics`, the monitor's flags on frame
+    ``monitor_frame`` (score > ``threshold_m``, default ``gap_m``: the neighbourhood shows two
+    clusters), and the monitor evaluated per slot against ``n_clusters >= 2`` over the pixels
+    with at least one return in the stack."""
+    stats = image_statistics(stack, gap_m=gap_m)
+    score = spatial_gap_score(stack, frame=monitor_frame, n=neighbourhood)
+    thr = gap_m if threshold_m is None else float(threshold_m)
+    evaluation = [
+        evaluate_monitor(score[i], stats.multi_return[i], thr, mask=stats.n_returns[i] > 0) for i in range(score.shape[0])
+    ]
+    return MultiReturnMap(stats, score, score > thr, monitor_frame % len(stack), neighbourhood, evaluation)

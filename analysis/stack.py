@@ -1,0 +1,168 @@
+"""Getting a :class:`~lidarpkt.frame.FrameStack` ready for the analysis: loading, frame
+selection, pixel checks, and the neighbourhood geometry every spatial computation shares.
+
+Pixel coordinates are always the stack's own (row, column): for Ouster that is the
+staggered column (= measurement id, as on the wire). Neighbourhoods, patches and the
+spatial monitor are taken in the *destaggered* image, where adjacent columns are adjacent
+azimuths; :func:`neighbour_columns` does that translation.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from lidarpkt.errors import AnalysisError
+from lidarpkt.frame import FrameStack
+
+
+def load_stack(
+    path: str | Path,
+    *,
+    metadata: str | Path | None = None,
+    frames: tuple[int | None, int | None] | None = None,
+    include_partial: bool = False,
+) -> FrameStack:
+    """Decode a capture (pcap/pcapng, MCAP, ROS bag) with :func:`lidarpkt.open` and stack its frames.
+
+    Args:
+        path: the capture.
+        metadata: Ouster metadata JSON (VLP-16 needs none).
+        frames: ``(A, B)`` keeps complete frames A..B-1 (Python slice semantics, counted over
+            the complete frames of the capture; ``None`` = open end).
+        include_partial: also stack partial frames (start/end of a capture).
+
+    Raises:
+        AnalysisError: no frame left after the selection.
+        lidarpkt.errors.LidarpktError: whatever the decoder raises on bad input.
+    """
+    import lidarpkt
+
+    opener = getattr(lidarpkt, "open", None)
+    if opener is None:  # pragma: no cover - only while the decoders are being written
+        raise AnalysisError("this lidarpkt build has no lidarpkt.open(): cannot read captures yet")
+    kwargs = {} if metadata is None else {"metadata": str(metadata)}
+    it = (f for f in opener(str(path), **kwargs) if include_partial or not f.partial)
+    if frames is not None:
+        a, b = frames
+        if (a is not None and a < 0) or (b is not None and b < 0):
+            raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
+        it = itertools.islice(it, a, b)
+    picked = list(it)
+    if not picked:
+        sel = "" if frames is None else f" in frames {frames[0] or ''}:{frames[1] or ''}"
+        raise AnalysisError(
+            f"{path}: no complete frames{sel} to analyse (check the capture, the --frames range "
+            "and, for an Ouster pcap, --metadata)"
+        )
+    return FrameStack.from_frames(picked, include_partial=True)
+
+
+def parse_frame_range(text: str) -> tuple[int | None, int | None]:
+    """``"A:B"``, ``"A:"``, ``":B"`` → (A, B). Raises AnalysisError on anything else."""
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise AnalysisError(f"--frames {text!r}: expected A:B (e.g. 0:30, 10:, :20)")
+    try:
+        a = int(parts[0]) if parts[0].strip() else None
+        b = int(parts[1]) if parts[1].strip() else None
+    except ValueError:
+        raise AnalysisError(f"--frames {text!r}: A and B must be integers (e.g. 0:30)") from None
+    if (a is not None and a < 0) or (b is not None and b < 0) or (a is not None and b is not None and b <= a):
+        raise AnalysisError(f"--frames {text!r}: need 0 <= A < B")
+    return a, b
+
+
+def select_frames(stack: FrameStack, start: int | None = None, stop: int | None = None) -> FrameStack:
+    """Frames ``start:stop`` of a stack (stack indices). Raises AnalysisError if none is left."""
+    sl = slice(start, stop)
+    if not range(len(stack))[sl]:
+        raise AnalysisError(f"frames {start}:{stop} select nothing from a stack of {len(stack)} frames")
+    return replace(
+        stack,
+        frame_id=stack.frame_id[sl],
+        range_mm=stack.range_mm[sl],
+        reflectivity=stack.reflectivity[sl],
+        column_valid=stack.column_valid[sl],
+        column_timestamp_ns=stack.column_timestamp_ns[sl],
+        azimuth_deg=stack.azimuth_deg[sl],
+    )
+
+
+def check_stack(stack: FrameStack) -> None:
+    """Raise AnalysisError unless the stack holds at least one frame with the documented shapes."""
+    if stack.range_mm.ndim != 4:
+        raise AnalysisError(f"range_mm must be [K, R, H, W], got shape {stack.range_mm.shape}")
+    if stack.range_mm.shape[0] == 0:
+        raise AnalysisError("the frame stack is empty: no frames to analyse")
+    k, _, _, w = stack.range_mm.shape
+    if stack.column_valid.shape != (k, w):
+        raise AnalysisError(f"column_valid has shape {stack.column_valid.shape}, expected {(k, w)}")
+
+
+def check_pixel(stack: FrameStack, row: int, col: int, slot: int = 0) -> None:
+    """Raise AnalysisError (with the valid ranges) if (row, col, slot) is not in the stack."""
+    check_stack(stack)
+    _, r, h, w = stack.range_mm.shape
+    if not (0 <= row < h and 0 <= col < w):
+        raise AnalysisError(f"pixel ({row}, {col}) is outside the {h} x {w} range image: use ROW in 0..{h - 1} and COL in 0..{w - 1}")
+    if not 0 <= slot < r:
+        labels = ", ".join(f"{i}={lab}" for i, lab in enumerate(stack.return_labels))
+        raise AnalysisError(f"return slot {slot} does not exist: this capture has {r} slot(s) ({labels})")
+
+
+def slot_index(stack: FrameStack, slot: int | str) -> int:
+    """A slot given as its index or its label (``"strongest"``, ``"last"``...) → index."""
+    if isinstance(slot, str) and not slot.lstrip("-").isdigit():
+        try:
+            return stack.return_labels.index(slot)
+        except ValueError:
+            raise AnalysisError(
+                f"return {slot!r} is not in this capture; its slots are {list(stack.return_labels)}"
+            ) from None
+    return int(slot)
+
+
+def pixel_shift(stack: FrameStack) -> np.ndarray:
+    """``int64[H]`` stagger shift of each row (zeros for sensors without a stagger)."""
+    h = stack.range_mm.shape[2]
+    shift = stack.sensor.pixel_shift_by_row
+    if shift is None:
+        return np.zeros(h, np.int64)
+    shift = np.asarray(shift, np.int64)
+    if shift.shape != (h,):
+        raise AnalysisError(f"pixel_shift_by_row has {shift.size} entries for {h} rows: metadata does not fit the frames")
+    return shift
+
+
+def neighbour_columns(stack: FrameStack, row: int, col: int, rows: np.ndarray, dcols: np.ndarray) -> np.ndarray:
+    """Stack columns of the pixels ``dcols`` azimuth steps from (row, col), in each of ``rows``.
+
+    Works in the destaggered image (``destaggered[u, (c + shift[u]) % W] = staggered[u, c]``) and
+    wraps in azimuth. Returns ``int64[len(rows), len(dcols)]``.
+    """
+    w = stack.range_mm.shape[3]
+    shift = pixel_shift(stack)
+    base = col + shift[row] - shift[np.asarray(rows)]
+    return (base[:, None] + np.asarray(dcols)[None, :]) % w
+
+
+def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``[..., H, W]`` staggered → destaggered (no copy of the logic in Frame: stacks have no Frame)."""
+    if not np.any(shift):
+        return image
+    w = image.shape[-1]
+    src = (np.arange(w)[None, :] - shift[:, None]) % w
+    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
+
+
+def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`destagger`."""
+    if not np.any(shift):
+        return image
+    w = image.shape[-1]
+    src = (np.arange(w)[None, :] + shift[:, None]) % w
+    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
