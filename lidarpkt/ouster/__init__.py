@@ -1,0 +1,30 @@
+"""Ouster OS0/OS1/OS2 lidar packets: metadata, byte-exact decoding and encoding, frames, XYZ.
+
+Supported lidar profiles: LEGACY (any channel count), RNG19_RFL8_SIG16_NIR16,
+RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8 and FUSA_RNG15_RFL8_NIR8_DUAL; LEGACY IMU packets.
+"""
+
+from __future__ import annotations
+
+from .crc import crc64_xz
+from .decode import OusterPacketFields, decode_packets
+from .encode import empty_fields, encode_packets
+from .imu import decode_imu, encode_imu
+from .metadata import OusterMetadata, load_metadata
+from .profiles import PROFILES, BitField, Profile, get_profile
+
+__all__ = [
+    "BitField",
+    "OusterMetadata",
+    "OusterPacketFields",
+    "PROFILES",
+    "Profile",
+    "crc64_xz",
+    "decode_imu",
+    "decode_packets",
+    "empty_fields",
+    "encode_imu",
+    "encode_packets",
+    "get_profile",
+    "load_metadata",
+]
