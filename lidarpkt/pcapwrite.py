@@ -1,0 +1,381 @@
+"""Writing captures: classic pcap and pcapng, with the framing a real network adds.
+
+Used by the tests, the fixture generator and the recorder's tools. One implementation
+of each layer, reused by both writers:
+
+- :func:`udp_datagram` builds the UDP header (checksum over the pseudo-header);
+- :func:`ip_packets` wraps it in IPv4 (fragmented at the MTU like a real sender:
+  1480-byte fragment payloads at MTU 1500) or IPv6 (fragment extension header when
+  larger than the MTU);
+- :func:`link_frame` adds the link layer (Ethernet with optional stacked VLAN tags,
+  Linux SLL, SLL2, raw IP, BSD loopback);
+- :func:`frames_for` does all three for one :class:`~lidarpkt.packet.Packet`;
+- :func:`write_pcap_records` / :func:`write_pcapng_records` write already-built frames
+  (so that tests can reorder, duplicate or damage fragments), and :func:`write_pcap` /
+  :func:`write_pcapng` write packets.
+
+The address text decides IPv4 or IPv6 (``":"`` in it means IPv6).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import socket
+import struct
+from dataclasses import dataclass
+from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from .packet import Packet
+
+__all__ = [
+    "LINKTYPES",
+    "Interface",
+    "udp_datagram",
+    "ip_packets",
+    "ipv4_header",
+    "fragment_ipv4",
+    "link_frame",
+    "frames_for",
+    "write_pcap",
+    "write_pcap_records",
+    "pcap_bytes",
+    "write_pcapng",
+    "write_pcapng_records",
+    "pcapng_bytes",
+    "internet_checksum",
+]
+
+LINKTYPES = {"null": 0, "ethernet": 1, "raw": 101, "linux_sll": 113, "linux_sll2": 276}
+_ETHERTYPE = {4: 0x0800, 6: 0x86DD}
+_AF = {4: 2, 6: 24}  # BSD loopback address families (24 = AF_INET6 on NetBSD/OpenBSD, read by all tools)
+SRC_MAC = bytes.fromhex("607688000000")  # the Velodyne OUI every VLP-16 capture shows
+BROADCAST_MAC = b"\xff" * 6
+DST_MAC = bytes.fromhex("020000000001")  # locally administered
+PCAP_MAGIC_US = 0xA1B2C3D4
+PCAP_MAGIC_NS = 0xA1B23C4D
+
+Record = tuple  # (timestamp_ns, frame bytes) or (timestamp_ns, frame bytes, original length)
+
+
+def internet_checksum(*parts: bytes) -> int:
+    """RFC 1071 one's-complement checksum of the concatenated parts (each padded to even length)."""
+    data = b"".join(p + (b"\0" if len(p) % 2 else b"") for p in parts)
+    total = int(np.frombuffer(data, ">u2").sum(dtype=np.uint64)) if data else 0
+    while total >> 16:
+        total = (total & 0xFFFF) + (total >> 16)
+    return (~total) & 0xFFFF
+
+
+def _version(address: str) -> int:
+    return 6 if ":" in address else 4
+
+
+def _addr_bytes(address: str) -> bytes:
+    try:
+        if _version(address) == 6:
+            return socket.inet_pton(socket.AF_INET6, address)
+        return socket.inet_aton(address)
+    except OSError:
+        raise ValueError(f"not an IP address: {address!r}") from None
+
+
+def udp_datagram(src: str, sport: int, dst: str, dport: int, payload: bytes, *, checksum: bool = True) -> bytes:
+    """UDP header + payload. The checksum covers the IPv4/IPv6 pseudo-header (0 = none, IPv4 only)."""
+    length = 8 + len(payload)
+    if length > 0xFFFF:
+        raise ValueError(f"UDP payload of {len(payload)} bytes does not fit the 16-bit UDP length")
+    header = struct.pack(">HHHH", sport, dport, length, 0)
+    if checksum or _version(src) == 6:  # IPv6 forbids a zero UDP checksum
+        s, d = _addr_bytes(src), _addr_bytes(dst)
+        if len(s) == 4:
+            pseudo = s + d + struct.pack(">BBH", 0, 17, length)
+        else:
+            pseudo = s + d + struct.pack(">IxxxB", length, 17)
+        c = internet_checksum(pseudo, header, payload) or 0xFFFF
+        header = struct.pack(">HHHH", sport, dport, length, c)
+    return header + payload
+
+
+def ipv4_header(
+    src: str, dst: str, payload_len: int, *, ident: int, proto: int = 17, ttl: int = 64,
+    more: bool = False, offset: int = 0, dont_fragment: bool = False, total_length: int | None = None,
+) -> bytes:
+    """A 20-byte IPv4 header with a valid checksum. ``offset`` in bytes (multiple of 8);
+    ``total_length`` overrides the length field (to write damaged captures)."""
+    if offset % 8:
+        raise ValueError("IPv4 fragment offsets are multiples of 8 bytes")
+    flags = (0x4000 if dont_fragment else 0) | (0x2000 if more else 0) | (offset // 8)
+    tl = 20 + payload_len if total_length is None else total_length
+    head = struct.pack(">BBHHHBBH4s4s", 0x45, 0, tl, ident & 0xFFFF, flags, ttl, proto, 0,
+                       _addr_bytes(src), _addr_bytes(dst))
+    return head[:10] + struct.pack(">H", internet_checksum(head)) + head[12:]
+
+
+def fragment_ipv4(payload_len: int, mtu: int) -> list[tuple[int, int, bool]]:
+    """(offset, length, more) of each fragment of an IPv4 payload at ``mtu`` (20-byte header)."""
+    room = (mtu - 20) // 8 * 8
+    if room <= 0:
+        raise ValueError(f"MTU {mtu} leaves no room for fragment data")
+    if payload_len + 20 <= mtu:
+        return [(0, payload_len, False)]
+    out = []
+    for off in range(0, payload_len, room):
+        length = min(room, payload_len - off)
+        out.append((off, length, off + length < payload_len))
+    return out
+
+
+def ip_packets(src: str, dst: str, l4: bytes, *, ident: int, mtu: int | None = 1500, proto: int = 17) -> list[bytes]:
+    """IP packets carrying ``l4`` (e.g. a UDP datagram): one, or fragments when larger than ``mtu``."""
+    if _version(src) != _version(dst):
+        raise ValueError(f"source {src} and destination {dst} are not the same IP version")
+    if _version(src) == 4:
+        if mtu is None:
+            if 20 + len(l4) > 0xFFFF:
+                raise ValueError("IPv4 datagram larger than 65535 bytes")
+            return [ipv4_header(src, dst, len(l4), ident=ident, proto=proto) + l4]
+        return [
+            ipv4_header(src, dst, length, ident=ident, proto=proto, more=more, offset=off) + l4[off : off + length]
+            for off, length, more in fragment_ipv4(len(l4), mtu)
+        ]
+    s, d = _addr_bytes(src), _addr_bytes(dst)
+    if mtu is None or 40 + len(l4) <= mtu:
+        return [struct.pack(">IHBB", 6 << 28, len(l4), proto, 64) + s + d + l4]
+    room = (mtu - 48) // 8 * 8
+    out = []
+    for off in range(0, len(l4), room):
+        part = l4[off : off + room]
+        more = off + len(part) < len(l4)
+        frag = struct.pack(">BBHI", proto, 0, off | int(more), ident & 0xFFFFFFFF)
+        out.append(struct.pack(">IHBB", 6 << 28, 8 + len(part), 44, 64) + s + d + frag + part)
+    return out
+
+
+def link_frame(ip: bytes, link: str = "ethernet", *, vlan: Sequence[int] = (), big_endian: bool = False,
+               broadcast: bool = False) -> bytes:
+    """Wrap an IP packet in a link-layer header.
+
+    ``vlan``: VLAN ids, outermost first (Ethernet only); the outer tags of a stack use the
+    802.1ad TPID 0x88A8, the innermost 0x8100. ``big_endian`` sets the byte order of the
+    BSD loopback family word (the writing host's order).
+    """
+    version = ip[0] >> 4
+    etype = _ETHERTYPE.get(version)
+    if etype is None:
+        raise ValueError(f"not an IP packet (version nibble {version})")
+    if link == "ethernet":
+        tags = b"".join(
+            struct.pack(">HH", 0x8100 if i == len(vlan) - 1 else 0x88A8, vid & 0x0FFF) for i, vid in enumerate(vlan)
+        )
+        return (BROADCAST_MAC if broadcast else DST_MAC) + SRC_MAC + tags + struct.pack(">H", etype) + ip
+    if vlan:
+        raise ValueError("VLAN tags need the Ethernet link type")
+    if link == "linux_sll":
+        return struct.pack(">HHH8sH", 1 if broadcast else 0, 1, 6, SRC_MAC, etype) + ip
+    if link == "linux_sll2":
+        return struct.pack(">HHIHBB8s", etype, 0, 2, 1, 1 if broadcast else 0, 6, SRC_MAC) + ip
+    if link == "raw":
+        return ip
+    if link == "null":
+        return struct.pack(">I" if big_endian else "<I", _AF[version]) + ip
+    raise ValueError(f"unknown link type {link!r}; choose one of {sorted(LINKTYPES)}")
+
+
+def frames_for(packet: Packet, *, link: str = "ethernet", mtu: int | None = 1500, vlan: Sequence[int] = (),
+               ident: int = 0, big_endian: bool = False, udp_checksum: bool = True) -> list[bytes]:
+    """The link-layer frames a network would carry for one packet (several when fragmented)."""
+    if packet.src is None or packet.dst is None:
+        raise ValueError("a packet without source/destination endpoints cannot be framed; give it Endpoints")
+    l4 = udp_datagram(packet.src.address, packet.src.port, packet.dst.address, packet.dst.port,
+                      bytes(packet.payload), checksum=udp_checksum)
+    broadcast = packet.dst.address == "255.255.255.255"
+    return [
+        link_frame(ip, link, vlan=vlan, big_endian=big_endian, broadcast=broadcast)
+        for ip in ip_packets(packet.src.address, packet.dst.address, l4, ident=ident, mtu=mtu)
+    ]
+
+
+def _packet_records(packets: Iterable[Packet], **frame_args) -> Iterator[Record]:
+    ident = 0
+    for p in packets:
+        ident = (ident + 1) & 0xFFFF
+        for f in frames_for(p, ident=ident, **frame_args):
+            yield (p.timestamp_ns, f)
+
+
+# --- classic pcap ----------------------------------------------------------------------------
+def _write_pcap_stream(fh: BinaryIO, records: Iterable[Record], *, linktype: int, nanosecond: bool,
+                       big_endian: bool, snaplen: int) -> None:
+    e = ">" if big_endian else "<"
+    fh.write(struct.pack(e + "IHHiIII", PCAP_MAGIC_NS if nanosecond else PCAP_MAGIC_US, 2, 4, 0, 0, snaplen, linktype))
+    rec = struct.Struct(e + "IIII")
+    div = 1 if nanosecond else 1000
+    for r in records:
+        ts, frame = r[0], r[1]
+        orig = r[2] if len(r) > 2 else len(frame)
+        data = frame[:snaplen]
+        sec, frac = divmod(int(ts), 1_000_000_000)
+        fh.write(rec.pack(sec, frac // div, len(data), orig))
+        fh.write(data)
+
+
+def write_pcap_records(path: str | os.PathLike[str], records: Iterable[Record], *, link: str | int = "ethernet",
+                       nanosecond: bool = False, big_endian: bool = False, snaplen: int = 65535) -> None:
+    """Write ready-made frames ``(timestamp_ns, frame[, original_length])`` as a classic pcap.
+
+    Frames longer than ``snaplen`` are cut to it (caplen < original length), like tcpdump does.
+    """
+    linktype = LINKTYPES[link] if isinstance(link, str) else int(link)
+    with open(path, "wb", buffering=1 << 20) as fh:
+        _write_pcap_stream(fh, records, linktype=linktype,
+                           nanosecond=nanosecond, big_endian=big_endian, snaplen=snaplen)
+
+
+def pcap_bytes(records: Iterable[Record], *, link: str | int = "ethernet", nanosecond: bool = False,
+               big_endian: bool = False, snaplen: int = 65535) -> bytes:
+    """The bytes :func:`write_pcap_records` would write (for tests that damage them)."""
+    buf = io.BytesIO()
+    _write_pcap_stream(buf, records, linktype=LINKTYPES[link] if isinstance(link, str) else int(link),
+                       nanosecond=nanosecond, big_endian=big_endian, snaplen=snaplen)
+    return buf.getvalue()
+
+
+def write_pcap(path: str | os.PathLike[str], packets: Iterable[Packet], *, link: str = "ethernet",
+               nanosecond: bool = False, big_endian: bool = False, mtu: int | None = 1500,
+               vlan: tuple[int, ...] = (), snaplen: int = 65535, udp_checksum: bool = True) -> None:
+    """Write packets as a classic pcap, framed and fragmented like a real network.
+
+    Args:
+        path: output file (overwritten).
+        packets: :class:`~lidarpkt.packet.Packet` objects with src/dst endpoints; IPv4 or IPv6
+            is taken from the address text.
+        link: ``"ethernet"``, ``"linux_sll"``, ``"linux_sll2"``, ``"raw"`` or ``"null"``.
+        nanosecond: nanosecond time stamps (magic a1b23c4d) instead of microseconds.
+        big_endian: write the file big-endian.
+        mtu: fragment datagrams larger than this (IPv4: 1480-byte fragment payloads at 1500);
+            None never fragments.
+        vlan: 802.1Q/802.1ad VLAN ids, outermost first (Ethernet only).
+        snaplen: frames longer than this are cut to it.
+        udp_checksum: compute UDP checksums (IPv4 allows 0, as VLP-16s send).
+
+    Raises:
+        ValueError: a packet without endpoints, a bad address, a datagram too large.
+    """
+    records = _packet_records(packets, link=link, mtu=mtu, vlan=vlan, big_endian=big_endian,
+                              udp_checksum=udp_checksum)
+    write_pcap_records(path, records, link=link, nanosecond=nanosecond, big_endian=big_endian, snaplen=snaplen)
+
+
+# --- pcapng ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Interface:
+    """One pcapng interface: link type, snap length and time resolution.
+
+    ``tsresol`` is the if_tsresol option byte: 6 = µs (the default), 9 = ns, 0x80|n = 2^-n s.
+    ``tsoffset_s`` is the if_tsoffset option (seconds added to every time stamp).
+    """
+
+    link: str | int = "ethernet"
+    snaplen: int = 65535
+    tsresol: int = 6
+    tsoffset_s: int = 0
+    name: str | None = None
+
+
+def _pad4(b: bytes) -> bytes:
+    return b + b"\0" * (-len(b) % 4)
+
+
+def _option(e: str, code: int, value: bytes) -> bytes:
+    return struct.pack(e + "HH", code, len(value)) + _pad4(value)
+
+
+def _block(e: str, btype: int, body: bytes) -> bytes:
+    body = _pad4(body)
+    n = 12 + len(body)
+    return struct.pack(e + "II", btype, n) + body + struct.pack(e + "I", n)
+
+
+def _ts_units(ts_ns: int, iface: Interface) -> int:
+    t = int(ts_ns) - iface.tsoffset_s * 1_000_000_000
+    r = iface.tsresol
+    if r & 0x80:
+        return (t << (r & 0x7F)) // 1_000_000_000
+    if r <= 9:
+        return t // 10 ** (9 - r)
+    return t * 10 ** (r - 9)
+
+
+def _write_pcapng_stream(fh: BinaryIO, records: Iterable[tuple[int, int, bytes] | tuple[int, int, bytes, int]],
+                         interfaces: Sequence[Interface], *, big_endian: bool, block: str) -> None:
+    e = ">" if big_endian else "<"
+    fh.write(_block(e, 0x0A0D0D0A, struct.pack(e + "IHHq", 0x1A2B3C4D, 1, 0, -1)))
+    for itf in interfaces:
+        lt = LINKTYPES[itf.link] if isinstance(itf.link, str) else int(itf.link)
+        opts = b""
+        if itf.name:
+            opts += _option(e, 2, itf.name.encode())
+        if itf.tsresol != 6:
+            opts += _option(e, 9, bytes([itf.tsresol]))
+        if itf.tsoffset_s:
+            opts += _option(e, 14, struct.pack(e + "q", itf.tsoffset_s))
+        if opts:
+            opts += struct.pack(e + "HH", 0, 0)
+        fh.write(_block(e, 1, struct.pack(e + "HHI", lt, 0, itf.snaplen) + opts))
+    for r in records:
+        iface_id, ts, frame = r[0], r[1], r[2]
+        orig = r[3] if len(r) > 3 else len(frame)
+        itf = interfaces[iface_id]
+        data = frame[: itf.snaplen]
+        if block == "spb":
+            fh.write(_block(e, 3, struct.pack(e + "I", orig) + data))
+        else:
+            units = _ts_units(ts, itf)
+            fh.write(_block(e, 6, struct.pack(e + "IIIII", iface_id, units >> 32, units & 0xFFFFFFFF,
+                                              len(data), orig) + data))
+
+
+def write_pcapng_records(path: str | os.PathLike[str], records: Iterable[tuple], *,
+                         interfaces: Sequence[Interface] = (Interface(),), big_endian: bool = False,
+                         block: str = "epb") -> None:
+    """Write ``(interface_id, timestamp_ns, frame[, original_length])`` records as one pcapng section.
+
+    ``block="spb"`` writes simple packet blocks (interface 0, no time stamps).
+    """
+    with open(path, "wb") as fh:
+        _write_pcapng_stream(fh, records, interfaces, big_endian=big_endian, block=block)
+
+
+def pcapng_bytes(records: Iterable[tuple], *, interfaces: Sequence[Interface] = (Interface(),),
+                 big_endian: bool = False, block: str = "epb") -> bytes:
+    """The bytes :func:`write_pcapng_records` would write."""
+    buf = io.BytesIO()
+    _write_pcapng_stream(buf, records, interfaces, big_endian=big_endian, block=block)
+    return buf.getvalue()
+
+
+def write_pcapng(path: str | os.PathLike[str], packets: Iterable[Packet], *,
+                 interfaces: Sequence[Interface] = (Interface(),),
+                 interface_of: Callable[[Packet], int] | None = None, big_endian: bool = False,
+                 mtu: int | None = 1500, vlan: tuple[int, ...] = (), block: str = "epb",
+                 udp_checksum: bool = True) -> None:
+    """Write packets as a pcapng file with one section and the given interfaces.
+
+    ``interface_of(packet)`` picks each packet's interface (default 0); the frame is built
+    for that interface's link type. Other arguments as in :func:`write_pcap`.
+    """
+    def records() -> Iterator[tuple]:
+        ident = 0
+        for p in packets:
+            ident = (ident + 1) & 0xFFFF
+            i = interface_of(p) if interface_of else 0
+            link = interfaces[i].link
+            link_name = link if isinstance(link, str) else {v: k for k, v in LINKTYPES.items()}[int(link)]
+            for f in frames_for(p, link=link_name, mtu=mtu, vlan=vlan if link_name == "ethernet" else (),
+                                ident=ident, big_endian=big_endian, udp_checksum=udp_checksum):
+                yield (i, p.timestamp_ns, f)
+
+    write_pcapng_records(path, records(), interfaces=interfaces, big_endian=big_endian, block=block)
