@@ -8,8 +8,13 @@ Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PA
 
 from __future__ import annotations
 
+from .calibration import VelodyneCalibration, load_calibration, stock_calibration
 from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
 from .encode import encode_data_packets, encode_position_packets
+from .detect import classify, describe_stream
+from .frames import DecoderStats, VelodyneDecoder
+from .geometry import VelodyneGeometry
+from .nmea import NMEAFix, parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
 
 __all__ = [
@@ -21,4 +26,14 @@ __all__ = [
     "decode_position_packets",
     "encode_data_packets",
     "encode_position_packets",
+    "classify",
+    "describe_stream",
+    "VelodyneDecoder",
+    "DecoderStats",
+    "VelodyneGeometry",
+    "VelodyneCalibration",
+    "load_calibration",
+    "stock_calibration",
+    "NMEAFix",
+    "parse_nmea",
 ]

@@ -1,0 +1,166 @@
+"""Is a stream a VLP-16? Data or position packets? What does it say about itself?
+
+Data packets: 1206 bytes, every block flag 0xEEFF, azimuths below 36000, a known return
+mode. The product byte says 0x22 on VLP-16s, but early (2014) units say 0x21, which is
+officially the HDL-32E (same packet layout). They are told apart by timing: a VLP-16 sends
+a packet every 12 × 110.592 = 1327.1 µs in single-return modes (663.6 µs in dual), an
+HDL-32E every 12 × 46.08 = 553 µs. A one-packet 0x21 batch has no timing; then the layout
+decides: on a VLP-16, channels j and j + 16 of a block are the same laser one firing
+sequence apart and nearly always see the same distance, while on an HDL-32E they are
+different lasers.
+
+Position packets: 512 bytes with bytes 0–186 zero (the HDL-32E writes gyroscope,
+temperature and accelerometer readings there).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..packet import PacketBatch
+from .decode import decode_packets, decode_position_packets
+from .nmea import parse_nmea
+from .packet import (
+    DATA_PACKET_SIZE,
+    DUAL_PACKET_PERIOD_US,
+    HDL32E_PACKET_PERIOD_US,
+    LASERS,
+    POSITION_PACKET_SIZE,
+    PPS_STATUS,
+    PRODUCT_HDL32E,
+    PRODUCT_NAMES,
+    PRODUCT_VLP16,
+    RETURN_MODES,
+    SINGLE_PACKET_PERIOD_US,
+)
+
+HOUR_US = 3_600_000_000
+
+
+def _median_period_us(timestamp_us: np.ndarray) -> float | None:
+    if timestamp_us.shape[0] < 2:
+        return None
+    d = np.diff(timestamp_us.astype(np.int64)) % HOUR_US
+    d = d[(d > 0) & (d < 100_000)]
+    return float(np.median(d)) if d.size else None
+
+
+def _layout_says_vlp16(raw) -> bool:
+    """Channels j and j+16 agree (same laser, next sequence) far more often than on an HDL-32E."""
+    a = raw.distance_2mm[:, :, :LASERS].astype(np.int32)
+    b = raw.distance_2mm[:, :, LASERS:].astype(np.int32)
+    both = (a > 0) & (b > 0)
+    if np.count_nonzero(both) < 16:
+        return False
+    close = np.abs(a - b) <= np.maximum(25, (a + b) // 40)  # within 50 mm or 5 %
+    return np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6
+
+
+def data_kind(batch: PacketBatch) -> str | None:
+    """``"vlp16"``, ``"hdl32e"`` or ``None`` (not Velodyne-like data packets) for a batch of 1206-byte payloads."""
+    if batch.payload_size != DATA_PACKET_SIZE or len(batch) == 0:
+        return None
+    raw = decode_packets(batch.payload)
+    ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
+    if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not VLP-16 layout
+        return None
+    raw = raw.select(ok)
+    product = int(np.bincount(raw.product_id).argmax())
+    if product == PRODUCT_VLP16:
+        return "vlp16"
+    if product != PRODUCT_HDL32E:
+        return None
+    dual = bool(np.median(raw.return_mode) == 0x39)
+    period = _median_period_us(raw.timestamp_us)
+    if period is not None:
+        expected = DUAL_PACKET_PERIOD_US if dual else SINGLE_PACKET_PERIOD_US
+        if abs(period - expected) < 0.05 * expected:
+            return "vlp16"
+        return "hdl32e"
+    return "vlp16" if _layout_says_vlp16(raw) else "hdl32e"
+
+
+def position_kind(batch: PacketBatch) -> str | None:
+    """``"vlp16"``, ``"hdl32e"`` or ``None`` for a batch of 512-byte payloads."""
+    if batch.payload_size != POSITION_PACKET_SIZE or len(batch) == 0:
+        return None
+    pos = decode_position_packets(batch.payload)
+    if np.any(pos.pps_status > 3):
+        return None
+    head_zero = ~np.any(pos.unused_head[:, :187], axis=1)
+    return "vlp16" if head_zero.mean() > 0.5 else "hdl32e"
+
+
+def classify(batch: PacketBatch) -> str | None:
+    """``"data"`` or ``"position"`` for VLP-16 packet streams, ``None`` for anything else (an HDL-32E too)."""
+    if batch.payload_size == DATA_PACKET_SIZE:
+        return "data" if data_kind(batch) == "vlp16" else None
+    if batch.payload_size == POSITION_PACKET_SIZE:
+        return "position" if position_kind(batch) == "vlp16" else None
+    return None
+
+
+def describe_stream(batch: PacketBatch) -> dict | None:
+    """A JSON-ready description of a Velodyne stream for ``lidarpkt info``, ``None`` if it is none.
+
+    Data: ``{"kind": "VLP-16 data", "return_mode": "strongest", "product_id": 0x22,
+    "product_name": ..., "packets": N, "packet_period_us": ..., "rotation_hz": ...,
+    "malformed_packets": ..., "first_timestamp_us": ...}``; an HDL-32E gives
+    ``{"kind": "HDL-32E data (not a VLP-16)", ...}``.
+    Position: ``{"kind": "VLP-16 position", "pps_status": "locked", "nmea_first": "$GPRMC,…",
+    "gps_time_first": "2014-11-04T…Z" | None, "fix_valid": bool | None, ...}``.
+    """
+    if batch.payload_size == DATA_PACKET_SIZE:
+        kind = data_kind(batch)
+        if kind is None:
+            return None
+        raw = decode_packets(batch.payload)
+        ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
+        good = raw.select(ok)
+        product = int(np.bincount(good.product_id).argmax())
+        modes = sorted({RETURN_MODES[int(m)] for m in np.unique(good.return_mode)})
+        from .frames import _estimate_frequency
+
+        out = {
+            "kind": "VLP-16 data" if kind == "vlp16" else "HDL-32E data (not a VLP-16)",
+            "return_mode": modes[0] if len(modes) == 1 else modes,
+            "product_id": product,
+            "product_name": PRODUCT_NAMES.get(product, f"unknown 0x{product:02x}"),
+            "packets": len(batch),
+            "malformed_packets": int(np.count_nonzero(~ok)),
+            "packet_period_us": _median_period_us(good.timestamp_us),
+            "first_timestamp_us": int(good.timestamp_us[0]) if len(good) else None,
+        }
+        if kind == "vlp16":
+            out["rotation_hz"] = _estimate_frequency(good) if len(good) else None
+            if product == PRODUCT_HDL32E:
+                out["note"] = "product id 0x21 (HDL-32E) on a packet timing/layout of an early VLP-16"
+        return out
+    if batch.payload_size == POSITION_PACKET_SIZE:
+        kind = position_kind(batch)
+        if kind is None:
+            return None
+        pos = decode_position_packets(batch.payload)
+        sentences = pos.sentences()
+        first = next((s for s in sentences if s), "")
+        fix_valid = gps_time = None
+        if first:
+            try:
+                fix = parse_nmea(first)
+                fix_valid = fix.valid
+                if fix.utc_ns is not None:
+                    import datetime as _dt
+
+                    gps_time = _dt.datetime.fromtimestamp(fix.utc_ns / 1e9, _dt.timezone.utc).isoformat().replace("+00:00", "Z")
+            except Exception as exc:  # NMEAError: reported, not raised, in a description
+                fix_valid = f"unreadable: {exc}"
+        return {
+            "kind": "VLP-16 position" if kind == "vlp16" else "HDL-32E position (not a VLP-16)",
+            "packets": len(batch),
+            "pps_status": PPS_STATUS.get(int(pos.pps_status[0]), int(pos.pps_status[0])),
+            "nmea_first": first or None,
+            "gps_time_first": gps_time,
+            "fix_valid": fix_valid,
+            "first_timestamp_us": int(pos.timestamp_us[0]),
+        }
+    return None

@@ -1,0 +1,447 @@
+"""VLP-16 frame assembly: packets → lossless range-image columns → frames cut at the azimuth wrap.
+
+Columns. One column per firing sequence, in firing order: 24 per packet in single-return
+modes (block b → columns 2b, 2b+1), 12 per packet in dual mode (block pair 2k, 2k+1 →
+columns 2k, 2k+1). Rows: row 0 = the highest laser (+15°, laser 15), row 15 = laser 0
+(−15°), as the calibration's elevations order them.
+
+Dual mode (``return_labels = ("last", "strongest")``): slot 0 holds block 2k (the last
+return), slot 1 block 2k+1: the strongest return, or — when the strongest return was also
+the last — the second strongest. Such pixels are marked in ``frame.extra["second_strongest"]``
+(``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has
+the strictly higher reflectivity, i.e. the last return was the strongest. Equal
+reflectivities are ambiguous and are not marked. Where the sensor saw one return both
+slots hold it, as the sensor sends it.
+
+``frame.extra`` keys: ``azimuth_cdeg`` (``uint16[16, W]``, the azimuth of each firing in
+0.01°, interpolated as velodyne_decoder does; used by the XYZ), ``packet_index``
+(``int64[W]``, index of the packet in the source, −1 for lost columns), and in dual mode
+``second_strongest``.
+
+Cuts. A frame ends before the first column whose azimuth (minus the cut angle) wrapped
+past 0, i.e. dropped by more than half a turn. The first frame of a stream, the last one
+(:meth:`VelodyneDecoder.finish`) and frames cut by a long loss of packets or a return-mode
+change are ``partial``. Lost packets (time gaps between packets, shorter than
+``max_gap_s``) become invalid columns (no sample: ``column_valid`` False, zero range, zero
+timestamp, azimuth interpolated in time for :meth:`Frame.on_grid`) and are counted in the
+frame's ``counters.lost_packets``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import NMEAError, SkippedPacketWarning
+from ..frame import Frame, FrameCounters, SensorInfo
+from ..packet import PacketBatch
+from .decode import DataPackets, decode_packets, decode_position_packets
+from .geometry import VelodyneGeometry
+from .nmea import parse_nmea
+from .packet import (
+    DATA_PACKET_SIZE,
+    DUAL_PACKET_PERIOD_US,
+    LASERS,
+    POSITION_PACKET_SIZE,
+    RETURN_MODE_CODES,
+    RETURN_MODES,
+    SINGLE_PACKET_PERIOD_US,
+)
+from .timing import FIRING_NS, SEQUENCE_NS, firing_azimuth_cdeg
+
+HOUR_NS = 3_600_000_000_000
+HOUR_US = 3_600_000_000
+DUAL = RETURN_MODE_CODES["dual"]
+LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
+
+
+@dataclass
+class DecoderStats:
+    """What a :class:`VelodyneDecoder` saw, counted."""
+
+    packets: int = 0  # data packets pushed
+    decoded_packets: int = 0
+    malformed_size: int = 0  # data batches of another payload size
+    malformed_flag: int = 0  # a block flag other than 0xEEFF or an azimuth ≥ 360°
+    unknown_return_mode: int = 0
+    duplicate_packets: int = 0  # same sensor timestamp as an earlier packet
+    out_of_order_packets: int = 0  # older than an earlier packet
+    lost_packets: int = 0  # inferred from time gaps
+    long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
+    position_packets: int = 0
+    position_malformed: int = 0
+    nmea_errors: int = 0
+    gps_fixes: int = 0
+    frames: int = 0
+
+    @property
+    def malformed(self) -> int:
+        """Packets skipped as malformed (size, flag, return mode)."""
+        return self.malformed_size + self.malformed_flag + self.unknown_return_mode
+
+
+@dataclass
+class _Columns:
+    """A run of columns of one return mode (the pieces a frame is concatenated from)."""
+
+    range_mm: np.ndarray  # uint32 [R, 16, w]
+    reflectivity: np.ndarray  # uint8 [R, 16, w]
+    azimuth_px: np.ndarray  # uint16 [16, w]
+    azimuth_cdeg: np.ndarray  # float64 [w]
+    valid: np.ndarray  # bool [w]
+    timestamp_ns: np.ndarray  # int64 [w]
+    packet_index: np.ndarray  # int64 [w]
+    lost: np.ndarray  # int32 [w]: packets lost just before this column
+
+    def __len__(self) -> int:
+        return int(self.valid.shape[0])
+
+    def split(self, at: list[int]) -> list["_Columns"]:
+        names = self.__dataclass_fields__
+        pieces = {k: np.split(getattr(self, k), at, axis=-1) for k in names}
+        return [_Columns(**{k: pieces[k][i] for k in names}) for i in range(len(at) + 1)]
+
+    @staticmethod
+    def concat(parts: list["_Columns"]) -> "_Columns":
+        if len(parts) == 1:
+            return parts[0]
+        return _Columns(**{k: np.concatenate([getattr(p, k) for p in parts], axis=-1) for k in _Columns.__dataclass_fields__})
+
+
+class VelodyneDecoder:
+    """Frames of one VLP-16 (one source address) from its data and position packets.
+
+    Args:
+        calibration: a :class:`~lidarpkt.velodyne.calibration.VelodyneCalibration`, a path to a ROS
+            YAML / VeloView XML, or ``None`` for the stock calibration.
+        cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
+        source: a name for reports (``"192.168.1.201:2368"``).
+        max_gap_s: lost stretches shorter than this become invalid columns; longer ones end the
+            frame (partial) without inserting anything. Default 0.2 s.
+
+    ``push`` returns the frames completed by a batch; ``finish`` the last, partial one.
+    Malformed packets (wrong size, bad block flag, unknown return mode) are counted in
+    :attr:`stats` and skipped with one :class:`~lidarpkt.errors.SkippedPacketWarning` per batch.
+    """
+
+    def __init__(self, *, calibration=None, cut_angle_deg: float | None = None, source: str | None = None,
+                 max_gap_s: float = 0.2, **options) -> None:
+        if options:
+            raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
+        self.geometry = VelodyneGeometry(calibration)
+        self.calibration = self.geometry.calibration
+        self.cut_cdeg = 0.0 if cut_angle_deg is None else float(cut_angle_deg) % 360.0 * 100.0
+        self.source = source
+        self.max_gap_ns = int(max_gap_s * 1e9)
+        self.stats = DecoderStats()
+        self._row_laser = self.geometry.row_laser  # laser id of each row
+        self._pending: list[_Columns] = []
+        self._pending_partial = True  # the first frame of a stream is partial
+        self._pending_counters = FrameCounters()
+        self._mode: str | None = None
+        self._last_abs_ns: int | None = None  # sensor time of the last packet kept
+        self._clock_ns: int | None = None  # sensor time of the last packet seen
+        self._last_key: float | None = None  # cut key of the last column
+        self._last_az_cdeg: float | None = None
+        self._gps_anchor: tuple[int, int] | None = None  # (host ns, absolute ns) of a position packet with a fix
+        self._sensors: dict[str, SensorInfo] = {}
+        self._product_id: int | None = None
+        self._frame_id = 0
+        self._frequency_hz: float | None = None
+
+    # ------------------------------------------------------------------ time
+    def absolute_time_ns(self, timestamp_us: np.ndarray, host_ns: np.ndarray) -> np.ndarray:
+        """``int64[N]`` ns since the epoch for hour-relative packet times, updating the decoder's clock.
+
+        The hour is the one that puts the packet nearest its reference time: the GPS time of
+        the last position packet with a fix (carried forward by the capture clock), else the
+        capture time, else (no capture time, e.g. raw payload files) the previous packet, so
+        that the top of the hour is crossed correctly in every case.
+        """
+        toh_ns = timestamp_us.astype(np.int64) * 1000
+        host_ns = np.asarray(host_ns, dtype=np.int64)
+        if host_ns.size and np.all(host_ns != 0):
+            ref = host_ns
+            if self._gps_anchor is not None:
+                ref = self._gps_anchor[1] + (host_ns - self._gps_anchor[0])
+            hour = np.round((ref - toh_ns) / HOUR_NS).astype(np.int64)
+            out = hour * HOUR_NS + toh_ns
+        else:
+            if self._clock_ns is not None:
+                start = self._clock_ns
+            elif self._gps_anchor is not None:
+                start = round((self._gps_anchor[1] - int(toh_ns[0])) / HOUR_NS) * HOUR_NS + int(toh_ns[0])
+            else:
+                start = int(toh_ns[0])
+            seq = np.concatenate([[start // 1000 % HOUR_US], timestamp_us.astype(np.int64)])
+            d = (np.diff(seq) + HOUR_US // 2) % HOUR_US - HOUR_US // 2  # signed step, within half an hour
+            out = start + np.cumsum(d) * 1000
+        if out.size:
+            self._clock_ns = int(out[-1])
+        return out
+
+    # ------------------------------------------------------------------ position packets
+    def push_position(self, batch: PacketBatch) -> None:
+        """Position packets: the GPS time of a valid fix anchors the hour of later data packets."""
+        n = len(batch)
+        self.stats.position_packets += n
+        if batch.payload_size != POSITION_PACKET_SIZE:
+            self.stats.position_malformed += n
+            return
+        pos = decode_position_packets(batch.payload)
+        for i, text in enumerate(pos.sentences()):
+            if not text:
+                continue
+            try:
+                fix = parse_nmea(text)
+            except NMEAError:
+                self.stats.nmea_errors += 1
+                continue
+            utc = fix.utc_ns
+            if utc is None and fix.time_of_day_s is not None and batch.timestamp_ns[i] != 0:
+                day = 86_400_000_000_000
+                host = int(batch.timestamp_ns[i])
+                utc = host - host % day + round(fix.time_of_day_s * 1e9)
+                utc += day * round((host - utc) / day)  # nearest midnight
+            if not fix.valid or utc is None:
+                continue
+            toh = int(pos.timestamp_us[i]) * 1000
+            absolute = round((utc - toh) / HOUR_NS) * HOUR_NS + toh
+            self._gps_anchor = (int(batch.timestamp_ns[i]), absolute)
+            self.stats.gps_fixes += 1
+
+    # ------------------------------------------------------------------ data packets
+    def push(self, batch: PacketBatch) -> list[Frame]:
+        """Decode a batch of data packets; returns the frames it completed (possibly none)."""
+        n = len(batch)
+        self.stats.packets += n
+        if n == 0:
+            return []
+        if batch.payload_size != DATA_PACKET_SIZE:
+            self.stats.malformed_size += n
+            self._pending_counters.malformed_packets += n
+            warnings.warn(SkippedPacketWarning(
+                f"{self.source or 'VLP-16'}: skipped {n} packets of {batch.payload_size} B (a VLP-16 data packet has "
+                f"{DATA_PACKET_SIZE} B)"), stacklevel=2)
+            return []
+        raw = decode_packets(batch.payload)
+        ok = raw.flag_ok
+        known = np.isin(raw.return_mode, list(RETURN_MODES))
+        bad_flag = int(np.count_nonzero(~ok))
+        bad_mode = int(np.count_nonzero(ok & ~known))
+        if bad_flag or bad_mode:
+            self.stats.malformed_flag += bad_flag
+            self.stats.unknown_return_mode += bad_mode
+            self._pending_counters.malformed_packets += bad_flag + bad_mode
+            warnings.warn(SkippedPacketWarning(
+                f"{self.source or 'VLP-16'}: skipped {bad_flag} packets with a bad block flag or azimuth and "
+                f"{bad_mode} with an unknown return mode"), stacklevel=2)
+            keep = ok & known
+            raw = raw.select(keep)
+            times = batch.timestamp_ns[keep]
+            index = batch.index[keep]
+        else:
+            times, index = batch.timestamp_ns, batch.index
+        if len(raw) == 0:
+            return []
+        if self._product_id is None:
+            self._product_id = int(raw.product_id[0])
+        abs_ns = self.absolute_time_ns(raw.timestamp_us, times)
+        frames: list[Frame] = []
+        # runs of one return mode
+        change = np.flatnonzero(np.diff(raw.return_mode.astype(np.int16))) + 1
+        bounds = [0, *change.tolist(), len(raw)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            frames += self._push_run(raw.select(slice(a, b)), abs_ns[a:b], index[a:b])
+        self.stats.frames += len(frames)
+        return frames
+
+    def _push_run(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray) -> list[Frame]:
+        mode = RETURN_MODES[int(raw.return_mode[0])]
+        frames: list[Frame] = []
+        if self._mode is not None and mode != self._mode:
+            frames += self._flush(partial=True)
+            self._last_abs_ns = None
+            self._last_key = None
+            self._last_az_cdeg = None
+        self._mode = mode
+        if self._frequency_hz is None:
+            self._frequency_hz = _estimate_frequency(raw)
+        # duplicates and packets older than one already kept are dropped and counted
+        prev = np.concatenate([[self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min],
+                               np.maximum.accumulate(abs_ns)[:-1]])
+        fresh = abs_ns > prev
+        if not fresh.all():
+            dup = int(np.count_nonzero(abs_ns == prev))
+            ooo = int(np.count_nonzero(abs_ns < prev))
+            self.stats.duplicate_packets += dup
+            self.stats.out_of_order_packets += ooo
+            self._pending_counters.duplicate_packets += dup
+            self._pending_counters.out_of_order_packets += ooo
+            raw, abs_ns, index = raw.select(fresh), abs_ns[fresh], index[fresh]
+            if len(raw) == 0:
+                return frames
+        self.stats.decoded_packets += len(raw)
+        period_ns = (DUAL_PACKET_PERIOD_US if mode == "dual" else SINGLE_PACKET_PERIOD_US) * 1000
+        gaps = np.diff(np.concatenate([[abs_ns[0] if self._last_abs_ns is None else self._last_abs_ns], abs_ns]))
+        missing = np.where(gaps > 1.5 * period_ns, np.rint(gaps / period_ns).astype(np.int64) - 1, 0)
+        long_gap = gaps > self.max_gap_ns
+        cuts = np.flatnonzero(long_gap)
+        bounds = [0, *cuts.tolist(), len(raw)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if a in cuts:
+                self.stats.long_gaps += 1
+                self.stats.lost_packets += int(missing[a])
+                self._pending_counters.lost_packets += int(missing[a])
+                frames += self._flush(partial=True)
+                self._last_key = None
+                self._last_az_cdeg = None
+                miss = missing[a:b].copy()
+                miss[0] = 0
+            else:
+                miss = missing[a:b]
+            self.stats.lost_packets += int(miss.sum())
+            cols = self._columns(raw.select(slice(a, b)), abs_ns[a:b], index[a:b], miss, mode)
+            frames += self._append(cols)
+        self._last_abs_ns = int(abs_ns[-1])
+        return frames
+
+    def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:
+        n = len(raw)
+        dual = mode == "dual"
+        per_packet = 12 if dual else 24
+        fa = firing_azimuth_cdeg(raw.azimuth_cdeg, np.full(n, dual))  # [n, 12, 32]
+        lasers = self._row_laser
+        if dual:
+            # [n, 6 pairs, 2 slots, 2 seq, 16] → [2 slots, 16 rows, n·12 columns]
+            dist = raw.distance_2mm.reshape(n, 6, 2, 2, LASERS).transpose(2, 4, 0, 1, 3).reshape(2, LASERS, -1)
+            refl = raw.reflectivity.reshape(n, 6, 2, 2, LASERS).transpose(2, 4, 0, 1, 3).reshape(2, LASERS, -1)
+            az = fa.reshape(n, 6, 2, 2, LASERS)[:, :, 0].transpose(3, 0, 1, 2).reshape(LASERS, -1)
+        else:
+            dist = raw.distance_2mm.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(1, LASERS, -1)
+            refl = raw.reflectivity.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(1, LASERS, -1)
+            az = fa.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(LASERS, -1)
+        rng = dist[:, lasers].astype(np.uint32) << 1
+        refl = refl[:, lasers]
+        az_px = az[lasers]
+        col_az = az[0].astype(np.float64)  # laser 0 fires first in each sequence
+        seq = np.arange(per_packet, dtype=np.int64) * SEQUENCE_NS
+        ts = (abs_ns[:, None] + seq[None, :]).reshape(-1)
+        pidx = np.repeat(index.astype(np.int64), per_packet)
+        total_missing = int(miss.sum())
+        if total_missing == 0:
+            lost = np.zeros(n * per_packet, np.int32)
+            return _Columns(rng, refl, az_px, col_az, np.ones(n * per_packet, bool), ts, pidx, lost)
+        # scatter the packets' columns among invalid columns standing for the lost packets
+        slot = np.arange(n) + np.cumsum(miss)
+        w = (n + total_missing) * per_packet
+        cols = (slot[:, None] * per_packet + np.arange(per_packet)[None, :]).reshape(-1)
+        r_out = np.zeros(rng.shape[:2] + (w,), np.uint32)
+        f_out = np.zeros(refl.shape[:2] + (w,), np.uint8)
+        a_out = np.zeros((LASERS, w), np.uint16)
+        r_out[..., cols], f_out[..., cols], a_out[:, cols] = rng, refl, az_px
+        valid = np.zeros(w, bool)
+        valid[cols] = True
+        ts_out = np.zeros(w, np.int64)
+        ts_out[cols] = ts
+        p_out = np.full(w, -1, np.int64)
+        p_out[cols] = pidx
+        lost = np.zeros(w, np.int32)
+        lost[slot * per_packet] = miss.astype(np.int32)
+        # azimuth of lost columns: interpolated along the unwrapped azimuth of the valid ones
+        anchor_idx = [] if self._last_az_cdeg is None else [-1]
+        anchor_az = [] if self._last_az_cdeg is None else [self._last_az_cdeg]
+        known_idx = np.concatenate([anchor_idx, cols]).astype(np.float64)
+        known_az = np.concatenate([anchor_az, col_az])
+        step = np.diff(known_az) % 36000.0
+        unwrapped = known_az[0] + np.concatenate([[0.0], np.cumsum(step)])
+        az_all = np.interp(np.arange(w, dtype=np.float64), known_idx, unwrapped) % 36000.0
+        az_all[cols] = col_az
+        return _Columns(r_out, f_out, a_out, az_all, valid, ts_out, p_out, lost)
+
+    def _append(self, cols: _Columns) -> list[Frame]:
+        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
+        prev = np.concatenate([[key[0] if self._last_key is None else self._last_key], key[:-1]])
+        cut_at = np.flatnonzero(key < prev - 18000.0).tolist()
+        self._last_key = float(key[-1])
+        self._last_az_cdeg = float(cols.azimuth_cdeg[-1])
+        frames = []
+        pieces = cols.split(cut_at) if cut_at else [cols]
+        for piece in pieces[:-1]:
+            if len(piece):
+                self._pending.append(piece)
+            frames += self._flush(partial=self._pending_partial)
+        self._pending.append(pieces[-1])
+        return frames
+
+    def _flush(self, *, partial: bool) -> list[Frame]:
+        parts = [p for p in self._pending if len(p)]
+        counters = self._pending_counters
+        self._pending = []
+        self._pending_counters = FrameCounters()
+        self._pending_partial = False
+        if not parts:
+            self._pending_partial = True
+            return []
+        cols = _Columns.concat(parts)
+        counters.lost_packets += int(cols.lost.sum())
+        frame = self._make_frame(cols, partial, counters)
+        return [frame]
+
+    def finish(self) -> list[Frame]:
+        """The last frame (partial), if any columns are pending. The decoder can be reused afterwards."""
+        frames = self._flush(partial=True)
+        self._pending_partial = True
+        self._last_key = None
+        self._last_az_cdeg = None
+        self.stats.frames += len(frames)
+        return frames
+
+    # ------------------------------------------------------------------ frames
+    def sensor_info(self, mode: str) -> SensorInfo:
+        """The :class:`SensorInfo` of this sensor in return mode ``mode``."""
+        info = self._sensors.get(mode)
+        if info is None:
+            cal = self.calibration
+            rows = self._row_laser
+            freq = self._frequency_hz
+            info = self._sensors[mode] = SensorInfo(
+                vendor="velodyne", model="VLP-16", rows=LASERS,
+                columns_per_frame=int(round(1e9 / (freq * SEQUENCE_NS))) if freq else 1808,
+                return_mode=mode, return_labels=LABELS[mode],
+                beam_altitude_deg=cal.elevation_deg[rows], beam_azimuth_deg=np.degrees(cal.rot_correction_rad[rows]),
+                frequency_hz=freq, grid_resolution_deg=0.2, geometry=self.geometry, product_id=self._product_id,
+                source=self.source, profile=mode,
+            )
+        return info
+
+    def _make_frame(self, cols: _Columns, partial: bool, counters: FrameCounters) -> Frame:
+        mode = self._mode or "strongest"
+        w = len(cols)
+        toff = np.where(cols.valid[None, :], (FIRING_NS * self._row_laser.astype(np.int64))[:, None], 0)
+        extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
+        if mode == "dual":
+            r0, r1 = cols.range_mm[0], cols.range_mm[1]
+            f0, f1 = cols.reflectivity[0], cols.reflectivity[1]
+            extra["second_strongest"] = (r1 != r0) & (f0 > f1)
+        frame = Frame(
+            sensor=self.sensor_info(mode), frame_id=self._frame_id, range_mm=cols.range_mm,
+            reflectivity=cols.reflectivity, return_labels=LABELS[mode], column_valid=cols.valid,
+            column_timestamp_ns=cols.timestamp_ns, azimuth_deg=cols.azimuth_cdeg / 100.0,
+            pixel_time_offset_ns=toff, partial=partial, counters=counters, extra=extra,
+        )
+        assert frame.range_mm.shape == (len(LABELS[mode]), LASERS, w)
+        self._frame_id += 1
+        return frame
+
+
+def _estimate_frequency(raw: DataPackets) -> float | None:
+    """Rotation rate in Hz from the azimuth advance inside packets (median), ``None`` if unmeasurable."""
+    dual = raw.return_mode == DUAL
+    diff = (raw.azimuth_cdeg[:, -1].astype(np.int64) - raw.azimuth_cdeg[:, 0]) % 36000
+    seqs = np.where(dual, 10, 22)  # firing sequences between the first and last block
+    rate = diff / (seqs * SEQUENCE_NS)  # cdeg per ns
+    hz = float(np.median(rate)) * 1e9 / 36000.0
+    return round(hz, 2) if hz > 0 else None

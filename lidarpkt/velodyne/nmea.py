@@ -1,0 +1,123 @@
+"""NMEA $GPRMC / $GPGGA sentences as VLP-16 position packets carry them (checksum verified).
+
+Only what the decoder needs: UTC date and time, fix validity, latitude and longitude.
+"""
+
+from __future__ import annotations
+
+import calendar
+from dataclasses import dataclass
+
+from ..errors import NMEAError
+
+
+@dataclass(frozen=True)
+class NMEAFix:
+    """One parsed sentence.
+
+    Attributes:
+        sentence: ``"RMC"`` or ``"GGA"`` (talker id stripped).
+        talker: e.g. ``"GP"``.
+        time_of_day_s: UTC seconds since midnight (fraction kept), ``None`` if the field is empty.
+        date: ``(year, month, day)`` from $GPRMC, ``None`` for $GPGGA or an empty field.
+        valid: RMC status ``A``, or GGA fix quality > 0.
+        latitude_deg, longitude_deg: signed degrees (north, east positive), ``None`` if empty.
+    """
+
+    sentence: str
+    talker: str
+    time_of_day_s: float | None
+    date: tuple[int, int, int] | None
+    valid: bool
+    latitude_deg: float | None
+    longitude_deg: float | None
+
+    @property
+    def utc_ns(self) -> int | None:
+        """UTC time as ns since the Unix epoch when both date and time are known, else ``None``."""
+        if self.date is None or self.time_of_day_s is None:
+            return None
+        y, m, d = self.date
+        midnight = calendar.timegm((y, m, d, 0, 0, 0, 0, 0, 0))
+        return midnight * 1_000_000_000 + round(self.time_of_day_s * 1e9)
+
+
+def checksum(body: str) -> int:
+    """XOR of the characters between ``$`` and ``*``."""
+    value = 0
+    for ch in body.encode("ascii", errors="replace"):
+        value ^= ch
+    return value
+
+
+def _coord(value: str, hemi: str, deg_digits: int, what: str) -> float | None:
+    if not value:
+        return None
+    try:
+        deg = int(value[:deg_digits])
+        minutes = float(value[deg_digits:])
+    except ValueError:
+        raise NMEAError(f"bad {what} field {value!r}") from None
+    out = deg + minutes / 60.0
+    if hemi in ("S", "W"):
+        out = -out
+    elif hemi not in ("N", "E"):
+        raise NMEAError(f"bad {what} hemisphere {hemi!r}")
+    return out
+
+
+def _time_of_day(value: str) -> float | None:
+    if not value:
+        return None
+    try:
+        h, m, s = int(value[0:2]), int(value[2:4]), float(value[4:])
+    except ValueError:
+        raise NMEAError(f"bad UTC time field {value!r}") from None
+    if h > 23 or m > 59 or s >= 61:
+        raise NMEAError(f"UTC time out of range: {value!r}")
+    return h * 3600 + m * 60 + s
+
+
+def parse_nmea(sentence: str | bytes) -> NMEAFix:
+    """Parse one $--RMC or $--GGA sentence (trailing CR LF and NUL padding allowed).
+
+    Raises:
+        NMEAError: no ``$``/``*``, checksum mismatch (message shows both values), another
+            sentence type, or a malformed field.
+    """
+    if isinstance(sentence, bytes):
+        sentence = sentence.split(b"\x00", 1)[0].decode("ascii", errors="replace")
+    text = sentence.strip().rstrip("\x00")
+    if not text.startswith("$") or "*" not in text:
+        raise NMEAError(f"not an NMEA sentence (needs $…*hh): {text[:60]!r}")
+    body, _, given = text[1:].rpartition("*")
+    try:
+        expected = int(given[:2], 16)
+    except ValueError:
+        raise NMEAError(f"bad NMEA checksum field {given!r} in {text[:60]!r}") from None
+    actual = checksum(body)
+    if actual != expected:
+        raise NMEAError(f"NMEA checksum mismatch: sentence says {expected:02X}, content gives {actual:02X}: {text[:60]!r}")
+    fields = body.split(",")
+    head = fields[0]
+    talker, kind = head[:2], head[2:]
+    if kind == "RMC":
+        if len(fields) < 10:
+            raise NMEAError(f"$--RMC with {len(fields)} fields (needs ≥ 10): {text[:60]!r}")
+        date = None
+        if fields[9]:
+            ds = fields[9]
+            try:
+                d, m, y = int(ds[0:2]), int(ds[2:4]), int(ds[4:6])
+            except ValueError:
+                raise NMEAError(f"bad RMC date {ds!r}") from None
+            date = (2000 + y if y < 80 else 1900 + y, m, d)
+        return NMEAFix("RMC", talker, _time_of_day(fields[1]), date, fields[2] == "A",
+                       _coord(fields[3], fields[4], 2, "latitude"), _coord(fields[5], fields[6], 3, "longitude"))
+    if kind == "GGA":
+        if len(fields) < 7:
+            raise NMEAError(f"$--GGA with {len(fields)} fields (needs ≥ 7): {text[:60]!r}")
+        quality = int(fields[6]) if fields[6].isdigit() else 0
+        return NMEAFix("GGA", talker, _time_of_day(fields[1]), None, quality > 0,
+                       _coord(fields[2], fields[3], 2, "latitude"), _coord(fields[4], fields[5], 3, "longitude"))
+    raise NMEAError(f"unsupported NMEA sentence {head!r} (lidarpkt reads RMC and GGA)")
