@@ -41,8 +41,11 @@ class DataPackets:
 
     @property
     def flag_ok(self) -> np.ndarray:
-        """``bool[N]``: every block of the packet carries the 0xEEFF flag and an azimuth below 36000."""
-        return np.all((self.flag == BLOCK_FLAG) & (self.azimuth_cdeg < 36000), axis=1)
+        """``bool[N]``: every block of the packet carries the 0xEEFF flag and an azimuth ≤ 36000.
+
+        36000 (= 0°) does occur in real early-firmware packets (the VeloView capture), so it is accepted.
+        """
+        return np.all((self.flag == BLOCK_FLAG) & (self.azimuth_cdeg <= 36000), axis=1)
 
     @property
     def range_mm(self) -> np.ndarray:

@@ -120,6 +120,9 @@ class VelodyneDecoder:
         source: a name for reports (``"192.168.1.201:2368"``).
         max_gap_s: lost stretches shorter than this become invalid columns; longer ones end the
             frame (partial) without inserting anything. Default 0.2 s.
+        cut_on_block: cut only where a *block* azimuth wraps, so that both firing sequences of a
+            block stay in one frame (VeloView's convention; its per-frame point counts need it).
+            By default a frame is cut at the first firing sequence whose azimuth wrapped.
 
     ``push`` returns the frames completed by a batch; ``finish`` the last, partial one.
     Malformed packets (wrong size, bad block flag, unknown return mode) are counted in
@@ -127,7 +130,7 @@ class VelodyneDecoder:
     """
 
     def __init__(self, *, calibration=None, cut_angle_deg: float | None = None, source: str | None = None,
-                 max_gap_s: float = 0.2, **options) -> None:
+                 max_gap_s: float = 0.2, cut_on_block: bool = False, **options) -> None:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
         self.geometry = VelodyneGeometry(calibration)
@@ -135,6 +138,7 @@ class VelodyneDecoder:
         self.cut_cdeg = 0.0 if cut_angle_deg is None else float(cut_angle_deg) % 360.0 * 100.0
         self.source = source
         self.max_gap_ns = int(max_gap_s * 1e9)
+        self.cut_on_block = bool(cut_on_block)
         self.stats = DecoderStats()
         self._row_laser = self.geometry.row_laser  # laser id of each row
         self._pending: list[_Columns] = []
@@ -363,6 +367,8 @@ class VelodyneDecoder:
 
     def _append(self, cols: _Columns) -> list[Frame]:
         key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
+        if self.cut_on_block:
+            key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
         prev = np.concatenate([[key[0] if self._last_key is None else self._last_key], key[:-1]])
         cut_at = np.flatnonzero(key < prev - 18000.0).tolist()
         self._last_key = float(key[-1])
