@@ -25,6 +25,7 @@ def load_stack(
     metadata: str | Path | None = None,
     frames: tuple[int | None, int | None] | None = None,
     include_partial: bool = False,
+    resolution_deg: float | None = None,
 ) -> FrameStack:
     """Decode a capture (pcap/pcapng, MCAP, ROS bag) with :func:`lidarpkt.open` and stack its frames.
 
@@ -34,6 +35,7 @@ def load_stack(
         frames: ``(A, B)`` keeps complete frames A..B-1 (Python slice semantics, counted over
             the complete frames of the capture; ``None`` = open end).
         include_partial: also stack partial frames (start/end of a capture).
+        resolution_deg: azimuth grid of the stack (VLP-16); default :func:`default_grid_deg`.
 
     Raises:
         AnalysisError: no frame left after the selection.
@@ -58,7 +60,21 @@ def load_stack(
             f"{path}: no complete frames{sel} to analyse (check the capture, the --frames range "
             "and, for an Ouster pcap, --metadata)"
         )
-    return FrameStack.from_frames(picked, include_partial=True)
+    res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
+    return FrameStack.from_frames(picked, include_partial=True, resolution_deg=res)
+
+
+def default_grid_deg(sensor) -> float | None:
+    """Azimuth grid to stack a sensor's frames on: its own ``grid_resolution_deg``, coarsened for a
+    VLP-16 spinning faster than 10 Hz so that each bin still holds a firing (at 20 Hz firing
+    sequences are 0.4° apart, and a 0.2° grid would leave every other column empty, i.e. missing)."""
+    res = sensor.grid_resolution_deg
+    if res is None or sensor.vendor != "velodyne" or not sensor.frequency_hz:
+        return res
+    factor = max(1, int(round(float(sensor.frequency_hz) / 10.0)))
+    while factor > 1 and abs(round(360.0 / (res * factor)) * res * factor - 360.0) > 1e-9:
+        factor -= 1  # keep a grid that divides 360°
+    return res * factor
 
 
 def parse_frame_range(text: str) -> tuple[int | None, int | None]:

@@ -1,0 +1,298 @@
+"""The analysis verbs of the ``lidarpkt`` command line: ``analyze``, ``multireturn``, ``compare-returns``.
+
+Each reads a capture with :func:`lidarpkt.open` (pcap/pcapng, MCAP, ROS bag; ``--metadata`` for
+Ouster pcaps), stacks its complete frames on one column grid, and reports. Errors are
+:class:`lidarpkt.errors.AnalysisError` (or the decoder's own errors) with an actionable message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarpkt.errors import AnalysisError
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def _parse_pixel(text: str) -> tuple[int, int]:
+    parts = text.replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return int(parts[0]), int(parts[1])
+    except ValueError:
+        raise AnalysisError(f"--pixel {text!r}: expected ROW,COL with two integers, e.g. --pixel 7,900") from None
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe: NaN/inf → None, NumPy scalars → Python."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _write_json(doc: dict, path: str) -> None:
+    out = Path(path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(_clean(doc), allow_nan=False) + "\n")
+    except OSError as exc:
+        raise AnalysisError(f"cannot write {out}: {exc.strerror or exc}") from None
+
+
+def _load(path: str, metadata: str | None, frames: str | None, grid: float | None = None):
+    from .stack import load_stack, parse_frame_range
+
+    if not Path(path).exists():
+        raise AnalysisError(f"{path}: no such file")
+    if metadata is not None and not Path(metadata).exists():
+        raise AnalysisError(f"--metadata {metadata}: no such file")
+    if grid is not None and grid <= 0:
+        raise AnalysisError(f"--grid {grid}: the azimuth grid must be a positive number of degrees dividing 360")
+    rng = parse_frame_range(frames) if frames else None
+    return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid)
+
+
+def _plots():
+    try:
+        from . import plots
+    except ImportError:  # pragma: no cover - depends on the install
+        raise AnalysisError("--plot needs matplotlib: pip install 'lidarpkt[plot]'") from None
+    return plots
+
+
+def _source(path: str, stack) -> str:
+    return f"{Path(path).name} ({stack.sensor.model}, {stack.sensor.return_mode})"
+
+
+def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
+    p.add_argument("--metadata", metavar="JSON", help="Ouster metadata JSON (needed for Ouster pcaps; VLP-16 needs none)")
+    if frames:
+        p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
+    p.add_argument("--grid", metavar="DEG", type=float, default=None,
+                   help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz, 0.4 at 20 Hz); Ouster frames keep their columns")
+
+
+# ---------------------------------------------------------------------------- analyze
+
+
+def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("--pixel", metavar="ROW,COL", action="append", required=True,
+                   help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); repeatable")
+    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
+                   help="return slot: index (0, 1) or label (strongest, last, second_strongest); default 0")
+    _add_input(p)
+    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
+    p.add_argument("--motion-compensation", action="store_true",
+                   help="also compute the motion-compensated CDF (5×5 patch, ±2 px, against frame 0)")
+    p.add_argument("--gmm", metavar="em|auto|THRESHOLDS", default="em",
+                   help="Gaussian mixture: EM with BIC (default), auto gap thresholds, or CDF thresholds like 0.14,0.38,0.68")
+    p.add_argument("--json", metavar="OUT", help="write the results as one JSON document")
+    p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
+
+
+def run_analyze(args: argparse.Namespace) -> int:
+    from .raypath import analyze_raypath
+    from .stack import check_pixel, slot_index
+
+    pixels = [_parse_pixel(p) for p in args.pixel]
+    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    slot = slot_index(stack, args.slot)
+    for r, c in pixels:
+        check_pixel(stack, r, c, slot)
+    if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
+        raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1 (3 and 5 in the paper)")
+    gmm = None if args.gmm in ("none", "off") else args.gmm
+    results = [
+        analyze_raypath(stack, r, c, slot, neighbourhood=args.neighbourhood,
+                        motion_compensation=args.motion_compensation, gmm=gmm)
+        for r, c in pixels
+    ]
+    source = _source(args.input, stack)
+    print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
+          f"slot {slot} = {stack.return_labels[slot]}")
+    print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'comp':>5}  GMM means (m) [weights]")
+    for ra in results:
+        t = ra.temporal
+        g = ra.gmm
+        desc = "-" if g is None else "  ".join(f"{m:.3f} [{w:.2f}]" for m, w in zip(g.means_m, g.weights))
+        print(f"{ra.row:>4} {ra.col:>5} {t.n_returns:>8} {t.n_nonreturn:>8} {t.n_missing:>8} "
+              f"{'-' if g is None else g.n_components:>5}  {desc}")
+        if ra.motion is not None:
+            moved = int(np.count_nonzero(np.any(ra.motion.offsets != 0, axis=1)))
+            print(f"{'':>4} motion compensation: {moved} of {len(stack)} frames moved")
+    if args.json:
+        _write_json({"frames": len(stack), "pixels": [ra.to_json() for ra in results]}, args.json)
+        print(f"wrote {args.json}")
+    if args.plot:
+        plots = _plots()
+        out = Path(args.plot)
+        written = [plots.save(plots.plot_range_image(stack, 0, slot, pixels, source), out / "range_image.png")]
+        for ra in results:
+            stem = f"r{ra.row}_c{ra.col}_{ra.label}"
+            written.append(plots.save(plots.plot_temporal_cdf(ra, source), out / f"{stem}_temporal_cdf.png"))
+            written.append(plots.save(plots.plot_temporal_vs_spatial(ra, source), out / f"{stem}_temporal_vs_spatial.png"))
+            if ra.motion is not None:
+                written.append(plots.save(plots.plot_motion_compensation(ra, source), out / f"{stem}_motion.png"))
+            if ra.gmm is not None:
+                written.append(plots.save(plots.plot_gmm(ra, source), out / f"{stem}_gmm.png"))
+        print(f"wrote {len(written)} figures to {out}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- multireturn
+
+
+def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("-o", "--output", metavar="MAP.npz", required=True, help="write the statistics and monitor flags here")
+    p.add_argument("--plot", metavar="MAP.png", help="write the multi-return map figure")
+    _add_input(p)
+    p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
+    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
+    p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
+    p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--return", dest="slot", metavar="SLOT", default="0", help="slot shown in the plot (default 0)")
+
+
+def run_multireturn(args: argparse.Namespace) -> int:
+    from .gmm import DEFAULT_GAP_M
+    from .multireturn import multireturn_map
+    from .stack import slot_index
+
+    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap
+    if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
+        raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1")
+    mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
+                         threshold_m=args.threshold)
+    out = Path(args.output)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(out, **mr.to_npz_dict(), frame_id=stack.frame_id)
+    except OSError as exc:
+        raise AnalysisError(f"cannot write {out}: {exc.strerror or exc}") from None
+    s = mr.stats
+    print(f"{_source(args.input, stack)}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
+    for i, label in enumerate(s.return_labels):
+        with_ret = int(np.count_nonzero(s.n_returns[i]))
+        multi = int(np.count_nonzero(s.multi_return[i]))
+        ev = mr.evaluation[i]
+        print(f"slot {i} ({label}): {with_ret} raypaths with returns, {multi} multi-return "
+              f"(>= 2 clusters, gap > {gap:g} m); monitor on frame {mr.monitor_frame}: "
+              f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {ev.precision:.3f}, "
+              f"recall {ev.recall:.3f}, ROC AUC {ev.auc:.3f}")
+    print(f"wrote {out}")
+    if args.plot:
+        plots = _plots()
+        slot = slot_index(stack, args.slot)
+        if not 0 <= slot < len(s.return_labels):
+            raise AnalysisError(f"--return {args.slot}: this capture has slots {list(s.return_labels)}")
+        plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- compare-returns
+
+
+def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="IN", help="a dual-return capture, or the first of two captures of one scene")
+    p.add_argument("input2", metavar="IN2", nargs="?", help="a capture of the same scene in another return mode")
+    p.add_argument("--json", metavar="OUT", help="write the comparison as one JSON document")
+    p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
+    _add_input(p)
+    p.add_argument("--metadata2", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
+    p.add_argument("--pixel", metavar="ROW,COL", action="append", default=[],
+                   help="raypath whose temporal CDFs to compare in detail; repeatable")
+    p.add_argument("--paired", action="store_true",
+                   help="with IN2: frame k of both captures is the same firing (captures generated from one seed); "
+                        "also compare them frame by frame")
+
+
+def run_compare_returns(args: argparse.Namespace) -> int:
+    from .cdf import temporal_cdf
+    from .compare import compare_slots, compare_stacks, ks_image
+    from .stack import check_pixel
+
+    pixels = [_parse_pixel(p) for p in args.pixel]
+    a = _load(args.input, args.metadata, args.frames, args.grid)
+    src_a = _source(args.input, a)
+    doc: dict[str, Any] = {"inputs": [args.input]}
+    plots = _plots() if args.plot else None
+    figs = []
+    if args.input2 is None:
+        if a.range_mm.shape[1] < 2:
+            raise AnalysisError(
+                f"{args.input} has one return slot ({a.return_labels[0]}): give a dual-return capture, "
+                "or a second capture of the same scene (IN2) to compare modes"
+            )
+        pc = compare_slots(a, 0, 1)
+        pairs = [(a, 0, a, 1)]
+        doc["frames"] = len(a)
+        doc["slots"] = pc.summary()
+        s = pc.summary()
+        print(f"{src_a}: {len(a)} frames, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
+              f"{s['fraction_identical']:.4f} identical, {s['pairs_one_sided']} with a return on one side only")
+        if plots:
+            figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))
+    else:
+        b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
+        doc["inputs"].append(args.input2)
+        doc["frames"] = [len(a), len(b)]
+        res = compare_stacks(a, b, 0, 0, paired=args.paired)
+        dist, pc = res if args.paired else (res, None)
+        doc["modes"] = dist.summary()
+        s = doc["modes"]
+        ksq = s["ks_quantiles"] or {}
+        print(f"{src_a} vs {_source(args.input2, b)}: {s['pixels_compared']} raypaths compared; "
+              f"KS distance between temporal CDFs: median {ksq.get('0.5', float('nan')):.3f}, "
+              f"90% {ksq.get('0.9', float('nan')):.3f}")
+        if pc is not None:
+            doc["paired"] = pc.summary()
+            print(f"paired by frame: {pc.summary()['fraction_identical']:.4f} of pairs identical")
+            if plots:
+                figs.append((plots.plot_delta_histogram(pc, f"{Path(args.input).name} vs {Path(args.input2).name}"),
+                             "delta_histogram.png"))
+        pairs = [(a, 0, b, 0)]
+    raypaths = []
+    for r, c in pixels:
+        for sa, ia, sb, ib in pairs:
+            check_pixel(sa, r, c, ia)
+            check_pixel(sb, r, c, ib)
+            ca, cb = temporal_cdf(sa, r, c, ia), temporal_cdf(sb, r, c, ib)
+
+            ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sa.column_valid[:, c:c + 1],
+                                sb.range_mm[:, ib, r:r + 1, c:c + 1], sb.column_valid[:, c:c + 1])[0, 0])
+            la, lb = sa.return_labels[ia], sb.return_labels[ib]
+            if la == lb:
+                la, lb = f"{la} ({Path(args.input).name})", f"{lb} ({Path(args.input2).name})"
+            raypaths.append({"row": r, "col": c, "labels": [la, lb], "ks": ks,
+                             "cdfs": [ca.to_json(), cb.to_json()],
+                             "n_nonreturn": [ca.n_nonreturn, cb.n_nonreturn], "n_samples": [ca.n_samples, cb.n_samples]})
+            print(f"raypath ({r}, {c}): {la} {ca.n_returns}/{ca.n_samples} returns, {lb} {cb.n_returns}/{cb.n_samples}, "
+                  f"KS distance {ks:.3f}")
+            if plots:
+                figs.append((plots.plot_mode_cdfs({la: ca, lb: cb}, r, c, src_a, ks), f"r{r}_c{c}_modes.png"))
+    doc["raypaths"] = raypaths
+    if args.json:
+        _write_json(doc, args.json)
+        print(f"wrote {args.json}")
+    if plots:
+        for fig, name in figs:
+            plots.save(fig, Path(args.plot) / name)
+        print(f"wrote {len(figs)} figures to {args.plot}")
+    return 0
