@@ -344,13 +344,15 @@ class PcapReader:
 
     def _begin(self) -> None:
         old = self.stats
-        self.stats = ReadStats(
+        fresh = ReadStats(
             path=self.path,
             format=self.format,
             snaplen=old.snaplen,
             nanosecond=old.nanosecond,
             big_endian=old.big_endian,
+            interfaces=old.interfaces,
         )
+        old.__dict__.update(fresh.__dict__)  # in place: callers may hold a reference to stats
         self._reasm = Reassembler(**self._reassembly_args)
         self._warned_links: set[int] = set()
 
@@ -358,6 +360,8 @@ class PcapReader:
         self._reasm.flush()
         self._sync_reassembly_stats()
         st = self.stats
+        if st.truncated:  # warned only now, so that every good record was yielded first
+            warnings.warn(TruncatedCaptureWarning(f"{self.path}: {st.truncated_reason}"), stacklevel=3)
         if st.malformed:
             reasons = ", ".join(f"{k}: {v}" for k, v in st.malformed_reasons.most_common())
             warnings.warn(
@@ -376,7 +380,6 @@ class PcapReader:
     def _truncate(self, reason: str) -> None:
         self.stats.truncated = True
         self.stats.truncated_reason = reason
-        warnings.warn(TruncatedCaptureWarning(f"{self.path}: {reason}"), stacklevel=4)
 
     # --- classic pcap --------------------------------------------------------------------------
     def _parse_pcap_header(self, head: bytes) -> None:
@@ -597,8 +600,6 @@ class PcapReader:
                     n_ifaces_total += 1
                     st.interfaces = n_ifaces_total
                     st.snaplen = max(st.snaplen, snaplen)
-                    if linktype not in LINKTYPE_NAMES and linktype not in self._warned_links:
-                        self._warned_links.add(linktype)
             elif btype in (6, 2, 3):  # enhanced, obsolete, simple packet blocks
                 if btype == 3:
                     if body_end - body < 4:
@@ -630,6 +631,11 @@ class PcapReader:
                 else:
                     lt, _snap, mul, div, ts_off = ifaces[iface]
                     ts_ns = 0 if ts_raw is None else ts_off * _SEC_NS + (ts_raw * mul) // div
+                    if not -(1 << 63) <= ts_ns < (1 << 63):
+                        st.malformed += 1
+                        st.malformed_reasons["pcapng time stamp out of range"] += 1
+                        off += blen
+                        continue
                     offs.append(data)
                     caps.append(cap)
                     tss.append(ts_ns)
