@@ -8,18 +8,26 @@ from __future__ import annotations
 
 from .crc import crc64_xz
 from .decode import OusterPacketFields, decode_packets
+from .detect import classify, describe_stream
 from .encode import empty_fields, encode_packets
+from .frames import OusterDecoder, OusterDecoderStats
+from .geometry import OusterGeometry
 from .imu import decode_imu, encode_imu
 from .metadata import OusterMetadata, load_metadata
 from .profiles import PROFILES, BitField, Profile, get_profile
 
 __all__ = [
     "BitField",
+    "OusterDecoder",
+    "OusterDecoderStats",
+    "OusterGeometry",
     "OusterMetadata",
     "OusterPacketFields",
     "PROFILES",
     "Profile",
+    "classify",
     "crc64_xz",
+    "describe_stream",
     "decode_imu",
     "decode_packets",
     "empty_fields",

@@ -1,0 +1,170 @@
+"""Which Ouster sensor (if any) sent a stream: with metadata (exact), or a guess from size and header.
+
+Packet size alone does not identify a profile (8448 B is both 32-channel
+RNG19_RFL8_SIG16_NIR16_DUAL and 128-channel RNG15_RFL8_NIR8; 16640 B both 64-channel
+RNG19…DUAL and 128-channel FUSA_RNG15_RFL8_NIR8_DUAL), so with metadata the size is checked
+first, then the init_id and serial in the packet header (non-legacy profiles).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..packet import PacketBatch
+from .crc import footer_crc_ok
+from .decode import decode_packets
+from .imu import decode_imu
+from .metadata import OusterMetadata
+from .profiles import IMU_PACKET_SIZE, PROFILES, Profile, read_bits
+
+_GUESS_ROWS = (16, 32, 64, 128)
+
+
+def _ids_match(batch: PacketBatch, md: OusterMetadata) -> np.ndarray:
+    """``bool[N]``: the header's serial (and init_id, when the metadata has one) are the metadata's."""
+    header = batch.payload[:, : md.profile.header_bytes]
+    ok = np.ones(len(batch), bool)
+    fields = {f.name: f for f in md.profile.header_fields}
+    if md.serial_int is not None:
+        ok &= read_bits(header, fields["prod_sn"]) == np.uint64(md.serial_int)
+    if md.init_id:
+        ok &= read_bits(header, fields["init_id"]) == md.init_id
+    return ok
+
+
+def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata | None] | None:
+    """``("lidar", md)`` / ``("imu", md)`` when the batch is a stream of the sensor of ``md``, else ``None``.
+
+    Lidar: the payload size must be the metadata's packet size; for non-legacy profiles the
+    init_id and serial of the packet header must match too (for most of the batch). LEGACY
+    packets carry no identity: the first metadata of the right size wins. IMU (48 B): the
+    metadata whose IMU port is the destination port, else the first one; LEGACY IMU packets
+    carry no identity either.
+    """
+    if len(batch) == 0 or not metadata:
+        return None
+    size = batch.payload_size
+    if size == IMU_PACKET_SIZE:
+        port = batch.dst.port if batch.dst is not None else None
+        for md in metadata:
+            if md.imu_port == port:
+                return "imu", md
+        return "imu", metadata[0]
+    for md in metadata:
+        if md.packet_size != size:
+            continue
+        if md.profile.legacy:
+            if _legacy_plausible(batch.payload, md.profile, md.pixels_per_column):
+                return "lidar", md
+            continue
+        if _ids_match(batch, md).mean() >= 0.5:
+            return "lidar", md
+    return None
+
+
+def _legacy_plausible(payload: np.ndarray, profile: Profile, h: int) -> bool:
+    """Column measurement ids step by one inside the first packet (LEGACY has no other signature)."""
+    first = payload[:1]
+    try:
+        cols = first.view(profile.packet_dtype(h, 16))[:, 0]["columns"]
+    except ValueError:
+        return False
+    mids = cols["measurement_id"][0].astype(np.int64)
+    return bool(np.all(np.diff(mids) == 1))
+
+
+def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
+    """(profile, pixels_per_column) layouts consistent with the packet size and column headers."""
+    size = payload.shape[1]
+    out = []
+    for profile in PROFILES.values():
+        for h in _GUESS_ROWS:
+            if profile.packet_size(h, 16) != size:
+                continue
+            cols = payload[:1].view(profile.packet_dtype(h, 16))[:, 0]["columns"]
+            mids = cols["measurement_id"][0].astype(np.int64)
+            if not np.all(np.diff(mids) == 1):
+                continue
+            if not profile.legacy:
+                ptype = read_bits(payload[:1, :32], {f.name: f for f in profile.header_fields}["packet_type"])[0]
+                if int(ptype) != 1:
+                    continue
+            out.append((profile, h))
+    return out
+
+
+def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ()) -> dict | None:
+    """A summary of an Ouster stream for ``lidarpkt info``, or ``None`` if it is not one.
+
+    Lidar: ``{"kind": "Ouster lidar", "profile", "profile_source": "metadata" | "guess",
+    "pixels_per_column", "packets", "frame_id": [first, last], "columns": measurement ids seen,
+    "crc": "valid" | "invalid" | "absent", ...}``. Without metadata the profile is a guess from
+    the size and header (``"candidates"`` lists every layout that fits, e.g. two for 8448 B).
+    IMU: ``{"kind": "Ouster IMU", "packets", ...}``.
+    """
+    if len(batch) == 0:
+        return None
+    match = classify(batch, metadata) if metadata else None
+    if match is not None and match[0] == "imu" or (match is None and batch.payload_size == IMU_PACKET_SIZE):
+        samples = decode_imu(batch.payload)
+        accel = np.sqrt(samples["accel_x_g"] ** 2 + samples["accel_y_g"] ** 2 + samples["accel_z_g"] ** 2)
+        if match is None and not (np.median(accel) > 0.5 and np.median(accel) < 2.0):
+            return None  # 48 bytes that do not look like an IMU at rest or moving gently
+        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata" if match else "guess"}
+        out["sys_timestamp_ns"] = [int(samples["sys_timestamp_ns"][0]), int(samples["sys_timestamp_ns"][-1])]
+        return out
+    if match is not None:
+        md = match[1]
+        profile, h, source, candidates = md.profile, md.pixels_per_column, "metadata", [md.profile.name]
+    else:
+        guesses = _guesses(batch.payload)
+        if not guesses:
+            return None
+        profile, h = guesses[0]
+        source, candidates = "guess", [f"{p.name} ({rows} px)" for p, rows in guesses]
+        md = None
+    fields = decode_packets(batch.payload, md if md is not None else _Layout(profile, h), verify_crc=False, fields=())
+    frame_ids = fields.frame_id
+    mids = fields.measurement_id
+    if profile.legacy:
+        crc = "absent"
+    else:
+        ok = footer_crc_ok(batch.payload)
+        if ok.all():
+            crc = "valid"
+        elif md is not None and md.footer_kind == "crc":
+            crc = "invalid"
+        else:
+            crc = "absent"
+    out = {
+        "kind": "Ouster lidar",
+        "profile": profile.name,
+        "profile_source": source,
+        "candidates": candidates,
+        "pixels_per_column": h,
+        "packet_size": batch.payload_size,
+        "packets": len(batch),
+        "frame_id": [int(frame_ids[0]), int(frame_ids[-1])],
+        "frames": int(np.unique(frame_ids).size),
+        "columns": int(np.unique(mids).size),
+        "measurement_id": [int(mids.min()), int(mids.max())],
+        "crc": crc,
+    }
+    if not profile.legacy:
+        out["init_id"] = int(fields.header["init_id"][0])
+        out["serial"] = str(int(fields.header["prod_sn"][0]))
+    if md is not None:
+        out["crc_failures"] = int((~footer_crc_ok(batch.payload)).sum()) if md.footer_kind == "crc" else 0
+    return out
+
+
+class _Layout:
+    """The bits of metadata decode_packets needs, for a guessed layout."""
+
+    def __init__(self, profile: Profile, h: int) -> None:
+        self.profile = profile
+        self.pixels_per_column = h
+        self.columns_per_packet = 16
+        self.footer_kind = "unknown"

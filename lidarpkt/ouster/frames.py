@@ -1,0 +1,337 @@
+"""Ouster frame assembly: packets of one sensor → :class:`~lidarpkt.frame.Frame` objects.
+
+Conventions (those of ouster-sdk's scan batcher):
+
+* Packets are grouped by frame id (packet header, or the first column's for LEGACY) and
+  init_id; a change of either ends the current frame.
+* Columns are placed by measurement id (staggered, as on the wire): ``[R, H, W]`` pixels.
+* A frame is released as soon as every column of ``column_window`` has arrived, or when a
+  packet of another frame arrives (then it is ``partial``), or at :meth:`OusterDecoder.finish`.
+* Columns that never arrived have zero fields, zero timestamp/measurement_id/status and
+  ``column_valid`` False. ``column_valid`` is also False for a column that arrived with its
+  status saying invalid (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF).
+* Packets of an already released frame are dropped and counted as late; a packet whose first
+  measurement id already arrived in its frame is a duplicate (dropped, counted).
+* ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
+  ouster-sdk's sensor-frame convention (the angle its XYZ table uses; it decreases with c).
+* ``Frame.extra``: ``"window"`` ``uint8[H, W]`` (WINDOW field, profiles that have it).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from dataclasses import dataclass, fields as dc_fields
+
+import numpy as np
+
+from ..errors import SensorMismatchError, SkippedPacketWarning
+from ..frame import Frame, FrameCounters
+from ..packet import PacketBatch
+from .decode import OusterPacketFields, decode_packets
+from .imu import decode_imu
+from .metadata import OusterMetadata
+from .profiles import LEGACY_STATUS_VALID
+
+_SLOT_FIELDS = (
+    ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
+    ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"),
+)
+
+
+@dataclass
+class OusterDecoderStats:
+    """Counters of one :class:`OusterDecoder` (packets, not columns, unless said otherwise)."""
+
+    packets: int = 0  # lidar packets pushed
+    accepted: int = 0  # lidar packets placed in frames
+    size_mismatch: int = 0  # wrong payload size for the metadata: skipped
+    id_mismatch: int = 0  # init_id / serial differ from the metadata: skipped
+    crc_failures: int = 0  # CRC-64/XZ wrong (firmware ≥ 2.5): skipped
+    bad_measurement_id: int = 0  # a measurement id ≥ columns_per_frame: skipped
+    late: int = 0  # of a frame already released: dropped
+    duplicates: int = 0  # first measurement id already received in the frame: dropped
+    out_of_order: int = 0  # measurement id lower than the previous packet's (kept)
+    lost_packets: int = 0  # holes between the first and last received columns of a frame
+    frames: int = 0
+    partial_frames: int = 0
+    imu_packets: int = 0
+    imu_dropped: int = 0  # IMU samples beyond max_imu_samples (oldest dropped)
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in dc_fields(self)}
+
+
+class _Builder:
+    """One frame being filled."""
+
+    def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
+        md = decoder.metadata
+        h, w = md.pixels_per_column, md.columns_per_frame
+        names = set(md.profile.field_names)
+        r = md.profile.returns
+        self.key = key
+        self.frame_id = frame_id
+        self.range_mm = np.zeros((r, h, w), np.uint32)
+        self.reflectivity = np.zeros((r, h, w), np.uint8)
+        self.signal = np.zeros((r, h, w), np.uint16) if "SIGNAL" in names else None
+        self.flags = np.zeros((r, h, w), np.uint8)
+        self.near_ir = np.zeros((h, w), np.uint16)
+        self.window = np.zeros((h, w), np.uint8) if "WINDOW" in names else None
+        self.timestamp_ns = np.zeros(w, np.int64)
+        self.measurement_id = np.zeros(w, np.uint16)
+        self.status = np.zeros(w, np.uint32)
+        self.encoder_count = np.zeros(w, np.uint32) if md.profile.legacy else None
+        self.received = np.zeros(w, bool)
+        self.counters = FrameCounters()
+        self.last_mid0 = -1
+
+    def add(self, f: OusterPacketFields) -> None:
+        mids = f.measurement_id.astype(np.intp)  # [n, C]
+        flat = mids.ravel()
+        h = f.pixels_per_column
+
+        def columns(a: np.ndarray) -> np.ndarray:  # [n, C, H] → [H, n·C]
+            return a.reshape(-1, h).T
+
+        for slot, (rng, refl, sig, flg) in enumerate(_SLOT_FIELDS[: self.range_mm.shape[0]]):
+            self.range_mm[slot][:, flat] = columns(f.pixels[rng])
+            self.reflectivity[slot][:, flat] = columns(f.pixels[refl])
+            self.flags[slot][:, flat] = columns(f.pixels[flg])
+            if self.signal is not None:
+                self.signal[slot][:, flat] = columns(f.pixels[sig])
+        self.near_ir[:, flat] = columns(f.pixels["NEAR_IR"])
+        if self.window is not None:
+            self.window[:, flat] = columns(f.pixels["WINDOW"])
+        self.timestamp_ns[flat] = f.timestamp_ns.ravel().astype(np.int64)
+        self.measurement_id[flat] = f.measurement_id.ravel()
+        self.status[flat] = f.status.ravel()
+        if self.encoder_count is not None:
+            self.encoder_count[flat] = f.encoder_count.ravel()
+        self.received[flat] = True
+
+
+class OusterDecoder:
+    """Frames of one Ouster sensor from its lidar (and IMU) packets.
+
+    Args:
+        metadata: the sensor's :class:`OusterMetadata`.
+        source: where the packets come from (``"192.168.1.10:7502"``), for reports.
+        verify_crc: check the CRC-64/XZ of packets whose firmware writes one (≥ 2.5) and skip
+            (count) those that fail.
+        soft_id_check: accept packets whose init_id differs from the metadata (the serial is
+            still checked); by default they are skipped and counted.
+        max_imu_samples: IMU samples kept (the oldest are dropped and counted beyond that).
+
+    ``push(batch)`` returns the frames completed by the batch; ``finish()`` the last partial one.
+    :attr:`stats` counts what was skipped and why; each frame's ``counters`` what happened to it.
+    """
+
+    def __init__(
+        self,
+        metadata: OusterMetadata,
+        *,
+        source: str | None = None,
+        verify_crc: bool = True,
+        soft_id_check: bool = False,
+        max_imu_samples: int = 100_000,
+        **options,
+    ) -> None:
+        if options:
+            raise TypeError(f"OusterDecoder: unknown options {sorted(options)}")
+        self.metadata = metadata
+        self.source = source
+        self.verify_crc = verify_crc and metadata.footer_kind == "crc"
+        self.soft_id_check = soft_id_check
+        self.sensor = metadata.sensor_info(source)
+        self.stats = OusterDecoderStats()
+        self._current: _Builder | None = None
+        self._released: deque[tuple[int, int]] = deque(maxlen=16)
+        self._pending_counters = FrameCounters()  # skips seen while no frame was open
+        self._window = metadata.window_mask
+        self._azimuth_deg = np.mod(360.0 * (1.0 - np.arange(metadata.columns_per_frame) / metadata.columns_per_frame), 360.0)
+        self._imu: deque[np.ndarray] = deque()
+        self._imu_count = 0
+        self._max_imu = max_imu_samples
+
+    # ------------------------------------------------------------------ lidar
+    def push(self, batch: PacketBatch) -> list[Frame]:
+        """Decode a batch of this sensor's lidar packets; return the frames it completed (capture order)."""
+        md = self.metadata
+        n = len(batch)
+        self.stats.packets += n
+        if n == 0:
+            return []
+        if batch.payload_size != md.packet_size:
+            self.stats.size_mismatch += n
+            self._count_skipped(n)
+            warnings.warn(
+                f"Ouster {self.source or ''}: skipped {n} packets of {batch.payload_size} B; the metadata "
+                f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B",
+                SkippedPacketWarning,
+                stacklevel=2,
+            )
+            return []
+        f = decode_packets(batch.payload, md, verify_crc=self.verify_crc)
+        keep = np.ones(n, bool)
+        if f.crc_ok is not None:
+            bad = ~f.crc_ok
+            self.stats.crc_failures += int(bad.sum())
+            keep &= f.crc_ok
+        if not md.profile.legacy:
+            ok = np.ones(n, bool)
+            if md.serial_int is not None:
+                ok &= f.header["prod_sn"] == np.uint64(md.serial_int)
+            if md.init_id and not self.soft_id_check:
+                ok &= f.header["init_id"] == md.init_id
+            self.stats.id_mismatch += int((keep & ~ok).sum())
+            keep &= ok
+        bad_mid = (f.measurement_id >= md.columns_per_frame).any(axis=1)
+        self.stats.bad_measurement_id += int((keep & bad_mid).sum())
+        keep &= ~bad_mid
+        skipped = n - int(keep.sum())
+        if skipped:
+            self._count_skipped(skipped)
+            f = f.select(keep)
+        if len(f) == 0:
+            return []
+
+        frame_id = f.frame_id
+        init = f.init_id.astype(np.int64) if f.init_id is not None else np.zeros(len(f), np.int64)
+        keys = (init << 32) | frame_id
+        starts = np.concatenate([[0], np.flatnonzero(keys[1:] != keys[:-1]) + 1, [len(f)]])
+        out: list[Frame] = []
+        for s, e in zip(starts[:-1], starts[1:]):  # one iteration per frame in the batch
+            key = (int(init[s]), int(frame_id[s]))
+            if key in self._released:
+                self.stats.late += int(e - s)
+                target = self._current.counters if self._current is not None else self._pending_counters
+                target.late_packets += int(e - s)
+                continue
+            if self._current is None or self._current.key != key:
+                if self._current is not None:
+                    out.append(self._release())
+                self._current = _Builder(self, key, key[1])
+                self._current.counters = self._current.counters.add(self._pending_counters)
+                self._pending_counters = FrameCounters()
+            self._add(f.select(slice(s, e)))
+            if self._current.received[self._window].all():
+                out.append(self._release())
+        return out
+
+    def _add(self, f: OusterPacketFields) -> None:
+        b = self._current
+        mid0 = f.measurement_id[:, 0].astype(np.intp)
+        order = np.concatenate([[b.last_mid0], mid0])
+        b.counters.out_of_order_packets += int((np.diff(order) < 0).sum())
+        self.stats.out_of_order += int((np.diff(order) < 0).sum())
+        b.last_mid0 = int(mid0[-1])
+        fresh = np.zeros(len(f), bool)
+        fresh[np.unique(mid0, return_index=True)[1]] = True
+        fresh &= ~b.received[mid0]
+        dup = len(f) - int(fresh.sum())
+        if dup:
+            b.counters.duplicate_packets += dup
+            self.stats.duplicates += dup
+            f = f.select(fresh)
+        self.stats.accepted += len(f)
+        b.add(f)
+
+    def _count_skipped(self, n: int) -> None:
+        target = self._current.counters if self._current is not None else self._pending_counters
+        target.malformed_packets += n
+
+    def _release(self) -> Frame:
+        b = self._current
+        self._current = None
+        self._released.append(b.key)
+        md = self.metadata
+        window_received = b.received[self._window]
+        complete = bool(window_received.all())
+        # holes between the first and last received column (in window order) are lost packets;
+        # missing columns before/after them are the edges of the capture (the frame is partial)
+        order = np.flatnonzero(self._window)
+        if md.column_window[0] > md.column_window[1]:
+            order = np.concatenate([order[order >= md.column_window[0]], order[order <= md.column_window[1]]])
+        got = b.received[order]
+        if got.any():
+            first, last = np.flatnonzero(got)[[0, -1]]
+            holes = order[first : last + 1][~got[first : last + 1]]
+            lost = int(np.unique(holes // md.columns_per_packet).size)
+        else:
+            lost = 0
+        b.counters.lost_packets += lost
+        self.stats.lost_packets += lost
+        self.stats.frames += 1
+        self.stats.partial_frames += int(not complete)
+        if md.profile.legacy:
+            status_ok = b.status == LEGACY_STATUS_VALID
+        else:
+            status_ok = (b.status & 1).astype(bool)
+        extra = {"window": b.window} if b.window is not None else {}
+        return Frame(
+            sensor=self.sensor,
+            frame_id=b.frame_id,
+            range_mm=b.range_mm,
+            reflectivity=b.reflectivity,
+            return_labels=md.profile.return_labels,
+            column_valid=b.received & status_ok,
+            column_timestamp_ns=b.timestamp_ns,
+            azimuth_deg=self._azimuth_deg.copy(),
+            signal=b.signal,
+            near_ir=b.near_ir,
+            flags=b.flags,
+            measurement_id=b.measurement_id,
+            status=b.status,
+            encoder_count=b.encoder_count,
+            partial=not complete,
+            counters=b.counters,
+            extra=extra,
+        )
+
+    def finish(self) -> list[Frame]:
+        """The frame still being filled (partial), if any.
+
+        Raises:
+            SensorMismatchError: lidar packets were pushed but none matched the metadata
+                (size, init_id or serial): the metadata file is not this sensor's.
+        """
+        out = [self._release()] if self._current is not None else []
+        st = self.stats
+        if st.packets and not st.accepted and (st.size_mismatch or st.id_mismatch):
+            md = self.metadata
+            raise SensorMismatchError(
+                f"Ouster {self.source or 'stream'}: none of {st.packets} lidar packets matches the metadata "
+                f"{md.path or ''} ({md.profile.name}, {md.packet_size} B, init_id {md.init_id}, serial {md.serial}): "
+                f"{st.size_mismatch} of the wrong size, {st.id_mismatch} with another init_id/serial. "
+                "Pass this sensor's metadata JSON."
+            )
+        return out
+
+    # ------------------------------------------------------------------ IMU
+    def push_imu(self, batch: PacketBatch) -> None:
+        """Keep this sensor's IMU samples (see :meth:`imu_samples`); wrong-size packets are counted and skipped."""
+        if batch.payload_size != self.metadata.imu_packet_size:
+            self.stats.size_mismatch += len(batch)
+            return
+        samples = decode_imu(batch.payload)
+        self.stats.imu_packets += len(samples)
+        self._imu.append(samples)
+        self._imu_count += len(samples)
+        while self._imu_count > self._max_imu:
+            drop = self._imu_count - self._max_imu
+            head = self._imu[0]
+            if len(head) <= drop:
+                self._imu.popleft()
+                self._imu_count -= len(head)
+                self.stats.imu_dropped += len(head)
+            else:
+                self._imu[0] = head[drop:]
+                self._imu_count -= drop
+                self.stats.imu_dropped += drop
+
+    def imu_samples(self) -> np.ndarray:
+        """The IMU samples kept so far, ``IMU_DTYPE[n]`` in arrival order."""
+        from .profiles import IMU_DTYPE
+
+        return np.concatenate(list(self._imu)) if self._imu else np.zeros(0, IMU_DTYPE)

@@ -1,0 +1,64 @@
+"""Ouster XYZ: the lookup table of ouster-sdk (``make_xyz_lut``), sensor frame, metres.
+
+For column c of W (staggered: column = measurement id) and row u:
+
+* encoder angle θe = 2π · (1 − c / W), beam azimuth θa = −beam_azimuth_deg[u], elevation φ = beam_altitude_deg[u];
+* direction = (cos(θe + θa) cos φ, sin(θe + θa) cos φ, sin φ);
+* n = beam_to_lidar_transform[0, 3] (√(x² + z²) when the z translation is non-zero);
+  offset = (tx cos θe − dir_x n, tx sin θe − dir_y n, −dir_z n + tz), tx/tz the beam_to_lidar translation;
+* point = (range_mm · direction + offset), rotated and translated by lidar_to_sensor_transform (mm),
+  then × 0.001 → metres. A range of 0 (no return) gives (0, 0, 0).
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+
+
+class OusterGeometry:
+    """XYZ of Ouster frames (implements :class:`lidarpkt.frame.Geometry`)."""
+
+    def __init__(self, metadata) -> None:
+        self.metadata = metadata
+
+    @cached_property
+    def lut(self) -> tuple[np.ndarray, np.ndarray]:
+        """(direction, offset), each ``float64[H, W, 3]``: metres per mm of range, and metres."""
+        md = self.metadata
+        w, h = md.columns_per_frame, md.pixels_per_column
+        b2l = np.asarray(md.beam_to_lidar_transform, np.float64)
+        l2s = np.asarray(md.lidar_to_sensor_transform, np.float64)
+        encoder = 2.0 * np.pi * (1.0 - np.arange(w, dtype=np.float64) / w)  # [W]
+        azimuth = -np.deg2rad(np.asarray(md.beam_azimuth_deg, np.float64))  # [H]
+        altitude = np.deg2rad(np.asarray(md.beam_altitude_deg, np.float64))  # [H]
+        n = b2l[0, 3]
+        if b2l[2, 3] != 0:
+            n = np.sqrt(b2l[0, 3] ** 2 + b2l[2, 3] ** 2)
+        theta = encoder[None, :] + azimuth[:, None]  # [H, W]
+        cos_phi = np.cos(altitude)[:, None]
+        direction = np.stack(
+            [np.cos(theta) * cos_phi, np.sin(theta) * cos_phi, np.broadcast_to(np.sin(altitude)[:, None], theta.shape)],
+            axis=-1,
+        )
+        offset = np.stack(
+            [
+                np.cos(encoder)[None, :] * b2l[0, 3] - direction[..., 0] * n,
+                np.sin(encoder)[None, :] * b2l[0, 3] - direction[..., 1] * n,
+                -direction[..., 2] * n + b2l[2, 3],
+            ],
+            axis=-1,
+        )
+        rot = l2s[:3, :3]
+        direction = direction @ rot.T
+        offset = offset @ rot.T + l2s[:3, 3]
+        return direction * 0.001, offset * 0.001
+
+    def xyz(self, frame) -> np.ndarray:
+        """Points of ``frame`` as float64 ``[R, H, W, 3]`` metres; zeros where ``range_mm`` is 0."""
+        direction, offset = self.lut
+        rng = frame.range_mm.astype(np.float64)[..., None]  # [R, H, W, 1]
+        out = rng * direction + offset
+        out[frame.range_mm == 0] = 0.0
+        return out
