@@ -1,0 +1,252 @@
+"""Live UDP capture: a receive thread that never waits for the writer.
+
+:class:`UdpCapture` binds one socket per port (unicast, broadcast or multicast), asks the
+kernel for a large receive buffer (32 MiB; ``SO_RCVBUFFORCE`` when the process may, else
+``SO_RCVBUF``, capped by ``net.core.rmem_max``) and reports what it granted. A thread
+reads datagrams with their kernel receive time (``SO_TIMESTAMPNS``), their destination
+address (``IP_PKTINFO``) and the kernel's count of datagrams dropped on a full buffer
+(``SO_RXQ_OVFL``), and hands them to the consumer through an unbounded C queue kept
+bounded by a byte budget: when the consumer falls behind by more than ``queue_bytes``,
+new datagrams are dropped *and counted* (``queue_overflow``), the socket is never left
+unread.
+
+Errors: :class:`lidarpkt.errors.PortInUseError` when a port is already bound,
+:class:`lidarpkt.errors.RecorderError` for any other socket failure (with the reason).
+"""
+
+from __future__ import annotations
+
+import errno
+import queue
+import selectors
+import socket
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+
+from lidarpkt.errors import PortInUseError, RecorderError
+from lidarpkt.packet import Endpoint
+
+# Linux socket options Python does not name
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)
+
+MAX_DATAGRAM = 65535
+_ANC_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4) + socket.CMSG_SPACE(12)
+
+Item = tuple[int, Endpoint, Endpoint, bytes]  # (host receive time ns, src, dst, payload)
+
+
+@dataclass
+class CaptureStats:
+    """Counters of a capture (read them from any thread; they only grow)."""
+
+    received: int = 0
+    received_bytes: int = 0
+    queue_overflow: int = 0  # datagrams dropped because the writer fell behind
+    kernel_drops: dict[int, int] = field(default_factory=dict)  # port -> SO_RXQ_OVFL count
+    rcvbuf_requested: int = 0
+    rcvbuf_granted: dict[int, int] = field(default_factory=dict)  # port -> bytes the kernel gave
+
+    @property
+    def kernel_dropped(self) -> int:
+        return sum(self.kernel_drops.values())
+
+
+class UdpCapture:
+    """Receives UDP datagrams on ``ports`` in a background thread.
+
+    Args:
+        ports: UDP ports to listen on (one socket each).
+        bind: local address (``0.0.0.0`` = every interface, broadcast included).
+        multicast: IPv4 group to join (then ``bind`` defaults to the group).
+        interface: interface name or IPv4 address for the multicast membership.
+        rcvbuf_bytes: kernel receive buffer to ask for.
+        queue_bytes: payload bytes allowed to wait for the consumer before drops are counted.
+
+    Raises:
+        PortInUseError, RecorderError: from :meth:`open` (called by the constructor).
+    """
+
+    def __init__(self, ports: list[int], *, bind: str | None = None, multicast: str | None = None,
+                 interface: str | None = None, rcvbuf_bytes: int = 32 << 20, queue_bytes: int = 256 << 20) -> None:
+        if not ports:
+            raise RecorderError("no UDP port to listen on: give --port (2368 VLP-16 data, 8308 position, "
+                                "7502/7503 Ouster lidar/IMU)")
+        self.ports = list(dict.fromkeys(int(p) for p in ports))
+        self.multicast = multicast
+        self.bind_address = bind or (multicast if multicast else "0.0.0.0")
+        self.interface = interface
+        self.queue_bytes = queue_bytes
+        self.stats = CaptureStats(rcvbuf_requested=rcvbuf_bytes)
+        self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
+        self._bytes_in = 0  # written by the receive thread only
+        self._bytes_out = 0  # written by the consumer only
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._sockets: list[tuple[socket.socket, int]] = []
+        self.error: BaseException | None = None
+        self.open()
+
+    # ----------------------------------------------------------------- sockets
+    def open(self) -> None:
+        try:
+            for port in self.ports:
+                self._sockets.append((self._open_socket(port), port))
+        except BaseException:
+            self.close()
+            raise
+
+    def _open_socket(self, port: int) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if self.multicast:
+                # several listeners of one group is the norm for multicast; unicast must stay exclusive
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._set_rcvbuf(sock, port)
+            for opt, level in ((SO_TIMESTAMPNS, socket.SOL_SOCKET), (SO_RXQ_OVFL, socket.SOL_SOCKET),
+                               (IP_PKTINFO, socket.IPPROTO_IP)):
+                try:
+                    sock.setsockopt(level, opt, 1)
+                except OSError:  # not Linux: fall back to user-space times, no drop counter
+                    pass
+            try:
+                sock.bind((self.bind_address, port))
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    raise PortInUseError(
+                        f"UDP port {port} on {self.bind_address} is already in use by another program "
+                        "(another recorder or the sensor's driver?): stop it or choose another --port"
+                    ) from None
+                if exc.errno == errno.EADDRNOTAVAIL:
+                    raise RecorderError(f"cannot listen on {self.bind_address}:{port}: no local interface "
+                                        "has that address (check --bind)") from None
+                if exc.errno == errno.EACCES:
+                    raise RecorderError(f"not allowed to listen on UDP port {port} (ports below 1024 need "
+                                        "privileges)") from None
+                raise RecorderError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror}") from None
+            if self.multicast:
+                self._join(sock)
+            sock.setblocking(False)
+            return sock
+        except BaseException:
+            sock.close()
+            raise
+
+    def _set_rcvbuf(self, sock: socket.socket, port: int) -> None:
+        want = self.stats.rcvbuf_requested
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, want)  # past rmem_max, needs CAP_NET_ADMIN
+        except OSError:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)
+        # Linux reports twice the usable size (it counts its bookkeeping); report the usable part
+        self.stats.rcvbuf_granted[port] = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2
+
+    def _join(self, sock: socket.socket) -> None:
+        try:
+            group = socket.inet_aton(self.multicast)
+        except OSError:
+            raise RecorderError(f"--multicast {self.multicast!r} is not an IPv4 address") from None
+        ifindex, ifaddr = 0, b"\x00\x00\x00\x00"
+        if self.interface:
+            try:
+                ifaddr = socket.inet_aton(self.interface)
+            except OSError:
+                try:
+                    ifindex = socket.if_nametoindex(self.interface)
+                except OSError:
+                    raise RecorderError(f"--interface {self.interface!r} is neither an IPv4 address nor "
+                                        "a network interface of this machine") from None
+        try:
+            sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, group + ifaddr + struct.pack("@i", ifindex))
+        except OSError as exc:
+            raise RecorderError(f"cannot join multicast group {self.multicast}: {exc.strerror}") from None
+
+    # ----------------------------------------------------------------- thread
+    def start(self) -> None:
+        """Start the receive thread."""
+        self._thread = threading.Thread(target=self._run, name="lidarpkt-udp-receive", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        sel = selectors.DefaultSelector()
+        for sock, port in self._sockets:
+            sel.register(sock, selectors.EVENT_READ, port)
+        local = self.multicast or self.bind_address
+        stats = self.stats
+        put = self._queue.put
+        try:
+            while not self._stop.is_set():
+                for key, _ in sel.select(timeout=0.1):
+                    sock, port = key.fileobj, key.data
+                    while True:
+                        try:
+                            data, anc, _flags, addr = sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
+                        except (BlockingIOError, InterruptedError):
+                            break
+                        now = 0
+                        dst_addr = local
+                        for level, kind, value in anc:
+                            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
+                                sec, nsec = struct.unpack_from("@qq", value)
+                                now = sec * 1_000_000_000 + nsec
+                            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                                stats.kernel_drops[port] = struct.unpack_from("@I", value)[0]
+                            elif level == socket.IPPROTO_IP and kind == IP_PKTINFO and len(value) >= 12:
+                                dst_addr = socket.inet_ntoa(value[8:12])
+                        if not now:
+                            now = time.time_ns()
+                        stats.received += 1
+                        n = len(data)
+                        stats.received_bytes += n
+                        if self._bytes_in - self._bytes_out + n > self.queue_bytes:
+                            stats.queue_overflow += 1
+                            continue
+                        self._bytes_in += n
+                        put((now, Endpoint(addr[0], addr[1]), Endpoint(dst_addr, port), data))
+        except BaseException as exc:  # surfaced to the consumer by drain()
+            self.error = exc
+        finally:
+            sel.close()
+
+    def drain(self, timeout: float = 0.1, max_items: int = 4096) -> list[Item]:
+        """Datagrams received so far, oldest first (waits up to ``timeout`` s for the first).
+
+        Raises :class:`RecorderError` if the receive thread failed.
+        """
+        items: list[Item] = []
+        try:
+            items.append(self._queue.get(timeout=timeout))
+            while len(items) < max_items:
+                items.append(self._queue.get_nowait())
+        except queue.Empty:
+            pass
+        self._bytes_out += sum(len(it[3]) for it in items)
+        if not items and self.error is not None:
+            raise RecorderError(f"the UDP receive thread failed: {self.error!r}")
+        return items
+
+    @property
+    def queued_bytes(self) -> int:
+        return self._bytes_in - self._bytes_out
+
+    def stop(self) -> None:
+        """Stop the receive thread (what it queued stays drainable)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def close(self) -> None:
+        self.stop()
+        for sock, _ in self._sockets:
+            sock.close()
+        self._sockets.clear()
+
+    def __enter__(self) -> "UdpCapture":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

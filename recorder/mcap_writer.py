@@ -1,0 +1,234 @@
+"""The MCAP file lidarpkt writes: ROS 2 profile, zstd chunks sized by time, rotation.
+
+A :class:`McapWriter` takes encoded messages for the topics of :mod:`recorder.schemas` and
+writes them with the ``mcap`` library: profile ``ros2``, schemas in ``ros2msg``, messages in
+``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag play`` accepts the
+file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk and
+message indexes.
+
+Chunks are closed by *time* (``chunk_seconds`` of wall clock, default 0.5 s) as well as by
+size, and each closed chunk is handed to the operating system at once: if the process is
+killed, the file is readable up to its last complete chunk, so at most about
+``chunk_seconds`` of data is lost. With rotation (``rotate_bytes`` / ``rotate_seconds``)
+the output is ``STEM_0000.mcap``, ``STEM_0001.mcap`` …; every file is complete on its own
+(metadata records and latched topics such as ``/ouster/metadata`` are written again).
+
+Errors: :class:`lidarpkt.errors.DiskFullError` when the disk is full (what was written is
+readable up to the last complete chunk), :class:`lidarpkt.errors.RecorderError` for other
+write failures.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import time
+from pathlib import Path
+from typing import Callable
+
+from lidarpkt.errors import DiskFullError, RecorderError
+
+from . import schemas
+from .schemas import Topic
+
+LIBRARY = "lidarpkt recorder"
+
+
+class McapWriter:
+    """Writes ROS 2 MCAP, chunked by time, optionally rotated.
+
+    Args:
+        path: output file (``.mcap``). With rotation, files are named ``STEM_NNNN.mcap``
+            beside it.
+        chunk_seconds: close a chunk once its first message is this old (wall clock).
+        chunk_bytes: close a chunk once its uncompressed size exceeds this.
+        compression: ``"zstd"`` (default), ``"lz4"`` or ``"none"``.
+        rotate_bytes / rotate_seconds: start a new file once the current one is this large /
+            old (checked between chunks). ``None`` = never.
+        clock: wall clock in seconds (tests pass a fake one).
+
+    Raises:
+        RecorderError: the file cannot be created (with the reason).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        chunk_seconds: float = 0.5,
+        chunk_bytes: int = 8 << 20,
+        compression: str = "zstd",
+        rotate_bytes: int | None = None,
+        rotate_seconds: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        from mcap.writer import CompressionType
+
+        self.path = Path(path)
+        self.chunk_seconds = chunk_seconds
+        self.chunk_bytes = chunk_bytes
+        self._compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                             "none": CompressionType.NONE}[compression]
+        self.rotate_bytes = rotate_bytes
+        self.rotate_seconds = rotate_seconds
+        self._clock = clock
+        self.files: list[Path] = []
+        self.messages_written = 0
+        self._bytes_closed_files = 0
+        self._metadata: list[tuple[str, dict[str, str]]] = []
+        self._latched: dict[str, tuple[Topic, bytes, int]] = {}
+        self._file = None
+        self._writer = None
+        self._closed = False
+        self._open_next()
+
+    # ------------------------------------------------------------------ files
+    def _next_path(self) -> Path:
+        if self.rotate_bytes is None and self.rotate_seconds is None:
+            return self.path
+        stem = self.path.name[:-5] if self.path.name.endswith(".mcap") else self.path.name
+        return self.path.with_name(f"{stem}_{len(self.files):04d}.mcap")
+
+    def _open_next(self) -> None:
+        from mcap.writer import IndexType, Writer
+
+        path = self._next_path()
+        try:
+            self._file = open(path, "wb")
+        except OSError as exc:
+            raise RecorderError(f"cannot create the MCAP output {path}: {exc.strerror}") from exc
+        self.files.append(path)
+        self._writer = Writer(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
+                              index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
+                              use_summary_offsets=True, enable_crcs=True)
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._opened_at = self._clock()
+        self._chunk_started: float | None = None
+        self._guard(lambda: self._writer.start(profile="ros2", library=LIBRARY))
+        for name, data in self._metadata:
+            self._guard(lambda: self._writer.add_metadata(name, data))
+        for topic, data, log_time in self._latched.values():
+            self._add(topic, data, log_time)
+        self._guard(self._flush_chunk)
+
+    def _guard(self, action: Callable[[], object]) -> object:
+        try:
+            return action()
+        except OSError as exc:
+            self._abandon()
+            where = self.files[-1] if self.files else self.path
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+                raise DiskFullError(
+                    f"no space left while writing {where} ({self.messages_written} messages written): "
+                    "the file is readable up to its last complete chunk; free space and record again"
+                ) from exc
+            raise RecorderError(f"writing {where} failed: {exc.strerror or exc}") from exc
+
+    def _abandon(self) -> None:
+        """Stop writing after a failed write: close the file without a summary (still readable)."""
+        self._closed = True
+        if self._file is not None:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes on disk so far over all files (closed chunks only for the current file)."""
+        current = self._file.tell() if self._file is not None and not self._file.closed else 0
+        return self._bytes_closed_files + current
+
+    # ---------------------------------------------------------------- records
+    def _channel(self, topic: Topic) -> int:
+        cid = self._channels.get(topic.name)
+        if cid is None:
+            sid = self._schemas.get(topic.msgtype)
+            if sid is None:
+                sid = self._writer.register_schema(topic.msgtype, "ros2msg",
+                                                   schemas.schema_text(topic.msgtype).encode())
+                self._schemas[topic.msgtype] = sid
+            cid = self._writer.register_channel(topic.name, "cdr", sid,
+                                                {"offered_qos_profiles": topic.qos})
+            self._channels[topic.name] = cid
+        return cid
+
+    def _add(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        cid = self._channel(topic)
+        self._writer.add_message(cid, log_time=int(log_time_ns), data=data,
+                                 publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns))
+        self.messages_written += 1
+        if self._chunk_started is None:
+            self._chunk_started = self._clock()
+
+    def write(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        """Write one CDR message on ``topic``; log time = host receive time (ns since the epoch)."""
+        if self._closed:
+            raise RecorderError(f"{self.path} is closed")
+        self._guard(lambda: self._add(topic, data, log_time_ns, publish_time_ns))
+        self.tick()
+
+    def write_message(self, topic: Topic, message: object, log_time_ns: int) -> None:
+        """Encode a rosbags message object of ``topic.msgtype`` and write it."""
+        self.write(topic, schemas.encode(topic.msgtype, message), log_time_ns)
+
+    def write_latched(self, topic: Topic, data: bytes, log_time_ns: int) -> None:
+        """Write a message that every rotated file must start with (``/ouster/metadata``)."""
+        self._latched[topic.name] = (topic, data, log_time_ns)
+        self.write(topic, data, log_time_ns)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP Metadata record (string → string); repeated in every rotated file."""
+        data = {str(k): str(v) for k, v in data.items()}
+        self._metadata.append((name, data))
+        if not self._closed:
+            self._guard(lambda: self._writer.add_metadata(name, data))
+
+    def _flush_chunk(self) -> None:
+        self._writer.flush()  # closes the chunk (with its message indexes) and hands it to the OS
+        self._chunk_started = None
+
+    def tick(self) -> None:
+        """Close the chunk if it is ``chunk_seconds`` old, rotate if due. Call it at least a few
+        times a second when no message arrives, so that the last messages reach the disk."""
+        if self._closed:
+            return
+        now = self._clock()
+        if self._chunk_started is not None and now - self._chunk_started >= self.chunk_seconds:
+            self._guard(self._flush_chunk)
+        if self._chunk_started is None and self._rotation_due(now):
+            self._rotate()
+
+    def _rotation_due(self, now: float) -> bool:
+        if self.rotate_bytes is not None and self._file.tell() >= self.rotate_bytes:
+            return True
+        return self.rotate_seconds is not None and now - self._opened_at >= self.rotate_seconds
+
+    def _rotate(self) -> None:
+        self._finish_current()
+        self._open_next()
+
+    def _finish_current(self) -> None:
+        def finish():
+            self._writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+
+        self._guard(finish)
+        self._bytes_closed_files += self._file.tell()
+        self._file.close()
+        self._file = None
+
+    def close(self) -> None:
+        """Write the summary and indexes, and close. Safe to call twice."""
+        if self._closed:
+            return
+        self._finish_current()
+        self._closed = True
+
+    def __enter__(self) -> "McapWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

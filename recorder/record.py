@@ -1,0 +1,214 @@
+"""``lidarpkt record``: capture a live sensor (and a serial GPS) to MCAP without losing a packet.
+
+The receive thread (:mod:`recorder.capture`) reads the sockets; this loop drains its queue,
+writes the packets through :class:`recorder.sink.PacketSink`, counts loss, prints a status
+line each second and a summary at the end. It stops on Ctrl-C, SIGTERM, ``--duration`` or
+``--frames`` and closes the file with its summary and index. Killed outright, it leaves a
+file readable up to its last complete chunk (``--chunk-seconds``, 0.5 s by default).
+
+Exit status: 0 = recorded, nothing lost; 1 = recorded but packets were lost (the summary
+says where); 2 = error (port in use, disk full, bad option …).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from lidarpkt.errors import RecorderError
+
+from . import schemas
+from .capture import UdpCapture
+from .mcap_writer import McapWriter
+from .sink import PacketSink, batch_from_packets
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", type=int, action="append", required=True, metavar="PORT",
+                        help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
+                             "Ouster: 7502 lidar, 7503 IMU)")
+    parser.add_argument("--bind", metavar="ADDR", help="local address to listen on (default: all, broadcast included)")
+    parser.add_argument("--multicast", metavar="GROUP", help="join this IPv4 multicast group")
+    parser.add_argument("--interface", metavar="IF", help="interface (name or address) for --multicast")
+    parser.add_argument("--metadata", metavar="M.json", help="Ouster sensor metadata JSON (stored in the file)")
+    stop = parser.add_mutually_exclusive_group()
+    stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP file to write")
+    parser.add_argument("--rotate-size", type=float, metavar="MB", help="start a new file every MB megabytes")
+    parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds")
+    parser.add_argument("--chunk-seconds", type=float, default=0.5, metavar="S",
+                        help="close an MCAP chunk every S seconds: at most that much is lost if killed (0.5)")
+    parser.add_argument("--gps", metavar="PORT", help="serial port of an NMEA GPS (e.g. /dev/ttyUSB0)")
+    parser.add_argument("--baud", type=int, default=9600, help="GPS baud rate (9600)")
+    parser.add_argument("--rcvbuf", type=float, default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
+    parser.add_argument("--queue", type=float, default=256, metavar="MB",
+                        help="payload megabytes allowed to wait for the writer before drops are counted (256)")
+    parser.add_argument("--report", metavar="FILE.json", help="also write the summary as JSON")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no status line")
+
+
+class _StopFlag:
+    """Set by SIGINT/SIGTERM: the loop then finishes the file cleanly."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def __call__(self, signum, _frame) -> None:
+        self.reason = signal.Signals(signum).name
+
+
+def run(args: argparse.Namespace) -> int:
+    md = None
+    if args.metadata:
+        from lidarpkt.ouster.metadata import load_metadata
+
+        md = load_metadata(args.metadata)
+    stop = _StopFlag()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, stop)
+    capture = gps = writer = None
+    try:
+        capture = UdpCapture(args.port, bind=args.bind, multicast=args.multicast, interface=args.interface,
+                             rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
+        writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
+                            rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
+                            rotate_seconds=args.rotate_time)
+        sink = PacketSink(writer, ouster_metadata=md, log_time_ns=time.time_ns())
+        if args.gps:
+            from .gps import GpsReader
+
+            gps = GpsReader(args.gps, args.baud)
+            gps.start()
+        granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
+        _say(args, f"lidarpkt record: listening on {capture.bind_address} port(s) "
+                   f"{', '.join(map(str, capture.ports))}; receive buffer asked "
+                   f"{capture.stats.rcvbuf_requested / (1 << 20):.0f} MiB, granted {granted}; writing {args.output}")
+        capture.start()
+        return _loop(args, capture, writer, sink, gps, stop)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if gps is not None:
+            gps.close()
+        if capture is not None:
+            capture.close()
+        if writer is not None:
+            try:
+                writer.close()
+            except RecorderError:
+                pass  # the error that stopped the loop is the one reported
+
+
+def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag) -> int:
+    start = time.monotonic()
+    last_status = start
+    last_packets = 0
+    reason = None
+    while reason is None:
+        items = capture.drain(timeout=0.05)
+        for batch in batch_from_packets(items):
+            sink.push(batch)
+        if gps is not None:
+            _write_gps(writer, gps)
+        writer.tick()
+        now = time.monotonic()
+        if stop.reason:
+            reason = stop.reason
+        elif args.duration is not None and now - start >= args.duration:
+            reason = f"duration {args.duration:g} s"
+        elif args.frames is not None and sink.frames >= args.frames:
+            reason = f"{args.frames} frames"
+        if now - last_status >= 1.0 and not args.quiet:
+            rate = (sink.packets - last_packets) / (now - last_status)
+            last_packets, last_status = sink.packets, now
+            print(f"\r[{now - start:7.1f} s] {rate:8.0f} pkt/s  {sink.frames} frames  lost {_lost(capture, sink)}  "
+                  f"{writer.bytes_written / 1e6:8.1f} MB", end="" if sys.stderr.isatty() else "\n",
+                  file=sys.stderr, flush=True)
+    # stop receiving, then write whatever was already received
+    capture.stop()
+    while True:
+        items = capture.drain(timeout=0.0, max_items=65536)
+        if not items:
+            break
+        for batch in batch_from_packets(items):
+            sink.push(batch)
+    if gps is not None:
+        gps.close()
+        _write_gps(writer, gps)
+    sink.finish()
+    writer.close()
+    elapsed = time.monotonic() - start
+    summary = _summary(capture, writer, sink, gps, elapsed, reason)
+    if not args.quiet:
+        print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
+    if args.report:
+        Path(args.report).write_text(json.dumps(summary, indent=2))
+    return 0 if summary["lost_total"] == 0 else 1
+
+
+def _write_gps(writer: McapWriter, gps) -> None:
+    store = schemas.typestore()
+    for host_ns, sentence in gps.drain():
+        msg = store.types[schemas.NMEA_SENTENCE](header=schemas.header(host_ns, "gps"), sentence=sentence)
+        writer.write_message(schemas.NMEA, msg, host_ns)
+
+
+def _lost(capture: UdpCapture, sink: PacketSink) -> str:
+    s = capture.stats
+    return f"{sink.lost} (gaps) + {s.kernel_dropped} (kernel) + {s.queue_overflow} (queue)"
+
+
+def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> dict:
+    s = capture.stats
+    return {
+        "stopped_by": reason,
+        "seconds": round(elapsed, 3),
+        "files": [str(p) for p in writer.files],
+        "bytes_written": writer.bytes_written,
+        "messages_written": writer.messages_written,
+        "datagrams_received": s.received,
+        "packets": sink.packets,
+        "frames": sink.frames,
+        "lost_gaps": sink.lost,
+        "out_of_order": sink.out_of_order,
+        "kernel_drops": s.kernel_dropped,
+        "queue_overflow": s.queue_overflow,
+        "lost_total": sink.lost + s.kernel_dropped + s.queue_overflow,
+        "rcvbuf_requested": s.rcvbuf_requested,
+        "rcvbuf_granted": {str(k): v for k, v in s.rcvbuf_granted.items()},
+        "gps_sentences": gps.sentences if gps is not None else 0,
+        "gps_bad_checksum": gps.bad if gps is not None else 0,
+        "streams": [
+            {"kind": r.kind, "src": r.src, "dst": r.dst, "payload_size": r.payload_size,
+             "packets": r.count.packets, "lost": r.count.lost, "out_of_order": r.count.out_of_order,
+             "frames": r.count.frames, "messages": r.messages}
+            for r in sink.streams.values()
+        ],
+    }
+
+
+def _summary_text(d: dict, sink: PacketSink) -> str:
+    lines = [
+        f"lidarpkt record: stopped by {d['stopped_by']} after {d['seconds']:.1f} s",
+        f"  {d['packets']} packets in {d['messages_written']} messages, {d['frames']} rotations, "
+        f"{d['bytes_written'] / 1e6:.1f} MB in {', '.join(d['files'])}",
+        f"  lost: {d['lost_total']} = {d['lost_gaps']} (gaps in the packets' own counters) + "
+        f"{d['kernel_drops']} (kernel buffer full) + {d['queue_overflow']} (writer fell behind); "
+        f"{d['out_of_order']} out of order",
+    ]
+    if d["gps_sentences"] or d["gps_bad_checksum"]:
+        lines.append(f"  GPS: {d['gps_sentences']} sentences, {d['gps_bad_checksum']} rejected (bad checksum)")
+    return "\n".join(lines + sink.report_lines())
+
+
+def _say(args, text: str) -> None:
+    if not args.quiet:
+        print(text, file=sys.stderr, flush=True)

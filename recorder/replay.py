@@ -1,0 +1,177 @@
+"""``lidarpkt replay``: send a capture's payloads over UDP at the original pace (a sensor simulator).
+
+The lidar data stream (VLP-16 data packets, Ouster lidar packets) goes to ``--to HOST:PORT``;
+the other streams (VLP-16 position, Ouster IMU, anything else) go to their original
+destination port on HOST, or where ``--port-map SRC:DST`` sends them. Containers that keep
+no ports (ROS bags, MCAP) send position packets to 8308 and IMU packets to 7503.
+
+Pacing follows the capture's own receive times divided by ``--rate``; ``--max`` sends as
+fast as the socket takes them. The sender sleeps only when it is more than a millisecond
+ahead, so at high rates packets leave in short bursts that keep the average pace exact.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import socket
+import sys
+import time
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from lidarpkt.errors import LidarpktError, RecorderError
+from lidarpkt.packet import Packet
+
+from . import streams
+
+DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
+    parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, default=1.0, metavar="F", help="speed factor (1 = real time)")
+    pace.add_argument("--max", action="store_true", help="send as fast as possible")
+    parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
+    parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
+                        help="send packets captured to port SRC to port DST instead (repeatable)")
+    parser.add_argument("--metadata", metavar="M.json", help="Ouster metadata (to recognise non-legacy lidar packets)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no summary")
+
+
+@dataclass
+class ReplayStats:
+    """What a replay sent: packets, bytes, per destination port, and how long it took."""
+
+    packets: int = 0
+    bytes: int = 0
+    seconds: float = 0.0
+    per_port: dict[int, int] | None = None
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """``"HOST:PORT"`` (``[v6]:PORT`` too) → (host, port). Raises :class:`RecorderError`."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        raise RecorderError(f"--to {text!r}: expected HOST:PORT, e.g. 127.0.0.1:2368")
+    return host.strip("[]"), int(port)
+
+
+def parse_port_map(items: Iterable[str]) -> dict[int, int]:
+    """``["8308:9308", …]`` → {8308: 9308}. Raises :class:`RecorderError`."""
+    out = {}
+    for item in items:
+        a, sep, b = item.partition(":")
+        if not sep or not a.isdigit() or not b.isdigit():
+            raise RecorderError(f"--port-map {item!r}: expected SRC:DST port numbers, e.g. 8308:9308")
+        out[int(a)] = int(b)
+    return out
+
+
+def read_capture(path: str) -> Iterator[Packet]:
+    """Every packet of a capture in capture order (pcap streamed; bags/MCAP read by batches)."""
+    from lidarpkt.source import container_kind, read_batches
+
+    if container_kind(path) == "pcap":
+        from lidarpkt.pcap import PcapReader
+
+        yield from PcapReader(path).packets()
+        return
+    batches = list(read_batches(path))
+    if not batches:
+        return
+    order = np.argsort(np.concatenate([b.index for b in batches]), kind="stable")
+    which = np.concatenate([np.full(len(b), i) for i, b in enumerate(batches)])
+    row = np.concatenate([np.arange(len(b)) for b in batches])
+    for k in order.tolist():
+        b = batches[which[k]]
+        r = row[k]
+        yield Packet(int(b.timestamp_ns[r]), b.src, b.dst, b.payload[r].tobytes())
+
+
+def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
+           port_map: dict[int, int] | None = None, ouster_metadata=None,
+           clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
+    """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
+
+    ``rate`` None = as fast as possible. Returns :class:`ReplayStats`. Raises
+    :class:`RecorderError` if the address cannot be resolved or a send fails.
+    """
+    port_map = port_map or {}
+    try:
+        family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+    except socket.gaierror as exc:
+        raise RecorderError(f"cannot resolve replay destination {host!r}: {exc.strerror}") from None
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
+    dest_host = addr[0]
+    stats = ReplayStats(per_port={})
+    kind_port: dict[tuple[int, int | None], int] = {}
+    start = clock()
+    t0 = None
+    try:
+        for p in packets:
+            size = len(p.payload)
+            orig = p.dst.port if p.dst is not None else None
+            out_port = kind_port.get((size, orig))
+            if out_port is None:
+                kind = streams.classify_size(size, ouster_metadata)
+                if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR):
+                    out_port = port
+                else:
+                    base = orig if orig is not None else DEFAULT_PORTS.get(kind, port)
+                    out_port = port_map.get(base, base)
+                kind_port[(size, orig)] = out_port
+            if rate is not None:
+                if t0 is None:
+                    t0 = p.timestamp_ns
+                ahead = (p.timestamp_ns - t0) / 1e9 / rate - (clock() - start)
+                if ahead > 0.001:
+                    sleep(ahead)
+            try:
+                sock.sendto(p.payload, (dest_host, out_port))
+            except OSError as exc:
+                raise RecorderError(f"sending to {dest_host}:{out_port} failed: {exc.strerror}") from None
+            stats.packets += 1
+            stats.bytes += size
+            stats.per_port[out_port] = stats.per_port.get(out_port, 0) + 1
+    finally:
+        sock.close()
+    stats.seconds = clock() - start
+    return stats
+
+
+def run(args: argparse.Namespace) -> int:
+    host, port = parse_host_port(args.to)
+    port_map = parse_port_map(args.port_map)
+    md = None
+    if args.metadata:
+        from lidarpkt.ouster.metadata import load_metadata
+
+        md = load_metadata(args.metadata)
+    if not args.max and args.rate <= 0:
+        raise RecorderError(f"--rate must be positive, got {args.rate}")
+    rate = None if args.max else args.rate
+    rounds = itertools.count() if args.loop else range(1)
+    total = ReplayStats(per_port={})
+    try:
+        for _ in rounds:
+            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=md)
+            total.packets += s.packets
+            total.bytes += s.bytes
+            total.seconds += s.seconds
+            for k, v in s.per_port.items():
+                total.per_port[k] = total.per_port.get(k, 0) + v
+            if s.packets == 0:
+                raise LidarpktError(f"{args.file} holds no UDP packets to replay")
+    except KeyboardInterrupt:
+        pass
+    if not args.quiet:
+        ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
+        print(f"lidarpkt replay: sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "
+              f"{total.seconds:.2f} s: {ports}", file=sys.stderr)
+    return 0

@@ -1,0 +1,219 @@
+"""Raw packets into MCAP topics, losslessly, with loss accounting: shared by ``record`` and ``decode``.
+
+:class:`PacketSink` takes packet batches (one stream, one payload size, in arrival order)
+and writes them to a :class:`~recorder.mcap_writer.McapWriter`:
+
+* VLP-16 data packets are gathered into one ``VelodyneScan`` per rotation (cut where the
+  first block's azimuth wraps, or after ``max_scan_packets`` if the sensor does not turn);
+  log time = host receive time of the scan's last packet, ``header.stamp`` = sensor time of
+  its first packet, each packet's ``stamp`` = its host receive time;
+* VLP-16 position packets, Ouster lidar and IMU packets: one message each, log time = host
+  receive time;
+* anything else goes, unchanged, to ``/lidarpkt/other_packets`` (counted, reported, kept).
+
+Sensor descriptions go into MCAP metadata records named ``lidarpkt.sensor``; the Ouster
+metadata JSON also goes to the latched ``/ouster/metadata`` topic.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidarpkt.packet import Endpoint, PacketBatch
+from lidarpkt.velodyne import packet as vlp
+
+from . import schemas, streams
+from .mcap_writer import McapWriter
+
+HOUR_NS = 3_600_000_000_000
+
+
+def velodyne_sensor_time_ns(timestamp_us: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
+    """Sensor time (ns since the epoch) of VLP-16 packets: their µs past the hour, in the hour
+    nearest their host receive time (the convention of velodyne_decoder; ±30 min)."""
+    toh_ns = np.asarray(timestamp_us, np.int64) * 1000
+    host = np.asarray(host_time_ns, np.int64)
+    hour = host - host % HOUR_NS
+    t = hour + toh_ns
+    t = np.where(t - host > HOUR_NS // 2, t - HOUR_NS, t)
+    return np.where(host - t > HOUR_NS // 2, t + HOUR_NS, t)
+
+
+@dataclass
+class StreamReport:
+    """What one stream delivered: its kind, endpoints, payload size and counts."""
+
+    kind: str
+    src: str
+    dst: str
+    payload_size: int
+    count: streams.LossCount = field(default_factory=streams.LossCount)
+    messages: int = 0
+
+
+class PacketSink:
+    """Writes packet batches to MCAP (see the module doc).
+
+    Args:
+        writer: the MCAP output.
+        ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of the Ouster sensor,
+            if any (needed for non-legacy profiles and for Ouster loss accounting).
+        max_scan_packets: bound on one ``VelodyneScan`` (memory stays bounded if the
+            azimuth never wraps).
+    """
+
+    def __init__(self, writer: McapWriter, *, ouster_metadata=None, max_scan_packets: int = 2000,
+                 log_time_ns: int | None = None) -> None:
+        self.writer = writer
+        self.ouster_metadata = ouster_metadata
+        self.max_scan_packets = max_scan_packets
+        self.streams: dict[tuple, StreamReport] = {}
+        self._trackers: dict[tuple, object] = {}
+        self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._described: set[tuple] = set()
+        if ouster_metadata is not None:
+            self._write_ouster_metadata(log_time_ns or 0)
+
+    # ----------------------------------------------------------------- metadata
+    def _write_ouster_metadata(self, log_time_ns: int) -> None:
+        md = self.ouster_metadata
+        text = json.dumps(md.raw)
+        self.writer.write_latched(schemas.OUSTER_METADATA, schemas.encode(
+            schemas.STRING, schemas.typestore().types[schemas.STRING](data=text)), log_time_ns)
+        info = md.sensor_info().describe()
+        self.writer.add_metadata("lidarpkt.sensor", {
+            "vendor": "ouster", "model": str(info["model"]), "profile": md.profile.name,
+            "columns_per_frame": str(md.columns_per_frame), "pixels_per_column": str(md.pixels_per_column),
+            "lidar_port": str(md.lidar_port), "imu_port": str(md.imu_port),
+            "serial": str(md.serial), "firmware": str(md.firmware),
+            "sensor_info": json.dumps(info), "metadata_json": text,
+        })
+
+    def _describe_velodyne(self, key: tuple, payload: np.ndarray, src: str) -> None:
+        p = vlp.as_data_packets(payload[:1])[0]
+        mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
+        product = vlp.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
+        self.writer.add_metadata("lidarpkt.sensor", {
+            "vendor": "velodyne", "model": "VLP-16", "return_mode": mode,
+            "product_id": f"0x{int(p['product_id']):02x} ({product})", "source": src,
+            "laser_elevation_deg": json.dumps(vlp.LASER_ELEVATION_DEG.tolist()),
+        })
+
+    # ------------------------------------------------------------------ packets
+    def push(self, batch: PacketBatch) -> None:
+        """Write one batch (one stream, one payload size, arrival order)."""
+        n = len(batch)
+        if n == 0:
+            return
+        kind = streams.classify_size(batch.payload_size, self.ouster_metadata)
+        key = (kind, batch.src, batch.dst, batch.payload_size)
+        rep = self.streams.get(key)
+        if rep is None:
+            rep = self.streams[key] = StreamReport(kind, str(batch.src), str(batch.dst), batch.payload_size)
+        host = batch.timestamp_ns
+        if kind == streams.VELODYNE_DATA:
+            self._push_velodyne(key, rep, batch)
+            return
+        if kind == streams.OUSTER_LIDAR and self.ouster_metadata is not None:
+            tracker = self._trackers.setdefault(key, streams.OusterLoss(self.ouster_metadata))
+            tracker.update(batch.payload)
+            rep.count = tracker.count
+        else:  # no layout to find gaps in: counted only
+            rep.count.packets += n
+        if kind == streams.OUSTER_LIDAR:
+            topic = schemas.OUSTER_LIDAR
+        elif kind == streams.OUSTER_IMU:
+            topic = schemas.OUSTER_IMU
+        else:
+            topic = schemas.VELODYNE_POSITION if kind == streams.VELODYNE_POSITION else schemas.OTHER_PACKETS
+        write = self.writer.write
+        if topic.msgtype == schemas.PACKET_MSG:
+            for t, row in zip(host.tolist(), batch.payload):
+                write(topic, schemas.encode_packet_msg(row.tobytes()), t)
+        else:
+            for t, row in zip(host.tolist(), batch.payload):
+                write(topic, schemas.encode_stamped_packet(row.tobytes(), t), t)
+        rep.messages += n
+
+    def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
+        if key not in self._described:
+            self._described.add(key)
+            self._describe_velodyne(key, batch.payload, rep.src)
+        tracker = self._trackers.setdefault(key, streams.VelodyneLoss())
+        starts = tracker.update(batch.payload)
+        rep.count = tracker.count
+        pending = self._pending.setdefault(key, [])
+        cuts = np.flatnonzero(starts).tolist()
+        lo = 0
+        for cut in cuts + [len(batch)]:
+            if cut > lo:
+                pending.append((batch.payload[lo:cut], batch.timestamp_ns[lo:cut]))
+            if cut < len(batch):
+                self._flush_scan(key, rep)
+            lo = cut
+        if sum(len(t) for _, t in pending) >= self.max_scan_packets:
+            self._flush_scan(key, rep)
+
+    def _flush_scan(self, key: tuple, rep: StreamReport) -> None:
+        pending = self._pending.get(key)
+        if not pending:
+            return
+        payload = np.concatenate([p for p, _ in pending]) if len(pending) > 1 else pending[0][0]
+        host = np.concatenate([t for _, t in pending]) if len(pending) > 1 else pending[0][1]
+        pending.clear()
+        ts_us = vlp.as_data_packets(payload[:1])["timestamp_us"]
+        stamp = int(velodyne_sensor_time_ns(ts_us, host[:1])[0])
+        self.writer.write(schemas.VELODYNE_PACKETS, schemas.encode_velodyne_scan(payload, host, stamp),
+                          int(host[-1]))
+        rep.messages += 1
+
+    def finish(self) -> None:
+        """Write the scans still being gathered (the last, partial rotation). Does not close the writer."""
+        for key, rep in self.streams.items():
+            if key[0] == streams.VELODYNE_DATA:
+                self._flush_scan(key, rep)
+
+    # ---------------------------------------------------------------- reports
+    @property
+    def packets(self) -> int:
+        return sum(r.count.packets for r in self.streams.values())
+
+    @property
+    def lost(self) -> int:
+        return sum(r.count.lost for r in self.streams.values())
+
+    @property
+    def out_of_order(self) -> int:
+        return sum(r.count.out_of_order for r in self.streams.values())
+
+    @property
+    def frames(self) -> int:
+        """Rotations completed, over the lidar streams (the largest of them)."""
+        return max((r.count.frames for r in self.streams.values()
+                    if r.kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR)), default=0)
+
+    def report_lines(self) -> list[str]:
+        """One line per stream for the end-of-run summary."""
+        out = []
+        for r in self.streams.values():
+            c = r.count
+            out.append(f"  {r.kind:<18} {r.src} -> {r.dst} {r.payload_size} B: {c.packets} packets, "
+                       f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations")
+        return out
+
+
+def batch_from_packets(items: list[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
+    """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
+    each in arrival order (streams in order of first appearance)."""
+    groups: dict[tuple, list] = {}
+    for t, src, dst, payload in items:
+        groups.setdefault((src, dst, len(payload)), []).append((t, payload))
+    out = []
+    for (src, dst, size), rows in groups.items():
+        times = np.fromiter((t for t, _ in rows), np.int64, len(rows))
+        arr = np.frombuffer(b"".join(p for _, p in rows), np.uint8).reshape(len(rows), size)
+        out.append(PacketBatch(src, dst, times, arr, np.zeros(len(rows), np.int64)))
+    return out
