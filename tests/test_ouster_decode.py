@@ -1,0 +1,158 @@
+"""Ouster packet decoding against the real captures and the digests published with ouster-sdk."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import external
+from lidarpkt.errors import PacketFormatError, SensorMismatchError
+from lidarpkt.ouster import decode_packets, empty_fields, encode_packets, load_metadata
+from lidarpkt.ouster.digest import PacketDigest, compare_digest, frame_digest
+from test_ouster_cases import CAPTURES, DIGESTED, IDS, all_packets_of_size, decode_frames, load_digest, lidar_streams
+
+
+@pytest.mark.parametrize("pcap,jsons,_", CAPTURES, ids=IDS)
+def test_round_trip_every_real_packet(pcap, jsons, _):
+    """encode(decode(packet)) == packet, footer and CRC included, for every lidar packet."""
+    for md, batch in lidar_streams(pcap, jsons):
+        fields = decode_packets(batch.payload, md)
+        again = encode_packets(fields, md)
+        assert again.dtype == np.uint8 and again.shape == batch.payload.shape
+        assert np.array_equal(again, batch.payload), f"{pcap}: re-encoded packets differ"
+
+
+@pytest.mark.parametrize("pcap,jsons,digest", DIGESTED, ids=[c[0].split("/")[-1] for c in DIGESTED])
+def test_published_digest_packet_and_frame_parts(pcap, jsons, digest):
+    """Every key of the ouster-sdk digest file, recomputed from our decode, bit for bit."""
+    md = load_metadata(external(jsons[0]))
+    payload = all_packets_of_size(pcap, md.packet_size)
+    assert len(payload) == 64
+    pd = PacketDigest()
+    pd.update(decode_packets(payload, md), raw_payload=payload)
+    frames, _ = decode_frames(pcap, jsons)
+    expected = load_digest(digest)
+    assert compare_digest(expected, pd.hexdigests(), frames) == []
+    # the keys the SDK checks are all there (not silently skipped)
+    assert set(expected["packet_hash"]) - {"ENCODER_COUNT"} <= set(pd.hexdigests())
+    assert set(expected["scans"][0]) - {"ENCODER_COUNT"} <= set(frame_digest(frames[0]))
+
+
+def test_digest_detects_a_single_flipped_bit():
+    pcap, jsons, digest = DIGESTED[0]
+    md = load_metadata(external(jsons[0]))
+    payload = all_packets_of_size(pcap, md.packet_size).copy()
+    payload[10, md.profile.header_bytes + 12 + 5] ^= 0x01  # one bit of one pixel of packet 10
+    pd = PacketDigest()
+    pd.update(decode_packets(payload, md), raw_payload=payload)
+    problems = compare_digest({"packet_hash": load_digest(digest)["packet_hash"]}, pd.hexdigests(), [])
+    assert problems and all(p.startswith("packet ") for p in problems)
+
+
+def test_manual_facts_legacy_os1_64():
+    """Column header and status facts of the legacy OS1-64 capture (SOURCES.md, manual)."""
+    md, batch = lidar_streams("rust-lidar-utils/ouster_example.pcap", ["rust-lidar-utils/ouster_example.json"])[0]
+    f = decode_packets(batch.payload, md)
+    assert batch.payload_size == 12608 == 16 * (16 + 64 * 12 + 4)
+    assert np.all(f.status == 0xFFFFFFFF)
+    # encoder counts: 90112 per turn over 1024 columns = 88 per measurement id
+    assert np.array_equal(f.encoder_count, 88 * f.measurement_id.astype(np.uint32))
+    assert np.all(np.diff(f.measurement_id.astype(int), axis=1) == 1)
+    assert sorted(set(f.frame_id.tolist())) == [12072, 12073, 12074]
+    assert np.all(f.column_frame_id == f.column_frame_id[:, :1])
+    assert f.pixels["RANGE"].max() < 2**20 and f.pixels["FLAGS"].max() < 16
+    # this 2019 firmware sets some of the bits the manual reserves (20-27): they are kept apart
+    # from RANGE and FLAGS, and the round trip carries them
+    assert f.pixels["_reserved_20"].any()
+    assert np.array_equal(encode_packets(f, md), batch.payload)
+
+
+def test_manual_facts_low_data_rate():
+    """RNG15_RFL8_NIR8: RANGE comes in 8 mm steps, NEAR_IR in steps of 16 (up-shifts 3 and 4)."""
+    md, batch = lidar_streams("ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.pcap", ["ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json"])[0]
+    f = decode_packets(batch.payload, md)
+    rng, nir = f.pixels["RANGE"], f.pixels["NEAR_IR"]
+    assert rng.dtype == np.uint32 and nir.dtype == np.uint16
+    assert np.all(rng % 8 == 0) and rng.max() > 0 and rng.max() <= (2**15 - 1) * 8
+    assert np.all(nir % 16 == 0) and nir.max() > 0
+    # the raw word agrees with the fields
+    word = batch.payload[:, 32 + 12 : 32 + 12 + 4].view("<u4")[:, 0]  # packet n, column 0, pixel 0
+    assert np.array_equal(rng[:, 0, 0], (word & 0x7FFF) * 8)
+    assert np.array_equal(nir[:, 0, 0], (word >> 24) * 16)
+    # header identity is the metadata's
+    assert np.all(f.header["init_id"] == md.init_id)
+    assert np.all(f.header["prod_sn"] == int(md.serial))
+    assert np.all(f.header["packet_type"] == 1)
+    assert np.all(f.status == 1)
+
+
+def test_manual_facts_dual_profile():
+    md, batch = lidar_streams("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", ["ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"])[0]
+    f = decode_packets(batch.payload, md)
+    assert batch.payload_size == 8448 == 32 + 16 * (12 + 32 * 16) + 32
+    assert np.all(f.footer == 0)  # firmware 2.2: zero footer
+    assert f.crc_ok is None and md.footer_kind == "zero"
+    # second return: never nearer-than-nothing; where both exist, the strongest has ≥ signal
+    r1, r2 = f.pixels["RANGE"], f.pixels["RANGE2"]
+    s1, s2 = f.pixels["SIGNAL"], f.pixels["SIGNAL2"]
+    both = (r1 > 0) & (r2 > 0)
+    assert both.any()
+    assert np.all(s1[both] >= s2[both])
+
+
+def test_crc_valid_on_every_crc_test_packet_and_catches_damage():
+    md, batch = lidar_streams("ouster-sdk/crc_test.pcap", ["ouster-sdk/crc_test.json"])[0]
+    assert md.footer_kind == "crc" and len(batch) == 34
+    f = decode_packets(batch.payload, md)
+    assert f.crc_ok.tolist() == [True] * 34
+    damaged = batch.payload.copy()
+    damaged[3, 1000] ^= 0x40
+    damaged[7, -1] ^= 0x01  # the CRC itself
+    ok = decode_packets(damaged, md).crc_ok
+    assert ok.sum() == 32 and not ok[3] and not ok[7]
+
+
+def test_crc_of_the_dual_packet_of_same_ports_nonlegacy():
+    streams = lidar_streams("ouster-sdk/same_ports_nonlegacy.pcap", ["ouster-sdk/same_ports_nonlegacy.1.json", "ouster-sdk/same_ports_nonlegacy.2.json"])
+    by_profile = {md.profile.name: (md, b) for md, b in streams}
+    md, b = by_profile["RNG19_RFL8_SIG16_NIR16_DUAL"]
+    assert decode_packets(b.payload, md).crc_ok.tolist() == [True]
+    md, b = by_profile["FUSA_RNG15_RFL8_NIR8_DUAL"]
+    f = decode_packets(b.payload, md)
+    assert f.crc_ok is None and np.all(f.footer == 0)
+    assert int(f.header["init_id"][0]) == md.init_id == 390078
+    assert int(f.header["prod_sn"][0]) == int(md.serial)
+
+
+def test_wrong_size_raises_sensor_mismatch():
+    md = load_metadata(external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"))
+    with pytest.raises(SensorMismatchError, match="8448"):
+        decode_packets(np.zeros((2, 6464), np.uint8), md)
+    with pytest.raises(PacketFormatError):
+        decode_packets(np.zeros((2, 8448), np.float32), md)
+
+
+def test_encoder_rejects_values_that_do_not_fit():
+    md = load_metadata(external("ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json"))
+    f = empty_fields(md, 1)
+    f.pixels["RANGE"][0, 0, 0] = 12  # not a multiple of the 8 mm wire unit
+    with pytest.raises(PacketFormatError, match="multiples of 8"):
+        encode_packets(f, md)
+    f.pixels["RANGE"][0, 0, 0] = 8 * 2**15  # one step beyond 15 bits
+    with pytest.raises(PacketFormatError, match="15 bits"):
+        encode_packets(f, md)
+    f.pixels["RANGE"][0, 0, 0] = 8 * (2**15 - 1)
+    assert decode_packets(encode_packets(f, md), md).pixels["RANGE"][0, 0, 0] == 8 * (2**15 - 1)
+
+
+def test_synthetic_packets_get_a_valid_crc_for_firmware_that_writes_one():
+    md = load_metadata(external("ouster-sdk/crc_test.json"))
+    f = empty_fields(md, 3)
+    f.measurement_id[:] = np.arange(16)
+    f.status[:] = 1
+    f.header["frame_id"][:] = [5, 5, 6]
+    pk = encode_packets(f, md)
+    g = decode_packets(pk, md)
+    assert g.crc_ok.all()
+    assert g.frame_id.tolist() == [5, 5, 6]
+    assert np.all(g.header["init_id"] == md.init_id)
