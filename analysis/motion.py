@@ -70,6 +70,7 @@ def motion_compensated_cdf(
     search: int = 2,
     reference: int = 0,
     cap_m: float = 1.0,
+    offsets: np.ndarray | None = None,
 ) -> MotionCompensation:
     """Motion-compensated temporal CDF of pixel (row, col) (eqs. 4–6), vectorised over frames and offsets.
 
@@ -78,6 +79,9 @@ def motion_compensated_cdf(
         search: offsets searched in each direction, pixels (2 in the paper).
         reference: stack index of the reference frame (frame 0 in the paper).
         cap_m: the cost cap c in metres (see the module docstring).
+        offsets: ``int[K, 2]`` per-frame offsets to use instead of searching the patch (e.g. the
+            whole-image ones of :func:`estimate_frame_offsets`); ``cost_m2`` is then the patch
+            cost at those offsets, and they must lie within ±``search``.
 
     Raises:
         AnalysisError: bad pixel/slot/patch/search/reference.
@@ -124,9 +128,15 @@ def motion_compensated_cdf(
     side = np.arange(-search, search + 1)
     d_row, d_col = np.meshgrid(side, side, indexing="ij")
     order = np.lexsort((d_col.ravel(), d_row.ravel(), d_row.ravel() ** 2 + d_col.ravel() ** 2))
-    flat_cost = cost.reshape(k, -1)[:, order]
-    best = order[np.argmin(flat_cost, axis=1)]
-    offsets = np.stack([d_row.ravel()[best], d_col.ravel()[best]], axis=1).astype(np.int64)
+    if offsets is None:
+        flat_cost = cost.reshape(k, -1)[:, order]
+        best = order[np.argmin(flat_cost, axis=1)]
+        offsets = np.stack([d_row.ravel()[best], d_col.ravel()[best]], axis=1).astype(np.int64)
+    else:
+        offsets = np.asarray(offsets, dtype=np.int64)
+        if offsets.shape != (k, 2) or np.any(np.abs(offsets) > search):
+            raise AnalysisError(f"offsets must be int[{k}, 2] within ±{search} pixels, got shape {offsets.shape}")
+        best = (offsets[:, 0] + search) * (2 * search + 1) + (offsets[:, 1] + search)
     best_cost = cost.reshape(k, -1)[np.arange(k), best]
 
     pick_r = reach + offsets[:, 0]
@@ -136,3 +146,52 @@ def motion_compensated_cdf(
     sample_mm = np.where(sample_ok, win_mm[frames, pick_r, pick_c], 0).astype(np.uint32)
     cdf = RangeCDF.from_samples(sample_mm[sample_ok], n_missing=int(k - np.count_nonzero(sample_ok)))
     return MotionCompensation(offsets, best_cost, sample_mm, sample_ok, cdf)
+
+
+def estimate_frame_offsets(
+    stack: FrameStack, slot: int = 0, *, search: int = 2, reference: int = 0, cap_m: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whole-frame motion: the offset of every frame against the reference frame, with the cost J
+    of the module docstring taken over the whole image instead of one 5 × 5 patch.
+
+    A patch on a surface wider than itself cannot tell a one-pixel yaw from none (every offset
+    sees the same surface); the whole image can, when the sensor moved as a whole (hand-held
+    jitter). Vectorised over pixels, one pass per frame and offset.
+
+    Returns:
+        ``(offsets int64[K, 2], cost_m2 float64[K])``: (Δrow, Δcol) with the meaning of
+        :attr:`MotionCompensation.offsets`, and the cost at the chosen offset.
+    """
+    from .stack import check_stack, destagger, pixel_shift
+
+    check_stack(stack)
+    k, r, h, w = stack.range_mm.shape
+    if not 0 <= slot < r:
+        raise AnalysisError(f"return slot {slot} does not exist: this capture has {r} slot(s)")
+    if search < 0 or 2 * search + 1 > min(h, w):
+        raise AnalysisError(f"search radius {search} does not fit a {h} x {w} image")
+    if not -k <= reference < k:
+        raise AnalysisError(f"reference frame {reference} is not in this stack of {k} frames")
+    shift = pixel_shift(stack)
+    valid = np.broadcast_to(stack.column_valid[:, None, :], (k, h, w))
+    img = destagger(np.where(valid, stack.range_mm[:, slot] / 1000.0, -1.0), shift)  # -1 = missing
+    ref = img[reference]
+    side = np.arange(-search, search + 1)
+    d_row, d_col = np.meshgrid(side, side, indexing="ij")
+    order = np.lexsort((d_col.ravel(), d_row.ravel(), d_row.ravel() ** 2 + d_col.ravel() ** 2))
+    cost = np.full((k, d_row.size), np.inf)
+    for i in order:  # 25 offsets; each one vectorised over frames and pixels
+        dr, dc = int(d_row.ravel()[i]), int(d_col.ravel()[i])
+        lo, hi = max(0, -dr), min(h, h - dr)  # reference rows whose moved row is inside the image
+        cand = np.roll(img[:, lo + dr : hi + dr], -dc, axis=2)
+        base = ref[lo:hi]
+        ok = (cand >= 0) & (base >= 0)
+        a_ret, b_ret = cand > 0, base > 0
+        diff = np.minimum(np.abs(cand - base), cap_m)
+        rho = np.where(a_ret & b_ret, diff * diff, np.where(a_ret ^ b_ret, cap_m * cap_m, 0.0))
+        n = ok.sum(axis=(1, 2))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cost[:, i] = np.where(n > 0, np.where(ok, rho, 0.0).sum(axis=(1, 2)) / n, np.inf)
+    best = order[np.argmin(cost[:, order], axis=1)]
+    offsets = np.stack([d_row.ravel()[best], d_col.ravel()[best]], axis=1).astype(np.int64)
+    return offsets, cost[np.arange(k), best]
