@@ -15,12 +15,14 @@ type, its ``.msg`` definition to :data:`MESSAGE_DEFINITIONS`).
 from __future__ import annotations
 
 import os
+import struct
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .errors import CaptureFormatError
+from .errors import CaptureFormatError, TruncatedCaptureWarning
 from .packet import PacketBatch
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
@@ -28,7 +30,14 @@ from .packet import PacketBatch
 MESSAGE_DEFINITIONS: dict[str, str] = {
     "velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data\n",
     "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
+    # ouster-ros lidar and IMU packet topics (/ouster/lidar_packets, /ouster/imu_packets)
+    "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
+    # nebula's stamped packet; lidarpkt's recorder writes VLP-16 position packets with it
+    "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
 }
+
+# Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String), as ouster-ros names it.
+OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/metadata")
 
 
 def _stamp_ns(stamp: Any) -> int:
@@ -50,10 +59,22 @@ def _velodyne_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray
     return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
 
 
+def _ouster_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    # PacketMsg has no stamp: the bag's receive (log) time is the packet's host time
+    return np.asarray(msg.buf, dtype=np.uint8)[None, :], np.array([bag_time_ns], dtype=np.int64)
+
+
+def _nebula_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    t = _stamp_ns(msg.stamp) or bag_time_ns
+    return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
+
+
 # message type → extractor(message, bag receive time ns) → (payloads [N, L], times ns [N])
 PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]] = {
     "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
     "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
+    "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
+    "nebula_msgs/msg/NebulaPacket": _nebula_packet,
 }
 
 
@@ -84,6 +105,24 @@ class BagReader:
         self.topics = None if topics is None else frozenset(topics)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
         self.stats: dict[str, Any] = {"messages": 0, "packets": 0, "skipped_topics": {}}
+        self._ouster_metadata: str | None = None
+
+    def ouster_metadata(self) -> str | None:
+        """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``), once
+        :meth:`batches` has read past it; ``None`` if there is none."""
+        return self._ouster_metadata
+
+    def _wanted(self, topic: str, msgtype: str) -> bool:
+        kind = _normalise_type(msgtype)
+        if kind == "std_msgs/msg/String":
+            return topic in OUSTER_METADATA_TOPICS
+        return kind in PACKET_EXTRACTORS and (self.topics is None or topic in self.topics)
+
+    def _is_mcap_file(self) -> bool:
+        if not self.path.is_file():
+            return False
+        with self.path.open("rb") as fh:
+            return fh.read(8) == b"\x89MCAP0\r\n"
 
     def _bag_paths(self) -> list[Path]:
         p = self.path
@@ -108,17 +147,36 @@ class BagReader:
         return reader
 
     def batches(self) -> Iterator[PacketBatch]:
-        """One batch per message of a packet topic, in bag time order; ``index`` counts packets."""
+        """One batch per message of a packet topic, in bag time order (MCAP files: file order);
+        ``index`` counts packets."""
+        count = 0
+        messages = self._mcap_messages() if self._is_mcap_file() else self._rosbags_messages()
+        for topic, msgtype, bag_time_ns, msg in messages:
+            kind = _normalise_type(msgtype)
+            if kind == "std_msgs/msg/String":
+                if self._ouster_metadata is None:
+                    self._ouster_metadata = msg.data
+                continue
+            payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+            self.stats["messages"] += 1
+            if payload.shape[0] == 0:
+                continue
+            if self.payload_sizes is not None and payload.shape[1] not in self.payload_sizes:
+                continue
+            batch = PacketBatch.from_payloads(payload, times, first_index=count)
+            count += len(batch)
+            self.stats["packets"] += len(batch)
+            yield batch
+
+    def _rosbags_messages(self) -> Iterator[tuple[str, str, int, Any]]:
         reader = self._open()
         try:
             conns = []
             for c in reader.connections:
-                kind = _normalise_type(c.msgtype)
-                if kind in PACKET_EXTRACTORS and (self.topics is None or c.topic in self.topics):
+                if self._wanted(c.topic, c.msgtype):
                     conns.append(c)
                 else:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
-            count = 0
             for conn, bag_time_ns, raw in reader.messages(connections=conns):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
@@ -126,15 +184,61 @@ class BagReader:
                     raise CaptureFormatError(
                         f"{self.path}: message on {conn.topic} ({conn.msgtype}) at {bag_time_ns} ns cannot be "
                         f"decoded: {exc}") from None
-                payload, times = PACKET_EXTRACTORS[_normalise_type(conn.msgtype)](msg, int(bag_time_ns))
-                self.stats["messages"] += 1
-                if payload.shape[0] == 0:
-                    continue
-                if self.payload_sizes is not None and payload.shape[1] not in self.payload_sizes:
-                    continue
-                batch = PacketBatch.from_payloads(payload, times, first_index=count)
-                count += len(batch)
-                self.stats["packets"] += len(batch)
-                yield batch
+                yield conn.topic, conn.msgtype, int(bag_time_ns), msg
         finally:
             reader.close()
+
+    def _mcap_messages(self) -> Iterator[tuple[str, str, int, Any]]:
+        """Messages of a plain MCAP file (no rosbag2 metadata.yaml needed), in file order.
+
+        Read record by record, so a file whose writer was killed (no summary, a cut last
+        chunk) yields everything up to the damage and then a :class:`TruncatedCaptureWarning`.
+        """
+        from mcap.exceptions import McapError
+        from mcap.reader import NonSeekingReader
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        extra: dict = {}
+        for name, text in MESSAGE_DEFINITIONS.items():
+            extra.update(get_types_from_msg(text, name))
+        store.register(extra)
+        known: dict[int, bool] = {}
+        n = 0
+        with self.path.open("rb") as fh:
+            it = NonSeekingReader(fh).iter_messages(log_time_order=False)
+            while True:
+                try:
+                    schema, channel, message = next(it)
+                except StopIteration:
+                    return
+                except (McapError, struct.error, EOFError, ValueError, OSError) as exc:
+                    warnings.warn(TruncatedCaptureWarning(
+                        f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
+                        "messages before the damage were read (a recording that was killed ends like this)"))
+                    return
+                wanted = known.get(channel.id)
+                if wanted is None:
+                    msgtype = schema.name if schema is not None else ""
+                    wanted = (schema is not None and channel.message_encoding == "cdr"
+                              and self._wanted(channel.topic, msgtype))
+                    if wanted and msgtype not in store.types:
+                        try:
+                            store.register(get_types_from_msg(schema.data.decode(), msgtype))
+                        except Exception as exc:
+                            raise CaptureFormatError(
+                                f"{self.path}: the schema of {msgtype} on {channel.topic} cannot be parsed: {exc}"
+                            ) from None
+                    if not wanted:
+                        self.stats["skipped_topics"][channel.topic] = msgtype
+                    known[channel.id] = wanted
+                if not wanted:
+                    continue
+                n += 1
+                try:
+                    msg = store.deserialize_cdr(message.data, schema.name)
+                except Exception as exc:
+                    raise CaptureFormatError(
+                        f"{self.path}: message on {channel.topic} ({schema.name}) at {message.log_time} ns cannot "
+                        f"be decoded: {exc}") from None
+                yield channel.topic, schema.name, int(message.log_time), msg
