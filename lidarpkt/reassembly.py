@@ -40,6 +40,7 @@ class ReassemblyStats:
     timed_out_datagrams: int = 0  # pending datagrams dropped after timeout_ns
     evicted_datagrams: int = 0  # pending datagrams dropped to respect max_datagrams/max_bytes
     malformed_fragments: int = 0  # beyond the maximum datagram size, or two different ends
+    reused_ids: int = 0  # pending datagrams dropped because a different fragment reused their key
 
 
 @dataclass
@@ -125,6 +126,14 @@ class Reassembler:
             st.malformed_fragments += 1
             return None
         entry = self._pending.get(key)
+        if entry is not None:
+            old = entry.pieces.get(offset)
+            if old is not None and old != data:
+                # A real duplicate is byte-identical. Different bytes at the same offset mean the
+                # sender reused the ID for a new datagram (the first one lost fragments): start over.
+                self._drop(key)
+                st.reused_ids += 1
+                entry = None
         if entry is None:
             entry = _Pending(first_ns=timestamp_ns)
             self._pending[key] = entry
@@ -135,13 +144,9 @@ class Reassembler:
                 st.malformed_fragments += 1
                 return None
             entry.end = end
-        old = entry.pieces.get(offset)
-        if old is not None and len(old) >= len(data):
+        if offset in entry.pieces:
             st.duplicate_fragments += 1
-            return self._try_complete(key, entry)
-        if old is not None:
-            entry.nbytes -= len(old)
-            self._held -= len(old)
+            return None  # identical to what is held (the datagram was incomplete before, and still is)
         entry.pieces[offset] = bytes(data)
         entry.nbytes += len(data)
         self._held += len(data)
