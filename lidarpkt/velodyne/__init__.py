@@ -16,6 +16,7 @@ from .frames import DecoderStats, VelodyneDecoder
 from .geometry import VelodyneGeometry
 from .nmea import NMEAFix, parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
+from .points import POINT_DTYPE, frame_points
 
 __all__ = [
     "DATA_PACKET_SIZE",
@@ -36,4 +37,6 @@ __all__ = [
     "stock_calibration",
     "NMEAFix",
     "parse_nmea",
+    "frame_points",
+    "POINT_DTYPE",
 ]

@@ -95,7 +95,7 @@ def decode_packets(payload: np.ndarray) -> DataPackets:
     """Every field of ``uint8[N, 1206]`` VLP-16 data payloads as arrays (see :class:`DataPackets`).
 
     No validation beyond the size: check :attr:`DataPackets.flag_ok` to find malformed packets.
-    Raises ``ValueError`` if the payload is not ``[N, 1206]``.
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 1206]``.
     """
     pk = as_data_packets(payload)
     blocks = pk["blocks"]
@@ -114,7 +114,7 @@ def decode_packets(payload: np.ndarray) -> DataPackets:
 def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     """Every field of ``uint8[N, 512]`` VLP-16 position payloads (see :class:`PositionPackets`).
 
-    Raises ``ValueError`` if the payload is not ``[N, 512]``.
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 512]``.
     """
     pk = as_position_packets(payload)
     return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names})

@@ -44,6 +44,11 @@ class VelodyneGeometry:
         self._dist_correction = cal.dist_correction_m[order][:, None]
         self._metres_per_mm = cal.distance_resolution_m / 2.0  # range_mm = raw × 2
 
+    def distance_m(self, frame) -> np.ndarray:
+        """``float64[R, 16, W]`` corrected distance, metres (0 stays 0)."""
+        rng = frame.range_mm
+        return np.where(rng > 0, rng * self._metres_per_mm + self._dist_correction, 0.0)
+
     def xyz(self, frame) -> np.ndarray:
         """``float64[R, 16, W, 3]`` metres; zeros where the range is 0 (no return or no sample).
 

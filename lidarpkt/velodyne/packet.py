@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import PacketFormatError
+
 DATA_PACKET_SIZE = 1206
 POSITION_PACKET_SIZE = 512
 BLOCKS_PER_PACKET = 12
@@ -90,19 +92,19 @@ HDL32E_PACKET_PERIOD_US = BLOCKS_PER_PACKET * 46.080  # 552.96
 def as_data_packets(payload: np.ndarray) -> np.ndarray:
     """View ``uint8[N, 1206]`` payloads as ``DATA_PACKET_DTYPE[N]`` (no copy when C-contiguous).
 
-    Raises ``ValueError`` if the row length is not 1206.
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the array is not ``[N, 1206]``.
     """
     payload = np.ascontiguousarray(payload, dtype=np.uint8)
     if payload.ndim != 2 or payload.shape[1] != DATA_PACKET_SIZE:
-        raise ValueError(f"VLP-16 data payloads must be uint8[N, {DATA_PACKET_SIZE}], got shape {payload.shape}")
+        raise PacketFormatError(f"VLP-16 data payloads must be uint8[N, {DATA_PACKET_SIZE}], got shape {payload.shape}")
     return payload.view(DATA_PACKET_DTYPE)[:, 0]
 
 
 def as_position_packets(payload: np.ndarray) -> np.ndarray:
-    """View ``uint8[N, 512]`` payloads as ``POSITION_PACKET_DTYPE[N]``. Raises ``ValueError`` on another size."""
+    """View ``uint8[N, 512]`` payloads as ``POSITION_PACKET_DTYPE[N]``. Raises ``PacketFormatError`` on another size."""
     payload = np.ascontiguousarray(payload, dtype=np.uint8)
     if payload.ndim != 2 or payload.shape[1] != POSITION_PACKET_SIZE:
-        raise ValueError(
+        raise PacketFormatError(
             f"VLP-16 position payloads must be uint8[N, {POSITION_PACKET_SIZE}], got shape {payload.shape}"
         )
     return payload.view(POSITION_PACKET_DTYPE)[:, 0]
