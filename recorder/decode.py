@@ -1,0 +1,199 @@
+"""``lidarpkt decode``: captures → MCAP (raw packets and frames) or NumPy ``.npz``.
+
+``lidarpkt decode IN [IN …] -o OUT.mcap [--topics packets,points,images]``
+    raw packets as the ROS drivers' topics (losslessly: a file decoded from a pcap gives
+    back the same packets and so the same frames), organised ``PointCloud2`` per frame and
+    return slot, and optionally range/reflectivity images (see :mod:`recorder.schemas`).
+    Frame messages are logged at their sensor time (``header.stamp``): a frame has no single
+    host receive time.
+
+``lidarpkt decode IN -o OUT.npz``
+    the frames put on their fixed azimuth grid (:meth:`lidarpkt.frame.Frame.on_grid`) and
+    stacked: ``range_mm [K, R, H, W]``, ``reflectivity``, and for Ouster ``signal``,
+    ``near_ir``, ``flags``; per column ``column_valid [K, W]``, ``column_timestamp_ns``,
+    ``azimuth_deg``, ``measurement_id``, ``status``; per frame ``frame_id [K]``, ``partial``,
+    ``lost_packets``; and ``return_labels``, ``sensor_json`` (the sensor description).
+    Several sensors in one input get key prefixes ``s0_``, ``s1_`` ….
+
+A progress bar is drawn on stderr when it is a terminal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lidarpkt.errors import LidarpktError, RecorderError
+
+TOPIC_GROUPS = ("packets", "points", "images")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="OUT.mcap or OUT.npz")
+    parser.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (repeatable)")
+    parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
+    parser.add_argument("--topics", default="packets,points", metavar="LIST",
+                        help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
+    parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
+    parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+
+class _Progress:
+    """A one-line progress bar on a terminal (nothing otherwise)."""
+
+    def __init__(self, enabled: bool, total_bytes: int) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.total = max(total_bytes, 1)
+        self.start = time.monotonic()
+        self.last = 0.0
+
+    def update(self, done_bytes: int | None, frames: int) -> None:
+        now = time.monotonic()
+        if not self.enabled or now - self.last < 0.1:
+            return
+        self.last = now
+        elapsed = now - self.start
+        if done_bytes is None:
+            bar = f"{frames} frames"
+        else:
+            frac = min(done_bytes / self.total, 1.0)
+            filled = int(frac * 30)
+            bar = f"[{'#' * filled}{'.' * (30 - filled)}] {frac * 100:5.1f}%  {frames} frames"
+        print(f"\rdecode {bar}  {elapsed:6.1f} s", end="", file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        if self.enabled:
+            print(file=sys.stderr)
+
+
+def _bytes_read(reader) -> int | None:
+    stats = getattr(getattr(reader, "reader", None), "stats", None)
+    return getattr(stats, "bytes_read", None)
+
+
+def _open_frames(path: str, args) -> object:
+    import lidarpkt
+
+    options = {}
+    if args.calibration:
+        options["calibration"] = args.calibration
+    return lidarpkt.open(path, metadata=args.metadata, **options)
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.output)
+    for path in args.inputs:
+        if not Path(path).exists():
+            raise LidarpktError(f"{path}: no such file or directory")
+    if out.suffix == ".npz":
+        return _to_npz(args, out)
+    if out.suffix == ".mcap":
+        return _to_mcap(args, out)
+    raise RecorderError(f"-o {out}: the output must end in .mcap or .npz")
+
+
+# ----------------------------------------------------------------------------- MCAP
+def _to_mcap(args, out: Path) -> int:
+    from lidarpkt.source import read_batches
+
+    from .mcap_writer import McapWriter
+    from .pointcloud import image_messages, pointcloud_messages
+    from .sink import PacketSink
+
+    groups = {g.strip() for g in args.topics.split(",") if g.strip()}
+    unknown = groups - set(TOPIC_GROUPS)
+    if unknown or not groups:
+        raise RecorderError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
+    md = None
+    if args.metadata:
+        from lidarpkt.ouster.metadata import load_metadata
+
+        md = load_metadata(args.metadata[0])
+    total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
+    progress = _Progress(not args.quiet, total * (2 if "packets" in groups and groups - {"packets"} else 1))
+    frames_written = 0
+    done_before = 0
+    with McapWriter(out, chunk_seconds=float("inf"), chunk_bytes=4 << 20) as writer:
+        if "packets" in groups:
+            for path in args.inputs:
+                sink = PacketSink(writer, ouster_metadata=md)
+                for batch in read_batches(path):
+                    sink.push(batch)
+                    progress.update(None, 0)
+                sink.finish()
+                done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+        if groups & {"points", "images"}:
+            for path in args.inputs:
+                reader = _open_frames(path, args)
+                for frame in reader:
+                    stamp = frame.timestamp_ns
+                    messages = []
+                    if "points" in groups:
+                        messages += pointcloud_messages(frame)
+                    if "images" in groups:
+                        messages += image_messages(frame)
+                    for topic, msg in messages:
+                        writer.write_message(topic, msg, stamp)
+                    frames_written += 1
+                    b = _bytes_read(reader)
+                    progress.update(None if b is None else done_before + b, frames_written)
+                done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+    progress.done()
+    if not args.quiet:
+        print(f"lidarpkt decode: {writer.messages_written} messages ({frames_written} frames) in {out} "
+              f"({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+    return 0
+
+
+# ------------------------------------------------------------------------------ NPZ
+def _to_npz(args, out: Path) -> int:
+    from lidarpkt.frame import FrameStack
+
+    per_sensor: dict[tuple, list] = {}
+    progress = _Progress(not args.quiet, sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()))
+    n = 0
+    done_before = 0
+    for path in args.inputs:
+        reader = _open_frames(path, args)
+        for frame in reader:
+            key = (frame.sensor.vendor, frame.sensor.model, frame.sensor.source, frame.shape[0], frame.shape[1])
+            per_sensor.setdefault(key, []).append(frame.on_grid(args.grid))
+            n += 1
+            b = _bytes_read(reader)
+            progress.update(None if b is None else done_before + b, n)
+        done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+    progress.done()
+    if not per_sensor:
+        raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+    arrays: dict[str, np.ndarray] = {}
+    for i, frames in enumerate(per_sensor.values()):
+        prefix = "" if len(per_sensor) == 1 else f"s{i}_"
+        stack = FrameStack.from_frames(frames, include_partial=True)
+        first = frames[0]
+        arrays.update({
+            prefix + "range_mm": stack.range_mm,
+            prefix + "reflectivity": stack.reflectivity,
+            prefix + "column_valid": stack.column_valid,
+            prefix + "column_timestamp_ns": stack.column_timestamp_ns,
+            prefix + "azimuth_deg": stack.azimuth_deg,
+            prefix + "frame_id": stack.frame_id,
+            prefix + "partial": np.array([f.partial for f in frames]),
+            prefix + "lost_packets": np.array([f.counters.lost_packets for f in frames], np.int64),
+            prefix + "return_labels": np.array(stack.return_labels),
+            prefix + "sensor_json": np.array(json.dumps(first.sensor.describe())),
+        })
+        for name in ("signal", "near_ir", "flags", "measurement_id", "status"):
+            if getattr(first, name) is not None:
+                arrays[prefix + name] = np.stack([getattr(f, name) for f in frames])
+    (np.savez_compressed if args.compress else np.savez)(out, **arrays)
+    if not args.quiet:
+        print(f"lidarpkt decode: {n} frames from {len(per_sensor)} sensor(s) in {out}", file=sys.stderr)
+    return 0
