@@ -1,0 +1,115 @@
+"""Property tests: damaged captures give packets, lidarpkt warnings or lidarpkt errors — nothing else."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from lidarpkt.errors import LidarpktError, LidarpktWarning
+from lidarpkt.packet import Endpoint, Packet
+from lidarpkt.pcap import PcapReader
+from lidarpkt.pcapwrite import Interface, frames_for, pcap_bytes, pcapng_bytes
+
+_PACKETS = [
+    Packet(1_600_000_000_000_000_000 + i * 1_327_000, Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368),
+           bytes((i * 7 + j) & 0xFF for j in range(1206)))
+    for i in range(4)
+] + [
+    Packet(1_600_000_000_010_000_000, Endpoint("10.0.0.5", 7502), Endpoint("10.0.0.1", 7502), bytes(range(256)) * 12),
+    Packet(1_600_000_000_020_000_000, Endpoint("fd00::5", 7502), Endpoint("fd00::1", 7502), bytes(range(200)) * 16),
+    Packet(1_600_000_000_030_000_000, Endpoint("10.0.0.5", 7503), Endpoint("10.0.0.1", 7503), bytes(48)),
+]
+
+
+def _records(link="ethernet", vlan=()):
+    return [(p.timestamp_ns, f) for i, p in enumerate(_PACKETS) for f in frames_for(p, link=link, vlan=vlan, ident=i)]
+
+
+BASES = {
+    "pcap": pcap_bytes(_records()),
+    "pcap-be-ns-vlan": pcap_bytes(_records(vlan=(3, 4)), nanosecond=True, big_endian=True),
+    "pcap-sll2": pcap_bytes(_records("linux_sll2"), link="linux_sll2"),
+    "pcapng": pcapng_bytes(
+        [(i % 2, ts, f if i % 2 == 0 else f) for i, (ts, f) in enumerate(_records())],
+        interfaces=[Interface("ethernet"), Interface("ethernet", tsresol=9)],
+    ),
+}
+
+
+def _read_all(path):
+    """Read every way; return the packet count. Only lidarpkt errors/warnings may escape."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            reader = PcapReader(path, batch_packets=3)
+            n = sum(1 for _ in reader.packets())
+            m = sum(len(b) for b in reader.batches())
+            assert n == m
+            assert n <= reader.stats.records
+        except LidarpktError:
+            n = -1
+    for w in caught:
+        assert issubclass(w.category, LidarpktWarning), w
+    return n
+
+
+@pytest.mark.parametrize("base", sorted(BASES))
+def test_clean_bases_read_fully(tmp_path, base):
+    path = tmp_path / "f"
+    path.write_bytes(BASES[base])
+    assert _read_all(path) == len(_PACKETS)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    base=st.sampled_from(sorted(BASES)),
+    edits=st.lists(st.tuples(st.floats(0, 1, exclude_max=True), st.integers(0, 255)), max_size=12),
+    cut=st.one_of(st.none(), st.floats(0, 1)),
+)
+def test_mutated_captures(tmp_path, base, edits, cut):
+    data = bytearray(BASES[base])
+    for where, value in edits:
+        data[int(where * len(data))] = value
+    if cut is not None:
+        data = data[: int(cut * len(data))]
+    path = tmp_path / "m"
+    path.write_bytes(bytes(data))
+    _read_all(path)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    base=st.sampled_from(sorted(BASES)),
+    where=st.floats(0, 1, exclude_max=True),
+    junk=st.binary(min_size=1, max_size=64),
+)
+def test_inserted_junk(tmp_path, base, where, junk):
+    data = BASES[base]
+    i = int(where * len(data))
+    path = tmp_path / "j"
+    path.write_bytes(data[:i] + junk + data[i:])
+    _read_all(path)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    header_fields=st.lists(st.integers(0, 2**32 - 1), min_size=4, max_size=4),
+    base=st.sampled_from(["pcap", "pcap-be-ns-vlan"]),
+    record=st.integers(0, 10),
+)
+def test_random_record_headers(tmp_path, header_fields, base, record):
+    """Any values in one record header: the records before it are still read."""
+    import struct
+
+    data = bytearray(BASES[base])
+    endian = ">" if base.startswith("pcap-be") else "<"
+    off = 24
+    for _ in range(record):
+        off += 16 + struct.unpack_from(endian + "I", data, off + 8)[0]
+    struct.pack_into(endian + "IIII", data, off, *header_fields)
+    path = tmp_path / "h"
+    path.write_bytes(bytes(data))
+    assert _read_all(path) >= 0
