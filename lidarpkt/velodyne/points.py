@@ -4,8 +4,8 @@ The layout follows velodyne_decoder's point records so that clouds can be compar
 point for point or handed to PCL-style consumers: ``x, y, z`` (metres, float64),
 ``intensity`` (reflectivity), ``ring`` (0 = lowest laser, −15°; ``ring = 15 − row``),
 ``column`` (the frame column: one firing sequence), ``time_ns`` (firing time, ns since the
-epoch) and ``return_type``: 1 strongest, 2 last, 3 both (dual mode, the two slots equal:
-one point), as velodyne_decoder labels them. Firing order inside a column is laser id
+epoch) and ``return_type``: 1 strongest, 2 last, 3 both (dual mode, the two slots at the same
+distance: one point), as velodyne_decoder labels them. Firing order inside a column is laser id
 order (laser 0 first).
 """
 
@@ -27,7 +27,8 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
     """``POINT_DTYPE[P]`` points of a VLP-16 frame, ordered by column, then laser id, then slot.
 
     Dual frames give one point with ``return_type`` 3 where both slots hold the same range
-    and reflectivity, else one point per non-empty slot (2 for slot 0 = last, 1 for slot 1).
+    (with slot 1's reflectivity, as velodyne_decoder does), else one point per non-empty
+    slot (2 for slot 0 = last, 1 for slot 1).
     ``min_range_m`` / ``max_range_m`` drop points outside that distance (velodyne_decoder
     drops outside 0.1–200 m by default). Raises ``CalibrationError`` without a calibration.
     """
@@ -38,9 +39,11 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
     codes = np.array([_LABEL_CODE.get(lbl, 0) for lbl in frame.return_labels], np.uint8)
     label = np.broadcast_to(codes[:, None, None], rng.shape).copy()
     if r == 2:
-        same = (rng[0] == rng[1]) & (frame.reflectivity[0] == frame.reflectivity[1]) & keep[0]
-        label[0][same] = BOTH
-        keep[1] &= ~same
+        # velodyne_decoder's rule: equal distances are one return, reported with slot 1's
+        # (the strongest block's) reflectivity, whatever slot 0's says
+        same = (rng[0] == rng[1]) & keep[0]
+        label[1][same] = BOTH
+        keep[0] &= ~same
     if min_range_m is not None or max_range_m is not None:
         d = frame.sensor.geometry.distance_m(frame)
         if min_range_m is not None:
