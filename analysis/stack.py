@@ -9,14 +9,16 @@ azimuths; :func:`neighbour_columns` does that translation.
 
 from __future__ import annotations
 
-import itertools
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from lidarpkt.errors import AnalysisError
+from lidarpkt.errors import AnalysisError, LidarpktWarning
 from lidarpkt.frame import FrameStack
+
+_MAX_PARTIAL_FALLBACK = 8
 
 
 def load_stack(
@@ -34,7 +36,9 @@ def load_stack(
         metadata: Ouster metadata JSON (VLP-16 needs none).
         frames: ``(A, B)`` keeps complete frames A..B-1 (Python slice semantics, counted over
             the complete frames of the capture; ``None`` = open end).
-        include_partial: also stack partial frames (start/end of a capture).
+        include_partial: also stack partial frames (start/end of a capture). Without it, a
+            capture with no complete frame falls back to its partial frames, with a
+            :class:`~lidarpkt.errors.LidarpktWarning`.
         resolution_deg: azimuth grid of the stack (VLP-16); default :func:`default_grid_deg`.
 
     Raises:
@@ -47,18 +51,33 @@ def load_stack(
     if opener is None:  # pragma: no cover - only while the decoders are being written
         raise AnalysisError("this lidarpkt build has no lidarpkt.open(): cannot read captures yet")
     kwargs = {} if metadata is None else {"metadata": str(metadata)}
-    it = (f for f in opener(str(path), **kwargs) if include_partial or not f.partial)
-    if frames is not None:
-        a, b = frames
-        if (a is not None and a < 0) or (b is not None and b < 0):
-            raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
-        it = itertools.islice(it, a, b)
-    picked = list(it)
+    complete: list = []
+    partial: list = []
+    a, b = frames if frames is not None else (None, None)
+    if (a is not None and a < 0) or (b is not None and b < 0):
+        raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
+    for f in opener(str(path), **kwargs):
+        if include_partial or not f.partial:
+            complete.append(f)
+            if b is not None and len(complete) >= b:
+                break
+        elif not complete and len(partial) < _MAX_PARTIAL_FALLBACK:
+            partial.append(f)  # kept only until a complete frame shows up
+    pool = complete
+    if not complete and partial:
+        # A capture shorter than a rotation (or two) is still worth a look (spatial CDFs, the map).
+        warnings.warn(
+            f"{path}: no complete frame, analysing {len(partial)} partial frame(s) instead",
+            LidarpktWarning,
+            stacklevel=2,
+        )
+        pool = partial
+    picked = pool[slice(a, b)]
     if not picked:
-        sel = "" if frames is None else f" in frames {frames[0] or ''}:{frames[1] or ''}"
+        sel = "" if frames is None else f" in frames {'' if a is None else a}:{'' if b is None else b}"
         raise AnalysisError(
-            f"{path}: no complete frames{sel} to analyse (check the capture, the --frames range "
-            "and, for an Ouster pcap, --metadata)"
+            f"{path}: no frames{sel} to analyse ({len(complete)} complete, {len(partial)} partial found; "
+            "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
     return FrameStack.from_frames(picked, include_partial=True, resolution_deg=res)
