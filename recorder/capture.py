@@ -175,42 +175,47 @@ class UdpCapture:
         sel = selectors.DefaultSelector()
         for sock, port in self._sockets:
             sel.register(sock, selectors.EVENT_READ, port)
-        local = self.multicast or self.bind_address
-        stats = self.stats
-        put = self._queue.put
         try:
             while not self._stop.is_set():
                 for key, _ in sel.select(timeout=0.1):
-                    sock, port = key.fileobj, key.data
-                    while True:
-                        try:
-                            data, anc, _flags, addr = sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
-                        except (BlockingIOError, InterruptedError):
-                            break
-                        now = 0
-                        dst_addr = local
-                        for level, kind, value in anc:
-                            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
-                                sec, nsec = struct.unpack_from("@qq", value)
-                                now = sec * 1_000_000_000 + nsec
-                            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
-                                stats.kernel_drops[port] = struct.unpack_from("@I", value)[0]
-                            elif level == socket.IPPROTO_IP and kind == IP_PKTINFO and len(value) >= 12:
-                                dst_addr = socket.inet_ntoa(value[8:12])
-                        if not now:
-                            now = time.time_ns()
-                        stats.received += 1
-                        n = len(data)
-                        stats.received_bytes += n
-                        if self._bytes_in - self._bytes_out + n > self.queue_bytes:
-                            stats.queue_overflow += 1
-                            continue
-                        self._bytes_in += n
-                        put((now, Endpoint(addr[0], addr[1]), Endpoint(dst_addr, port), data))
+                    self._read_all(key.fileobj, key.data)
+            for sock, port in self._sockets:  # what the kernel already holds is not lost on a clean stop
+                self._read_all(sock, port)
         except BaseException as exc:  # surfaced to the consumer by drain()
             self.error = exc
         finally:
             sel.close()
+
+    def _read_all(self, sock: socket.socket, port: int) -> None:
+        """Read every datagram waiting on ``sock`` and queue it (or count it as overflow)."""
+        stats = self.stats
+        local = self.multicast or self.bind_address
+        put = self._queue.put
+        while True:
+            try:
+                data, anc, _flags, addr = sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
+            except (BlockingIOError, InterruptedError):
+                return
+            now = 0
+            dst_addr = local
+            for level, kind, value in anc:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
+                    sec, nsec = struct.unpack_from("@qq", value)
+                    now = sec * 1_000_000_000 + nsec
+                elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                    stats.kernel_drops[port] = struct.unpack_from("@I", value)[0]
+                elif level == socket.IPPROTO_IP and kind == IP_PKTINFO and len(value) >= 12:
+                    dst_addr = socket.inet_ntoa(value[8:12])
+            if not now:
+                now = time.time_ns()
+            stats.received += 1
+            n = len(data)
+            stats.received_bytes += n
+            if self._bytes_in - self._bytes_out + n > self.queue_bytes:
+                stats.queue_overflow += 1
+                continue
+            self._bytes_in += n
+            put((now, Endpoint(addr[0], addr[1]), Endpoint(dst_addr, port), data))
 
     def drain(self, timeout: float = 0.1, max_items: int = 4096) -> list[Item]:
         """Datagrams received so far, oldest first (waits up to ``timeout`` s for the first).

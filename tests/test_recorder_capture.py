@@ -1,0 +1,174 @@
+"""The receive thread over real loopback sockets, and loss accounting on real captures."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from lidarpkt.errors import PortInUseError
+from lidarpkt.ouster.metadata import load_metadata
+from lidarpkt.pcap import read_batches, read_packets
+from recorder import streams
+from recorder.capture import UdpCapture
+from tests.conftest import external
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _drain_until(cap: UdpCapture, n: int, timeout_s: float = 10.0) -> list:
+    got: list = []
+    deadline = time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < deadline:
+        got += cap.drain(timeout=0.05)
+    return got
+
+
+def test_capture_receives_real_payloads_in_order_with_kernel_times_and_destination():
+    packets = list(read_packets(external("rust-lidar-utils/velodyne_vlp16.pcap")))
+    port = _free_port()
+    with UdpCapture([port], bind="127.0.0.1") as cap:
+        cap.start()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            before = time.time_ns()
+            for p in packets:
+                tx.sendto(p.payload, ("127.0.0.1", port))
+            src_port = tx.getsockname()[1]
+            got = _drain_until(cap, len(packets))
+            after = time.time_ns()
+    assert [g[3] for g in got] == [p.payload for p in packets]
+    times = [g[0] for g in got]
+    assert times == sorted(times) and before <= times[0] and times[-1] <= after
+    assert {g[1] for g in got} == {("127.0.0.1", src_port)}
+    assert {g[2] for g in got} == {("127.0.0.1", port)}
+    assert cap.stats.received == len(packets) and cap.stats.queue_overflow == 0
+
+
+def test_capture_reports_the_buffer_the_kernel_granted():
+    port = _free_port()
+    with UdpCapture([port], bind="127.0.0.1", rcvbuf_bytes=1 << 20) as cap:
+        granted = cap.stats.rcvbuf_granted[port]
+        raw = cap._sockets[0][0].getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    assert granted == raw // 2 and granted > 0
+
+
+def test_port_in_use_is_a_clear_error():
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    port = holder.getsockname()[1]
+    try:
+        with pytest.raises(PortInUseError, match=f"port {port}.*already in use"):
+            UdpCapture([port], bind="127.0.0.1")
+    finally:
+        holder.close()
+
+
+def test_queue_overflow_is_counted_not_blocking():
+    port = _free_port()
+    payload = bytes(1206)
+    with UdpCapture([port], bind="127.0.0.1", queue_bytes=10 * 1206) as cap:
+        cap.start()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for _ in range(50):
+                tx.sendto(payload, ("127.0.0.1", port))
+        deadline = time.monotonic() + 5
+        while cap.stats.received < 50 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        got = _drain_until(cap, 10, 1.0)
+    assert cap.stats.received == 50
+    assert len(got) == 10 and cap.stats.queue_overflow == 40
+
+
+def test_kernel_drops_are_reported_through_so_rxq_ovfl():
+    port = _free_port()
+    payload = bytes(1206)
+    # a tiny kernel buffer and nobody reading: the kernel must drop, and say how many
+    with UdpCapture([port], bind="127.0.0.1", rcvbuf_bytes=4096) as cap:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for _ in range(200):
+                tx.sendto(payload, ("127.0.0.1", port))
+            cap.start()
+            got = _drain_until(cap, 1, 2.0)
+            tx.sendto(payload, ("127.0.0.1", port))  # the drop count rides on the next datagram read
+            got += _drain_until(cap, 1, 2.0)
+    assert len(got) >= 2
+    assert cap.stats.kernel_dropped > 0
+    assert cap.stats.kernel_dropped + cap.stats.received == 201
+
+
+# ------------------------------------------------------------------ loss from the packets themselves
+def _velodyne_payloads(rel: str) -> np.ndarray:
+    return np.concatenate([b.payload for b in read_batches(external(rel)) if b.payload_size == 1206])
+
+
+@pytest.mark.parametrize("rel, rotations", [
+    ("veloview/vlp-16-test-90deg-1-50-frames.pcap", 50),  # SOURCES.md: 50 azimuth wraps, 20 Hz
+    ("rust-lidar-utils/velodyne_vlp16.pcap", 1),
+    ("rust-lidar-utils/velodyne_example.pcap", 1),
+])
+def test_velodyne_real_captures_show_no_loss_and_their_known_wraps(rel, rotations):
+    t = streams.VelodyneLoss()
+    payload = _velodyne_payloads(rel)
+    for part in np.array_split(payload, 7):  # batch boundaries must not matter
+        t.update(part)
+    assert (t.count.packets, t.count.lost, t.count.out_of_order, t.count.frames) == (len(payload), 0, 0, rotations)
+
+
+def test_velodyne_dropped_and_repeated_packets_are_counted_exactly():
+    payload = _velodyne_payloads("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    drop = [10, 11, 12, 500, 1500]
+    kept = np.delete(payload, drop, axis=0)
+    kept = np.insert(kept, 700, kept[699], axis=0)  # a duplicate
+    t = streams.VelodyneLoss()
+    t.update(kept)
+    assert t.count.lost == len(drop) and t.count.out_of_order == 1
+
+
+def test_velodyne_dual_mode_period_from_the_real_dual_bag():
+    from lidarpkt.bags import BagReader
+
+    batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
+    payload = np.concatenate([b.payload for b in batches])
+    assert set(payload[:, 1204].tolist()) == {0x39}
+    t = streams.VelodyneLoss()
+    t.update(payload)
+    assert (t.count.lost, t.count.out_of_order) == (0, 0)  # packets every 663.552 µs, as the manual says
+    t2 = streams.VelodyneLoss()
+    t2.update(np.delete(payload, [5, 300], axis=0))
+    assert t2.count.lost == 2
+
+
+@pytest.mark.parametrize("pcap, meta, changes", [
+    ("ouster-sdk/OS-1-64_1024x10_fw20.pcap", "ouster-sdk/OS-1-64_sensor_config_reduced.json", 0),
+    ("rust-lidar-utils/ouster_example.pcap", "rust-lidar-utils/ouster_example.json", None),
+    ("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json", 0),
+])
+def test_ouster_real_captures_loss_counting(pcap, meta, changes):
+    md = load_metadata(external(meta))
+    lidar = np.concatenate([b.payload for b in read_batches(external(pcap))
+                            if streams.classify_size(b.payload_size, md) == streams.OUSTER_LIDAR])
+    t = streams.OusterLoss(md)
+    t.update(lidar)
+    assert (t.count.lost, t.count.out_of_order) == (0, 0)
+    if changes is not None:
+        assert t.count.frames == changes
+    t2 = streams.OusterLoss(md)
+    for part in np.array_split(np.delete(lidar, [3, 4, 40], axis=0), 3):
+        t2.update(part)
+    assert t2.count.lost == 3 and t2.count.out_of_order == 0
+
+
+def test_stream_kinds_from_sizes_and_metadata():
+    md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
+    assert streams.classify_size(1206) == streams.VELODYNE_DATA
+    assert streams.classify_size(512) == streams.VELODYNE_POSITION
+    assert streams.classify_size(12608) == streams.OUSTER_LIDAR  # legacy OS1-64 without metadata
+    assert streams.classify_size(md.packet_size) == streams.OTHER
+    assert streams.classify_size(md.packet_size, md) == streams.OUSTER_LIDAR
+    assert streams.classify_size(48, md) == streams.OUSTER_IMU
