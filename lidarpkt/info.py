@@ -1,0 +1,252 @@
+"""``lidarpkt info FILE... [--json] [--metadata M.json ...]``: what streams and sensors a capture holds.
+
+One line per stream (source address:port → destination port, one payload size): packet
+count, size, first/last host time, duration, and what it is, as the sensor modules
+describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`):
+VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
+Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
+unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
+records. ``--json`` prints the same as one JSON document (one capture object, or
+``{"captures": [...]}`` for several files).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import LidarpktError
+from .packet import Endpoint, PacketBatch
+from .pcap import PcapReader
+
+__all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
+
+# a stream is described from its first packets only, so that info stays bounded in memory
+DESCRIBE_MAX_BYTES = 64 * 1024 * 1024
+DESCRIBE_MAX_PACKETS = 20_000
+
+
+@dataclass
+class _Stream:
+    src: Endpoint | None
+    dst: Endpoint | None
+    size: int
+    packets: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+    first_index: int = 0
+    kept: list[PacketBatch] = field(default_factory=list)
+    kept_packets: int = 0
+
+
+def _iso(ns: int) -> str:
+    t = _dt.datetime.fromtimestamp(ns // 1_000_000_000, _dt.timezone.utc)
+    return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
+
+
+def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> dict | None:
+    from . import ouster, velodyne
+
+    found = velodyne.describe_stream(batch)
+    if found is None:
+        found = ouster.describe_stream(batch, metadata) if metadata else ouster.describe_stream(batch)
+    return found
+
+
+def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ()) -> dict:
+    """A JSON-ready description of one capture.
+
+    Args:
+        path: a pcap/pcapng file.
+        metadata: parsed Ouster metadata (:func:`lidarpkt.ouster.load_metadata`) for the
+            sensors in the capture; used to name Ouster profiles exactly.
+
+    Returns:
+        ``{"file", "format", "link_types", "records", "udp_packets", "non_udp", "fragments",
+        "reassembled", "orphaned_fragments", "duplicate_fragments", "malformed",
+        "malformed_reasons", "truncated", "first_time", "last_time", "duration_s", "streams": [...]}``;
+        each stream: ``src``, ``dst``, ``dst_port``, ``payload_size``, ``packets``, first/last time
+        (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` and ``details`` (the sensor
+        module's description, or None when unknown).
+
+    Raises:
+        lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
+    """
+    reader = PcapReader(path)
+    streams: dict[tuple, _Stream] = {}
+    for batch in reader.batches():
+        key = (batch.src, batch.dst, batch.payload_size)
+        s = streams.get(key)
+        if s is None:
+            s = streams[key] = _Stream(batch.src, batch.dst, batch.payload_size, first_ns=int(batch.timestamp_ns[0]),
+                                       first_index=int(batch.index[0]))
+        s.packets += len(batch)
+        s.first_ns = min(s.first_ns, int(batch.timestamp_ns.min()))
+        s.last_ns = max(s.last_ns, int(batch.timestamp_ns.max()))
+        room = min(DESCRIBE_MAX_PACKETS - s.kept_packets, (DESCRIBE_MAX_BYTES // max(1, s.size)) - s.kept_packets)
+        if room > 0:
+            s.kept.append(batch if len(batch) <= room else batch.select(np.arange(room)))
+            s.kept_packets += min(room, len(batch))
+    st = reader.stats
+    out_streams = []
+    for s in sorted(streams.values(), key=lambda s: s.first_index):
+        batch = PacketBatch.concatenate(s.kept)
+        s.kept = []
+        try:
+            details = _describe(batch, metadata)
+            error = None
+        except Exception as exc:  # a description must never stop info: say what failed
+            details, error = None, f"{type(exc).__name__}: {exc}"
+        entry = {
+            "src": str(s.src) if s.src else None,
+            "dst": str(s.dst) if s.dst else None,
+            "dst_port": s.dst.port if s.dst else None,
+            "payload_size": s.size,
+            "packets": s.packets,
+            "first_time": _iso(s.first_ns),
+            "last_time": _iso(s.last_ns),
+            "first_timestamp_ns": s.first_ns,
+            "last_timestamp_ns": s.last_ns,
+            "duration_s": (s.last_ns - s.first_ns) / 1e9,
+            "kind": (details or {}).get("kind", "unknown"),
+            "details": details,
+        }
+        if s.kept_packets < s.packets:
+            entry["described_from_first_packets"] = s.kept_packets
+        if error:
+            entry["describe_error"] = error
+        out_streams.append(entry)
+    first = min((s["first_timestamp_ns"] for s in out_streams), default=None)
+    last = max((s["last_timestamp_ns"] for s in out_streams), default=None)
+    return {
+        "file": os.fspath(path),
+        "format": st.format,
+        "nanosecond": st.nanosecond,
+        "big_endian": st.big_endian,
+        "snaplen": st.snaplen,
+        "interfaces": st.interfaces,
+        "link_types": dict(st.link_types),
+        "bytes": st.bytes_read,
+        "records": st.records,
+        "udp_packets": st.udp_packets,
+        "non_udp": st.non_udp,
+        "fragments": st.fragments,
+        "reassembled": st.reassembled,
+        "orphaned_fragments": st.orphaned_fragments,
+        "duplicate_fragments": st.duplicate_fragments,
+        "malformed": st.malformed,
+        "malformed_reasons": dict(st.malformed_reasons),
+        "truncated": st.truncated,
+        "truncated_reason": st.truncated_reason or None,
+        "first_time": _iso(first) if first is not None else None,
+        "last_time": _iso(last) if last is not None else None,
+        "duration_s": (last - first) / 1e9 if first is not None else 0.0,
+        "streams": out_streams,
+    }
+
+
+def _summary(stream: dict) -> str:
+    d = stream.get("details") or {}
+    kind = stream["kind"]
+    if kind == "unknown":
+        return "unknown" + (f" (description failed: {stream['describe_error']})" if "describe_error" in stream else "")
+    bits = [kind]
+    if "return_mode" in d:
+        mode = d["return_mode"]
+        bits.append(mode if isinstance(mode, str) else "/".join(mode))
+    if "product_id" in d:
+        bits.append(f"product 0x{d['product_id']:02x} ({d.get('product_name', '?')})")
+    if d.get("rotation_hz"):
+        bits.append(f"{d['rotation_hz']:.1f} Hz")
+    if "pps_status" in d:
+        bits.append(f"PPS {d['pps_status']}")
+        if d.get("gps_time_first"):
+            bits.append(f"NMEA time {d['gps_time_first']}")
+        elif d.get("nmea_first"):
+            bits.append(f"NMEA {d['nmea_first'][:40]}")
+        else:
+            bits.append("no NMEA sentence")
+    if "profile" in d:
+        candidates = [str(c) for c in d.get("candidates", [])]
+        if d.get("profile_source") == "guess" and len(candidates) > 1:
+            bits.append("profile guessed from size and header: " + " or ".join(candidates))
+        else:
+            bits.append(f"{d['profile']} ({d.get('profile_source', '?')})")
+            if d.get("pixels_per_column"):
+                bits.append(f"{d['pixels_per_column']} px")
+        if "frame_id" in d:
+            bits.append(f"frame ids {d['frame_id'][0]}–{d['frame_id'][1]}")
+        if d.get("crc") and d["crc"] != "absent":
+            bits.append(f"CRC {d['crc']}")
+    if d.get("note"):
+        bits.append(d["note"])
+    return ", ".join(str(b) for b in bits)
+
+
+def format_capture(doc: dict) -> str:
+    """The text report of one :func:`describe_capture` result."""
+    links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
+    lines = [
+        f"{doc['file']}: {doc['format']} ({links}), {doc['records']} records, {doc['udp_packets']} UDP packets"
+        + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")
+    ]
+    for s in doc["streams"]:
+        src = s["src"] or "?"
+        lines.append(
+            f"  {src} → {s['dst_port']}  {s['packets']} × {s['payload_size']} B  "
+            f"{s['first_time'][11:]} → {s['last_time'][11:]} ({s['duration_s']:.6f} s)  {_summary(s)}"
+        )
+    if not doc["streams"]:
+        lines.append("  no UDP packets")
+    counts = (
+        f"  reassembled {doc['reassembled']} (from {doc['fragments']} fragments), orphaned fragments "
+        f"{doc['orphaned_fragments']}, duplicate fragments {doc['duplicate_fragments']}, malformed {doc['malformed']}, "
+        f"non-UDP {doc['non_udp']}"
+    )
+    lines.append(counts)
+    if doc["malformed_reasons"]:
+        lines.append("  malformed: " + "; ".join(f"{k}: {v}" for k, v in doc["malformed_reasons"].items()))
+    if doc["truncated"]:
+        lines.append(f"  TRUNCATED: {doc['truncated_reason']}")
+    return "\n".join(lines)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``lidarpkt info``."""
+    parser.add_argument("files", nargs="+", metavar="FILE", help="pcap or pcapng capture(s)")
+    parser.add_argument("--json", action="store_true", help="print one JSON document instead of text")
+    parser.add_argument(
+        "--metadata", nargs="+", action="extend", default=[], metavar="M.json",
+        help="Ouster metadata JSON file(s) of the sensors in the capture (names profiles exactly)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
+    from .ouster import load_metadata
+
+    metadata = [load_metadata(m) for m in args.metadata]
+    docs = []
+    status = 0
+    for path in args.files:
+        try:
+            docs.append(describe_capture(path, metadata))
+        except LidarpktError as exc:
+            status = 2
+            docs.append({"file": os.fspath(path), "error": str(exc)})
+            if not args.json:
+                print(f"lidarpkt: error: {exc}", file=sys.stderr)
+    if args.json:
+        doc = docs[0] if len(docs) == 1 else {"captures": docs}
+        json.dump(doc, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
+    return status
