@@ -145,14 +145,16 @@ def ks_image(a_mm: np.ndarray, a_valid: np.ndarray, b_mm: np.ndarray, b_valid: n
     (any K each), vectorised: ``float64[H, W]``, NaN where a side has no sample."""
     va, na = _samples(a_mm, a_valid)
     vb, nb = _samples(b_mm, b_valid)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        wa = np.where(va != _NO_SAMPLE, 1.0 / na, 0.0)
-        wb = np.where(vb != _NO_SAMPLE, -1.0 / nb, 0.0)
     vals = np.concatenate([va, vb])
-    weights = np.concatenate([wa, wb])
+    side = np.concatenate([np.ones(va.shape, np.int8), -np.ones(vb.shape, np.int8)])  # +1 from a, -1 from b
     order = np.argsort(vals, axis=0, kind="stable")
     vals = np.take_along_axis(vals, order, axis=0)
-    diff = np.cumsum(np.take_along_axis(weights, order, axis=0), axis=0)
+    side = np.take_along_axis(side, order, axis=0)
+    # integer counts, divided once: F_a − F_b without rounding drift along the cumulative sum
+    cum_a = np.cumsum(side > 0, axis=0)
+    cum_b = np.cumsum(side < 0, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        diff = cum_a / na - cum_b / nb
     # The step functions are compared after the last of equal values, below the non-returns.
     end_of_run = np.ones_like(vals, bool)
     end_of_run[:-1] = vals[1:] != vals[:-1]
