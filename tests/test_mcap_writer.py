@@ -1,0 +1,280 @@
+"""MCAP output checked with the official readers (``mcap`` + ``mcap_ros2``), rosbags and real captures."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+import lidarpkt
+from lidarpkt.errors import DiskFullError, TruncatedCaptureWarning
+from lidarpkt.pcap import read_packets
+from recorder import schemas
+from recorder.mcap_writer import McapWriter
+from tests.conftest import external
+
+mcap_reader = pytest.importorskip("mcap.reader")
+mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
+
+VLP = "rust-lidar-utils/velodyne_vlp16.pcap"  # data + position packets
+OS1 = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"  # legacy OS1-64, lidar + IMU
+OS1_JSON = "ouster-sdk/OS-1-64_sensor_config_reduced.json"
+
+
+def _official(path):
+    """(summary, metadata records, decoded messages) through the official readers."""
+    with open(path, "rb") as fh:
+        reader = mcap_reader.make_reader(fh, decoder_factories=[mcap_ros2_decoder.DecoderFactory()])
+        summary = reader.get_summary()
+        meta = list(reader.iter_metadata())
+        msgs = [(ch.topic, m.log_time, dec) for _, ch, m, dec in reader.iter_decoded_messages(log_time_order=False)]
+    return summary, meta, msgs
+
+
+def _decode(tmp_path, *args):
+    out = tmp_path / "out.mcap"
+    rc = subprocess.run([sys.executable, "-m", "lidarpkt", "decode", *map(str, args), "-o", str(out), "-q"],
+                        capture_output=True, text=True, timeout=120)
+    assert rc.returncode == 0, rc.stderr
+    return out
+
+
+# ---------------------------------------------------------------------------- CDR codecs
+def test_velodyne_scan_codec_matches_rosbags_and_the_official_decoder():
+    store = schemas.typestore()
+    pkt, scan = store.types["velodyne_msgs/msg/VelodynePacket"], store.types[schemas.VELODYNE_SCAN]
+    rng = np.random.default_rng(1)
+    for n in (0, 1, 2, 151):
+        payload = rng.integers(0, 256, (n, 1206), dtype=np.uint8)
+        host = rng.integers(0, 2**31 * 10**9, n)
+        ref = schemas.encode(schemas.VELODYNE_SCAN, scan(
+            header=schemas.header(1_673_400_471_837_873_222, "velodyne"),
+            packets=[pkt(stamp=schemas.ros_time(t), data=p) for t, p in zip(host, payload)]))
+        ours = schemas.encode_velodyne_scan(payload, host, 1_673_400_471_837_873_222)
+        assert ours == ref
+        stamp, frame_id, host2, payload2 = schemas.decode_velodyne_scan(ours)
+        assert (stamp, frame_id) == (1_673_400_471_837_873_222, "velodyne")
+        assert np.array_equal(host2, host) and np.array_equal(payload2, payload)
+    from mcap_ros2._dynamic import generate_dynamic
+
+    msg = generate_dynamic(schemas.VELODYNE_SCAN, schemas.schema_text(schemas.VELODYNE_SCAN))[schemas.VELODYNE_SCAN](ours)
+    assert [bytes(p.data) for p in msg.packets] == [p.tobytes() for p in payload]
+    assert [p.stamp.sec * 10**9 + p.stamp.nanosec for p in msg.packets] == host.tolist()
+
+
+def test_velodyne_scan_decoder_reads_the_real_nebula_bag_blobs():
+    """Third-party CDR (tier4/nebula rosbag2): our decoder gives what rosbags gives, and our
+    encoder writes the same bytes (nebula's blobs end with 2 alignment bytes we do not write)."""
+    db = external("nebula/vlp16/1673400471837873222/1673400471837873222_0.db3")
+    with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as con:
+        blobs = [bytes(r[0]) for r in con.execute("select data from messages order by id")]
+    assert [len(b) for b in blobs]
+    for blob in blobs:
+        stamp, frame_id, host, payload = schemas.decode_velodyne_scan(blob)
+        ref = schemas.decode(schemas.VELODYNE_SCAN, blob)
+        assert frame_id == ref.header.frame_id == "velodyne"
+        assert stamp == ref.header.stamp.sec * 10**9 + ref.header.stamp.nanosec
+        assert np.array_equal(payload, np.stack([p.data for p in ref.packets]))
+        assert host.tolist() == [p.stamp.sec * 10**9 + p.stamp.nanosec for p in ref.packets]
+        assert schemas.encode_velodyne_scan(payload, host, stamp, frame_id) == blob[:-2]
+
+
+def test_packet_msg_and_stamped_packet_codecs_match_rosbags():
+    store = schemas.typestore()
+    payload = bytes(range(256)) * 49 + b"xyz"
+    ref = schemas.encode(schemas.PACKET_MSG, store.types[schemas.PACKET_MSG](buf=np.frombuffer(payload, np.uint8)))
+    assert schemas.encode_packet_msg(payload) == ref
+    assert schemas.decode_packet_msg(ref) == payload
+    t = 1_415_145_600_123_456_789
+    ref = schemas.encode(schemas.NEBULA_PACKET, store.types[schemas.NEBULA_PACKET](
+        stamp=schemas.ros_time(t), data=np.frombuffer(payload[:512], np.uint8)))
+    assert schemas.encode_stamped_packet(payload[:512], t) == ref
+    assert schemas.decode_stamped_packet(ref) == (t, payload[:512])
+
+
+# ------------------------------------------------------------------------ raw packet files
+def test_vlp16_pcap_to_mcap_is_lossless_with_the_official_readers(tmp_path):
+    pcap = external(VLP)
+    out = _decode(tmp_path, pcap, "--topics", "packets")
+    summary, meta, msgs = _official(out)
+    packets = list(read_packets(pcap))
+    data = [p for p in packets if len(p.payload) == 1206]
+    position = [p for p in packets if len(p.payload) == 512]
+    # data packets: one VelodyneScan per rotation, every packet with its host time, in order
+    scans = [m for t, _, m in msgs if t == "/velodyne_packets"]
+    assert len(scans) == 2  # SOURCES.md: about 1.1 rotations, one wrap
+    got = [(p.stamp.sec * 10**9 + p.stamp.nanosec, bytes(p.data)) for s in scans for p in s.packets]
+    assert got == [(p.timestamp_ns, p.payload) for p in data]
+    # header.stamp = sensor time: µs past the hour of the first packet, in the capture's hour
+    first = scans[0].packets[0]
+    toh_us = int.from_bytes(bytes(first.data)[1200:1204], "little")
+    stamp = scans[0].header.stamp.sec * 10**9 + scans[0].header.stamp.nanosec
+    assert stamp % 3_600_000_000_000 == toh_us * 1000 and abs(stamp - data[0].timestamp_ns) < 1_800 * 10**9
+    pos = [(lt, m) for t, lt, m in msgs if t == "/velodyne_position_packets"]
+    assert [(lt, bytes(m.data)) for lt, m in pos] == [(p.timestamp_ns, p.payload) for p in position]
+    # profile, encodings, QoS, compression, index, metadata record
+    assert summary.statistics.message_count == len(msgs)
+    assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+    assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+    assert all("reliability: 2" in c.metadata["offered_qos_profiles"] for c in summary.channels.values())
+    assert summary.chunk_indexes and {ci.compression for ci in summary.chunk_indexes} == {"zstd"}
+    sensor = [m.metadata for m in meta if m.name == "lidarpkt.sensor"]
+    assert sensor and sensor[0]["return_mode"] == "strongest" and sensor[0]["vendor"] == "velodyne"
+    with open(out, "rb") as fh:
+        assert mcap_reader.make_reader(fh).get_header().profile == "ros2"
+
+
+def test_ouster_pcap_to_mcap_keeps_lidar_imu_and_metadata(tmp_path):
+    pcap, meta_json = external(OS1), external(OS1_JSON)
+    out = _decode(tmp_path, pcap, "--metadata", meta_json, "--topics", "packets")
+    summary, meta, msgs = _official(out)
+    packets = list(read_packets(pcap))
+    for topic, size in (("/ouster/lidar_packets", 12608), ("/ouster/imu_packets", 48)):
+        got = [(lt, bytes(m.buf)) for t, lt, m in msgs if t == topic]
+        assert got == [(p.timestamp_ns, p.payload) for p in packets if len(p.payload) == size]
+    (text,) = [m.data for t, _, m in msgs if t == "/ouster/metadata"]
+    assert json.loads(text) == json.loads(meta_json.read_text())
+    qos = {c.topic: c.metadata["offered_qos_profiles"] for c in summary.channels.values()}
+    assert "durability: 1" in qos["/ouster/metadata"]  # latched, like ouster-ros
+    assert any(m.name == "lidarpkt.sensor" and json.loads(m.metadata["metadata_json"]) for m in meta)
+
+
+@pytest.mark.parametrize("capture, meta", [
+    (VLP, None),
+    ("veloview/vlp-16-test-90deg-1-50-frames.pcap", None),
+    (OS1, OS1_JSON),
+])
+def test_frames_from_recorded_mcap_equal_frames_from_the_pcap(tmp_path, capture, meta):
+    pcap = external(capture)
+    args = [pcap, "--topics", "packets"] + (["--metadata", external(meta)] if meta else [])
+    out = _decode(tmp_path, *args)
+    direct = list(lidarpkt.open(pcap, metadata=external(meta) if meta else None))
+    again = list(lidarpkt.open(out))  # the Ouster metadata comes from the file itself
+    assert len(again) == len(direct) > 0
+    for a, b in zip(direct, again):
+        assert a.frame_id == b.frame_id and a.partial == b.partial
+        for name in ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg",
+                     "signal", "near_ir", "measurement_id", "status"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert (x is None and y is None) or np.array_equal(x, y), name
+
+
+# -------------------------------------------------------------------------- frames as messages
+@pytest.mark.parametrize("capture, meta", [(VLP, None), (OS1, OS1_JSON)])
+def test_pointcloud2_decodes_to_frame_xyz(tmp_path, capture, meta):
+    pcap = external(capture)
+    out = _decode(tmp_path, pcap, "--topics", "points,images", *(["--metadata", external(meta)] if meta else []))
+    _, _, msgs = _official(out)
+    frames = list(lidarpkt.open(pcap, metadata=external(meta) if meta else None))
+    clouds = [m for t, _, m in msgs if t in ("/velodyne_points", "/ouster/points")]
+    assert len(clouds) == len(frames)
+    for frame, pc in zip(frames, clouds):
+        r, h, w = frame.shape
+        assert (pc.height, pc.width) == (h, w)
+        names = [f.name for f in pc.fields]
+        assert names[:3] == ["x", "y", "z"] and {"intensity", "ring", "time", "range"} <= set(names)
+        # decode with the PointField offsets/datatypes the message declares (not our dtype)
+        np_types = {7: "<f4", 4: "<u2", 6: "<u4", 2: "u1"}
+        dt = np.dtype({"names": names, "formats": [np_types[f.datatype] for f in pc.fields],
+                       "offsets": [f.offset for f in pc.fields], "itemsize": pc.point_step})
+        pts = np.frombuffer(bytes(pc.data), dt).reshape(h, w)
+        xyz = frame.xyz()[0]
+        rng = frame.range_mm[0]
+        if frame.sensor.vendor == "ouster":  # clouds are destaggered, as ouster-ros publishes them
+            xyz = np.moveaxis(frame.destaggered(np.moveaxis(xyz, -1, 0)), 0, -1)
+            rng = frame.destaggered(rng)
+        got = np.stack([pts["x"], pts["y"], pts["z"]], axis=-1)
+        np.testing.assert_array_equal(got, xyz.astype(np.float32))
+        assert np.array_equal(pts["range"], rng)
+        assert pc.header.stamp.sec * 10**9 + pc.header.stamp.nanosec == frame.timestamp_ns
+    images = [m for t, _, m in msgs if t.endswith("/range_image")]
+    assert len(images) == len(frames) and images[0].encoding == "32FC1"
+
+
+# ------------------------------------------------------------------------ chunks, kill, rotation
+class _Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_chunks_close_by_time_and_a_cut_file_reads_back_up_to_its_last_chunk(tmp_path):
+    clock = _Clock()
+    path = tmp_path / "cut.mcap"
+    w = McapWriter(path, chunk_seconds=0.5, clock=clock)
+    sizes = []
+    for i in range(103):
+        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(bytes([i]) * 1000), 1_000 + i)
+        clock.t += 0.125  # 8 messages a second (binary-exact steps)
+        sizes.append(path.stat().st_size)
+    # every 0.5 s of messages reached the file without close(): as after a SIGKILL
+    data = path.read_bytes()
+    assert len(set(sizes)) >= 20  # a chunk closes once it spans 0.5 s: every 5 messages
+    (tmp_path / "killed.mcap").write_bytes(data)
+    w.close()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        from lidarpkt.bags import BagReader
+
+        batches = list(BagReader(tmp_path / "killed.mcap").batches())
+    got = [b.payload[0].tobytes() for b in batches]
+    assert len(got) == 100 and got == [bytes([i]) * 1000 for i in range(len(got))]
+    assert not caught or issubclass(caught[0].category, TruncatedCaptureWarning)
+    # cut inside a chunk: a warning, and everything before the damage
+    (tmp_path / "torn.mcap").write_bytes(data[: len(data) * 2 // 3])
+    with pytest.warns(TruncatedCaptureWarning, match="cut short"):
+        torn = list(BagReader(tmp_path / "torn.mcap").batches())
+    assert [b.payload[0].tobytes() for b in torn] == got[: len(torn)] and len(torn) > 40
+    # the closed file is complete: summary with one chunk index per chunk
+    summary, _, msgs = _official(path)
+    assert len(msgs) == 103 and len(summary.chunk_indexes) == 21
+
+
+def test_rotation_by_size_gives_complete_files_each_with_the_metadata(tmp_path):
+    clock = _Clock()
+    w = McapWriter(tmp_path / "rot.mcap", chunk_seconds=0.2, rotate_bytes=20_000, clock=clock)
+    w.add_metadata("lidarpkt.sensor", {"vendor": "ouster"})
+    w.write_latched(schemas.OUSTER_METADATA, schemas.encode(
+        schemas.STRING, schemas.typestore().types[schemas.STRING](data="{}")), 1)
+    for i in range(200):
+        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
+        clock.t += 0.05
+    w.close()
+    assert len(w.files) >= 3 and [f.name for f in w.files][:2] == ["rot_0000.mcap", "rot_0001.mcap"]
+    total = 0
+    for f in w.files:
+        summary, meta, msgs = _official(f)
+        assert [m.name for m in meta] == ["lidarpkt.sensor"]
+        assert msgs[0][0] == "/ouster/metadata"
+        total += sum(1 for t, _, _ in msgs if t == "/ouster/lidar_packets")
+    assert total == 200
+
+
+def test_disk_full_is_a_clear_error_and_the_file_stays_readable(tmp_path):
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root) to fill a disk")
+    try:
+        w = McapWriter(mnt / "full.mcap", chunk_seconds=0.0, compression="none")
+        rng = np.random.default_rng(0)
+        with pytest.raises(DiskFullError, match="no space left.*readable up to its last complete chunk"):
+            for i in range(1000):
+                w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(rng.bytes(4000)), i)
+        with pytest.warns(TruncatedCaptureWarning):
+            from lidarpkt.bags import BagReader
+
+            got = list(BagReader(mnt / "full.mcap").batches())
+        assert len(got) > 10
+        rng = np.random.default_rng(0)
+        assert [b.payload[0].tobytes() for b in got] == [rng.bytes(4000) for _ in got]
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
