@@ -67,7 +67,8 @@ class DecoderStats:
     malformed_flag: int = 0  # a block flag other than 0xEEFF or an azimuth ≥ 360°
     unknown_return_mode: int = 0
     duplicate_packets: int = 0  # same sensor timestamp as an earlier packet
-    out_of_order_packets: int = 0  # older than an earlier packet
+    out_of_order_packets: int = 0  # older than an earlier packet (put back in order within a batch)
+    late_packets: int = 0  # older than the last packet of an earlier batch: dropped
     lost_packets: int = 0  # inferred from time gaps
     long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
     position_packets: int = 0
@@ -273,17 +274,25 @@ class VelodyneDecoder:
         self._mode = mode
         if self._frequency_hz is None:
             self._frequency_hz = _estimate_frequency(raw)
-        # duplicates and packets older than one already kept are dropped and counted
-        prev = np.concatenate([[self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min],
-                               np.maximum.accumulate(abs_ns)[:-1]])
-        fresh = abs_ns > prev
-        if not fresh.all():
-            dup = int(np.count_nonzero(abs_ns == prev))
-            ooo = int(np.count_nonzero(abs_ns < prev))
-            self.stats.duplicate_packets += dup
+        # Packets out of order inside a batch are put back in order (counted, kept); duplicates and
+        # packets older than the last one of an earlier batch (its frame may be gone) are dropped, counted.
+        last = self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min
+        running = np.maximum.accumulate(np.concatenate([[last], abs_ns]))[:-1]
+        ooo = int(np.count_nonzero(abs_ns < running))
+        if ooo:
+            order = np.argsort(abs_ns, kind="stable")
+            raw, abs_ns, index = raw.select(order), abs_ns[order], index[order]
             self.stats.out_of_order_packets += ooo
-            self._pending_counters.duplicate_packets += dup
             self._pending_counters.out_of_order_packets += ooo
+        late = abs_ns < last
+        dup = np.concatenate([[False], abs_ns[1:] == abs_ns[:-1]]) | (abs_ns == last)
+        if late.any() or dup.any():
+            n_late, n_dup = int(np.count_nonzero(late)), int(np.count_nonzero(dup & ~late))
+            self.stats.late_packets += n_late
+            self.stats.duplicate_packets += n_dup
+            self._pending_counters.late_packets += n_late
+            self._pending_counters.duplicate_packets += n_dup
+            fresh = ~(late | dup)
             raw, abs_ns, index = raw.select(fresh), abs_ns[fresh], index[fresh]
             if len(raw) == 0:
                 return frames
@@ -293,7 +302,7 @@ class VelodyneDecoder:
         missing = np.where(gaps > 1.5 * period_ns, np.rint(gaps / period_ns).astype(np.int64) - 1, 0)
         long_gap = gaps > self.max_gap_ns
         cuts = np.flatnonzero(long_gap)
-        bounds = [0, *cuts.tolist(), len(raw)]
+        bounds = sorted({0, *cuts.tolist(), len(raw)})
         for a, b in zip(bounds[:-1], bounds[1:]):
             if a in cuts:
                 self.stats.long_gaps += 1
