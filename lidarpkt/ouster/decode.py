@@ -123,17 +123,31 @@ def packet_view(payload: np.ndarray, profile: Profile, pixels_per_column: int, c
     return np.ascontiguousarray(payload).view(dtype)[:, 0]
 
 
-def read_pixel_field(words: np.ndarray, f: BitField) -> np.ndarray:
-    """Field ``f`` from pixel words ``<u4[..., pixel_bytes // 4]`` → ``[...]`` in ``f.dtype``, up-shift applied."""
+def read_pixel_field(words: np.ndarray, f: BitField, out: np.ndarray | None = None) -> np.ndarray:
+    """Field ``f`` from pixel words ``<u4[..., pixel_bytes // 4]`` → ``[...]`` in ``f.dtype``, up-shift applied.
+
+    ``out`` (``f.dtype``, the shape of ``words[..., 0]``) receives the values when given.
+    """
     k, off = divmod(f.start_bit, 32)
+    if off % 8 == 0 and f.width in (8, 16, 32) and not f.upshift and words.strides[-1] == 4:
+        # byte-aligned field: a strided view of its bytes, one copy
+        byte = 4 * k + off // 8
+        src = words.view(np.uint8)[..., byte : byte + f.width // 8].view(f.dtype.newbyteorder("<"))[..., 0]
+        if out is None:
+            return src.astype(f.dtype)
+        np.copyto(out, src, casting="unsafe")
+        return out
     w = words[..., k]
     if off:
         w = w >> np.uint32(off)
-    if f.width < 32:
+    if off + f.width < 32:
         w = w & np.uint32(f.mask)
-    out = w.astype(f.dtype, copy=False)
+    if out is None:
+        out = w.astype(f.dtype)  # always a copy: the up-shift below must not touch the packet
+    else:
+        np.copyto(out, w, casting="unsafe")
     if f.upshift:
-        out = out << f.dtype.type(f.upshift)
+        out <<= f.dtype.type(f.upshift)
     return out
 
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters
 from ..packet import PacketBatch
-from .decode import OusterPacketFields, decode_packets
+from .decode import OusterPacketFields, decode_packets, packet_view, read_pixel_field
 from .imu import decode_imu
 from .metadata import OusterMetadata
 from .profiles import LEGACY_STATUS_VALID
@@ -63,21 +63,15 @@ class OusterDecoderStats:
 
 
 class _Builder:
-    """One frame being filled."""
+    """One frame being filled: raw pixel words are scattered by measurement id, fields are
+    extracted once, when the frame is released."""
 
     def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
         md = decoder.metadata
         h, w = md.pixels_per_column, md.columns_per_frame
-        names = set(md.profile.field_names)
-        r = md.profile.returns
         self.key = key
         self.frame_id = frame_id
-        self.range_mm = np.zeros((r, h, w), np.uint32)
-        self.reflectivity = np.zeros((r, h, w), np.uint8)
-        self.signal = np.zeros((r, h, w), np.uint16) if "SIGNAL" in names else None
-        self.flags = np.zeros((r, h, w), np.uint8)
-        self.near_ir = np.zeros((h, w), np.uint16)
-        self.window = np.zeros((h, w), np.uint8) if "WINDOW" in names else None
+        self.words = np.zeros((w, h, md.profile.pixel_bytes // 4), np.uint32)
         self.timestamp_ns = np.zeros(w, np.int64)
         self.measurement_id = np.zeros(w, np.uint16)
         self.status = np.zeros(w, np.uint32)
@@ -86,29 +80,37 @@ class _Builder:
         self.counters = FrameCounters()
         self.last_mid0 = -1
 
-    def add(self, f: OusterPacketFields) -> None:
-        mids = f.measurement_id.astype(np.intp)  # [n, C]
-        flat = mids.ravel()
-        h = f.pixels_per_column
-
-        def columns(a: np.ndarray) -> np.ndarray:  # [n, C, H] → [H, n·C]
-            return a.reshape(-1, h).T
-
-        for slot, (rng, refl, sig, flg) in enumerate(_SLOT_FIELDS[: self.range_mm.shape[0]]):
-            self.range_mm[slot][:, flat] = columns(f.pixels[rng])
-            self.reflectivity[slot][:, flat] = columns(f.pixels[refl])
-            self.flags[slot][:, flat] = columns(f.pixels[flg])
-            if self.signal is not None:
-                self.signal[slot][:, flat] = columns(f.pixels[sig])
-        self.near_ir[:, flat] = columns(f.pixels["NEAR_IR"])
-        if self.window is not None:
-            self.window[:, flat] = columns(f.pixels["WINDOW"])
-        self.timestamp_ns[flat] = f.timestamp_ns.ravel().astype(np.int64)
+    def add(self, f: OusterPacketFields, words: np.ndarray) -> None:
+        """Columns of packets ``f`` with their pixel words ``<u4[n, C, H, pixel_bytes // 4]``."""
+        flat = f.measurement_id.astype(np.intp).ravel()
+        self.words[flat] = words.reshape((-1,) + self.words.shape[1:])
+        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
         self.measurement_id[flat] = f.measurement_id.ravel()
         self.status[flat] = f.status.ravel()
         if self.encoder_count is not None:
             self.encoder_count[flat] = f.encoder_count.ravel()
         self.received[flat] = True
+
+    def fields(self, profile) -> dict[str, np.ndarray]:
+        """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
+        (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
+        (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
+        hw = self.words.transpose(1, 0, 2)  # [H, W, words]
+        shape = hw.shape[:2]
+        names = set(profile.field_names)
+        slots = _SLOT_FIELDS[: profile.returns]
+        out: dict[str, np.ndarray | None] = {}
+        for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
+            if slots[0][i] not in names:
+                out[attr] = None
+                continue
+            arr = np.empty((len(slots),) + shape, profile.field(slots[0][i]).dtype)
+            for r, sl in enumerate(slots):
+                read_pixel_field(hw, profile.field(sl[i]), arr[r])
+            out[attr] = arr
+        for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
+            out[attr] = read_pixel_field(hw, profile.field(name), np.empty(shape, profile.field(name).dtype)) if name in names else None
+        return out
 
 
 class OusterDecoder:
@@ -172,7 +174,8 @@ class OusterDecoder:
                 stacklevel=2,
             )
             return []
-        f = decode_packets(batch.payload, md, verify_crc=self.verify_crc)
+        f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=())
+        words = packet_view(batch.payload, md.profile, md.pixels_per_column, md.columns_per_packet)["columns"]["pixels"]
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
             bad = ~f.crc_ok
@@ -193,6 +196,7 @@ class OusterDecoder:
         if skipped:
             self._count_skipped(skipped)
             f = f.select(keep)
+            words = words[keep]
         if len(f) == 0:
             return []
 
@@ -214,12 +218,12 @@ class OusterDecoder:
                 self._current = _Builder(self, key, key[1])
                 self._current.counters = self._current.counters.add(self._pending_counters)
                 self._pending_counters = FrameCounters()
-            self._add(f.select(slice(s, e)))
+            self._add(f.select(slice(s, e)), words[s:e])
             if self._current.received[self._window].all():
                 out.append(self._release())
         return out
 
-    def _add(self, f: OusterPacketFields) -> None:
+    def _add(self, f: OusterPacketFields, words: np.ndarray) -> None:
         b = self._current
         mid0 = f.measurement_id[:, 0].astype(np.intp)
         order = np.concatenate([[b.last_mid0], mid0])
@@ -234,8 +238,9 @@ class OusterDecoder:
             b.counters.duplicate_packets += dup
             self.stats.duplicates += dup
             f = f.select(fresh)
+            words = words[fresh]
         self.stats.accepted += len(f)
-        b.add(f)
+        b.add(f, words)
 
     def _count_skipped(self, n: int) -> None:
         target = self._current.counters if self._current is not None else self._pending_counters
@@ -268,19 +273,20 @@ class OusterDecoder:
             status_ok = b.status == LEGACY_STATUS_VALID
         else:
             status_ok = (b.status & 1).astype(bool)
-        extra = {"window": b.window} if b.window is not None else {}
+        px = b.fields(md.profile)
+        extra = {"window": px["window"]} if px["window"] is not None else {}
         return Frame(
             sensor=self.sensor,
             frame_id=b.frame_id,
-            range_mm=b.range_mm,
-            reflectivity=b.reflectivity,
+            range_mm=px["range_mm"],
+            reflectivity=px["reflectivity"],
             return_labels=md.profile.return_labels,
             column_valid=b.received & status_ok,
             column_timestamp_ns=b.timestamp_ns,
             azimuth_deg=self._azimuth_deg.copy(),
-            signal=b.signal,
-            near_ir=b.near_ir,
-            flags=b.flags,
+            signal=px["signal"],
+            near_ir=px["near_ir"],
+            flags=px["flags"],
             measurement_id=b.measurement_id,
             status=b.status,
             encoder_count=b.encoder_count,
