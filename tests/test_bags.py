@@ -1,0 +1,160 @@
+"""ROS bag input: the real nebula rosbag2 (sqlite3), and MCAP / ROS 1 bags written by other libraries."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pytest
+
+import lidarpkt
+from lidarpkt.bags import BagReader
+from lidarpkt.errors import CaptureFormatError, LidarpktError
+from lidarpkt.packet import PacketBatch
+from lidarpkt.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
+
+NEBULA = "nebula/vlp16/1673400471837873222"
+
+
+def _payloads_from_sqlite(db) -> list[tuple[int, list[tuple[int, bytes]]]]:
+    """The packets of each message, located with the layout SOURCES.md documents (no CDR library)."""
+    out = []
+    with sqlite3.connect(db) as con:
+        for (data,) in con.execute("SELECT data FROM messages ORDER BY timestamp"):
+            assert data[:4] == b"\x00\x01\x00\x00"
+            body = data[4:]
+            pos = 8
+            n = int.from_bytes(body[pos:pos + 4], "little")
+            pos += 4 + n
+            pos += -pos % 4
+            count = int.from_bytes(body[pos:pos + 4], "little")
+            pos += 4
+            packets = []
+            for _ in range(count):
+                pos += -pos % 4
+                sec = int.from_bytes(body[pos:pos + 4], "little", signed=True)
+                nsec = int.from_bytes(body[pos + 4:pos + 8], "little")
+                packets.append((sec * 10**9 + nsec, bytes(body[pos + 8:pos + 8 + 1206])))
+                pos += 8 + 1206
+            out.append((count, packets))
+    return out
+
+
+def test_nebula_bag_packets_are_the_stored_bytes(ext):
+    expected = _payloads_from_sqlite(ext(NEBULA + "/1673400471837873222_0.db3"))
+    assert [c for c, _ in expected] == [151, 151, 151, 150]
+    reader = BagReader(ext(NEBULA))
+    batches = list(reader.batches())
+    assert [len(b) for b in batches] == [151, 151, 151, 150]
+    for batch, (_, packets) in zip(batches, expected):
+        assert batch.src is None and batch.dst is None and batch.payload_size == 1206
+        assert batch.timestamp_ns.tolist() == [t for t, _ in packets]
+        assert [row.tobytes() for row in batch.payload] == [p for _, p in packets]
+    assert np.concatenate([b.index for b in batches]).tolist() == list(range(603))
+    assert reader.stats["packets"] == 603
+
+
+def test_nebula_bag_opens_by_directory_or_db3_and_decodes_dual(ext):
+    by_dir = list(lidarpkt.open(ext(NEBULA)))
+    by_db3 = list(lidarpkt.open(ext(NEBULA + "/1673400471837873222_0.db3")))
+    assert len(by_dir) == len(by_db3) == 5  # 4 messages ≈ 4 rotations, cut at the wrap
+    for a, b in zip(by_dir, by_db3):
+        np.testing.assert_array_equal(a.range_mm, b.range_mm)
+    f = by_dir[2]
+    assert not f.partial and f.return_labels == ("last", "strongest") and f.shape[:2] == (2, 16)
+    # about 98 % of the return pairs are identical (SOURCES.md)
+    both = (f.range_mm[0] > 0) | (f.range_mm[1] > 0)
+    same = (f.range_mm[0] == f.range_mm[1]) & both
+    assert 0.95 < same.sum() / both.sum() < 1.0
+    # this sensor had no GPS: its hour-relative clock is 25.5 min off the recorder's, so the
+    # hour comes from the packet stamps (nearest hour) and the times stay within 30 min of them
+    assert abs(f.timestamp_ns - 1673400471_900_000_000) < 1_800_000_000_000
+    starts = [g.timestamp_ns for g in by_dir[1:4]]
+    assert np.allclose(np.diff(starts), 100_000_000, rtol=0.02)  # 10 Hz
+
+
+def _dual_payloads(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(5)
+    t_us = 500_000 + np.rint(np.arange(n) * 663.552).astype(np.int64)
+    az = (np.repeat(np.arange(6) * 40, 2)[None, :] + np.arange(n)[:, None] * 240) % 36000
+    dist = rng.integers(0, 30000, size=(n, 12, 32))
+    dist[:, 1::2] = np.where(rng.random((n, 6, 32)) < 0.9, dist[:, 0::2], dist[:, 1::2])
+    refl = rng.integers(0, 256, size=(n, 12, 32))
+    payload = encode_data_packets(az, dist, refl, t_us, "dual")
+    host = 1_700_000_000_000_000_000 + t_us * 1000
+    return payload, host
+
+
+def test_mcap_written_by_mcap_ros2(tmp_path):
+    writer_mod = pytest.importorskip("mcap_ros2.writer")
+    payload, host = _dual_payloads()
+    schema = (
+        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
+        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
+        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
+    )
+    path = tmp_path / "scan.mcap"
+    with open(path, "wb") as fh:
+        w = writer_mod.Writer(fh)
+        s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
+        for start in range(0, len(payload), 20):
+            rows = range(start, min(start + 20, len(payload)))
+            msg = {"header": {"stamp": {"sec": int(host[start] // 10**9), "nanosec": int(host[start] % 10**9)},
+                              "frame_id": "velodyne"},
+                   "packets": [{"stamp": {"sec": int(host[i] // 10**9), "nanosec": int(host[i] % 10**9)},
+                                "data": payload[i].tobytes()} for i in rows]}
+            w.write_message("/velodyne_packets", s, msg, log_time=int(host[rows[-1]]), publish_time=int(host[rows[-1]]))
+        w.finish()
+    batch = PacketBatch.concatenate(list(BagReader(path).batches()))
+    np.testing.assert_array_equal(batch.payload, payload)
+    np.testing.assert_array_equal(batch.timestamp_ns, host)
+    frames = list(lidarpkt.open(path))
+    dec = VelodyneDecoder()
+    direct = dec.push(PacketBatch.from_payloads(payload, host)) + dec.finish()
+    assert len(frames) == len(direct)
+    for a, b in zip(frames, direct):
+        np.testing.assert_array_equal(a.range_mm, b.range_mm)
+        np.testing.assert_array_equal(a.column_timestamp_ns, b.column_timestamp_ns)
+
+
+def test_ros1_bag_written_by_rosbags(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    from lidarpkt.bags import MESSAGE_DEFINITIONS
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    types = {}
+    for name, text in MESSAGE_DEFINITIONS.items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    Scan = store.types["velodyne_msgs/msg/VelodyneScan"]
+    Packet = store.types["velodyne_msgs/msg/VelodynePacket"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Header = store.types["std_msgs/msg/Header"]
+    payload, host = _dual_payloads(40)
+    path = tmp_path / "scan.bag"
+    with Writer(path) as w:
+        conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
+        for start in (0, 20):
+            pk = [Packet(stamp=Time(sec=int(host[i] // 10**9), nanosec=int(host[i] % 10**9)), data=payload[i].copy())
+                  for i in range(start, start + 20)]
+            msg = Scan(header=Header(seq=start, stamp=pk[0].stamp, frame_id="velodyne"), packets=pk)
+            w.write(conn, int(host[start + 19]), store.serialize_ros1(msg, "velodyne_msgs/msg/VelodyneScan"))
+    batch = PacketBatch.concatenate(list(BagReader(path).batches()))
+    np.testing.assert_array_equal(batch.payload, payload)
+    np.testing.assert_array_equal(batch.timestamp_ns, host)
+    assert decode_packets(batch.payload).return_mode.tolist() == [0x39] * 40
+    frames = list(lidarpkt.open(path))
+    assert sum(int(f.column_valid.sum()) for f in frames) == 40 * 12
+
+
+def test_unreadable_bag_is_a_library_error(tmp_path):
+    bad = tmp_path / "broken.bag"
+    bad.write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 40)
+    with pytest.raises(LidarpktError):
+        list(BagReader(bad).batches())
+    fake = tmp_path / "fake.db3"
+    fake.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
+    with pytest.raises(CaptureFormatError):
+        list(BagReader(fake).batches())
