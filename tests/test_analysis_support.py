@@ -40,12 +40,22 @@ def destaggered_by_definition(img: np.ndarray, shift) -> np.ndarray:
     return out
 
 
-def generated(folder: Path, sensor: str, **options) -> dict[str, Path]:
-    """Generate the fixture captures of ``sensor`` into ``folder`` (skipping when the generator is absent)."""
+def ensure(name: str, **options) -> Path:
+    """Path of a generated fixture capture (generated once and cached by ``fixtures.ensure``);
+    skips the test when the fixture generator is not available."""
     import pytest
 
-    gen = pytest.importorskip("fixtures.generate", reason="the fixture generator (fixtures/generate.py) is not available")
-    return gen.generate(folder, sensor=sensor, aux=False, **options)
+    fixtures = pytest.importorskip("fixtures", reason="the fixture generator (fixtures/) is not available")
+    return fixtures.ensure(name, **options)
+
+
+def load_fixture(name: str, **options):
+    """(FrameStack of the complete frames, truth dict) of a generated capture."""
+    from analysis.stack import load_stack
+
+    pcap = ensure(name, **options)
+    meta = pcap.with_suffix(".json") if name.startswith("os1") else None
+    return load_stack(pcap, metadata=meta), truth(pcap)
 
 
 def truth(pcap: Path) -> dict:
