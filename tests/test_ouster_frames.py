@@ -315,3 +315,37 @@ def test_describe_without_metadata_lists_every_layout_of_the_size():
     # a Velodyne packet is not an Ouster stream
     (vlp,) = list(read_batches(external("ouster-sdk/VLI-16-one-packet.pcap")))
     assert describe_stream(vlp) is None and classify(vlp, [md]) is None
+
+
+# ----------------------------------------------------------------------------- frames → packets
+
+from lidarpkt.ouster import encode_frame  # noqa: E402
+from test_ouster_cases import CAPTURES  # noqa: E402
+
+# captures whose packets carry nothing a Frame does not hold (no reserved bits set, zero or CRC
+# footer, no alert flags): frame → packets gives the very bytes back
+BYTE_EXACT = {"OS-0-32-U1_v2.2.0_1024x10.pcap", "OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap", "OS-1-32-G_v2.1.1_1024x10.pcap", "same_ports_legacy.pcap"}
+
+
+@pytest.mark.parametrize("pcap,jsons,_", CAPTURES, ids=[c[0].split("/")[-1] for c in CAPTURES])
+def test_frame_to_packets_gives_the_sensor_fields_back(pcap, jsons, _):
+    frames, decoders = decode_frames(pcap, jsons)
+    streams = lidar_streams(pcap, jsons)
+    for f in frames:
+        md = next(d.metadata for d in decoders.values() if d.sensor is f.sensor)
+        (orig,) = [b.payload for m, b in streams if m.profile is md.profile and m.pixels_per_column == md.pixels_per_column]
+        orig = orig[decode_packets(orig, md).frame_id == f.frame_id]
+        mine = encode_frame(f, md)
+        assert mine.shape == orig.shape
+        a, b = decode_packets(mine, md), decode_packets(orig, md)
+        for name in md.profile.field_names:
+            assert np.array_equal(a.pixels[name], b.pixels[name]), name
+        for attr in ("timestamp_ns", "measurement_id", "status", "column_frame_id", "encoder_count"):
+            assert np.array_equal(getattr(a, attr), getattr(b, attr)), attr
+        for key in ("frame_id", "init_id", "prod_sn", "packet_type"):
+            if key in b.header:
+                assert np.array_equal(a.header[key], b.header[key]), key
+        if md.footer_kind == "crc":
+            assert a.crc_ok.all()
+        if pcap.split("/")[-1] in BYTE_EXACT:
+            assert np.array_equal(mine, orig)

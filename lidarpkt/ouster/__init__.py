@@ -9,7 +9,7 @@ from __future__ import annotations
 from .crc import crc64_xz
 from .decode import OusterPacketFields, decode_packets
 from .detect import classify, describe_stream
-from .encode import empty_fields, encode_packets
+from .encode import empty_fields, encode_frame, encode_packets, frame_fields
 from .frames import OusterDecoder, OusterDecoderStats
 from .geometry import OusterGeometry
 from .imu import decode_imu, encode_imu
@@ -31,8 +31,10 @@ __all__ = [
     "decode_imu",
     "decode_packets",
     "empty_fields",
+    "encode_frame",
     "encode_imu",
     "encode_packets",
+    "frame_fields",
     "get_profile",
     "load_metadata",
 ]

@@ -117,3 +117,95 @@ def empty_fields(metadata, n: int) -> OusterPacketFields:
         column_frame_id=np.zeros((n, c), np.uint16) if profile.legacy else None,
         encoder_count=np.zeros((n, c), np.uint32) if profile.legacy else None,
     )
+
+
+_FRAME_SLOTS = (
+    ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
+    ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"),
+)
+ENCODER_COUNTS_PER_TURN = 90112  # LEGACY encoder ticks per revolution
+
+
+def frame_fields(frame, metadata, *, all_packets: bool = False, init_id: int | None = None) -> OusterPacketFields:
+    """The packet fields that carry ``frame`` (a :class:`~lidarpkt.frame.Frame` of this sensor's layout).
+
+    One packet per ``columns_per_packet`` columns inside ``column_window``; by default only
+    packets with at least one valid column (``all_packets`` emits the whole window). Column
+    measurement ids are the column indices; missing per-column values take the sensor's
+    defaults: status valid (``0xFFFFFFFF`` LEGACY, ``0x1`` otherwise) for valid columns,
+    LEGACY encoder count ``90112 · c / W``. The header gets the frame id, the metadata's (or
+    ``init_id``'s) init_id and the serial; the footer is zero (the CRC is added by
+    :func:`encode_packets` when the firmware writes one).
+
+    Raises:
+        PacketFormatError: the frame's shape or return slots do not match the metadata.
+    """
+    profile: Profile = metadata.profile
+    h, w, c = metadata.pixels_per_column, metadata.columns_per_frame, metadata.columns_per_packet
+    r = profile.returns
+    if frame.range_mm.shape != (r, h, w):
+        raise PacketFormatError(
+            f"frame shape {frame.range_mm.shape} does not match the metadata: {r} returns × {h} rows × {w} columns"
+        )
+    window_packets = np.unique(np.flatnonzero(metadata.window_mask) // c)
+    if not all_packets:
+        valid = np.asarray(frame.column_valid, bool).reshape(-1, c).any(axis=1)
+        window_packets = window_packets[valid[window_packets]]
+    n = len(window_packets)
+    cols = (window_packets[:, None] * c + np.arange(c)[None, :])  # [n, C] column indices
+
+    def per_column(arr, default):
+        return np.asarray(arr)[cols] if arr is not None else np.broadcast_to(default, cols.shape)
+
+    def per_pixel(arr):  # [H, W] → [n, C, H]
+        return np.asarray(arr)[:, cols].transpose(1, 2, 0)
+
+    valid_cols = np.asarray(frame.column_valid, bool)[cols]
+    pixels: dict[str, np.ndarray] = {}
+    attrs = ("range_mm", "reflectivity", "signal", "flags")
+    names = set(profile.field_names)
+    for slot in range(r):
+        for attr, name in zip(attrs, _FRAME_SLOTS[slot]):
+            arr = getattr(frame, attr)
+            if name in names and arr is not None:
+                pixels[name] = per_pixel(arr[slot])
+    if "NEAR_IR" in names and frame.near_ir is not None:
+        pixels["NEAR_IR"] = per_pixel(frame.near_ir)
+    if "WINDOW" in names and "window" in frame.extra:
+        pixels["WINDOW"] = per_pixel(frame.extra["window"])
+
+    valid_status = 0xFFFFFFFF if profile.legacy else 1
+    status = per_column(frame.status, 0).astype(np.uint32)
+    status = np.where((status == 0) & valid_cols, np.uint32(valid_status), status)
+    header: dict[str, np.ndarray] = {}
+    column_frame_id = encoder_count = None
+    if profile.legacy:
+        column_frame_id = np.full(cols.shape, frame.frame_id & 0xFFFF, np.uint16)
+        default_enc = (ENCODER_COUNTS_PER_TURN * cols) // w
+        encoder_count = per_column(frame.encoder_count, 0).astype(np.uint32)
+        encoder_count = np.where(encoder_count == 0, default_enc, encoder_count).astype(np.uint32)
+    else:
+        header = {
+            "packet_type": np.ones(n, np.uint16),
+            "frame_id": np.full(n, frame.frame_id, np.uint64),
+            "init_id": np.full(n, metadata.init_id if init_id is None else init_id, np.uint32),
+            "prod_sn": np.full(n, metadata.serial_int or 0, np.uint64),
+        }
+    return OusterPacketFields(
+        profile=profile,
+        pixels_per_column=h,
+        columns_per_packet=c,
+        header=header,
+        timestamp_ns=per_column(frame.column_timestamp_ns, 0).astype(np.uint64),
+        measurement_id=cols.astype(np.uint16),
+        status=status,
+        pixels=pixels,
+        footer=np.zeros((n, profile.footer_bytes), np.uint8),
+        column_frame_id=column_frame_id,
+        encoder_count=encoder_count,
+    )
+
+
+def encode_frame(frame, metadata, **options) -> np.ndarray:
+    """``frame`` as lidar packets ``uint8[n, packet_size]`` in column order (see :func:`frame_fields`)."""
+    return encode_packets(frame_fields(frame, metadata, **options), metadata)

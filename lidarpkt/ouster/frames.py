@@ -82,8 +82,9 @@ class _Builder:
 
     def add(self, f: OusterPacketFields, words: np.ndarray) -> None:
         """Columns of packets ``f`` with their pixel words ``<u4[n, C, H, pixel_bytes // 4]``."""
-        flat = f.measurement_id.astype(np.intp).ravel()
-        self.words[flat] = words.reshape((-1,) + self.words.shape[1:])
+        mids = f.measurement_id.astype(np.intp)
+        self.words[mids] = words  # [n, C] index: no reshape copy of the strided packet view
+        flat = mids.ravel()
         self.timestamp_ns[flat] = f.timestamp_ns.ravel()
         self.measurement_id[flat] = f.measurement_id.ravel()
         self.status[flat] = f.status.ravel()
