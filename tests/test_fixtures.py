@@ -480,3 +480,70 @@ def test_ouster_sdk_reads_the_os1_captures_with_the_same_values(name):
             row, col = nr["pixel"][k]
             got = [int(s.field("RANGE")[row, col])] + ([int(s.field("RANGE2")[row, col])] if dual else [])
             assert got == nr["samples"]["range_mm"][k], (rp, k)
+
+
+# ----------------------------------------------------------------------------- reporting rules
+def _brute_force(ranges: list[int], strengths: list[float], rule: str) -> list[int]:
+    """REFERENCE.md's rules read literally, one firing at a time."""
+    echoes = sorted(zip(ranges, strengths), key=lambda e: -e[1])  # strongest first
+    if not echoes:
+        return [0] * len(sc.REPORT_LABELS[rule])
+    strongest = echoes[0][0]
+    last = max(r for r, _ in echoes)
+    second = echoes[1][0] if len(echoes) > 1 else 0
+    if rule == "strongest":
+        return [strongest]
+    if rule == "last":
+        return [last]
+    if rule == "ouster_dual":
+        return [strongest, second]
+    if len(echoes) == 1:
+        return [last, last]
+    return [last, strongest if strongest != last else second]
+
+
+def test_report_rules_match_the_reference_rules_firing_by_firing():
+    hyp = pytest.importorskip("hypothesis")
+    st = hyp.strategies
+
+    echo = st.tuples(st.integers(1, 60000).map(lambda r: r * 2), st.floats(1.0, 1e5))
+
+    @hyp.settings(max_examples=300, deadline=None)
+    @hyp.given(st.lists(st.lists(echo, max_size=sc.MAX_SCATTERERS), min_size=1, max_size=20))
+    def check(firings):
+        n, s = len(firings), sc.MAX_SCATTERERS
+        det = np.zeros((n, s), bool)
+        rng = np.zeros((n, s), np.int64)
+        strength = np.zeros((n, s))
+        for i, f in enumerate(firings):
+            # distinct ranges and strengths, as resolved echoes have
+            seen_r, seen_s = set(), set()
+            for j, (r, p) in enumerate(f):
+                if r in seen_r or p in seen_s:
+                    continue
+                seen_r.add(r), seen_s.add(p)
+                det[i, j], rng[i, j], strength[i, j] = True, r, p
+        echoes = sc.Echoes(det, np.where(det, rng, 0), np.where(det, strength, 0.0), np.where(det, 7, 0).astype(np.uint8))
+        for rule in sc.REPORT_LABELS:
+            got = sc.report(echoes, rule).range_mm
+            for i in range(n):
+                expect = _brute_force(rng[i][det[i]].tolist(), strength[i][det[i]].tolist(), rule)
+                assert got[:, i].tolist() == expect, (rule, firings[i])
+
+    check()
+
+
+def test_draws_respect_wire_units_limits_and_separation():
+    alt, _, _ = gen.os1_beams()
+    for name, kw in (("vlp16", {}), ("os1-64", {"beam_altitude_deg": alt})):
+        scene = sc.build_scene(name, pad=0, **kw)
+        e = sc.draw_echoes(scene.scatterers, scene.sensor, sc.frame_rng(5, scene.sensor, 0))
+        r = e.range_mm[e.detected]
+        assert np.all(r % scene.sensor.range_unit_mm == 0)
+        assert r.min() >= scene.sensor.min_range_mm and r.max() <= scene.sensor.max_range_mm
+        # No two resolved echoes of one firing closer than the separation.
+        rr = np.where(e.detected, e.range_mm, -10**9)
+        gap = np.abs(rr[..., :, None] - rr[..., None, :])
+        both = e.detected[..., :, None] & e.detected[..., None, :] & ~np.eye(sc.MAX_SCATTERERS, dtype=bool)
+        assert np.all(gap[both] >= sc.ECHO_SEPARATION_MM)
+        assert np.all(e.strength[~e.detected] == 0) and np.all(e.reflectivity[~e.detected] == 0)
