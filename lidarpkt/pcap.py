@@ -235,7 +235,7 @@ class PcapReader:
     ) -> None:
         self.path = os.fspath(path)
         self.ports = None if ports is None else frozenset(int(p) for p in ports)
-        self.src_addresses = None if src_addresses is None else frozenset(str(a) for a in src_addresses)
+        self.src_addresses = None if src_addresses is None else frozenset(_canonical_address(a) for a in src_addresses)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
         if batch_packets < 1:
             raise ValueError("batch_packets must be at least 1")
@@ -969,6 +969,17 @@ class PcapReader:
             self.stats.filtered += 1
             return None
         return src, sport, dst, dport, bytes(data[p + 8 : p + ulen])
+
+
+def _canonical_address(text: str) -> str:
+    """The address as Endpoint.address spells it (IPv6 compressed, lower case); other text unchanged."""
+    text = str(text).strip()
+    for family in (socket.AF_INET, socket.AF_INET6):
+        try:
+            return socket.inet_ntop(family, socket.inet_pton(family, text))
+        except OSError:
+            continue
+    return text
 
 
 def _is_ipv4_text(text: str) -> bool:

@@ -431,3 +431,18 @@ def test_udp_length_bounds_payload_not_ip_length(tmp_path, real_packets):
     with pytest.warns(SkippedPacketWarning):
         assert list(reader.packets()) == []
     assert reader.stats.malformed == 1
+
+
+def test_filters_on_the_general_path(tmp_path, real_packets):
+    """Filters apply the same to reassembled/IPv6 packets (general path) as to plain IPv4 records."""
+    packets = _v6(real_packets[:8]) + real_packets[8:]
+    path = tmp_path / "f.pcap"
+    write_pcap(path, packets, vlan=(9,))
+    v6_src = "FE80:0:0:0:2E0:4CFF:FE68:1"  # another spelling of the writer's address
+    got = list(read_packets(path, src_addresses=[v6_src]))
+    assert [p.payload for p in got] == [p.payload for p in packets[:8]]
+    got = list(read_packets(path, ports=[7502], payload_sizes=[12608]))
+    assert [p.payload for p in got] == [p.payload for p in packets if p.dst.port == 7502 and len(p.payload) == 12608]
+    reader = PcapReader(path, ports=[8308])
+    assert all(p.dst.port == 8308 for p in reader.packets())
+    assert reader.stats.yielded + reader.stats.filtered == reader.stats.udp_packets == len(packets)
