@@ -8,7 +8,7 @@ Plots live in :mod:`analysis.plots` (matplotlib, the ``plot`` extra) and are not
 
 from .cdf import RangeCDF, pixel_samples, reflectivity_vs_range, spatial_cdf, temporal_cdf
 from .compare import DistributionComparison, PairedComparison, compare_slots, compare_stacks, ks_image
-from .gmm import DEFAULT_GAP_M, GaussianMixture, fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance
+from .gmm import DEFAULT_GAP_M, GaussianMixture, fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance, parse_method
 from .motion import MotionCompensation, estimate_frame_offsets, motion_compensated_cdf
 from .multireturn import (
     ImageStatistics,
@@ -25,7 +25,7 @@ from .stack import load_stack, select_frames
 __all__ = [
     "RangeCDF", "pixel_samples", "reflectivity_vs_range", "spatial_cdf", "temporal_cdf",
     "DistributionComparison", "PairedComparison", "compare_slots", "compare_stacks", "ks_image",
-    "DEFAULT_GAP_M", "GaussianMixture", "fit_auto", "fit_em", "fit_gmm", "fit_thresholds", "gap_thresholds", "ks_distance",
+    "DEFAULT_GAP_M", "GaussianMixture", "fit_auto", "fit_em", "fit_gmm", "fit_thresholds", "gap_thresholds", "ks_distance", "parse_method",
     "MotionCompensation", "estimate_frame_offsets", "motion_compensated_cdf",
     "ImageStatistics", "MonitorEvaluation", "MultiReturnMap", "evaluate_monitor", "image_statistics",
     "multireturn_map", "spatial_gap_score",

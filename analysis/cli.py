@@ -99,7 +99,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion-compensation", action="store_true",
                    help="also compute the motion-compensated CDF (5×5 patch, ±2 px, against frame 0)")
     p.add_argument("--gmm", metavar="em|auto|THRESHOLDS", default="em",
-                   help="Gaussian mixture: EM with BIC (default), auto gap thresholds, or CDF thresholds like 0.14,0.38,0.68")
+                   help="Gaussian mixture: EM with BIC (default), auto gap thresholds, CDF thresholds like 0.14,0.38,0.68, or none")
     p.add_argument("--json", metavar="OUT", help="write the results as one JSON document")
     p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
 
@@ -108,14 +108,16 @@ def run_analyze(args: argparse.Namespace) -> int:
     from .raypath import analyze_raypath
     from .stack import check_pixel, slot_index
 
+    from .gmm import parse_method
+
     pixels = [_parse_pixel(p) for p in args.pixel]
+    gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     slot = slot_index(stack, args.slot)
     for r, c in pixels:
         check_pixel(stack, r, c, slot)
     if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
         raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1 (3 and 5 in the paper)")
-    gmm = None if args.gmm in ("none", "off") else args.gmm
     results = [
         analyze_raypath(stack, r, c, slot, neighbourhood=args.neighbourhood,
                         motion_compensation=args.motion_compensation, gmm=gmm)

@@ -217,18 +217,28 @@ def fit_em(
     return _finish("em", cdf, w * return_fraction, mu, sigma, bic=float(bic))
 
 
-def fit_gmm(cdf: RangeCDF, method: str | Sequence[float] = "em", **options) -> GaussianMixture:
-    """``method``: ``"em"``, ``"auto"``, a sequence of CDF thresholds, or a string of them
-    (``"0.14,0.38,0.68"``, as ``--gmm`` takes it). Options go to the fitting function."""
+def parse_method(method: str | Sequence[float]) -> str | np.ndarray:
+    """``"em"``/``"auto"``, or CDF thresholds (a sequence or a string like ``"0.14,0.38,0.68"``)
+    checked to be increasing values in (0, 1). Raises AnalysisError otherwise."""
     if isinstance(method, str):
-        if method == "em":
-            return fit_em(cdf, **options)
-        if method == "auto":
-            return fit_auto(cdf, **options)
+        if method in ("em", "auto"):
+            return method
         try:
             method = [float(v) for v in method.split(",") if v.strip()]
         except ValueError:
             raise AnalysisError(f"--gmm {method!r}: expected em, auto, or CDF thresholds like 0.14,0.38,0.68") from None
         if not method:
             raise AnalysisError("--gmm: give em, auto, or at least one CDF threshold")
+    t = np.asarray(list(method), dtype=np.float64)
+    if t.ndim != 1 or np.any((t <= 0) | (t >= 1)) or np.any(np.diff(t) <= 0):
+        raise AnalysisError(f"GMM thresholds {t.tolist()} must be increasing CDF values strictly between 0 and 1 (e.g. 0.14,0.38,0.68)")
+    return t
+
+
+def fit_gmm(cdf: RangeCDF, method: str | Sequence[float] = "em", **options) -> GaussianMixture:
+    """``method``: ``"em"``, ``"auto"``, a sequence of CDF thresholds, or a string of them
+    (``"0.14,0.38,0.68"``, as ``--gmm`` takes it). Options go to the fitting function."""
+    method = parse_method(method)
+    if isinstance(method, str):
+        return fit_em(cdf, **options) if method == "em" else fit_auto(cdf, **options)
     return fit_thresholds(cdf, method, **options)
