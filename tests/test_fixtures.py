@@ -547,3 +547,23 @@ def test_draws_respect_wire_units_limits_and_separation():
         both = e.detected[..., :, None] & e.detected[..., None, :] & ~np.eye(sc.MAX_SCATTERERS, dtype=bool)
         assert np.all(gap[both] >= sc.ECHO_SEPARATION_MM)
         assert np.all(e.strength[~e.detected] == 0) and np.all(e.reflectivity[~e.detected] == 0)
+
+
+def test_bad_generator_input_raises_fixture_errors(tmp_path):
+    with pytest.raises(fixtures.FixtureError, match="unknown sensor"):
+        sc.build_scene("hdl32")
+    with pytest.raises(fixtures.FixtureError, match="beam altitudes"):
+        sc.build_scene("os1-64")
+    scene = sc.build_scene("vlp16", pad=0)
+    echoes = sc.draw_echoes(scene.scatterers[:1, :4], scene.sensor, sc.frame_rng(0, scene.sensor, 0))
+    with pytest.raises(fixtures.FixtureError, match="unknown report rule"):
+        sc.report(echoes, "first")
+    with pytest.raises(fixtures.FixtureError, match="frames must be at least 1"):
+        gen.generate_vlp16(tmp_path, frames=0)
+    with pytest.raises(lidarpkt.LidarpktError, match="unknown sensor"):
+        gen.generate(tmp_path, sensor="hdl32")
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    r = subprocess.run([sys.executable, "-m", "fixtures.generate", "--out", str(blocker / "sub"), "--frames", "1",
+                        "--sensor", "vlp16"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and "fixtures.generate: error:" in r.stderr and "Traceback" not in r.stderr
