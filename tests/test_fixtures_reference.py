@@ -177,3 +177,25 @@ def test_metadata_is_the_nested_layout_and_says_it_is_synthetic():
     shift = np.array(meta["lidar_data_format"]["pixel_shift_by_row"])
     np.testing.assert_array_equal(shift, np.rint(az * 1024 / 360))
     assert meta["lidar_data_format"]["udp_profile_lidar"] == "LEGACY"
+
+
+def test_ouster_dual_30_frames_shows_the_multi_return_cases():
+    """The truth samples of the full OS1 dual capture (they equal the decoded ones: tested above):
+    second returns where the paper has several scatterers, none on single surfaces."""
+    truth = fixtures.load_truth(fixtures.ensure("os1-64-dual", frames=30, seed=0))
+    s = {name: np.array(info["samples"]["range_mm"]) for name, info in truth["raypaths"].items()}
+    sig = {name: np.array(info["samples"]["signal"]) for name, info in truth["raypaths"].items()}
+    for name in ("wall", "corner", "sign", "hedge", "partial", "sky"):
+        assert not s[name][:, 1].any(), name  # one surface: never a second return
+    assert not s["sky"].any()
+    for name in ("window", "foliage"):
+        assert np.mean(s[name][:, 1] > 0) > 0.3, name
+        two = s[name][:, 1] > 0
+        assert np.all(sig[name][two, 1] <= sig[name][two, 0])
+    # The glass (11.2 m, weak) shows up only now and then.
+    glass = np.abs(s["window"] - 11200) < 50
+    assert glass.mean() < 0.15
+    # Foliage: the second tree 3 m behind appears in some frames, in either slot.
+    assert np.any(np.abs(s["foliage"] - 13400) < 300)
+    refl = np.array(truth["raypaths"]["sign"]["samples"]["reflectivity"])[:, 0]
+    assert refl.min() > 100 and 170 < refl.mean() < 190
