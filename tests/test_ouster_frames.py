@@ -393,3 +393,12 @@ def test_damaged_and_shuffled_real_packets_never_crash(which, flips, order):
         assert f.range_mm.shape == (md.profile.returns, md.pixels_per_column, md.columns_per_frame)
         assert f.column_valid.shape == (md.columns_per_frame,)
         assert f.frame_id in set(decode_packets(payload, md, verify_crc=False).frame_id.tolist())
+
+
+@pytest.mark.parametrize("pcap,jsons,_", [c for c in CAPTURES if "empty" not in c[0]], ids=lambda x: x.split("/")[-1] if isinstance(x, str) else None)
+def test_guess_without_metadata_ranks_the_true_layout_first(pcap, jsons, _):
+    """``info`` without metadata: the top guess is the profile and channel count the metadata says."""
+    for md, batch in lidar_streams(pcap, jsons):
+        d = describe_stream(batch)
+        assert d is not None and d["profile_source"] == "guess"
+        assert (d["profile"], d["pixels_per_column"]) == (md.profile.name, md.pixels_per_column)

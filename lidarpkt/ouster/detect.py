@@ -76,10 +76,17 @@ def _legacy_plausible(payload: np.ndarray, profile: Profile, h: int) -> bool:
 
 
 def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
-    """(profile, pixels_per_column) layouts consistent with the packet size and column headers."""
+    """(profile, pixels_per_column) layouts consistent with the packet size and column headers,
+    most plausible first.
+
+    Ranking (a guess, for ``info`` without metadata): a FUSA layout is unlikely when the packet
+    also reads as a standard header (byte 1 = 0, the high byte of packet type 0x0001, where FUSA
+    has the init_id); a RNG19…DUAL layout is unlikely when, where both returns exist, the first
+    return is not the stronger one (the manual orders them strongest first).
+    """
     size = payload.shape[1]
-    out = []
-    for profile in PROFILES.values():
+    ranked = []
+    for order, profile in enumerate(PROFILES.values()):
         for h in _GUESS_ROWS:
             if profile.packet_size(h, 16) != size:
                 continue
@@ -87,12 +94,21 @@ def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
             mids = cols["measurement_id"][0].astype(np.int64)
             if not np.all(np.diff(mids) == 1):
                 continue
+            unlikely = False
             if not profile.legacy:
                 ptype = read_bits(payload[:1, :32], {f.name: f for f in profile.header_fields}["packet_type"])[0]
                 if int(ptype) != 1:
                     continue
-            out.append((profile, h))
-    return out
+                if profile.name.startswith("FUSA") and payload[0, 1] == 0:
+                    unlikely = True
+                if "SIGNAL2" in profile.field_names:
+                    f = decode_packets(payload[:8], _Layout(profile, h), verify_crc=False, fields=("RANGE", "RANGE2", "SIGNAL", "SIGNAL2"))
+                    both = (f.pixels["RANGE"] > 0) & (f.pixels["RANGE2"] > 0)
+                    if both.sum() >= 100 and (f.pixels["SIGNAL"][both] >= f.pixels["SIGNAL2"][both]).mean() < 0.9:
+                        unlikely = True
+            ranked.append((unlikely, order, profile, h))
+    ranked.sort(key=lambda t: (t[0], t[1]))
+    return [(p, h) for _, _, p, h in ranked]
 
 
 def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ()) -> dict | None:
