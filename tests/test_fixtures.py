@@ -216,9 +216,16 @@ def test_generation_is_deterministic_and_cli_regenerates_the_canned_bytes(tmp_pa
         capture_output=True, text=True, timeout=120,
     )
     assert r.returncode == 0, r.stderr
-    for name in VLP16:
+    r = subprocess.run(
+        [sys.executable, "-m", "fixtures.generate", "--out", str(out), "--sensor", "os1-64", "--frames", "2"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    for name in fixtures.CAPTURES:
         assert (out / f"{name}.pcap").read_bytes() == fixtures.canned(name).read_bytes()
         assert json.loads((out / f"{name}.truth.json").read_text()) == fixtures.load_truth(fixtures.canned(name))
+        if name.startswith("os1"):
+            assert (out / f"{name}.json").read_bytes() == fixtures.metadata_path(fixtures.canned(name)).read_bytes()
     bad = subprocess.run([sys.executable, "-m", "fixtures.generate", "--out", str(out), "--frames", "0"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--frames" in bad.stderr
