@@ -197,7 +197,9 @@ def plot_range_image(
     for i, (r, c) in enumerate(pixels):
         dc = (c + shift[r]) % w
         ax.plot(dc, r, marker="s", ms=9, mfc="none", mec="red", mew=1.8)
-        ax.annotate(f"({r}, {c})", (dc, r), xytext=(6, -6), textcoords="offset points", color="red", fontsize=8,
+        right = dc > 0.85 * w  # keep the label inside the image near the right edge
+        ax.annotate(f"({r}, {c})", (dc, r), xytext=(-8 if right else 6, -6), textcoords="offset points",
+                    ha="right" if right else "left", color="red", fontsize=8,
                     bbox=dict(boxstyle="round,pad=0.15", fc="white", alpha=0.7, lw=0))
     ax.set_xlabel("column (azimuth step" + (", destaggered" if np.any(shift) else "") + ")")
     ax.set_ylabel("row (beam, 0 = top)")
