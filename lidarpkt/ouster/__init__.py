@@ -2,6 +2,17 @@
 
 Supported lidar profiles: LEGACY (any channel count), RNG19_RFL8_SIG16_NIR16,
 RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8 and FUSA_RNG15_RFL8_NIR8_DUAL; LEGACY IMU packets.
+
+Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
+layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
+:mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`), :mod:`.geometry`
+(ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
+:mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests).
+
+>>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
+>>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP
+>>> assert (encode_packets(fields, md) == batch.payload).all()          # doctest: +SKIP
+>>> dec = OusterDecoder(md); frames = dec.push(batch) + dec.finish()    # doctest: +SKIP
 """
 
 from __future__ import annotations

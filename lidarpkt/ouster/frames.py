@@ -14,7 +14,16 @@ Conventions (those of ouster-sdk's scan batcher):
   measurement id already arrived in its frame is a duplicate (dropped, counted).
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
   ouster-sdk's sensor-frame convention (the angle its XYZ table uses; it decreases with c).
+* ``Frame.column_timestamp_ns`` is the column timestamp as the packets carry it: the sensor
+  clock, which is Unix time only when the sensor is synchronised (PTP, GPS); with
+  ``TIME_FROM_INTERNAL_OSC`` it counts from the sensor's boot. ouster-sdk reports the same.
+* ``Frame.status``: LEGACY status word, else the 16-bit column status; ``Frame.encoder_count``:
+  LEGACY only (90112 ticks per turn).
 * ``Frame.extra``: ``"window"`` ``uint8[H, W]`` (WINDOW field, profiles that have it).
+* The last 16 released frames are remembered to recognise late packets; a packet of an older
+  frame starts a new (partial) frame.
+* IMU packets carry no sensor identity: :func:`~lidarpkt.ouster.classify` gives them to the
+  metadata whose IMU port they were sent to (the first metadata when several share the port).
 """
 
 from __future__ import annotations
