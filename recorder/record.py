@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue", type=float, default=256, metavar="MB",
                         help="payload megabytes allowed to wait for the writer before drops are counted (256)")
     parser.add_argument("--report", metavar="FILE.json", help="also write the summary as JSON")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no status line")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no status line and no summary")
 
 
 class _StopFlag:
@@ -88,9 +88,11 @@ def run(args: argparse.Namespace) -> int:
             gps = GpsReader(args.gps, args.baud)
             gps.start()
         granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
-        _say(args, f"lidarpkt record: listening on {capture.bind_address} port(s) "
-                   f"{', '.join(map(str, capture.ports))}; receive buffer asked "
-                   f"{capture.stats.rcvbuf_requested / (1 << 20):.0f} MiB, granted {granted}; writing {args.output}")
+        # printed even with --quiet: it says the recorder is ready (scripts wait for it)
+        print(f"lidarpkt record: listening on {capture.bind_address} port(s) "
+              f"{', '.join(map(str, capture.ports))}; receive buffer asked "
+              f"{capture.stats.rcvbuf_requested / (1 << 20):.0f} MiB, granted {granted}; writing {args.output}",
+              file=sys.stderr, flush=True)
         capture.start()
         return _loop(args, capture, writer, sink, gps, stop)
     finally:

@@ -1,0 +1,241 @@
+"""End to end: ``lidarpkt replay`` sends real and canned captures to loopback while ``lidarpkt
+record`` (a real subprocess) writes them to MCAP; every packet must come back byte-identical,
+in order, with nothing reported lost. Also SIGKILL mid-run and the replay pacing."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lidarpkt.packet import Packet
+from recorder import schemas
+from recorder.replay import read_capture, replay
+from tests.conftest import external
+
+mcap_reader = pytest.importorskip("mcap.reader")
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _free_ports(n: int) -> list[int]:
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+class Recorder:
+    """``lidarpkt record`` in a subprocess, waited on until it listens."""
+
+    def __init__(self, tmp_path: Path, ports: list[int], *extra: str) -> None:
+        self.out = tmp_path / "rec.mcap"
+        self.report = tmp_path / "rec.json"
+        self.log = tmp_path / "rec.log"
+        cmd = [sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "-o", str(self.out),
+               "--report", str(self.report), *extra]
+        for p in ports:
+            cmd += ["--port", str(p)]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self.log.open("w"), cwd=REPO)
+        deadline = time.monotonic() + 30
+        while "listening on" not in self.log.read_text():
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.proc.kill()
+                raise AssertionError(f"record did not start: {self.log.read_text()}")
+            time.sleep(0.02)
+
+    def stop(self, sig=signal.SIGTERM) -> int:
+        self.proc.send_signal(sig)
+        return self.proc.wait(timeout=60)
+
+
+def _messages(path: Path):
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as fh:
+        reader = mcap_reader.make_reader(fh, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        msgs = [(ch.topic, m.log_time, d) for _, ch, m, d in reader.iter_decoded_messages(log_time_order=False)]
+    return summary, msgs
+
+
+def _recorded_payloads(msgs) -> dict[str, list[bytes]]:
+    out: dict[str, list[bytes]] = {}
+    for topic, _, m in msgs:
+        if topic == "/velodyne_packets":
+            out.setdefault(topic, []).extend(bytes(p.data) for p in m.packets)
+        elif topic in ("/ouster/lidar_packets", "/ouster/imu_packets"):
+            out.setdefault(topic, []).append(bytes(m.buf))
+        elif topic == "/velodyne_position_packets":
+            out.setdefault(topic, []).append(bytes(m.data))
+    return out
+
+
+def _by_size(packets: list[Packet]) -> dict[int, list[bytes]]:
+    out: dict[int, list[bytes]] = {}
+    for p in packets:
+        out.setdefault(len(p.payload), []).append(p.payload)
+    return out
+
+
+def _replay_and_record(tmp_path, capture: Path, *, metadata: Path | None = None, via_cli: bool = False):
+    lidar_port, aux_port = _free_ports(2)
+    packets = list(read_capture(str(capture)))
+    extra = ["--chunk-seconds", "0.2", "-q"] + (["--metadata", str(metadata)] if metadata else [])
+    rec = Recorder(tmp_path, [lidar_port, aux_port], *extra)
+    try:
+        # lidar packets go to --to whatever their port; every other stream is mapped to aux_port
+        aux_orig = {p.dst.port for p in packets if p.dst is not None}
+        if via_cli:
+            cmd = [sys.executable, "-m", "lidarpkt", "replay", str(capture), "--to", f"127.0.0.1:{lidar_port}",
+                   "--rate", "10", "-q"]
+            for orig in sorted(aux_orig | {8308, 7503}):
+                cmd += ["--port-map", f"{orig}:{aux_port}"]
+            assert subprocess.run(cmd, cwd=REPO, timeout=120).returncode == 0
+        else:
+            replay(packets, "127.0.0.1", lidar_port, rate=10.0,
+                   port_map={p: aux_port for p in aux_orig | {8308, 7503}})
+        time.sleep(0.5)  # let the last datagrams through the recorder's queue before stopping it
+    finally:
+        rc = rec.stop()
+    report = json.loads(rec.report.read_text())
+    return rc, report, packets, rec
+
+
+def _check_lossless(rc, report, packets, rec, lidar_topic, aux_topic):
+    summary, msgs = _messages(rec.out)  # a clean stop leaves a summary and an index
+    assert summary is not None and summary.statistics.message_count == len(msgs) and summary.chunk_indexes
+    got = _recorded_payloads(msgs)
+    sizes = _by_size(packets)
+    lidar_size = 1206 if lidar_topic == "/velodyne_packets" else max(sizes)
+    assert got[lidar_topic] == sizes[lidar_size]  # byte-identical and in order
+    aux = [p for s, ps in sizes.items() if s != lidar_size for p in ps]
+    if aux:
+        assert got[aux_topic] == aux
+    assert report["datagrams_received"] == len(packets) == report["packets"]
+    assert report["lost_total"] == 0 and report["out_of_order"] == 0, report
+    assert report["stopped_by"] == "SIGTERM" and rc == 0, rec.log.read_text()
+    return msgs
+
+
+def test_vlp16_dual_canned_capture_through_the_replay_cli(tmp_path):
+    import fixtures
+
+    pcap = fixtures.canned("vlp16-dual")
+    rc, report, packets, rec = _replay_and_record(tmp_path, pcap, via_cli=True)
+    assert {p.payload[1204] for p in packets if len(p.payload) == 1206} == {0x39}
+    msgs = _check_lossless(rc, report, packets, rec, "/velodyne_packets", "/velodyne_position_packets")
+    data_stream = next(s for s in report["streams"] if s["kind"] == "velodyne_data")
+    assert data_stream["frames"] == sum(1 for t, _, _ in msgs if t == "/velodyne_packets") - 1
+
+
+def test_vlp16_dual_real_nebula_bag(tmp_path):
+    bag = external("nebula/vlp16/1673400471837873222")
+    rc, report, packets, rec = _replay_and_record(tmp_path, bag)
+    assert len(packets) == 603  # SOURCES.md: 151 + 151 + 151 + 150
+    _check_lossless(rc, report, packets, rec, "/velodyne_packets", None)
+
+
+def test_ouster_os1_64_legacy_real_capture(tmp_path):
+    pcap = external("ouster-sdk/OS-1-64_1024x10_fw20.pcap")
+    rc, report, packets, rec = _replay_and_record(
+        tmp_path, pcap, metadata=external("ouster-sdk/OS-1-64_sensor_config_reduced.json"), via_cli=True)
+    assert {len(p.payload) for p in packets} == {12608, 48}
+    msgs = _check_lossless(rc, report, packets, rec, "/ouster/lidar_packets", "/ouster/imu_packets")
+    assert [t for t, _, _ in msgs].count("/ouster/metadata") == 1
+
+
+def test_ouster_os1_64_legacy_canned_two_frames(tmp_path):
+    import fixtures
+
+    pcap = fixtures.canned("os1-64-legacy")
+    rc, report, packets, rec = _replay_and_record(tmp_path, pcap, metadata=fixtures.metadata_path(pcap))
+    _check_lossless(rc, report, packets, rec, "/ouster/lidar_packets", "/ouster/imu_packets")
+    lidar = next(s for s in report["streams"] if s["kind"] == "ouster_lidar")
+    assert lidar["frames"] >= 1
+
+
+def test_frames_from_the_recording_equal_frames_from_the_capture(tmp_path):
+    import lidarpkt
+
+    pcap = external("rust-lidar-utils/velodyne_example.pcap")
+    rc, report, packets, rec = _replay_and_record(tmp_path, pcap)
+    direct = list(lidarpkt.open(pcap))
+    again = list(lidarpkt.open(rec.out))
+    assert len(direct) == len(again) > 0
+    for a, b in zip(direct, again):
+        # host times differ (a new capture), the sensor's own data must not
+        assert np.array_equal(a.range_mm, b.range_mm) and np.array_equal(a.azimuth_deg, b.azimuth_deg)
+        assert np.array_equal(a.reflectivity, b.reflectivity)
+
+
+def test_sigkill_leaves_the_packets_before_the_last_chunk_readable(tmp_path):
+    import warnings
+
+    from lidarpkt.bags import BagReader
+
+    pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")  # about 2.5 s, 20 Hz
+    packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]
+    (port,) = _free_ports(1)
+    rec = Recorder(tmp_path, [port], "--chunk-seconds", "0.2", "-q")
+    sent_at: list[float] = []
+
+    def send():
+        def tracked():
+            for p in packets:
+                yield p
+                sent_at.append(time.monotonic())
+        replay(tracked(), "127.0.0.1", port, rate=1.0)
+
+    t = threading.Thread(target=send)
+    t.start()
+    time.sleep(1.6)
+    killed_at = time.monotonic()
+    rec.proc.send_signal(signal.SIGKILL)
+    rec.proc.wait(timeout=30)
+    t.join(timeout=30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = [row.tobytes() for b in BagReader(rec.out).batches() for row in b.payload]
+    # what is in the file is exactly the start of what was sent, and at most ~1 s is missing
+    assert got == [p.payload for p in packets[: len(got)]]
+    sent_a_second_before = sum(1 for s in sent_at if s < killed_at - 1.0)
+    assert len(got) >= sent_a_second_before > 0
+
+
+def test_replay_paces_by_capture_time_over_rate():
+    """Pacing with a fake clock: the sender sleeps until each packet's capture time / rate."""
+    now = [0.0]
+    sleeps: list[float] = []
+
+    def sleep(s):
+        sleeps.append(s)
+        now[0] += s
+
+    pk = [Packet(1_000_000_000 + i * 10_000_000, None, None, bytes(1206)) for i in range(101)]  # 1 s
+    (port,) = _free_ports(1)
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", port))
+    receiver.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    try:
+        stats = replay(pk, "127.0.0.1", port, rate=4.0, clock=lambda: now[0], sleep=sleep)
+        assert stats.packets == 101 and stats.per_port == {port: 101}
+        assert sum(sleeps) == pytest.approx(0.25)  # 1 s of capture at 4x
+        assert all(s > 0.001 for s in sleeps)
+        stats = replay(pk, "127.0.0.1", port, rate=None, clock=lambda: now[0], sleep=sleep)
+        assert len(sleeps) == 100  # --max: no more sleeping
+    finally:
+        receiver.close()
