@@ -91,15 +91,23 @@ class PositionPackets:
         return out
 
 
-def decode_packets(payload: np.ndarray) -> DataPackets:
+def decode_packets(payload: np.ndarray, *, copy: bool = True) -> DataPackets:
     """Every field of ``uint8[N, 1206]`` VLP-16 data payloads as arrays (see :class:`DataPackets`).
 
     No validation beyond the size: check :attr:`DataPackets.flag_ok` to find malformed packets.
+    ``copy=False`` returns strided (unaligned) views into ``payload`` instead of compact arrays:
+    no copy, for callers that read each field once (the frame assembler).
     Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 1206]``.
     """
     pk = as_data_packets(payload)
     blocks = pk["blocks"]
     channels = blocks["channels"]
+    if not copy:
+        return DataPackets(
+            flag=blocks["flag"], azimuth_cdeg=blocks["azimuth_cdeg"], distance_2mm=channels["distance_2mm"],
+            reflectivity=channels["reflectivity"], timestamp_us=pk["timestamp_us"], return_mode=pk["return_mode"],
+            product_id=pk["product_id"],
+        )
     return DataPackets(
         flag=blocks["flag"].astype(np.uint16),
         azimuth_cdeg=blocks["azimuth_cdeg"].astype(np.uint16),

@@ -231,7 +231,7 @@ class VelodyneDecoder:
                 f"{self.source or 'VLP-16'}: skipped {n} packets of {batch.payload_size} B (a VLP-16 data packet has "
                 f"{DATA_PACKET_SIZE} B)"), stacklevel=2)
             return []
-        raw = decode_packets(batch.payload)
+        raw = decode_packets(batch.payload, copy=False)
         ok = raw.flag_ok
         known = np.isin(raw.return_mode, list(RETURN_MODES))
         bad_flag = int(np.count_nonzero(~ok))
@@ -325,21 +325,34 @@ class VelodyneDecoder:
         n = len(raw)
         dual = mode == "dual"
         per_packet = 12 if dual else 24
-        fa = firing_azimuth_cdeg(raw.azimuth_cdeg, np.full(n, dual))  # [n, 12, 32]
         lasers = self._row_laser
+        slots = 2 if dual else 1
+        w0 = n * per_packet
+        # one fused pass per row (16 small ufunc calls): gather the row's laser, reorder, widen
+        rng = np.empty((slots, LASERS, w0), np.uint32)
+        refl = np.empty((slots, LASERS, w0), np.uint8)
+        az_px = np.empty((LASERS, w0), np.uint16)
         if dual:
-            # [n, 6 pairs, 2 slots, 2 seq, 16] → [2 slots, 16 rows, n·12 columns]
-            dist = raw.distance_2mm.reshape(n, 6, 2, 2, LASERS).transpose(2, 4, 0, 1, 3).reshape(2, LASERS, -1)
-            refl = raw.reflectivity.reshape(n, 6, 2, 2, LASERS).transpose(2, 4, 0, 1, 3).reshape(2, LASERS, -1)
-            az = fa.reshape(n, 6, 2, 2, LASERS)[:, :, 0].transpose(3, 0, 1, 2).reshape(LASERS, -1)
+            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, True, slice(0, None, 2))  # [n, 6, 32]
+            # [n, 6 pairs, 2 slots, 2 seq, 16 lasers] → [2 slots, n, 6, 2] per laser
+            d = raw.distance_2mm.reshape(n, 6, 2, 2, LASERS).transpose(4, 2, 0, 1, 3)
+            f = raw.reflectivity.reshape(n, 6, 2, 2, LASERS).transpose(4, 2, 0, 1, 3)
+            a = fa.reshape(n, 6, 2, LASERS).transpose(3, 0, 1, 2)
+            shape = (slots, n, 6, 2)
         else:
-            dist = raw.distance_2mm.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(1, LASERS, -1)
-            refl = raw.reflectivity.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(1, LASERS, -1)
-            az = fa.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2).reshape(LASERS, -1)
-        rng = dist[:, lasers].astype(np.uint32) << 1
-        refl = refl[:, lasers]
-        az_px = az[lasers]
-        col_az = az[0].astype(np.float64)  # laser 0 fires first in each sequence
+            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, False)  # [n, 12, 32]
+            d = raw.distance_2mm.reshape(1, n, 12, 2, LASERS).transpose(4, 0, 1, 2, 3)
+            f = raw.reflectivity.reshape(1, n, 12, 2, LASERS).transpose(4, 0, 1, 2, 3)
+            a = fa.reshape(n, 12, 2, LASERS).transpose(3, 0, 1, 2)
+            shape = (slots, n, 12, 2)
+        two = np.uint32(2)
+        for row, laser in enumerate(lasers.tolist()):
+            np.multiply(d[laser], two, out=rng[:, row].reshape(shape))
+            f_row = refl[:, row].reshape(shape)
+            f_row[...] = f[laser]
+            az_row = az_px[row].reshape(shape[1:])
+            az_row[...] = a[laser]
+        col_az = az_px[int(np.flatnonzero(lasers == 0)[0])].astype(np.float64)  # laser 0 fires first
         seq = np.arange(per_packet, dtype=np.int64) * SEQUENCE_NS
         ts = (abs_ns[:, None] + seq[None, :]).reshape(-1)
         pidx = np.repeat(index.astype(np.int64), per_packet)

@@ -37,12 +37,26 @@ class VelodyneGeometry:
         order = cal.rows_to_laser  # laser id of each row
         self.row_laser = order
         omega = cal.vert_correction_rad[order]
-        self._cos_omega = np.cos(omega)[:, None]  # [16, 1]
-        self._sin_omega = np.sin(omega)[:, None]
-        self._rot = cal.rot_correction_rad[order][:, None]
-        self._vert_offset = cal.vert_offset_m[order][:, None]
+        mm = cal.distance_resolution_m / 2.0  # metres per millimetre of range_mm (range_mm = raw × 2)
+        self._metres_per_mm = mm
+        self._k_xy = (mm * np.cos(omega))[:, None]  # [16, 1]: range_mm → horizontal distance
+        self._k_z = (mm * np.sin(omega))[:, None]
         self._dist_correction = cal.dist_correction_m[order][:, None]
-        self._metres_per_mm = cal.distance_resolution_m / 2.0  # range_mm = raw × 2
+        self._dc_xy = self._dist_correction * np.cos(omega)[:, None]
+        self._dc_z = self._dist_correction * np.sin(omega)[:, None]
+        self._vert_offset = cal.vert_offset_m[order][:, None]
+        # cos/sin of (azimuth − rot_correction) for every 0.01° azimuth, per row: [16, 36000]
+        az = np.radians(np.arange(36000) / 100.0)
+        rot = cal.rot_correction_rad[order]
+        # y = −d·cos ω·sin a: the table holds −sin so that no pass is spent on the sign
+        self._per_row = bool(np.any(rot != 0))
+        if self._per_row:
+            self._cos = np.cos(az[None, :] - rot[:, None])
+            self._neg_sin = -np.sin(az[None, :] - rot[:, None])
+        else:
+            self._cos = np.cos(az)
+            self._neg_sin = -np.sin(az)
+        self._rows = np.arange(16)[:, None]
 
     def distance_m(self, frame) -> np.ndarray:
         """``float64[R, 16, W]`` corrected distance, metres (0 stays 0)."""
@@ -59,13 +73,22 @@ class VelodyneGeometry:
         except KeyError:
             raise CalibrationError("VLP-16 frame without per-firing azimuths (extra['azimuth_cdeg'])") from None
         rng = frame.range_mm
-        d = rng * self._metres_per_mm + self._dist_correction  # [R, 16, W]
-        a = np.radians(az_cdeg / 100.0) - self._rot  # [16, W]
-        cos_a, sin_a = np.cos(a), np.sin(a)
+        idx = np.asarray(az_cdeg, dtype=np.intp)
+        if self._per_row:
+            cos_a, neg_sin_a = self._cos[self._rows, idx], self._neg_sin[self._rows, idx]  # [16, W]
+        else:
+            cos_a, neg_sin_a = self._cos[idx], self._neg_sin[idx]
+        hit = rng > 0
+        dxy = rng * self._k_xy  # [R, 16, W] horizontal distance, metres
+        dz = rng * self._k_z
+        if np.any(self._dist_correction):
+            dxy += hit * self._dc_xy
+            dz += hit * self._dc_z
         out = np.empty(rng.shape + (3,), dtype=np.float64)
-        dxy = d * self._cos_omega
-        out[..., 0] = dxy * cos_a
-        out[..., 1] = -dxy * sin_a
-        out[..., 2] = d * self._sin_omega + self._vert_offset
-        out[rng == 0] = 0.0
+        np.multiply(dxy, cos_a, out=out[..., 0])
+        np.multiply(dxy, neg_sin_a, out=out[..., 1])
+        if np.any(self._vert_offset):
+            dz += self._vert_offset
+            dz *= hit
+        out[..., 2] = dz
         return out

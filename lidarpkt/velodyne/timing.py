@@ -39,22 +39,40 @@ def firing_offset_ns(dual: np.ndarray) -> np.ndarray:
     return FIRING_OFFSET_NS[time_block(dual)]
 
 
-def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray) -> np.ndarray:
-    """``uint16[N, 12, 32]`` azimuth of every firing, 0.01°, in [0, 36000).
+# Delay of every firing after its block's first firing, float32 seconds as velodyne_decoder
+# computes it (time − t0 with both from its float32 table), per block: [12, 32] for each mode.
+_DT_SINGLE = _FIRING_OFFSET_S32 - _FIRING_OFFSET_S32[:, :1]
+_DT_DUAL = _DT_SINGLE[np.arange(BLOCKS_PER_PACKET) // 2]
+_DURATION_SINGLE = _FIRING_OFFSET_S32[BLOCKS_PER_PACKET - 1, 0] - _FIRING_OFFSET_S32[0, 0]
+_DURATION_DUAL = _FIRING_OFFSET_S32[(BLOCKS_PER_PACKET - 1) // 2, 0] - _FIRING_OFFSET_S32[0, 0]
 
-    ``azimuth_cdeg``: ``[N, 12]`` block azimuths; ``dual``: ``bool[N]`` dual-return packets.
+
+def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool, blocks: slice = slice(None)) -> np.ndarray:
+    """``uint16[N, B, 32]`` azimuth of every firing, 0.01°, in [0, 36000).
+
+    ``azimuth_cdeg``: ``[N, 12]`` block azimuths; ``dual``: ``bool[N]`` (or one bool for all)
+    dual-return packets; ``blocks``: compute only these blocks (e.g. ``slice(0, None, 2)``: one
+    block of each dual pair), all 12 by default.
     lround(block_az + rate·dt) mod 36000 with rate = (last − first block azimuth, mod 36000)
     over the time between those blocks, computed in float32 like velodyne_decoder; ties
     round half away from zero.
     """
     az = np.asarray(azimuth_cdeg)
-    dual = np.asarray(dual, dtype=bool)
-    diff = ((az[:, -1].astype(np.int64) - az[:, 0].astype(np.int64)) + 36000) % 36000
-    last_time_block = np.where(dual, (BLOCKS_PER_PACKET - 1) // 2, BLOCKS_PER_PACKET - 1)
-    duration = _FIRING_OFFSET_S32[last_time_block, 0] - _FIRING_OFFSET_S32[0, 0]
+    diff = ((az[:, -1].astype(np.int32) - az[:, 0].astype(np.int32)) + 36000) % 36000
+    if np.ndim(dual) == 0:
+        duration = _DURATION_DUAL if dual else _DURATION_SINGLE
+        dt = (_DT_DUAL if dual else _DT_SINGLE)[blocks][None]  # [1, B, 32]
+    else:
+        dual = np.asarray(dual, dtype=bool)
+        duration = np.where(dual, _DURATION_DUAL, _DURATION_SINGLE).astype(np.float32)
+        dt = np.where(dual[:, None, None], _DT_DUAL[blocks], _DT_SINGLE[blocks])
     rate = diff.astype(np.float32) / duration  # cdeg/s, float32
-    t = _FIRING_OFFSET_S32[time_block(dual)]  # [N, 12, 32]
-    dt = t - t[:, :, :1]
-    value = (az.astype(np.float32)[:, :, None] + rate[:, None, None] * dt) + np.float32(36000)
-    rounded = np.floor(value.astype(np.float64) + 0.5)  # lround of a positive value
-    return (rounded.astype(np.int64) % 36000).astype(np.uint16)
+    value = rate[:, None, None] * dt
+    value += az[:, blocks].astype(np.float32)[:, :, None]
+    value += np.float32(36000)
+    # lround of a positive value: in [36000, 72000) float32 steps are 1/256 or 1/128, so + 0.5 is
+    # exact and truncation is the floor
+    value += np.float32(0.5)
+    rounded = value.astype(np.int32)
+    rounded %= 36000
+    return rounded.astype(np.uint16)

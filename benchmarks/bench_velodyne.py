@@ -1,0 +1,128 @@
+"""VLP-16 decoding speed: lidarpkt against velodyne_decoder on the same long dual-return capture.
+
+Writes a dual-return VLP-16 pcap of ``--seconds`` of sensor time (10 Hz, 1507 packets/s,
+packets from lidarpkt's encoder framed by lidarpkt.pcapwrite), then times in the same run:
+
+- lidarpkt: ``lidarpkt.open(path)`` → frames, and ``frame.xyz()`` of every frame;
+- velodyne_decoder 3.1.0: ``read_pcap(path, Config(model=VLP16), as_pcl_structs=True)``.
+
+Both produce points for every return of the capture (lidarpkt: a dense [2, 16, W, 3] image
+per frame; velodyne_decoder: its point list). Prints seconds, packets/s and the ratio.
+
+    python benchmarks/bench_velodyne.py [--seconds 60] [--repeat 1] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+import lidarpkt  # noqa: E402
+from lidarpkt.packet import Endpoint, Packet  # noqa: E402
+from lidarpkt.pcapwrite import write_pcap  # noqa: E402
+from lidarpkt.velodyne import encode_data_packets  # noqa: E402
+
+DUAL_PERIOD_NS = 663_552
+START_NS = 1_700_000_000_000_000_000
+
+
+def build(path: Path, seconds: float, seed: int = 0) -> int:
+    """A dual-return capture: a wall of range ~12 m with noise, 10 % of firings with a second return."""
+    n = int(seconds * 1e9 / DUAL_PERIOD_NS)
+    rng = np.random.default_rng(seed)
+    t_ns = START_NS + np.arange(n, dtype=np.int64) * DUAL_PERIOD_NS
+    t_us = (t_ns // 1000) % 3_600_000_000
+    pair_t_us = np.arange(6) * 2 * 55.296
+    az = (np.rint((np.arange(n)[:, None] * 663.552 + pair_t_us[None, :]) * 0.36) % 36000).astype(np.int64)
+    az = np.repeat(az, 2, axis=1)
+    src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
+    chunk = 20000
+
+    def packets():
+        for a in range(0, n, chunk):
+            b = min(n, a + chunk)
+            last = rng.integers(5000, 7000, size=(b - a, 6, 32))
+            strong = np.where(rng.random(last.shape) < 0.1, last - rng.integers(100, 2000, size=last.shape), last)
+            last[rng.random(last.shape) < 0.05] = 0
+            dist = np.stack([last, strong], axis=2).reshape(b - a, 12, 32)
+            refl = rng.integers(0, 120, size=(b - a, 12, 32))
+            payload = encode_data_packets(az[a:b], dist, refl, t_us[a:b], "dual")
+            for i in range(b - a):
+                yield Packet(int(t_ns[a + i]), src, dst, payload[i].tobytes())
+
+    write_pcap(path, packets(), udp_checksum=False)
+    return n
+
+
+def run_lidarpkt(path: Path) -> tuple[int, int]:
+    frames = points = 0
+    for f in lidarpkt.open(path):
+        xyz = f.xyz()
+        frames += 1
+        points += int(np.count_nonzero(f.range_mm))
+        del xyz
+    return frames, points
+
+
+def run_velodyne_decoder(path: Path) -> tuple[int, int]:
+    import velodyne_decoder as vd
+
+    cfg = vd.Config(model=vd.Model.VLP16)
+    frames = points = 0
+    for _, cloud in vd.read_pcap(str(path), cfg, as_pcl_structs=True):
+        frames += 1
+        points += len(cloud)
+    return frames, points
+
+
+def best_of(fn, path: Path, repeat: int):
+    best, result = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = fn(path)
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="sensor time of the generated capture (default 60)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each decoder; the best is reported")
+    ap.add_argument("--keep", type=Path, help="write the capture into this directory and keep it")
+    args = ap.parse_args()
+    tmp = None
+    if args.keep:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        path = args.keep / f"vlp16_dual_{int(args.seconds)}s.pcap"
+    else:
+        tmp = tempfile.TemporaryDirectory()
+        path = Path(tmp.name) / "vlp16_dual.pcap"
+    t0 = time.perf_counter()
+    n = build(path, args.seconds)
+    print(f"capture: {path} — {n} dual-return packets, {args.seconds:.0f} s of sensor time, "
+          f"{os.path.getsize(path) / 1e6:.1f} MB (written in {time.perf_counter() - t0:.1f} s)")
+    t_ours, (frames, returns) = best_of(run_lidarpkt, path, args.repeat)
+    print(f"lidarpkt          : {t_ours:7.2f} s  {n / t_ours:9.0f} packets/s  {frames} frames, {returns} returns, XYZ of every frame")
+    try:
+        t_vd, (vframes, vpoints) = best_of(run_velodyne_decoder, path, args.repeat)
+    except ImportError:
+        print("velodyne_decoder not installed: no comparison (pip install lidarpkt[crosscheck])")
+        return 0
+    print(f"velodyne_decoder  : {t_vd:7.2f} s  {n / t_vd:9.0f} packets/s  {vframes} scans, {vpoints} points")
+    print(f"ratio (velodyne_decoder time / lidarpkt time): {t_vd / t_ours:.2f}x")
+    if tmp is not None:
+        tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
