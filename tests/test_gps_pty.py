@@ -1,0 +1,133 @@
+"""The serial GPS path through a real pseudo-terminal pair: sentences in, checksums verified,
+written to MCAP by ``lidarpkt record --gps``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import tty
+from pathlib import Path
+
+import pytest
+
+from lidarpkt.errors import NMEAError, SerialPortError
+from lidarpkt.velodyne import nmea
+from recorder.gps import GpsReader, verify_sentence
+
+REPO = Path(__file__).resolve().parents[1]
+
+# The classic NMEA 0183 example sentences (GGA, RMC, GSA, VTG) with their published checksums;
+# the first test checks them against an independent XOR.
+GOOD = [
+    "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47",
+    "$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A",
+    "$GPGSA,A,3,04,05,,09,12,,,24,,,,,2.5,1.3,2.1*39",
+    "$GPVTG,054.7,T,034.4,M,005.5,N,010.2,K*48",
+]
+BAD = [
+    "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*48",  # checksum off by one
+    "$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W",  # no checksum
+    "garbage line without a dollar",
+]
+
+
+def _xor(body: str) -> int:
+    v = 0
+    for c in body:
+        v ^= ord(c)
+    return v
+
+
+def test_the_published_example_checksums_verify():
+    for s in GOOD:
+        body, _, given = s[1:].rpartition("*")
+        assert _xor(body) == int(given, 16)
+        assert verify_sentence(s + "\r\n") == s
+    for s in BAD:
+        with pytest.raises(NMEAError):
+            verify_sentence(s)
+    # the same verification as the VLP-16 position packets' NMEA parser
+    fix = nmea.parse_nmea(GOOD[1])
+    assert fix.valid and fix.date == (1994, 3, 23)
+
+
+def _pty():
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo, no line discipline rewriting CR/LF
+    return master, slave, os.ttyname(slave)
+
+
+def test_gps_reader_over_a_real_pty_keeps_good_sentences_and_counts_bad_ones():
+    master, slave, name = _pty()
+    try:
+        gps = GpsReader(name, 9600)
+        gps.start()
+        stream = "".join(s + "\r\n" for s in [GOOD[0], BAD[0], GOOD[1], BAD[1], GOOD[2], BAD[2], GOOD[3]])
+        before = time.time_ns()
+        # in pieces that cut sentences in the middle, as a UART delivers them
+        data = stream.encode()
+        for i in range(0, len(data), 37):
+            os.write(master, data[i:i + 37])
+            time.sleep(0.01)
+        got = []
+        deadline = time.monotonic() + 10
+        while len(got) < len(GOOD) and time.monotonic() < deadline:
+            got += gps.drain()
+            time.sleep(0.02)
+        gps.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert [s for _, s in got] == GOOD
+    assert all(before <= t <= time.time_ns() for t, _ in got)
+    assert gps.sentences == 4 and gps.bad == 3
+
+
+def test_a_port_that_does_not_exist_is_a_clear_error(tmp_path):
+    with pytest.raises(SerialPortError, match="cannot open GPS serial port"):
+        GpsReader(str(tmp_path / "ttyNOPE"), 9600)
+
+
+def test_record_writes_gps_sentences_into_the_mcap(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    master, slave, name = _pty()
+    out, report, log = tmp_path / "gps.mcap", tmp_path / "gps.json", tmp_path / "gps.log"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
+         "--gps", name, "--baud", "115200", "-o", str(out), "--report", str(report), "-q"],
+        stderr=log.open("w"), cwd=REPO)
+    try:
+        deadline = time.monotonic() + 30
+        while "listening on" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.02)
+        for s in [GOOD[0], BAD[0], GOOD[1], GOOD[3]]:
+            os.write(master, (s + "\r\n").encode())
+            time.sleep(0.05)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C: a clean stop
+        assert proc.wait(timeout=60) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(master)
+        os.close(slave)
+    summary = json.loads(report.read_text())
+    assert summary["gps_sentences"] == 3 and summary["gps_bad_checksum"] == 1 and summary["stopped_by"] == "SIGINT"
+    with open(out, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        msgs = [(s.name, c.topic, m.log_time, d) for s, c, m, d in reader.iter_decoded_messages()]
+    assert [d.sentence for _, _, _, d in msgs] == [GOOD[0], GOOD[1], GOOD[3]]
+    assert {(n, t) for n, t, _, _ in msgs} == {("nmea_msgs/msg/Sentence", "/gps/nmea_sentence")}
+    assert all(d.header.stamp.sec * 10**9 + d.header.stamp.nanosec == lt for _, _, lt, d in msgs)
