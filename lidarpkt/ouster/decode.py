@@ -138,16 +138,19 @@ def read_pixel_field(words: np.ndarray, f: BitField, out: np.ndarray | None = No
         np.copyto(out, src, casting="unsafe")
         return out
     w = words[..., k]
-    if off:
-        w = w >> np.uint32(off)
-    if off + f.width < 32:
-        w = w & np.uint32(f.mask)
     if out is None:
-        out = w.astype(f.dtype)  # always a copy: the up-shift below must not touch the packet
+        out = np.empty(w.shape, f.dtype)
+    # ufuncs write the narrow result directly (one pass each over the strided words)
+    if off and off + f.width < 32:
+        np.bitwise_and(np.right_shift(w, np.uint32(off)), np.uint32(f.mask), out=out, casting="unsafe")
+    elif off:
+        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
+    elif f.width < 32:
+        np.bitwise_and(w, np.uint32(f.mask), out=out, casting="unsafe")
     else:
         np.copyto(out, w, casting="unsafe")
     if f.upshift:
-        out <<= f.dtype.type(f.upshift)
+        np.left_shift(out, f.dtype.type(f.upshift), out=out)
     return out
 
 
