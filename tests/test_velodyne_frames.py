@@ -378,3 +378,29 @@ def test_cut_angle(ext):
     for f in frames[1:-1]:
         assert 90 <= f.azimuth_deg[0] < 90.5
         assert 89.5 < f.azimuth_deg[-1] < 90
+
+
+def test_a_sensor_that_stops_turning_cannot_grow_a_frame_forever():
+    n = 2000
+    t_us = 1_000_000 + np.rint(np.arange(n) * 1327.104).astype(np.int64)
+    az = np.full((n, 12), 4500)  # the head stands still at 45°
+    payload = encode_data_packets(az, np.full((n, 12, 32), 800), np.full((n, 12, 32), 9), t_us, "strongest")
+    dec = VelodyneDecoder(max_frame_columns=10_000)
+    frames = []
+    for i in range(0, n, 100):
+        frames += dec.push(PacketBatch.from_payloads(payload[i:i + 100], 1_700_000_000_000_000_000 + t_us[i:i + 100] * 1000))
+    frames += dec.finish()
+    assert dec.stats.overlong_frames >= 4
+    assert all(f.partial and f.shape[2] <= 10_000 + 2400 for f in frames)
+    assert sum(f.shape[2] for f in frames) == n * 24  # nothing lost
+
+
+def test_calibration_through_lidarpkt_open(ext):
+    stock = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap")))[1]
+    yaml = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap"), calibration=ext("rust-lidar-utils/VLP16db.yaml")))[1]
+    a, b = stock.xyz(), yaml.xyz()
+    np.testing.assert_array_equal(a[..., :2], b[..., :2])  # same elevations and azimuths
+    hit = stock.range_mm > 0
+    # the stock calibration's vertical offsets (velodyne_decoder's) are the only difference
+    dz = (a[..., 2] - b[..., 2])[hit]
+    assert 0 < np.abs(dz).max() < 0.012

@@ -25,6 +25,14 @@ change are ``partial``. Lost packets (time gaps between packets, shorter than
 ``max_gap_s``) become invalid columns (no sample: ``column_valid`` False, zero range, zero
 timestamp, azimuth interpolated in time for :meth:`Frame.on_grid`) and are counted in the
 frame's ``counters.lost_packets``.
+
+VeloView. VeloView (2014, ``vlp-16.test``) splits frames where a *block* azimuth wraps, so
+the second firing sequence of the block that crosses 0° stays in the old frame. With
+``cut_on_block=True`` our frame i is VeloView's frame i (52 frames of the test capture,
+both partial ends counted, identical point counts). With the default per-sequence cut the
+frame indices are the same and a frame boundary moves by at most one firing sequence (16
+points). VeloView also gives both sequences of a block one azimuth each (no per-laser
+interpolation): ``azimuth_deg`` per column reproduces its points within 1e-4 m.
 """
 
 from __future__ import annotations
@@ -71,6 +79,7 @@ class DecoderStats:
     late_packets: int = 0  # older than the last packet of an earlier batch: dropped
     lost_packets: int = 0  # inferred from time gaps
     long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
+    overlong_frames: int = 0  # frames released without an azimuth wrap (max_frame_columns)
     position_packets: int = 0
     position_malformed: int = 0
     nmea_errors: int = 0
@@ -124,6 +133,9 @@ class VelodyneDecoder:
         cut_on_block: cut only where a *block* azimuth wraps, so that both firing sequences of a
             block stay in one frame (VeloView's convention; its per-frame point counts need it).
             By default a frame is cut at the first firing sequence whose azimuth wrapped.
+        max_frame_columns: a frame still without a wrap after this many columns (8192 ≈ 0.45 s; a
+            rotation at the slowest 5 Hz has 3617) is released as partial, so that a sensor that stops
+            turning cannot grow memory without bound (counted in ``stats.overlong_frames``).
 
     ``push`` returns the frames completed by a batch; ``finish`` the last, partial one.
     Malformed packets (wrong size, bad block flag, unknown return mode) are counted in
@@ -131,7 +143,8 @@ class VelodyneDecoder:
     """
 
     def __init__(self, *, calibration=None, cut_angle_deg: float | None = None, source: str | None = None,
-                 max_gap_s: float = 0.2, cut_on_block: bool = False, **options) -> None:
+                 max_gap_s: float = 0.2, cut_on_block: bool = False, max_frame_columns: int = 8192,
+                 **options) -> None:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
         self.geometry = VelodyneGeometry(calibration)
@@ -140,6 +153,8 @@ class VelodyneDecoder:
         self.source = source
         self.max_gap_ns = int(max_gap_s * 1e9)
         self.cut_on_block = bool(cut_on_block)
+        self.max_frame_columns = int(max_frame_columns)
+        self._pending_columns = 0
         self.stats = DecoderStats()
         self._row_laser = self.geometry.row_laser  # laser id of each row
         self._pending: list[_Columns] = []
@@ -402,6 +417,12 @@ class VelodyneDecoder:
                 self._pending.append(piece)
             frames += self._flush(partial=self._pending_partial)
         self._pending.append(pieces[-1])
+        self._pending_columns = sum(len(p) for p in self._pending)
+        if self._pending_columns > self.max_frame_columns:
+            # the azimuth never wrapped (sensor not rotating, or a broken encoder): bound the memory
+            self.stats.overlong_frames += 1
+            frames += self._flush(partial=True)
+            self._pending_partial = True
         return frames
 
     def _flush(self, *, partial: bool) -> list[Frame]:
