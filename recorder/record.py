@@ -181,6 +181,7 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "frames": sink.frames,
         "lost_gaps": sink.lost,
         "out_of_order": sink.out_of_order,
+        "interruptions": sum(r.count.interruptions for r in sink.streams.values()),
         "kernel_drops": s.kernel_dropped,
         "queue_overflow": s.queue_overflow,
         "lost_total": sink.lost + s.kernel_dropped + s.queue_overflow,
@@ -191,7 +192,7 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "streams": [
             {"kind": r.kind, "src": r.src, "dst": r.dst, "payload_size": r.payload_size,
              "packets": r.count.packets, "lost": r.count.lost, "out_of_order": r.count.out_of_order,
-             "frames": r.count.frames, "messages": r.messages}
+             "frames": r.count.frames, "interruptions": r.count.interruptions, "messages": r.messages}
             for r in sink.streams.values()
         ],
     }
@@ -206,6 +207,9 @@ def _summary_text(d: dict, sink: PacketSink) -> str:
         f"{d['kernel_drops']} (kernel buffer full) + {d['queue_overflow']} (writer fell behind); "
         f"{d['out_of_order']} out of order",
     ]
+    if d["interruptions"]:
+        lines.append(f"  the sensor stream was interrupted {d['interruptions']} time(s) (a jump of more than a second "
+                     "in its own counters: stopped, restarted or unplugged); recording went on")
     if d["gps_sentences"] or d["gps_bad_checksum"]:
         lines.append(f"  GPS: {d['gps_sentences']} sentences, {d['gps_bad_checksum']} rejected (bad checksum)")
     return "\n".join(lines + sink.report_lines())

@@ -201,7 +201,8 @@ class PacketSink:
         for r in self.streams.values():
             c = r.count
             out.append(f"  {r.kind:<18} {r.src} -> {r.dst} {r.payload_size} B: {c.packets} packets, "
-                       f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations")
+                       f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations"
+                       + (f", {c.interruptions} interruptions" if c.interruptions else ""))
         return out
 
 

@@ -13,7 +13,9 @@ from the packets themselves, one NumPy pass per batch:
   the stream; a jump of k packets means k − 1 lost. A rotation ends where the frame id
   changes.
 
-A step back (or a repeat) is counted as out of order, never as loss.
+A step back (or a repeat) is counted as out of order, never as loss. A jump of more than a
+second (forward or back) is an *interruption* (the sensor stopped, restarted, or the cable
+was out): counted and reported on its own, not as packets lost.
 """
 
 from __future__ import annotations
@@ -62,6 +64,10 @@ class LossCount:
     lost: int = 0
     out_of_order: int = 0
     frames: int = 0
+    interruptions: int = 0  # jumps of more than INTERRUPTION_S in the stream's own counters
+
+
+INTERRUPTION_S = 1.0
 
 
 class VelodyneLoss:
@@ -93,6 +99,9 @@ class VelodyneLoss:
         steps = np.rint(dt / period).astype(np.int64)
         if self._last_ts is None:
             steps[0] = 1
+        jump = np.abs(dt) > INTERRUPTION_S * 1e6
+        self.count.interruptions += int(np.count_nonzero(jump))
+        steps[jump] = 1
         self.count.lost += int(np.clip(steps - 1, 0, None).sum())
         self.count.out_of_order += int(np.count_nonzero(steps <= 0))
         new_rotation = az < prev_az
@@ -144,6 +153,11 @@ class OusterLoss:
         prev_pos = np.concatenate([[pos[0] - 1 if self._last is None else
                                     self._last[0] * self._per_frame + self._last[1]], pos[:-1]])
         steps = pos - prev_pos
+        # frames per second: 10 or 20 (lidar_mode); unknown → 10
+        limit = INTERRUPTION_S * (self.md.frequency_hz or 10) * self._per_frame
+        jump = np.abs(steps) > limit
+        self.count.interruptions += int(np.count_nonzero(jump))
+        steps[jump] = 1
         self.count.lost += int(np.clip(steps - 1, 0, None).sum())
         self.count.out_of_order += int(np.count_nonzero(steps <= 0))
         new_frame = dfid > 0

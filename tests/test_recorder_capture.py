@@ -172,3 +172,23 @@ def test_stream_kinds_from_sizes_and_metadata():
     assert streams.classify_size(md.packet_size) == streams.OTHER
     assert streams.classify_size(md.packet_size, md) == streams.OUSTER_LIDAR
     assert streams.classify_size(48, md) == streams.OUSTER_IMU
+
+
+def test_a_sensor_restart_is_an_interruption_not_a_loss():
+    # two real captures years apart back to back: the device clock jumps, nothing was lost
+    a = _velodyne_payloads("rust-lidar-utils/velodyne_vlp16.pcap")
+    b = _velodyne_payloads("rust-lidar-utils/velodyne_example.pcap")
+    t = streams.VelodyneLoss()
+    t.update(a)
+    t.update(b)
+    assert (t.count.lost, t.count.out_of_order, t.count.interruptions) == (0, 0, 1)
+    # Ouster: the capture again with frame ids 500 frames (50 s) later, one packet missing
+    md = load_metadata(external("rust-lidar-utils/ouster_example.json"))
+    lidar = np.concatenate([b.payload for b in read_batches(external("rust-lidar-utils/ouster_example.pcap"))])
+    later = lidar.copy()
+    view = later.view(md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet))[:, 0]
+    view["columns"]["frame_id"] += 500
+    t = streams.OusterLoss(md)
+    t.update(lidar)
+    t.update(np.delete(later, 50, axis=0))
+    assert (t.count.out_of_order, t.count.interruptions, t.count.lost) == (0, 1, 1)
