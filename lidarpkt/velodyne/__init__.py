@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from .calibration import VelodyneCalibration, load_calibration, stock_calibration
 from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
-from .encode import encode_data_packets, encode_position_packets
+from .encode import encode_data_packets, encode_frames, encode_position_packets
 from .detect import classify, describe_stream
 from .frames import DecoderStats, VelodyneDecoder
 from .geometry import VelodyneGeometry
@@ -27,6 +27,7 @@ __all__ = [
     "decode_position_packets",
     "encode_data_packets",
     "encode_position_packets",
+    "encode_frames",
     "classify",
     "describe_stream",
     "VelodyneDecoder",

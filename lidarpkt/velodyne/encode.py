@@ -160,3 +160,58 @@ def encode_position_packets(
     if unused_tail is not None:
         out["unused_tail"] = unused_tail
     return out.view(np.uint8).reshape(n, POSITION_PACKET_SIZE)
+
+
+def encode_frames(frames) -> np.ndarray:
+    """Data packets that decode to ``frames`` (the inverse of :class:`~lidarpkt.velodyne.VelodyneDecoder`).
+
+    ``frames``: consecutive VLP-16 frames of one return mode, as the decoder made them (their
+    columns, concatenated, must start at a packet boundary: 24 columns per packet in single-return
+    modes, 12 in dual). Invalid (lost) columns are skipped. Block azimuths come from the first
+    firing of each block, timestamps from the column timestamps (µs past the hour), the return
+    mode and product id from ``frame.sensor``. A block azimuth of 36000 (seen on early units)
+    comes back as 0, since frames keep azimuths in [0°, 360°).
+
+    Returns:
+        ``uint8[N, 1206]`` payloads.
+
+    Raises:
+        PacketFormatError: frames of several return modes, or columns that do not fill whole packets.
+    """
+    from .packet import LASER_ELEVATION_DEG, LASERS
+
+    frames = list(frames)
+    if not frames:
+        return np.zeros((0, DATA_PACKET_SIZE), np.uint8)
+    modes = {f.sensor.return_mode for f in frames}
+    if len(modes) != 1:
+        raise PacketFormatError(f"frames of several return modes {sorted(modes)}: encode each mode separately")
+    mode = modes.pop()
+    geometry = frames[0].sensor.geometry
+    row_laser = getattr(geometry, "row_laser", np.argsort(-LASER_ELEVATION_DEG, kind="stable"))
+    laser_row = np.argsort(row_laser)  # row of each laser id
+    valid = np.concatenate([f.column_valid for f in frames])
+    rng = np.concatenate([f.range_mm for f in frames], axis=-1)[..., valid]
+    refl = np.concatenate([f.reflectivity for f in frames], axis=-1)[..., valid]
+    az = np.concatenate([f.extra["azimuth_cdeg"] for f in frames], axis=-1)[:, valid]
+    ts = np.concatenate([f.column_timestamp_ns for f in frames])[valid]
+    dual = mode == "dual"
+    per = 12 if dual else 24
+    w = rng.shape[-1]
+    if w % per:
+        raise PacketFormatError(f"{w} valid columns do not fill whole {mode} packets of {per} columns")
+    n = w // per
+    dist = (rng[:, laser_row] >> 1).astype(np.uint16)  # [R, 16 lasers, W]
+    refl = refl[:, laser_row]
+    if dual:
+        # [2 slots, 16, n, 6 pairs, 2 seq] → [n, 6, 2 slots, 2 seq, 16]
+        dist = dist.reshape(2, LASERS, n, 6, 2).transpose(2, 3, 0, 4, 1).reshape(n, 12, 32)
+        refl = refl.reshape(2, LASERS, n, 6, 2).transpose(2, 3, 0, 4, 1).reshape(n, 12, 32)
+        block_az = np.repeat(az[laser_row[0]].reshape(n, 6, 2)[:, :, 0], 2, axis=1)
+    else:
+        dist = dist.reshape(LASERS, n, 12, 2).transpose(1, 2, 3, 0).reshape(n, 12, 32)
+        refl = refl.reshape(LASERS, n, 12, 2).transpose(1, 2, 3, 0).reshape(n, 12, 32)
+        block_az = az[laser_row[0]].reshape(n, 12, 2)[:, :, 0]
+    toh_us = (ts.reshape(n, per)[:, 0] // 1000) % 3_600_000_000
+    product = frames[0].sensor.product_id if frames[0].sensor.product_id is not None else PRODUCT_VLP16
+    return encode_data_packets(block_az, dist, refl, toh_us, mode, product)
