@@ -402,3 +402,11 @@ def test_guess_without_metadata_ranks_the_true_layout_first(pcap, jsons, _):
         d = describe_stream(batch)
         assert d is not None and d["profile_source"] == "guess"
         assert (d["profile"], d["pixels_per_column"]) == (md.profile.name, md.pixels_per_column)
+
+
+def test_48_byte_junk_is_not_an_ouster_imu():
+    md = load_metadata(external("ouster-sdk/crc_test.json"))
+    junk = PacketBatch.from_payloads(np.full((3, 48), 0x7F, np.uint8))  # accelerations ~3e38 g
+    assert classify(junk, [md]) is None and describe_stream(junk) is None
+    (imu,) = [b for b in read_batches(external("ouster-sdk/crc_test.pcap")) if b.payload_size == 48]
+    assert classify(imu, [md]) == ("imu", md)

@@ -51,7 +51,7 @@ def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[st
         for md in metadata:
             if md.imu_port == port:
                 return "imu", md
-        return "imu", metadata[0]
+        return ("imu", metadata[0]) if _imu_plausible(batch.payload) else None
     for md in metadata:
         if md.packet_size != size:
             continue
@@ -62,6 +62,13 @@ def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[st
         if _ids_match(batch, md).mean() >= 0.5:
             return "lidar", md
     return None
+
+
+def _imu_plausible(payload: np.ndarray) -> bool:
+    """48-byte packets that read as an IMU carried by a sensor at rest or on a vehicle (|a| 0.5–2 g)."""
+    samples = decode_imu(payload)
+    accel = np.sqrt(samples["accel_x_g"].astype(np.float64) ** 2 + samples["accel_y_g"] ** 2 + samples["accel_z_g"] ** 2)
+    return bool(0.5 < np.median(accel) < 2.0)
 
 
 def _legacy_plausible(payload: np.ndarray, profile: Profile, h: int) -> bool:
@@ -124,10 +131,9 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
         return None
     match = classify(batch, metadata) if metadata else None
     if match is not None and match[0] == "imu" or (match is None and batch.payload_size == IMU_PACKET_SIZE):
+        if match is None and not _imu_plausible(batch.payload):
+            return None  # 48 bytes that do not read as an IMU
         samples = decode_imu(batch.payload)
-        accel = np.sqrt(samples["accel_x_g"] ** 2 + samples["accel_y_g"] ** 2 + samples["accel_z_g"] ** 2)
-        if match is None and not (np.median(accel) > 0.5 and np.median(accel) < 2.0):
-            return None  # 48 bytes that do not look like an IMU at rest or moving gently
         out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata" if match else "guess"}
         out["sys_timestamp_ns"] = [int(samples["sys_timestamp_ns"][0]), int(samples["sys_timestamp_ns"][-1])]
         return out
