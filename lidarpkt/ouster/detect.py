@@ -40,8 +40,8 @@ def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[st
     Lidar: the payload size must be the metadata's packet size; for non-legacy profiles the
     init_id and serial of the packet header must match too (for most of the batch). LEGACY
     packets carry no identity: the first metadata of the right size wins. IMU (48 B): the
-    metadata whose IMU port is the destination port, else the first one; LEGACY IMU packets
-    carry no identity either.
+    metadata whose IMU port is the destination port, else the first one when the accelerations
+    are plausible (|a| between 0.5 and 2 g); LEGACY IMU packets carry no identity either.
     """
     if len(batch) == 0 or not metadata:
         return None
@@ -67,7 +67,9 @@ def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[st
 def _imu_plausible(payload: np.ndarray) -> bool:
     """48-byte packets that read as an IMU carried by a sensor at rest or on a vehicle (|a| 0.5–2 g)."""
     samples = decode_imu(payload)
-    accel = np.sqrt(samples["accel_x_g"].astype(np.float64) ** 2 + samples["accel_y_g"] ** 2 + samples["accel_z_g"] ** 2)
+    a = np.stack([samples[k].astype(np.float64) for k in ("accel_x_g", "accel_y_g", "accel_z_g")])
+    with np.errstate(all="ignore"):  # junk bytes read as NaN/huge floats: simply not plausible
+        accel = np.sqrt((a**2).sum(axis=0))
     return bool(0.5 < np.median(accel) < 2.0)
 
 
