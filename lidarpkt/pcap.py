@@ -349,6 +349,8 @@ class PcapReader:
         )
         old.__dict__.update(fresh.__dict__)  # in place: callers may hold a reference to stats
         self._reasm = Reassembler(**self._reassembly_args)
+        self._vec_fragments = 0  # fragments / datagrams reassembled by _fragment_trains
+        self._vec_reassembled = 0
         self._warned_links: set[int] = set()
 
     def _finish(self) -> None:
@@ -367,8 +369,8 @@ class PcapReader:
     def _sync_reassembly_stats(self) -> None:
         rs = self._reasm.stats
         st = self.stats
-        st.fragments = rs.fragments
-        st.reassembled = rs.reassembled
+        st.fragments = rs.fragments + self._vec_fragments
+        st.reassembled = rs.reassembled + self._vec_reassembled
         st.orphaned_fragments = rs.orphaned_fragments + rs.malformed_fragments
         st.duplicate_fragments = rs.duplicate_fragments
 
@@ -652,8 +654,8 @@ class PcapReader:
         return self._walk_pcapng(buf)
 
     # --- per-chunk decoding ------------------------------------------------------------------------
-    def _fast_mask(self, buf: np.ndarray, c: _Chunk) -> tuple[np.ndarray, np.ndarray]:
-        """Records that are plain unfragmented UDP/IPv4 at a fixed link offset, and their IP offsets."""
+    def _ipv4_headers(self, buf: np.ndarray, c: _Chunk):
+        """Records holding UDP/IPv4 at a fixed link offset: ``(ok, l2, l3, ihl)`` (offsets 0 where not ok)."""
         n = c.caplen.shape[0]
         size = buf.shape[0]
         lt = c.linktype
@@ -685,30 +687,150 @@ class PcapReader:
         vihl = buf[np.minimum(l3, size - 1)]
         ihl = (vihl & 0x0F).astype(np.int64) * 4
         ok &= ((vihl >> 4) == 4) & (ihl >= 20) & (c.caplen >= l2 + ihl + 8)
-        l3 = np.where(ok, l3, 0)
-        ok &= (_gather(buf, np.minimum(l3 + 6, top), ">u2") & 0x3FFF) == 0  # not a fragment
         ok &= buf[np.minimum(l3 + 9, size - 1)] == IPPROTO_UDP
-        l4 = np.where(ok, l3 + ihl, 0)
+        l3 = np.where(ok, l3, 0)
+        return ok, l2, l3, ihl
+
+    def _plain_udp(self, buf: np.ndarray, c: _Chunk, ok, l2, l3, ihl, frag_bits):
+        """Unfragmented UDP/IPv4 records whose UDP length fits the captured bytes, and their UDP offsets."""
+        top = buf.shape[0] - 4
+        fast = ok & ((frag_bits & 0x3FFF) == 0)
+        l4 = np.where(fast, l3 + ihl, 0)
         udp_len = _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64)
-        ok &= (udp_len >= 8) & (udp_len <= c.caplen - l2 - ihl)
-        return ok, np.where(ok, l4, 0)
+        fast &= (udp_len >= 8) & (udp_len <= c.caplen - l2 - ihl)
+        return fast, l4
+
+    def _fragment_trains(self, buf: np.ndarray, c: _Chunk, ok, l2, l3, ihl, frag_bits):
+        """Whole UDP/IPv4 datagrams whose fragments all lie in this chunk, reassembled with array operations.
+
+        A train qualifies when its fragments (same source, destination and IP ID) have offsets
+        0, then each the end of the previous one in record order, More Fragments on all but the
+        last, all within the reassembly timeout, a UDP header whose length fits, and no datagram
+        of that key is pending in the general reassembler. Everything else (duplicates, reordering,
+        an ID reused by a stale fragment as in duplicate_id.pcap, trains cut by the chunk end) goes
+        through :class:`~lidarpkt.reassembly.Reassembler` record by record.
+
+        Returns None, or ``(consumed, dgrams, pieces)``: ``consumed`` bool[n] records used;
+        ``dgrams`` a dict of per-datagram arrays (pos, ts, src, dst, ports, plen); ``pieces`` a
+        dict of per-fragment arrays (dgram, src_off, dst_off, length) cut to the payload.
+        """
+        top = buf.shape[0] - 4
+        cand = ok & ((frag_bits & 0x3FFF) != 0)
+        if not cand.any():
+            return None
+        total = _gather(buf, np.minimum(l3 + 2, top), ">u2").astype(np.int64)
+        cand &= (total > ihl) & (l2 + total <= c.caplen)
+        p = np.flatnonzero(cand)
+        if p.shape[0] == 0:
+            return None
+        l3p = l3[p]
+        src = _gather(buf, l3p + 12, ">u4").astype(np.int64)
+        dst = _gather(buf, l3p + 16, ">u4").astype(np.int64)
+        ident = _gather(buf, l3p + 4, ">u2").astype(np.int64)
+        fb = frag_bits[p]
+        off = (fb & 0x1FFF) * 8
+        mf = (fb >> 13) & 1
+        dstart = l3p + ihl[p]
+        dlen = total[p] - ihl[p]
+        ts = c.ts_ns[p]
+        order = np.lexsort((p, ident, dst, src))
+        p, src, dst, ident, off, mf, dstart, dlen, ts = (
+            a[order] for a in (p, src, dst, ident, off, mf, dstart, dlen, ts)
+        )
+        m = p.shape[0]
+        new_run = np.ones(m, bool)
+        new_run[1:] = (src[1:] != src[:-1]) | (dst[1:] != dst[:-1]) | (ident[1:] != ident[:-1])
+        starts = np.flatnonzero(new_run)
+        ends = np.append(starts[1:], m) - 1
+        last = np.zeros(m, bool)
+        last[ends] = True
+        prev_end = np.empty(m, np.int64)
+        prev_end[0] = 0
+        prev_end[1:] = off[:-1] + dlen[:-1]
+        elem_ok = np.where(new_run, off == 0, off == prev_end) & (mf == np.where(last, 0, 1))
+        run_ok = np.logical_and.reduceat(elem_ok, starts)
+        span = np.maximum.reduceat(ts, starts) - np.minimum.reduceat(ts, starts)
+        run_ok &= span <= self._reasm.timeout_ns
+        dgram_len = off[ends] + dlen[ends]
+        run_ok &= (dgram_len <= self._reasm.max_datagram_bytes) & (dlen[starts] >= 8)
+        ustart = dstart[starts]
+        ulen = _gather(buf, np.minimum(ustart + 4, top), ">u2").astype(np.int64)
+        run_ok &= (ulen >= 8) & (ulen <= dgram_len)
+        if self._reasm.pending_datagrams:  # a stale datagram of the same key decides in the general path
+            pending = self._reasm._pending
+            for r in np.flatnonzero(run_ok).tolist():
+                i = starts[r]
+                key = (4, int(src[i]).to_bytes(4, "big"), int(dst[i]).to_bytes(4, "big"), IPPROTO_UDP, int(ident[i]))
+                if key in pending:
+                    run_ok[r] = False
+        if not run_ok.any():
+            return None
+        run_id = np.cumsum(new_run) - 1
+        elem_good = run_ok[run_id]
+        consumed = np.zeros(c.caplen.shape[0], bool)
+        consumed[p[elem_good]] = True
+        good_runs = np.flatnonzero(run_ok)
+        dgram_of_run = np.full(run_ok.shape[0], -1, np.int64)
+        dgram_of_run[good_runs] = np.arange(good_runs.shape[0])
+        gs, ge = starts[good_runs], ends[good_runs]
+        plen = ulen[good_runs] - 8
+        dgrams = {
+            "pos": p[ge],  # the record that completes the datagram
+            "ts": c.ts_ns[p[ge]],
+            "src": src[gs],
+            "dst": dst[gs],
+            "ports": _gather(buf, dstart[gs], ">u4").astype(np.int64),
+            "plen": plen,
+        }
+        e = np.flatnonzero(elem_good)
+        dg = dgram_of_run[run_id[e]]
+        first = new_run[e]
+        # payload bytes = datagram bytes from 8 (after the UDP header) to the UDP length
+        src_off = dstart[e] + np.where(first, 8, 0)
+        dst_off = np.where(first, 0, off[e] - 8)
+        length = np.minimum(dlen[e] - np.where(first, 8, 0), plen[dg] - dst_off)
+        keep = length > 0
+        pieces = {"dgram": dg[keep], "src_off": src_off[keep], "dst_off": dst_off[keep], "length": length[keep]}
+        self._vec_fragments += int(e.shape[0])
+        self._vec_reassembled += int(good_runs.shape[0])
+        return consumed, dgrams, pieces
+
+    @staticmethod
+    def _fill_trains(buf, payload, rows, dgram_ids, pieces) -> None:
+        """Copy the fragments of datagrams ``dgram_ids`` into ``payload[rows]`` (one copy per piece shape)."""
+        n_dgrams = int(pieces["dgram"].max()) + 1 if pieces["dgram"].shape[0] else 0
+        row_of = np.full(max(n_dgrams, int(dgram_ids.max()) + 1), -1, np.int64)
+        row_of[dgram_ids] = rows
+        prow = row_of[pieces["dgram"]]
+        sel = np.flatnonzero(prow >= 0)
+        if sel.shape[0] == 0:
+            return
+        code = pieces["dst_off"][sel] * 65536 + pieces["length"][sel]
+        classes, inverse = np.unique(code, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for k, cl in enumerate(classes.tolist()):
+            dst, length = divmod(cl, 65536)
+            which = sel[inverse == k]
+            payload[prow[which], dst : dst + length] = _copy_rows(buf, pieces["src_off"][which], length)
 
     def _process_chunk(self, buf: np.ndarray, c: _Chunk, base: int) -> list[PacketBatch]:
         st = self.stats
         n = c.caplen.shape[0]
         for lt, cnt in zip(*np.unique(c.linktype, return_counts=True)):
             st.link_types[LINKTYPE_NAMES.get(int(lt), f"linktype {int(lt)}")] += int(cnt)
-        fast, l4 = self._fast_mask(buf, c)
-        fast_pos = np.flatnonzero(fast)
-        l4 = l4[fast_pos]
         top = buf.shape[0] - 4
+        ok, l2, l3, ihl = self._ipv4_headers(buf, c)
+        frag_bits = _gather(buf, np.minimum(l3 + 6, top), ">u2").astype(np.int64)
+        fast, l4 = self._plain_udp(buf, c, ok, l2, l3, ihl, frag_bits)
+        trains = self._fragment_trains(buf, c, ok, l2, l3, ihl, frag_bits)
+        handled = fast if trains is None else (fast | trains[0])
 
         # the general path, record by record, in capture order (reassembly needs the order)
         slow_pos: list[int] = []
         slow_pkts: list[tuple[str, int, str, int, bytes]] = []
         slow_ts: list[int] = []
-        if fast_pos.shape[0] != n:
-            slow = np.flatnonzero(~fast)
+        if not handled.all():
+            slow = np.flatnonzero(~handled)
             offs = c.data_off[slow].tolist()
             caps = c.caplen[slow].tolist()
             lts = c.linktype[slow].tolist()
@@ -720,50 +842,62 @@ class PcapReader:
                     slow_pos.append(i)
                     slow_pkts.append(got)
                     slow_ts.append(ts)
-            self._sync_reassembly_stats()
+        self._sync_reassembly_stats()
 
-        # the fast path: keys of all plain records at once
-        n_fast = fast_pos.shape[0]
-        if n_fast:
-            # addresses sit 12 and 16 bytes after the IP header start
-            ip_off = self._ip_offsets(c, fast_pos)
-            src_ip = _gather(buf, ip_off + 12, ">u4").astype(np.int64)
-            dst_ip = _gather(buf, ip_off + 16, ">u4").astype(np.int64)
-            ports = _gather(buf, l4, ">u4").astype(np.int64)  # sport << 16 | dport
-            plen = _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64) - 8
-            keep = np.ones(n_fast, bool)
+        # datagrams found with array operations: plain records (kind 0) and fragment trains (kind 1)
+        fast_pos = np.flatnonzero(fast)
+        l4 = l4[fast_pos]
+        ip_off = l3[fast_pos]
+        vec = {
+            "pos": fast_pos,
+            "src": _gather(buf, ip_off + 12, ">u4").astype(np.int64),
+            "dst": _gather(buf, ip_off + 16, ">u4").astype(np.int64),
+            "ports": _gather(buf, l4, ">u4").astype(np.int64),  # sport << 16 | dport
+            "plen": _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64) - 8,
+            "ts": c.ts_ns[fast_pos],
+            "ref": l4 + 8,  # kind 0: payload offset in the file; kind 1: datagram number
+            "kind": np.zeros(fast_pos.shape[0], np.int8),
+        }
+        pieces = None
+        if trains is not None:
+            _, dg, pieces = trains
+            nd = dg["pos"].shape[0]
+            extra = dict(dg, ref=np.arange(nd), kind=np.ones(nd, np.int8))
+            vec = {k: np.concatenate([vec[k], extra[k]]) for k in vec}
+            order = np.argsort(vec["pos"], kind="stable")
+            vec = {k: v[order] for k, v in vec.items()}
+        n_vec = vec["pos"].shape[0]
+        if n_vec:
+            keep = np.ones(n_vec, bool)
             if self.ports is not None:
-                keep &= np.isin(ports & 0xFFFF, np.fromiter(self.ports, np.int64))
+                keep &= np.isin(vec["ports"] & 0xFFFF, np.fromiter(self.ports, np.int64))
             if self.payload_sizes is not None:
-                keep &= np.isin(plen, np.fromiter(self.payload_sizes, np.int64))
+                keep &= np.isin(vec["plen"], np.fromiter(self.payload_sizes, np.int64))
             if self.src_addresses is not None:
-                v4 = [
-                    int.from_bytes(socket.inet_aton(a), "big") for a in self.src_addresses if _is_ipv4_text(a)
-                ]
-                keep &= np.isin(src_ip, np.asarray(v4, np.int64))
-            st.udp_packets += n_fast
-            st.filtered += int(n_fast - keep.sum())
+                v4 = [int.from_bytes(socket.inet_aton(a), "big") for a in self.src_addresses if _is_ipv4_text(a)]
+                keep &= np.isin(vec["src"], np.asarray(v4, np.int64))
+            st.udp_packets += n_vec
+            st.filtered += int(n_vec - keep.sum())
             if not keep.all():
-                fast_pos, l4, src_ip, dst_ip, ports, plen = (
-                    a[keep] for a in (fast_pos, l4, src_ip, dst_ip, ports, plen)
-                )
-                n_fast = fast_pos.shape[0]
+                vec = {k: v[keep] for k, v in vec.items()}
+                n_vec = vec["pos"].shape[0]
 
         # ordinals: every kept record yields at most one packet, in record order
         slow_pos_a = np.asarray(slow_pos, np.int64)
-        all_pos = np.sort(np.concatenate([fast_pos, slow_pos_a]))
+        all_pos = np.sort(np.concatenate([vec["pos"], slow_pos_a]))
         total = all_pos.shape[0]
         if total == 0:
             return []
-        fast_ord = base + np.searchsorted(all_pos, fast_pos)
+        vec_ord = base + np.searchsorted(all_pos, vec["pos"])
         slow_ord = base + np.searchsorted(all_pos, slow_pos_a)
 
         groups: dict[tuple, dict] = {}
-        if n_fast:
+        if n_vec:
+            src_ip, dst_ip, ports, plen = vec["src"], vec["dst"], vec["ports"], vec["plen"]
             k1 = (src_ip << 32) | dst_ip
             k2 = (ports << 20) | plen
             if (k1 == k1[0]).all() and (k2 == k2[0]).all():
-                selections = [np.arange(n_fast)]
+                selections = [np.arange(n_vec)]
             else:
                 # factorise each key half with fast int64 sorts, then the pair codes
                 _, inv1 = np.unique(k1, return_inverse=True)
@@ -777,50 +911,46 @@ class PcapReader:
                 s_ip, d_ip = _ipv4_text(np.array([src_ip[first], dst_ip[first]]))
                 pp = int(ports[first])
                 key = (s_ip, pp >> 16, d_ip, pp & 0xFFFF, int(plen[first]))
-                groups[key] = {"fast": sel, "slow": []}
+                groups[key] = {"vec": sel, "slow": []}
         for j, (s_ip, sport, d_ip, dport, payload) in enumerate(slow_pkts):
             key = (s_ip, sport, d_ip, dport, len(payload))
-            groups.setdefault(key, {"fast": None, "slow": []})["slow"].append(j)
+            groups.setdefault(key, {"vec": None, "slow": []})["slow"].append(j)
 
         out: list[PacketBatch] = []
         for key, g in groups.items():
             s_ip, sport, d_ip, dport, size = key
-            fsel = g["fast"]
+            vsel = g["vec"] if g["vec"] is not None else np.zeros(0, np.int64)
             ssel = g["slow"]
-            if fsel is not None and not ssel:
-                payload = _copy_rows(buf, l4[fsel] + 8, size)
-                ts = c.ts_ns[fast_pos[fsel]]
-                idx = fast_ord[fsel]
+            kinds = vec["kind"][vsel]
+            if not ssel and not kinds.any():  # the common case: plain records only, already in order
+                payload = _copy_rows(buf, vec["ref"][vsel], size)
+                ts = vec["ts"][vsel]
+                idx = vec_ord[vsel]
             else:
-                f_ord = fast_ord[fsel] if fsel is not None else np.zeros(0, np.int64)
                 s_ord = slow_ord[ssel]
-                idx = np.concatenate([f_ord, s_ord])
+                idx = np.concatenate([vec_ord[vsel], s_ord])
                 order = np.argsort(idx, kind="stable")
                 idx = idx[order]
-                payload = np.empty((idx.shape[0], size), np.uint8)
-                ts = np.empty(idx.shape[0], np.int64)
-                nf = f_ord.shape[0]
-                where = np.empty(idx.shape[0], np.int64)
-                where[order] = np.arange(idx.shape[0])
-                if nf:
-                    payload[where[:nf]] = _copy_rows(buf, l4[fsel] + 8, size)
-                    ts[where[:nf]] = c.ts_ns[fast_pos[fsel]]
-                for r, j in zip(where[nf:].tolist(), ssel):
+                nrows = idx.shape[0]
+                payload = np.empty((nrows, size), np.uint8)
+                ts = np.empty(nrows, np.int64)
+                where = np.empty(nrows, np.int64)
+                where[order] = np.arange(nrows)
+                nv = vsel.shape[0]
+                wv = where[:nv]
+                ts[wv] = vec["ts"][vsel]
+                plain = kinds == 0
+                if plain.any():
+                    payload[wv[plain]] = _copy_rows(buf, vec["ref"][vsel[plain]], size)
+                if (~plain).any():
+                    self._fill_trains(buf, payload, wv[~plain], vec["ref"][vsel[~plain]], pieces)
+                for r, j in zip(where[nv:].tolist(), ssel):
                     payload[r] = np.frombuffer(slow_pkts[j][4], np.uint8)
                     ts[r] = slow_ts[j]
             out.append(PacketBatch(Endpoint(s_ip, sport), Endpoint(d_ip, dport), ts, payload, idx))
         out.sort(key=lambda b: int(b.index[0]))
         st.yielded += total
         return out
-
-    def _ip_offsets(self, c: _Chunk, pos: np.ndarray) -> np.ndarray:
-        lt = c.linktype[pos]
-        l2 = np.zeros(pos.shape[0], np.int64)
-        l2[lt == LINKTYPE_ETHERNET] = 14
-        l2[lt == LINKTYPE_LINUX_SLL] = 16
-        l2[lt == LINKTYPE_LINUX_SLL2] = 20
-        l2[(lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)] = 4
-        return c.data_off[pos] + l2
 
     # --- the general (per-record) path ----------------------------------------------------------------
     def _bad(self, reason: str) -> None:

@@ -401,11 +401,14 @@ def test_pending_reassembly_is_bounded(tmp_path, real_packets):
 
 
 def test_batches_mix_fast_and_reassembled_packets(tmp_path, real_packets):
-    """One stream whose packets come both unfragmented and fragmented stays one ordered stream."""
+    """One stream whose packets come unfragmented, as in-order fragment trains (array path) and as
+    reordered fragments (record-by-record path) stays one ordered stream."""
     ouster = [p for p in real_packets if len(p.payload) == 12608]
     records = []
     for i, p in enumerate(ouster):
         frames = frames_for(p, ident=i, mtu=None if i % 2 else 1500)
+        if i == 2:  # out of order: this one goes through the record-by-record reassembler
+            frames = frames[::-1]
         records += [(p.timestamp_ns, f) for f in frames]
     path = tmp_path / "mix.pcap"
     write_pcap_records(path, records)
