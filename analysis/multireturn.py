@@ -57,44 +57,57 @@ class ImageStatistics:
         return self.n_clusters >= 2
 
 
-def sorted_samples(stack: FrameStack) -> np.ndarray:
-    """``uint32[K, R, H, W]``: each pixel's returns sorted along the frame axis, in mm, then
-    ``2**32 − 1`` for every non-return or missing frame."""
-    check_stack(stack)
-    present = (stack.range_mm > 0) & stack.column_valid[:, None, None, :]
-    return np.sort(np.where(present, stack.range_mm, np.uint32(_NO_SAMPLE)), axis=0)
+#: Temporaries of :func:`image_statistics` are bounded by working on blocks of rows of about this
+#: many samples (K·R·rows·W): a long capture does not need several float64 copies of itself at once.
+_BLOCK_SAMPLES = 1 << 22
 
 
-def image_statistics(stack: FrameStack, *, gap_m: float = DEFAULT_GAP_M) -> ImageStatistics:
-    """Whole-image statistics (number of returns, non-return fraction, std, clusters, largest
-    gap Δ between clusters) for every pixel and slot, vectorised over the stack.
-
-    Raises AnalysisError for an empty stack or a non-positive gap.
-    """
-    if gap_m <= 0:
-        raise AnalysisError(f"cluster gap {gap_m} m must be positive")
-    srt = sorted_samples(stack)
-    k = srt.shape[0]
-    n_samples = np.broadcast_to(stack.column_valid.sum(axis=0), srt.shape[1:]).astype(np.int64)
-    is_ret = srt != _NO_SAMPLE
+def _block_statistics(rng: np.ndarray, valid: np.ndarray, gap_mm: float) -> tuple[np.ndarray, ...]:
+    """Statistics of one block ``rng uint32[K, R, h, W]`` with ``valid bool[K, W]``."""
+    k = rng.shape[0]
+    present = (rng > 0) & valid[:, None, None, :]
+    srt = np.sort(np.where(present, rng, np.uint32(_NO_SAMPLE)), axis=0)
+    is_ret = srt != _NO_SAMPLE  # returns sort first, then the non-returns and missing frames
     n_ret = is_ret.sum(axis=0)
     r_m = np.where(is_ret, srt, 0).astype(np.float64) / 1000.0
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = r_m.sum(axis=0) / n_ret
         dev = np.where(is_ret, r_m - mean, 0.0)
         std = np.sqrt((dev * dev).sum(axis=0) / n_ret)
-        nonret = (n_samples - n_ret) / n_samples
     if k > 1:
         step = np.diff(srt.astype(np.int64), axis=0)  # mm between consecutive sorted samples
-        boundary = is_ret[1:] & (step > gap_m * 1000.0)  # both sides returns: is_ret is sorted first
+        boundary = is_ret[1:] & (step > gap_mm)  # is_ret[1:] means both sides are returns
         n_clusters = (n_ret > 0).astype(np.int64) + boundary.sum(axis=0)
         gap = np.where(boundary, step, 0).max(axis=0) / 1000.0
     else:
         n_clusters = (n_ret > 0).astype(np.int64)
         gap = np.zeros(srt.shape[1:])
+    return n_ret.astype(np.int64), mean, std, n_clusters, gap
+
+
+def image_statistics(stack: FrameStack, *, gap_m: float = DEFAULT_GAP_M) -> ImageStatistics:
+    """Whole-image statistics (number of returns, non-return fraction, std, clusters, largest
+    gap Δ between clusters) for every pixel and slot, vectorised over the stack (in blocks of
+    rows, to bound the memory of the temporaries).
+
+    Raises AnalysisError for an empty stack or a non-positive gap.
+    """
+    if gap_m <= 0:
+        raise AnalysisError(f"cluster gap {gap_m} m must be positive")
+    check_stack(stack)
+    k, r, h, w = stack.range_mm.shape
+    rows_per_block = max(1, _BLOCK_SAMPLES // max(1, k * r * w))
+    parts = [
+        _block_statistics(stack.range_mm[:, :, a : a + rows_per_block], stack.column_valid, gap_m * 1000.0)
+        for a in range(0, h, rows_per_block)  # blocks of rows, each vectorised over all its pixels
+    ]
+    n_ret, mean, std, n_clusters, gap = (np.concatenate(p, axis=1) for p in zip(*parts))
+    n_samples = np.broadcast_to(stack.column_valid.sum(axis=0), (r, h, w)).astype(np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nonret = (n_samples - n_ret) / n_samples
     return ImageStatistics(
         n_samples=n_samples,
-        n_returns=n_ret.astype(np.int64),
+        n_returns=n_ret,
         nonreturn_fraction=nonret,
         mean_m=mean,
         std_m=std,

@@ -45,8 +45,12 @@ def reference_stats(stack, gap_m):
     return out
 
 
-@pytest.mark.parametrize("gap_m", [0.1, 0.03])
-def test_image_statistics_match_a_per_pixel_loop(gap_m):
+@pytest.mark.parametrize("gap_m,block", [(0.1, None), (0.03, None), (0.1, 50)])
+def test_image_statistics_match_a_per_pixel_loop(gap_m, block, monkeypatch):
+    if block is not None:  # tiny blocks of rows: the blocked path must give the same result
+        import analysis.multireturn as mr
+
+        monkeypatch.setattr(mr, "_BLOCK_SAMPLES", block)
     stack = random_stack()
     s = image_statistics(stack, gap_m=gap_m)
     ref = reference_stats(stack, gap_m)
