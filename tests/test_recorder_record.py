@@ -1,0 +1,142 @@
+"""``lidarpkt record`` options on real loopback traffic: --frames, rotation, multicast, unknown
+streams, a non-legacy Ouster profile, and its errors."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from recorder.capture import UdpCapture
+from recorder.replay import read_capture, replay
+from tests.conftest import external
+from tests.test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
+
+
+def test_frames_option_stops_after_that_many_rotations(tmp_path):
+    pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")  # 50 wraps at 20 Hz
+    packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]
+    (port,) = _free_ports(1)
+    rec = Recorder(tmp_path, [port], "--frames", "5", "-q")
+    replay(packets, "127.0.0.1", port, rate=10.0)
+    assert rec.proc.wait(timeout=60) == 0
+    report = json.loads(rec.report.read_text())
+    assert report["stopped_by"] == "5 frames" and report["frames"] >= 5 and report["lost_total"] == 0
+    _, msgs = _messages(rec.out)
+    got = _recorded_payloads(msgs)["/velodyne_packets"]
+    assert got == [p.payload for p in packets[: len(got)]] and len(got) == report["packets"]
+
+
+def test_rotation_by_size_splits_the_recording_without_losing_a_packet(tmp_path):
+    pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]
+    (port,) = _free_ports(1)
+    rec = Recorder(tmp_path, [port], "--rotate-size", "0.1", "--chunk-seconds", "0.05", "-q")
+    replay(packets, "127.0.0.1", port, rate=10.0)
+    time.sleep(0.5)
+    assert rec.stop() == 0
+    report = json.loads(rec.report.read_text())
+    files = report["files"]
+    assert len(files) >= 3 and all(f.endswith(f"rec_{i:04d}.mcap") for i, f in enumerate(files))
+    got = []
+    for f in files:
+        summary, msgs = _messages(f)
+        assert summary is not None  # every file is complete on its own
+        got += _recorded_payloads(msgs).get("/velodyne_packets", [])
+    assert got == [p.payload for p in packets] and report["lost_total"] == 0
+
+
+def test_unknown_datagrams_are_kept_on_their_own_topic(tmp_path):
+    (port,) = _free_ports(1)
+    rec = Recorder(tmp_path, [port], "-q")
+    payloads = [bytes([i]) * (100 + i) for i in range(20)]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for p in payloads:
+            tx.sendto(p, ("127.0.0.1", port))
+    time.sleep(0.5)
+    assert rec.stop() == 0
+    _, msgs = _messages(rec.out)
+    assert [bytes(m.data) for t, _, m in msgs if t == "/lidarpkt/other_packets"] == payloads
+    report = json.loads(rec.report.read_text())
+    assert {s["kind"] for s in report["streams"]} == {"other"} and report["packets"] == 20
+
+
+def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
+    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")
+    meta = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json")
+    packets = list(read_capture(str(pcap)))
+    lidar_port, imu_port = _free_ports(2)
+    rec = Recorder(tmp_path, [lidar_port, imu_port], "--metadata", str(meta), "-q")
+    from lidarpkt.ouster.metadata import load_metadata
+
+    md = load_metadata(meta)
+    replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, ouster_metadata=md)
+    time.sleep(0.5)
+    assert rec.stop() == 0
+    _, msgs = _messages(rec.out)
+    got = _recorded_payloads(msgs)
+    assert got["/ouster/lidar_packets"] == [p.payload for p in packets if len(p.payload) == md.packet_size]
+    assert got["/ouster/imu_packets"] == [p.payload for p in packets if len(p.payload) == 48]
+    report = json.loads(rec.report.read_text())
+    assert report["lost_total"] == 0
+
+
+def test_multicast_group_on_loopback(tmp_path):
+    (port,) = _free_ports(1)
+    group = "239.255.76.16"
+    try:
+        UdpCapture([port], multicast=group, interface="127.0.0.1").close()
+    except Exception as exc:  # no multicast route on this machine
+        pytest.skip(f"cannot join a multicast group on loopback here: {exc}")
+    # Recorder binds 127.0.0.1; a multicast listener binds the group, so it is started by hand here
+    out, report, log = tmp_path / "mc.mcap", tmp_path / "mc.json", tmp_path / "mc.log"
+    proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--multicast", group,
+                             "--interface", "lo", "-o", str(out), "--report", str(report), "-q"],
+                            stderr=log.open("w"), cwd=REPO)
+    try:
+        deadline = time.monotonic() + 30
+        while "listening on" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.02)
+        payloads = [p.payload for p in read_capture(str(external("rust-lidar-utils/velodyne_example.pcap")))]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
+            for p in payloads:
+                tx.sendto(p, (group, port))
+        time.sleep(0.5)
+        proc.terminate()
+        assert proc.wait(timeout=60) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    summary = json.loads(report.read_text())
+    assert summary["streams"][0]["dst"] == f"{group}:{port}" and summary["lost_total"] == 0
+    _, msgs = _messages(out)
+    assert _recorded_payloads(msgs)["/velodyne_packets"] == payloads
+
+
+def _run_cli(*args, timeout=60):
+    return subprocess.run([sys.executable, "-m", "lidarpkt", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+
+
+def test_record_errors_are_clear_and_leave_no_traceback(tmp_path):
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("127.0.0.1", 0))
+    port = holder.getsockname()[1]
+    try:
+        r = _run_cli("record", "--port", str(port), "--bind", "127.0.0.1", "-o", str(tmp_path / "x.mcap"))
+    finally:
+        holder.close()
+    assert r.returncode == 2 and "already in use" in r.stderr and "Traceback" not in r.stderr
+    r = _run_cli("record", "--port", str(_free_ports(1)[0]), "-o", str(tmp_path / "nodir" / "x.mcap"))
+    assert r.returncode == 2 and "cannot create the MCAP output" in r.stderr and "Traceback" not in r.stderr
+    r = _run_cli("record", "--port", str(_free_ports(1)[0]), "--gps", str(tmp_path / "ttyNONE"),
+                 "-o", str(tmp_path / "g.mcap"))
+    assert r.returncode == 2 and "cannot open GPS serial port" in r.stderr
+    r = _run_cli("replay", str(external("rust-lidar-utils/velodyne_example.pcap")), "--to", "nohostport")
+    assert r.returncode == 2 and "HOST:PORT" in r.stderr
