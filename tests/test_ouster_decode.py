@@ -36,6 +36,11 @@ def test_published_digest_packet_and_frame_parts(pcap, jsons, digest):
     # the keys the SDK checks are all there (not silently skipped)
     assert set(expected["packet_hash"]) - {"ENCODER_COUNT"} <= set(pd.hexdigests())
     assert set(expected["scans"][0]) - {"ENCODER_COUNT"} <= set(frame_digest(frames[0]))
+    # the public path gives the same frames
+    import lidarpkt
+
+    opened = list(lidarpkt.open(external(pcap), metadata=external(jsons[0])))
+    assert [frame_digest(f) for f in opened] == [frame_digest(f) for f in frames]
 
 
 def test_digest_detects_a_single_flipped_bit():
