@@ -1,0 +1,118 @@
+"""``lidarpkt decode`` to NPZ and MCAP: against the facts SOURCES.md gives for the real captures,
+lidarpkt.open, and ouster-sdk (crosscheck)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+import lidarpkt
+from tests.conftest import external
+from tests.test_replay_record import REPO, _messages
+
+OS1 = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"
+OS1_JSON = "ouster-sdk/OS-1-64_sensor_config_reduced.json"
+
+
+def _decode(*args):
+    r = subprocess.run([sys.executable, "-m", "lidarpkt", "decode", *map(str, args)], capture_output=True,
+                       text=True, timeout=120, cwd=REPO)
+    return r
+
+
+def test_npz_of_the_veloview_capture_has_its_52_frames_on_the_grid(tmp_path):
+    pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    out = tmp_path / "v.npz"
+    r = _decode(pcap, "-o", out, "-q")
+    assert r.returncode == 0, r.stderr
+    d = np.load(out)
+    # SOURCES.md / vlp-16.test: VeloView counts 52 frames, partial first and last included
+    assert d["range_mm"].shape == (52, 1, 16, 1800) and d["range_mm"].dtype == np.uint32
+    assert d["partial"][0] and d["partial"][-1] and not d["partial"][1:-1].any()
+    frames = [f.on_grid() for f in lidarpkt.open(pcap)]
+    assert np.array_equal(d["range_mm"], np.stack([f.range_mm for f in frames]))
+    assert np.array_equal(d["column_valid"], np.stack([f.column_valid for f in frames]))
+    assert np.array_equal(d["column_timestamp_ns"], np.stack([f.column_timestamp_ns for f in frames]))
+    assert list(d["return_labels"]) == ["strongest"]
+
+
+def test_npz_of_the_legacy_os1_capture(tmp_path):
+    out = tmp_path / "o.npz"
+    r = _decode(external(OS1), "--metadata", external(OS1_JSON), "-o", out, "-q", "--compress")
+    assert r.returncode == 0, r.stderr
+    d = np.load(out)
+    # SOURCES.md: exactly one complete frame, frame_id 189, measurement ids 0-1023, status all valid
+    assert d["frame_id"].tolist() == [189]
+    assert np.array_equal(d["measurement_id"][0], np.arange(1024))
+    assert (d["status"] == 0xFFFFFFFF).all()
+    assert d["range_mm"].shape == (1, 1, 64, 1024) and d["near_ir"].shape == (1, 64, 1024)
+
+
+@pytest.mark.crosscheck
+def test_npz_ranges_equal_ouster_sdk(tmp_path):
+    sdk_pcap = pytest.importorskip("ouster.sdk.pcap")
+    out = tmp_path / "o.npz"
+    assert _decode(external(OS1), "--metadata", external(OS1_JSON), "-o", out, "-q").returncode == 0
+    d = np.load(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        src = sdk_pcap.PcapFrameSetSource(str(external(OS1)), meta=[str(external(OS1_JSON))])
+        scans = [fs[0] for fs in src if fs[0] is not None]
+    assert len(scans) == 1
+    assert np.array_equal(d["range_mm"][0, 0], scans[0].field("RANGE"))
+    assert np.array_equal(d["signal"][0, 0], scans[0].field("SIGNAL"))
+    assert np.array_equal(d["column_timestamp_ns"][0], scans[0].timestamp.astype(np.int64))
+
+
+@pytest.mark.crosscheck
+def test_pointcloud2_equals_ouster_sdk_xyz(tmp_path):
+    sdk_pcap = pytest.importorskip("ouster.sdk.pcap")
+    core = pytest.importorskip("ouster.sdk.core")
+    out = tmp_path / "o.mcap"
+    r = _decode(external(OS1), "--metadata", external(OS1_JSON), "-o", out, "--topics", "points", "-q")
+    assert r.returncode == 0, r.stderr
+    _, msgs = _messages(out)
+    (pc,) = [m for t, _, m in msgs if t == "/ouster/points"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        src = sdk_pcap.PcapFrameSetSource(str(external(OS1)), meta=[str(external(OS1_JSON))])
+        scan = [fs[0] for fs in src if fs[0] is not None][0]
+        info = src.sensor_info[0]
+    xyz = core.destagger(info, core.XYZLut(info, use_extrinsics=False)(scan))  # [H, W, 3] metres
+    pts = np.frombuffer(bytes(pc.data), np.dtype({"names": [f.name for f in pc.fields],
+                                                   "formats": ["<f4" if f.datatype == 7 else "<u2" if f.datatype == 4
+                                                               else "<u4" for f in pc.fields],
+                                                   "offsets": [f.offset for f in pc.fields],
+                                                   "itemsize": pc.point_step})).reshape(pc.height, pc.width)
+    got = np.stack([pts["x"], pts["y"], pts["z"]], axis=-1).astype(np.float64)
+    np.testing.assert_allclose(got, xyz, rtol=0, atol=2e-6 * max(1.0, np.abs(xyz).max()))
+    assert np.array_equal(pts["range"], core.destagger(info, scan.field("RANGE")))
+
+
+def test_mcap_topic_choice(tmp_path):
+    out = tmp_path / "p.mcap"
+    pcap = external("rust-lidar-utils/velodyne_example.pcap")
+    assert _decode(pcap, "-o", out, "--topics", "points", "-q").returncode == 0
+    _, msgs = _messages(out)
+    assert {t for t, _, _ in msgs} == {"/velodyne_points"}
+    assert len(msgs) == len(list(lidarpkt.open(pcap)))
+    out2 = tmp_path / "i.mcap"
+    assert _decode(pcap, "-o", out2, "--topics", "packets,images", "-q").returncode == 0
+    _, msgs = _messages(out2)
+    assert {t for t, _, _ in msgs} == {"/velodyne_packets", "/velodyne/range_image", "/velodyne/reflectivity_image"}
+
+
+def test_decode_errors_are_clear(tmp_path):
+    pcap = external("rust-lidar-utils/velodyne_example.pcap")
+    for args, message in (
+        ((pcap, "-o", tmp_path / "x.txt"), "must end in .mcap or .npz"),
+        ((tmp_path / "missing.pcap", "-o", tmp_path / "x.npz"), "no such file"),
+        ((pcap, "-o", tmp_path / "x.mcap", "--topics", "bogus"), "choose among"),
+        ((external("einride-vlp16-go/packet.bin"), "-o", tmp_path / "x.npz"), "not a capture"),
+    ):
+        r = _decode(*args)
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
