@@ -410,3 +410,49 @@ def test_48_byte_junk_is_not_an_ouster_imu():
     assert classify(junk, [md]) is None and describe_stream(junk) is None
     (imu,) = [b for b in read_batches(external("ouster-sdk/crc_test.pcap")) if b.payload_size == 48]
     assert classify(imu, [md]) == ("imu", md)
+
+
+@pytest.mark.parametrize(
+    "profile,rows,mode",
+    [("LEGACY", 16, "512x10"), ("LEGACY", 128, "2048x10"), ("RNG19_RFL8_SIG16_NIR16", 16, "2048x10"), ("RNG19_RFL8_SIG16_NIR16_DUAL", 128, "512x20"), ("RNG15_RFL8_NIR8", 32, "1024x20")],
+)
+def test_layouts_without_a_real_capture(profile, rows, mode):
+    """Channel counts and modes no external capture has: every pixel lands at (row, measurement id)."""
+    from lidarpkt.ouster import empty_fields
+
+    doc = {
+        "beam_altitude_angles": np.linspace(20, -20, rows).tolist(),
+        "beam_azimuth_angles": [0.0] * rows,
+        "lidar_mode": mode,
+        "data_format": {"pixels_per_column": rows, "columns_per_packet": 16, "udp_profile_lidar": profile},
+        "prod_sn": "992100000001",
+        "initialization_id": 77,
+        "build_rev": "v2.5.0",
+    }
+    md = load_metadata(doc)
+    w = md.columns_per_frame
+    n = w // 16
+    f = empty_fields(md, n)
+    mid = np.arange(w).reshape(n, 16)
+    f.measurement_id[:] = mid
+    f.timestamp_ns[:] = 10**15 + mid * 1000
+    f.status[:] = 0xFFFFFFFF if md.profile.legacy else 1
+    if md.profile.legacy:
+        f.column_frame_id[:] = 9
+    else:
+        f.header["frame_id"][:] = 9
+    u = np.arange(rows)[None, None, :]
+    f.pixels["RANGE"][:] = 8 * ((mid[..., None] * rows + u) % 2**15)  # fits every profile's RANGE, 8 mm steps
+    f.pixels["REFLECTIVITY"][:] = (u + mid[..., None]) % 256
+    payload = encode_packets(f, md)
+    assert payload.shape == (n, md.packet_size)
+    frames, dec = _push(md, payload)
+    assert len(frames) == 1 and not frames[0].partial and frames[0].frame_id == 9
+    fr = frames[0]
+    cols = np.arange(w)[None, :]
+    rr = np.arange(rows)[:, None]
+    assert np.array_equal(fr.range_mm[0], 8 * ((cols * rows + rr) % 2**15))
+    assert np.array_equal(fr.reflectivity[0], (rr + cols) % 256)
+    assert np.array_equal(fr.column_timestamp_ns, 10**15 + np.arange(w) * 1000)
+    if md.footer_kind == "crc" and not md.profile.legacy:
+        assert decode_packets(payload, md).crc_ok.all()
