@@ -404,3 +404,32 @@ def test_calibration_through_lidarpkt_open(ext):
     # the stock calibration's vertical offsets (velodyne_decoder's) are the only difference
     dz = (a[..., 2] - b[..., 2])[hit]
     assert 0 < np.abs(dz).max() < 0.012
+
+
+def _nmea(body: str) -> str:
+    chk = 0
+    for ch in body.encode():
+        chk ^= ch
+    return f"${body}*{chk:02X}"
+
+
+def test_gpgga_fix_and_bad_sentences_in_position_packets():
+    import datetime as dt
+
+    hour = 1_700_002_800_000_000_000 - 1_700_002_800_000_000_000 % HOUR_NS
+    true_ns = hour + 2_000_000_000_000 + np.arange(30, dtype=np.int64) * 1_327_104  # 33:20 past the hour
+    toh_us = (true_ns // 1000) % 3_600_000_000
+    host = true_ns - 40 * 60 * 1_000_000_000  # host clock 40 min slow
+    utc = dt.datetime.fromtimestamp(int(true_ns[0]) // 10**9, dt.timezone.utc)
+    gga = _nmea(f"GPGGA,{utc:%H%M%S},4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,")
+    bad = gga[:-2] + ("00" if gga[-2:] != "00" else "01")  # wrong checksum
+    pos = encode_position_packets(np.repeat(toh_us[0] - 5000, 3), 2, [bad, gga, gga])
+    pos_batch = PacketBatch.from_payloads(pos, np.repeat(host[0] - 5_000_000, 3))
+    frames, dec = decode_all([pos_batch, PacketBatch.from_payloads(_packets_at(toh_us), host)])
+    assert dec.stats.nmea_errors == 1 and dec.stats.gps_fixes == 2
+    assert frames[0].column_timestamp_ns[0] == true_ns[0] // 1000 * 1000
+    # a sentence that fails its checksum never sets the hour
+    pos_bad = PacketBatch.from_payloads(encode_position_packets([int(toh_us[0])], 2, bad), [int(host[0])])
+    frames, dec = decode_all([pos_bad, PacketBatch.from_payloads(_packets_at(toh_us), host)])
+    assert dec.stats.nmea_errors == 1 and dec.stats.gps_fixes == 0
+    assert frames[0].column_timestamp_ns[0] != true_ns[0] // 1000 * 1000

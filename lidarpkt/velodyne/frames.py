@@ -211,26 +211,37 @@ class VelodyneDecoder:
             self.stats.position_malformed += n
             return
         pos = decode_position_packets(batch.payload)
-        for i, text in enumerate(pos.sentences()):
-            if not text:
-                continue
+        has = np.flatnonzero(pos.nmea[:, 0] != 0)
+        if has.size == 0:
+            return
+        # a sentence changes once per second while packets come far more often: parse each distinct one once
+        uniq, inverse = np.unique(pos.nmea[has], axis=0, return_inverse=True)
+        fixes = []
+        for row in uniq:
             try:
-                fix = parse_nmea(text)
+                fixes.append(parse_nmea(row.tobytes()))
             except NMEAError:
-                self.stats.nmea_errors += 1
-                continue
-            utc = fix.utc_ns
-            if utc is None and fix.time_of_day_s is not None and batch.timestamp_ns[i] != 0:
-                day = 86_400_000_000_000
-                host = int(batch.timestamp_ns[i])
-                utc = host - host % day + round(fix.time_of_day_s * 1e9)
-                utc += day * round((host - utc) / day)  # nearest midnight
-            if not fix.valid or utc is None:
-                continue
-            toh = int(pos.timestamp_us[i]) * 1000
-            absolute = round((utc - toh) / HOUR_NS) * HOUR_NS + toh
-            self._gps_anchor = (int(batch.timestamp_ns[i]), absolute)
-            self.stats.gps_fixes += 1
+                fixes.append(None)
+        ok = np.array([f is not None for f in fixes])[inverse.ravel()]
+        valid = np.array([f is not None and f.valid for f in fixes])[inverse.ravel()]
+        self.stats.nmea_errors += int(np.count_nonzero(~ok))
+        self.stats.gps_fixes += int(np.count_nonzero(valid))
+        if not valid.any():
+            return
+        last = int(np.flatnonzero(valid)[-1])
+        i = int(has[last])
+        fix = fixes[int(inverse.ravel()[last])]
+        host = int(batch.timestamp_ns[i])
+        utc = fix.utc_ns
+        if utc is None and fix.time_of_day_s is not None and host != 0:
+            # $GPGGA has no date: take the capture clock's, to the nearest midnight
+            day = 86_400_000_000_000
+            utc = host - host % day + round(fix.time_of_day_s * 1e9)
+            utc += day * round((host - utc) / day)
+        if utc is None:
+            return
+        toh = int(pos.timestamp_us[i]) * 1000
+        self._gps_anchor = (host, round((utc - toh) / HOUR_NS) * HOUR_NS + toh)
 
     # ------------------------------------------------------------------ data packets
     def push(self, batch: PacketBatch) -> list[Frame]:
