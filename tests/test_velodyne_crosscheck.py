@@ -81,6 +81,17 @@ def test_early_unit_0x21_capture_matches(ext):
     assert assert_same_points(PacketBatch.concatenate(batches), product_id_override=0x22) > 15000
 
 
+def test_veloview_20hz_capture_matches(ext):
+    """1902 packets at 20 Hz, including one whose block azimuth reads 36000 (= 0°)."""
+    from lidarpkt.pcap import PcapReader
+    from lidarpkt.velodyne import decode_packets
+
+    path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])
+    assert np.any(decode_packets(batch.payload).azimuth_cdeg == 36000)
+    assert assert_same_points(batch, product_id_override=0x22) > 500000
+
+
 def test_einride_recording_matches(ext):
     payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, 1206)
     # raw payloads have no capture time: give a plausible host clock at the nominal packet rate

@@ -6,11 +6,14 @@ round-trip tests (``encode(decode(payload)) == payload`` for every real payload)
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
 
 from ..errors import NMEAError, PacketFormatError
+
+if TYPE_CHECKING:
+    from ..frame import Frame
 from .packet import (
     BLOCK_FLAG,
     BLOCKS_PER_PACKET,
@@ -162,7 +165,7 @@ def encode_position_packets(
     return out.view(np.uint8).reshape(n, POSITION_PACKET_SIZE)
 
 
-def encode_frames(frames) -> np.ndarray:
+def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     """Data packets that decode to ``frames`` (the inverse of :class:`~lidarpkt.velodyne.VelodyneDecoder`).
 
     ``frames``: consecutive VLP-16 frames of one return mode, as the decoder made them (their
