@@ -167,6 +167,9 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
     p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
     p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--monitor-by-row", action="store_true",
+                   help="monitor: look for gaps within each row of the neighbourhood only (not fooled by ground and "
+                        "other surfaces at grazing incidence, whose neighbouring beams are metres apart)")
     p.add_argument("--return", dest="slot", metavar="SLOT", default="0", help="slot shown in the plot (default 0)")
 
 
@@ -180,7 +183,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
         raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1")
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
-                         threshold_m=args.threshold)
+                         threshold_m=args.threshold, by_row=args.monitor_by_row)
     out = Path(args.output)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -204,7 +207,11 @@ def run_multireturn(args: argparse.Namespace) -> int:
         if not 0 <= slot < len(s.return_labels):
             raise AnalysisError(f"--return {args.slot}: this capture has slots {list(s.return_labels)}")
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), args.plot)
-        print(f"wrote {args.plot}")
+        roc = Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
+        ev = mr.evaluation[slot]
+        plots.save(plots.plot_roc(ev, f"Multi-return monitor ROC, {s.return_labels[slot]} return, "
+                                      f"{ev.n_pixels} raypaths\n{Path(args.input).name}"), roc)
+        print(f"wrote {args.plot} and {roc}")
     return 0
 
 
@@ -251,6 +258,9 @@ def run_compare_returns(args: argparse.Namespace) -> int:
               f"{s['fraction_identical']:.4f} identical, {s['pairs_one_sided']} with a return on one side only")
         if plots:
             figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))
+            figs.append((plots.plot_pixel_map(pc.fraction_differ,
+                                              f"How often {pc.labels[0]} and {pc.labels[1]} differ per raypath — {src_a}",
+                                              "fraction of frames", a, vmax=1.0), "fraction_differ.png"))
     else:
         b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
         doc["inputs"].append(args.input2)
@@ -258,6 +268,10 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         res = compare_stacks(a, b, 0, 0, paired=args.paired)
         dist, pc = res if args.paired else (res, None)
         doc["modes"] = dist.summary()
+        if plots:
+            figs.append((plots.plot_pixel_map(dist.ks, f"KS distance between the temporal CDFs, {dist.labels[0]} "
+                                              f"({Path(args.input).name}) vs {dist.labels[1]} ({Path(args.input2).name})",
+                                              "KS distance", a, vmax=1.0), "ks_map.png"))
         s = doc["modes"]
         ksq = s["ks_quantiles"] or {}
         print(f"{src_a} vs {_source(args.input2, b)}: {s['pixels_compared']} raypaths compared; "

@@ -118,11 +118,16 @@ def image_statistics(stack: FrameStack, *, gap_m: float = DEFAULT_GAP_M) -> Imag
     )
 
 
-def spatial_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5) -> np.ndarray:
+def spatial_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5, by_row: bool = False) -> np.ndarray:
     """The monitor's score: for every pixel and slot of one frame, the largest gap (m) between
     consecutive sorted returns of its n × n neighbourhood (rows clipped, azimuth wrapping,
     taken in the destaggered image). 0 where the neighbourhood has fewer than two returns.
     ``float64[R, H, W]``, in the stack's (staggered) pixel layout.
+
+    ``by_row``: sort each row of the neighbourhood on its own and take the largest gap found in
+    any of them. A surface seen at grazing incidence (ground, a hedge top) puts neighbouring
+    beams metres apart, which the whole neighbourhood reads as two surfaces; within one row
+    (one elevation, neighbouring azimuths) it stays one surface.
     """
     check_stack(stack)
     if n < 1 or n % 2 == 0:
@@ -137,15 +142,22 @@ def spatial_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5) -> np.nd
     half = n // 2
     padded = np.full((r, h + 2 * half, w), _NO_SAMPLE, dtype=np.uint32)
     padded[:, half : half + h] = img
-    # n·n shifted copies of the image: neighbour (di, dj) of every pixel at once.
-    neigh = np.stack(
-        [np.roll(padded[:, half + di : half + di + h], -dj, axis=2) for di in range(-half, half + 1) for dj in range(-half, half + 1)]
-    )
-    neigh.sort(axis=0)
-    step = np.diff(neigh.astype(np.int64), axis=0)
-    ok = neigh[1:] != _NO_SAMPLE
-    score = np.where(ok, step, 0).max(axis=0) / 1000.0
-    return restagger(score, shift)
+
+    def largest_gap(neigh: np.ndarray) -> np.ndarray:
+        neigh.sort(axis=0)
+        step = np.diff(neigh.astype(np.int64), axis=0)
+        return np.where(neigh[1:] != _NO_SAMPLE, step, 0).max(axis=0)
+
+    if by_row:
+        # the n azimuth neighbours of every pixel, then the largest gap over the n rows around it
+        row_gap = largest_gap(np.stack([np.roll(padded, -dj, axis=2) for dj in range(-half, half + 1)]))
+        score = np.stack([row_gap[:, half + di : half + di + h] for di in range(-half, half + 1)]).max(axis=0)
+    else:
+        # n·n shifted copies of the image: neighbour (di, dj) of every pixel at once.
+        score = largest_gap(np.stack(
+            [np.roll(padded[:, half + di : half + di + h], -dj, axis=2) for di in range(-half, half + 1) for dj in range(-half, half + 1)]
+        ))
+    return restagger(score / 1000.0, shift)
 
 
 @dataclass(frozen=True, eq=False)
@@ -227,6 +239,7 @@ class MultiReturnMap:
     monitor_frame: int
     neighbourhood: int
     evaluation: list[MonitorEvaluation] = field(default_factory=list)  # one per slot
+    by_row: bool = False  # the monitor's score took each neighbourhood row on its own
 
     def to_npz_dict(self) -> dict[str, np.ndarray]:
         """Arrays for ``numpy.savez`` (the file ``lidarpkt multireturn -o`` writes)."""
@@ -237,7 +250,7 @@ class MultiReturnMap:
             "multi_return": s.multi_return, "gap_threshold_m": np.float64(s.gap_threshold_m),
             "return_labels": np.array(s.return_labels), "monitor_score_m": self.monitor_score_m,
             "monitor_flags": self.monitor_flags, "monitor_frame": np.int64(self.monitor_frame),
-            "neighbourhood": np.int64(self.neighbourhood),
+            "neighbourhood": np.int64(self.neighbourhood), "monitor_by_row": np.bool_(self.by_row),
         }
         for i, ev in enumerate(self.evaluation):
             out[f"slot{i}_precision"] = np.float64(ev.precision)
@@ -256,15 +269,16 @@ def multireturn_map(
     neighbourhood: int = 5,
     monitor_frame: int = 0,
     threshold_m: float | None = None,
+    by_row: bool = False,
 ) -> MultiReturnMap:
     """The multi-return map of a scene: :func:`image_statistics`, the monitor's flags on frame
     ``monitor_frame`` (score > ``threshold_m``, default ``gap_m``: the neighbourhood shows two
-    clusters), and the monitor evaluated per slot against ``n_clusters >= 2`` over the pixels
-    with at least one return in the stack."""
+    clusters; ``by_row``: see :func:`spatial_gap_score`), and the monitor evaluated per slot
+    against ``n_clusters >= 2`` over the pixels with at least one return in the stack."""
     stats = image_statistics(stack, gap_m=gap_m)
-    score = spatial_gap_score(stack, frame=monitor_frame, n=neighbourhood)
+    score = spatial_gap_score(stack, frame=monitor_frame, n=neighbourhood, by_row=by_row)
     thr = gap_m if threshold_m is None else float(threshold_m)
     evaluation = [
         evaluate_monitor(score[i], stats.multi_return[i], thr, mask=stats.n_returns[i] > 0) for i in range(score.shape[0])
     ]
-    return MultiReturnMap(stats, score, score > thr, monitor_frame % len(stack), neighbourhood, evaluation)
+    return MultiReturnMap(stats, score, score > thr, monitor_frame % len(stack), neighbourhood, evaluation, by_row)

@@ -253,7 +253,7 @@ def plot_multireturn_map(mr: MultiReturnMap, stack: FrameStack | None = None, sl
                         norm=BoundaryNorm(np.arange(-0.5, 4.5), 4))
     cb = fig.colorbar(im, ax=axes[3], ticks=range(4), pad=0.01)
     cb.ax.set_yticklabels(["neither", "flagged only", "missed", "flagged & multi"])
-    title = f"Monitor on frame {mr.monitor_frame} ({mr.neighbourhood}×{mr.neighbourhood} spatial CDF)"
+    title = f"Monitor on frame {mr.monitor_frame} ({mr.neighbourhood}×{mr.neighbourhood} spatial CDF{', by row' if mr.by_row else ''})"
     if ev is not None:
         title += f": precision {ev.precision:.2f}, recall {ev.recall:.2f}, ROC AUC {ev.auc:.2f}"
     axes[3].set_title(title)
@@ -325,4 +325,28 @@ def plot_mode_cdfs(cdfs: Mapping[str, RangeCDF], row: int, col: int, source: str
     ks_txt = f", KS distance {ks:.3f}" if ks is not None and np.isfinite(ks) else ""
     src = f" — {source}" if source else ""
     ax.set_title(f"Temporal CDF by return mode, raypath (row {row}, col {col}){ks_txt}{src}", fontsize=10)
+    return fig
+
+
+def plot_pixel_map(values: np.ndarray, title: str, label: str, stack: FrameStack | None = None,
+                   vmin: float | None = 0.0, vmax: float | None = None):
+    """A per-pixel ``[H, W]`` quantity as an image (destaggered for display when ``stack`` has a
+    stagger), NaN (no sample) in grey: e.g. how often two modes differ, or their KS distance."""
+    from matplotlib import colormaps
+
+    shift = pixel_shift(stack) if stack is not None else np.zeros(values.shape[0], np.int64)
+    img = destagger(np.asarray(values, dtype=np.float64), shift)
+    h, w = img.shape
+    fig = _figure(figsize=(12, max(2.8, min(8.0, 1.2 + 12 * h / w * 3))), layout="constrained")
+    ax = fig.add_subplot()
+    finite = img[np.isfinite(img)]
+    if vmax is None:
+        vmax = float(np.quantile(finite, 0.99)) if finite.size else 1.0
+    im = ax.imshow(img, aspect="auto", interpolation="nearest", cmap=colormaps["viridis"].with_extremes(bad="0.6"),
+                   vmin=vmin, vmax=vmax)
+    fig.colorbar(im, ax=ax, pad=0.01).set_label(label)
+    ax.set_xlabel("column (azimuth step" + (", destaggered" if np.any(shift) else "") + ")")
+    ax.set_ylabel("row (beam, 0 = top)")
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.set_title(title + " (grey: no sample)", fontsize=10)
     return fig

@@ -75,7 +75,7 @@ def test_single_frame_statistics():
     assert np.all(s.gap_m == 0)
 
 
-def reference_gap_score(stack, frame, n, shift=None):
+def reference_gap_score(stack, frame, n, shift=None, by_row=False):
     k, r, h, w = stack.range_mm.shape
     img = np.where(stack.column_valid[frame][None, None, :], stack.range_mm[frame].astype(np.int64), -1)  # -1 missing
     if shift is not None:
@@ -85,28 +85,34 @@ def reference_gap_score(stack, frame, n, shift=None):
     for s in range(r):
         for i in range(h):
             for j in range(w):
-                vals = sorted(
-                    img[s, ii, (j + dj) % w]
+                groups = [
+                    [img[s, ii, (j + dj) % w] for dj in range(-half, half + 1) if img[s, ii, (j + dj) % w] > 0]
                     for ii in range(max(0, i - half), min(h, i + half + 1))
-                    for dj in range(-half, half + 1)
-                    if img[s, ii, (j + dj) % w] > 0
+                ]
+                if not by_row:
+                    groups = [[v for g in groups for v in g]]
+                out[s, i, j] = max(
+                    [(b - a) / 1000 for g in groups for a, b in zip(sorted(g), sorted(g)[1:])], default=0.0
                 )
-                out[s, i, j] = max([(b - a) / 1000 for a, b in zip(vals, vals[1:])], default=0.0)
     if shift is not None:  # back to the staggered layout: staggered[u, c] = destaggered[u, (c + shift[u]) % W]
         out = np.stack([[np.roll(out[s, u], -shift[u]) for u in range(h)] for s in range(r)])
     return out
 
 
+@pytest.mark.parametrize("by_row", [False, True])
 @pytest.mark.parametrize("n", [3, 5])
-def test_monitor_score_matches_a_per_pixel_loop(n):
+def test_monitor_score_matches_a_per_pixel_loop(n, by_row):
     stack = random_stack(seed=1)
-    assert np.allclose(spatial_gap_score(stack, frame=3, n=n), reference_gap_score(stack, 3, n))
+    got = spatial_gap_score(stack, frame=3, n=n, by_row=by_row)
+    assert np.allclose(got, reference_gap_score(stack, 3, n, by_row=by_row))
 
 
-def test_monitor_score_uses_destaggered_neighbours():
+@pytest.mark.parametrize("by_row", [False, True])
+def test_monitor_score_uses_destaggered_neighbours(by_row):
     shift = np.array([4, 0, 7, 2, 5])
     stack = random_stack(seed=2, shift=shift)
-    assert np.allclose(spatial_gap_score(stack, frame=0, n=3), reference_gap_score(stack, 0, 3, shift))
+    got = spatial_gap_score(stack, frame=0, n=3, by_row=by_row)
+    assert np.allclose(got, reference_gap_score(stack, 0, 3, shift, by_row=by_row))
 
 
 def test_monitor_evaluation_by_hand_and_auc_against_mann_whitney():

@@ -154,6 +154,11 @@ def test_monitor_flags_the_window_and_foliage_and_is_fooled_by_the_hedge(scenes)
     ev = mr.evaluation[0]
     assert ev.false_positive >= 1 and ev.true_positive >= 2 and 0 < ev.precision < 1
     assert 0.5 < ev.auc <= 1.0
+    # row by row, the hedge's beams are each one surface: no longer flagged; window and foliage still are
+    by_row = multireturn_map(stack, by_row=True)
+    assert not by_row.monitor_flags[(0,) + at["hedge"]]
+    assert by_row.monitor_flags[(0,) + at["window"]] and by_row.monitor_flags[(0,) + at["foliage"]]
+    assert by_row.evaluation[0].precision > ev.precision  # ground at grazing incidence stops counting as "multi"
 
 
 def test_mode_comparison_on_consistent_captures(scenes):
