@@ -60,7 +60,7 @@ def data_kind(batch: PacketBatch) -> str | None:
     """``"vlp16"``, ``"hdl32e"`` or ``None`` (not Velodyne-like data packets) for a batch of 1206-byte payloads."""
     if batch.payload_size != DATA_PACKET_SIZE or len(batch) == 0:
         return None
-    raw = decode_packets(batch.payload)
+    raw = decode_packets(batch.payload, copy=False)
     ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
     if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not VLP-16 layout
         return None
