@@ -183,3 +183,14 @@ def test_compare_returns_on_a_single_return_capture_alone_is_an_error(canned, ca
     pcap, _ = canned("vlp16-strongest")
     code, _, err = run(["compare-returns", str(pcap)], capsys)
     assert code == 2 and "give a dual-return capture, or a second capture" in err
+
+
+def test_not_a_capture_and_an_empty_capture_are_clear_errors(ext, tmp_path, capsys):
+    junk = tmp_path / "notes.pcap"
+    junk.write_text("these are not packets\n" * 10)
+    code, _, err = run(["analyze", str(junk), "--pixel", "0,0"], capsys)
+    assert code == 2 and err.startswith("lidarpkt: error: ") and "Traceback" not in err
+    empty = ext("ouster-sdk/empty_pcap.pcap")
+    code, _, err = run(["multireturn", str(empty), "--metadata", str(ext("ouster-sdk/empty_pcap.json")),
+                        "-o", str(tmp_path / "m.npz")], capsys)
+    assert code == 2 and "no frames to analyse" in err and not (tmp_path / "m.npz").exists()
