@@ -738,8 +738,11 @@ class PcapReader:
             a[order] for a in (p, src, dst, ident, off, mf, dstart, dlen, ts)
         )
         m = p.shape[0]
-        new_run = np.ones(m, bool)
-        new_run[1:] = (src[1:] != src[:-1]) | (dst[1:] != dst[:-1]) | (ident[1:] != ident[:-1])
+        new_key = np.ones(m, bool)
+        new_key[1:] = (src[1:] != src[:-1]) | (dst[1:] != dst[:-1]) | (ident[1:] != ident[:-1])
+        # an IP ID is reused: a run of one key also ends after each last fragment
+        new_run = new_key.copy()
+        new_run[1:] |= mf[:-1] == 0
         starts = np.flatnonzero(new_run)
         ends = np.append(starts[1:], m) - 1
         last = np.zeros(m, bool)
@@ -755,7 +758,7 @@ class PcapReader:
         run_ok &= (dgram_len <= self._reasm.max_datagram_bytes) & (dlen[starts] >= 8)
         ustart = dstart[starts]
         ulen = _gather(buf, np.minimum(ustart + 4, top), ">u2").astype(np.int64)
-        run_ok &= (ulen >= 8) & (ulen <= dgram_len)
+        run_ok &= ulen == dgram_len  # a reassembled datagram has no padding: anything else is damage
         if self._reasm.pending_datagrams:  # a stale datagram of the same key decides in the general path
             pending = self._reasm._pending
             for r in np.flatnonzero(run_ok).tolist():
@@ -763,6 +766,12 @@ class PcapReader:
                 key = (4, int(src[i]).to_bytes(4, "big"), int(dst[i]).to_bytes(4, "big"), IPPROTO_UDP, int(ident[i]))
                 if key in pending:
                     run_ok[r] = False
+        # once a run of a key fails, the later runs of that key must go through the reassembler too
+        # (the failed run's fragments are pending there and decide what the later ones become)
+        bad_cum = np.cumsum(~run_ok)
+        key_start_run = np.maximum.accumulate(np.where(new_key[starts], np.arange(starts.shape[0]), 0))
+        bad_before_key = np.where(key_start_run > 0, bad_cum[key_start_run - 1], 0)
+        run_ok &= (bad_cum - bad_before_key) == 0
         if not run_ok.any():
             return None
         run_id = np.cumsum(new_run) - 1
@@ -1033,7 +1042,7 @@ class PcapReader:
             payload = self._reasm.add((4, src, dst, proto, ident), frag_off, more, data[off + ihl : off + total], ts_ns)
             if payload is None:
                 return None
-            return self._udp(payload, 0, len(payload), socket.inet_ntoa(src), socket.inet_ntoa(dst))
+            return self._udp(payload, 0, len(payload), socket.inet_ntoa(src), socket.inet_ntoa(dst), True)
         return self._udp(data, off + ihl, n, socket.inet_ntoa(src), socket.inet_ntoa(dst))
 
     def _parse_ipv6(self, data: memoryview, off: int, ts_ns: int):
@@ -1078,16 +1087,19 @@ class PcapReader:
             payload = self._reasm.add((6, src, dst, ident), frag_off, more, data[p:end], ts_ns)
             if payload is None:
                 return None
-            return self._udp(payload, 0, len(payload), s, d)
+            return self._udp(payload, 0, len(payload), s, d, True)
         return self._udp(data, p, n, s, d)
 
-    def _udp(self, data, p: int, end: int, src: str, dst: str):
+    def _udp(self, data, p: int, end: int, src: str, dst: str, reassembled: bool = False):
         """The UDP datagram at ``data[p:end]`` (end = captured bytes available)."""
         if end - p < 8:
             return self._bad("UDP header cut short")
         sport, dport, ulen = struct.unpack_from(">HHH", data, p)
         if ulen < 8:
             return self._bad("UDP length below 8")
+        if reassembled and ulen != end - p:
+            # fragments of two datagrams that share an IP ID would give such a mix
+            return self._bad("reassembled datagram length differs from its UDP length")
         if p + ulen > end:
             return self._bad("UDP datagram cut short (snap length or a bad UDP length)")
         self.stats.udp_packets += 1

@@ -116,14 +116,15 @@ def test_random_record_headers(tmp_path, header_fields, base, record):
 
 
 def _datagrams():
-    """Six UDP datagrams from two senders, fragmented at MTU 1500 (9, 9, 3, 1, 9, 6 fragments)."""
+    """Six UDP datagrams from two senders, fragmented at MTU 1500 (9, 9, 3, 1, 9, 6 fragments);
+    each sender reuses an IP ID for its first two datagrams."""
     sizes = [12608, 12608, 4000, 500, 12608, 8448]
     out = []
     for i, size in enumerate(sizes):
         src = "169.254.92.158" if i % 2 else "169.254.238.111"
         p = Packet(1_700_000_000_000_000_000 + i * 1_000_000, Endpoint(src, 50000 + i % 2), Endpoint("169.254.100.204", 7502),
                    bytes((i * 31 + j * 7) & 0xFF for j in range(size)))
-        out.append((p, [(p.timestamp_ns + k, f) for k, f in enumerate(frames_for(p, ident=1000 + i % 3))]))
+        out.append((p, [(p.timestamp_ns + k, f) for k, f in enumerate(frames_for(p, ident=1000 + i // 4))]))
     return out
 
 
@@ -131,6 +132,7 @@ _ORIGINALS, _TRAINS = zip(*_datagrams())
 _ORIGINALS, _TRAINS = list(_ORIGINALS), list(_TRAINS)
 
 
+@pytest.mark.filterwarnings("ignore::lidarpkt.errors.SkippedPacketWarning")  # mixes are counted and skipped
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_vector_reassembly_equals_record_by_record(tmp_path, data):
@@ -168,6 +170,8 @@ def test_vector_reassembly_equals_record_by_record(tmp_path, data):
         assert getattr(slow.stats, field) == getattr(fast.stats, field), field
     originals = {(p.src, p.payload) for p in _ORIGINALS}
     assert all((p.src, p.payload) in originals for p in b)  # never a mix of two datagrams
-    # trains left whole (in order or not, no loss) are all delivered
-    assert {p.payload for p in b} >= {o.payload for o, t in zip(_ORIGINALS, records) if sorted(t) == sorted(set(t)) and
-                                      len(set(t)) == len(_TRAINS[_ORIGINALS.index(o)])}
+    # trains left whole (in order or not, no loss, no duplicate) are all delivered, unless the sender's
+    # previous datagram with the same IP ID (i - 2 for i = 2, 3) is still pending, damaged
+    whole = [sorted(t) == sorted(set(t)) and len(t) == len(o) for t, o in zip(records, _TRAINS)]
+    expected = {o.payload for i, o in enumerate(_ORIGINALS) if whole[i] and (i not in (2, 3) or whole[i - 2])}
+    assert {p.payload for p in b} >= expected
