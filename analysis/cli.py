@@ -227,6 +227,10 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metadata2", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
     p.add_argument("--pixel", metavar="ROW,COL", action="append", default=[],
                    help="raypath whose temporal CDFs to compare in detail; repeatable")
+    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
+                   help="with IN2: the slot of IN to compare, index or label (default 0)")
+    p.add_argument("--return2", dest="slot2", metavar="SLOT", default="0",
+                   help="with IN2: the slot of IN2 to compare, index or label (default 0)")
     p.add_argument("--paired", action="store_true",
                    help="with IN2: frame k of both captures is the same firing (captures generated from one seed); "
                         "also compare them frame by frame")
@@ -235,7 +239,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
     from .compare import compare_slots, compare_stacks, ks_image
-    from .stack import check_pixel
+    from .stack import check_pixel, slot_index
 
     pixels = [_parse_pixel(p) for p in args.pixel]
     a = _load(args.input, args.metadata, args.frames, args.grid)
@@ -265,7 +269,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
-        res = compare_stacks(a, b, 0, 0, paired=args.paired)
+        sa_i, sb_i = slot_index(a, args.slot), slot_index(b, args.slot2)
+        res = compare_stacks(a, b, sa_i, sb_i, paired=args.paired)
         dist, pc = res if args.paired else (res, None)
         doc["modes"] = dist.summary()
         if plots:
@@ -283,7 +288,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
             if plots:
                 figs.append((plots.plot_delta_histogram(pc, f"{Path(args.input).name} vs {Path(args.input2).name}"),
                              "delta_histogram.png"))
-        pairs = [(a, 0, b, 0)]
+        pairs = [(a, sa_i, b, sb_i)]
     raypaths = []
     for r, c in pixels:
         for sa, ia, sb, ib in pairs:

@@ -208,7 +208,7 @@ def plot_range_image(
     cb.set_label("range (m); black = no return")
     label = stack.return_labels[slot]
     src = f" — {source}" if source else ""
-    ax.set_title(f"Range image, frame {int(stack.frame_id[frame])}, {label} return, {stack.sensor.model}{src}", fontsize=10)
+    ax.set_title(f"Range image, frame id {int(stack.frame_id[frame])}, {label} return, {stack.sensor.model}{src}", fontsize=10)
     return fig
 
 

@@ -42,7 +42,11 @@ class RaypathAnalysis:
         """One entry of ``analyze --json``'s ``pixels`` list.
 
         ``n_frames`` counts the frames with a sample of this pixel (``n_returns + n_nonreturn``,
-        the CDF's denominator); ``n_missing`` the frames where its column was lost.
+        the CDF's denominator); ``n_missing`` the frames where its column was lost. ``range_m``
+        is sorted and ``F`` is the CDF at each sample; ``reflectivity`` is aligned with the
+        temporal ``range_m``. ``spatial_cdf`` is the first frame's; ``motion_compensated`` and
+        ``gmm`` are null when not computed (``gmm`` describes the compensated samples when
+        motion compensation is on). GMM weights are shares of all samples, non-returns included.
         """
         t = self.temporal
         return {

@@ -194,3 +194,17 @@ def test_not_a_capture_and_an_empty_capture_are_clear_errors(ext, tmp_path, caps
     code, _, err = run(["multireturn", str(empty), "--metadata", str(ext("ouster-sdk/empty_pcap.json")),
                         "-o", str(tmp_path / "m.npz")], capsys)
     assert code == 2 and "no frames to analyse" in err and not (tmp_path / "m.npz").exists()
+
+
+def test_compare_returns_picks_slots_of_two_captures(canned, tmp_path, capsys):
+    dual, truth = canned("vlp16-dual")
+    last, _ = canned("vlp16-last")
+    out = tmp_path / "c.json"
+    code, _, err = run(["compare-returns", str(dual), str(last), "--return", "last", "--return2", "0", "--paired",
+                        "--json", str(out)], capsys)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    # the dual capture's last-return slot and the last-mode capture report the same firings
+    assert doc["modes"]["labels"] == ["last", "last"] and doc["paired"]["fraction_identical"] == 1.0
+    code, _, err = run(["compare-returns", str(dual), str(last), "--return", "second_strongest"], capsys)
+    assert code == 2 and "is not in this capture" in err
