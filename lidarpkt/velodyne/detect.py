@@ -64,12 +64,12 @@ def data_kind(batch: PacketBatch) -> str | None:
     ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
     if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not VLP-16 layout
         return None
-    raw = raw.select(ok)
-    product = int(np.bincount(raw.product_id).argmax())
+    product = int(np.bincount(raw.product_id[ok]).argmax())
     if product == PRODUCT_VLP16:
         return "vlp16"
     if product != PRODUCT_HDL32E:
         return None
+    raw = raw.select(ok)
     dual = bool(np.median(raw.return_mode) == 0x39)
     period = _median_period_us(raw.timestamp_us)
     if period is not None:
