@@ -56,7 +56,7 @@ class McapWriter:
         path: str | os.PathLike[str],
         *,
         chunk_seconds: float = 0.5,
-        chunk_bytes: int = 8 << 20,
+        chunk_bytes: int = 1 << 20,
         compression: str = "zstd",
         rotate_bytes: int | None = None,
         rotate_seconds: float | None = None,

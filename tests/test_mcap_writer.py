@@ -278,3 +278,38 @@ def test_disk_full_is_a_clear_error_and_the_file_stays_readable(tmp_path):
         assert [b.payload[0].tobytes() for b in got] == [rng.bytes(4000) for _ in got]
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+def test_rotation_by_time(tmp_path):
+    clock = _Clock()
+    w = McapWriter(tmp_path / "t.mcap", chunk_seconds=0.25, rotate_seconds=1.0, clock=clock)
+    for i in range(40):  # 4 s of messages, 10 a second
+        w.write(schemas.OUSTER_IMU, schemas.encode_packet_msg(bytes(48)), i)
+        clock.t += 0.125 if i % 5 else 0.0625
+    w.close()
+    counts = [sum(1 for t, _, _ in _official(f)[2] if t == "/ouster/imu_packets") for f in w.files]
+    assert len(w.files) >= 3 and sum(counts) == 40 and all(c > 0 for c in counts)
+
+
+def test_one_velodyne_scan_per_rotation_and_dual_returns_on_their_own_topics(tmp_path):
+    import fixtures
+
+    pcap = fixtures.canned("vlp16-dual")
+    out = _decode(tmp_path, pcap, "--topics", "packets,points")
+    _, _, msgs = _official(out)
+    scans = [m for t, _, m in msgs if t == "/velodyne_packets"]
+    first_az = [[int.from_bytes(bytes(p.data)[2:4], "little") for p in s.packets] for s in scans]
+    for k, az in enumerate(first_az):
+        assert all(a < b for a, b in zip(az, az[1:])), "no wrap inside a scan"
+        if k:
+            assert az[0] < first_az[k - 1][-1], "each scan starts with the wrap"
+    frames = list(lidarpkt.open(pcap))
+    assert frames[0].return_labels == ("last", "strongest")
+    for topic, slot in (("/velodyne_points", 0), ("/velodyne_points2", 1)):
+        clouds = [m for t, _, m in msgs if t == topic]
+        assert len(clouds) == len(frames)
+        for frame, pc in zip(frames, clouds):
+            pts = np.frombuffer(bytes(pc.data), np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")] + [
+                ("rest", "V%d" % (pc.point_step - 12))])).reshape(pc.height, pc.width)
+            xyz = frame.xyz()[slot].astype(np.float32)
+            assert np.array_equal(np.stack([pts["x"], pts["y"], pts["z"]], -1), xyz)

@@ -140,3 +140,56 @@ def test_record_errors_are_clear_and_leave_no_traceback(tmp_path):
     assert r.returncode == 2 and "cannot open GPS serial port" in r.stderr
     r = _run_cli("replay", str(external("rust-lidar-utils/velodyne_example.pcap")), "--to", "nohostport")
     assert r.returncode == 2 and "HOST:PORT" in r.stderr
+
+
+def test_duration_stop_with_status_lines_and_summary(tmp_path):
+    (port,) = _free_ports(1)
+    rec = Recorder(tmp_path, [port], "--duration", "2.2")
+    payloads = [p.payload for p in read_capture(str(external("rust-lidar-utils/velodyne_example.pcap")))]
+    replay([p for p in read_capture(str(external("rust-lidar-utils/velodyne_example.pcap")))],
+           "127.0.0.1", port, rate=1.0)
+    assert rec.proc.wait(timeout=60) == 0
+    log = rec.log.read_text()
+    status = [line for line in log.splitlines() if "pkt/s" in line]
+    assert len(status) >= 2 and all("lost 0 (gaps) + 0 (kernel) + 0 (queue)" in s for s in status)
+    assert "stopped by duration 2.2 s" in log and f"{len(payloads)} packets" in log
+    assert "granted" in log.splitlines()[0]
+
+
+def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(tmp_path):
+    import warnings
+
+    from lidarpkt.bags import BagReader
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root) to fill a disk")
+    try:
+        packets = [p for p in read_capture(str(external("veloview/vlp-16-test-90deg-1-50-frames.pcap")))
+                   if len(p.payload) == 1206]
+        (port,) = _free_ports(1)
+        out, log = mnt / "full.mcap", tmp_path / "full.log"
+        proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind",
+                                 "127.0.0.1", "-o", str(out), "--chunk-seconds", "0.05", "-q"],
+                                stderr=log.open("w"), cwd=REPO)
+        try:
+            deadline = time.monotonic() + 30
+            while "listening on" not in log.read_text():
+                assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+                time.sleep(0.02)
+            replay(packets, "127.0.0.1", port, rate=2.0)  # slow enough for many small chunks
+            assert proc.wait(timeout=60) == 2
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        text = log.read_text()
+        assert "no space left" in text and "readable up to its last complete chunk" in text
+        assert "Traceback" not in text
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            got = [row.tobytes() for b in BagReader(out).batches() for row in b.payload]
+        assert len(got) > 100 and got == [p.payload for p in packets[: len(got)]]
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
