@@ -433,3 +433,20 @@ def test_gpgga_fix_and_bad_sentences_in_position_packets():
     frames, dec = decode_all([pos_bad, PacketBatch.from_payloads(_packets_at(toh_us), host)])
     assert dec.stats.nmea_errors == 1 and dec.stats.gps_fixes == 0
     assert frames[0].column_timestamp_ns[0] != true_ns[0] // 1000 * 1000
+
+
+def test_a_gap_across_the_wrap_is_counted_on_both_sides(ext):
+    payload = einride(ext)
+    host = 1_600_000_000_000_000_000 + np.arange(1000, dtype=np.int64) * 1_327_104
+    full, _ = decode_all([PacketBatch.from_payloads(payload, host)])
+    # the packets around the first wrap inside the recording: the last 3 of frame 0, the first 4 of frame 1
+    first_of_1 = int(full[1].extra["packet_index"][0])
+    keep = np.ones(1000, bool)
+    keep[first_of_1 - 3:first_of_1 + 4] = False
+    holed, dec = decode_all([PacketBatch.from_payloads(payload, host).select(keep)])
+    assert dec.stats.lost_packets == 7
+    assert len(holed) == len(full)
+    assert holed[0].counters.lost_packets + holed[1].counters.lost_packets == 7
+    assert 2 <= holed[0].counters.lost_packets <= 4  # the cut falls where the interpolated azimuth wraps
+    for a, b in zip(holed, full):
+        assert a.shape[2] == b.shape[2] or abs(a.shape[2] - b.shape[2]) <= 24

@@ -400,8 +400,11 @@ class VelodyneDecoder:
         ts_out[cols] = ts
         p_out = np.full(w, -1, np.int64)
         p_out[cols] = pidx
+        # one count at the first column of each lost packet, so that a frame cut inside a gap
+        # counts exactly the packets lost on its side
+        lost_slot = np.repeat(slot - miss, miss) + (np.arange(total_missing) - np.repeat(np.cumsum(miss) - miss, miss))
         lost = np.zeros(w, np.int32)
-        lost[slot * per_packet] = miss.astype(np.int32)
+        lost[lost_slot * per_packet] = 1
         # azimuth of lost columns: interpolated along the unwrapped azimuth of the valid ones
         anchor_idx = [] if self._last_az_cdeg is None else [-1]
         anchor_az = [] if self._last_az_cdeg is None else [self._last_az_cdeg]
