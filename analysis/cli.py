@@ -43,6 +43,10 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
+def _fmt(value: float | None, digits: int = 4) -> str:
+    return "n/a" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
 def _write_json(doc: dict, path: str) -> None:
     out = Path(path)
     try:
@@ -198,8 +202,8 @@ def run_multireturn(args: argparse.Namespace) -> int:
         ev = mr.evaluation[i]
         print(f"slot {i} ({label}): {with_ret} raypaths with returns, {multi} multi-return "
               f"(>= 2 clusters, gap > {gap:g} m); monitor on frame {mr.monitor_frame}: "
-              f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {ev.precision:.3f}, "
-              f"recall {ev.recall:.3f}, ROC AUC {ev.auc:.3f}")
+              f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
+              f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
     print(f"wrote {out}")
     if args.plot:
         plots = _plots()
@@ -243,6 +247,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
 
     pixels = [_parse_pixel(p) for p in args.pixel]
     a = _load(args.input, args.metadata, args.frames, args.grid)
+    for r, c in pixels:  # before any heavy work
+        check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
     doc: dict[str, Any] = {"inputs": [args.input]}
     plots = _plots() if args.plot else None
@@ -259,7 +265,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         doc["slots"] = pc.summary()
         s = pc.summary()
         print(f"{src_a}: {len(a)} frames, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
-              f"{s['fraction_identical']:.4f} identical, {s['pairs_one_sided']} with a return on one side only")
+              f"{_fmt(s['fraction_identical'])} identical, {s['pairs_one_sided']} with a return on one side only")
         if plots:
             figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))
             figs.append((plots.plot_pixel_map(pc.fraction_differ,
@@ -280,11 +286,10 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         s = doc["modes"]
         ksq = s["ks_quantiles"] or {}
         print(f"{src_a} vs {_source(args.input2, b)}: {s['pixels_compared']} raypaths compared; "
-              f"KS distance between temporal CDFs: median {ksq.get('0.5', float('nan')):.3f}, "
-              f"90% {ksq.get('0.9', float('nan')):.3f}")
+              f"KS distance between temporal CDFs: median {_fmt(ksq.get('0.5'), 3)}, 90% {_fmt(ksq.get('0.9'), 3)}")
         if pc is not None:
             doc["paired"] = pc.summary()
-            print(f"paired by frame: {pc.summary()['fraction_identical']:.4f} of pairs identical")
+            print(f"paired by frame: {_fmt(pc.summary()['fraction_identical'])} of pairs identical")
             if plots:
                 figs.append((plots.plot_delta_histogram(pc, f"{Path(args.input).name} vs {Path(args.input2).name}"),
                              "delta_histogram.png"))
