@@ -97,6 +97,7 @@ _IPV6_AH = 51
 
 MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
 MAX_PCAPNG_BLOCK = 1 << 24  # larger "blocks" are taken as corruption, not allocated
+MAX_CHUNK_BYTES = 32 << 20  # a chunk (and so a batch) spans at most this much of the file
 _SEC_NS = 1_000_000_000
 
 
@@ -430,7 +431,8 @@ class PcapReader:
             pieces: list[np.ndarray] = []
             singles: list[int] = []
             n = 0
-            while n < chunk:
+            chunk_start = off
+            while n < chunk and off - chunk_start < MAX_CHUNK_BYTES:
                 if off + hdr > end:
                     if off != end:
                         self._truncate(
@@ -457,7 +459,8 @@ class PcapReader:
                     done = True
                     break
                 if backoff <= 0:
-                    k_max = min(chunk - n, (end - off) // stride, window)
+                    k_max = min(chunk - n, (end - off) // stride, window,
+                                (MAX_CHUNK_BYTES - (off - chunk_start)) // stride + 1)
                     if k_max >= 8:
                         caps = np.ndarray((k_max,), cap_dtype, buf, off + 8, (stride,))
                         bad = np.flatnonzero(caps != cap)
@@ -511,6 +514,7 @@ class PcapReader:
         tss: list[int] = []
         links: list[int] = []
         first = True
+        chunk_start = 0
 
         def flush() -> _Chunk:
             n = len(offs)
@@ -637,9 +641,10 @@ class PcapReader:
                     caps.append(cap)
                     tss.append(ts_ns)
                     links.append(lt)
-                    if len(offs) >= chunk:
+                    if len(offs) >= chunk or off - chunk_start >= MAX_CHUNK_BYTES:
                         off += blen
                         yield flush()
+                        chunk_start = off
                         continue
             off += blen
         if offs:

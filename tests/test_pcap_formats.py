@@ -449,3 +449,86 @@ def test_filters_on_the_general_path(tmp_path, real_packets):
     reader = PcapReader(path, ports=[8308])
     assert all(p.dst.port == 8308 for p in reader.packets())
     assert reader.stats.yielded + reader.stats.filtered == reader.stats.udp_packets == len(packets)
+
+
+def test_modified_pcap_with_24_byte_records(tmp_path, real_packets):
+    """Kuznetzov's patched libpcap (magic a1b2cd34): each record header has 8 more bytes
+    (ifindex u32, protocol u16, packet type u8, pad u8) after the usual 16."""
+    packets = [p for p in real_packets if len(p.payload) < 1400]
+    out = bytearray(struct.pack("<IHHiIII", 0xA1B2CD34, 2, 4, 0, 0, 65535, 1))
+    for p in packets:
+        (frame,) = frames_for(p)
+        sec, ns = divmod(p.timestamp_ns, 10**9)
+        out += struct.pack("<IIII", sec, ns // 1000, len(frame), len(frame)) + struct.pack("<IHBB", 2, 0x0800, 0, 0) + frame
+    path = tmp_path / "kuz.pcap"
+    path.write_bytes(bytes(out))
+    assert _as_tuples(read_packets(path)) == _as_tuples(packets)
+
+
+@pytest.mark.parametrize("linktype,link,big_endian", [(108, "null", True), (228, "raw", False), (229, "raw", False),
+                                                      (12, "raw", False), (14, "raw", False)])
+def test_other_link_type_numbers(tmp_path, real_packets, linktype, link, big_endian):
+    """LINKTYPE_LOOP (108, family in network order), LINKTYPE_IPV4/IPV6 (228/229), BSD DLT_RAW (12/14)."""
+    packets = _v6(real_packets) if linktype == 229 else real_packets
+    records = [(p.timestamp_ns, f) for i, p in enumerate(packets) for f in frames_for(p, link=link, ident=i, big_endian=big_endian)]
+    path = tmp_path / "l.pcap"
+    write_pcap_records(path, records, link=linktype)
+    assert _as_tuples(read_packets(path)) == _as_tuples(packets)
+
+
+def _ipv4_with_options(src, dst, ident, payload_l4, *, more=False, offset=0):
+    """An IPv4 header with 8 bytes of options (two NOPs, a 4-byte experimental option, end), IHL 7."""
+    from lidarpkt.pcapwrite import internet_checksum
+
+    options = b"\x01\x01" + b"\x9e\x04\x00\x00" + b"\x00\x00"
+    flags = (0x2000 if more else 0) | (offset // 8)
+    head = struct.pack(">BBHHHBBH4s4s", 0x47, 0, 28 + len(payload_l4), ident, flags, 64, 17, 0,
+                       socket.inet_aton(src), socket.inet_aton(dst)) + options
+    head = head[:10] + struct.pack(">H", internet_checksum(head)) + head[12:]
+    return head + payload_l4
+
+
+def test_ipv4_options_fast_and_fragment_paths(tmp_path, real_packets):
+    from lidarpkt.pcapwrite import link_frame, udp_datagram
+
+    vlp = [p for p in real_packets if len(p.payload) == 1206][:3]
+    ost = [p for p in real_packets if len(p.payload) == 12608][0]
+    records = []
+    for i, p in enumerate(vlp):
+        l4 = udp_datagram(p.src.address, p.src.port, p.dst.address, p.dst.port, p.payload)
+        records.append((p.timestamp_ns, link_frame(_ipv4_with_options(p.src.address, p.dst.address, i, l4))))
+    l4 = udp_datagram(ost.src.address, ost.src.port, ost.dst.address, ost.dst.port, ost.payload)
+    room = 1472  # 1500 - 28-byte header, a multiple of 8
+    for off in range(0, len(l4), room):
+        part = l4[off : off + room]
+        ip = _ipv4_with_options(ost.src.address, ost.dst.address, 99, part, more=off + room < len(l4), offset=off)
+        records.append((ost.timestamp_ns, link_frame(ip)))
+    path = tmp_path / "opt.pcap"
+    write_pcap_records(path, records)
+    for batch_packets in (4096, 1):  # array paths, then record by record
+        reader = PcapReader(path, batch_packets=batch_packets)
+        got = list(reader.packets())
+        assert _as_tuples(got) == _as_tuples(vlp + [ost])
+        assert reader.stats.reassembled == 1
+    # and dpkt agrees on the unfragmented ones
+    dpkt = pytest.importorskip("dpkt")
+    with open(path, "rb") as fh:
+        ref = [bytes(dpkt.ethernet.Ethernet(f).data.data.data) for _, f in list(dpkt.pcap.Reader(fh))[:3]]
+    assert ref == [p.payload for p in vlp]
+
+
+def test_chunks_are_bounded_in_bytes(tmp_path, monkeypatch, real_packets):
+    import lidarpkt.pcap as pcap_module
+
+    vlp = [p for p in real_packets if len(p.payload) == 1206]
+    path = tmp_path / "c.pcap"
+    write_pcap(path, vlp * 20)
+    monkeypatch.setattr(pcap_module, "MAX_CHUNK_BYTES", 10_000)
+    batches = list(PcapReader(path).batches())
+    assert max(len(b) for b in batches) <= 10_000 // 1248 + 1
+    assert sum(len(b) for b in batches) == len(vlp) * 20
+    np.testing.assert_array_equal(np.concatenate([b.index for b in batches]), np.arange(len(vlp) * 20))
+    write_pcapng(tmp_path / "c.pcapng", vlp * 20)
+    batches = list(PcapReader(tmp_path / "c.pcapng").batches())
+    assert max(len(b) for b in batches) <= 10_000 // 1248 + 2
+    assert sum(len(b) for b in batches) == len(vlp) * 20
