@@ -116,3 +116,20 @@ def test_gpgga_and_bad_sentences():
         parse_nmea("$GPVTG,054.7,T,034.4,M,005.5,N,010.2,K*48")
     empty_fix = parse_nmea("$GPRMC,,V,,,,,,,,,,N*53")
     assert not empty_fix.valid and empty_fix.utc_ns is None
+
+
+def test_xyz_is_the_manuals_spherical_to_cartesian(ext):
+    """Manual: X = R·cos ω·sin α, Y = R·cos ω·cos α, Z = R·sin ω (Y forward, X right). Points are in
+    the ROS frame (x forward, y left): x = Y, y = −X, z = Z; with the ROS YAML (no offsets) exactly."""
+    payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, 1206)[:200]
+    dec = VelodyneDecoder(calibration=ext("rust-lidar-utils/VLP16db.yaml"))
+    f = (dec.push(PacketBatch.from_payloads(payload)) + dec.finish())[1]
+    xyz = f.xyz()[0]
+    rows, cols = np.nonzero(f.range_mm[0])
+    r_m = f.range_mm[0, rows, cols] / 1000.0
+    omega = np.radians(np.arange(15, -16, -2))[rows]
+    alpha = np.radians(f.extra["azimuth_cdeg"][rows, cols] / 100.0)
+    X, Y, Z = r_m * np.cos(omega) * np.sin(alpha), r_m * np.cos(omega) * np.cos(alpha), r_m * np.sin(omega)
+    np.testing.assert_allclose(xyz[rows, cols, 0], Y, atol=1e-9)
+    np.testing.assert_allclose(xyz[rows, cols, 1], -X, atol=1e-9)
+    np.testing.assert_allclose(xyz[rows, cols, 2], Z, atol=1e-9)
