@@ -55,9 +55,9 @@ class _Progress:
         self.start = time.monotonic()
         self.last = 0.0
 
-    def update(self, done_bytes: int | None, frames: int) -> None:
+    def update(self, done_bytes: int | None, frames: int, force: bool = False) -> None:
         now = time.monotonic()
-        if not self.enabled or now - self.last < 0.1:
+        if not self.enabled or (now - self.last < 0.1 and not force):
             return
         self.last = now
         elapsed = now - self.start
@@ -69,14 +69,28 @@ class _Progress:
             bar = f"[{'#' * filled}{'.' * (30 - filled)}] {frac * 100:5.1f}%  {frames} frames"
         print(f"\rdecode {bar}  {elapsed:6.1f} s", end="", file=sys.stderr, flush=True)
 
-    def done(self) -> None:
+    def done(self, frames: int) -> None:
         if self.enabled:
+            self.update(self.total, frames, force=True)
             print(file=sys.stderr)
 
 
 def _bytes_read(reader) -> int | None:
     stats = getattr(getattr(reader, "reader", None), "stats", None)
     return getattr(stats, "bytes_read", None)
+
+
+def _packet_reader(path: str):
+    """The packet reader of one input (PcapReader for pcap/pcapng, BagReader otherwise)."""
+    from lidarpkt.source import container_kind
+
+    if container_kind(path) == "pcap":
+        from lidarpkt.pcap import PcapReader
+
+        return PcapReader(path)
+    from lidarpkt.bags import BagReader
+
+    return BagReader(path)
 
 
 def _open_frames(path: str, args) -> object:
@@ -102,8 +116,6 @@ def run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
-    from lidarpkt.source import read_batches
-
     from .mcap_writer import McapWriter
     from .pointcloud import image_messages, pointcloud_messages
     from .sink import PacketSink
@@ -125,9 +137,11 @@ def _to_mcap(args, out: Path) -> int:
         if "packets" in groups:
             for path in args.inputs:
                 sink = PacketSink(writer, ouster_metadata=md)
-                for batch in read_batches(path):
+                reader = _packet_reader(path)
+                for batch in reader.batches():
                     sink.push(batch)
-                    progress.update(None, 0)
+                    b = getattr(reader.stats, "bytes_read", None)
+                    progress.update(None if b is None else done_before + b, frames_written)
                 sink.finish()
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         if groups & {"points", "images"}:
@@ -146,7 +160,7 @@ def _to_mcap(args, out: Path) -> int:
                     b = _bytes_read(reader)
                     progress.update(None if b is None else done_before + b, frames_written)
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-    progress.done()
+    progress.done(frames_written)
     if not args.quiet:
         print(f"lidarpkt decode: {writer.messages_written} messages ({frames_written} frames) in {out} "
               f"({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
@@ -170,7 +184,7 @@ def _to_npz(args, out: Path) -> int:
             b = _bytes_read(reader)
             progress.update(None if b is None else done_before + b, n)
         done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-    progress.done()
+    progress.done(n)
     if not per_sensor:
         raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
     arrays: dict[str, np.ndarray] = {}

@@ -116,3 +116,31 @@ def test_decode_errors_are_clear(tmp_path):
     ):
         r = _decode(*args)
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+
+
+def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
+    import os
+    import pty
+
+    pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    master, slave = pty.openpty()
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "-o", str(tmp_path / "p.npz")],
+                                stderr=slave, stdout=subprocess.DEVNULL, cwd=REPO)
+        os.close(slave)
+        chunks = []
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # EIO: the child closed the terminal
+                break
+            if not data:
+                break
+            chunks.append(data)
+        assert proc.wait(timeout=120) == 0
+    finally:
+        os.close(master)
+    text = b"".join(chunks).decode(errors="replace")
+    assert "\rdecode [" in text and "100.0%" in text and "52 frames" in text
+    piped = _decode(pcap, "-o", tmp_path / "q.npz")
+    assert piped.returncode == 0 and "\r" not in piped.stderr and "52 frames" in piped.stderr
