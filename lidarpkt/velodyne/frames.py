@@ -26,6 +26,16 @@ change are ``partial``. Lost packets (time gaps between packets, shorter than
 timestamp, azimuth interpolated in time for :meth:`Frame.on_grid`) and are counted in the
 frame's ``counters.lost_packets``.
 
+Time. Packets carry µs past the hour. The hour is the one that puts a packet nearest its
+reference: the GPS time of the last position packet with a valid $GPRMC/$GPGGA fix (moved
+forward by the capture clock), else the packet's capture time, else (raw payloads without
+capture times) the previous packet. ``column_timestamp_ns`` is the time of the column's first
+firing (packet time + 55.296 µs × sequence); ``pixel_time_offset_ns`` adds 2.304 µs × laser id.
+
+Order. Packets out of order inside a batch are put back in order (counted); duplicates, and
+packets older than the last packet of an earlier batch, are dropped and counted
+(``duplicate_packets``, ``late_packets``).
+
 VeloView. VeloView (2014, ``vlp-16.test``) splits frames where a *block* azimuth wraps, so
 the second firing sequence of the block that crosses 0° stays in the old frame. With
 ``cut_on_block=True`` our frame i is VeloView's frame i (52 frames of the test capture,
