@@ -208,3 +208,17 @@ def test_compare_returns_picks_slots_of_two_captures(canned, tmp_path, capsys):
     assert doc["modes"]["labels"] == ["last", "last"] and doc["paired"]["fraction_identical"] == 1.0
     code, _, err = run(["compare-returns", str(dual), str(last), "--return", "second_strongest"], capsys)
     assert code == 2 and "is not in this capture" in err
+
+
+@pytest.mark.parametrize("name", ["vlp16-dual", "os1-64-dual"])
+def test_analyze_mcap_input_gives_the_same_document_as_the_pcap(canned, tmp_path, capsys, name):
+    pytest.importorskip("recorder.decode", reason="MCAP writing (recorder) is not available")
+    pcap, truth = canned(name)
+    meta = ["--metadata", str(pcap.with_suffix(".json"))] if name.startswith("os1") else []
+    mcap = tmp_path / "x.mcap"
+    assert main(["decode", str(pcap), *meta, "-o", str(mcap), "-q"]) == 0
+    r, c = truth["raypaths"]["window"]["pixel"][0]
+    for src, extra, out in ((pcap, meta, "p.json"), (mcap, [], "m.json")):
+        code, _, err = run(["analyze", str(src), *extra, "--pixel", f"{r},{c}", "--return", "1", "--json", str(tmp_path / out)], capsys)
+        assert code == 0, err
+    assert (tmp_path / "p.json").read_text() == (tmp_path / "m.json").read_text()
