@@ -84,6 +84,20 @@ def _normalise_type(msgtype: str) -> str:
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
 
 
+def _guarded(messages: Iterator, path: Path) -> Iterator:
+    """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
+    :class:`CaptureFormatError` once every message before it was delivered."""
+    it = iter(messages)
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as exc:  # rosbags / sqlite3 raise their own types
+            raise CaptureFormatError(f"{path}: the bag is damaged after the messages already read: {exc}") from None
+        yield item
+
+
 class BagReader:
     """Packet batches from a ROS bag holding raw packet topics.
 
@@ -177,7 +191,7 @@ class BagReader:
                     conns.append(c)
                 else:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
-            for conn, bag_time_ns, raw in reader.messages(connections=conns):
+            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:

@@ -158,3 +158,55 @@ def test_unreadable_bag_is_a_library_error(tmp_path):
     fake.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
     with pytest.raises(CaptureFormatError):
         list(BagReader(fake).batches())
+
+
+def test_truncated_mcap_gives_what_it_holds_then_a_warning(tmp_path):
+    writer_mod = pytest.importorskip("mcap_ros2.writer")
+    payload, host = _dual_payloads(60)
+    schema = (
+        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
+        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
+        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
+    )
+    path = tmp_path / "scan.mcap"
+    with open(path, "wb") as fh:
+        w = writer_mod.Writer(fh, chunk_size=20_000)
+        s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
+        for i in range(60):
+            stamp = {"sec": int(host[i] // 10**9), "nanosec": int(host[i] % 10**9)}
+            w.write_message("/velodyne_packets", s, {"header": {"stamp": stamp, "frame_id": "v"},
+                                                     "packets": [{"stamp": stamp, "data": payload[i].tobytes()}]},
+                            log_time=int(host[i]), publish_time=int(host[i]))
+        w.finish()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    # a plain MCAP cut short (a killed recorder) yields what it holds, then warns
+    from lidarpkt.errors import TruncatedCaptureWarning
+
+    with pytest.warns(TruncatedCaptureWarning):
+        got = list(BagReader(cut).batches())
+    assert 0 < len(got) < 60
+    # whatever came out before the damage is intact
+    for b in got:
+        i = int(np.flatnonzero(host == b.timestamp_ns[0])[0])
+        np.testing.assert_array_equal(b.payload[0], payload[i])
+
+
+def test_damaged_rosbag2_gives_what_it_holds_then_a_clear_error(tmp_path, ext):
+    import shutil
+
+    bag = tmp_path / "bag"
+    shutil.copytree(ext(NEBULA), bag)
+    db = bag / "1673400471837873222_0.db3"
+    data = bytearray(db.read_bytes())
+    # overwrite the tail of the file (the pages of the last messages) with garbage
+    data[len(data) // 2:] = b"\xa5" * (len(data) - len(data) // 2)
+    db.write_bytes(bytes(data))
+    got = []
+    with pytest.raises(LidarpktError):
+        for b in BagReader(bag).batches():
+            got.append(b)
+    expected = _payloads_from_sqlite(ext(NEBULA + "/1673400471837873222_0.db3"))
+    for b, (_, packets) in zip(got, expected):
+        assert [row.tobytes() for row in b.payload] == [p for _, p in packets]
