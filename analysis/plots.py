@@ -159,7 +159,8 @@ def plot_gmm(ra: RaypathAnalysis, source: str = ""):
     ax_pdf.set_ylabel("density p(r) (1/m)")
     ax_pdf.grid(True, alpha=0.3)
     ax_pdf.legend(loc="upper left", fontsize=8)
-    comp = ", ".join(f"{w:.2f}·N({m:.3f} m, {s * 100:.1f} cm)" for w, m, s in zip(g.weights, g.means_m, g.sigmas_m))
+    terms = [f"{w:.2f}·N({m:.3f} m, {s * 100:.1f} cm)" for w, m, s in zip(g.weights, g.means_m, g.sigmas_m)]
+    comp = "\n".join(", ".join(terms[i : i + 3]) for i in range(0, len(terms), 3))  # 3 components a line
     ax_pdf.set_title(f"Gaussian mixture, {_name(ra, source)}\n{comp}", fontsize=9)
     _step(ax_cdf, cdf, hi, color="C0", lw=1.6, label="empirical CDF")
     ax_cdf.plot(r, g.cdf(r), color="C3", lw=1.4, ls="--", label=f"model CDF (KS distance {g.ks:.3f})")
