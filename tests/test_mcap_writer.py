@@ -16,7 +16,7 @@ from lidarpkt.errors import DiskFullError, TruncatedCaptureWarning
 from lidarpkt.pcap import read_packets
 from recorder import schemas
 from recorder.mcap_writer import McapWriter
-from tests.conftest import external
+from conftest import external
 
 mcap_reader = pytest.importorskip("mcap.reader")
 mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")

@@ -13,7 +13,7 @@ from lidarpkt.ouster.metadata import load_metadata
 from lidarpkt.pcap import read_batches, read_packets
 from recorder import streams
 from recorder.capture import UdpCapture
-from tests.conftest import external
+from conftest import external
 
 
 def _free_port() -> int:

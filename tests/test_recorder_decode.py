@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from tests.conftest import external
-from tests.test_replay_record import REPO, _messages
+from conftest import external
+from test_replay_record import REPO, _messages
 
 OS1 = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"
 OS1_JSON = "ouster-sdk/OS-1-64_sensor_config_reduced.json"

@@ -13,8 +13,8 @@ import pytest
 
 from recorder.capture import UdpCapture
 from recorder.replay import read_capture, replay
-from tests.conftest import external
-from tests.test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
+from conftest import external
+from test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
 
 
 def test_frames_option_stops_after_that_many_rotations(tmp_path):

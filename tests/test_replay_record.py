@@ -20,7 +20,7 @@ import pytest
 from lidarpkt.packet import Packet
 from recorder import schemas
 from recorder.replay import read_capture, replay
-from tests.conftest import external
+from conftest import external
 
 mcap_reader = pytest.importorskip("mcap.reader")
 
