@@ -450,3 +450,13 @@ def test_a_gap_across_the_wrap_is_counted_on_both_sides(ext):
     assert 2 <= holed[0].counters.lost_packets <= 4  # the cut falls where the interpolated azimuth wraps
     for a, b in zip(holed, full):
         assert a.shape[2] == b.shape[2] or abs(a.shape[2] - b.shape[2]) <= 24
+
+
+def test_other_velodyne_models_are_named_not_decoded(ext):
+    payload = einride(ext)[:20].copy()
+    payload[:, 1205] = 0x28  # VLP-32C
+    batch = PacketBatch.from_payloads(payload, 1_600_000_000_000_000_000 + np.arange(20) * 1_327_104)
+    assert classify(batch) is None
+    assert describe_stream(batch)["kind"] == "VLP-32C data (not a VLP-16)"
+    payload[:, 1205] = 0x99  # no Velodyne product
+    assert describe_stream(PacketBatch.from_payloads(payload)) is None

@@ -57,7 +57,8 @@ def _layout_says_vlp16(raw) -> bool:
 
 
 def data_kind(batch: PacketBatch) -> str | None:
-    """``"vlp16"``, ``"hdl32e"`` or ``None`` (not Velodyne-like data packets) for a batch of 1206-byte payloads."""
+    """``"vlp16"``, ``"hdl32e"``, ``"other"`` (another Velodyne model by its product byte: Puck Hi-Res,
+    VLP-32C, ...) or ``None`` (not Velodyne-like data packets) for a batch of 1206-byte payloads."""
     if batch.payload_size != DATA_PACKET_SIZE or len(batch) == 0:
         return None
     raw = decode_packets(batch.payload, copy=False)
@@ -68,7 +69,7 @@ def data_kind(batch: PacketBatch) -> str | None:
     if product == PRODUCT_VLP16:
         return "vlp16"
     if product != PRODUCT_HDL32E:
-        return None
+        return "other" if product in PRODUCT_NAMES else None
     raw = raw.select(ok)
     dual = bool(np.median(raw.return_mode) == 0x39)
     period = _median_period_us(raw.timestamp_us)
@@ -122,7 +123,8 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         from .frames import _estimate_frequency
 
         out = {
-            "kind": "VLP-16 data" if kind == "vlp16" else "HDL-32E data (not a VLP-16)",
+            "kind": "VLP-16 data" if kind == "vlp16" else
+                    f"{'HDL-32E' if kind == 'hdl32e' else PRODUCT_NAMES[product]} data (not a VLP-16)",
             "return_mode": modes[0] if len(modes) == 1 else modes,
             "product_id": product,
             "product_name": PRODUCT_NAMES.get(product, f"unknown 0x{product:02x}"),
