@@ -77,3 +77,48 @@ def test_frames_hold_every_firing_once(mode, n, start_cdeg, rpm, split, seed):
         az_deg = f.azimuth_deg
         assert np.all((az_deg >= 0) & (az_deg < 360))
         assert np.count_nonzero(np.diff(az_deg) < -180) == 0  # a frame never contains a wrap
+
+
+_VALID = encode_data_packets((np.arange(8)[:, None] * 480 + np.arange(12) * 40) % 36000,
+                             np.full((8, 12, 32), 1234), np.full((8, 12, 32), 50), 1000 + np.arange(8) * 1327, "dual")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 8 * 1206 - 1), st.integers(0, 255)), max_size=12),
+       st.lists(st.tuples(st.integers(0, 2 * 512 - 1), st.integers(0, 255)), max_size=12))
+def test_damaged_packets_never_raise_a_traceback(data_edits, pos_edits):
+    import warnings
+
+    from lidarpkt.velodyne import classify, describe_stream
+
+    data = _VALID.copy().reshape(-1)
+    for at, value in data_edits:
+        data[at] = value
+    posb = encode_position_packets([5, 6], 2, "$GPRMC,120000,A,4807.038,N,01131.000,E,0,0,010124,,*1F").reshape(-1)
+    for at, value in pos_edits:
+        posb[at] = value
+    batch = PacketBatch.from_payloads(data.reshape(8, 1206), 1_700_000_000_000_000_000 + np.arange(8) * 663_552)
+    pos = PacketBatch.from_payloads(posb.reshape(2, 512))
+    classify(batch), describe_stream(batch), classify(pos), describe_stream(pos)
+    dec = VelodyneDecoder()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        frames = dec.push(batch) + dec.finish()
+        dec.push_position(pos)
+    s = dec.stats
+    assert s.decoded_packets + s.malformed + s.duplicate_packets + s.late_packets == 8
+    assert sum(int(f.column_valid.sum()) for f in frames) % 12 == 0
+
+
+def test_garbage_in_the_flag_and_mode_bytes_is_counted():
+    import warnings
+
+    rng = np.random.default_rng(0)
+    payload = encode_data_packets(np.zeros((50, 12)), rng.integers(0, 99, (50, 12, 32)), np.zeros((50, 12, 32)),
+                                  np.arange(50) * 1327, "strongest")
+    payload[::7, 1204] = 0x55
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        dec = VelodyneDecoder()
+        dec.push(PacketBatch.from_payloads(payload, 1_700_000_000_000_000_000 + np.arange(50) * 1_327_104))
+    assert dec.stats.unknown_return_mode == 8 and dec.stats.decoded_packets == 42
