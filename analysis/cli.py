@@ -69,6 +69,11 @@ def _load(path: str, metadata: str | None, frames: str | None, grid: float | Non
     return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid)
 
 
+def _check_neighbourhood(n: int) -> None:
+    if n < 1 or n % 2 == 0:
+        raise AnalysisError(f"--neighbourhood {n}: must be an odd number >= 1 (3 and 5 in the paper)")
+
+
 def _plots():
     try:
         from . import plots
@@ -109,19 +114,18 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_analyze(args: argparse.Namespace) -> int:
+    from .gmm import parse_method
     from .raypath import analyze_raypath
     from .stack import check_pixel, slot_index
 
-    from .gmm import parse_method
-
+    # options first: a typo should not cost a decode
     pixels = [_parse_pixel(p) for p in args.pixel]
     gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
+    _check_neighbourhood(args.neighbourhood)
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     slot = slot_index(stack, args.slot)
     for r, c in pixels:
         check_pixel(stack, r, c, slot)
-    if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1 (3 and 5 in the paper)")
     results = [
         analyze_raypath(stack, r, c, slot, neighbourhood=args.neighbourhood,
                         motion_compensation=args.motion_compensation, gmm=gmm)
@@ -130,7 +134,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     source = _source(args.input, stack)
     print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
           f"slot {slot} = {stack.return_labels[slot]}")
-    print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'comp':>5}  GMM means (m) [weights]")
+    print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'GMM':>5}  component means (m) [weights]")
     for ra in results:
         t = ra.temporal
         g = ra.gmm
@@ -182,10 +186,11 @@ def run_multireturn(args: argparse.Namespace) -> int:
     from .multireturn import multireturn_map
     from .stack import slot_index
 
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
-    if args.neighbourhood < 1 or args.neighbourhood % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {args.neighbourhood}: must be an odd number >= 1")
+    if not gap > 0:
+        raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
+    _check_neighbourhood(args.neighbourhood)
+    stack = _load(args.input, args.metadata, args.frames, args.grid)
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, by_row=args.monitor_by_row)
     out = Path(args.output)
