@@ -92,14 +92,18 @@ class PacketSink:
             "sensor_info": json.dumps(info), "metadata_json": text,
         })
 
-    def _describe_velodyne(self, key: tuple, payload: np.ndarray, src: str) -> None:
-        p = vlp.as_data_packets(payload[:1])[0]
+    def _describe_velodyne(self, batch: PacketBatch, src: str) -> None:
+        from lidarpkt.velodyne.detect import describe_stream
+
+        p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
         product = vlp.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
+        described = describe_stream(batch) or {}
         self.writer.add_metadata("lidarpkt.sensor", {
-            "vendor": "velodyne", "model": "VLP-16", "return_mode": mode,
-            "product_id": f"0x{int(p['product_id']):02x} ({product})", "source": src,
+            "vendor": "velodyne", "model": described.get("kind", "Velodyne data").replace(" data", ""),
+            "return_mode": mode, "product_id": f"0x{int(p['product_id']):02x} ({product})", "source": src,
             "laser_elevation_deg": json.dumps(vlp.LASER_ELEVATION_DEG.tolist()),
+            "stream": json.dumps(described, default=str),
         })
 
     # ------------------------------------------------------------------ packets
@@ -141,8 +145,14 @@ class PacketSink:
     def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
         if key not in self._described:
             self._described.add(key)
-            self._describe_velodyne(key, batch.payload, rep.src)
-        tracker = self._trackers.setdefault(key, streams.VelodyneLoss())
+            self._describe_velodyne(batch, rep.src)
+        tracker = self._trackers.get(key)
+        if tracker is None:
+            from lidarpkt.velodyne.detect import data_kind
+
+            kind = data_kind(batch)
+            period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": vlp.HDL32E_PACKET_PERIOD_US}.get(kind)
+            tracker = self._trackers[key] = streams.VelodyneLoss(period)
         starts = tracker.update(batch.payload)
         rep.count = tracker.count
         pending = self._pending.setdefault(key, [])

@@ -71,11 +71,17 @@ INTERRUPTION_S = 1.0
 
 
 class VelodyneLoss:
-    """Loss and rotation counting of one VLP-16 data stream (feed batches in arrival order)."""
+    """Loss and rotation counting of one VLP-16 data stream (feed batches in arrival order).
+
+    ``single_period_us`` is the packet period in single-return modes (half of it in dual
+    mode): the VLP-16's by default, the HDL-32E's for that sensor; ``None`` for a model whose
+    timing is not known here (then packets and rotations are counted, gaps are not).
+    """
 
     HOUR_US = 3_600_000_000
 
-    def __init__(self) -> None:
+    def __init__(self, single_period_us: float | None = vlp.SINGLE_PACKET_PERIOD_US) -> None:
+        self.single_period_us = single_period_us
         self.count = LossCount()
         self._last_ts: int | None = None
         self._last_az: int | None = None
@@ -90,8 +96,8 @@ class VelodyneLoss:
             return np.zeros(0, bool)
         ts = p["timestamp_us"].astype(np.int64)
         az = p["blocks"]["azimuth_cdeg"][:, 0].astype(np.int64)
-        period = np.where(p["return_mode"] == vlp.RETURN_MODE_CODES["dual"],
-                          vlp.DUAL_PACKET_PERIOD_US, vlp.SINGLE_PACKET_PERIOD_US)
+        single = self.single_period_us or 1.0
+        period = np.where(p["return_mode"] == vlp.RETURN_MODE_CODES["dual"], single / 2, single)
         prev_ts = np.concatenate([[ts[0] if self._last_ts is None else self._last_ts], ts[:-1]])
         prev_az = np.concatenate([[az[0] if self._last_az is None else self._last_az], az[:-1]])
         dt = (ts - prev_ts) % self.HOUR_US
@@ -102,8 +108,9 @@ class VelodyneLoss:
         jump = np.abs(dt) > INTERRUPTION_S * 1e6
         self.count.interruptions += int(np.count_nonzero(jump))
         steps[jump] = 1
-        self.count.lost += int(np.clip(steps - 1, 0, None).sum())
-        self.count.out_of_order += int(np.count_nonzero(steps <= 0))
+        if self.single_period_us is not None:
+            self.count.lost += int(np.clip(steps - 1, 0, None).sum())
+            self.count.out_of_order += int(np.count_nonzero(steps <= 0))
         new_rotation = az < prev_az
         self.count.frames += int(np.count_nonzero(new_rotation))
         self._last_ts, self._last_az = int(ts[-1]), int(az[-1])

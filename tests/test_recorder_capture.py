@@ -192,3 +192,21 @@ def test_a_sensor_restart_is_an_interruption_not_a_loss():
     t.update(lidar)
     t.update(np.delete(later, 50, axis=0))
     assert (t.count.out_of_order, t.count.interruptions, t.count.lost) == (0, 1, 1)
+
+
+def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
+    """velodyne_vlp32.pcap is an HDL-32E (SOURCES.md: packets every 552-553 µs)."""
+    from lidarpkt.packet import PacketBatch
+    from recorder.mcap_writer import McapWriter
+    from recorder.sink import PacketSink
+
+    payload = _velodyne_payloads("rust-lidar-utils/velodyne_vlp32.pcap")
+    vlp_timing = streams.VelodyneLoss()
+    vlp_timing.update(payload)
+    assert vlp_timing.count.out_of_order > 0  # what a VLP-16 period would wrongly say
+    w = McapWriter(tmp_path / "h.mcap")
+    sink = PacketSink(w)
+    sink.push(PacketBatch.from_payloads(payload, np.arange(len(payload)) * 553_000))
+    sink.finish()
+    w.close()
+    assert (sink.lost, sink.out_of_order, sink.packets) == (0, 0, 91)
