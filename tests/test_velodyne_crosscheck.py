@@ -142,3 +142,18 @@ def test_generated_packets_match(mode):
 @pytest.mark.parametrize("rpm", [300.0, 1200.0])
 def test_generated_other_rotation_rates_match(rpm):
     assert assert_same_points(synthetic_packets("strongest", n=120, seed=3, rpm=rpm)) > 1000
+
+
+def test_absolute_times_match_velodyne_decoder(ext):
+    """velodyne_decoder's device stamp of each scan (packet µs past the hour + the hour nearest the
+    capture time) is exactly the timestamp of one of our columns. This capture's sensor clock is
+    29.8 min off the host's, close to the ±30 min limit of the nearest-hour rule."""
+    vd = pytest.importorskip("velodyne_decoder")
+    import lidarpkt
+
+    path = ext("rust-lidar-utils/velodyne_example.pcap")
+    stamps = [s.device for s, _ in vd.read_pcap(str(path), vd.Config(model=vd.Model.VLP16))]
+    assert len(stamps) == 2
+    ours = np.concatenate([f.column_timestamp_ns for f in lidarpkt.open(path)])
+    for s in stamps:
+        assert np.min(np.abs(ours - round(s * 1e6) * 1000)) == 0
