@@ -56,31 +56,41 @@ def load_stack(
     a, b = frames if frames is not None else (None, None)
     if (a is not None and a < 0) or (b is not None and b < 0):
         raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
+    n_complete = 0
     for f in opener(str(path), **kwargs):
         if include_partial or not f.partial:
-            complete.append(f)
-            if b is not None and len(complete) >= b:
+            n_complete += 1
+            if a is not None and n_complete <= a:
+                continue
+            complete.append(_slim(f))
+            if b is not None and n_complete >= b:
                 break
         elif not complete and len(partial) < _MAX_PARTIAL_FALLBACK:
-            partial.append(f)  # kept only until a complete frame shows up
+            partial.append(_slim(f))  # kept only until a complete frame shows up
     pool = complete
-    if not complete and partial:
+    if not n_complete and partial:
         # A capture shorter than a rotation (or two) is still worth a look (spatial CDFs, the map).
         warnings.warn(
             f"{path}: no complete frame, analysing {len(partial)} partial frame(s) instead",
             LidarpktWarning,
             stacklevel=2,
         )
-        pool = partial
-    picked = pool[slice(a, b)]
+        pool = partial[slice(a, b)]
+    picked = pool
     if not picked:
         sel = "" if frames is None else f" in frames {'' if a is None else a}:{'' if b is None else b}"
         raise AnalysisError(
-            f"{path}: no frames{sel} to analyse ({len(complete)} complete, {len(partial)} partial found; "
+            f"{path}: no frames{sel} to analyse ({n_complete} complete, {len(partial)} partial found; "
             "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
     return FrameStack.from_frames(picked, include_partial=True, resolution_deg=res)
+
+
+def _slim(frame):
+    """The frame without the per-pixel arrays the analysis does not use (signal, near-IR, flags,
+    firing times...), so that a long capture costs only its ranges and reflectivities."""
+    return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra={})
 
 
 def default_grid_deg(sensor) -> float | None:
