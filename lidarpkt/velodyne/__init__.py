@@ -3,15 +3,21 @@
 Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PACKET_SIZE`,
 :func:`classify`, :func:`describe_stream`, :class:`VelodyneDecoder`, :func:`decode_packets`,
 :func:`decode_position_packets`, :func:`encode_data_packets`, :func:`encode_position_packets`,
-:func:`load_calibration`.
+:func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`.
+
+Modules: ``packet`` (the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a
+batch), ``encode`` (the inverse), ``timing`` (firing times, per-firing azimuth), ``frames``
+(:class:`VelodyneDecoder`: frames, absolute time, losses), ``detect`` (VLP-16 or not),
+``calibration`` (stock, ROS YAML, VeloView XML), ``geometry`` (XYZ), ``points`` (flat point
+lists in velodyne_decoder's layout), ``nmea`` ($GPRMC/$GPGGA).
 """
 
 from __future__ import annotations
 
 from .calibration import VelodyneCalibration, load_calibration, stock_calibration
 from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
-from .encode import encode_data_packets, encode_frames, encode_position_packets
 from .detect import classify, describe_stream
+from .encode import encode_data_packets, encode_frames, encode_position_packets
 from .frames import DecoderStats, VelodyneDecoder
 from .geometry import VelodyneGeometry
 from .nmea import NMEAFix, parse_nmea

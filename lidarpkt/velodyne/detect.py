@@ -23,7 +23,6 @@ from .nmea import parse_nmea
 from .packet import (
     DATA_PACKET_SIZE,
     DUAL_PACKET_PERIOD_US,
-    HDL32E_PACKET_PERIOD_US,
     LASERS,
     POSITION_PACKET_SIZE,
     PPS_STATUS,

@@ -48,7 +48,7 @@ interpolation): ``azimuth_deg`` per column reproduces its points within 1e-4 m.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
