@@ -37,10 +37,12 @@ import numpy as np
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters
 from ..packet import PacketBatch
-from .decode import OusterPacketFields, decode_packets, packet_view, read_pixel_field
+from .decode import OusterPacketFields, decode_packets, packet_view
 from .imu import decode_imu
 from .metadata import OusterMetadata
 from .profiles import LEGACY_STATUS_VALID
+
+_BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
 
 _SLOT_FIELDS = (
     ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
@@ -72,15 +74,19 @@ class OusterDecoderStats:
 
 
 class _Builder:
-    """One frame being filled: raw pixel words are scattered by measurement id, fields are
-    extracted once, when the frame is released."""
+    """One frame being filled: raw pixel words are scattered by measurement id into word planes
+    (``planes[k, row, column]`` = 32-bit word k of the pixel), fields are extracted once, when
+    the frame is released, each by one contiguous shift/mask pass over its plane.
+
+    The planes are not zeroed up front: columns that never arrived are zeroed at release.
+    """
 
     def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
         md = decoder.metadata
         h, w = md.pixels_per_column, md.columns_per_frame
         self.key = key
         self.frame_id = frame_id
-        self.words = np.zeros((w, h, md.profile.pixel_bytes // 4), np.uint32)
+        self.planes = np.empty((md.profile.pixel_bytes // 4, h, w), np.uint32)
         self.timestamp_ns = np.zeros(w, np.int64)
         self.measurement_id = np.zeros(w, np.uint16)
         self.status = np.zeros(w, np.uint32)
@@ -91,11 +97,25 @@ class _Builder:
 
     def add(self, f: OusterPacketFields, words: np.ndarray) -> None:
         """Columns of packets ``f`` with their pixel words ``<u4[n, C, H, pixel_bytes // 4]``."""
-        mids = f.measurement_id.astype(np.intp)
-        self.words[mids] = words  # [n, C] index: no reshape copy of the strided packet view
-        flat = mids.ravel()
+        mids = f.measurement_id
+        n, c = mids.shape
+        flat = mids.ravel().astype(np.intp)
+        m0 = int(flat[0])
+        planes = self.planes
+        src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
+        if m0 + n * c <= planes.shape[2] and int(flat[-1]) == m0 + n * c - 1 and (np.diff(flat) == 1).all():
+            # the common case: consecutive measurement ids, strided copies into slices of columns,
+            # a few packets at a time so that the source block stays in cache (about 2x faster than
+            # one copy of the whole batch, whose transposed walk misses the cache)
+            nw, h = planes.shape[:2]
+            step = max(1, _BLOCK_BYTES // max(1, words.strides[0]))
+            for i in range(0, n, step):
+                j = min(n, i + step)
+                planes[:, :, m0 + i * c : m0 + j * c].reshape(nw, h, j - i, c)[...] = src[:, :, i:j]
+        else:
+            planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
         self.timestamp_ns[flat] = f.timestamp_ns.ravel()
-        self.measurement_id[flat] = f.measurement_id.ravel()
+        self.measurement_id[flat] = mids.ravel()
         self.status[flat] = f.status.ravel()
         if self.encoder_count is not None:
             self.encoder_count[flat] = f.encoder_count.ravel()
@@ -105,8 +125,10 @@ class _Builder:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
-        hw = self.words.transpose(1, 0, 2)  # [H, W, words]
-        shape = hw.shape[:2]
+        planes = self.planes
+        if not self.received.all():
+            planes[:, :, ~self.received] = 0
+        shape = planes.shape[1:]
         names = set(profile.field_names)
         slots = _SLOT_FIELDS[: profile.returns]
         out: dict[str, np.ndarray | None] = {}
@@ -116,11 +138,31 @@ class _Builder:
                 continue
             arr = np.empty((len(slots),) + shape, profile.field(slots[0][i]).dtype)
             for r, sl in enumerate(slots):
-                read_pixel_field(hw, profile.field(sl[i]), arr[r])
+                plane_field(planes, profile.field(sl[i]), arr[r])
             out[attr] = arr
         for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
-            out[attr] = read_pixel_field(hw, profile.field(name), np.empty(shape, profile.field(name).dtype)) if name in names else None
+            out[attr] = plane_field(planes, profile.field(name), np.empty(shape, profile.field(name).dtype)) if name in names else None
         return out
+
+
+def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
+    """Field ``f`` of word planes ``uint32[words, ...]`` into ``out`` (``f.dtype``), up-shift applied.
+
+    One ufunc pass over the field's (contiguous) word plane writes the narrow result; a mask,
+    where the cast to ``f.dtype`` does not already drop the bits above the field, and the
+    up-shift are then passes over the narrow result.
+    """
+    k, off = divmod(f.start_bit, 32)
+    w = planes[k]
+    if off:
+        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
+    else:
+        np.copyto(out, w, casting="unsafe")
+    if f.width < min(32 - off, 8 * out.dtype.itemsize):
+        np.bitwise_and(out, out.dtype.type(f.mask), out=out)
+    if f.upshift:
+        np.left_shift(out, out.dtype.type(f.upshift), out=out)
+    return out
 
 
 class OusterDecoder:
