@@ -273,9 +273,11 @@ def run_compare_returns(args: argparse.Namespace) -> int:
               f"{_fmt(s['fraction_identical'])} identical, {s['pairs_one_sided']} with a return on one side only")
         if plots:
             figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))
-            figs.append((plots.plot_pixel_map(pc.fraction_differ,
-                                              f"How often {pc.labels[0]} and {pc.labels[1]} differ per raypath — {src_a}",
-                                              "fraction of frames", a, vmax=1.0), "fraction_differ.png"))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                two = (pc.n_differ - pc.n_one_sided) / pc.n_pairs  # both slots returned, at different ranges
+            figs.append((plots.plot_pixel_map(two, f"Frames where {pc.labels[0]} and {pc.labels[1]} are two different "
+                                              f"returns, per raypath — {src_a}", "fraction of frames", a, vmax=1.0),
+                         "two_returns.png"))
     else:
         b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
         doc["inputs"].append(args.input2)
