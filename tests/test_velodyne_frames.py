@@ -459,3 +459,16 @@ def test_other_velodyne_models_are_named_not_decoded(ext):
     assert describe_stream(batch)["kind"] == "VLP-32C data (not a VLP-16)"
     payload[:, 1205] = 0x99  # no Velodyne product
     assert describe_stream(PacketBatch.from_payloads(payload)) is None
+
+
+def test_one_packet_without_returns_is_classified_by_its_azimuth_step(ext):
+    vlp = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp16.pcap")) if b.payload_size == 1206)
+    hdl = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp32.pcap")) if b.payload_size == 1206)
+    for batch, expected in ((vlp, "data"), (hdl, None)):
+        one = batch.select(np.array([5]))
+        empty = one.payload.copy()
+        for blk in range(12):  # clear every distance: no returns to compare
+            rows = 100 * blk + 4 + 3 * np.arange(32)
+            empty[0, rows] = 0
+            empty[0, rows + 1] = 0
+        assert classify(PacketBatch.from_payloads(empty)) == expected

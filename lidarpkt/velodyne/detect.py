@@ -45,12 +45,19 @@ def _median_period_us(timestamp_us: np.ndarray) -> float | None:
 
 
 def _layout_says_vlp16(raw) -> bool:
-    """Channels j and j+16 agree (same laser, next sequence) far more often than on an HDL-32E."""
+    """Channels j and j+16 agree (same laser, next sequence) far more often than on an HDL-32E.
+
+    Too few returns to tell (a sensor facing the sky): the azimuth step between distinct blocks
+    decides. At the usual 600 RPM a VLP-16 block spans 0.4° (two 55.296 µs sequences), an HDL-32E
+    block 0.17° (46.08 µs); 0.27° separates them for any rate between 500 and 720 RPM.
+    """
     a = raw.distance_2mm[:, :, :LASERS].astype(np.int32)
     b = raw.distance_2mm[:, :, LASERS:].astype(np.int32)
     both = (a > 0) & (b > 0)
     if np.count_nonzero(both) < 16:
-        return False
+        steps = np.diff(raw.azimuth_cdeg.astype(np.int32), axis=1) % 36000
+        steps = steps[steps > 0]  # dual-mode pairs repeat their azimuth
+        return bool(steps.size) and float(np.median(steps)) >= 27
     close = np.abs(a - b) <= np.maximum(25, (a + b) // 40)  # within 50 mm or 5 %
     return np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6
 
