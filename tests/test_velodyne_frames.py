@@ -472,3 +472,12 @@ def test_one_packet_without_returns_is_classified_by_its_azimuth_step(ext):
             empty[0, rows] = 0
             empty[0, rows + 1] = 0
         assert classify(PacketBatch.from_payloads(empty)) == expected
+
+
+def test_timing_still_decides_with_lost_packets(ext):
+    vlp = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp16.pcap")) if b.payload_size == 1206)
+    hdl = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp32.pcap")) if b.payload_size == 1206)
+    assert classify(vlp.select(np.array([0, 2, 3, 7]))) == "data"  # steps of 2, 1 and 4 periods
+    assert classify(vlp.select(np.array([0, 2]))) == "data"
+    assert classify(hdl.select(np.array([0, 3, 4, 9]))) is None
+    assert classify(hdl.select(np.array([0, 2]))) is None

@@ -23,6 +23,7 @@ from .nmea import parse_nmea
 from .packet import (
     DATA_PACKET_SIZE,
     DUAL_PACKET_PERIOD_US,
+    HDL32E_PACKET_PERIOD_US,
     LASERS,
     POSITION_PACKET_SIZE,
     PPS_STATUS,
@@ -78,12 +79,21 @@ def data_kind(batch: PacketBatch) -> str | None:
         return "other" if product in PRODUCT_NAMES else None
     raw = raw.select(ok)
     dual = bool(np.median(raw.return_mode) == 0x39)
+    expected = DUAL_PACKET_PERIOD_US if dual else SINGLE_PACKET_PERIOD_US
+    hdl = HDL32E_PACKET_PERIOD_US / 2 if dual else HDL32E_PACKET_PERIOD_US
     period = _median_period_us(raw.timestamp_us)
     if period is not None:
-        expected = DUAL_PACKET_PERIOD_US if dual else SINGLE_PACKET_PERIOD_US
         if abs(period - expected) < 0.05 * expected:
             return "vlp16"
-        return "hdl32e"
+        if abs(period - hdl) < 0.05 * hdl:
+            return "hdl32e"
+        # neither: lost packets stretch the steps; count steps that are whole VLP-16 periods
+        d = np.diff(raw.timestamp_us.astype(np.int64)) % HOUR_US
+        d = d[(d > 0) & (d < 100_000)]
+        fits = lambda p: np.abs(d - np.rint(d / p) * p) <= 3  # noqa: E731 - µs stamps jitter by 1
+        n_vlp, n_hdl = int(np.count_nonzero(fits(expected))), int(np.count_nonzero(fits(hdl)))
+        if n_vlp != n_hdl:
+            return "vlp16" if n_vlp > n_hdl else "hdl32e"
     return "vlp16" if _layout_says_vlp16(raw) else "hdl32e"
 
 
