@@ -40,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP file to write")
-    parser.add_argument("--rotate-size", type=float, metavar="MB", help="start a new file every MB megabytes")
-    parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds")
+    parser.add_argument("--rotate-size", type=float, metavar="MB",
+                        help="start a new file every MB megabytes (files are then OUT_0000.mcap, OUT_0001.mcap ...)")
+    parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds (as above)")
     parser.add_argument("--chunk-seconds", type=float, default=0.5, metavar="S",
                         help="close an MCAP chunk every S seconds: at most that much is lost if killed (0.5)")
     parser.add_argument("--gps", metavar="PORT", help="serial port of an NMEA GPS (e.g. /dev/ttyUSB0)")
@@ -60,6 +61,8 @@ class _StopFlag:
         self.reason: str | None = None
 
     def __call__(self, signum, _frame) -> None:
+        if self.reason is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt  # a second Ctrl-C: stop now (the file is still closed with its index)
         self.reason = signal.Signals(signum).name
 
 
@@ -114,12 +117,17 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     last_status = start
     last_packets = 0
     reason = None
+    gps_failed = False
     while reason is None:
         items = capture.drain(timeout=0.05)
         for batch in batch_from_packets(items):
             sink.push(batch)
         if gps is not None:
             _write_gps(writer, gps)
+            if gps.error and not gps_failed:  # the lidar recording goes on without it
+                gps_failed = True
+                print(f"\nlidarpkt record: warning: {gps.error}; recording continues without GPS",
+                      file=sys.stderr, flush=True)
         writer.tick()
         now = time.monotonic()
         if stop.reason:
@@ -189,6 +197,7 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "rcvbuf_granted": {str(k): v for k, v in s.rcvbuf_granted.items()},
         "gps_sentences": gps.sentences if gps is not None else 0,
         "gps_bad_checksum": gps.bad if gps is not None else 0,
+        "gps_error": gps.error if gps is not None else None,
         "streams": [
             {"kind": r.kind, "src": r.src, "dst": r.dst, "payload_size": r.payload_size,
              "packets": r.count.packets, "lost": r.count.lost, "out_of_order": r.count.out_of_order,

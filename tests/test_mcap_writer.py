@@ -192,6 +192,17 @@ def test_pointcloud2_decodes_to_frame_xyz(tmp_path, capture, meta):
         np.testing.assert_array_equal(got, xyz.astype(np.float32))
         assert np.array_equal(pts["range"], rng)
         assert pc.header.stamp.sec * 10**9 + pc.header.stamp.nanosec == frame.timestamp_ns
+        # time: seconds after header.stamp of each pixel's firing (column time + firing offset)
+        t_ns = np.where(frame.column_valid, frame.column_timestamp_ns - frame.timestamp_ns, 0)[None, :]
+        if frame.pixel_time_offset_ns is not None:
+            t_ns = t_ns + frame.pixel_time_offset_ns
+        t_ns = np.broadcast_to(t_ns, (h, w))
+        if frame.sensor.vendor == "ouster":
+            t_ns = frame.destaggered(t_ns)
+        np.testing.assert_allclose(pts["time"], t_ns * 1e-9, rtol=1e-6, atol=1e-9)
+        assert pts["time"].min() >= 0 and pts["time"].max() < 0.2  # within one rotation
+        rings = pts["ring"][:, 0].tolist()
+        assert rings == (list(range(15, -1, -1)) if frame.sensor.vendor == "velodyne" else list(range(h)))
     images = [m for t, _, m in msgs if t.endswith("/range_image")]
     assert len(images) == len(frames) and images[0].encoding == "32FC1"
 

@@ -163,12 +163,14 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
 
     mnt = tmp_path / "small"
     mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=192k", "tmpfs", str(mnt)],
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)],
                       capture_output=True).returncode != 0:
         pytest.skip("cannot mount a small tmpfs here (needs root) to fill a disk")
     try:
         packets = [p for p in read_capture(str(external("veloview/vlp-16-test-90deg-1-50-frames.pcap")))
                    if len(p.payload) == 1206]
+        span = packets[-1].timestamp_ns - packets[0].timestamp_ns + 1_327_000
+        packets += [type(p)(p.timestamp_ns + span, p.src, p.dst, p.payload) for p in packets]  # ~1.7 MB zstd
         (port,) = _free_ports(1)
         out, log = mnt / "full.mcap", tmp_path / "full.log"
         proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind",
@@ -179,7 +181,8 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
             while "listening on" not in log.read_text():
                 assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
                 time.sleep(0.02)
-            replay(packets, "127.0.0.1", port, rate=2.0)  # slow enough for many small chunks
+            # a chunk closes every 0.05 s or 1 MiB raw (~0.4 MB zstd): several fit before the disk fills
+            replay(packets, "127.0.0.1", port, rate=4.0)
             assert proc.wait(timeout=60) == 2
         finally:
             if proc.poll() is None:
@@ -190,6 +193,6 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             got = [row.tobytes() for b in BagReader(out).batches() for row in b.payload]
-        assert len(got) > 100 and got == [p.payload for p in packets[: len(got)]]
+        assert len(got) > 300 and got == [p.payload for p in packets[: len(got)]]
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
