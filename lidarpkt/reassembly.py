@@ -13,7 +13,9 @@ that happens to reuse its ID (``ouster-sdk/duplicate_id.pcap``: the reuse comes
 dropped, like the Linux kernel does after ``ipfrag_time`` (30 s).
 
 Why the bounds: a capture full of lost fragments must not grow memory without
-limit. At most ``max_datagrams`` datagrams and ``max_bytes`` fragment bytes are held;
+limit. At most ``max_datagrams`` datagrams and ``max_bytes`` bytes are held, each fragment
+charged its bytes plus :data:`FRAGMENT_OVERHEAD` (the memory Python spends to hold it, like the
+kernel's skb truesize: without it, a flood of 1-byte fragments held ~70 times ``max_bytes``);
 beyond that the oldest pending datagram is evicted. Every dropped fragment is counted.
 """
 
@@ -23,9 +25,10 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Hashable
 
-__all__ = ["Reassembler", "ReassemblyStats", "IPV4_MAX_DATAGRAM"]
+__all__ = ["Reassembler", "ReassemblyStats", "IPV4_MAX_DATAGRAM", "FRAGMENT_OVERHEAD"]
 
 IPV4_MAX_DATAGRAM = 65535  # bytes of IP payload a fragment offset (13 bits × 8) plus length may reach
+FRAGMENT_OVERHEAD = 80  # bytes charged per held fragment beyond its data (bytes object + dict slot, measured ~70)
 
 
 @dataclass
@@ -58,7 +61,8 @@ class Reassembler:
         timeout_ns: a pending datagram whose first fragment arrived more than this long
             (host capture time, ns) before a new fragment is dropped as orphaned.
         max_datagrams: most datagrams pending at once; the oldest is evicted beyond.
-        max_bytes: most fragment bytes held at once; the oldest datagrams are evicted beyond.
+        max_bytes: most bytes held at once (fragment data + :data:`FRAGMENT_OVERHEAD` each); the
+            oldest datagrams are evicted beyond.
         max_datagram_bytes: largest reassembled payload accepted (65535 for IPv4).
     """
 
@@ -87,7 +91,7 @@ class Reassembler:
 
     @property
     def held_bytes(self) -> int:
-        """Fragment bytes currently held."""
+        """Bytes currently charged: fragment data plus :data:`FRAGMENT_OVERHEAD` per held fragment."""
         return self._held
 
     def _drop(self, key: Hashable) -> None:
@@ -148,8 +152,8 @@ class Reassembler:
             st.duplicate_fragments += 1
             return None  # identical to what is held (the datagram was incomplete before, and still is)
         entry.pieces[offset] = bytes(data)
-        entry.nbytes += len(data)
-        self._held += len(data)
+        entry.nbytes += len(data) + FRAGMENT_OVERHEAD
+        self._held += len(data) + FRAGMENT_OVERHEAD
         done = self._try_complete(key, entry)
         if done is None:
             self._enforce_bounds(keep=key)
