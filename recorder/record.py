@@ -118,10 +118,14 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     last_packets = 0
     reason = None
     gps_failed = False
+    notes_shown = 0
     while reason is None:
         items = capture.drain(timeout=0.05)
         for batch in batch_from_packets(items):
             sink.push(batch)
+        for note in sink.notes[notes_shown:]:
+            print(f"\nlidarpkt record: note: {note}", file=sys.stderr, flush=True)
+        notes_shown = len(sink.notes)
         if gps is not None:
             _write_gps(writer, gps)
             if gps.error and not gps_failed:  # the lidar recording goes on without it

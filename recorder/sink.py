@@ -74,6 +74,7 @@ class PacketSink:
         self._trackers: dict[tuple, object] = {}
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
+        self.notes: list[str] = []  # things the user should know about the streams, in order
         if ouster_metadata is not None:
             self._write_ouster_metadata(log_time_ns or 0)
 
@@ -117,6 +118,13 @@ class PacketSink:
         rep = self.streams.get(key)
         if rep is None:
             rep = self.streams[key] = StreamReport(kind, str(batch.src), str(batch.dst), batch.payload_size)
+            where = f"{batch.payload_size}-byte packets from {batch.src} to {batch.dst}"
+            if kind == streams.OUSTER_LIDAR and self.ouster_metadata is None:
+                self.notes.append(f"{where} look like Ouster LEGACY lidar packets; without --metadata they are "
+                                  "recorded but not checked for loss nor counted as frames")
+            elif kind == streams.OTHER:
+                self.notes.append(f"{where} are no stream lidarpkt knows (an Ouster profile needs --metadata); "
+                                  "they are kept on /lidarpkt/other_packets")
         host = batch.timestamp_ns
         if kind == streams.VELODYNE_DATA:
             self._push_velodyne(key, rep, batch)

@@ -63,6 +63,7 @@ def test_unknown_datagrams_are_kept_on_their_own_topic(tmp_path):
     assert [bytes(m.data) for t, _, m in msgs if t == "/lidarpkt/other_packets"] == payloads
     report = json.loads(rec.report.read_text())
     assert {s["kind"] for s in report["streams"]} == {"other"} and report["packets"] == 20
+    assert "kept on /lidarpkt/other_packets" in rec.log.read_text()
 
 
 def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
