@@ -5,9 +5,85 @@ Each test names the input and what went wrong before the fix.
 
 from __future__ import annotations
 
+import copy
+import json
 import tracemalloc
+import warnings
+from pathlib import Path
 
+import numpy as np
+import pytest
+
+from conftest import external
+from lidarpkt.errors import MetadataError
+from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
+from lidarpkt.packet import PacketBatch
 from lidarpkt.reassembly import FRAGMENT_OVERHEAD, Reassembler
+
+DATA = Path(__file__).parent / "data" / "fuzz"
+
+
+# --------------------------------------------------------------------------- Ouster metadata
+def test_fuzz_metadata_pixel_shift_overflow_is_a_metadata_error():
+    """fuzz input: a pixel_shift_by_row entry of ~1e30 (integral as a float) was cast to int64 with a
+    RuntimeWarning and a garbage stagger; now a MetadataError naming the field."""
+    doc = json.loads((DATA / "metadata-pixel-shift-overflow.json").read_bytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(MetadataError, match="pixel_shift_by_row"):
+            load_metadata(doc)
+
+
+def _edit(path, *keys_value):
+    def apply(doc):
+        *keys, value = keys_value
+        node = doc
+        for k in keys[:-1]:
+            node = node[k]
+        node[keys[-1]] = value
+
+    return apply
+
+
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        (_edit(None, "lidar_data_format", "pixel_shift_by_row", 0, 1e30), "pixel_shift_by_row"),
+        (_edit(None, "lidar_data_format", "pixel_shift_by_row", 0, 512), "pixel_shift_by_row"),
+        # 16e8 columns: OusterDecoder allocated 11.9 GiB (MemoryError)
+        (_edit(None, "lidar_data_format", "columns_per_frame", 16 * 10**8), "measurement_id"),
+        # a 2 GB "packet" (columns_per_packet = columns_per_frame = 2**16)
+        (_edit(None, "lidar_data_format", "columns_per_packet", 1 << 16), "UDP datagram"),
+        # np.uint64(-5) / int too large raised OverflowError in OusterDecoder.push and detect
+        (_edit(None, "sensor_info", "prod_sn", "-5"), "prod_sn"),
+        (_edit(None, "sensor_info", "prod_sn", "99999999999999999999999"), "prod_sn"),
+        (_edit(None, "sensor_info", "prod_sn", "1" * 5000), "prod_sn"),
+        (_edit(None, "sensor_info", "initialization_id", 10**30), "initialization_id"),
+        (_edit(None, "config_params", "udp_port_lidar", 70000), "udp_port_lidar"),
+    ],
+)
+def test_impossible_metadata_values_are_named(edit, field):
+    doc = json.loads(external("ouster-sdk/empty_pcap.json").read_text())
+    doc = copy.deepcopy(doc)
+    if field == "UDP datagram":
+        doc["lidar_data_format"]["columns_per_frame"] = 1 << 16
+        doc["lidar_data_format"]["column_window"] = [0, 5]
+    if field == "measurement_id":
+        doc["lidar_data_format"]["column_window"] = [0, 5]
+    edit(doc)
+    with pytest.raises(MetadataError, match=field):
+        load_metadata(doc)
+
+
+def test_real_serials_and_ids_still_load_and_decode():
+    """The new bounds leave every real metadata file as it was: a decoder builds and takes a packet."""
+    for rel in ("ouster-sdk/empty_pcap.json", "ouster-sdk/crc_test.json", "ouster-sdk/same_ports_nonlegacy.2.json",
+                "ouster-sdk/OS-1-64_sensor_config_reduced.json"):
+        md = load_metadata(external(rel))
+        OusterGeometry(md)
+        dec = OusterDecoder(md)
+        dec.push(PacketBatch.from_payloads(np.zeros((1, md.packet_size), np.uint8)))
+        assert dec.stats.packets == 1
 
 
 # --------------------------------------------------------------------------- fragment reassembly

@@ -52,6 +52,8 @@ DEFAULT_LIDAR_PORT = 7502
 DEFAULT_IMU_PORT = 7503
 _MODES = re.compile(r"^(\d+)x(\d+)$")
 _VERSION = re.compile(r"v(\d+)\.(\d+)\.(\d+)")
+_MAX_COLUMNS = 1 << 16  # measurement_id is a u16
+_MAX_UDP_PAYLOAD = 65535 - 8  # one UDP datagram (IPv6 without jumbograms; IPv4 allows 65507)
 
 
 @dataclass(eq=False)
@@ -344,6 +346,13 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
         defaulted.append("columns_per_frame")
     if w <= 0 or w % c:
         raise MetadataError(f"columns_per_frame {w} must be a positive multiple of columns_per_packet {c}")
+    if w > _MAX_COLUMNS:  # measurement_id is a u16 on the wire
+        raise MetadataError(f"columns_per_frame {w} is more than a packet's 16-bit measurement_id can count ({_MAX_COLUMNS})")
+    if profile.packet_size(h, c) > _MAX_UDP_PAYLOAD:
+        raise MetadataError(
+            f"{profile.name} packets of {c} columns x {h} beams would be {profile.packet_size(h, c)} B, more than a UDP "
+            f"datagram holds ({_MAX_UDP_PAYLOAD} B): check pixels_per_column and columns_per_packet"
+        )
 
     window = _get(doc, *_df("column_window"))
     if window is None:
@@ -361,6 +370,8 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
         defaulted.append("pixel_shift_by_row")
     if np.any(shift != np.round(shift)):
         raise MetadataError("metadata field lidar_data_format.pixel_shift_by_row must hold integers")
+    if np.any(np.abs(shift) >= w):
+        raise MetadataError(f"metadata field lidar_data_format.pixel_shift_by_row must lie within ±{w - 1} columns")
 
     origin_paths = (("beam_intrinsics", "lidar_origin_to_beam_origin_mm"), ("lidar_origin_to_beam_origin_mm",))
     origin = _floats(doc, "mm", origin_paths, (1,))
@@ -392,7 +403,15 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
     init_id = _int(doc, "initialization id", ("sensor_info", "initialization_id"), ("initialization_id",))
     if init_id is None:
         init_id, _ = 0, defaulted.append("initialization_id")
+    if not 0 <= init_id < 1 << 24:
+        raise MetadataError(f"metadata field sensor_info.initialization_id {init_id} does not fit the packet's 24 bits")
+    for name, port in (("udp_port_lidar", lidar_port), ("udp_port_imu", imu_port)):
+        if not 0 <= port <= 65535:
+            raise MetadataError(f"metadata field config_params.{name} {port} is not a UDP port (0-65535)")
     serial = _get(doc, ("sensor_info", "prod_sn"), ("prod_sn",))
+    if isinstance(serial, (int, str)) and not isinstance(serial, bool) and re.fullmatch(r"\s*[+-]?[0-9]+\s*", str(serial)):
+        if len(str(serial).strip()) > 16 or not 0 <= int(serial) < 1 << 40:
+            raise MetadataError(f"metadata field sensor_info.prod_sn {serial!r} does not fit the packet's 40-bit serial")
     firmware = _get(doc, ("sensor_info", "build_rev"), ("build_rev",))
     prod_line = _get(doc, ("sensor_info", "prod_line"), ("prod_line",))
     imu_profile = _get(doc, *_df("udp_profile_imu"), ("config_params", "udp_profile_imu"))
