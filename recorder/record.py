@@ -227,7 +227,3 @@ def _summary_text(d: dict, sink: PacketSink) -> str:
         lines.append(f"  GPS: {d['gps_sentences']} sentences, {d['gps_bad_checksum']} rejected (bad checksum)")
     return "\n".join(lines + sink.report_lines())
 
-
-def _say(args, text: str) -> None:
-    if not args.quiet:
-        print(text, file=sys.stderr, flush=True)

@@ -5,7 +5,6 @@ in order, with nothing reported lost. Also SIGKILL mid-run and the replay pacing
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -18,7 +17,6 @@ import numpy as np
 import pytest
 
 from lidarpkt.packet import Packet
-from recorder import schemas
 from recorder.replay import read_capture, replay
 from conftest import external
 
