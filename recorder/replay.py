@@ -73,7 +73,8 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
 
 
 def read_capture(path: str) -> Iterator[Packet]:
-    """Every packet of a capture in capture order (pcap streamed; bags/MCAP read by batches)."""
+    """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
+    ordered by host receive time)."""
     from lidarpkt.source import container_kind, read_batches
 
     if container_kind(path) == "pcap":
@@ -84,7 +85,9 @@ def read_capture(path: str) -> Iterator[Packet]:
     batches = list(read_batches(path))
     if not batches:
         return
-    order = np.argsort(np.concatenate([b.index for b in batches]), kind="stable")
+    # a bag stores a rotation's packets in one message written after its last packet: host times,
+    # not file order, give the interleaving of the streams as they were received
+    order = np.lexsort((np.concatenate([b.index for b in batches]), np.concatenate([b.timestamp_ns for b in batches])))
     which = np.concatenate([np.full(len(b), i) for i, b in enumerate(batches)])
     row = np.concatenate([np.arange(len(b)) for b in batches])
     for k in order.tolist():

@@ -237,3 +237,26 @@ def test_replay_paces_by_capture_time_over_rate():
         assert len(sleeps) == 100  # --max: no more sleeping
     finally:
         receiver.close()
+
+
+def test_a_recorded_mcap_replays_like_the_pcap_it_came_from(tmp_path):
+    """pcap → ``decode`` MCAP → ``replay`` MCAP → ``record`` MCAP: the same packets again. MCAP keeps
+    no ports, so the position packets go to 8308, mapped here to the recorder's second port."""
+    pcap = external("rust-lidar-utils/velodyne_vlp16.pcap")  # data + position
+    first = tmp_path / "first.mcap"
+    r = subprocess.run([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "-o", str(first), "--topics", "packets",
+                        "-q"], cwd=REPO, timeout=120)
+    assert r.returncode == 0
+    lidar_port, aux_port = _free_ports(2)
+    rec = Recorder(tmp_path, [lidar_port, aux_port], "-q")
+    try:
+        cmd = [sys.executable, "-m", "lidarpkt", "replay", str(first), "--to", f"127.0.0.1:{lidar_port}", "--rate", "10",
+               "--port-map", f"8308:{aux_port}", "-q"]
+        assert subprocess.run(cmd, cwd=REPO, timeout=120).returncode == 0
+        time.sleep(0.5)
+    finally:
+        assert rec.stop() == 0
+    _, msgs = _messages(rec.out)
+    got = _recorded_payloads(msgs)
+    sizes = _by_size(list(read_capture(str(pcap))))
+    assert got["/velodyne_packets"] == sizes[1206] and got["/velodyne_position_packets"] == sizes[512]
