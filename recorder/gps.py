@@ -7,8 +7,9 @@ the one the VLP-16 position packets are verified with). Sentences with a wrong o
 checksum, and lines that are not NMEA, are counted (``bad``) and dropped. Lines longer than
 NMEA allows are cut off (memory stays bounded whatever arrives).
 
-Each sentence is stamped with the host time its line ended (ns since the epoch); the
-recorder writes it as ``nmea_msgs/msg/Sentence`` on ``/gps/nmea_sentence``.
+Each sentence is logged at the host time its line ended (ns since the epoch); the recorder
+writes it as ``nmea_msgs/msg/Sentence`` on ``/gps/nmea_sentence`` with ``header.stamp`` = the
+GPS's own UTC time where the sentence gives it (:func:`sentence_time_ns`), else the host time.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import threading
 import time
 
 from lidarpkt.errors import NMEAError, SerialPortError
-from lidarpkt.velodyne.nmea import checksum
+from lidarpkt.velodyne.nmea import checksum, parse_nmea
 
 MAX_LINE = 512  # NMEA 0183 allows 82 characters; proprietary sentences run a little longer
 
@@ -49,6 +50,28 @@ def verify_sentence(line: bytes | str) -> str:
         raise NMEAError(f"NMEA checksum mismatch: sentence says {expected:02X}, content gives {actual:02X}: "
                         f"{text[:60]!r}")
     return text
+
+
+DAY_NS = 86_400_000_000_000
+
+
+def sentence_time_ns(sentence: str, host_time_ns: int) -> int:
+    """The UTC time a $--RMC / $--GGA sentence reports, ns since the epoch; ``host_time_ns`` for
+    other sentences and for empty time fields. GGA has no date: the day nearest the host time."""
+    try:
+        fix = parse_nmea(sentence)
+    except NMEAError:
+        return host_time_ns
+    if fix.utc_ns is not None:
+        return fix.utc_ns
+    if fix.time_of_day_s is None:
+        return host_time_ns
+    t = host_time_ns - host_time_ns % DAY_NS + round(fix.time_of_day_s * 1e9)
+    if t - host_time_ns > DAY_NS // 2:
+        t -= DAY_NS
+    elif host_time_ns - t > DAY_NS // 2:
+        t += DAY_NS
+    return t
 
 
 class GpsReader:

@@ -170,8 +170,11 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
 
 def _write_gps(writer: McapWriter, gps) -> None:
     store = schemas.typestore()
+    from .gps import sentence_time_ns
+
     for host_ns, sentence in gps.drain():
-        msg = store.types[schemas.NMEA_SENTENCE](header=schemas.header(host_ns, "gps"), sentence=sentence)
+        stamp = sentence_time_ns(sentence, host_ns)  # the GPS's own time where it says it
+        msg = store.types[schemas.NMEA_SENTENCE](header=schemas.header(stamp, "gps"), sentence=sentence)
         writer.write_message(schemas.NMEA, msg, host_ns)
 
 

@@ -130,4 +130,9 @@ def test_record_writes_gps_sentences_into_the_mcap(tmp_path):
         msgs = [(s.name, c.topic, m.log_time, d) for s, c, m, d in reader.iter_decoded_messages()]
     assert [d.sentence for _, _, _, d in msgs] == [GOOD[0], GOOD[1], GOOD[3]]
     assert {(n, t) for n, t, _, _ in msgs} == {("nmea_msgs/msg/Sentence", "/gps/nmea_sentence")}
-    assert all(d.header.stamp.sec * 10**9 + d.header.stamp.nanosec == lt for _, _, lt, d in msgs)
+    stamps = [d.header.stamp.sec * 10**9 + d.header.stamp.nanosec for _, _, _, d in msgs]
+    # header.stamp = the GPS's UTC: GGA 12:35:19 (date from the host), RMC 1994-03-23 12:35:19; VTG: host
+    assert stamps[0] % 86_400_000_000_000 == (12 * 3600 + 35 * 60 + 19) * 10**9
+    assert abs(stamps[0] - msgs[0][2]) <= 43_200 * 10**9
+    assert stamps[1] == 764_426_119 * 10**9  # calendar.timegm((1994, 3, 23, 12, 35, 19))
+    assert stamps[2] == msgs[2][2]
