@@ -175,12 +175,17 @@ def fit_em(
     *,
     max_components: int = 4,
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
+    min_separation_m: float = DEFAULT_GAP_M,
     iterations: int = 300,
     tol: float = 1e-9,
 ) -> GaussianMixture:
     """Mixture by expectation maximisation on the returns, the number of components (1..max_components)
     chosen by BIC (eqs. 8–9). Deterministic: each M starts from the M − 1 widest gaps and from
     the quantiles of the samples, and the better likelihood wins.
+
+    A fit whose component means lie closer than ``min_separation_m`` (the cluster gap of the
+    multi-return map) is not a candidate: with a few dozen samples BIC alone sometimes splits
+    one surface's Gaussian noise into two components a couple of centimetres apart.
 
     Raises AnalysisError if there is no return or max_components < 1.
     """
@@ -210,6 +215,8 @@ def fit_em(
         if not fits:
             continue
         ll, w, mu, sigma = max(fits, key=lambda f: f[0])
+        if m > 1 and np.min(np.diff(np.sort(mu))) < min_separation_m:
+            continue
         bic = -2.0 * ll + (3 * m - 1) * np.log(n)
         if best is None or bic < best[0]:
             best = (bic, w, mu, sigma)
