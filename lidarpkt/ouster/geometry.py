@@ -55,10 +55,39 @@ class OusterGeometry:
         offset = offset @ rot.T + l2s[:3, 3]
         return direction * 0.001, offset * 0.001
 
-    def xyz(self, frame) -> np.ndarray:
-        """Points of ``frame`` as float64 ``[R, H, W, 3]`` metres; zeros where ``range_mm`` is 0."""
+    @cached_property
+    def _planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lookup table as planes: direction and offset, each ``float64[3, H, W]`` (contiguous)."""
         direction, offset = self.lut
-        rng = frame.range_mm.astype(np.float64)[..., None]  # [R, H, W, 1]
-        out = rng * direction + offset
-        out[frame.range_mm == 0] = 0.0
+        return np.ascontiguousarray(direction.transpose(2, 0, 1)), np.ascontiguousarray(offset.transpose(2, 0, 1))
+
+    def xyz(self, frame) -> np.ndarray:
+        """Points of ``frame`` as float64 ``[R, H, W, 3]`` metres; zeros where ``range_mm`` is 0.
+
+        Each point is ``range_mm · direction + offset`` (the same double-precision products and
+        sums as ouster-sdk's ``XYZLut``), computed a few rows at a time so that the temporaries
+        stay in cache, one coordinate plane at a time with contiguous operands; the offset is
+        multiplied by 0/1 (return or not) instead of masking the result afterwards.
+        """
+        direction, offset = self._planes
+        rng = frame.range_mm
+        r, h, w = rng.shape
+        out = np.empty((r, h, w, 3), np.float64)
+        rows = max(1, min(h, _BLOCK_PIXELS // max(1, r * w)))
+        tmp = np.empty((r, rows, w), np.float64)
+        for a in range(0, h, rows):
+            b = min(h, a + rows)
+            t = tmp[:, : b - a]
+            block = rng[:, a:b]
+            scale = block.astype(np.float64)
+            has_return = (block != 0).astype(np.float64)
+            for k in range(3):
+                np.multiply(scale, direction[k, a:b], out=t)
+                t += 0.0  # -0.0 (range 0 times a negative direction) becomes +0.0
+                o = out[:, a:b, :, k]
+                np.multiply(has_return, offset[k, a:b], out=o)
+                o += t
         return out
+
+
+_BLOCK_PIXELS = 16384  # pixels per block of rows in xyz (128 KB of float64 temporaries)
