@@ -115,3 +115,14 @@ def test_json_shape_and_errors():
         fit_gmm(HAND, [1.2])
     with pytest.raises(AnalysisError, match="expected em, auto, or CDF thresholds"):
         fit_gmm(HAND, "bic")
+
+
+def test_em_does_not_split_one_surface_into_close_components():
+    # 11 samples of one surface (sd 15 mm): BIC alone took a two-component fit 22 mm apart here
+    rng = np.random.default_rng(0)
+    found = 0
+    for _ in range(200):
+        x = np.round(rng.normal(15000, 15, 11)).astype(np.uint32)
+        g = fit_em(RangeCDF.from_samples(x))
+        found += g.n_components > 1
+    assert found == 0
