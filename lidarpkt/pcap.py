@@ -34,6 +34,7 @@ import socket
 import struct
 import warnings
 from collections import Counter
+from functools import lru_cache
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -89,11 +90,120 @@ _RAW_LINKS = (LINKTYPE_RAW, LINKTYPE_RAW_BSD, LINKTYPE_RAW_OPENBSD, LINKTYPE_IPV
 ETHERTYPE_IPV4 = 0x0800
 ETHERTYPE_IPV6 = 0x86DD
 _VLAN_TPIDS = (0x8100, 0x88A8, 0x9100, 0x9200)  # 802.1Q, 802.1ad, legacy QinQ tags
+_BSD_AF_INET = 2
 _BSD_AF_INET6 = (10, 24, 28, 30)  # Linux, NetBSD/OpenBSD, FreeBSD, Darwin
 IPPROTO_UDP = 17
 _IPV6_EXT_HEADERS = (0, 43, 60)  # hop-by-hop, routing, destination options
 _IPV6_FRAGMENT = 44
 _IPV6_AH = 51
+
+# --- header layouts, declared once (field names as in the pcap/pcapng specs and the RFCs) ----------
+# Container headers take the file's byte order ("=" here, given at use); network headers are big-endian.
+PCAP_GLOBAL_HEADER = np.dtype([("magic_number", "=u4"), ("version_major", "=u2"), ("version_minor", "=u2"),
+                               ("thiszone", "=i4"), ("sigfigs", "=u4"), ("snaplen", "=u4"), ("network", "=u4")])
+PCAP_RECORD_HEADER = np.dtype([("ts_sec", "=u4"), ("ts_frac", "=u4"), ("incl_len", "=u4"), ("orig_len", "=u4")])
+PCAP_MODIFIED_EXTRA = np.dtype([("ifindex", "=u4"), ("protocol", "=u2"), ("pkt_type", "u1"), ("pad", "u1")])
+PCAPNG_BLOCK_HEADER = np.dtype([("block_type", "=u4"), ("block_total_length", "=u4")])
+PCAPNG_SECTION_HEADER = np.dtype([("byte_order_magic", "=u4"), ("major_version", "=u2"), ("minor_version", "=u2"),
+                       ("section_length", "=i8")])
+PCAPNG_IDB = np.dtype([("linktype", "=u2"), ("reserved", "=u2"), ("snaplen", "=u4")])
+PCAPNG_EPB = np.dtype([("interface_id", "=u4"), ("timestamp_high", "=u4"), ("timestamp_low", "=u4"),
+                       ("captured_len", "=u4"), ("original_len", "=u4")])
+PCAPNG_OPB = np.dtype([("interface_id", "=u2"), ("drops_count", "=u2"), ("timestamp_high", "=u4"),
+                       ("timestamp_low", "=u4"), ("captured_len", "=u4"), ("original_len", "=u4")])
+PCAPNG_SPB = np.dtype([("original_len", "=u4")])
+PCAPNG_OPTION = np.dtype([("option_code", "=u2"), ("option_length", "=u2")])
+ETHERNET_HEADER = np.dtype([("dst_mac", "V6"), ("src_mac", "V6"), ("ethertype", ">u2")])
+VLAN_TAG = np.dtype([("tci", ">u2"), ("ethertype", ">u2")])  # follows a TPID that took the ethertype's place
+LINUX_SLL_HEADER = np.dtype([("packet_type", ">u2"), ("arphrd_type", ">u2"), ("addr_len", ">u2"),
+                             ("addr", "V8"), ("protocol", ">u2")])
+LINUX_SLL2_HEADER = np.dtype([("protocol", ">u2"), ("reserved", ">u2"), ("interface_index", ">u4"),
+                              ("arphrd_type", ">u2"), ("packet_type", "u1"), ("addr_len", "u1"), ("addr", "V8")])
+NULL_HEADER = np.dtype([("family", "=u4")])  # the writing host's byte order (LINKTYPE_LOOP: big-endian)
+IPV4_HEADER = np.dtype([("version_ihl", "u1"), ("tos", "u1"), ("total_length", ">u2"), ("identification", ">u2"),
+                        ("flags_fragment_offset", ">u2"), ("ttl", "u1"), ("protocol", "u1"),
+                        ("header_checksum", ">u2"), ("src", ">u4"), ("dst", ">u4")])
+IPV6_HEADER = np.dtype([("version_class_flow", ">u4"), ("payload_length", ">u2"), ("next_header", "u1"),
+                        ("hop_limit", "u1"), ("src", "V16"), ("dst", "V16")])
+IPV6_FRAGMENT_HEADER = np.dtype([("next_header", "u1"), ("reserved", "u1"), ("fragment_offset_m", ">u2"),
+                                 ("identification", ">u4")])
+UDP_HEADER = np.dtype([("src_port", ">u2"), ("dst_port", ">u2"), ("length", ">u2"), ("checksum", ">u2")])
+
+_STRUCT_CODES = {"u1": "B", "u2": "H", "u4": "I", "u8": "Q", "i1": "b", "i2": "h", "i4": "i", "i8": "q"}
+
+
+@lru_cache(maxsize=64)
+def header_struct(layout: np.dtype, endian: str | None = None) -> struct.Struct:
+    """A :class:`struct.Struct` for a header layout (``endian`` "<"/">" for the container headers)."""
+    codes = []
+    pos = 0
+    for name in layout.names:
+        dt, off = layout.fields[name][:2]
+        if off != pos:
+            raise ValueError(f"{name}: layouts must be packed")
+        codes.append(f"{dt.itemsize}s" if dt.kind == "V" else _STRUCT_CODES[f"{dt.kind}{dt.itemsize}"])
+        pos += dt.itemsize
+    order = endian or (">" if any(layout.fields[n][0].byteorder == ">" for n in layout.names) else "<")
+    return struct.Struct(order + "".join(codes))
+
+
+def field_offset(layout: np.dtype, name: str) -> int:
+    """Byte offset of a field in a header layout."""
+    return layout.fields[name][1]
+
+
+def _fold(total):
+    """Fold a one's-complement sum (int or int64 array) to 16 bits."""
+    for _ in range(4):
+        total = (total & 0xFFFF) + (total >> 16)
+    return total
+
+
+def _row_word_sums(rows: np.ndarray) -> np.ndarray:
+    """Sum of the big-endian 16-bit words of each row of a ``uint8[n, L]`` array (odd L: zero-padded)."""
+    high = rows[:, 0::2].sum(axis=1, dtype=np.int64)
+    low = rows[:, 1::2].sum(axis=1, dtype=np.int64)
+    return high * 256 + low
+
+
+def internet_checksum(*parts: bytes) -> int:
+    """RFC 1071 checksum of the concatenated parts (each zero-padded to an even length)."""
+    total = 0
+    for part in parts:
+        if len(part):
+            total += int(_row_word_sums(np.frombuffer(part, np.uint8).reshape(1, -1))[0])
+    return (~_fold(total)) & 0xFFFF
+
+
+def _udp_pseudo_sum(src: bytes, dst: bytes, udp_length: int) -> int:
+    """One's-complement sum of the IPv4/IPv6 pseudo-header of a UDP datagram."""
+    words = np.frombuffer(src + dst, ">u2")
+    return int(words.sum(dtype=np.int64)) + IPPROTO_UDP + udp_length
+
+
+def _field(buf: np.ndarray, base: np.ndarray, layout: np.dtype, name: str, endian: str | None = None) -> np.ndarray:
+    """int64 values of one header field at each ``base`` offset (offsets clipped into the buffer)."""
+    dt, off = layout.fields[name][:2]
+    if endian is not None and dt.itemsize > 1:
+        dt = dt.newbyteorder(endian)
+    idx = np.minimum(base + off, buf.shape[0] - dt.itemsize)
+    return _gather(buf, idx, dt).astype(np.int64)
+
+
+_IPV4 = header_struct(IPV4_HEADER)
+_IPV6 = header_struct(IPV6_HEADER)
+_IPV6_FRAG = header_struct(IPV6_FRAGMENT_HEADER)
+_UDP = header_struct(UDP_HEADER)
+_ETHERTYPE = struct.Struct(">H")
+_MIXED_CHECKSUM = "reassembled datagram fails its UDP checksum (fragments of two datagrams sharing an IP ID?)"
+_L2_BYTES = {
+    LINKTYPE_ETHERNET: ETHERNET_HEADER.itemsize,
+    LINKTYPE_LINUX_SLL: LINUX_SLL_HEADER.itemsize,
+    LINKTYPE_LINUX_SLL2: LINUX_SLL2_HEADER.itemsize,
+    LINKTYPE_NULL: NULL_HEADER.itemsize,
+    LINKTYPE_LOOP: NULL_HEADER.itemsize,
+    **{lt: 0 for lt in _RAW_LINKS},
+}
 
 MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
 MAX_PCAPNG_BLOCK = 1 << 24  # larger "blocks" are taken as corruption, not allocated
@@ -172,7 +282,7 @@ class _Chunk:
     linktype: np.ndarray  # int64[n]
 
 
-def _gather(buf: np.ndarray, idx: np.ndarray, dtype: str) -> np.ndarray:
+def _gather(buf: np.ndarray, idx: np.ndarray, dtype) -> np.ndarray:
     """Values of ``dtype`` at byte offsets ``idx`` of ``buf`` (offsets must be in range)."""
     size = np.dtype(dtype).itemsize
     if size == 1:
@@ -381,20 +491,20 @@ class PcapReader:
 
     # --- classic pcap --------------------------------------------------------------------------
     def _parse_pcap_header(self, head: bytes) -> None:
-        if len(head) < 24:
+        if len(head) < PCAP_GLOBAL_HEADER.itemsize:
             raise CaptureFormatError(
-                f"{self.path}: pcap global header cut short ({len(head)} of 24 bytes)"
+                f"{self.path}: pcap global header cut short ({len(head)} of {PCAP_GLOBAL_HEADER.itemsize} bytes)"
             )
         magic_le = struct.unpack_from("<I", head)[0]
         if magic_le in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
             endian = "<"
         else:
             endian = ">"
-        magic, major, minor, _zone, _sigfigs, snaplen, network = struct.unpack_from(endian + "IHHiIII", head)
+        magic, major, minor, _zone, _sigfigs, snaplen, network = header_struct(PCAP_GLOBAL_HEADER, endian).unpack_from(head)
         if major != 2:
             raise CaptureFormatError(f"{self.path}: pcap version {major}.{minor} is not supported (expected 2.4)")
         self._endian = endian
-        self._rec_hdr = 24 if magic == PCAP_MAGIC_MODIFIED else 16
+        self._rec_hdr = PCAP_RECORD_HEADER.itemsize + (PCAP_MODIFIED_EXTRA.itemsize if magic == PCAP_MAGIC_MODIFIED else 0)
         self._frac_ns = 1 if magic == PCAP_MAGIC_NS else 1000
         # the upper 16 bits may carry FCS information; a trailing FCS is harmless (UDP length bounds payloads)
         self._linktype = network & 0xFFFF
@@ -415,6 +525,7 @@ class PcapReader:
         mv = memoryview(buf)
         hdr = self._rec_hdr
         u32 = struct.Struct(self._endian + "I").unpack_from
+        caplen_at = field_offset(PCAP_RECORD_HEADER, "incl_len")
         max_cap = max(self._snaplen, MAX_RECORD_BYTES)
         cap_dtype = np.dtype(self._endian + "u4")
         chunk = self.batch_packets
@@ -441,7 +552,7 @@ class PcapReader:
                         )
                     done = True
                     break
-                cap = u32(mv, off + 8)[0]
+                cap = u32(mv, off + caplen_at)[0]
                 if cap > max_cap:
                     self._truncate(
                         f"record at offset {off} claims {cap} captured bytes (more than the snap length "
@@ -462,7 +573,7 @@ class PcapReader:
                     k_max = min(chunk - n, (end - off) // stride, window,
                                 (MAX_CHUNK_BYTES - (off - chunk_start)) // stride + 1)
                     if k_max >= 8:
-                        caps = np.ndarray((k_max,), cap_dtype, buf, off + 8, (stride,))
+                        caps = np.ndarray((k_max,), cap_dtype, buf, off + caplen_at, (stride,))
                         bad = np.flatnonzero(caps != cap)
                         k = int(bad[0]) if bad.size else k_max
                         if singles:
@@ -488,9 +599,9 @@ class PcapReader:
             offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
             st.records += n
             st.bytes_read = off
-            sec = _gather(buf, offs, self._endian + "u4").astype(np.int64)
-            frac = _gather(buf, offs + 4, self._endian + "u4").astype(np.int64)
-            caplen = _gather(buf, offs + 8, self._endian + "u4").astype(np.int64)
+            sec = _field(buf, offs, PCAP_RECORD_HEADER, "ts_sec", self._endian)
+            frac = _field(buf, offs, PCAP_RECORD_HEADER, "ts_frac", self._endian)
+            caplen = _field(buf, offs, PCAP_RECORD_HEADER, "incl_len", self._endian)
             yield _Chunk(
                 data_off=offs + hdr,
                 caplen=caplen,
@@ -540,7 +651,8 @@ class PcapReader:
                 if off + 16 > end:
                     self._truncate(f"capture cut short inside the section header block at offset {off}")
                     break
-                bom = mv[off + 8 : off + 12].tobytes()
+                bom_at = off + PCAPNG_BLOCK_HEADER.itemsize + field_offset(PCAPNG_SECTION_HEADER, "byte_order_magic")
+                bom = mv[bom_at : bom_at + 4].tobytes()
                 if bom == b"\x4d\x3c\x2b\x1a":
                     endian = "<"
                 elif bom == b"\x1a\x2b\x3c\x4d":
@@ -553,7 +665,7 @@ class PcapReader:
                     break
                 ifaces = []
                 st.big_endian = endian == ">"
-            btype, blen = struct.unpack_from(endian + "II", mv, off)
+            btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, off)
             if blen < 12 or blen % 4 or blen > MAX_PCAPNG_BLOCK:
                 msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
                 if first:
@@ -584,9 +696,9 @@ class PcapReader:
                     st.malformed += 1
                     st.malformed_reasons["short pcapng interface block"] += 1
                 else:
-                    linktype, _res, snaplen = struct.unpack_from(endian + "HHI", mv, body)
+                    linktype, _res, snaplen = header_struct(PCAPNG_IDB, endian).unpack_from(mv, body)
                     mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
-                    for code, val in _pcapng_options(mv, body + 8, body_end, endian):
+                    for code, val in _pcapng_options(mv, body + PCAPNG_IDB.itemsize, body_end, endian):
                         if code == 9 and len(val) >= 1:
                             r = val[0]
                             if r & 0x80:
@@ -608,21 +720,21 @@ class PcapReader:
                         st.malformed_reasons["short pcapng packet block"] += 1
                         off += blen
                         continue
-                    orig = struct.unpack_from(endian + "I", mv, body)[0]
-                    iface, ts_raw, data = 0, None, body + 4
+                    orig = header_struct(PCAPNG_SPB, endian).unpack_from(mv, body)[0]
+                    iface, ts_raw, data = 0, None, body + PCAPNG_SPB.itemsize
                     cap = min(orig, body_end - data)
                 else:
-                    if body_end - body < 20:
+                    if body_end - body < PCAPNG_EPB.itemsize:
                         st.malformed += 1
                         st.malformed_reasons["short pcapng packet block"] += 1
                         off += blen
                         continue
                     if btype == 6:
-                        iface, hi, lo, cap, _orig = struct.unpack_from(endian + "IIIII", mv, body)
+                        iface, hi, lo, cap, _orig = header_struct(PCAPNG_EPB, endian).unpack_from(mv, body)
                     else:
-                        iface, _drops, hi, lo, cap, _orig = struct.unpack_from(endian + "HHIIII", mv, body)
+                        iface, _drops, hi, lo, cap, _orig = header_struct(PCAPNG_OPB, endian).unpack_from(mv, body)
                     ts_raw = (hi << 32) | lo
-                    data = body + 20
+                    data = body + PCAPNG_EPB.itemsize  # the OPB header has the same size
                 if iface >= len(ifaces) or data + cap > body_end:
                     st.malformed += 1
                     st.malformed_reasons[
@@ -665,44 +777,37 @@ class PcapReader:
         size = buf.shape[0]
         lt = c.linktype
         l2 = np.full(n, -1, np.int64)
-        l2[lt == LINKTYPE_ETHERNET] = 14
-        l2[lt == LINKTYPE_LINUX_SLL] = 16
-        l2[lt == LINKTYPE_LINUX_SLL2] = 20
-        l2[np.isin(lt, _RAW_LINKS)] = 0
-        l2[(lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)] = 4
-        ok = (l2 >= 0) & (c.caplen >= l2 + 28)
+        for link, nbytes in _L2_BYTES.items():
+            l2[lt == link] = nbytes
+        ok = (l2 >= 0) & (c.caplen >= l2 + IPV4_HEADER.itemsize + UDP_HEADER.itemsize)
         d = np.where(ok, c.data_off, 0)
-        top = size - 4
         # link-layer protocol fields
-        eth = lt == LINKTYPE_ETHERNET
-        if eth.any():
-            ok &= ~eth | (_gather(buf, np.minimum(d + 12, top), ">u2") == ETHERTYPE_IPV4)
-        sll = lt == LINKTYPE_LINUX_SLL
-        if sll.any():
-            ok &= ~sll | (_gather(buf, np.minimum(d + 14, top), ">u2") == ETHERTYPE_IPV4)
-        sll2 = lt == LINKTYPE_LINUX_SLL2
-        if sll2.any():
-            ok &= ~sll2 | (_gather(buf, np.minimum(d, top), ">u2") == ETHERTYPE_IPV4)
+        for link, layout, name in (
+            (LINKTYPE_ETHERNET, ETHERNET_HEADER, "ethertype"),
+            (LINKTYPE_LINUX_SLL, LINUX_SLL_HEADER, "protocol"),
+            (LINKTYPE_LINUX_SLL2, LINUX_SLL2_HEADER, "protocol"),
+        ):
+            mine = lt == link
+            if mine.any():
+                ok &= ~mine | (_field(buf, d, layout, name) == ETHERTYPE_IPV4)
         null = (lt == LINKTYPE_NULL) | (lt == LINKTYPE_LOOP)
         if null.any():
-            fam = _gather(buf, np.minimum(d, top), "<u4")
-            is4 = (fam == 2) | (fam == 0x02000000)
-            ok &= ~null | is4
+            fam = _field(buf, d, NULL_HEADER, "family", "<")
+            ok &= ~null | (fam == _BSD_AF_INET) | (fam == _BSD_AF_INET << 24)  # either byte order
         l3 = np.where(ok, d + l2, 0)
-        vihl = buf[np.minimum(l3, size - 1)]
-        ihl = (vihl & 0x0F).astype(np.int64) * 4
-        ok &= ((vihl >> 4) == 4) & (ihl >= 20) & (c.caplen >= l2 + ihl + 8)
-        ok &= buf[np.minimum(l3 + 9, size - 1)] == IPPROTO_UDP
+        vihl = _field(buf, l3, IPV4_HEADER, "version_ihl")
+        ihl = (vihl & 0x0F) * 4
+        ok &= ((vihl >> 4) == 4) & (ihl >= IPV4_HEADER.itemsize) & (c.caplen >= l2 + ihl + UDP_HEADER.itemsize)
+        ok &= _field(buf, l3, IPV4_HEADER, "protocol") == IPPROTO_UDP
         l3 = np.where(ok, l3, 0)
         return ok, l2, l3, ihl
 
     def _plain_udp(self, buf: np.ndarray, c: _Chunk, ok, l2, l3, ihl, frag_bits):
         """Unfragmented UDP/IPv4 records whose UDP length fits the captured bytes, and their UDP offsets."""
-        top = buf.shape[0] - 4
         fast = ok & ((frag_bits & 0x3FFF) == 0)
         l4 = np.where(fast, l3 + ihl, 0)
-        udp_len = _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64)
-        fast &= (udp_len >= 8) & (udp_len <= c.caplen - l2 - ihl)
+        udp_len = _field(buf, l4, UDP_HEADER, "length")
+        fast &= (udp_len >= UDP_HEADER.itemsize) & (udp_len <= c.caplen - l2 - ihl)
         return fast, l4
 
     def _fragment_trains(self, buf: np.ndarray, c: _Chunk, ok, l2, l3, ihl, frag_bits):
@@ -715,23 +820,23 @@ class PcapReader:
         an ID reused by a stale fragment as in duplicate_id.pcap, trains cut by the chunk end) goes
         through :class:`~lidarpkt.reassembly.Reassembler` record by record.
 
-        Returns None, or ``(consumed, dgrams, pieces)``: ``consumed`` bool[n] records used;
-        ``dgrams`` a dict of per-datagram arrays (pos, ts, src, dst, ports, plen); ``pieces`` a
-        dict of per-fragment arrays (dgram, src_off, dst_off, length) cut to the payload.
+        Returns None, or ``(consumed, dgrams, payloads)``: ``consumed`` bool[n] records used;
+        ``dgrams`` a dict of per-datagram arrays (pos, ts, src, dst, ports, plen, and row: the
+        datagram's row in ``payloads[plen]``, the ``uint8[k, plen]`` payloads of each size).
+        Datagrams whose non-zero UDP checksum fails are counted as malformed and left out.
         """
-        top = buf.shape[0] - 4
         cand = ok & ((frag_bits & 0x3FFF) != 0)
         if not cand.any():
             return None
-        total = _gather(buf, np.minimum(l3 + 2, top), ">u2").astype(np.int64)
+        total = _field(buf, l3, IPV4_HEADER, "total_length")
         cand &= (total > ihl) & (l2 + total <= c.caplen)
         p = np.flatnonzero(cand)
         if p.shape[0] == 0:
             return None
         l3p = l3[p]
-        src = _gather(buf, l3p + 12, ">u4").astype(np.int64)
-        dst = _gather(buf, l3p + 16, ">u4").astype(np.int64)
-        ident = _gather(buf, l3p + 4, ">u2").astype(np.int64)
+        src = _field(buf, l3p, IPV4_HEADER, "src")
+        dst = _field(buf, l3p, IPV4_HEADER, "dst")
+        ident = _field(buf, l3p, IPV4_HEADER, "identification")
         fb = frag_bits[p]
         off = (fb & 0x1FFF) * 8
         mf = (fb >> 13) & 1
@@ -760,9 +865,9 @@ class PcapReader:
         span = np.maximum.reduceat(ts, starts) - np.minimum.reduceat(ts, starts)
         run_ok &= span <= self._reasm.timeout_ns
         dgram_len = off[ends] + dlen[ends]
-        run_ok &= (dgram_len <= self._reasm.max_datagram_bytes) & (dlen[starts] >= 8)
+        run_ok &= (dgram_len <= self._reasm.max_datagram_bytes) & (dlen[starts] >= UDP_HEADER.itemsize)
         ustart = dstart[starts]
-        ulen = _gather(buf, np.minimum(ustart + 4, top), ">u2").astype(np.int64)
+        ulen = _field(buf, ustart, UDP_HEADER, "length")
         run_ok &= ulen == dgram_len  # a reassembled datagram has no padding: anything else is damage
         if self._reasm.pending_datagrams:  # a stale datagram of the same key decides in the general path
             pending = self._reasm._pending
@@ -793,7 +898,7 @@ class PcapReader:
             "ts": c.ts_ns[p[ge]],
             "src": src[gs],
             "dst": dst[gs],
-            "ports": _gather(buf, dstart[gs], ">u4").astype(np.int64),
+            "ports": (_field(buf, dstart[gs], UDP_HEADER, "src_port") << 16) | _field(buf, dstart[gs], UDP_HEADER, "dst_port"),
             "plen": plen,
         }
         e = np.flatnonzero(elem_good)
@@ -807,7 +912,36 @@ class PcapReader:
         pieces = {"dgram": dg[keep], "src_off": src_off[keep], "dst_off": dst_off[keep], "length": length[keep]}
         self._vec_fragments += int(e.shape[0])
         self._vec_reassembled += int(good_runs.shape[0])
-        return consumed, dgrams, pieces
+        # build the payloads, one array per size, and check the UDP checksums: a datagram whose
+        # fragments came from two datagrams sharing an IP ID (after losses) fails it
+        csum = _field(buf, ustart[good_runs], UDP_HEADER, "checksum")
+        nd = good_runs.shape[0]
+        row = np.empty(nd, np.int64)
+        valid = np.ones(nd, bool)
+        payloads: dict[int, np.ndarray] = {}
+        for size in np.unique(plen).tolist():
+            ids = np.flatnonzero(plen == size)
+            arr = np.empty((ids.shape[0], size), np.uint8)
+            self._fill_trains(buf, arr, np.arange(ids.shape[0]), ids, pieces)
+            row[ids] = np.arange(ids.shape[0])
+            checked = csum[ids] != 0  # 0 = the sender computed none (IPv4)
+            if checked.any():
+                s_, d_, u_ = dgrams["src"][ids], dgrams["dst"][ids], ulen[good_runs][ids]
+                ports = dgrams["ports"][ids]
+                total = (
+                    (s_ >> 16) + (s_ & 0xFFFF) + (d_ >> 16) + (d_ & 0xFFFF) + IPPROTO_UDP + 2 * u_
+                    + (ports >> 16) + (ports & 0xFFFF) + csum[ids] + _row_word_sums(arr)
+                )
+                valid[ids] &= ~checked | (_fold(total) == 0xFFFF)
+            payloads[size] = arr
+        if not valid.all():
+            bad = int((~valid).sum())
+            self.stats.malformed += bad
+            self.stats.malformed_reasons[_MIXED_CHECKSUM] += bad
+            dgrams = {k: v[valid] for k, v in dgrams.items()}
+            row = row[valid]
+        dgrams["row"] = row
+        return consumed, dgrams, payloads
 
     @staticmethod
     def _fill_trains(buf, payload, rows, dgram_ids, pieces) -> None:
@@ -832,9 +966,8 @@ class PcapReader:
         n = c.caplen.shape[0]
         for lt, cnt in zip(*np.unique(c.linktype, return_counts=True)):
             st.link_types[LINKTYPE_NAMES.get(int(lt), f"linktype {int(lt)}")] += int(cnt)
-        top = buf.shape[0] - 4
         ok, l2, l3, ihl = self._ipv4_headers(buf, c)
-        frag_bits = _gather(buf, np.minimum(l3 + 6, top), ">u2").astype(np.int64)
+        frag_bits = _field(buf, l3, IPV4_HEADER, "flags_fragment_offset")
         fast, l4 = self._plain_udp(buf, c, ok, l2, l3, ihl, frag_bits)
         trains = self._fragment_trains(buf, c, ok, l2, l3, ihl, frag_bits)
         handled = fast if trains is None else (fast | trains[0])
@@ -864,19 +997,21 @@ class PcapReader:
         ip_off = l3[fast_pos]
         vec = {
             "pos": fast_pos,
-            "src": _gather(buf, ip_off + 12, ">u4").astype(np.int64),
-            "dst": _gather(buf, ip_off + 16, ">u4").astype(np.int64),
-            "ports": _gather(buf, l4, ">u4").astype(np.int64),  # sport << 16 | dport
-            "plen": _gather(buf, np.minimum(l4 + 4, top), ">u2").astype(np.int64) - 8,
+            "src": _field(buf, ip_off, IPV4_HEADER, "src"),
+            "dst": _field(buf, ip_off, IPV4_HEADER, "dst"),
+            "ports": (_field(buf, l4, UDP_HEADER, "src_port") << 16) | _field(buf, l4, UDP_HEADER, "dst_port"),
+            "plen": _field(buf, l4, UDP_HEADER, "length") - UDP_HEADER.itemsize,
             "ts": c.ts_ns[fast_pos],
-            "ref": l4 + 8,  # kind 0: payload offset in the file; kind 1: datagram number
+            "ref": l4 + UDP_HEADER.itemsize,  # kind 0: payload offset in the file; kind 1: row in train_payloads
             "kind": np.zeros(fast_pos.shape[0], np.int8),
         }
-        pieces = None
+        train_payloads: dict[int, np.ndarray] = {}
         if trains is not None:
-            _, dg, pieces = trains
+            _, dg, train_payloads = trains
             nd = dg["pos"].shape[0]
-            extra = dict(dg, ref=np.arange(nd), kind=np.ones(nd, np.int8))
+            dg = dict(dg)
+            row = dg.pop("row")
+            extra = dict(dg, ref=row, kind=np.ones(nd, np.int8))
             vec = {k: np.concatenate([vec[k], extra[k]]) for k in vec}
             order = np.argsort(vec["pos"], kind="stable")
             vec = {k: v[order] for k, v in vec.items()}
@@ -957,7 +1092,7 @@ class PcapReader:
                 if plain.any():
                     payload[wv[plain]] = _copy_rows(buf, vec["ref"][vsel[plain]], size)
                 if (~plain).any():
-                    self._fill_trains(buf, payload, wv[~plain], vec["ref"][vsel[~plain]], pieces)
+                    payload[wv[~plain]] = train_payloads[size][vec["ref"][vsel[~plain]]]
                 for r, j in zip(where[nv:].tolist(), ssel):
                     payload[r] = np.frombuffer(slow_pkts[j][4], np.uint8)
                     ts[r] = slow_ts[j]
@@ -975,23 +1110,21 @@ class PcapReader:
         """One record → (src, sport, dst, dport, payload) after filters, or None (counted)."""
         n = len(data)
         if lt == LINKTYPE_ETHERNET:
-            if n < 14:
+            off = ETHERNET_HEADER.itemsize
+            if n < off:
                 return self._bad("frame shorter than an Ethernet header")
-            off = 14
-            etype = (data[12] << 8) | data[13]
-            while etype in _VLAN_TPIDS:
-                if n < off + 4:
+            etype = _ETHERTYPE.unpack_from(data, field_offset(ETHERNET_HEADER, "ethertype"))[0]
+            while etype in _VLAN_TPIDS:  # 802.1Q / 802.1ad tags, stacked or not
+                if n < off + VLAN_TAG.itemsize:
                     return self._bad("frame cut inside a VLAN tag")
-                etype = (data[off + 2] << 8) | data[off + 3]
-                off += 4
-        elif lt == LINKTYPE_LINUX_SLL:
-            if n < 16:
-                return self._bad("frame shorter than a Linux SLL header")
-            etype, off = (data[14] << 8) | data[15], 16
-        elif lt == LINKTYPE_LINUX_SLL2:
-            if n < 20:
-                return self._bad("frame shorter than a Linux SLL2 header")
-            etype, off = (data[0] << 8) | data[1], 20
+                etype = _ETHERTYPE.unpack_from(data, off + field_offset(VLAN_TAG, "ethertype"))[0]
+                off += VLAN_TAG.itemsize
+        elif lt in (LINKTYPE_LINUX_SLL, LINKTYPE_LINUX_SLL2):
+            layout = LINUX_SLL_HEADER if lt == LINKTYPE_LINUX_SLL else LINUX_SLL2_HEADER
+            off = layout.itemsize
+            if n < off:
+                return self._bad(f"frame shorter than a Linux {'SLL' if lt == LINKTYPE_LINUX_SLL else 'SLL2'} header")
+            etype = _ETHERTYPE.unpack_from(data, field_offset(layout, "protocol"))[0]
         elif lt in _RAW_LINKS:
             if n < 1:
                 return self._bad("empty raw IP record")
@@ -999,13 +1132,14 @@ class PcapReader:
             etype = ETHERTYPE_IPV4 if version == 4 else ETHERTYPE_IPV6 if version == 6 else -1
             off = 0
         elif lt in (LINKTYPE_NULL, LINKTYPE_LOOP):
-            if n < 4:
+            off = NULL_HEADER.itemsize
+            if n < off:
                 return self._bad("frame shorter than a loopback header")
-            fam = struct.unpack_from("<I" if lt == LINKTYPE_NULL else ">I", data)[0]
+            first, other = ("<", ">") if lt == LINKTYPE_NULL else (">", "<")
+            fam = header_struct(NULL_HEADER, first).unpack_from(data)[0]
             if fam > 0xFFFF:  # written by a host of the other byte order
-                fam = struct.unpack_from(">I" if lt == LINKTYPE_NULL else "<I", data)[0]
-            etype = ETHERTYPE_IPV4 if fam == 2 else ETHERTYPE_IPV6 if fam in _BSD_AF_INET6 else -1
-            off = 4
+                fam = header_struct(NULL_HEADER, other).unpack_from(data)[0]
+            etype = ETHERTYPE_IPV4 if fam == _BSD_AF_INET else ETHERTYPE_IPV6 if fam in _BSD_AF_INET6 else -1
         else:
             self.stats.non_udp += 1
             if lt not in self._warned_links:
@@ -1023,19 +1157,16 @@ class PcapReader:
 
     def _parse_ipv4(self, data: memoryview, off: int, ts_ns: int):
         n = len(data)
-        if n < off + 20:
+        if n < off + IPV4_HEADER.itemsize:
             return self._bad("IPv4 header cut short")
-        vihl = data[off]
+        vihl, _tos, total, ident, frag, _ttl, proto, _csum, src, dst = _IPV4.unpack_from(data, off)
         ihl = (vihl & 0x0F) * 4
-        if vihl >> 4 != 4 or ihl < 20 or n < off + ihl:
+        if vihl >> 4 != 4 or ihl < IPV4_HEADER.itemsize or n < off + ihl:
             return self._bad("bad IPv4 header length or version")
-        total, ident, frag = struct.unpack_from(">HHH", data, off + 2)
-        proto = data[off + 9]
-        src = bytes(data[off + 12 : off + 16])
-        dst = bytes(data[off + 16 : off + 20])
         if proto != IPPROTO_UDP:
             self.stats.non_udp += 1
             return None
+        src_text, dst_text = _ipv4_text(np.array([src, dst]))
         more = bool(frag & 0x2000)
         frag_off = (frag & 0x1FFF) * 8
         if more or frag_off:
@@ -1044,22 +1175,22 @@ class PcapReader:
                 return self._bad("IPv4 fragment with total length below its header length")
             if off + total > n:
                 return self._bad("IPv4 fragment cut short by the snap length")
-            payload = self._reasm.add((4, src, dst, proto, ident), frag_off, more, data[off + ihl : off + total], ts_ns)
+            key = (4, src.to_bytes(4, "big"), dst.to_bytes(4, "big"), proto, ident)
+            payload = self._reasm.add(key, frag_off, more, data[off + ihl : off + total], ts_ns)
             if payload is None:
                 return None
-            return self._udp(payload, 0, len(payload), socket.inet_ntoa(src), socket.inet_ntoa(dst), True)
-        return self._udp(data, off + ihl, n, socket.inet_ntoa(src), socket.inet_ntoa(dst))
+            return self._udp(payload, 0, len(payload), src_text, dst_text, (key[1], key[2]))
+        # unfragmented: the UDP length ends the payload, whatever the IP total length says
+        return self._udp(data, off + ihl, n, src_text, dst_text)
 
     def _parse_ipv6(self, data: memoryview, off: int, ts_ns: int):
         n = len(data)
-        if n < off + 40:
+        if n < off + IPV6_HEADER.itemsize:
             return self._bad("IPv6 header cut short")
-        if data[off] >> 4 != 6:
+        vcf, plen, nh, _hops, src, dst = _IPV6.unpack_from(data, off)
+        if vcf >> 28 != 6:
             return self._bad("bad IPv6 version")
-        src = bytes(data[off + 8 : off + 24])
-        dst = bytes(data[off + 24 : off + 40])
-        nh = data[off + 6]
-        p = off + 40
+        p = off + IPV6_HEADER.itemsize
         frag = None
         while True:
             if nh in _IPV6_EXT_HEADERS or nh == _IPV6_AH:
@@ -1069,12 +1200,11 @@ class PcapReader:
                 nh = data[p]
                 p += ext
             elif nh == _IPV6_FRAGMENT:
-                if n < p + 8:
+                if n < p + IPV6_FRAGMENT_HEADER.itemsize:
                     return self._bad("IPv6 fragment header cut short")
-                fo, ident = struct.unpack_from(">HI", data, p + 2)
+                nh, _res, fo, ident = _IPV6_FRAG.unpack_from(data, p)
                 frag = (fo & 0xFFF8, bool(fo & 1), ident)
-                nh = data[p]
-                p += 8
+                p += IPV6_FRAGMENT_HEADER.itemsize
             else:
                 break
         if p > n:
@@ -1083,39 +1213,46 @@ class PcapReader:
             self.stats.non_udp += 1
             return None
         s, d = socket.inet_ntop(socket.AF_INET6, src), socket.inet_ntop(socket.AF_INET6, dst)
-        plen = struct.unpack_from(">H", data, off + 4)[0]
-        end = min(n, off + 40 + plen) if plen else n
+        end = min(n, off + IPV6_HEADER.itemsize + plen) if plen else n
         if frag is not None:
             frag_off, more, ident = frag
-            if plen and off + 40 + plen > n:
+            if plen and off + IPV6_HEADER.itemsize + plen > n:
                 return self._bad("IPv6 fragment cut short by the snap length")
             payload = self._reasm.add((6, src, dst, ident), frag_off, more, data[p:end], ts_ns)
             if payload is None:
                 return None
-            return self._udp(payload, 0, len(payload), s, d, True)
+            return self._udp(payload, 0, len(payload), s, d, (src, dst))
         return self._udp(data, p, n, s, d)
 
-    def _udp(self, data, p: int, end: int, src: str, dst: str, reassembled: bool = False):
-        """The UDP datagram at ``data[p:end]`` (end = captured bytes available)."""
-        if end - p < 8:
+    def _udp(self, data, p: int, end: int, src: str, dst: str, reassembled_from: tuple[bytes, bytes] | None = None):
+        """The UDP datagram at ``data[p:end]`` (end = captured bytes available).
+
+        ``reassembled_from``: the (source, destination) address bytes of a datagram rebuilt from
+        fragments, whose length and non-zero checksum are then checked: fragments of two datagrams
+        that share an IP ID (after losses) would give a mix. Unfragmented datagrams are not checked.
+        """
+        hdr = UDP_HEADER.itemsize
+        if end - p < hdr:
             return self._bad("UDP header cut short")
-        sport, dport, ulen = struct.unpack_from(">HHH", data, p)
-        if ulen < 8:
+        sport, dport, ulen, csum = _UDP.unpack_from(data, p)
+        if ulen < hdr:
             return self._bad("UDP length below 8")
-        if reassembled and ulen != end - p:
-            # fragments of two datagrams that share an IP ID would give such a mix
-            return self._bad("reassembled datagram length differs from its UDP length")
+        if reassembled_from is not None:
+            if ulen != end - p:
+                return self._bad("reassembled datagram length differs from its UDP length")
+            if csum and _fold(_udp_pseudo_sum(*reassembled_from, ulen) + (~internet_checksum(bytes(data[p:end])) & 0xFFFF)) != 0xFFFF:
+                return self._bad(_MIXED_CHECKSUM)
         if p + ulen > end:
             return self._bad("UDP datagram cut short (snap length or a bad UDP length)")
         self.stats.udp_packets += 1
         if (
             (self.ports is not None and dport not in self.ports)
             or (self.src_addresses is not None and src not in self.src_addresses)
-            or (self.payload_sizes is not None and ulen - 8 not in self.payload_sizes)
+            or (self.payload_sizes is not None and ulen - hdr not in self.payload_sizes)
         ):
             self.stats.filtered += 1
             return None
-        return src, sport, dst, dport, bytes(data[p + 8 : p + ulen])
+        return src, sport, dst, dport, bytes(data[p + hdr : p + ulen])
 
 
 def _canonical_address(text: str) -> str:
@@ -1140,7 +1277,7 @@ def _is_ipv4_text(text: str) -> bool:
 def _pcapng_options(mv: memoryview, p: int, end: int, endian: str) -> Iterator[tuple[int, bytes]]:
     """(code, value) of the options in ``mv[p:end]``; stops quietly at a malformed option."""
     while p + 4 <= end:
-        code, length = struct.unpack_from(endian + "HH", mv, p)
+        code, length = header_struct(PCAPNG_OPTION, endian).unpack_from(mv, p)
         if code == 0:
             return
         p += 4

@@ -29,6 +29,7 @@ from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from .packet import Packet
+from .pcap import internet_checksum
 
 __all__ = [
     "LINKTYPES",
@@ -58,15 +59,6 @@ PCAP_MAGIC_US = 0xA1B2C3D4
 PCAP_MAGIC_NS = 0xA1B23C4D
 
 Record = tuple  # (timestamp_ns, frame bytes) or (timestamp_ns, frame bytes, original length)
-
-
-def internet_checksum(*parts: bytes) -> int:
-    """RFC 1071 one's-complement checksum of the concatenated parts (each padded to even length)."""
-    data = b"".join(p + (b"\0" if len(p) % 2 else b"") for p in parts)
-    total = int(np.frombuffer(data, ">u2").sum(dtype=np.uint64)) if data else 0
-    while total >> 16:
-        total = (total & 0xFFFF) + (total >> 16)
-    return (~total) & 0xFFFF
 
 
 def _version(address: str) -> int:

@@ -532,3 +532,24 @@ def test_chunks_are_bounded_in_bytes(tmp_path, monkeypatch, real_packets):
     batches = list(PcapReader(tmp_path / "c.pcapng").batches())
     assert max(len(b) for b in batches) <= 10_000 // 1248 + 2
     assert sum(len(b) for b in batches) == len(vlp) * 20
+
+
+@pytest.mark.parametrize("batch_packets", [4096, 1])
+def test_mixed_fragments_of_two_datagrams_are_rejected(tmp_path, real_packets, batch_packets):
+    """Two same-size datagrams with one IP ID, both damaged, can complete each other: the lengths agree,
+    only the UDP checksum (present in every real Ouster capture here) tells. Both reassembly paths check it."""
+    a, b = [p for p in real_packets if len(p.payload) == 12608][:2]
+    fa = [(a.timestamp_ns, f) for f in frames_for(a, ident=7)]
+    fb = [(a.timestamp_ns + 5_000_000, f) for f in frames_for(Packet(b.timestamp_ns, a.src, a.dst, b.payload), ident=7)]
+    cases = {
+        "hole filled by the next datagram": fa[:3] + fa[4:] + [fb[3]] + fb[:3] + fb[4:],
+        "head of one, tail of the other, in order": fa[:2] + fb[2:],
+    }
+    path = tmp_path / "mix.pcap"
+    for name, records in cases.items():
+        write_pcap_records(path, records)
+        reader = PcapReader(path, batch_packets=batch_packets)
+        with pytest.warns(SkippedPacketWarning, match="checksum"):
+            got = list(reader.packets())
+        assert all(p.payload in (a.payload, b.payload) for p in got), name
+        assert reader.stats.malformed_reasons and "checksum" in next(iter(reader.stats.malformed_reasons)), name
