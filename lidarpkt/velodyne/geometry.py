@@ -78,17 +78,25 @@ class VelodyneGeometry:
             cos_a, neg_sin_a = self._cos[self._rows, idx], self._neg_sin[self._rows, idx]  # [16, W]
         else:
             cos_a, neg_sin_a = self._cos[idx], self._neg_sin[idx]
-        hit = rng > 0
-        dxy = rng * self._k_xy  # [R, 16, W] horizontal distance, metres
-        dz = rng * self._k_z
-        if np.any(self._dist_correction):
-            dxy += hit * self._dc_xy
-            dz += hit * self._dc_z
         out = np.empty(rng.shape + (3,), dtype=np.float64)
+        self._points(rng, cos_a, neg_sin_a, out)
+        return out
+
+    def _points(self, rng: np.ndarray, cos_a: np.ndarray, neg_sin_a: np.ndarray, out: np.ndarray) -> None:
+        """XYZ of ``rng`` (``[R, 16, W]``, slots sharing the ``[16, W]`` azimuths) into ``out[..., 3]``.
+
+        Computing both dual slots outright is as fast as reusing slot 0 where they agree (measured).
+        """
+        k_xy, k_z, dc_xy, dc_z, voff = self._k_xy, self._k_z, self._dc_xy, self._dc_z, self._vert_offset
+        hit = rng > 0
+        dxy = rng * k_xy  # horizontal distance, metres
+        dz = rng * k_z
+        if np.any(self._dist_correction):
+            dxy += hit * dc_xy
+            dz += hit * dc_z
         np.multiply(dxy, cos_a, out=out[..., 0])
         np.multiply(dxy, neg_sin_a, out=out[..., 1])
         if np.any(self._vert_offset):
-            dz += self._vert_offset
+            dz += voff
             dz *= hit
         out[..., 2] = dz
-        return out
