@@ -29,9 +29,9 @@ from .sink import PacketSink, batch_from_packets
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", type=int, action="append", required=True, metavar="PORT",
+    parser.add_argument("--port", type=int, action="append", metavar="PORT",
                         help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
-                             "Ouster: 7502 lidar, 7503 IMU)")
+                             "Ouster: 7502 lidar, 7503 IMU; default with --metadata: the ports it names)")
     parser.add_argument("--bind", metavar="ADDR", help="local address to listen on (default: all, broadcast included)")
     parser.add_argument("--multicast", metavar="GROUP", help="join this IPv4 multicast group")
     parser.add_argument("--interface", metavar="IF", help="interface (name or address) for --multicast")
@@ -79,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
             previous[sig] = signal.signal(sig, stop)
     capture = gps = writer = None
     try:
-        capture = UdpCapture(args.port, bind=args.bind, multicast=args.multicast, interface=args.interface,
+        ports = args.port or ([md.lidar_port, md.imu_port] if md is not None else [])
+        capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,

@@ -139,6 +139,8 @@ def test_record_errors_are_clear_and_leave_no_traceback(tmp_path):
     r = _run_cli("record", "--port", str(_free_ports(1)[0]), "--gps", str(tmp_path / "ttyNONE"),
                  "-o", str(tmp_path / "g.mcap"))
     assert r.returncode == 2 and "cannot open GPS serial port" in r.stderr
+    r = _run_cli("record", "-o", str(tmp_path / "p.mcap"))
+    assert r.returncode == 2 and "no UDP port to listen on" in r.stderr
     r = _run_cli("replay", str(external("rust-lidar-utils/velodyne_example.pcap")), "--to", "nohostport")
     assert r.returncode == 2 and "HOST:PORT" in r.stderr
 
