@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.special import erf, logsumexp
+from scipy.special import erf
 
 from lidarpkt.errors import AnalysisError
 
@@ -147,13 +147,19 @@ def fit_auto(cdf: RangeCDF, *, gap_m: float = DEFAULT_GAP_M, min_sigma_m: float 
     return fit_thresholds(cdf, gap_thresholds(cdf, gap_m=gap_m), min_sigma_m=min_sigma_m, method="auto")
 
 
+def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
+    """log Σ_j exp(a[i, j]) per row (plain NumPy: scipy's version costs more than the EM step here)."""
+    top = a.max(axis=1)
+    return top + np.log(np.exp(a - top[:, None]).sum(axis=1))
+
+
 def _em(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray, w: np.ndarray, min_sigma: float, iters: int, tol: float):
     n = x.size
     prev = -np.inf
     for _ in range(iters):  # iterations, not samples: each step is vectorised over samples × components
         z = (x[:, None] - mu) / sigma
         logp = np.log(w) - 0.5 * z * z - np.log(sigma) - _LOG_SQRT_2PI  # [n, M]
-        norm = logsumexp(logp, axis=1)
+        norm = _logsumexp_rows(logp)
         ll = float(norm.sum())
         resp = np.exp(logp - norm[:, None])
         nk = resp.sum(axis=0)
@@ -166,7 +172,7 @@ def _em(x: np.ndarray, mu: np.ndarray, sigma: np.ndarray, w: np.ndarray, min_sig
             break
         prev = ll
     z = (x[:, None] - mu) / sigma
-    ll = float(logsumexp(np.log(w) - 0.5 * z * z - np.log(sigma) - _LOG_SQRT_2PI, axis=1).sum())
+    ll = float(_logsumexp_rows(np.log(w) - 0.5 * z * z - np.log(sigma) - _LOG_SQRT_2PI).sum())
     return ll, w, mu, sigma
 
 
