@@ -216,3 +216,21 @@ def test_frames_encode_back_to_the_real_payloads(ext):
     np.testing.assert_array_equal(encode_frames(frames), batch.payload)
     with pytest.raises(PacketFormatError, match="whole"):
         encode_frames(frames[1:2])  # a frame alone starts mid-packet
+
+
+def test_position_timestamps_run_on_the_data_packets_clock(ext):
+    """Byte 198 of a position packet is the sensor's µs past the hour: in the VeloView capture each
+    position packet's stamp lies within 3 ms of the data packets captured next to it."""
+    from lidarpkt.pcap import PcapReader
+
+    batches = list(PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")).batches())
+    data = PacketBatch.concatenate([b for b in batches if b.payload_size == DATA_PACKET_SIZE])
+    pos = PacketBatch.concatenate([b for b in batches if b.payload_size == POSITION_PACKET_SIZE])
+    assert len(pos) == 367
+    t_data = decode_packets(data.payload).timestamp_us.astype(np.int64)
+    p = decode_position_packets(pos.payload)
+    k = np.searchsorted(data.index, pos.index)
+    before = t_data[np.clip(k - 1, 0, None)]
+    assert np.all(np.abs(p.timestamp_us.astype(np.int64) - before) < 3000)
+    assert set(p.pps_status.tolist()) == {0}  # no GPS attached in that recording
+    assert p.sentences() == [""] * 367
