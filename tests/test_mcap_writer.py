@@ -147,6 +147,7 @@ def test_ouster_pcap_to_mcap_keeps_lidar_imu_and_metadata(tmp_path):
 @pytest.mark.parametrize("capture, meta", [
     (VLP, None),
     ("veloview/vlp-16-test-90deg-1-50-frames.pcap", None),
+    ("nebula/vlp16/1673400471837873222", None),  # the real dual-return rosbag2
     (OS1, OS1_JSON),
 ])
 def test_frames_from_recorded_mcap_equal_frames_from_the_pcap(tmp_path, capture, meta):
