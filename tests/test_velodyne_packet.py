@@ -179,6 +179,10 @@ def test_firing_offsets_follow_the_manual():
     assert FIRING_OFFSET_NS[0, 16] == 55296
     assert FIRING_OFFSET_NS[11, 31] == 23 * 55296 + 15 * 2304 == 1_306_368  # last entry of the manual's table
     dual = firing_offset_ns(np.array([True]))[0]
+    # einride/vlp16-go's timing test expects the same: 2.304, 34.560, 89.856 µs for channels 1, 15, 31
+    # of block 0, and 642.816 µs (dual) / 1306.37 µs (single) for the packet's last firing
+    assert [FIRING_OFFSET_NS[0, j] for j in (1, 15, 31)] == [2304, 34560, 89856]
+    assert dual[11, 31] == 642_816
     # dual: blocks 2k and 2k+1 are the same firings, with the times of single-mode block k
     np.testing.assert_array_equal(dual[4], FIRING_OFFSET_NS[2])
     np.testing.assert_array_equal(dual[5], FIRING_OFFSET_NS[2])
