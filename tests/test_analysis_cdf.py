@@ -7,10 +7,7 @@ from hypothesis import strategies as st
 
 from analysis.cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
 from lidarpkt.errors import AnalysisError
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import destaggered_by_definition, make_stack
-except ModuleNotFoundError:
-    from tests.test_analysis_support import destaggered_by_definition, make_stack
+from test_analysis_support import destaggered_by_definition, make_stack
 
 
 def one_pixel_stack():

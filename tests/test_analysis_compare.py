@@ -7,10 +7,7 @@ from scipy import stats
 
 from analysis.compare import compare_slots, compare_stacks, ks_image
 from lidarpkt.errors import AnalysisError
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import make_stack
-except ModuleNotFoundError:
-    from tests.test_analysis_support import make_stack
+from test_analysis_support import make_stack
 
 
 def test_dual_slots_by_hand():

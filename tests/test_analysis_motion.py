@@ -6,10 +6,7 @@ import pytest
 from analysis.cdf import temporal_cdf
 from analysis.motion import estimate_frame_offsets, motion_compensated_cdf
 from lidarpkt.errors import AnalysisError
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import destaggered_by_definition, make_stack
-except ModuleNotFoundError:
-    from tests.test_analysis_support import destaggered_by_definition, make_stack
+from test_analysis_support import destaggered_by_definition, make_stack
 
 H, W, PAD = 12, 40, 3
 

@@ -7,10 +7,7 @@ from scipy import stats
 
 from analysis.multireturn import evaluate_monitor, image_statistics, multireturn_map, spatial_gap_score
 from lidarpkt.errors import AnalysisError
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import destaggered_by_definition, make_stack
-except ModuleNotFoundError:
-    from tests.test_analysis_support import destaggered_by_definition, make_stack
+from test_analysis_support import destaggered_by_definition, make_stack
 
 
 def random_stack(seed=0, k=12, r=2, h=5, w=9, shift=None):

@@ -13,10 +13,7 @@ from analysis.multireturn import multireturn_map  # noqa: E402
 from analysis.raypath import analyze_raypath  # noqa: E402
 from lidarpkt.errors import AnalysisError  # noqa: E402
 
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import make_stack
-except ModuleNotFoundError:
-    from tests.test_analysis_support import make_stack
+from test_analysis_support import make_stack
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -12,10 +12,7 @@ from analysis.compare import compare_slots, compare_stacks
 from analysis.gmm import fit_gmm
 from analysis.motion import estimate_frame_offsets, motion_compensated_cdf
 from analysis.multireturn import image_statistics, multireturn_map
-try:  # tests/ as rootdir-relative modules, or as a package (when tests/__init__.py exists)
-    from test_analysis_support import load_fixture
-except ModuleNotFoundError:
-    from tests.test_analysis_support import load_fixture
+from test_analysis_support import load_fixture
 
 VLP_FRAMES, OS1_FRAMES = 50, 30
 CAPTURES = ["vlp16-strongest", "vlp16-last", "vlp16-dual", "os1-64-legacy", "os1-64-dual"]
