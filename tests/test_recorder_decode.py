@@ -113,6 +113,7 @@ def test_decode_errors_are_clear(tmp_path):
         ((tmp_path / "missing.pcap", "-o", tmp_path / "x.npz"), "no such file"),
         ((pcap, "-o", tmp_path / "x.mcap", "--topics", "bogus"), "choose among"),
         ((external("einride-vlp16-go/packet.bin"), "-o", tmp_path / "x.npz"), "not a capture"),
+        ((pcap, "-o", tmp_path / "nodir" / "x.npz"), "does not exist"),
     ):
         r = _decode(*args)
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
@@ -144,3 +145,15 @@ def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
     assert "\rdecode [" in text and "100.0%" in text and "52 frames" in text
     piped = _decode(pcap, "-o", tmp_path / "q.npz")
     assert piped.returncode == 0 and "\r" not in piped.stderr and "52 frames" in piped.stderr
+
+
+def test_npz_of_two_sensors_has_one_prefixed_stack_each(tmp_path):
+    out = tmp_path / "two.npz"
+    vlp = external("rust-lidar-utils/velodyne_example.pcap")
+    r = _decode(vlp, external(OS1), "--metadata", external(OS1_JSON), "-o", out, "-q")
+    assert r.returncode == 0, r.stderr
+    d = np.load(out)
+    n_vlp = len(list(lidarpkt.open(vlp)))
+    assert d["s0_range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
+    assert "s0_signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
+    assert d["s1_frame_id"].tolist() == [189]
