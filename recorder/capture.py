@@ -107,6 +107,7 @@ class UdpCapture:
                 # several listeners of one group is the norm for multicast; unicast must stay exclusive
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._set_rcvbuf(sock, port)
+            self.stats.kernel_drops[port] = 0  # keys fixed before the thread runs: safe to sum from another thread
             for opt, level in ((SO_TIMESTAMPNS, socket.SOL_SOCKET), (SO_RXQ_OVFL, socket.SOL_SOCKET),
                                (IP_PKTINFO, socket.IPPROTO_IP)):
                 try:
