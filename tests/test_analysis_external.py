@@ -127,3 +127,14 @@ def test_spatial_cdf_matches_ouster_sdk_destaggered_frames(ext, pcap, meta):
             want = RangeCDF.from_samples(np.array(vals, np.uint32))
             got = spatial_cdf(stack, row, col, 0, n=n, frame=0)
             assert np.array_equal(got.range_m, want.range_m) and np.array_equal(got.F, want.F), (row, col, n)
+
+
+def test_capture_without_a_complete_frame_falls_back_to_partial_frames(ext):
+    from lidarpkt.errors import LidarpktWarning
+
+    path = ext("rust-lidar-utils/velodyne_example.pcap")  # about 1.1 rotations: no whole frame
+    with pytest.warns(LidarpktWarning, match="no complete frame, analysing 2 partial frame"):
+        stack = load_stack(path)
+    assert len(stack) == 2 and 0.3 < stack.column_valid.mean() < 0.8
+    with pytest.warns(LidarpktWarning):
+        assert len(load_stack(path, frames=(1, None))) == 1

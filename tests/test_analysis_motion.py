@@ -119,3 +119,21 @@ def test_bad_options_raise_analysis_errors():
         motion_compensated_cdf(stack, 1, 1, search=2, patch=5)
     with pytest.raises(AnalysisError, match="outside"):
         motion_compensated_cdf(stack, 9, 1)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.lists(st.tuples(st.integers(-2, 2), st.integers(-2, 2)), min_size=1, max_size=6),
+       st.integers(2, 9), st.integers(0, W - 1))
+def test_any_motion_within_the_search_is_recovered(seed, motions, row, col):
+    motions = [(0, 0)] + motions  # frame 0 is the reference
+    world = textured_world(seed)
+    world[world == 0] = 1234  # no non-returns: every patch fully textured
+    stack = moved_stack(world, motions)
+    mc = motion_compensated_cdf(stack, row, col)
+    assert mc.offsets.tolist() == [[-dr, -dc] for dr, dc in motions]
+    offsets, _ = estimate_frame_offsets(stack)
+    assert offsets.tolist() == [[-dr, -dc] for dr, dc in motions]
