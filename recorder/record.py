@@ -120,8 +120,21 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     reason = None
     gps_failed = False
     notes_shown = 0
+    last_rx: float | None = None  # when a datagram last arrived
+    silent = False
     while reason is None:
         items = capture.drain(timeout=0.05)
+        now = time.monotonic()
+        if items:
+            if silent:
+                print(f"\nlidarpkt record: packets again after {now - last_rx:.1f} s of silence",
+                      file=sys.stderr, flush=True)
+                silent = False
+            last_rx = now
+        elif last_rx is not None and not silent and now - last_rx > 1.0:
+            silent = True  # the sensor stopped, restarted or was unplugged: keep recording
+            print(f"\nlidarpkt record: no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); "
+                  "still listening", file=sys.stderr, flush=True)
         for batch in batch_from_packets(items):
             sink.push(batch)
         for note in sink.notes[notes_shown:]:
