@@ -153,10 +153,16 @@ class BagReader:
         for name, text in MESSAGE_DEFINITIONS.items():
             extra.update(get_types_from_msg(text, name))
         store.register(extra)
+        reader = None
         try:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
             reader.open()
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
+            for sub in getattr(reader, "readers", ()):
+                # rosbags' ROS 1 reader leaves its file open when the first line is not UTF-8
+                bio = getattr(sub, "bio", None)
+                if bio is not None:
+                    bio.close()
             raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
         return reader
 

@@ -108,3 +108,23 @@ def test_tiny_orphan_fragments_are_charged_their_memory():
     assert held == r.held_bytes
     assert r.stats.evicted_datagrams > 0 and r.stats.orphaned_fragments > 0
     assert current < 2 * budget, f"{current} bytes traced for a {budget}-byte budget"
+
+
+# --------------------------------------------------------------------------- bags
+def test_bag_whose_first_line_is_not_text_closes_its_file(tmp_path):
+    """Input: the first 3 bytes of an MCAP file (b'\\x89MC'), too short to be recognised as MCAP, so read as
+    a ROS 1 bag: rosbags' reader failed on the non-UTF-8 line and left the file open (ResourceWarning
+    in test_hostile_input's MCAP cut test). Now a CaptureFormatError and the file is closed."""
+    import gc
+
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import CaptureFormatError
+
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(b"\x89MC")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(CaptureFormatError, match="cannot open as a ROS bag"):
+            list(BagReader(path).batches())
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
