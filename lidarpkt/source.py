@@ -105,20 +105,22 @@ class FrameReader:
         metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = None,
         calibration: Any = None,
         cut_angle_deg: float | None = None,
+        cut_on_block: bool = False,
         source: str | None = None,
         include_partial: bool = True,
         verify_crc: bool = True,
+        soft_id_check: bool = False,
         **filters: Any,
     ) -> None:
         self.path = Path(path)
         self.reader = _open_packet_source(path, **filters)
         self.stats = SourceStats()
         self.decoders: dict[tuple, Any] = {}
-        self._calibration = calibration
-        self._cut_angle_deg = cut_angle_deg
+        self._velodyne_options = {"calibration": calibration, "cut_angle_deg": cut_angle_deg,
+                                  "cut_on_block": cut_on_block}
+        self._ouster_options = {"verify_crc": verify_crc, "soft_id_check": soft_id_check}
         self._source_filter = source
         self._include_partial = include_partial
-        self._verify_crc = verify_crc
         self._ouster_metadata = _load_ouster_metadata(metadata)
         self._iter = self._frames()
 
@@ -154,7 +156,7 @@ class FrameReader:
             if match is not None:
                 kind, md = match
                 decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(
-                    md, source=_source_name(batch), verify_crc=self._verify_crc))
+                    md, source=_source_name(batch), **self._ouster_options))
                 if kind == "lidar":
                     self.stats.ouster_lidar_packets += len(batch)
                     return decoder.push(batch)
@@ -164,7 +166,7 @@ class FrameReader:
         kind = velodyne.classify(batch)
         if kind is not None:
             decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(
-                calibration=self._calibration, cut_angle_deg=self._cut_angle_deg, source=_source_name(batch)))
+                source=_source_name(batch), **self._velodyne_options))
             if kind == "data":
                 self.stats.velodyne_data_packets += len(batch)
                 return decoder.push(batch)
@@ -210,9 +212,13 @@ def open_frames(
         calibration: VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one);
             the stock VLP-16 calibration by default.
         cut_angle_deg: VLP-16: cut frames at this azimuth instead of at the wrap through 0°.
+        cut_on_block: VLP-16: cut at the block that wraps (VeloView's frames) rather than at the
+            firing sequence that wraps.
         source: decode only packets from this source IP address.
         include_partial: yield the partial frames at the ends of the capture (default True).
         verify_crc: Ouster: check the CRC-64 of packets whose firmware writes one (default True).
+        soft_id_check: Ouster: accept packets whose init_id differs from the metadata's (a
+            changed init_id still ends the frame).
         **filters: passed to the packet reader (``ports``, ``src_addresses``, ``payload_sizes``).
 
     Raises:
