@@ -22,6 +22,7 @@ from lidarpkt.frame import FrameStack
 from .stack import check_stack
 
 _NO_SAMPLE = np.iinfo(np.int64).max
+_KEY_CAP = np.int64(1) << 40  # above any range in mm; leaves room for the side bit of the KS sort keys
 
 #: Default Δ histogram bin edges, metres: log-spaced from 2 mm (the VLP-16 range step) to 200 m.
 DEFAULT_DELTA_EDGES_M = np.concatenate(([0.0], np.logspace(np.log10(0.002), np.log10(200.0), 51)))
@@ -145,20 +146,20 @@ def ks_image(a_mm: np.ndarray, a_valid: np.ndarray, b_mm: np.ndarray, b_valid: n
     (any K each), vectorised: ``float64[H, W]``, NaN where a side has no sample."""
     va, na = _samples(a_mm, a_valid)
     vb, nb = _samples(b_mm, b_valid)
-    vals = np.concatenate([va, vb])
-    side = np.concatenate([np.ones(va.shape, np.int8), -np.ones(vb.shape, np.int8)])  # +1 from a, -1 from b
-    order = np.argsort(vals, axis=0, kind="stable")
-    vals = np.take_along_axis(vals, order, axis=0)
-    side = np.take_along_axis(side, order, axis=0)
+    # One sort of keys 2·value + side (0 = a, 1 = b) instead of an argsort and two gathers.
+    keys = np.concatenate([np.minimum(va, _KEY_CAP) * 2, np.minimum(vb, _KEY_CAP) * 2 + 1])
+    keys.sort(axis=0)
+    vals = keys >> 1
+    from_b = (keys & 1).astype(bool)
     # integer counts, divided once: F_a − F_b without rounding drift along the cumulative sum
-    cum_a = np.cumsum(side > 0, axis=0)
-    cum_b = np.cumsum(side < 0, axis=0)
+    cum_b = np.cumsum(from_b, axis=0)
+    cum_a = np.arange(1, keys.shape[0] + 1).reshape((-1,) + (1,) * (keys.ndim - 1)) - cum_b
     with np.errstate(invalid="ignore", divide="ignore"):
         diff = cum_a / na - cum_b / nb
     # The step functions are compared after the last of equal values, below the non-returns.
     end_of_run = np.ones_like(vals, bool)
     end_of_run[:-1] = vals[1:] != vals[:-1]
-    use = end_of_run & (vals != _NO_SAMPLE)
+    use = end_of_run & (vals != _KEY_CAP)
     ks = np.where(use, np.abs(diff), 0.0).max(axis=0)
     return np.where((na > 0) & (nb > 0), ks, np.nan)
 
