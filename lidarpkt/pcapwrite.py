@@ -26,10 +26,38 @@ import struct
 from dataclasses import dataclass
 from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 
-import numpy as np
-
 from .packet import Packet
-from .pcap import internet_checksum
+from .pcap import (
+    ETHERNET_HEADER,
+    IPV4_HEADER,
+    IPV6_FRAGMENT_HEADER,
+    IPV6_HEADER,
+    LINUX_SLL2_HEADER,
+    LINUX_SLL_HEADER,
+    NULL_HEADER,
+    PCAP_GLOBAL_HEADER,
+    PCAP_RECORD_HEADER,
+    PCAPNG_BLOCK_HEADER,
+    PCAPNG_EPB,
+    PCAPNG_IDB,
+    PCAPNG_OPTION,
+    PCAPNG_SECTION_HEADER,
+    PCAPNG_SPB,
+    UDP_HEADER,
+    VLAN_TAG,
+    header_struct,
+    internet_checksum,
+)
+
+# every header is packed with the layout the reader parses it with (lidarpkt.pcap)
+_IPV4 = header_struct(IPV4_HEADER)
+_IPV6 = header_struct(IPV6_HEADER)
+_IPV6_FRAG = header_struct(IPV6_FRAGMENT_HEADER)
+_UDP = header_struct(UDP_HEADER)
+_ETH = header_struct(ETHERNET_HEADER)
+_VLAN = header_struct(VLAN_TAG)
+_SLL = header_struct(LINUX_SLL_HEADER)
+_SLL2 = header_struct(LINUX_SLL2_HEADER)
 
 __all__ = [
     "LINKTYPES",
@@ -59,6 +87,8 @@ PCAP_MAGIC_US = 0xA1B2C3D4
 PCAP_MAGIC_NS = 0xA1B23C4D
 
 Record = tuple  # (timestamp_ns, frame bytes) or (timestamp_ns, frame bytes, original length)
+IPPROTO_UDP = 17
+IPV6_NEXT_FRAGMENT = 44
 
 
 def _version(address: str) -> int:
@@ -79,15 +109,15 @@ def udp_datagram(src: str, sport: int, dst: str, dport: int, payload: bytes, *, 
     length = 8 + len(payload)
     if length > 0xFFFF:
         raise ValueError(f"UDP payload of {len(payload)} bytes does not fit the 16-bit UDP length")
-    header = struct.pack(">HHHH", sport, dport, length, 0)
+    header = _UDP.pack(sport, dport, length, 0)
     if checksum or _version(src) == 6:  # IPv6 forbids a zero UDP checksum
         s, d = _addr_bytes(src), _addr_bytes(dst)
         if len(s) == 4:
-            pseudo = s + d + struct.pack(">BBH", 0, 17, length)
+            pseudo = s + d + struct.pack(">BBH", 0, IPPROTO_UDP, length)
         else:
-            pseudo = s + d + struct.pack(">IxxxB", length, 17)
+            pseudo = s + d + struct.pack(">IxxxB", length, IPPROTO_UDP)
         c = internet_checksum(pseudo, header, payload) or 0xFFFF
-        header = struct.pack(">HHHH", sport, dport, length, c)
+        header = _UDP.pack(sport, dport, length, c)
     return header + payload
 
 
@@ -101,9 +131,9 @@ def ipv4_header(
         raise ValueError("IPv4 fragment offsets are multiples of 8 bytes")
     flags = (0x4000 if dont_fragment else 0) | (0x2000 if more else 0) | (offset // 8)
     tl = 20 + payload_len if total_length is None else total_length
-    head = struct.pack(">BBHHHBBH4s4s", 0x45, 0, tl, ident & 0xFFFF, flags, ttl, proto, 0,
-                       _addr_bytes(src), _addr_bytes(dst))
-    return head[:10] + struct.pack(">H", internet_checksum(head)) + head[12:]
+    s, d = (int.from_bytes(_addr_bytes(a), "big") for a in (src, dst))
+    head = _IPV4.pack(0x45, 0, tl, ident & 0xFFFF, flags, ttl, proto, 0, s, d)
+    return _IPV4.pack(0x45, 0, tl, ident & 0xFFFF, flags, ttl, proto, internet_checksum(head), s, d)
 
 
 def fragment_ipv4(payload_len: int, mtu: int) -> list[tuple[int, int, bool]]:
@@ -135,14 +165,14 @@ def ip_packets(src: str, dst: str, l4: bytes, *, ident: int, mtu: int | None = 1
         ]
     s, d = _addr_bytes(src), _addr_bytes(dst)
     if mtu is None or 40 + len(l4) <= mtu:
-        return [struct.pack(">IHBB", 6 << 28, len(l4), proto, 64) + s + d + l4]
-    room = (mtu - 48) // 8 * 8
+        return [_IPV6.pack(6 << 28, len(l4), proto, 64, s, d) + l4]
+    room = (mtu - IPV6_HEADER.itemsize - IPV6_FRAGMENT_HEADER.itemsize) // 8 * 8
     out = []
     for off in range(0, len(l4), room):
         part = l4[off : off + room]
         more = off + len(part) < len(l4)
-        frag = struct.pack(">BBHI", proto, 0, off | int(more), ident & 0xFFFFFFFF)
-        out.append(struct.pack(">IHBB", 6 << 28, 8 + len(part), 44, 64) + s + d + frag + part)
+        frag = _IPV6_FRAG.pack(proto, 0, off | int(more), ident & 0xFFFFFFFF)
+        out.append(_IPV6.pack(6 << 28, len(frag) + len(part), IPV6_NEXT_FRAGMENT, 64, s, d) + frag + part)
     return out
 
 
@@ -159,20 +189,22 @@ def link_frame(ip: bytes, link: str = "ethernet", *, vlan: Sequence[int] = (), b
     if etype is None:
         raise ValueError(f"not an IP packet (version nibble {version})")
     if link == "ethernet":
-        tags = b"".join(
-            struct.pack(">HH", 0x8100 if i == len(vlan) - 1 else 0x88A8, vid & 0x0FFF) for i, vid in enumerate(vlan)
-        )
-        return (BROADCAST_MAC if broadcast else DST_MAC) + SRC_MAC + tags + struct.pack(">H", etype) + ip
+        # each tag: its TPID sits where the ethertype was, then the TCI and the next ethertype
+        tpids = [0x88A8] * (len(vlan) - 1) + [0x8100] if vlan else []
+        types = tpids + [etype]
+        out = _ETH.pack(BROADCAST_MAC if broadcast else DST_MAC, SRC_MAC, types[0])
+        out += b"".join(_VLAN.pack(vid & 0x0FFF, nxt) for vid, nxt in zip(vlan, types[1:]))
+        return out + ip
     if vlan:
         raise ValueError("VLAN tags need the Ethernet link type")
     if link == "linux_sll":
-        return struct.pack(">HHH8sH", 1 if broadcast else 0, 1, 6, SRC_MAC, etype) + ip
+        return _SLL.pack(1 if broadcast else 0, 1, 6, SRC_MAC.ljust(8, b"\0"), etype) + ip
     if link == "linux_sll2":
-        return struct.pack(">HHIHBB8s", etype, 0, 2, 1, 1 if broadcast else 0, 6, SRC_MAC) + ip
+        return _SLL2.pack(etype, 0, 2, 1, 1 if broadcast else 0, 6, SRC_MAC.ljust(8, b"\0")) + ip
     if link == "raw":
         return ip
     if link == "null":
-        return struct.pack(">I" if big_endian else "<I", _AF[version]) + ip
+        return header_struct(NULL_HEADER, ">" if big_endian else "<").pack(_AF[version]) + ip
     raise ValueError(f"unknown link type {link!r}; choose one of {sorted(LINKTYPES)}")
 
 
@@ -202,8 +234,9 @@ def _packet_records(packets: Iterable[Packet], **frame_args) -> Iterator[Record]
 def _write_pcap_stream(fh: BinaryIO, records: Iterable[Record], *, linktype: int, nanosecond: bool,
                        big_endian: bool, snaplen: int) -> None:
     e = ">" if big_endian else "<"
-    fh.write(struct.pack(e + "IHHiIII", PCAP_MAGIC_NS if nanosecond else PCAP_MAGIC_US, 2, 4, 0, 0, snaplen, linktype))
-    rec = struct.Struct(e + "IIII")
+    fh.write(header_struct(PCAP_GLOBAL_HEADER, e).pack(PCAP_MAGIC_NS if nanosecond else PCAP_MAGIC_US, 2, 4, 0, 0,
+                                                       snaplen, linktype))
+    rec = header_struct(PCAP_RECORD_HEADER, e)
     div = 1 if nanosecond else 1000
     for r in records:
         ts, frame = r[0], r[1]
@@ -282,13 +315,13 @@ def _pad4(b: bytes) -> bytes:
 
 
 def _option(e: str, code: int, value: bytes) -> bytes:
-    return struct.pack(e + "HH", code, len(value)) + _pad4(value)
+    return header_struct(PCAPNG_OPTION, e).pack(code, len(value)) + _pad4(value)
 
 
 def _block(e: str, btype: int, body: bytes) -> bytes:
     body = _pad4(body)
     n = 12 + len(body)
-    return struct.pack(e + "II", btype, n) + body + struct.pack(e + "I", n)
+    return header_struct(PCAPNG_BLOCK_HEADER, e).pack(btype, n) + body + struct.pack(e + "I", n)
 
 
 def _ts_units(ts_ns: int, iface: Interface) -> int:
@@ -304,7 +337,7 @@ def _ts_units(ts_ns: int, iface: Interface) -> int:
 def _write_pcapng_stream(fh: BinaryIO, records: Iterable[tuple[int, int, bytes] | tuple[int, int, bytes, int]],
                          interfaces: Sequence[Interface], *, big_endian: bool, block: str) -> None:
     e = ">" if big_endian else "<"
-    fh.write(_block(e, 0x0A0D0D0A, struct.pack(e + "IHHq", 0x1A2B3C4D, 1, 0, -1)))
+    fh.write(_block(e, 0x0A0D0D0A, header_struct(PCAPNG_SECTION_HEADER, e).pack(0x1A2B3C4D, 1, 0, -1)))
     for itf in interfaces:
         lt = LINKTYPES[itf.link] if isinstance(itf.link, str) else int(itf.link)
         opts = b""
@@ -315,19 +348,19 @@ def _write_pcapng_stream(fh: BinaryIO, records: Iterable[tuple[int, int, bytes] 
         if itf.tsoffset_s:
             opts += _option(e, 14, struct.pack(e + "q", itf.tsoffset_s))
         if opts:
-            opts += struct.pack(e + "HH", 0, 0)
-        fh.write(_block(e, 1, struct.pack(e + "HHI", lt, 0, itf.snaplen) + opts))
+            opts += header_struct(PCAPNG_OPTION, e).pack(0, 0)  # opt_endofopt
+        fh.write(_block(e, 1, header_struct(PCAPNG_IDB, e).pack(lt, 0, itf.snaplen) + opts))
     for r in records:
         iface_id, ts, frame = r[0], r[1], r[2]
         orig = r[3] if len(r) > 3 else len(frame)
         itf = interfaces[iface_id]
         data = frame[: itf.snaplen]
         if block == "spb":
-            fh.write(_block(e, 3, struct.pack(e + "I", orig) + data))
+            fh.write(_block(e, 3, header_struct(PCAPNG_SPB, e).pack(orig) + data))
         else:
             units = _ts_units(ts, itf)
-            fh.write(_block(e, 6, struct.pack(e + "IIIII", iface_id, units >> 32, units & 0xFFFFFFFF,
-                                              len(data), orig) + data))
+            epb = header_struct(PCAPNG_EPB, e).pack(iface_id, units >> 32, units & 0xFFFFFFFF, len(data), orig)
+            fh.write(_block(e, 6, epb + data))
 
 
 def write_pcapng_records(path: str | os.PathLike[str], records: Iterable[tuple], *,
