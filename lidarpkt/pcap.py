@@ -784,8 +784,17 @@ class PcapReader:
         ok = (l2 >= 0) & (c.caplen >= l2 + IPV4_HEADER.itemsize + UDP_HEADER.itemsize)
         d = np.where(ok, c.data_off, 0)
         # link-layer protocol fields
+        eth = lt == LINKTYPE_ETHERNET
+        if eth.any():
+            etype = _field(buf, d, ETHERNET_HEADER, "ethertype")
+            for _ in range(2):  # up to two VLAN tags here (802.1Q, QinQ); deeper stacks take the general path
+                tagged = eth & np.isin(etype, _VLAN_TPIDS)
+                if not tagged.any():
+                    break
+                etype = np.where(tagged, _field(buf, d + l2, VLAN_TAG, "ethertype"), etype)
+                l2 = np.where(tagged, l2 + VLAN_TAG.itemsize, l2)
+            ok &= ~eth | ((etype == ETHERTYPE_IPV4) & (c.caplen >= l2 + IPV4_HEADER.itemsize + UDP_HEADER.itemsize))
         for link, layout, name in (
-            (LINKTYPE_ETHERNET, ETHERNET_HEADER, "ethertype"),
             (LINKTYPE_LINUX_SLL, LINUX_SLL_HEADER, "protocol"),
             (LINKTYPE_LINUX_SLL2, LINUX_SLL2_HEADER, "protocol"),
         ):

@@ -553,3 +553,21 @@ def test_mixed_fragments_of_two_datagrams_are_rejected(tmp_path, real_packets, b
             got = list(reader.packets())
         assert all(p.payload in (a.payload, b.payload) for p in got), name
         assert reader.stats.malformed_reasons and "checksum" in next(iter(reader.stats.malformed_reasons)), name
+
+
+def test_pcapng_interface_with_unsupported_link_type(tmp_path, real_packets):
+    vlp = [p for p in real_packets if len(p.payload) == 1206][:4]
+    records = []
+    for i, p in enumerate(vlp):
+        (frame,) = frames_for(p)
+        records += [(0, p.timestamp_ns, frame), (1, p.timestamp_ns + 1000, b"\x01\x02" + frame)]  # 147: a user DLT
+    path = tmp_path / "u.pcapng"
+    from lidarpkt.pcapwrite import write_pcapng_records
+
+    write_pcapng_records(path, records, interfaces=[Interface("ethernet"), Interface(147)])
+    reader = PcapReader(path)
+    with pytest.warns(SkippedPacketWarning, match="link type 147") as caught:
+        got = list(reader.packets())
+    assert sum("link type 147" in str(w.message) for w in caught) == 1  # said once, not per record
+    assert _as_tuples(got) == _as_tuples(vlp)
+    assert reader.stats.non_udp == 4 and reader.stats.link_types["linktype 147"] == 4
