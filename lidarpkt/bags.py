@@ -78,6 +78,21 @@ PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]
 }
 
 
+def _decompression_errors() -> tuple[type[BaseException], ...]:
+    """What the MCAP reader's chunk decompressors raise on damaged chunks (zstd; lz4 raises RuntimeError)."""
+    out: list[type[BaseException]] = [RuntimeError]
+    try:
+        from zstandard import ZstdError
+
+        out.append(ZstdError)
+    except ImportError:  # pragma: no cover - zstandard is a dependency
+        pass
+    return tuple(out)
+
+
+_DECOMPRESSION_ERRORS = _decompression_errors()
+
+
 def _normalise_type(msgtype: str) -> str:
     # ROS 1 names types "pkg/Type"; rosbags presents them as "pkg/msg/Type"
     parts = msgtype.split("/")
@@ -232,7 +247,7 @@ class BagReader:
                     schema, channel, message = next(it)
                 except StopIteration:
                     return
-                except (McapError, struct.error, EOFError, ValueError, OSError) as exc:
+                except (McapError, struct.error, EOFError, ValueError, OSError, *_DECOMPRESSION_ERRORS) as exc:
                     warnings.warn(TruncatedCaptureWarning(
                         f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
                         "messages before the damage were read (a recording that was killed ends like this)"))

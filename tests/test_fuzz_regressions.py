@@ -128,3 +128,40 @@ def test_bag_whose_first_line_is_not_text_closes_its_file(tmp_path):
             list(BagReader(path).batches())
         gc.collect()
     assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
+
+
+def test_mcap_with_a_corrupt_compressed_chunk_warns_instead_of_raising_zstd_error(tmp_path):
+    """Input (test_hostile_input's mutated-bag test): the 30-packet VelodyneScan MCAP with the byte at
+    45.7 % of the file set to 0, inside a zstd chunk: zstandard's ZstdError ('Data corruption
+    detected') came out raw. Now the messages before the chunk, then a TruncatedCaptureWarning."""
+    import io
+
+    import fixtures
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import TruncatedCaptureWarning
+    from lidarpkt.pcap import read_packets
+
+    writer_mod = pytest.importorskip("mcap_ros2.writer")
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
+    schema = (
+        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
+        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
+        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
+    )
+    fh = io.BytesIO()
+    w = writer_mod.Writer(fh, chunk_size=6_000)
+    s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
+    for p in pk:
+        stamp = {"sec": p.timestamp_ns // 10**9, "nanosec": p.timestamp_ns % 10**9}
+        w.write_message("/velodyne_packets", s, {"header": {"stamp": stamp, "frame_id": "v"},
+                                                 "packets": [{"stamp": stamp, "data": p.payload}]},
+                        log_time=p.timestamp_ns, publish_time=p.timestamp_ns)
+    w.finish()
+    payloads = [p.payload for p in pk]
+    raw = bytearray(fh.getvalue())
+    raw[int(0.45687118274246324 * len(raw))] = 0
+    path = tmp_path / "corrupt.mcap"
+    path.write_bytes(bytes(raw))
+    with pytest.warns(TruncatedCaptureWarning, match="damaged"):
+        got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+    assert got == payloads[: len(got)] and len(got) < len(payloads)
