@@ -26,6 +26,7 @@ import struct
 from dataclasses import dataclass
 from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 
+from .errors import PacketFormatError
 from .packet import Packet
 from .pcap import (
     ETHERNET_HEADER,
@@ -91,6 +92,16 @@ IPPROTO_UDP = 17
 IPV6_NEXT_FRAGMENT = 44
 
 
+def _linktype(link: str | int) -> int:
+    """The LINKTYPE_ number of a link name (or a number, passed through)."""
+    if not isinstance(link, str):
+        return int(link)
+    try:
+        return LINKTYPES[link]
+    except KeyError:
+        raise ValueError(f"unknown link type {link!r}; choose one of {sorted(LINKTYPES)} or a LINKTYPE_ number") from None
+
+
 def _version(address: str) -> int:
     return 6 if ":" in address else 4
 
@@ -101,14 +112,14 @@ def _addr_bytes(address: str) -> bytes:
             return socket.inet_pton(socket.AF_INET6, address)
         return socket.inet_aton(address)
     except OSError:
-        raise ValueError(f"not an IP address: {address!r}") from None
+        raise PacketFormatError(f"not an IP address: {address!r}") from None
 
 
 def udp_datagram(src: str, sport: int, dst: str, dport: int, payload: bytes, *, checksum: bool = True) -> bytes:
     """UDP header + payload. The checksum covers the IPv4/IPv6 pseudo-header (0 = none, IPv4 only)."""
     length = 8 + len(payload)
     if length > 0xFFFF:
-        raise ValueError(f"UDP payload of {len(payload)} bytes does not fit the 16-bit UDP length")
+        raise PacketFormatError(f"UDP payload of {len(payload)} bytes does not fit the 16-bit UDP length")
     header = _UDP.pack(sport, dport, length, 0)
     if checksum or _version(src) == 6:  # IPv6 forbids a zero UDP checksum
         s, d = _addr_bytes(src), _addr_bytes(dst)
@@ -153,11 +164,11 @@ def fragment_ipv4(payload_len: int, mtu: int) -> list[tuple[int, int, bool]]:
 def ip_packets(src: str, dst: str, l4: bytes, *, ident: int, mtu: int | None = 1500, proto: int = 17) -> list[bytes]:
     """IP packets carrying ``l4`` (e.g. a UDP datagram): one, or fragments when larger than ``mtu``."""
     if _version(src) != _version(dst):
-        raise ValueError(f"source {src} and destination {dst} are not the same IP version")
+        raise PacketFormatError(f"source {src} and destination {dst} are not the same IP version")
     if _version(src) == 4:
         if mtu is None:
             if 20 + len(l4) > 0xFFFF:
-                raise ValueError("IPv4 datagram larger than 65535 bytes")
+                raise PacketFormatError("IPv4 datagram larger than 65535 bytes")
             return [ipv4_header(src, dst, len(l4), ident=ident, proto=proto) + l4]
         return [
             ipv4_header(src, dst, length, ident=ident, proto=proto, more=more, offset=off) + l4[off : off + length]
@@ -212,7 +223,7 @@ def frames_for(packet: Packet, *, link: str = "ethernet", mtu: int | None = 1500
                ident: int = 0, big_endian: bool = False, udp_checksum: bool = True) -> list[bytes]:
     """The link-layer frames a network would carry for one packet (several when fragmented)."""
     if packet.src is None or packet.dst is None:
-        raise ValueError("a packet without source/destination endpoints cannot be framed; give it Endpoints")
+        raise PacketFormatError("a packet without source/destination endpoints cannot be framed; give it Endpoints")
     l4 = udp_datagram(packet.src.address, packet.src.port, packet.dst.address, packet.dst.port,
                       bytes(packet.payload), checksum=udp_checksum)
     broadcast = packet.dst.address == "255.255.255.255"
@@ -253,7 +264,7 @@ def write_pcap_records(path: str | os.PathLike[str], records: Iterable[Record], 
 
     Frames longer than ``snaplen`` are cut to it (caplen < original length), like tcpdump does.
     """
-    linktype = LINKTYPES[link] if isinstance(link, str) else int(link)
+    linktype = _linktype(link)
     with open(path, "wb", buffering=1 << 20) as fh:
         _write_pcap_stream(fh, records, linktype=linktype,
                            nanosecond=nanosecond, big_endian=big_endian, snaplen=snaplen)
@@ -263,7 +274,7 @@ def pcap_bytes(records: Iterable[Record], *, link: str | int = "ethernet", nanos
                big_endian: bool = False, snaplen: int = 65535) -> bytes:
     """The bytes :func:`write_pcap_records` would write (for tests that damage them)."""
     buf = io.BytesIO()
-    _write_pcap_stream(buf, records, linktype=LINKTYPES[link] if isinstance(link, str) else int(link),
+    _write_pcap_stream(buf, records, linktype=_linktype(link),
                        nanosecond=nanosecond, big_endian=big_endian, snaplen=snaplen)
     return buf.getvalue()
 
@@ -287,7 +298,9 @@ def write_pcap(path: str | os.PathLike[str], packets: Iterable[Packet], *, link:
         udp_checksum: compute UDP checksums (IPv4 allows 0, as VLP-16s send).
 
     Raises:
-        ValueError: a packet without endpoints, a bad address, a datagram too large.
+        lidarpkt.errors.PacketFormatError: a packet without endpoints, a bad address, a datagram
+            too large for UDP/IP.
+        ValueError: an unknown link type or option.
     """
     records = _packet_records(packets, link=link, mtu=mtu, vlan=vlan, big_endian=big_endian,
                               udp_checksum=udp_checksum)
@@ -339,7 +352,7 @@ def _write_pcapng_stream(fh: BinaryIO, records: Iterable[tuple[int, int, bytes] 
     e = ">" if big_endian else "<"
     fh.write(_block(e, 0x0A0D0D0A, header_struct(PCAPNG_SECTION_HEADER, e).pack(0x1A2B3C4D, 1, 0, -1)))
     for itf in interfaces:
-        lt = LINKTYPES[itf.link] if isinstance(itf.link, str) else int(itf.link)
+        lt = _linktype(itf.link)
         opts = b""
         if itf.name:
             opts += _option(e, 2, itf.name.encode())

@@ -571,3 +571,19 @@ def test_pcapng_interface_with_unsupported_link_type(tmp_path, real_packets):
     assert sum("link type 147" in str(w.message) for w in caught) == 1  # said once, not per record
     assert _as_tuples(got) == _as_tuples(vlp)
     assert reader.stats.non_udp == 4 and reader.stats.link_types["linktype 147"] == 4
+
+
+def test_writer_rejects_unframeable_packets(tmp_path):
+    from lidarpkt.errors import PacketFormatError
+
+    good = Endpoint("10.0.0.1", 1)
+    for bad in (
+        Packet(0, None, good, b"x"),
+        Packet(0, Endpoint("10.0.0.300", 1), good, b"x"),
+        Packet(0, Endpoint("fe80::1", 1), good, b"x"),
+        Packet(0, good, good, bytes(70000)),
+    ):
+        with pytest.raises(PacketFormatError):
+            write_pcap(tmp_path / "w.pcap", [bad])
+    with pytest.raises(ValueError, match="unknown link type"):
+        write_pcap(tmp_path / "w.pcap", [Packet(0, good, good, b"x")], link="token-ring")
