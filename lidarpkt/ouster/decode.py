@@ -120,7 +120,10 @@ def packet_view(payload: np.ndarray, profile: Profile, pixels_per_column: int, c
             f"{pixels_per_column} pixels × {columns_per_packet} columns makes {dtype.itemsize}-byte packets "
             "(wrong metadata file for this capture?)"
         )
-    return np.ascontiguousarray(payload).view(dtype)[:, 0]
+    if payload.strides[1] != 1:
+        payload = np.ascontiguousarray(payload)
+    # rows need only be contiguous each (a strided view of packets in a capture file is no copy)
+    return payload.view(dtype)[:, 0]
 
 
 def read_pixel_field(words: np.ndarray, f: BitField, out: np.ndarray | None = None) -> np.ndarray:

@@ -100,6 +100,8 @@ class _Builder:
         mids = f.measurement_id
         n, c = mids.shape
         flat = mids.ravel().astype(np.intp)
+        if flat.size == 0:  # every packet was a duplicate
+            return
         m0 = int(flat[0])
         planes = self.planes
         src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
@@ -154,11 +156,15 @@ def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
     """
     k, off = divmod(f.start_bit, 32)
     w = planes[k]
+    masked = f.width < min(32 - off, 8 * out.dtype.itemsize)
     if off:
         np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
+    elif masked:
+        np.bitwise_and(w, np.uint32(f.mask), out=out, casting="unsafe")
+        masked = False
     else:
         np.copyto(out, w, casting="unsafe")
-    if f.width < min(32 - off, 8 * out.dtype.itemsize):
+    if masked:
         np.bitwise_and(out, out.dtype.type(f.mask), out=out)
     if f.upshift:
         np.left_shift(out, out.dtype.type(f.upshift), out=out)
@@ -314,7 +320,7 @@ class OusterDecoder:
         if got.any():
             first, last = np.flatnonzero(got)[[0, -1]]
             holes = order[first : last + 1][~got[first : last + 1]]
-            lost = int(np.unique(holes // md.columns_per_packet).size)
+            lost = int(np.unique(holes // md.columns_per_packet).size) if holes.size else 0
         else:
             lost = 0
         b.counters.lost_packets += lost
