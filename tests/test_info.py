@@ -183,3 +183,38 @@ def test_damaged_capture_is_reported(tmp_path):
     assert abs(s["duration_s"] - 4e-6) < 1e-12
     text = format_capture(doc)
     assert "TRUNCATED" in text and "orphaned fragments 1" in text
+
+
+def test_generated_pcapng_dual_mode_and_gps_locked(tmp_path):
+    """Packets patched by hand after the VLP-16 manual's layout (return mode byte 1204, product 1205;
+    position: µs timestamp at 198, PPS status at 202, NMEA from 206), in a VLAN-tagged ns pcapng."""
+    from lidarpkt.pcap import read_packets
+    from lidarpkt.pcapwrite import Interface, write_pcapng
+
+    data = [p for p in read_packets(external("rust-lidar-utils/velodyne_example.pcap"))][:20]
+    dual = []
+    for p in data:
+        payload = bytearray(p.payload)
+        payload[1204], payload[1205] = 0x39, 0x22
+        dual.append(Packet(p.timestamp_ns, p.src, p.dst, bytes(payload)))
+    nmea = b"$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A\r\n"
+    pos = bytearray(512)
+    pos[198:202] = (123_456_789 % 3_600_000_000).to_bytes(4, "little")
+    pos[202] = 2  # PPS locked
+    pos[206 : 206 + len(nmea)] = nmea
+    position = Packet(data[5].timestamp_ns + 1, Endpoint("192.168.1.200", 8308), Endpoint("255.255.255.255", 8308), bytes(pos))
+    packets = sorted(dual + [position], key=lambda p: p.timestamp_ns)
+    path = tmp_path / "dual.pcapng"
+    write_pcapng(path, packets, interfaces=[Interface("ethernet", tsresol=9)], vlan=(42,))
+    res = _cli(str(path), "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["format"] == "pcapng"
+    (d,) = _by(doc, 1206)
+    (g,) = _by(doc, 512)
+    assert (d["packets"], d["details"]["return_mode"], d["details"]["product_id"]) == (20, "dual", 0x22)
+    assert g["details"]["pps_status"] == "locked"
+    assert g["details"]["nmea_first"].startswith("$GPRMC,123519")
+    assert g["details"]["gps_time_first"].startswith("1994-03-23T12:35:19")
+    text = _cli(str(path)).stdout
+    assert "PPS locked" in text and "1994-03-23T12:35:19" in text and "dual" in text
