@@ -127,25 +127,22 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         now = time.monotonic()
         if items:
             if silent:
-                print(f"\nlidarpkt record: packets again after {now - last_rx:.1f} s of silence",
-                      file=sys.stderr, flush=True)
+                _notice(f"packets again after {now - last_rx:.1f} s of silence")
                 silent = False
             last_rx = now
         elif last_rx is not None and not silent and now - last_rx > 1.0:
             silent = True  # the sensor stopped, restarted or was unplugged: keep recording
-            print(f"\nlidarpkt record: no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); "
-                  "still listening", file=sys.stderr, flush=True)
+            _notice(f"no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); still listening")
         for batch in batch_from_packets(items):
             sink.push(batch)
         for note in sink.notes[notes_shown:]:
-            print(f"\nlidarpkt record: note: {note}", file=sys.stderr, flush=True)
+            _notice(f"note: {note}")
         notes_shown = len(sink.notes)
         if gps is not None:
             _write_gps(writer, gps)
             if gps.error and not gps_failed:  # the lidar recording goes on without it
                 gps_failed = True
-                print(f"\nlidarpkt record: warning: {gps.error}; recording continues without GPS",
-                      file=sys.stderr, flush=True)
+                _notice(f"warning: {gps.error}; recording continues without GPS")
         writer.tick()
         now = time.monotonic()
         if stop.reason:
@@ -180,6 +177,11 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     if args.report:
         Path(args.report).write_text(json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
+
+
+def _notice(text: str) -> None:
+    """A line to the user; on a terminal it starts below the status line it interrupts."""
+    print(("\n" if sys.stderr.isatty() else "") + f"lidarpkt record: {text}", file=sys.stderr, flush=True)
 
 
 def _write_gps(writer: McapWriter, gps) -> None:
