@@ -357,6 +357,11 @@ class PcapReader:
             timeout_ns=reassembly_timeout_ns, max_datagrams=max_pending_datagrams, max_bytes=max_pending_bytes
         )
         self.stats = ReadStats(path=self.path)
+        if os.path.exists(self.path) and not os.path.isdir(self.path) and not os.path.isfile(self.path):
+            # a pipe or device could be read only once, and only whole into memory
+            raise CaptureFormatError(
+                f"{self.path}: not a regular file (pipes and devices are not read); save the capture to a file first"
+            )
         try:
             with open(self.path, "rb") as fh:
                 head = fh.read(64)
@@ -432,10 +437,13 @@ class PcapReader:
 
     # --- file access -----------------------------------------------------------------------
     def _open_buffer(self):
-        fh = open(self.path, "rb")
+        try:
+            fh = open(self.path, "rb")
+        except OSError as exc:  # removed or made unreadable since the reader was made
+            raise CaptureFormatError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
         try:
             mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-        except (ValueError, OSError):  # empty file, pipe or special file: read it whole
+        except (ValueError, OSError):  # a file mmap refuses (e.g. on some network file systems): read it
             data = fh.read()
             fh.close()
             return np.frombuffer(data, np.uint8), lambda: None

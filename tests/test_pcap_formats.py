@@ -587,3 +587,12 @@ def test_writer_rejects_unframeable_packets(tmp_path):
             write_pcap(tmp_path / "w.pcap", [bad])
     with pytest.raises(ValueError, match="unknown link type"):
         write_pcap(tmp_path / "w.pcap", [Packet(0, good, good, b"x")], link="token-ring")
+
+
+def test_pipes_are_refused_clearly(tmp_path):
+    import os
+
+    fifo = tmp_path / "capture.pcap"
+    os.mkfifo(fifo)
+    with pytest.raises(CaptureFormatError, match="not a regular file"):
+        PcapReader(fifo)
