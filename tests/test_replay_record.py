@@ -273,3 +273,29 @@ def test_a_recorded_mcap_replays_like_the_pcap_it_came_from(tmp_path):
     got = _recorded_payloads(msgs)
     sizes = _by_size(list(read_capture(str(pcap))))
     assert got["/velodyne_packets"] == sizes[1206] and got["/velodyne_position_packets"] == sizes[512]
+
+
+def test_replay_loop_repeats_until_interrupted():
+    pcap = external("rust-lidar-utils/velodyne_example.pcap")  # 84 packets
+    (port,) = _free_ports(1)
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+    rx.bind(("127.0.0.1", port))
+    rx.settimeout(0.2)
+    proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "replay", str(pcap), "--to", f"127.0.0.1:{port}",
+                             "--max", "--loop"], stderr=subprocess.PIPE, text=True, cwd=REPO)
+    first = []
+    deadline = time.monotonic() + 60
+    try:
+        while len(first) < 3 * 84 and time.monotonic() < deadline:
+            try:
+                first.append(rx.recv(65535))
+            except socket.timeout:  # the replay process is still starting
+                continue
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        rx.close()
+    assert proc.returncode == 0 and "sent" in err
+    payloads = [p.payload for p in read_capture(str(pcap))]
+    assert first == payloads * 3
