@@ -5,25 +5,38 @@ orders with microsecond or nanosecond time stamps (and the 24-byte-record "modif
 variant), and pcapng (several sections and interfaces, each with its own link type and
 time resolution). Link types: Ethernet (with any number of 802.1Q / 802.1ad tags),
 Linux cooked SLL and SLL2, raw IPv4/IPv6, BSD loopback (null and loop). Network
-layers: UDP over IPv4 (fragments reassembled by :mod:`lidarpkt.reassembly`) and over
-IPv6 (extension headers skipped, fragments reassembled too).
+layers: UDP over IPv4 (fragments reassembled) and over IPv6 (extension headers skipped,
+fragments reassembled too). Every header layout is declared once below as a NumPy
+dtype; struct formats and field offsets are derived from it (and :mod:`lidarpkt.pcapwrite`
+packs with the same layouts).
 
 How it is fast: the file is memory-mapped; record headers are walked in chunks
 (a run of records with one capture length is recognised in one strided NumPy
-comparison); the Ethernet/IPv4/UDP headers of all records of a chunk are checked
-with NumPy gathers, and the payloads of plain unfragmented UDP/IPv4 records are cut
-out in one copy per stream. Only the odd records (fragments, VLAN tags, IPv6, other
-link layers, damage) go through the per-record Python parser.
+comparison); the link/IPv4/UDP headers of all records of a chunk are checked with
+NumPy gathers; the payloads of plain unfragmented UDP/IPv4 records are cut out in one
+copy per stream, and whole in-order IPv4 fragment trains are reassembled with array
+operations too. Only the odd records (reordered, duplicated or lost fragments, IPv6,
+three or more VLAN tags, damage) go through the per-record parser and
+:class:`~lidarpkt.reassembly.Reassembler` (bounded, with a host-time timeout so that a
+stale fragment is never merged with a later datagram that reuses its IP ID).
 
 Length fields are never trusted over the captured bytes: a UDP payload ends at the
 UDP length, bounded by what was captured (early VLP-16 position packets carry an
-IPv4 total length of 1234 for a 540-byte datagram). Checksums are not verified.
+IPv4 total length of 1234 for a 540-byte datagram). IP header checksums are never
+checked and unfragmented datagrams are never dropped for their UDP checksum; only a
+datagram rebuilt from fragments must match its UDP length and, when the sender wrote
+one, its UDP checksum (otherwise it mixes the fragments of two datagrams that share an
+IP ID; it is counted as malformed).
 
 Damage is reported, not raised, once a file is known to be a capture: a truncated last
-record or a record length beyond the end of the file stops reading there with a
-:class:`~lidarpkt.errors.TruncatedCaptureWarning`; malformed records are counted in
-:class:`ReadStats` and skipped. A file that is not a capture raises
-:class:`~lidarpkt.errors.CaptureFormatError`.
+record or a record length beyond the end of the file stops reading there, and after the
+last good packet a :class:`~lidarpkt.errors.TruncatedCaptureWarning` says where;
+malformed records are counted in :class:`ReadStats` (and summed up in one
+:class:`~lidarpkt.errors.SkippedPacketWarning`) and skipped. A file that is not a
+capture raises :class:`~lidarpkt.errors.CaptureFormatError`.
+
+Filters: ``ports`` matches the *destination* port (the port a sensor is configured to
+send to), ``src_addresses`` the source address, ``payload_sizes`` the UDP payload size.
 """
 
 from __future__ import annotations
@@ -34,8 +47,8 @@ import socket
 import struct
 import warnings
 from collections import Counter
-from functools import lru_cache
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Iterable, Iterator
 
 import numpy as np
