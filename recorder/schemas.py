@@ -42,6 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarpkt.errors import CaptureFormatError, PacketFormatError
+
 # --- message definitions not in the rosbags store (as the drivers' packages define them) ----
 MSG_DEFINITIONS: dict[str, str] = {
     # ros-drivers/velodyne, velodyne_msgs (ROS 2)
@@ -187,11 +189,11 @@ def encode_velodyne_scan(payload: np.ndarray, host_time_ns: np.ndarray, stamp_ns
     """CDR of a ``VelodyneScan`` holding ``payload`` (``uint8[N, 1206]``) received at
     ``host_time_ns`` (``int64[N]``), with ``header.stamp`` = ``stamp_ns``.
 
-    Raises ``ValueError`` if the payloads are not 1206 bytes long.
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the payloads are not 1206 bytes long.
     """
     payload = np.asarray(payload, np.uint8)
     if payload.ndim != 2 or payload.shape[1] != VELODYNE_PACKET_BYTES:
-        raise ValueError(f"VelodyneScan packets must be 1206 bytes, got shape {payload.shape}")
+        raise PacketFormatError(f"VelodyneScan packets must be 1206 bytes, got shape {payload.shape}")
     n = payload.shape[0]
     head = _header_cdr(stamp_ns, frame_id)
     head += b"\x00" * _pad4(len(head)) + np.array([n], "<u4").tobytes()
@@ -210,11 +212,13 @@ def decode_velodyne_scan(data: bytes | memoryview) -> tuple[int, str, np.ndarray
     """``(header_stamp_ns, frame_id, host_time_ns int64[N], payload uint8[N, 1206])`` of a
     ``VelodyneScan`` CDR message (views into ``data`` where possible).
 
-    Raises ``ValueError`` if the message is truncated or not little-endian CDR.
+    Raises :class:`~lidarpkt.errors.CaptureFormatError` if the message is truncated or not
+    little-endian CDR.
     """
     buf = np.frombuffer(data, np.uint8)
     if buf.size < 16 or bytes(buf[:2]) != b"\x00\x01":
-        raise ValueError("not a little-endian CDR message")
+        raise CaptureFormatError("a VelodyneScan message that is not little-endian CDR "
+                                 f"(starts with {bytes(buf[:4]).hex(' ')})")
     body = buf[4:]
     sec, = body[0:4].view("<i4")
     nanosec, strlen = body[4:12].view("<u4")
@@ -222,12 +226,12 @@ def decode_velodyne_scan(data: bytes | memoryview) -> tuple[int, str, np.ndarray
     pos = 12 + int(strlen)
     pos += _pad4(pos)
     if body.size < pos + 4:
-        raise ValueError("VelodyneScan message truncated in its header")
+        raise CaptureFormatError("VelodyneScan message truncated in its header")
     n = int(body[pos:pos + 4].view("<u4")[0])
     pos += 4
     need = pos + n * VELODYNE_PACKET_CDR.itemsize - (2 if n else 0)
     if body.size < need:
-        raise ValueError(f"VelodyneScan message says {n} packets but holds {body.size - pos} bytes of them")
+        raise CaptureFormatError(f"VelodyneScan message says {n} packets but holds {body.size - pos} bytes of them")
     raw = body[pos:need]
     if n:
         raw = np.concatenate([raw, np.zeros(2, np.uint8)])  # restore the last element's alignment bytes
@@ -243,10 +247,10 @@ def encode_packet_msg(payload: bytes) -> bytes:
 
 
 def decode_packet_msg(data: bytes) -> bytes:
-    """The payload of a ``PacketMsg`` CDR message. Raises ``ValueError`` if truncated."""
+    """The payload of a ``PacketMsg`` CDR message. Raises :class:`CaptureFormatError` if truncated."""
     n = int.from_bytes(data[4:8], "little")
-    if len(data) < 8 + n:
-        raise ValueError(f"PacketMsg says {n} bytes but holds {len(data) - 8}")
+    if len(data) < 8 or len(data) < 8 + n:
+        raise CaptureFormatError(f"PacketMsg says {n} bytes but holds {len(data) - 8}")
     return bytes(data[8:8 + n])
 
 
@@ -258,10 +262,11 @@ def encode_stamped_packet(payload: bytes, host_time_ns: int) -> bytes:
 
 
 def decode_stamped_packet(data: bytes) -> tuple[int, bytes]:
-    """``(stamp_ns, payload)`` of a ``NebulaPacket`` CDR message. Raises ``ValueError`` if truncated."""
+    """``(stamp_ns, payload)`` of a ``NebulaPacket`` CDR message. Raises :class:`CaptureFormatError`
+    if truncated."""
     sec = int.from_bytes(data[4:8], "little", signed=True)
     nanosec = int.from_bytes(data[8:12], "little")
     n = int.from_bytes(data[12:16], "little")
-    if len(data) < 16 + n:
-        raise ValueError(f"NebulaPacket says {n} bytes but holds {len(data) - 16}")
+    if len(data) < 16 or len(data) < 16 + n:
+        raise CaptureFormatError(f"NebulaPacket says {n} bytes but holds {len(data) - 16}")
     return sec * 1_000_000_000 + nanosec, bytes(data[16:16 + n])

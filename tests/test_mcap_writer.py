@@ -325,3 +325,20 @@ def test_one_velodyne_scan_per_rotation_and_dual_returns_on_their_own_topics(tmp
                 ("rest", "V%d" % (pc.point_step - 12))])).reshape(pc.height, pc.width)
             xyz = frame.xyz()[slot].astype(np.float32)
             assert np.array_equal(np.stack([pts["x"], pts["y"], pts["z"]], -1), xyz)
+
+
+def test_damaged_cdr_messages_raise_lidarpkt_errors():
+    from lidarpkt.errors import CaptureFormatError, PacketFormatError
+
+    good = schemas.encode_velodyne_scan(np.zeros((3, 1206), np.uint8), np.arange(3), 5)
+    for cut in (0, 10, 30, len(good) - 1):
+        with pytest.raises(CaptureFormatError):
+            schemas.decode_velodyne_scan(good[:cut])
+    with pytest.raises(CaptureFormatError, match="not little-endian CDR"):
+        schemas.decode_velodyne_scan(b"\x00\x00" + good[2:])
+    with pytest.raises(PacketFormatError):
+        schemas.encode_velodyne_scan(np.zeros((2, 512), np.uint8), np.arange(2), 0)
+    with pytest.raises(CaptureFormatError):
+        schemas.decode_packet_msg(schemas.encode_packet_msg(b"abc")[:-1])
+    with pytest.raises(CaptureFormatError):
+        schemas.decode_stamped_packet(schemas.encode_stamped_packet(b"abc", 1)[:-1])
