@@ -143,6 +143,10 @@ def test_record_errors_are_clear_and_leave_no_traceback(tmp_path):
     assert r.returncode == 2 and "no UDP port to listen on" in r.stderr
     r = _run_cli("replay", str(external("rust-lidar-utils/velodyne_example.pcap")), "--to", "nohostport")
     assert r.returncode == 2 and "HOST:PORT" in r.stderr
+    r = _run_cli("replay", str(external("ouster-sdk/empty_pcap.pcap")), "--to", "127.0.0.1:9")
+    assert r.returncode == 2 and "no UDP packets to replay" in r.stderr
+    r = _run_cli("replay", str(external("einride-vlp16-go/packet.bin")), "--to", "127.0.0.1:9")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
 
 
 def test_duration_stop_with_status_lines_and_summary(tmp_path):
