@@ -1,0 +1,418 @@
+"""Coverage-guided fuzzing (atheris / libFuzzer) of lidarpkt's parsers, for a bounded time.
+
+    pip install '.[fuzz]'          # atheris: a dev tool, not a runtime dependency
+    python benchmarks/fuzz.py --target pcap --seconds 180 [--corpus DIR] [--artifacts DIR] [--jobs 1]
+    python benchmarks/fuzz.py --target all --seconds 120
+    python benchmarks/fuzz.py --target pcap --replay tests/data/fuzz/pcap-*.bin   # re-run saved inputs
+
+Targets (each checks more than "does not crash"):
+
+- ``pcap``: the input is a capture file. Only ``lidarpkt.errors`` exceptions and ``LidarpktWarning``s
+  may come out, and the chunked fast path (``batches()``, 4096 records a chunk) must give exactly the
+  packets of the record-by-record path (``packets()`` with ``batch_packets=1``).
+- ``reassembly``: the input is a script of fragments (key, offset, more flag, length, timestamp) for a
+  small :class:`~lidarpkt.reassembly.Reassembler`; its pending datagrams and held bytes stay within the
+  bounds, the held-byte count is the bytes actually held, and every byte of a datagram it returns is a byte
+  sent for that key at that offset.
+- ``velodyne``: the input is cut into 1206-byte data packets and a 512-byte position packet, fed in
+  batches to :class:`~lidarpkt.velodyne.VelodyneDecoder`; also ``parse_nmea`` of the text. Frames must
+  have consistent shapes; every packet is counted.
+- ``ouster``: the first byte picks a real metadata file (every profile), the rest is cut into lidar
+  packets of its size for :class:`~lidarpkt.ouster.OusterDecoder`; frames must have consistent shapes.
+- ``metadata``: the input is an Ouster metadata JSON for ``load_metadata``; a metadata it accepts must
+  also build a decoder and decode a packet of its own size.
+
+Seeds come from the real captures in ``../shared/fixtures/external`` and the canned fixtures. A crash
+writes the input under ``--artifacts`` (default ``benchmarks/fuzz-artifacts/``); keep each as a
+regression test (``tests/data/fuzz/``). libFuzzer prints ``Done N runs in S second(s)`` at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import struct
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
+
+TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata")
+MAX_LEN = {"pcap": 70_000, "reassembly": 4096, "velodyne": 1206 * 4 + 600, "ouster": 70_000, "metadata": 16_384}
+
+
+class Finding(AssertionError):
+    """An invariant of a target does not hold (libFuzzer reports it as a crash)."""
+
+
+def _import_lidarpkt(instrument: bool):
+    if instrument:
+        import atheris
+
+        with atheris.instrument_imports(include=["lidarpkt"]):
+            import lidarpkt.ouster  # noqa: F401
+            import lidarpkt.pcap  # noqa: F401
+            import lidarpkt.reassembly  # noqa: F401
+            import lidarpkt.velodyne  # noqa: F401
+    else:
+        import lidarpkt.ouster  # noqa: F401
+        import lidarpkt.pcap  # noqa: F401
+        import lidarpkt.velodyne  # noqa: F401
+
+
+def _guard(fn):
+    """Run one input: lidarpkt errors are fine, lidarpkt warnings are ignored, anything else is a finding."""
+    from lidarpkt.errors import LidarpktError, LidarpktWarning
+
+    def run(data: bytes) -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a RuntimeWarning (overflow, NaN) or other warning is a finding
+            warnings.simplefilter("ignore", LidarpktWarning)
+            try:
+                fn(data)
+            except LidarpktError:
+                pass
+
+    return run
+
+
+# ------------------------------------------------------------------------------------------ targets
+def make_pcap_target():
+    from lidarpkt.pcap import PcapReader
+
+    path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.pcap")
+
+    def target(data: bytes) -> None:
+        with open(path, "wb") as fh:
+            fh.write(data)
+        try:
+            slow = PcapReader(path, batch_packets=1)
+            a = list(slow.packets())
+            fast = PcapReader(path)
+            b = [p for batch in fast.batches() for p in batch.packets()]
+        finally:
+            os.unlink(path)  # libFuzzer ends the process with exit(): leave nothing behind
+        key = lambda p: (p.timestamp_ns, p.src, p.dst, p.payload)  # noqa: E731
+        if sorted(map(key, a)) != sorted(map(key, b)):
+            raise Finding(f"batches() gave {len(b)} packets, record-by-record packets() {len(a)}, or different ones")
+        if slow.stats.yielded != len(a):
+            raise Finding("stats.yielded disagrees with the packets yielded")
+
+    return target
+
+
+def make_reassembly_target():
+    import atheris
+
+    from lidarpkt.reassembly import FRAGMENT_OVERHEAD, Reassembler
+
+    def pattern(key: int, offset: int, n: int, salt: int) -> bytes:
+        return bytes(((key * 131 + salt * 17 + offset + i) * 7) & 0xFF for i in range(n))
+
+    def target(data: bytes) -> None:
+        fdp = atheris.FuzzedDataProvider(data)
+        r = Reassembler(timeout_ns=1000, max_datagrams=4, max_bytes=12_000)
+        ts = 0
+        while fdp.remaining_bytes() > 0:
+            key = fdp.ConsumeIntInRange(0, 5)
+            salt = fdp.ConsumeIntInRange(0, 1)  # 1: the sender reused the IP ID for other bytes
+            offset = fdp.ConsumeIntInRange(0, 8200) * 8 - fdp.ConsumeIntInRange(0, 1) * 3
+            more = fdp.ConsumeBool()
+            n = fdp.ConsumeIntInRange(0, 3000)
+            ts += fdp.ConsumeIntInRange(0, 600)
+            out = r.add(key, offset, more, pattern(key, offset, n, salt), ts)
+            held = sum(len(p) + FRAGMENT_OVERHEAD for e in r._pending.values() for p in e.pieces.values())
+            if held != r.held_bytes:
+                raise Finding(f"held_bytes {r.held_bytes} but {held} bytes held")
+            if r.pending_datagrams > r.max_datagrams:
+                raise Finding(f"{r.pending_datagrams} datagrams pending, more than {r.max_datagrams}")
+            if r.held_bytes > r.max_bytes and r.pending_datagrams > 1:
+                raise Finding(f"{r.held_bytes} bytes held, more than {r.max_bytes}")
+            if out is not None:
+                # byte by byte, what some fragment sent for this key (a reused ID whose fragments
+                # sit at different offsets cannot be told apart, in the kernel neither)
+                a, b = pattern(key, 0, len(out), 0), pattern(key, 0, len(out), 1)
+                if any(x != y and x != z for x, y, z in zip(out, a, b)):
+                    raise Finding(f"datagram of key {key} ({len(out)} B) holds bytes never sent for it")
+        r.flush()
+        if r.pending_datagrams or r.held_bytes:
+            raise Finding("flush left datagrams pending")
+
+    return target
+
+
+def make_velodyne_target():
+    import numpy as np
+
+    from lidarpkt.packet import PacketBatch
+    from lidarpkt.velodyne import VelodyneDecoder, parse_nmea
+
+    def target(data: bytes) -> None:
+        if len(data) < 4:
+            return
+        cut, step = data[0], 1 + data[1] % 4
+        body = data[2:]
+        pos = body[-512:] if cut & 1 and len(body) >= 512 else None
+        if pos is not None:
+            body = body[:-512]
+            try:
+                parse_nmea(pos[206:].split(b"\0")[0])
+            except Exception as exc:  # NMEAError is a LidarpktError: re-raised below by _guard if not
+                from lidarpkt.errors import LidarpktError
+
+                if not isinstance(exc, LidarpktError):
+                    raise
+        n = len(body) // 1206
+        payload = np.frombuffer(body[: n * 1206], np.uint8).reshape(n, 1206)
+        host = (np.arange(n, dtype=np.int64) * 1_327_000 + 1_600_000_000_000_000_000) if cut & 2 else np.zeros(n, np.int64)
+        dec = VelodyneDecoder(max_frame_columns=64 if cut & 4 else 8192)
+        if pos is not None:
+            dec.push_position(PacketBatch.from_payloads([pos], [1_600_000_000_000_000_000]))
+        frames = []
+        for i in range(0, n, step):
+            frames += dec.push(PacketBatch.from_payloads(payload[i : i + step], host[i : i + step], first_index=i))
+        frames += dec.finish()
+        if dec.stats.packets != n:
+            raise Finding(f"{n} packets pushed, {dec.stats.packets} counted")
+        for f in frames:
+            r, h, w = f.range_mm.shape
+            if h != 16 or r not in (1, 2) or f.column_valid.shape != (w,) or f.azimuth_deg.shape != (w,):
+                raise Finding(f"frame shapes {f.range_mm.shape} / {f.column_valid.shape}")
+            f.xyz()
+
+    return target
+
+
+def _ouster_metadata_files() -> list[str]:
+    files = [
+        "ouster-sdk/OS-1-64_sensor_config_reduced.json",  # LEGACY 64
+        "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json",  # dual 32, zero footer
+        "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json",  # low data rate 128
+        "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json",  # single 128
+        "ouster-sdk/crc_test.json",  # low data rate, CRC, 512 columns
+        "ouster-sdk/same_ports_nonlegacy.1.json",  # FUSA dual
+        "ouster-sdk/empty_pcap.json",  # dual 128, CRC (33024 B)
+        "ouster-sdk/OS-1-32-G_v2.1.1_1024x10.json",  # LEGACY 32
+    ]
+    return [str(EXTERNAL / f) for f in files]
+
+
+def make_ouster_target():
+    import numpy as np
+
+    from lidarpkt.ouster import OusterDecoder, load_metadata
+    from lidarpkt.packet import PacketBatch
+
+    mds = [load_metadata(f) for f in _ouster_metadata_files()]
+
+    def target(data: bytes) -> None:
+        if len(data) < 2:
+            return
+        md = mds[data[0] % len(mds)]
+        flags = data[1]
+        body = data[2:]
+        size = md.packet_size
+        n = len(body) // size
+        if n == 0:
+            return
+        payload = np.frombuffer(body[: n * size], np.uint8).reshape(n, size)
+        dec = OusterDecoder(md, verify_crc=bool(flags & 1), soft_id_check=bool(flags & 2))
+        frames = []
+        step = 1 + (flags >> 2) % 3
+        for i in range(0, n, step):
+            frames += dec.push(PacketBatch.from_payloads(payload[i : i + step], np.arange(i, min(n, i + step)) + 1, first_index=i))
+        frames += dec.finish()
+        if dec.stats.packets != n:
+            raise Finding(f"{n} packets pushed, {dec.stats.packets} counted")
+        for f in frames:
+            if f.range_mm.shape[1:] != (md.pixels_per_column, md.columns_per_frame):
+                raise Finding(f"frame shape {f.range_mm.shape}")
+
+    return target
+
+
+def make_metadata_target():
+    import numpy as np
+
+    from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
+    from lidarpkt.packet import PacketBatch
+
+    def target(data: bytes) -> None:
+        try:
+            doc = json.loads(data.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+            return
+        if not isinstance(doc, dict):
+            return
+        md = load_metadata(doc)
+        size = md.packet_size
+        OusterGeometry(md)
+        dec = OusterDecoder(md)
+        if size <= 1 << 20:
+            dec.push(PacketBatch.from_payloads(np.zeros((1, size), np.uint8)))
+        dec.finish()
+
+    return target
+
+
+MAKERS = {
+    "pcap": make_pcap_target,
+    "reassembly": make_reassembly_target,
+    "velodyne": make_velodyne_target,
+    "ouster": make_ouster_target,
+    "metadata": make_metadata_target,
+}
+
+
+# ------------------------------------------------------------------------------------------ seeds
+def seeds(target: str) -> list[bytes]:
+    """Starting inputs from the real captures (and generated ones where none is small enough)."""
+    out: list[bytes] = []
+    if target == "pcap":
+        from lidarpkt.packet import Endpoint, Packet
+        from lidarpkt.pcapwrite import Interface, frames_for, pcap_bytes, pcapng_bytes
+
+        for rel in ("ouster-sdk/VLI-16-one-packet.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap",
+                    "ouster-sdk/duplicate_id.pcap", "ouster-sdk/empty_pcap.pcap", "ouster-sdk/same_ports_nonlegacy.pcap",
+                    "ouster-sdk/same_ports_legacy.pcap"):
+            if (EXTERNAL / rel).exists():
+                out.append((EXTERNAL / rel).read_bytes()[: MAX_LEN["pcap"]])
+        vel = (EXTERNAL / "rust-lidar-utils/velodyne_example.pcap")
+        if vel.exists():
+            out.append(vel.read_bytes()[: 24 + 4 * (16 + 1248)])
+        pk = [
+            Packet(1_600_000_000_000_000_000, Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368), bytes(1206)),
+            Packet(1_600_000_000_010_000_000, Endpoint("10.0.0.5", 7502), Endpoint("10.0.0.1", 7502), bytes(range(256)) * 12),
+            Packet(1_600_000_000_020_000_000, Endpoint("fd00::5", 7502), Endpoint("fd00::1", 7502), bytes(range(200)) * 16),
+        ]
+        recs = [(p.timestamp_ns, f) for i, p in enumerate(pk) for f in frames_for(p, ident=i)]
+        out.append(pcap_bytes(recs))
+        out.append(pcap_bytes([(t, f) for t, f in recs], nanosecond=True, big_endian=True))
+        vl = [(p.timestamp_ns, f) for i, p in enumerate(pk) for f in frames_for(p, ident=i, vlan=(3,), link="ethernet")]
+        out.append(pcapng_bytes([(0, t, f) for t, f in vl], interfaces=[Interface("ethernet")]))
+        sll = [(p.timestamp_ns, f) for i, p in enumerate(pk) for f in frames_for(p, ident=i, link="linux_sll2")]
+        out.append(pcap_bytes(sll, link="linux_sll2"))
+    elif target == "reassembly":
+        out += [bytes(range(64)), bytes(64), b"\x01\x00\x00\x00\x01\x10\x00" * 10]
+    elif target == "velodyne":
+        rec = EXTERNAL / "einride-vlp16-go/recording.bin"
+        if rec.exists():
+            raw = rec.read_bytes()
+            for k in range(0, 40, 10):
+                out.append(bytes([6, 1]) + raw[k * 1206 : (k + 4) * 1206])
+        from lidarpkt.pcap import read_packets
+
+        cap = REPO / "fixtures/canned/vlp16-dual.pcap"
+        if cap.exists():
+            data, pos = [], None
+            for p in read_packets(cap):
+                if len(p.payload) == 512 and pos is None:
+                    pos = p.payload
+                elif len(p.payload) == 1206 and len(data) < 4:
+                    data.append(p.payload)
+                if pos is not None and len(data) == 4:
+                    break
+            out.append(bytes([3, 2]) + b"".join(data) + (pos or bytes(512)))
+    elif target == "ouster":
+        from lidarpkt.ouster import load_metadata
+        from lidarpkt.pcap import read_packets
+
+        sources = {  # metadata index -> a capture with its packets
+            0: REPO / "fixtures/canned/os1-64-legacy.pcap",
+            1: EXTERNAL / "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap",
+            2: EXTERNAL / "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.pcap",
+            3: EXTERNAL / "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap",
+            4: EXTERNAL / "ouster-sdk/crc_test.pcap",
+            5: EXTERNAL / "ouster-sdk/same_ports_nonlegacy.pcap",
+            7: EXTERNAL / "ouster-sdk/OS-1-32-G_v2.1.1_1024x10.pcap",
+        }
+        files = _ouster_metadata_files()
+        for i, cap in sources.items():
+            if not cap.exists() or not Path(files[i]).exists():
+                continue
+            size = load_metadata(files[i]).packet_size
+            pk = []
+            for p in read_packets(cap):
+                if len(p.payload) == size:
+                    pk.append(p.payload)
+                    if len(pk) == 2 or size * (len(pk) + 1) > MAX_LEN["ouster"]:
+                        break
+            if pk:
+                out.append(bytes([i, 1]) + b"".join(pk))
+        out.append(bytes([6, 0]) + bytes(33024))
+    elif target == "metadata":
+        for f in sorted(glob.glob(str(EXTERNAL / "ouster-sdk/*.json")) + glob.glob(str(EXTERNAL / "rust-lidar-utils/*.json"))
+                        + glob.glob(str(REPO / "fixtures/canned/os1-64-*.json"))):
+            if "digest" in f or "truth" in f:
+                continue
+            text = Path(f).read_bytes()
+            if len(text) <= MAX_LEN["metadata"]:
+                out.append(text)
+    return out
+
+
+# ------------------------------------------------------------------------------------------ main
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--target", required=True, choices=TARGETS + ("all",))
+    ap.add_argument("--seconds", type=int, default=60, help="fuzzing time per target")
+    ap.add_argument("--corpus", help="corpus folder, kept between runs (default /tmp/lidarpkt-fuzz/corpus-TARGET)")
+    ap.add_argument("--artifacts", default="/tmp/lidarpkt-fuzz/artifacts", help="where crash inputs go")
+    ap.add_argument("--rss-limit-mb", type=int, default=1536)
+    ap.add_argument("--replay", nargs="*", help="run these saved inputs once each (no fuzzing)")
+    args = ap.parse_args(argv)
+
+    if args.target == "all":
+        import subprocess
+
+        rc = 0
+        for t in TARGETS:
+            cmd = [sys.executable, __file__, "--target", t, "--seconds", str(args.seconds), "--artifacts", args.artifacts,
+                   "--rss-limit-mb", str(args.rss_limit_mb)]
+            print("==>", " ".join(cmd), flush=True)
+            rc |= subprocess.call(cmd)
+        return rc
+
+    if args.replay is not None:
+        _import_lidarpkt(False)
+        target = MAKERS[args.target]()
+        run = _guard(target)
+        for f in args.replay:
+            run(Path(f).read_bytes())
+            print(f"{f}: ok")
+        return 0
+
+    import atheris
+
+    _import_lidarpkt(True)
+    run = _guard(MAKERS[args.target]())
+    corpus = args.corpus or f"/tmp/lidarpkt-fuzz/corpus-{args.target}"
+    os.makedirs(corpus, exist_ok=True)
+    for i, s in enumerate(seeds(args.target)):
+        Path(corpus, f"seed-{i:03d}").write_bytes(s)
+    artifacts = Path(args.artifacts)
+    artifacts.mkdir(parents=True, exist_ok=True)
+    lf_args = [
+        sys.argv[0],
+        f"-max_total_time={args.seconds}",
+        f"-max_len={MAX_LEN[args.target]}",
+        f"-rss_limit_mb={args.rss_limit_mb}",
+        "-timeout=20",
+        "-print_final_stats=1",
+        f"-artifact_prefix={artifacts}/{args.target}-",
+        corpus,
+    ]
+    print(f"fuzzing {args.target} for {args.seconds} s; corpus {corpus}; crash inputs -> {artifacts}/{args.target}-*", flush=True)
+    atheris.Setup(lf_args, run)
+    atheris.Fuzz()  # exits the process when the time is up or on a finding
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
