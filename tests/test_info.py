@@ -218,3 +218,41 @@ def test_generated_pcapng_dual_mode_and_gps_locked(tmp_path):
     assert g["details"]["gps_time_first"].startswith("1994-03-23T12:35:19")
     text = _cli(str(path)).stdout
     assert "PPS locked" in text and "1994-03-23T12:35:19" in text and "dual" in text
+
+
+def _all_external_pcaps():
+    from conftest import external_root
+
+    root = external_root()
+    return sorted(str(p.relative_to(root)) for p in root.glob("*/*.pcap")) if root.exists() else []
+
+
+@pytest.mark.crosscheck
+@pytest.mark.parametrize("relpath", _all_external_pcaps())
+def test_streams_match_ouster_sdk_stream_info(relpath):
+    """Per stream (src ip:port → dst ip:port): packet count, payload sizes and fragments per packet
+    as ouster-sdk's libtins-based ``get_stream_info`` counts them; first/last time of the capture."""
+    import warnings
+
+    pytest.importorskip("ouster.sdk")
+    from ouster.sdk._bindings import pcap as sdk_pcap
+
+    path = external(relpath)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        info = sdk_pcap.get_stream_info(str(path))
+    ref = {}
+    for key, s in info.udp_streams.items():
+        ref[(f"{key.src_ip}:{key.src_port}", f"{key.dst_ip}:{key.dst_port}")] = (s.count, dict(s.payload_size_counts))
+    doc = describe_capture(path)
+    ours: dict = {}
+    for s in doc["streams"]:
+        count, sizes = ours.get((s["src"], s["dst"]), (0, {}))
+        ours[(s["src"], s["dst"])] = (count + s["packets"], {**sizes, s["payload_size"]: s["packets"]})
+    assert ours == ref
+    frags = sum(n * c for s in info.udp_streams.values() for n, c in dict(s.fragment_counts).items())
+    assert frags == doc["records"]
+    if doc["streams"]:
+        first = min(s["first_timestamp_ns"] for s in doc["streams"])
+        last = max(s["last_timestamp_ns"] for s in doc["streams"])
+        assert (first // 1000, last // 1000) == (round(info.timestamp_min * 1e6), round(info.timestamp_max * 1e6))
