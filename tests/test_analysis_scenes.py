@@ -196,12 +196,16 @@ def test_motion_compensation_recovers_the_generated_jitter(jittered, name):
     assert offsets.tolist() == (-jitter).tolist()
     h = stack.range_mm.shape[2]
     for rp, info in t["raypaths"].items():
-        pix = np.array(info["pixel"])
-        mc = motion_compensated_cdf(stack, int(pix[0, 0]), int(pix[0, 1]), offsets=offsets)
-        # the compensated samples are the named raypath's own, frame by frame (where it stays in view)
-        inside = (pix[:, 0] >= 0) & (pix[:, 0] < h)
-        assert np.array_equal(mc.range_mm[inside], np.array(info["samples"]["range_mm"])[inside, 0]), rp
+        r0, c0 = info["pixel"][0]  # frame 0 is at the reference pose: always in view
+        mc = motion_compensated_cdf(stack, r0, c0, offsets=offsets)
+        # the compensated samples are the named raypath's own, frame by frame, where it stays in
+        # view; a frame where it left the image has a null pixel and null samples in the truth
+        inside = np.array([p is not None for p in info["pixel"]])
+        got = [s[0] for s, ok in zip(info["samples"]["range_mm"], inside) if ok]
+        assert np.array_equal(mc.range_mm[inside], got), rp
         assert np.array_equal(mc.sample_valid, inside), rp
+        rows = r0 - np.array([f["jitter"]["pitch_rows"] for f in t["frames"]])
+        assert np.array_equal(inside, (rows >= 0) & (rows < h)), rp
 
 
 @pytest.mark.parametrize("name", ["vlp16-strongest", "os1-64-legacy"])

@@ -157,6 +157,8 @@ def test_jittered_capture_moves_the_named_pixels_as_recorded():
         sign = truth["raypaths"]["sign"]
         for k, f in enumerate(frames):
             for rp, info in truth["raypaths"].items():
+                if info["pixel"][k] is None:  # left the image this frame (see the test below)
+                    continue
                 row, col = info["pixel"][k]
                 assert f.range_mm[:, row, col].tolist() == info["samples"]["range_mm"][k]
             # The sign is the only retro-reflector (reflectivity > 100): its 3×7 patch centre.
@@ -170,6 +172,38 @@ def test_jittered_capture_moves_the_named_pixels_as_recorded():
             w = f.shape[2]
             assert row == sign["scene_row"] - truth["scene"]["pad_rows"] - offsets[k, 0]
             assert col == (sign["scene_col"] - offsets[k, 1]) % w
+
+
+@pytest.mark.parametrize("name", ["vlp16-dual", "os1-64-dual"])
+def test_a_jittered_pixel_that_leaves_the_image_is_null_never_a_wrapped_row(name):
+    """Pitch jitter moves the top-row sky raypath above row 0 in some frames. Such a frame has no
+    pixel and no samples (null); it used to be recorded as row -1 with samples read, through
+    NumPy's negative-index wrap, from the bottom row. Where the pixel stays inside, the samples
+    are the decoded image's at that pixel. Expected rows come from the scene cell and the frame's
+    pitch, not from the truth's pixel list."""
+    pcap = fixtures.ensure(name, frames=8, seed=3, jitter_px=2, aux=False)
+    truth = fixtures.load_truth(pcap)
+    frames = decoded(str(pcap))
+    h = frames[0].range_mm.shape[1]
+    pad = truth["scene"]["pad_rows"]
+    pitch = np.array([fr["jitter"]["pitch_rows"] for fr in truth["frames"]])
+    left = 0
+    for rp, info in truth["raypaths"].items():
+        rows = info["scene_row"] - pad - pitch  # the row the raypath is seen in, frame by frame
+        fields = [v for key, v in info["samples"].items()]
+        for k, f in enumerate(frames):
+            if not 0 <= rows[k] < h:
+                left += 1
+                assert info["pixel"][k] is None, (rp, k)
+                assert all(v[k] is None for v in fields), (rp, k)
+                continue
+            row, col = info["pixel"][k]
+            assert row == rows[k], (rp, k)
+            assert f.range_mm[:, row, col].tolist() == info["samples"]["range_mm"][k], (rp, k)
+            assert f.reflectivity[:, row, col].tolist() == info["samples"]["reflectivity"][k], (rp, k)
+            if "near_ir" in info["samples"]:
+                assert int(f.near_ir[row, col]) == info["samples"]["near_ir"][k], (rp, k)
+    assert left > 0  # this seed does move a raypath out of the image (else the test checks nothing)
 
 
 def test_one_seed_gives_consistent_modes_in_the_decoded_captures():
