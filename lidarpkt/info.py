@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .pcap import PcapReader
+from .pcap import PcapReader, capture_format
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -64,7 +64,8 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     """A JSON-ready description of one capture.
 
     Args:
-        path: a pcap/pcapng file.
+        path: a pcap/pcapng file (or an MCAP file / ROS bag of raw packets: then the pcap-only
+            counts are absent, and an Ouster metadata recorded in the file is used).
         metadata: parsed Ouster metadata (:func:`lidarpkt.ouster.load_metadata`) for the
             sensors in the capture; used to name Ouster profiles exactly.
 
@@ -79,7 +80,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     Raises:
         lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
     """
-    reader = PcapReader(path)
+    reader, kind = _open_reader(path)
     streams: dict[tuple, _Stream] = {}
     for batch in reader.batches():
         key = (batch.src, batch.dst, batch.payload_size)
@@ -94,7 +95,12 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         if room > 0:
             s.kept.append(batch if len(batch) <= room else batch.select(np.arange(room)))
             s.kept_packets += min(room, len(batch))
-    st = reader.stats
+    if kind != "pcap" and not metadata:
+        text = reader.ouster_metadata()  # recorded next to Ouster packets by lidarpkt record / the ROS driver
+        if text:
+            from .ouster import load_metadata
+
+            metadata = [load_metadata(text)]
     out_streams = []
     for s in sorted(streams.values(), key=lambda s: s.first_index):
         batch = PacketBatch.concatenate(s.kept)
@@ -125,31 +131,63 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         out_streams.append(entry)
     first = min((s["first_timestamp_ns"] for s in out_streams), default=None)
     last = max((s["last_timestamp_ns"] for s in out_streams), default=None)
-    return {
-        "file": os.fspath(path),
-        "format": st.format,
-        "nanosecond": st.nanosecond,
-        "big_endian": st.big_endian,
-        "snaplen": st.snaplen,
-        "interfaces": st.interfaces,
-        "link_types": dict(st.link_types),
-        "bytes": st.bytes_read,
-        "records": st.records,
-        "udp_packets": st.udp_packets,
-        "non_udp": st.non_udp,
-        "fragments": st.fragments,
-        "reassembled": st.reassembled,
-        "orphaned_fragments": st.orphaned_fragments,
-        "duplicate_fragments": st.duplicate_fragments,
-        "malformed": st.malformed,
-        "malformed_reasons": dict(st.malformed_reasons),
-        "truncated": st.truncated,
-        "truncated_reason": st.truncated_reason or None,
-        "first_time": _iso(first) if first is not None else None,
-        "last_time": _iso(last) if last is not None else None,
-        "duration_s": (last - first) / 1e9 if first is not None else 0.0,
-        "streams": out_streams,
-    }
+    doc: dict[str, Any] = {"file": os.fspath(path), "format": kind}
+    if kind == "pcap":
+        st = reader.stats
+        doc.update(
+            format=st.format,
+            nanosecond=st.nanosecond,
+            big_endian=st.big_endian,
+            snaplen=st.snaplen,
+            interfaces=st.interfaces,
+            link_types=dict(st.link_types),
+            bytes=st.bytes_read,
+            records=st.records,
+            udp_packets=st.udp_packets,
+            non_udp=st.non_udp,
+            fragments=st.fragments,
+            reassembled=st.reassembled,
+            orphaned_fragments=st.orphaned_fragments,
+            duplicate_fragments=st.duplicate_fragments,
+            malformed=st.malformed,
+            malformed_reasons=dict(st.malformed_reasons),
+            truncated=st.truncated,
+            truncated_reason=st.truncated_reason or None,
+        )
+    else:  # a ROS bag or MCAP file: packets without network framing
+        bs = reader.stats
+        doc.update(
+            records=bs.get("messages", 0),
+            udp_packets=bs.get("packets", 0),
+            skipped_topics=dict(bs.get("skipped_topics", {})),
+            ouster_metadata_in_file=reader.ouster_metadata() is not None,
+        )
+    doc.update(
+        first_time=_iso(first) if first is not None else None,
+        last_time=_iso(last) if last is not None else None,
+        duration_s=(last - first) / 1e9 if first is not None else 0.0,
+        streams=out_streams,
+    )
+    return doc
+
+
+def _open_reader(path: str | os.PathLike[str]):
+    """(reader, kind): a :class:`PcapReader` for pcap/pcapng, a :class:`lidarpkt.bags.BagReader`
+    for MCAP files and ROS bags. Anything else raises the pcap reader's error, which names the
+    file and shows its first bytes."""
+    if capture_format(path) is None and os.path.exists(path):
+        from .errors import UnsupportedContainerError
+        from .source import container_kind
+
+        try:
+            kind = container_kind(path)
+        except UnsupportedContainerError:
+            kind = None
+        if kind in ("mcap", "rosbag1", "rosbag2"):
+            from .bags import BagReader
+
+            return BagReader(path), kind
+    return PcapReader(path), "pcap"
 
 
 def _summary(stream: dict) -> str:
@@ -192,19 +230,23 @@ def _summary(stream: dict) -> str:
 
 def format_capture(doc: dict) -> str:
     """The text report of one :func:`describe_capture` result."""
-    links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
-    lines = [
-        f"{doc['file']}: {doc['format']} ({links}), {doc['records']} records, {doc['udp_packets']} UDP packets"
-        + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")
-    ]
+    pcap = "link_types" in doc
+    if pcap:
+        links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
+        head = f"{doc['file']}: {doc['format']} ({links}), {doc['records']} records, {doc['udp_packets']} UDP packets"
+    else:
+        head = f"{doc['file']}: {doc['format']}, {doc['records']} messages, {doc['udp_packets']} packets"
+    lines = [head + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")]
     for s in doc["streams"]:
-        src = s["src"] or "?"
+        where = f"{s['src']} → {s['dst_port']}" if s["src"] else "(no addresses)"
         lines.append(
-            f"  {src} → {s['dst_port']}  {s['packets']} × {s['payload_size']} B  "
+            f"  {where}  {s['packets']} × {s['payload_size']} B  "
             f"{s['first_time'][11:]} → {s['last_time'][11:]} ({s['duration_s']:.6f} s)  {_summary(s)}"
         )
     if not doc["streams"]:
-        lines.append("  no UDP packets")
+        lines.append("  no UDP packets" if pcap else "  no packets")
+    if not pcap:
+        return "\n".join(lines)
     counts = (
         f"  reassembled {doc['reassembled']} (from {doc['fragments']} fragments), orphaned fragments "
         f"{doc['orphaned_fragments']}, duplicate fragments {doc['duplicate_fragments']}, malformed {doc['malformed']}, "

@@ -256,3 +256,33 @@ def test_streams_match_ouster_sdk_stream_info(relpath):
         first = min(s["first_timestamp_ns"] for s in doc["streams"])
         last = max(s["last_timestamp_ns"] for s in doc["streams"])
         assert (first // 1000, last // 1000) == (round(info.timestamp_min * 1e6), round(info.timestamp_max * 1e6))
+
+
+def test_rosbag2_of_packets():
+    """SOURCES.md: the nebula bag holds 603 VLP-16 packets in 4 messages, all 0x39 (dual) / 0x22."""
+    doc = _info("nebula/vlp16/1673400471837873222")
+    assert (doc["format"], doc["records"], doc["udp_packets"]) == ("rosbag2", 4, 603)
+    (s,) = doc["streams"]
+    assert (s["packets"], s["payload_size"], s["src"]) == (603, 1206, None)
+    assert (s["details"]["return_mode"], s["details"]["product_id"]) == ("dual", 0x22)
+    res = _cli(str(external("nebula/vlp16/1673400471837873222")))
+    assert res.returncode == 0 and "(no addresses)  603 × 1206 B" in res.stdout
+
+
+def test_mcap_with_recorded_metadata(tmp_path):
+    """An MCAP written by ``lidarpkt decode`` keeps the Ouster metadata: info names the profile from it."""
+    out = tmp_path / "crc.mcap"
+    res = subprocess.run(
+        [sys.executable, "-m", "lidarpkt", "decode", str(external("ouster-sdk/crc_test.pcap")),
+         "--metadata", str(external("ouster-sdk/crc_test.json")), "-o", str(out), "--topics", "packets", "-q"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    res = _cli(str(out), "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["format"] == "mcap" and doc["ouster_metadata_in_file"]
+    (lidar,) = _by(doc, 8448)
+    assert lidar["packets"] == 34
+    assert (lidar["details"]["profile"], lidar["details"]["profile_source"]) == ("RNG15_RFL8_NIR8", "metadata")
+    assert sum(s["packets"] for s in _by(doc, 48)) == 10
