@@ -17,6 +17,7 @@ Errors: :class:`lidarpkt.errors.PortInUseError` when a port is already bound,
 from __future__ import annotations
 
 import errno
+import os
 import queue
 import selectors
 import socket
@@ -182,10 +183,33 @@ class UdpCapture:
                     self._read_all(key.fileobj, key.data)
             for sock, port in self._sockets:  # what the kernel already holds is not lost on a clean stop
                 self._read_all(sock, port)
+            self._final_kernel_drops()
         except BaseException as exc:  # surfaced to the consumer by drain()
             self.error = exc
         finally:
             sel.close()
+
+    def _final_kernel_drops(self) -> None:
+        """SO_RXQ_OVFL only rides on a datagram that is read: drops after the last one read (a burst
+        at the end) would go unreported. The socket's drop counter is also in /proc/net/udp (the
+        same sk_drops), so take it from there once no more datagrams will be read."""
+        try:
+            with open("/proc/net/udp") as fh:
+                lines = fh.read().splitlines()[1:]
+        except OSError:  # not Linux
+            return
+        drops = {}
+        for line in lines:
+            f = line.split()
+            if len(f) >= 13 and f[9].isdigit() and f[-1].isdigit():
+                drops[int(f[9])] = int(f[-1])
+        for sock, port in self._sockets:
+            try:
+                inode = os.fstat(sock.fileno()).st_ino
+            except OSError:
+                continue
+            if inode in drops:
+                self.stats.kernel_drops[port] = max(self.stats.kernel_drops[port], drops[inode])
 
     def _read_all(self, sock: socket.socket, port: int) -> None:
         """Read every datagram waiting on ``sock`` and queue it (or count it as overflow)."""

@@ -215,7 +215,9 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "interruptions": sum(r.count.interruptions for r in sink.streams.values()),
         "kernel_drops": s.kernel_dropped,
         "queue_overflow": s.queue_overflow,
-        "lost_total": sink.lost + s.kernel_dropped + s.queue_overflow,
+        # datagrams dropped here (kernel, queue) leave gaps in the stream counters too: counting both
+        # would count them twice; gaps beyond the local drops were lost before reaching this machine
+        "lost_total": max(sink.lost, s.kernel_dropped + s.queue_overflow),
         "rcvbuf_requested": s.rcvbuf_requested,
         "rcvbuf_granted": {str(k): v for k, v in s.rcvbuf_granted.items()},
         "gps_sentences": gps.sentences if gps is not None else 0,
@@ -235,9 +237,9 @@ def _summary_text(d: dict, sink: PacketSink) -> str:
         f"lidarpkt record: stopped by {d['stopped_by']} after {d['seconds']:.1f} s",
         f"  {d['packets']} packets in {d['messages_written']} messages, {d['frames']} rotations, "
         f"{d['bytes_written'] / 1e6:.1f} MB in {', '.join(d['files'])}",
-        f"  lost: {d['lost_total']} = {d['lost_gaps']} (gaps in the packets' own counters) + "
-        f"{d['kernel_drops']} (kernel buffer full) + {d['queue_overflow']} (writer fell behind); "
-        f"{d['out_of_order']} out of order",
+        f"  lost: {d['lost_total']} = the larger of {d['lost_gaps']} (gaps in the packets' own counters, wherever "
+        f"lost) and {d['kernel_drops']} (kernel buffer full) + {d['queue_overflow']} (writer fell behind), which "
+        f"leave gaps too; {d['out_of_order']} out of order",
     ]
     if d["interruptions"]:
         lines.append(f"  the sensor stream was interrupted {d['interruptions']} time(s) (a jump of more than a second "
