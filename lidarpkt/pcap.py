@@ -41,7 +41,6 @@ send to), ``src_addresses`` the source address, ``payload_sizes`` the UDP payloa
 
 from __future__ import annotations
 
-import mmap
 import os
 import socket
 import struct
@@ -223,6 +222,7 @@ _L2_BYTES = {
 MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
 MAX_PCAPNG_BLOCK = 1 << 24  # larger "blocks" are taken as corruption, not allocated
 MAX_CHUNK_BYTES = 32 << 20  # a chunk (and so a batch) spans at most this much of the file
+READ_BLOCK_BYTES = 32 << 20  # the file is read in blocks this large (into one reused buffer)
 _SEC_NS = 1_000_000_000
 
 
@@ -325,6 +325,32 @@ def _copy_rows(buf: np.ndarray, offs: np.ndarray, length: int) -> np.ndarray:
     return windows[offs]
 
 
+class _Blocks:
+    """Reads a file in blocks into one reused buffer (no mmap: a file truncated while it is read
+    must give a short read, not a SIGBUS; memory stays bounded by the block size)."""
+
+    def __init__(self, fh, size: int) -> None:
+        self.fh = fh
+        self.size = size
+        self._buf: np.ndarray | None = None
+
+    def read(self, offset: int) -> np.ndarray:
+        """The file's bytes from ``offset``: up to READ_BLOCK_BYTES of them (fewer at the end)."""
+        want = max(0, min(READ_BLOCK_BYTES, self.size - offset))
+        if self._buf is None or self._buf.shape[0] < want:
+            self._buf = np.empty(max(want, 1), np.uint8)
+        view = memoryview(self._buf)[:want]
+        self.fh.seek(offset)
+        got = 0
+        while got < want:
+            k = self.fh.readinto(view[got:])
+            if not k:
+                self.size = offset + got  # the file shrank while being read: it ends here now
+                break
+            got += k
+        return self._buf[:got]
+
+
 class PcapReader:
     """UDP datagrams of one pcap or pcapng file.
 
@@ -420,18 +446,21 @@ class PcapReader:
 
     def _chunk_batches(self) -> Iterator[list[PacketBatch]]:
         """The batches of each chunk of records (their ordinals interleave within a chunk only)."""
-        buf, closer = self._open_buffer()
         try:
+            fh = open(self.path, "rb", buffering=0)
+        except OSError as exc:  # removed or made unreadable since the reader was made
+            raise CaptureFormatError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
+        with fh:
+            blocks = _Blocks(fh, os.fstat(fh.fileno()).st_size)
             self._begin()
             base = 0
-            for chunk in self._chunks(buf):
+            walker = self._walk_pcap(blocks) if self.format == "pcap" else self._walk_pcapng(blocks)
+            for buf, chunk in walker:
                 produced = self._process_chunk(buf, chunk, base)
                 if produced:
                     base = max(int(b.index[-1]) for b in produced) + 1
                     yield produced
             self._finish()
-        finally:
-            closer()
 
     @staticmethod
     def _merge(batches: list[PacketBatch]) -> Iterator[Packet]:
@@ -447,29 +476,6 @@ class PcapReader:
 
     def __iter__(self) -> Iterator[Packet]:
         return self.packets()
-
-    # --- file access -----------------------------------------------------------------------
-    def _open_buffer(self):
-        try:
-            fh = open(self.path, "rb")
-        except OSError as exc:  # removed or made unreadable since the reader was made
-            raise CaptureFormatError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
-        try:
-            mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-        except (ValueError, OSError):  # a file mmap refuses (e.g. on some network file systems): read it
-            data = fh.read()
-            fh.close()
-            return np.frombuffer(data, np.uint8), lambda: None
-        buf = np.frombuffer(mm, np.uint8)
-
-        def close() -> None:
-            try:
-                mm.close()
-            except BufferError:  # a caller still holds a view: let the GC close it
-                pass
-            fh.close()
-
-        return buf, close
 
     def _begin(self) -> None:
         old = self.stats
@@ -542,104 +548,116 @@ class PcapReader:
         self.stats.interfaces = 1
         self._snaplen = snaplen
 
-    def _walk_pcap(self, buf: np.ndarray) -> Iterator[_Chunk]:
-        """Chunks of record offsets of a classic pcap file."""
-        end = buf.shape[0]
-        mv = memoryview(buf)
+    def _walk_pcap(self, blocks: "_Blocks") -> Iterator[tuple[np.ndarray, _Chunk]]:
+        """(block, chunk) pairs of a classic pcap file; chunk offsets are relative to the block."""
         hdr = self._rec_hdr
         u32 = struct.Struct(self._endian + "I").unpack_from
         caplen_at = field_offset(PCAP_RECORD_HEADER, "incl_len")
         max_cap = max(self._snaplen, MAX_RECORD_BYTES)
         cap_dtype = np.dtype(self._endian + "u4")
         chunk = self.batch_packets
-        off = 24
+        glob = PCAP_GLOBAL_HEADER.itemsize
         window = 64  # speculative run length
         backoff = 0  # records to walk one by one before speculating again
         st = self.stats
-        st.bytes_read = min(24, end)
-        if end < 24:
-            self._truncate(f"file ends inside the pcap global header ({end} of 24 bytes)")
+        st.bytes_read = min(glob, blocks.size)
+        if blocks.size < glob:
+            self._truncate(f"file ends inside the pcap global header ({blocks.size} of {glob} bytes)")
             return
-        done = False
-        while not done:
-            pieces: list[np.ndarray] = []
-            singles: list[int] = []
-            n = 0
-            chunk_start = off
-            while n < chunk and off - chunk_start < MAX_CHUNK_BYTES:
-                if off + hdr > end:
-                    if off != end:
+        off = glob  # file offset of the next record
+        while off < blocks.size:
+            buf = blocks.read(off)
+            end = buf.shape[0]
+            last_block = off + end >= blocks.size
+            mv = memoryview(buf)
+            rel = 0
+            stop = refill = False
+            while not (stop or refill):
+                pieces: list[np.ndarray] = []
+                singles: list[int] = []
+                n = 0
+                chunk_start = rel
+                while n < chunk and rel - chunk_start < MAX_CHUNK_BYTES:
+                    if rel + hdr > end:
+                        if not last_block:
+                            refill = True
+                        elif rel != end:
+                            self._truncate(
+                                f"capture cut short: {end - rel} byte(s) of a record header at offset {off + rel} "
+                                f"(after {st.records + n} complete records)"
+                            )
+                        stop = not refill
+                        break
+                    cap = u32(mv, rel + caplen_at)[0]
+                    if cap > max_cap:
                         self._truncate(
-                            f"capture cut short: {end - off} byte(s) of a record header at offset {off} "
-                            f"(after {st.records + n} complete records)"
+                            f"record at offset {off + rel} claims {cap} captured bytes (more than the snap length "
+                            f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit): the file is corrupt from "
+                            f"there; kept the {st.records + n} records before it"
                         )
-                    done = True
-                    break
-                cap = u32(mv, off + caplen_at)[0]
-                if cap > max_cap:
-                    self._truncate(
-                        f"record at offset {off} claims {cap} captured bytes (more than the snap length "
-                        f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit): the file is corrupt from there; "
-                        f"kept the {st.records + n} records before it"
-                    )
-                    done = True
-                    break
-                stride = hdr + cap
-                if off + stride > end:
-                    self._truncate(
-                        f"last record at offset {off} claims {cap} captured bytes but only {end - off - hdr} "
-                        f"remain in the file (after {st.records + n} complete records)"
-                    )
-                    done = True
-                    break
-                if backoff <= 0:
-                    k_max = min(chunk - n, (end - off) // stride, window,
-                                (MAX_CHUNK_BYTES - (off - chunk_start)) // stride + 1)
-                    if k_max >= 8:
-                        caps = np.ndarray((k_max,), cap_dtype, buf, off + caplen_at, (stride,))
-                        bad = np.flatnonzero(caps != cap)
-                        k = int(bad[0]) if bad.size else k_max
-                        if singles:
-                            pieces.append(np.asarray(singles, np.int64))
-                            singles = []
-                        pieces.append(off + stride * np.arange(k, dtype=np.int64))
-                        n += k
-                        off += k * stride
-                        if k == k_max:
-                            window = min(window * 2, 1 << 16)
+                        stop = True
+                        break
+                    stride = hdr + cap
+                    if rel + stride > end:
+                        if not last_block:
+                            refill = True
                         else:
-                            window = max(64, 2 * k)
-                            backoff = 0 if k >= 32 else 32
-                        continue
-                backoff -= 1
-                singles.append(off)
-                n += 1
-                off += stride
-            if singles:
-                pieces.append(np.asarray(singles, np.int64))
-            if n == 0:
-                break
-            offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
-            st.records += n
-            st.bytes_read = off
-            sec = _field(buf, offs, PCAP_RECORD_HEADER, "ts_sec", self._endian)
-            frac = _field(buf, offs, PCAP_RECORD_HEADER, "ts_frac", self._endian)
-            caplen = _field(buf, offs, PCAP_RECORD_HEADER, "incl_len", self._endian)
-            yield _Chunk(
-                data_off=offs + hdr,
-                caplen=caplen,
-                ts_ns=sec * _SEC_NS + frac * self._frac_ns,
-                linktype=np.full(n, self._linktype, np.int64),
-            )
+                            self._truncate(
+                                f"last record at offset {off + rel} claims {cap} captured bytes but only "
+                                f"{end - rel - hdr} remain in the file (after {st.records + n} complete records)"
+                            )
+                            stop = True
+                        break
+                    if backoff <= 0:
+                        k_max = min(chunk - n, (end - rel) // stride, window,
+                                    (MAX_CHUNK_BYTES - (rel - chunk_start)) // stride + 1)
+                        if k_max >= 8:
+                            # a run of records with this capture length, checked in one strided comparison
+                            caps = np.ndarray((k_max,), cap_dtype, buf, rel + caplen_at, (stride,))
+                            bad = np.flatnonzero(caps != cap)
+                            k = int(bad[0]) if bad.size else k_max
+                            if singles:
+                                pieces.append(np.asarray(singles, np.int64))
+                                singles = []
+                            pieces.append(rel + stride * np.arange(k, dtype=np.int64))
+                            n += k
+                            rel += k * stride
+                            if k == k_max:
+                                window = min(window * 2, 1 << 16)
+                            else:
+                                window = max(64, 2 * k)
+                                backoff = 0 if k >= 32 else 32
+                            continue
+                    backoff -= 1
+                    singles.append(rel)
+                    n += 1
+                    rel += stride
+                if singles:
+                    pieces.append(np.asarray(singles, np.int64))
+                if n:
+                    offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
+                    st.records += n
+                    st.bytes_read = off + rel
+                    yield buf, _Chunk(
+                        data_off=offs + hdr,
+                        caplen=_field(buf, offs, PCAP_RECORD_HEADER, "incl_len", self._endian),
+                        ts_ns=_field(buf, offs, PCAP_RECORD_HEADER, "ts_sec", self._endian) * _SEC_NS
+                        + _field(buf, offs, PCAP_RECORD_HEADER, "ts_frac", self._endian) * self._frac_ns,
+                        linktype=np.full(n, self._linktype, np.int64),
+                    )
+                if rel >= end:
+                    break
+            if stop:
+                return
+            if refill and rel == 0:  # cannot happen: a block holds the largest record allowed
+                self._truncate(f"record at offset {off} does not fit a read block")
+                return
+            off += rel
 
-    # --- pcapng ----------------------------------------------------------------------------------
-    def _walk_pcapng(self, buf: np.ndarray) -> Iterator[_Chunk]:
-        """Chunks of packet records of a pcapng file (a Python loop over blocks)."""
-        end = buf.shape[0]
-        mv = memoryview(buf)
+    def _walk_pcapng(self, blocks: "_Blocks") -> Iterator[tuple[np.ndarray, _Chunk]]:
+        """(block, chunk) pairs of a pcapng file (a Python loop over its blocks)."""
         st = self.stats
         chunk = self.batch_packets
-        off = 0
         endian = "<"
         ifaces: list[tuple[int, int, int, int, int]] = []  # (linktype, snaplen, mul, div, offset_s) per section
         n_ifaces_total = 0
@@ -648,33 +666,54 @@ class PcapReader:
         tss: list[int] = []
         links: list[int] = []
         first = True
-        chunk_start = 0
+        size = blocks.size
+        if size < PCAPNG_BLOCK_HEADER.itemsize + 4:
+            raise CaptureFormatError(f"{self.path}: pcapng file cut short inside its first block ({size} bytes)")
 
-        def flush() -> _Chunk:
-            n = len(offs)
+        def flush(buf: np.ndarray, abs_end: int) -> tuple[np.ndarray, _Chunk]:
             c = _Chunk(
                 np.asarray(offs, np.int64),
                 np.asarray(caps, np.int64),
                 np.asarray(tss, np.int64),
                 np.asarray(links, np.int64),
             )
-            st.records += n
-            st.bytes_read = off
+            st.records += len(offs)
+            st.bytes_read = abs_end
             offs.clear(), caps.clear(), tss.clear(), links.clear()
-            return c
+            return buf, c
 
-        while True:
-            if off == end:
+        off = 0  # file offset of the next pcapng block
+        base = 0  # file offset of buf[0]
+        buf = blocks.read(0)
+        mv = memoryview(buf)
+        chunk_start = 0
+        def refill() -> bool:
+            """Read on from ``off`` when the current block ends inside the pcapng block there."""
+            nonlocal base, buf, mv, chunk_start
+            if base + buf.shape[0] >= blocks.size or off == base:
+                return False  # the file ends here (or one block cannot hold it: reported as damage)
+            base, buf = off, blocks.read(off)
+            mv = memoryview(buf)
+            chunk_start = off
+            return True
+
+        while off < blocks.size:
+            rel = off - base
+            end = buf.shape[0]
+            if rel + 12 > end and base + end < blocks.size:
+                if offs:
+                    yield flush(buf, off)
+                if refill():
+                    continue
+            if rel + 12 > end:
+                self._truncate(f"capture cut short: {end - rel} byte(s) of a pcapng block header at offset {off}")
                 break
-            if off + 12 > end:
-                self._truncate(f"capture cut short: {end - off} byte(s) of a pcapng block header at offset {off}")
-                break
-            btype_le = struct.unpack_from("<I", mv, off)[0]
+            btype_le = struct.unpack_from("<I", mv, rel)[0]
             if btype_le == PCAPNG_SHB:
-                if off + 16 > end:
+                if rel + 16 > end:
                     self._truncate(f"capture cut short inside the section header block at offset {off}")
                     break
-                bom_at = off + PCAPNG_BLOCK_HEADER.itemsize + field_offset(PCAPNG_SECTION_HEADER, "byte_order_magic")
+                bom_at = rel + PCAPNG_BLOCK_HEADER.itemsize + field_offset(PCAPNG_SECTION_HEADER, "byte_order_magic")
                 bom = mv[bom_at : bom_at + 4].tobytes()
                 if bom == b"\x4d\x3c\x2b\x1a":
                     endian = "<"
@@ -688,20 +727,25 @@ class PcapReader:
                     break
                 ifaces = []
                 st.big_endian = endian == ">"
-            btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, off)
+            btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, rel)
             if blen < 12 or blen % 4 or blen > MAX_PCAPNG_BLOCK:
                 msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
                 if first:
                     raise CaptureFormatError(f"{self.path}: {msg}")
                 self._truncate(msg + f"; kept the {st.records + len(offs)} records before it")
                 break
-            if off + blen > end:
+            if rel + blen > end and base + end < blocks.size:
+                if offs:
+                    yield flush(buf, off)
+                if refill():
+                    continue
+            if rel + blen > end:
                 self._truncate(
-                    f"pcapng block at offset {off} (type {btype:#x}) claims {blen} bytes but only {end - off} "
+                    f"pcapng block at offset {off} (type {btype:#x}) claims {blen} bytes but only {end - rel} "
                     f"remain in the file; kept the {st.records + len(offs)} records before it"
                 )
                 break
-            trailer = struct.unpack_from(endian + "I", mv, off + blen - 4)[0]
+            trailer = struct.unpack_from(endian + "I", mv, rel + blen - 4)[0]
             if trailer != blen:
                 msg = (
                     f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing length "
@@ -712,86 +756,76 @@ class PcapReader:
                 self._truncate(msg + f"; kept the {st.records + len(offs)} records before it")
                 break
             first = False
-            body = off + 8
-            body_end = off + blen - 4
+            body = rel + PCAPNG_BLOCK_HEADER.itemsize
+            body_end = rel + blen - 4
+            off += blen
             if btype == 1:  # interface description block
-                if body_end - body < 8:
+                if body_end - body < PCAPNG_IDB.itemsize:
                     st.malformed += 1
                     st.malformed_reasons["short pcapng interface block"] += 1
-                else:
-                    linktype, _res, snaplen = header_struct(PCAPNG_IDB, endian).unpack_from(mv, body)
-                    mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
-                    for code, val in _pcapng_options(mv, body + PCAPNG_IDB.itemsize, body_end, endian):
-                        if code == 9 and len(val) >= 1:
-                            r = val[0]
-                            if r & 0x80:
-                                mul, div = _SEC_NS, 1 << (r & 0x7F)
-                            elif r <= 9:
-                                mul, div = 10 ** (9 - r), 1
-                            else:
-                                mul, div = 1, 10 ** (r - 9)
-                        elif code == 14 and len(val) >= 8:
-                            ts_off = struct.unpack(endian + "q", val[:8])[0]
-                    ifaces.append((linktype, snaplen, mul, div, ts_off))
-                    n_ifaces_total += 1
-                    st.interfaces = n_ifaces_total
-                    st.snaplen = max(st.snaplen, snaplen)
-            elif btype in (6, 2, 3):  # enhanced, obsolete, simple packet blocks
-                if btype == 3:
-                    if body_end - body < 4:
-                        st.malformed += 1
-                        st.malformed_reasons["short pcapng packet block"] += 1
-                        off += blen
-                        continue
-                    orig = header_struct(PCAPNG_SPB, endian).unpack_from(mv, body)[0]
-                    iface, ts_raw, data = 0, None, body + PCAPNG_SPB.itemsize
-                    cap = min(orig, body_end - data)
-                else:
-                    if body_end - body < PCAPNG_EPB.itemsize:
-                        st.malformed += 1
-                        st.malformed_reasons["short pcapng packet block"] += 1
-                        off += blen
-                        continue
-                    if btype == 6:
-                        iface, hi, lo, cap, _orig = header_struct(PCAPNG_EPB, endian).unpack_from(mv, body)
-                    else:
-                        iface, _drops, hi, lo, cap, _orig = header_struct(PCAPNG_OPB, endian).unpack_from(mv, body)
-                    ts_raw = (hi << 32) | lo
-                    data = body + PCAPNG_EPB.itemsize  # the OPB header has the same size
-                if iface >= len(ifaces) or data + cap > body_end:
+                    continue
+                linktype, _res, snaplen = header_struct(PCAPNG_IDB, endian).unpack_from(mv, body)
+                mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
+                for code, val in _pcapng_options(mv, body + PCAPNG_IDB.itemsize, body_end, endian):
+                    if code == 9 and len(val) >= 1:  # if_tsresol
+                        r = val[0]
+                        if r & 0x80:
+                            mul, div = _SEC_NS, 1 << (r & 0x7F)
+                        elif r <= 9:
+                            mul, div = 10 ** (9 - r), 1
+                        else:
+                            mul, div = 1, 10 ** (r - 9)
+                    elif code == 14 and len(val) >= 8:  # if_tsoffset
+                        ts_off = struct.unpack(endian + "q", val[:8])[0]
+                ifaces.append((linktype, snaplen, mul, div, ts_off))
+                n_ifaces_total += 1
+                st.interfaces = n_ifaces_total
+                st.snaplen = max(st.snaplen, snaplen)
+                continue
+            if btype not in (6, 2, 3):  # not an enhanced, obsolete or simple packet block
+                continue
+            if btype == 3:
+                if body_end - body < PCAPNG_SPB.itemsize:
                     st.malformed += 1
-                    st.malformed_reasons[
-                        "pcapng packet for an undeclared interface" if iface >= len(ifaces) else
-                        "pcapng packet longer than its block"
-                    ] += 1
+                    st.malformed_reasons["short pcapng packet block"] += 1
+                    continue
+                orig = header_struct(PCAPNG_SPB, endian).unpack_from(mv, body)[0]
+                iface, ts_raw, data = 0, None, body + PCAPNG_SPB.itemsize
+                cap = min(orig, body_end - data)
+            else:
+                if body_end - body < PCAPNG_EPB.itemsize:
+                    st.malformed += 1
+                    st.malformed_reasons["short pcapng packet block"] += 1
+                    continue
+                if btype == 6:
+                    iface, hi, lo, cap, _orig = header_struct(PCAPNG_EPB, endian).unpack_from(mv, body)
                 else:
-                    lt, _snap, mul, div, ts_off = ifaces[iface]
-                    ts_ns = 0 if ts_raw is None else ts_off * _SEC_NS + (ts_raw * mul) // div
-                    if not -(1 << 63) <= ts_ns < (1 << 63):
-                        st.malformed += 1
-                        st.malformed_reasons["pcapng time stamp out of range"] += 1
-                        off += blen
-                        continue
-                    offs.append(data)
-                    caps.append(cap)
-                    tss.append(ts_ns)
-                    links.append(lt)
-                    if len(offs) >= chunk or off - chunk_start >= MAX_CHUNK_BYTES:
-                        off += blen
-                        yield flush()
-                        chunk_start = off
-                        continue
-            off += blen
+                    iface, _drops, hi, lo, cap, _orig = header_struct(PCAPNG_OPB, endian).unpack_from(mv, body)
+                ts_raw = (hi << 32) | lo
+                data = body + PCAPNG_EPB.itemsize  # the OPB header has the same size
+            if iface >= len(ifaces) or data + cap > body_end:
+                st.malformed += 1
+                st.malformed_reasons[
+                    "pcapng packet for an undeclared interface" if iface >= len(ifaces) else
+                    "pcapng packet longer than its block"
+                ] += 1
+                continue
+            lt, _snap, mul, div, ts_off = ifaces[iface]
+            ts_ns = 0 if ts_raw is None else ts_off * _SEC_NS + (ts_raw * mul) // div
+            if not -(1 << 63) <= ts_ns < (1 << 63):
+                st.malformed += 1
+                st.malformed_reasons["pcapng time stamp out of range"] += 1
+                continue
+            offs.append(data)
+            caps.append(cap)
+            tss.append(ts_ns)
+            links.append(lt)
+            if len(offs) >= chunk or off - chunk_start >= MAX_CHUNK_BYTES:
+                yield flush(buf, off)
+                chunk_start = off
         if offs:
-            yield flush()
+            yield flush(buf, off)
         st.bytes_read = off
-
-    def _chunks(self, buf: np.ndarray) -> Iterator[_Chunk]:
-        if self.format == "pcap":
-            return self._walk_pcap(buf)
-        if buf.shape[0] < 12:
-            raise CaptureFormatError(f"{self.path}: pcapng file cut short inside its first block ({buf.shape[0]} bytes)")
-        return self._walk_pcapng(buf)
 
     # --- per-chunk decoding ------------------------------------------------------------------------
     def _ipv4_headers(self, buf: np.ndarray, c: _Chunk):

@@ -596,3 +596,52 @@ def test_pipes_are_refused_clearly(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(CaptureFormatError, match="not a regular file"):
         PcapReader(fifo)
+
+
+def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_packets):
+    """Records and pcapng blocks that straddle the read blocks (incl. a big-endian section header)
+    give exactly what one whole-file read gives."""
+    import lidarpkt.pcap as pcap_module
+
+    mixed = real_packets + _v6(real_packets[:6])
+    files = {"a.pcap": None, "b.pcapng": None}
+    write_pcap(tmp_path / "a.pcap", mixed, vlan=(3,), nanosecond=True)
+    first = pcapng_bytes([(0, p.timestamp_ns, f) for p in real_packets[:9] for f in frames_for(p)])
+    second = pcapng_bytes([(0, p.timestamp_ns, f) for p in real_packets[9:] for f in frames_for(p, link="raw")],
+                          interfaces=[Interface("raw", tsresol=9)], big_endian=True)
+    (tmp_path / "b.pcapng").write_bytes(first + second)
+    for name in files:
+        files[name] = (list(read_packets(tmp_path / name)), PcapReader(tmp_path / name))
+        list(files[name][1].packets())
+    for block in (1600, 1601, 2048, 3001, 4999, 10_007):
+        monkeypatch.setattr(pcap_module, "READ_BLOCK_BYTES", block)
+        for name, (expected, ref_reader) in files.items():
+            reader = PcapReader(tmp_path / name, batch_packets=5)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                got = list(reader.packets())
+            assert _as_tuples(got) == _as_tuples(expected), (name, block)
+            assert (reader.stats.records, reader.stats.reassembled, reader.stats.bytes_read) == (
+                ref_reader.stats.records, ref_reader.stats.reassembled, ref_reader.stats.bytes_read), (name, block)
+
+
+def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
+    """A capture truncated by another process while it is read: no crash (no mmap SIGBUS), the records
+    read so far, then a TruncatedCaptureWarning."""
+    import lidarpkt.pcap as pcap_module
+
+    vlp = [p for p in real_packets if len(p.payload) < 1400]
+    path = tmp_path / "s.pcap"
+    write_pcap(path, vlp * 10)
+    size = path.stat().st_size
+    monkeypatch.setattr(pcap_module, "READ_BLOCK_BYTES", 8000)
+    reader = PcapReader(path, batch_packets=4)
+    got = []
+    with pytest.warns(TruncatedCaptureWarning):
+        for i, p in enumerate(reader.packets()):
+            got.append(p)
+            if i == 3:
+                with open(path, "r+b") as fh:
+                    fh.truncate(size // 2 + 7)
+    assert 4 <= len(got) < len(vlp) * 10
+    assert _as_tuples(got) == _as_tuples((vlp * 10)[: len(got)])
