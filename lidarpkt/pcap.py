@@ -10,7 +10,9 @@ fragments reassembled too). Every header layout is declared once below as a NumP
 dtype; struct formats and field offsets are derived from it (and :mod:`lidarpkt.pcapwrite`
 packs with the same layouts).
 
-How it is fast: the file is memory-mapped; record headers are walked in chunks
+How it is fast: the file is read in large blocks into one reused buffer (not mmap, so
+that a file truncated under the reader gives a warning rather than a SIGBUS); record
+headers are walked in chunks
 (a run of records with one capture length is recognised in one strided NumPy
 comparison); the link/IPv4/UDP headers of all records of a chunk are checked with
 NumPy gathers; the payloads of plain unfragmented UDP/IPv4 records are cut out in one
