@@ -67,8 +67,10 @@ def run_one(name: str, rate: float | None, seconds: float, tmp: Path) -> dict:
         if proc.poll() is not None:
             raise SystemExit(log.read_text())
         time.sleep(0.02)
+    cpu0, t0 = _cpu_seconds(proc.pid), time.perf_counter()
     stats = replay(packets, "127.0.0.1", port, rate=rate)
     time.sleep(1.0)
+    cpu, wall = _cpu_seconds(proc.pid) - cpu0, time.perf_counter() - t0
     proc.send_signal(signal.SIGTERM)
     proc.wait(timeout=120)
     rep = json.loads(report.read_text())
@@ -77,7 +79,15 @@ def run_one(name: str, rate: float | None, seconds: float, tmp: Path) -> dict:
         "send_pkt_per_s": round(stats.packets / stats.seconds), "send_MB_per_s": round(stats.bytes / stats.seconds / 1e6, 1),
         "received": rep["datagrams_received"], "kernel_drops": rep["kernel_drops"],
         "queue_overflow": rep["queue_overflow"], "file_MB": round(rep["bytes_written"] / 1e6, 1),
+        # CPU of the recorder process (all its threads) while the replay ran and 1 s after, % of one core
+        "recorder_cpu_s": round(cpu, 2), "recorder_cpu_pct": round(100 * cpu / wall, 1),
     }
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a live process (Linux /proc), seconds."""
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def bench_decode(tmp: Path) -> list[dict]:

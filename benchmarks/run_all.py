@@ -1,0 +1,298 @@
+"""Every throughput/memory comparison of issue 8 in one run, with the ratio table.
+
+    python benchmarks/run_all.py [--repeat 3] [--ouster-frames 300] [--vlp-seconds 60]
+                                 [--workdir DIR] [--memory-gb 1.5] [--memory-factor 10]
+                                 [--only ouster,velodyne,pcap,memory,analysis,record]
+
+Each comparison runs lidarpkt and the reference tool alternately ``--repeat`` times in this
+process (captures built once, so the page cache is warm) and reports the median wall time and
+the median CPU time (``time.process_time``: less sensitive to the other processes on a shared
+machine). Ratios are reference time / lidarpkt time (> 1 = lidarpkt faster), except for the
+pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode time).
+
+- Ouster: ``bench_ouster.build_capture`` (one real frame repeated, re-encoded with new frame
+  ids and times) for the OS-2-128 single, OS-0-32 dual and OS-1-64 legacy captures;
+  ``lidarpkt.open`` → frames (every field) vs ouster-sdk ``PcapFrameSetSource``; and the same
+  with ``frame.xyz()`` of every frame.
+- VLP-16: 60 s strongest (built here) and dual (``bench_velodyne.build``) captures;
+  ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
+- pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
+- memory: peak RSS (VmHWM, file-backed pages of the memory map included) of a child process
+  decoding an Ouster capture of ``--memory-gb`` and one ``--memory-factor`` times longer
+  (generated under ``--workdir`` and deleted afterwards; needs that much free disk).
+- analysis: ``image_statistics`` of a 64 × 1024 × 30 stack (``bench_analysis.synthetic_stack``).
+- record: ``bench_record.run_one`` at 10× real time (VLP-16, OS1-64), loss counters and the
+  recorder's CPU use.
+
+The work directory keeps the built captures between runs (``--workdir``); by default a
+temporary directory is used and removed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(REPO))
+
+ROWS: list[tuple] = []  # (name, ours, reference, ratio, target, met)
+
+
+def machine() -> str:
+    cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), platform.processor())
+    mem_kb = next(int(l.split()[1]) for l in open("/proc/meminfo") if l.startswith("MemTotal"))
+    return f"{os.cpu_count()} CPUs ({cpu}), {mem_kb / 1e6:.0f} GB RAM, Python {platform.python_version()}, NumPy {np.__version__}"
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def timed(fn, *args):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn(*args)
+    return time.perf_counter() - w, time.process_time() - c, out
+
+
+def alternate(repeat: int, *fns):
+    """Run the functions one after the other ``repeat`` times; per function (median wall, median CPU, last result)."""
+    runs = [[] for _ in fns]
+    for _ in range(repeat):
+        for i, fn in enumerate(fns):
+            runs[i].append(timed(fn))
+    return [(statistics.median(r[0] for r in rs), statistics.median(r[1] for r in rs), rs[-1][2]) for rs in runs]
+
+
+def row(name, ours, ref, ratio, target, met):
+    ROWS.append((name, ours, ref, ratio, target, met))
+    print(f"  {name:<44} {ours:>22} {ref:>22} {ratio:>14}  {target:<10} {'met' if met else 'NOT met'}", flush=True)
+
+
+def fmt(wall, cpu):
+    return f"{wall:.3f}s (cpu {cpu:.3f})"
+
+
+# ------------------------------------------------------------------------------------ Ouster
+def ouster(args, work: Path) -> None:
+    import bench_ouster as bo
+    import lidarpkt
+
+    print(f"\nOuster, {args.ouster_frames} frames per capture (load {load()})")
+    for name, label in (("single", "OS-2-128 single"), ("dual", "OS-0-32 dual"), ("legacy", "OS-1-64 legacy")):
+        pcap, meta = (bo.EXTERNAL / p for p in bo.CAPTURES[name])
+        if not pcap.exists():
+            print(f"  {label}: external fixtures missing under {bo.EXTERNAL}")
+            continue
+        path = work / f"ouster_{name}_{args.ouster_frames}.pcap"
+        if not path.exists():
+            bo.build_capture(pcap, meta, args.ouster_frames, path)
+
+        def ours(xyz=False):
+            n = 0
+            for f in lidarpkt.open(path, metadata=meta):
+                if xyz:
+                    f.xyz()
+                n += 1
+            return n
+
+        def sdk():
+            from ouster.sdk import pcap as sdk_pcap
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                src = sdk_pcap.PcapFrameSetSource(str(path), meta=[str(meta)])
+                return sum(1 for fs in src if fs[0] is not None)
+
+        (ow, oc, on), (sw, sc, sn), (xw, xc, _) = alternate(args.repeat, ours, sdk, lambda: ours(True))
+        note = "" if on == sn else f" (frames differ: {on} vs {sn})"
+        row(f"{label}: pcap→frames vs ouster-sdk{note}", fmt(ow, oc), fmt(sw, sc), f"{sw / ow:.2f} (cpu {sc / oc:.2f})",
+            "≥ 1", sw / ow >= 1)
+        row(f"{label}: decode+XYZ / decode", fmt(xw, xc), fmt(ow, oc), f"{xw / ow:.2f} (cpu {xc / oc:.2f})", "≤ 1.5",
+            xw / ow <= 1.5)
+
+
+# ------------------------------------------------------------------------------------ VLP-16
+STRONGEST_PERIOD_NS = 1_327_104
+
+
+def build_vlp16_strongest(path: Path, seconds: float, seed: int = 0) -> int:
+    """A strongest-return VLP-16 capture (600 RPM, 754 packets/s): a noisy wall at ~12 m."""
+    import bench_velodyne as bv
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.velodyne import encode_data_packets
+
+    n = int(seconds * 1e9 / STRONGEST_PERIOD_NS)
+    rng = np.random.default_rng(seed)
+    t_ns = bv.START_NS + np.arange(n, dtype=np.int64) * STRONGEST_PERIOD_NS
+    t_us = (t_ns // 1000) % 3_600_000_000
+    block_t_us = np.arange(12) * 2 * 55.296
+    az = (np.rint((np.arange(n)[:, None] * 1327.104 + block_t_us[None, :]) * 0.36) % 36000).astype(np.int64)
+    src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
+
+    def packets():
+        for a in range(0, n, 20000):
+            b = min(n, a + 20000)
+            dist = rng.integers(5000, 7000, size=(b - a, 12, 32))
+            dist[rng.random(dist.shape) < 0.05] = 0
+            refl = rng.integers(0, 120, size=(b - a, 12, 32))
+            payload = encode_data_packets(az[a:b], dist, refl, t_us[a:b], "strongest")
+            for i in range(b - a):
+                yield Packet(int(t_ns[a + i]), src, dst, payload[i].tobytes())
+
+    write_pcap(path, packets(), udp_checksum=False)
+    return n
+
+
+def velodyne(args, work: Path) -> None:
+    import bench_velodyne as bv
+
+    print(f"\nVLP-16, {args.vlp_seconds:.0f} s captures, XYZ of every frame (load {load()})")
+    for mode in ("strongest", "dual"):
+        path = work / f"vlp16_{mode}_{int(args.vlp_seconds)}s.pcap"
+        if not path.exists():
+            (build_vlp16_strongest if mode == "strongest" else bv.build)(path, args.vlp_seconds)
+        (ow, oc, _), (vw, vc, _) = alternate(args.repeat, lambda: bv.run_lidarpkt(path), lambda: bv.run_velodyne_decoder(path))
+        row(f"VLP-16 {mode}: pcap→frames+XYZ vs velodyne_decoder", fmt(ow, oc), fmt(vw, vc),
+            f"{vw / ow:.2f} (cpu {vc / oc:.2f})", "≥ 3", vw / ow >= 3)
+
+
+# ------------------------------------------------------------------------------------ pcap
+def pcap(args, work: Path) -> None:
+    import bench_pcap as bp
+
+    print(f"\npcap reading alone, warm page cache (load {load()})")
+    files = sorted(work.glob("*.pcap"), key=lambda p: -p.stat().st_size)[:3]
+    for path in files:
+        bp.run_cat(path)  # warm the page cache
+        (lw, lc, _), (cw, cc, _) = alternate(args.repeat, lambda: bp.run_batches(path), lambda: bp.run_cat(path))
+        mb = path.stat().st_size / 1e6
+        row(f"read_batches {path.name} ({mb:.0f} MB)", f"{lw:.3f}s {mb / lw:.0f} MB/s", f"cat {cw:.3f}s {mb / cw:.0f} MB/s",
+            f"{lw / cw:.2f}x cat", "≤ 5x", lw / cw <= 5)
+
+
+# ------------------------------------------------------------------------------------ memory
+_CHILD = r"""
+import sys, lidarpkt
+n = 0
+for f in lidarpkt.open(sys.argv[1], metadata=sys.argv[2]):
+    n += 1
+hwm = next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM'))
+print(n, hwm)
+"""
+
+
+def memory(args, work: Path) -> None:
+    import bench_ouster as bo
+
+    pcap, meta = (bo.EXTERNAL / p for p in bo.CAPTURES["single"])
+    frame_bytes = 64 * 24896 + 64 * 16  # 64 packets of 24 896 B per OS-2-128 frame, plus record headers
+    frames = max(1, int(args.memory_gb * 1e9 / (frame_bytes + 64 * 42)))
+    small = work / f"mem_{frames}.pcap"
+    big = work / f"mem_{frames}x{args.memory_factor}.pcap"
+    need = (args.memory_gb * (1 + args.memory_factor)) * 1e9
+    free = shutil.disk_usage(work).free
+    print(f"\nmemory: peak RSS decoding {args.memory_gb} GB and {args.memory_factor}x that (load {load()}; "
+          f"{free / 1e9:.0f} GB free under {work})")
+    if free < need * 1.1:
+        print(f"  not enough disk for {need / 1e9:.0f} GB: skipped")
+        return
+    try:
+        if not small.exists():
+            bo.build_capture(pcap, meta, frames, small)
+        if not big.exists():
+            with open(small, "rb") as src, open(big, "wb") as dst:
+                head = src.read(24)
+                dst.write(head)
+                for _ in range(args.memory_factor):  # records repeated: frame ids wrap, times repeat
+                    src.seek(24)
+                    shutil.copyfileobj(src, dst, 16 << 20)
+        for path in (small, big):
+            t = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(meta)], capture_output=True, text=True,
+                                 cwd=REPO, check=True).stdout.split()
+            dt = time.perf_counter() - t
+            n, hwm_mb = int(out[0]), int(out[1]) / 1024
+            gb = path.stat().st_size / 1e9
+            row(f"peak RSS, {gb:.1f} GB Ouster capture ({n} frames, {dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "",
+                "< 400 MB", hwm_mb < 400)
+    finally:
+        if not args.keep_memory_files:
+            for p in (small, big):
+                p.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------------------------ analysis
+def analysis(args, work: Path) -> None:
+    import bench_analysis as ba
+    from analysis.multireturn import image_statistics
+
+    print(f"\nanalysis (load {load()})")
+    stack = ba.synthetic_stack(30, 1, 64, 1024)
+    ((w, c, _),) = alternate(args.repeat, lambda: image_statistics(stack))
+    row("image_statistics 64x1024x30", fmt(w, c), "", "", "< 2 s", w < 2)
+
+
+# ------------------------------------------------------------------------------------ record
+def record(args, work: Path) -> None:
+    import bench_record as br
+
+    print(f"\nrecording at 10x real time (load {load()})")
+    for name in br.CAPTURES:
+        r = br.run_one(name, 10.0, args.record_seconds, work)
+        lost = r["sent"] - r["received"]
+        cpu = r.get("recorder_cpu_pct")
+        row(f"record {name} at 10x", f"{r['received']}/{r['sent']} received", f"cpu {cpu}%" if cpu is not None else "",
+            f"lost {lost}", "0 lost", lost == 0 and not r["kernel_drops"] and not r["queue_overflow"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--ouster-frames", type=int, default=300)
+    ap.add_argument("--vlp-seconds", type=float, default=60.0)
+    ap.add_argument("--memory-gb", type=float, default=1.5)
+    ap.add_argument("--memory-factor", type=int, default=10)
+    ap.add_argument("--keep-memory-files", action="store_true")
+    ap.add_argument("--record-seconds", type=float, default=2.0)
+    ap.add_argument("--workdir", type=Path, help="keep the built captures here (default: a temporary directory)")
+    ap.add_argument("--only", default="ouster,velodyne,pcap,memory,analysis,record")
+    args = ap.parse_args(argv)
+    steps = {"ouster": ouster, "velodyne": velodyne, "pcap": pcap, "memory": memory, "analysis": analysis, "record": record}
+    only = [s.strip() for s in args.only.split(",") if s.strip()]
+    unknown = set(only) - set(steps)
+    if unknown:
+        ap.error(f"unknown steps {sorted(unknown)}")
+    work = args.workdir or Path(tempfile.mkdtemp(prefix="lidarpkt_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"machine: {machine()}")
+    print(f"start: {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average {load()}, repeat {args.repeat} (medians)")
+    try:
+        for s in only:
+            steps[s](args, work)
+    finally:
+        if args.workdir is None:
+            shutil.rmtree(work, ignore_errors=True)
+    print(f"\nsummary (load average at the end {load()})")
+    print(f"| comparison | lidarpkt | reference | ratio | target | |\n|---|---|---|---|---|---|")
+    for name, ours, ref, ratio, target, met in ROWS:
+        print(f"| {name} | {ours} | {ref} | {ratio} | {target} | {'met' if met else '**not met**'} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
