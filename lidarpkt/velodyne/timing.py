@@ -73,6 +73,13 @@ def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool, block
     # lround of a positive value: in [36000, 72000) float32 steps are 1/256 or 1/128, so + 0.5 is
     # exact and truncation is the floor
     value += np.float32(0.5)
-    rounded = value.astype(np.int32)
-    rounded %= 36000
-    return rounded.astype(np.uint16)
+    if az.size and int(az.max()) > 36000:  # not a valid block azimuth: the general integer path
+        rounded = value.astype(np.int32)
+        rounded %= 36000
+        return rounded.astype(np.uint16)
+    # floor(value) is in [36000, 36000 + 36000 + 36000 · 90 µs / 553 µs): minus 36000 (exact in
+    # float32) it fits a uint16, and "mod 36000" is min(x, x − 36000 wrapped): no integer division
+    value -= np.float32(36000)
+    rounded = value.astype(np.uint16)
+    np.minimum(rounded, rounded - np.uint16(36000), out=rounded)
+    return rounded
