@@ -304,7 +304,7 @@ def _gather(buf: np.ndarray, idx: np.ndarray, dtype) -> np.ndarray:
     size = np.dtype(dtype).itemsize
     if size == 1:
         return buf[idx]
-    return np.ascontiguousarray(buf[idx[:, None] + np.arange(size)]).view(dtype).reshape(-1)
+    return _copy_rows(buf, idx, size).view(dtype).reshape(-1)
 
 
 def _ipv4_text(values: np.ndarray) -> list[str]:
@@ -321,9 +321,7 @@ def _copy_rows(buf: np.ndarray, offs: np.ndarray, length: int) -> np.ndarray:
     n = offs.shape[0]
     if n == 0 or length == 0:
         return np.zeros((n, length), np.uint8)
-    windows = np.lib.stride_tricks.as_strided(
-        buf, shape=(buf.shape[0] - length + 1, length), strides=(buf.strides[0], buf.strides[0]), writeable=False
-    )
+    windows = np.ndarray((buf.shape[0] - length + 1, length), np.uint8, buf, 0, (1, 1))
     return windows[offs]
 
 
