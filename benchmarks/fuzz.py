@@ -22,6 +22,11 @@ Targets (each checks more than "does not crash"):
 - ``metadata``: the input is an Ouster metadata JSON for ``load_metadata``; a metadata it accepts must
   also build a decoder and decode a packet of its own size.
 
+Each target runs as libFuzzer processes of at most ``--segment`` seconds (60) on one corpus folder, one
+after the other: under atheris the process RSS grows by tens of KB per execution (the same inputs in
+plain Python keep a flat RSS), so a single long run would end on the RSS limit, not on a finding.
+The last line gives the executions and findings of all segments.
+
 Seeds come from the real captures in ``../shared/fixtures/external`` and the canned fixtures. A crash
 writes the input under ``--artifacts`` (default ``benchmarks/fuzz-artifacts/``); keep each as a
 regression test (``tests/data/fuzz/``). libFuzzer prints ``Done N runs in S second(s)`` at the end.
@@ -36,6 +41,7 @@ import os
 import struct
 import sys
 import tempfile
+import time
 import warnings
 from pathlib import Path
 
@@ -366,6 +372,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--artifacts", default="/tmp/lidarpkt-fuzz/artifacts", help="where crash inputs go")
     ap.add_argument("--rss-limit-mb", type=int, default=1536)
     ap.add_argument("--replay", nargs="*", help="run these saved inputs once each (no fuzzing)")
+    ap.add_argument("--segment", type=int, default=60,
+                    help="restart libFuzzer on the same corpus every SEGMENT s: under atheris the process RSS grows "
+                         "by tens of KB per execution (not in plain Python), so long single runs hit the RSS limit")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
     if args.target == "all":
@@ -387,6 +397,29 @@ def main(argv: list[str] | None = None) -> int:
             run(Path(f).read_bytes())
             print(f"{f}: ok")
         return 0
+
+    if not args.child:
+        import re
+        import subprocess
+
+        runs = crashes = 0
+        left = args.seconds
+        t0 = time.monotonic()
+        while left > 0:
+            seg = min(args.segment, left)
+            cmd = [sys.executable, __file__, "--child", "--target", args.target, "--seconds", str(seg), "--artifacts",
+                   args.artifacts, "--rss-limit-mb", str(args.rss_limit_mb)] + (["--corpus", args.corpus] if args.corpus else [])
+            proc = subprocess.run(cmd, stderr=subprocess.PIPE, text=True)
+            sys.stderr.write(proc.stderr[-3000:])
+            m = re.search(r"Done (\d+) runs", proc.stderr)
+            runs += int(m.group(1)) if m else int((re.findall(r"number_of_executed_units: (\d+)", proc.stderr) or [0])[-1])
+            if proc.returncode != 0:
+                crashes += 1
+                print(f"{args.target}: finding (exit {proc.returncode}); input saved under {args.artifacts}", flush=True)
+                break
+            left -= seg
+        print(f"{args.target}: {runs} executions in {time.monotonic() - t0:.0f} s, {crashes} finding(s)", flush=True)
+        return 1 if crashes else 0
 
     import atheris
 
