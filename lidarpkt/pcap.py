@@ -553,7 +553,8 @@ class PcapReader:
         hdr = self._rec_hdr
         u32 = struct.Struct(self._endian + "I").unpack_from
         caplen_at = field_offset(PCAP_RECORD_HEADER, "incl_len")
-        max_cap = max(self._snaplen, MAX_RECORD_BYTES)
+        # libpcap's own limit, or a larger snap length the file declares, but never more than a read block
+        max_cap = min(max(self._snaplen, MAX_RECORD_BYTES), READ_BLOCK_BYTES - hdr)
         cap_dtype = np.dtype(self._endian + "u4")
         chunk = self.batch_packets
         glob = PCAP_GLOBAL_HEADER.itemsize
@@ -593,8 +594,8 @@ class PcapReader:
                     if cap > max_cap:
                         self._truncate(
                             f"record at offset {off + rel} claims {cap} captured bytes (more than the snap length "
-                            f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit): the file is corrupt from "
-                            f"there; kept the {st.records + n} records before it"
+                            f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit, or than {max_cap} bytes): the "
+                            f"file is corrupt from there; kept the {st.records + n} records before it"
                         )
                         stop = True
                         break

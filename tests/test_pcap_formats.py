@@ -645,3 +645,20 @@ def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
                     fh.truncate(size // 2 + 7)
     assert 4 <= len(got) < len(vlp) * 10
     assert _as_tuples(got) == _as_tuples((vlp * 10)[: len(got)])
+
+
+def test_huge_snaplen_does_not_allow_huge_records(tmp_path, real_packets):
+    """A header declaring snaplen 0xFFFFFFFF and a record claiming 100 MB inside a 200 MB file:
+    the reader stops there with a warning instead of taking 100 MB as one record."""
+    vlp = [p for p in real_packets if len(p.payload) == 1206][:3]
+    data = bytearray(pcap_bytes([(p.timestamp_ns, f) for p in vlp for f in frames_for(p)], snaplen=65535))
+    struct.pack_into("<I", data, 16, 0xFFFFFFFF)  # snaplen
+    off = 24 + 16 + struct.unpack_from("<I", data, 24 + 8)[0]
+    struct.pack_into("<I", data, off + 8, 100_000_000)
+    path = tmp_path / "big.pcap"
+    with open(path, "wb") as fh:
+        fh.write(data)
+        fh.truncate(200_000_000)  # sparse: the claimed bytes exist
+    with pytest.warns(TruncatedCaptureWarning, match="corrupt"):
+        got = list(read_packets(path))
+    assert [p.payload for p in got] == [vlp[0].payload]
