@@ -228,6 +228,12 @@ def test_write_read_round_trip(tmp_path, packets, container, link, vlan, mtu, ba
         return (p.src, p.dst, p.timestamp_ns if exact_ns else p.timestamp_ns // 1000, p.payload)
     assert [key(p) for p in got] == [key(p) for p in packets]
     assert reader.stats.orphaned_fragments == 0 and reader.stats.malformed == 0
+    # dpkt walks the same records
+    import dpkt
+
+    with open(path, "rb") as fh:
+        ref = dpkt.pcapng.Reader(fh) if container == "pcapng" else dpkt.pcap.Reader(fh)
+        assert sum(1 for _ in ref) == reader.stats.records
     # the batches say the same, grouped by stream, with ordinals 0..n-1
     batches = list(PcapReader(path, batch_packets=batch_packets).batches())
     assert sorted(int(i) for b in batches for i in b.index) == list(range(len(packets)))
