@@ -11,11 +11,15 @@ from .compare import DistributionComparison, PairedComparison, compare_slots, co
 from .gmm import DEFAULT_GAP_M, GaussianMixture, fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance, parse_method
 from .motion import MotionCompensation, estimate_frame_offsets, motion_compensated_cdf
 from .multireturn import (
+    DEFAULT_MONITOR_METHOD,
+    MONITOR_METHODS,
     ImageStatistics,
     MonitorEvaluation,
     MultiReturnMap,
     evaluate_monitor,
     image_statistics,
+    detrended_gap_score,
+    monitor_score,
     multireturn_map,
     spatial_gap_score,
 )
@@ -28,7 +32,8 @@ __all__ = [
     "DEFAULT_GAP_M", "GaussianMixture", "fit_auto", "fit_em", "fit_gmm", "fit_thresholds", "gap_thresholds", "ks_distance", "parse_method",
     "MotionCompensation", "estimate_frame_offsets", "motion_compensated_cdf",
     "ImageStatistics", "MonitorEvaluation", "MultiReturnMap", "evaluate_monitor", "image_statistics",
-    "multireturn_map", "spatial_gap_score",
+    "multireturn_map", "spatial_gap_score", "detrended_gap_score", "monitor_score", "MONITOR_METHODS",
+    "DEFAULT_MONITOR_METHOD",
     "RaypathAnalysis", "analyze", "analyze_pixel", "analyze_raypath",
     "load_stack", "select_frames",
 ]

@@ -175,9 +175,13 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
     p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
     p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
-    p.add_argument("--monitor-by-row", action="store_true",
-                   help="monitor: look for gaps within each row of the neighbourhood only (not fooled by ground and "
-                        "other surfaces at grazing incidence, whose neighbouring beams are metres apart)")
+    p.add_argument("--method", choices=("detrend", "plane", "gap", "row"), default=None,
+                   help="monitor score: detrend (default) = largest gap of the neighbourhood's ranges about a local "
+                        "plane, the smallest over the windows of N//2+1 rows holding the pixel (ground and walls at "
+                        "a shallow angle are one surface, not two); plane = one plane over the whole N×N; gap = the "
+                        "paper's §4.3 score, largest gap of the N×N spatial CDF; row = gap within each row of the "
+                        "neighbourhood")
+    p.add_argument("--monitor-by-row", action="store_true", help="same as --method row (kept for old scripts)")
     p.add_argument("--return", dest="slot", metavar="SLOT", default="0", help="slot shown in the plot (default 0)")
 
 
@@ -190,9 +194,14 @@ def run_multireturn(args: argparse.Namespace) -> int:
     if not gap > 0:
         raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
     _check_neighbourhood(args.neighbourhood)
+    method = args.method
+    if args.monitor_by_row:
+        if method not in (None, "row"):
+            raise AnalysisError(f"--monitor-by-row is --method row: it contradicts --method {method}")
+        method = "row"
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
-                         threshold_m=args.threshold, by_row=args.monitor_by_row)
+                         threshold_m=args.threshold, method=method)
     out = Path(args.output)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -206,7 +215,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         multi = int(np.count_nonzero(s.multi_return[i]))
         ev = mr.evaluation[i]
         print(f"slot {i} ({label}): {with_ret} raypaths with returns, {multi} multi-return "
-              f"(>= 2 clusters, gap > {gap:g} m); monitor on frame {mr.monitor_frame}: "
+              f"(>= 2 clusters, gap > {gap:g} m); monitor ({mr.method}) on frame {mr.monitor_frame}: "
               f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
               f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
     print(f"wrote {out}")
@@ -218,8 +227,8 @@ def run_multireturn(args: argparse.Namespace) -> int:
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), args.plot)
         roc = Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
         ev = mr.evaluation[slot]
-        plots.save(plots.plot_roc(ev, f"Multi-return monitor ROC, {s.return_labels[slot]} return, "
-                                      f"{ev.n_pixels} raypaths\n{Path(args.input).name}"), roc)
+        plots.save(plots.plot_roc(ev, f"Multi-return monitor ({mr.method}) ROC, {s.return_labels[slot]} return\n"
+                                      f"{ev.n_pixels} raypaths, {Path(args.input).name}"), roc)
         print(f"wrote {args.plot} and {roc}")
     return 0
 

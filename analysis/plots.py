@@ -254,9 +254,17 @@ def plot_multireturn_map(mr: MultiReturnMap, stack: FrameStack | None = None, sl
                         norm=BoundaryNorm(np.arange(-0.5, 4.5), 4))
     cb = fig.colorbar(im, ax=axes[3], ticks=range(4), pad=0.01)
     cb.ax.set_yticklabels(["neither", "flagged only", "missed", "flagged & multi"])
-    title = f"Monitor on frame {mr.monitor_frame} ({mr.neighbourhood}×{mr.neighbourhood} spatial CDF{', by row' if mr.by_row else ''})"
+    n = mr.neighbourhood
+    what = {
+        "detrend": f"{n}×{n}, gap about local planes",
+        "plane": f"{n}×{n}, gap about one plane",
+        "gap": f"{n}×{n} spatial CDF gap, the paper's",
+        "row": f"{n}×{n} spatial CDF gap per row",
+    }.get(mr.method, f"{n}×{n}")
+    title = f"Monitor '{mr.method}' ({what}) on frame {mr.monitor_frame}"
     if ev is not None:
-        title += f": precision {ev.precision:.2f}, recall {ev.recall:.2f}, ROC AUC {ev.auc:.2f}"
+        title += (f", flagged > {ev.threshold_m * 100:.0f} cm: precision {ev.precision:.2f}, "
+                  f"recall {ev.recall:.2f}, ROC AUC {ev.auc:.2f}")
     axes[3].set_title(title)
     for ax in axes:
         ax.set_ylabel("row")

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.compare import compare_slots, ks_image  # noqa: E402
 from analysis.motion import estimate_frame_offsets, motion_compensated_cdf  # noqa: E402
-from analysis.multireturn import image_statistics, multireturn_map, spatial_gap_score  # noqa: E402
+from analysis.multireturn import detrended_gap_score, image_statistics, multireturn_map, spatial_gap_score  # noqa: E402
 from analysis.raypath import analyze_raypath  # noqa: E402
 from lidarpkt.frame import FrameStack, SensorInfo  # noqa: E402
 
@@ -70,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"stack [K, R, H, W] = {shape}, range_mm {stack.range_mm.nbytes / 1e6:.1f} MB")
     steps = [
         ("image_statistics (whole image, every pixel and slot)", image_statistics, (stack,), {}),
-        ("spatial_gap_score (monitor, 5x5, one frame)", spatial_gap_score, (stack,), {}),
+        ("spatial_gap_score (paper's monitor, 5x5, one frame)", spatial_gap_score, (stack,), {}),
+        ("detrended_gap_score (default monitor, 5x5, one frame)", detrended_gap_score, (stack,), {}),
         ("multireturn_map (statistics + monitor + ROC)", multireturn_map, (stack,), {}),
         ("estimate_frame_offsets (whole-image registration)", estimate_frame_offsets, (stack,), {}),
         ("motion_compensated_cdf (one raypath, 5x5 patch, ±2 px)", motion_compensated_cdf, (stack, 30, 500), {}),

@@ -154,6 +154,29 @@ def test_multireturn_writes_the_map_and_its_figure(canned, tmp_path, capsys):
     assert "precision" in text and "slot 1 (strongest)" in text
 
 
+def test_multireturn_method_choice_is_recorded_and_checked(canned, tmp_path, capsys):
+    pcap, truth = canned("vlp16-strongest")
+    flagged = {}
+    for method in (None, "gap", "plane", "row"):
+        out = tmp_path / f"{method}.npz"
+        code, text, err = run(["multireturn", str(pcap), "-o", str(out)] + ([] if method is None else ["--method", method]), capsys)
+        assert code == 0, err
+        with np.load(out) as z:
+            assert str(z["monitor_method"]) == (method or "detrend")
+            assert bool(z["monitor_by_row"]) == (method == "row")
+            assert np.array_equal(z["monitor_flags"], z["monitor_score_m"] > 0.1)
+            flagged[method] = int(z["monitor_flags"].sum())
+        assert f"monitor ({method or 'detrend'})" in text
+    assert flagged[None] < flagged["gap"] / 5  # the paper's score flags the ground as well
+    code, text, err = run(["multireturn", str(pcap), "-o", str(tmp_path / "r.npz"), "--monitor-by-row"], capsys)
+    assert code == 0 and "monitor (row)" in text
+    code, _, err = run(["multireturn", str(pcap), "-o", str(tmp_path / "x.npz"), "--monitor-by-row", "--method", "plane"], capsys)
+    assert code == 2 and "contradicts --method plane" in err and not (tmp_path / "x.npz").exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["multireturn", str(pcap), "-o", str(tmp_path / "y.npz"), "--method", "median"])
+    assert exc.value.code == 2 and "invalid choice: 'median'" in capsys.readouterr().err
+
+
 def test_compare_returns_dual_and_two_modes(canned, tmp_path, capsys):
     dual, truth = canned("vlp16-dual")
     out = tmp_path / "c.json"

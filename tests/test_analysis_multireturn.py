@@ -5,7 +5,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analysis.multireturn import evaluate_monitor, image_statistics, multireturn_map, spatial_gap_score
+from analysis.multireturn import (
+    MIN_WINDOW_RETURNS,
+    MONITOR_METHODS,
+    detrended_gap_score,
+    evaluate_monitor,
+    image_statistics,
+    monitor_score,
+    multireturn_map,
+    spatial_gap_score,
+)
 from lidarpkt.errors import AnalysisError
 from test_analysis_support import destaggered_by_definition, make_stack
 
@@ -112,6 +121,149 @@ def test_monitor_score_uses_destaggered_neighbours(by_row):
     assert np.allclose(got, reference_gap_score(stack, 0, 3, shift, by_row=by_row))
 
 
+def reference_detrended_score(stack, frame, n, window_rows=None, shift=None):
+    """The detrended score pixel by pixel: for every window of ``window_rows`` rows x n columns
+    holding the pixel, a least-squares plane 1/r = a + b·di + c·dj (numpy.linalg.lstsq) through
+    its returns, the largest gap between the sorted residuals r − 1/fit; the smallest over the
+    windows with at least MIN_WINDOW_RETURNS returns; 0 when there is none."""
+    k, r, h, w = stack.range_mm.shape
+    img = np.where(stack.column_valid[frame][None, None, :], stack.range_mm[frame].astype(np.int64), 0)
+    if shift is not None:
+        img = destaggered_by_definition(img, shift)
+    half = n // 2
+    wr = half + 1 if window_rows is None else window_rows
+    out = np.zeros((r, h, w))
+    for s in range(r):
+        for i in range(h):
+            for j in range(w):
+                pts = [(di, dj, img[s, i + di, (j + dj) % w] / 1000.0)
+                       for di in range(-half, half + 1) for dj in range(-half, half + 1)
+                       if 0 <= i + di < h and img[s, i + di, (j + dj) % w] > 0]
+                best = None
+                for top in range(-half, half + 1):
+                    if not (top <= 0 <= top + wr - 1 and top + wr - 1 <= half):
+                        continue
+                    win = [(di, dj, rr) for di, dj, rr in pts if top <= di < top + wr]
+                    if len(win) < MIN_WINDOW_RETURNS:
+                        continue
+                    x = np.array([[1.0, di, dj] for di, dj, _ in win])
+                    rr = np.array([v for _, _, v in win])
+                    coef = np.linalg.lstsq(x, 1.0 / rr, rcond=None)[0]
+                    res = np.sort(rr - 1.0 / (x @ coef))
+                    gap = float(np.max(np.diff(res))) if res.size > 1 else 0.0
+                    best = gap if best is None else min(best, gap)
+                out[s, i, j] = 0.0 if best is None else best
+    if shift is not None:
+        out = np.stack([[np.roll(out[s, u], -shift[u]) for u in range(h)] for s in range(r)])
+    return out
+
+
+@pytest.mark.parametrize("window_rows", [None, 2, 3])
+@pytest.mark.parametrize("n", [3, 5])
+def test_detrended_score_matches_a_per_pixel_loop(n, window_rows):
+    if window_rows is not None and window_rows > n:
+        pytest.skip("window taller than the neighbourhood")
+    stack = random_stack(seed=4)
+    got = detrended_gap_score(stack, frame=2, n=n, window_rows=window_rows)
+    ref = reference_detrended_score(stack, 2, n, window_rows)
+    assert np.allclose(got, ref, atol=1e-6)
+    assert np.count_nonzero(ref > 0.1) > 10  # the random stack does hold gaps: the comparison is not 0 == 0
+
+
+def test_detrended_score_uses_destaggered_neighbours():
+    shift = np.array([4, 0, 7, 2, 5])
+    stack = random_stack(seed=6, shift=shift)
+    got = detrended_gap_score(stack, frame=1, n=5)
+    assert np.allclose(got, reference_detrended_score(stack, 1, 5, shift=shift), atol=1e-6)
+
+
+def tilted_ground(h=16, w=120, seed=0, noise_mm=8.0):
+    """Ranges (mm) of a sloping ground plane seen from 1.8 m up, beams from -4° to -19° and 0.2°
+    apart in azimuth: 1/r = n·u / d. Neighbouring beams are metres apart (the farthest rows) and
+    the range also changes along each row (the ground slopes sideways). Not a full rotation: the
+    first and last columns are not neighbours in the world, only in the image (azimuth wraps)."""
+    el = np.radians(np.linspace(-4.0, -19.0, h))[:, None]
+    az = np.radians(30.0 + 0.2 * np.arange(w))[None, :]
+    u = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el) * np.ones_like(az)])
+    normal = np.array([0.06, -0.04, 1.0])
+    normal /= np.linalg.norm(normal)
+    r_m = -1.8 / np.einsum("i,i...->...", normal, u)
+    assert np.all(r_m > 0)
+    noise = np.random.default_rng(seed).normal(0.0, noise_mm, r_m.shape)
+    return np.rint(r_m * 1000.0 + noise)
+
+
+def test_a_tilted_ground_plane_is_not_flagged_but_the_paper_score_flags_it():
+    rng = tilted_ground()
+    jumps = np.abs(np.diff(rng, axis=0)) / 1000.0
+    assert jumps.max() > 3.0  # metres between neighbouring beams: what the paper's score reads as two surfaces
+    stack = make_stack(rng[None, None])
+    inner = np.s_[0, :, 2:-2]  # leave out the columns whose 5 x 5 neighbourhood wraps to the other end
+    detrend = monitor_score(stack, method="detrend")[inner]
+    gap = monitor_score(stack, method="gap")[inner]
+    assert np.mean(gap > 0.1) > 0.5
+    assert detrend.max() < 0.1
+    assert np.array_equal(monitor_score(stack), monitor_score(stack, method="detrend"))  # the default
+
+
+def test_a_two_surface_patch_is_flagged_and_its_surroundings_are_not():
+    """A window-like patch on the tilted ground: in this frame each of its pixels sees either a
+    near surface or the one 1.2 m behind it (a checkerboard, so every window through the patch
+    holds both). Every patch pixel is flagged; pixels three columns or more clear of the patch,
+    and the rows above and below it, are not."""
+    rng = tilted_ground(h=16, w=60, seed=1)
+    r0, c0 = 8, 30
+    rows, cols = np.arange(r0 - 1, r0 + 2), np.arange(c0 - 3, c0 + 4)
+    board = (rows[:, None] + cols[None, :]) % 2 == 0
+    patch = rng[np.ix_(rows, cols)]
+    rng[np.ix_(rows, cols)] = np.where(board, patch - 1200.0, patch)  # the near surface on the black squares
+    stack = make_stack(rng[None, None])
+    score = detrended_gap_score(stack)[0]
+    assert np.all(score[np.ix_(rows, cols)] > 0.1)
+    clear = np.ones_like(score, bool)
+    clear[rows[0] : rows[-1] + 1, cols[0] - 2 : cols[-1] + 3] = False  # the patch and two columns either side
+    clear[:, :2] = clear[:, -2:] = False  # wrap seam of this synthetic (not 360°) image
+    assert score[clear].max() < 0.1
+    # and through the map: flagged where the score says so, with the method recorded
+    mr = multireturn_map(stack)
+    assert mr.method == "detrend" and mr.monitor_flags[0, r0, c0] and not mr.monitor_flags[0][clear].any()
+
+
+def test_monitor_methods_and_their_errors():
+    stack = random_stack(seed=5)
+    assert MONITOR_METHODS[0] == "detrend"
+    assert np.array_equal(monitor_score(stack, method="gap", n=3), spatial_gap_score(stack, n=3))
+    assert np.array_equal(monitor_score(stack, method="row", n=3), spatial_gap_score(stack, n=3, by_row=True))
+    assert np.array_equal(monitor_score(stack, method="plane", n=3), detrended_gap_score(stack, n=3, window_rows=3))
+    with pytest.raises(AnalysisError, match="unknown monitor method 'median'"):
+        monitor_score(stack, method="median")
+    with pytest.raises(AnalysisError, match="odd"):
+        detrended_gap_score(stack, n=4)
+    with pytest.raises(AnalysisError, match="wider than the image"):
+        detrended_gap_score(stack, n=11)
+    with pytest.raises(AnalysisError, match="frame 40"):
+        detrended_gap_score(stack, frame=40)
+    with pytest.raises(AnalysisError, match="does not fit"):
+        detrended_gap_score(stack, n=3, window_rows=4)
+    with pytest.raises(AnalysisError, match="by_row"):
+        multireturn_map(stack, method="plane", by_row=True)
+    assert multireturn_map(stack, by_row=True, neighbourhood=3).method == "row"
+
+
+def test_detrended_score_scores_a_64_by_1024_frame_without_a_python_loop_per_pixel(monkeypatch):
+    """Vectorised: the plane fits are solved for all pixels in a few NumPy calls, whatever the
+    image size (counted, not timed)."""
+    import analysis.multireturn as m
+
+    calls = []
+    real = m._window_gap
+    monkeypatch.setattr(m, "_window_gap", lambda *a: calls.append(a[0].shape) or real(*a))
+    rng = np.random.default_rng(0).integers(1000, 30000, size=(1, 2, 64, 1024)).astype(np.uint32)
+    score = m.detrended_gap_score(make_stack(rng), n=5)
+    assert score.shape == (2, 64, 1024)
+    assert calls == [(2, 64, 1024, 15)] * 3  # one call per window position (3 for n = 5), all pixels at once
+
+
 def test_monitor_evaluation_by_hand_and_auc_against_mann_whitney():
     score = np.array([0.0, 0.05, 0.2, 0.3, 1.5, 0.2, 2.0, 0.0])
     truth = np.array([False, False, True, False, True, True, True, False])
@@ -145,6 +297,8 @@ def test_multireturn_map_and_its_npz(tmp_path):
     with np.load(path) as z:
         assert np.array_equal(z["n_clusters"], mr.stats.n_clusters)
         assert z["return_labels"].tolist() == ["last", "strongest"]
+        assert str(z["monitor_method"]) == "detrend" and not bool(z["monitor_by_row"])
+        assert np.array_equal(z["monitor_score_m"], detrended_gap_score(stack, frame=1, n=3))
         assert float(z["slot0_auc"]) == pytest.approx(mr.evaluation[0].auc, nan_ok=True)
 
 

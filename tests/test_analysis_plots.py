@@ -77,7 +77,10 @@ def test_image_figures(stack, tmp_path):
     fig = plots.plot_multireturn_map(mr, stack, 0, "test.pcap")
     titles = [ax.get_title() for ax in fig.axes]
     assert any(t.startswith("Clusters per raypath") for t in titles)
-    assert any(t.startswith("Monitor on frame 0") and "precision" in t for t in titles)
+    assert any(t.startswith("Monitor 'detrend' (3×3, gap about local planes) on frame 0") and "precision" in t for t in titles)
+    mr_paper = multireturn_map(stack, neighbourhood=3, method="gap")
+    titles = [ax.get_title() for ax in plots.plot_multireturn_map(mr_paper, stack, 0, "test.pcap").axes]
+    assert any(t.startswith("Monitor 'gap' (3×3 spatial CDF gap, the paper's)") for t in titles)
     check_png(fig, tmp_path / "map.png")
 
     fig = plots.plot_roc(mr.evaluation[0])
