@@ -260,9 +260,35 @@ def format_capture(doc: dict) -> str:
     return "\n".join(lines)
 
 
+def _expand(paths: Sequence[str]) -> list[str]:
+    """The files to describe: a directory (other than a rosbag2 folder) stands for every
+    pcap/pcapng/MCAP/ROS bag file under it, in name order."""
+    out: list[str] = []
+    for path in paths:
+        if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
+            found = []
+            for root, dirs, files in os.walk(path):
+                dirs.sort()
+                if "metadata.yaml" in files:  # a rosbag2 folder inside: one capture
+                    found.append(root)
+                    dirs[:] = []
+                    continue
+                for name in sorted(files):
+                    full = os.path.join(root, name)
+                    if capture_format(full) is not None or name.endswith((".mcap", ".bag")):
+                        found.append(full)
+            out.extend(found if found else [path])  # an empty folder still gets its error
+        else:
+            out.append(path)
+    return out
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt info``."""
-    parser.add_argument("files", nargs="+", metavar="FILE", help="pcap or pcapng capture(s)")
+    parser.add_argument(
+        "files", nargs="+", metavar="FILE",
+        help="pcap/pcapng capture(s), MCAP files or ROS bags; a directory stands for every capture under it",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of text")
     parser.add_argument(
         "--metadata", nargs="+", action="extend", default=[], metavar="M.json",
@@ -277,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
     metadata = [load_metadata(m) for m in args.metadata]
     docs = []
     status = 0
-    for path in args.files:
+    for path in _expand(args.files):
         try:
             docs.append(describe_capture(path, metadata))
         except LidarpktError as exc:

@@ -286,3 +286,23 @@ def test_mcap_with_recorded_metadata(tmp_path):
     assert lidar["packets"] == 34
     assert (lidar["details"]["profile"], lidar["details"]["profile_source"]) == ("RNG15_RFL8_NIR8", "metadata")
     assert sum(s["packets"] for s in _by(doc, 48)) == 10
+
+
+def test_directory_of_captures(tmp_path):
+    """A directory stands for every capture under it (pcap/pcapng by magic, MCAP, ROS bags)."""
+    from conftest import external_root
+
+    root = external_root()
+    if not root.exists():
+        pytest.skip("external fixtures absent")
+    res = _cli(str(root), "--json")
+    assert res.returncode == 0, res.stderr
+    docs = json.loads(res.stdout)["captures"]
+    pcaps = sorted(str(p) for p in root.glob("*/*.pcap"))
+    assert sorted(d["file"] for d in docs if d["format"] == "pcap") == pcaps
+    assert [d["format"] for d in docs if d["format"] != "pcap"] == ["rosbag2"]  # the nebula bag folder
+    assert all("error" not in d for d in docs)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = _cli(str(empty))
+    assert res.returncode == 2 and "directory" in res.stderr and "Traceback" not in res.stderr
