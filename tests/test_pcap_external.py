@@ -331,3 +331,25 @@ def test_timestamps_exact_from_record_headers(relpath):
     if relpath.endswith("duplicate_id.pcap"):
         frag_times = frag_times[-1:]  # one key: the orphan and the later datagram share it
     assert sorted(p.timestamp_ns for p in packets) == sorted(plain + frag_times)
+
+
+@pytest.mark.parametrize("relpath", ["ouster-sdk/same_ports_legacy.pcap", "ouster-sdk/same_ports_nonlegacy.pcap"])
+def test_reassembled_bytes_match_the_fragments_in_the_file(relpath):
+    """Each reassembled datagram is its fragments' data put at their offsets (cut by hand from the file)."""
+    path = external(relpath)
+    raw = path.read_bytes()
+    off, datagrams = 24, {}
+    while off < len(raw):
+        cap = struct.unpack_from("<I", raw, off + 8)[0]
+        frame = raw[off + 16 : off + 16 + cap]
+        total, ident, flags = struct.unpack_from(">HHH", frame, 16)
+        if flags & 0x3FFF:
+            datagrams.setdefault((frame[26:30], ident), {})[(flags & 0x1FFF) * 8] = frame[34 : 14 + total]
+        off += 16 + cap
+    expected = {}
+    for (src, _), pieces in datagrams.items():
+        data = b"".join(pieces[k] for k in sorted(pieces))
+        assert sorted(pieces) == [sum(len(pieces[j]) for j in sorted(pieces) if j < k) for k in sorted(pieces)]
+        expected[(".".join(map(str, src)), struct.unpack_from(">H", data, 0)[0])] = data[8:]
+    got = {(p.src.address, p.src.port): p.payload for p in read_packets(path) if len(p.payload) > 48}
+    assert got == expected
