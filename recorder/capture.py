@@ -129,7 +129,7 @@ class UdpCapture:
                 if exc.errno == errno.EACCES:
                     raise RecorderError(f"not allowed to listen on UDP port {port} (ports below 1024 need "
                                         "privileges)") from None
-                raise RecorderError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror}") from None
+                raise RecorderError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror or exc}") from None
             if self.multicast:
                 self._join(sock)
             sock.setblocking(False)
@@ -165,7 +165,7 @@ class UdpCapture:
         try:
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, group + ifaddr + struct.pack("@i", ifindex))
         except OSError as exc:
-            raise RecorderError(f"cannot join multicast group {self.multicast}: {exc.strerror}") from None
+            raise RecorderError(f"cannot join multicast group {self.multicast}: {exc.strerror or exc}") from None
 
     # ----------------------------------------------------------------- thread
     def start(self) -> None:

@@ -96,7 +96,7 @@ class McapWriter:
         try:
             self._file = open(path, "wb")
         except OSError as exc:
-            raise RecorderError(f"cannot create the MCAP output {path}: {exc.strerror}") from exc
+            raise RecorderError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
         self.files.append(path)
         self._writer = Writer(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
                               index_types=IndexType.ALL, use_chunking=True, use_statistics=True,

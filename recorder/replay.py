@@ -108,7 +108,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
-        raise RecorderError(f"cannot resolve replay destination {host!r}: {exc.strerror}") from None
+        raise RecorderError(f"cannot resolve replay destination {host!r}: {exc.strerror or exc}") from None
     sock = socket.socket(family, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
     dest_host = addr[0]
@@ -138,7 +138,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             try:
                 sock.sendto(p.payload, (dest_host, out_port))
             except OSError as exc:
-                raise RecorderError(f"sending to {dest_host}:{out_port} failed: {exc.strerror}") from None
+                raise RecorderError(f"sending to {dest_host}:{out_port} failed: {exc.strerror or exc}") from None
             stats.packets += 1
             stats.bytes += size
             stats.per_port[out_port] = stats.per_port.get(out_port, 0) + 1
