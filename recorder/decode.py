@@ -4,8 +4,9 @@
     raw packets as the ROS drivers' topics (losslessly: a file decoded from a pcap gives
     back the same packets and so the same frames), organised ``PointCloud2`` per frame and
     return slot, and optionally range/reflectivity images (see :mod:`recorder.schemas`).
-    Frame messages are logged at their sensor time (``header.stamp``): a frame has no single
-    host receive time.
+    Frame messages are logged at the host time their last packet was received (their last
+    column's sensor time plus the sensor's clock offset, measured on its first packet);
+    ``header.stamp`` is the sensor time of their first column.
 
 ``lidarpkt decode IN -o OUT.npz``
     the frames put on their fixed azimuth grid (:meth:`lidarpkt.frame.Frame.on_grid`) and
@@ -93,6 +94,50 @@ def _packet_reader(path: str):
     return BagReader(path)
 
 
+def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:
+    """Host receive time minus sensor time (ns) of each lidar source, from its first packet among
+    the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the hour:
+    frames are logged at sensor time + this offset, i.e. when their last packet was received."""
+    from lidarpkt.velodyne import packet as vlp
+
+    from . import streams
+    from .sink import velodyne_sensor_time_ns
+
+    offsets: dict[str, int] = {}
+    reader = _packet_reader(path)
+    for k, batch in enumerate(reader.batches()):
+        if k >= look_ahead:
+            break
+        src = str(batch.src) if batch.src is not None else "unknown source"
+        if src in offsets:
+            continue
+        if md is None and getattr(reader, "ouster_metadata", None) and reader.ouster_metadata():
+            from lidarpkt.ouster.metadata import load_metadata
+
+            md = load_metadata(reader.ouster_metadata())
+        kind = streams.classify_size(batch.payload_size, md)
+        host = int(batch.timestamp_ns[0])
+        if kind == streams.VELODYNE_DATA:
+            ts_us = vlp.as_data_packets(batch.payload[:1])["timestamp_us"]
+            offsets[src] = host - int(velodyne_sensor_time_ns(ts_us, batch.timestamp_ns[:1])[0])
+        elif kind == streams.OUSTER_LIDAR and md is not None:
+            dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
+            first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
+            offsets[src] = host - int(first["timestamp_ns"])
+    return offsets
+
+
+def _frame_log_time(frame, offsets: dict[str, int]) -> int:
+    """When the frame's last packet was received (host time, ns): its last column's sensor time plus
+    its source's clock offset (the only offset when the frame's source is not named)."""
+    valid = frame.column_timestamp_ns[frame.column_valid]
+    end = int(valid.max()) if valid.size else frame.timestamp_ns
+    offset = offsets.get(frame.sensor.source)
+    if offset is None:
+        offset = next(iter(offsets.values())) if len(offsets) == 1 else 0
+    return end + offset
+
+
 def _open_frames(path: str, args) -> object:
     import lidarpkt
 
@@ -148,16 +193,17 @@ def _to_mcap(args, out: Path) -> int:
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         if groups & {"points", "images"}:
             for path in args.inputs:
+                offsets = _clock_offsets(path, md)
                 reader = _open_frames(path, args)
                 for frame in reader:
-                    stamp = frame.timestamp_ns
+                    log_time = _frame_log_time(frame, offsets)
                     messages = []
                     if "points" in groups:
                         messages += pointcloud_messages(frame)
                     if "images" in groups:
                         messages += image_messages(frame)
                     for topic, msg in messages:
-                        writer.write_message(topic, msg, stamp)
+                        writer.write_message(topic, msg, log_time)
                     frames_written += 1
                     b = _bytes_read(reader)
                     progress.update(None if b is None else done_before + b, frames_written)

@@ -157,3 +157,31 @@ def test_npz_of_two_sensors_has_one_prefixed_stack_each(tmp_path):
     assert d["s0_range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
     assert "s0_signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
     assert d["s1_frame_id"].tolist() == [189]
+
+
+def test_frames_are_logged_at_the_host_time_of_their_last_packet(tmp_path):
+    """The OS1 capture's clock counts from boot (SOURCES.md: fw 2.0, no PTP) while the pcap holds
+    2021 host times: frame messages must sit among their packets, not in 1970."""
+    from lidarpkt.pcap import read_packets
+
+    out = tmp_path / "t.mcap"
+    r = _decode(external(OS1), "--metadata", external(OS1_JSON), "-o", out, "--topics", "packets,points", "-q")
+    assert r.returncode == 0, r.stderr
+    _, msgs = _messages(out)
+    (log_time,) = [lt for t, lt, _ in msgs if t == "/ouster/points"]
+    lidar_times = [p.timestamp_ns for p in read_packets(external(OS1)) if len(p.payload) == 12608]
+    assert abs(log_time - lidar_times[-1]) < 5_000_000  # the frame's last packet, within 5 ms of jitter
+    (pc,) = [m for t, _, m in msgs if t == "/ouster/points"]
+    assert pc.header.stamp.sec < 1000  # header.stamp stays the sensor's own time
+    # VLP-16: each frame within a packet period or so of the host time its rotation's scan was logged
+    vlp = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    out2 = tmp_path / "v.mcap"
+    assert _decode(vlp, "-o", out2, "--topics", "packets,points", "-q").returncode == 0
+    _, msgs = _messages(out2)
+    points = [lt for t, lt, _ in msgs if t == "/velodyne_points"]
+    scans = [lt for t, lt, _ in msgs if t == "/velodyne_packets"]
+    assert points == sorted(points)
+    host = [p.timestamp_ns for p in read_packets(vlp) if len(p.payload) == 1206]
+    assert host[0] <= points[0] and points[-1] <= host[-1] + 5_000_000
+    near = [min(abs(p - s) for s in scans) for p in points[1:-1]]
+    assert max(near) < 5_000_000
