@@ -51,6 +51,7 @@ class ReplayStats:
     bytes: int = 0
     seconds: float = 0.0
     per_port: dict[int, int] | None = None
+    unknown: int = 0  # packets of no known stream (sent to their original or mapped port)
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
@@ -114,6 +115,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     dest_host = addr[0]
     stats = ReplayStats(per_port={})
     kind_port: dict[tuple[int, int | None], int] = {}
+    unknown_keys: set[tuple[int, int | None]] = set()
     start = clock()
     t0 = None
     try:
@@ -129,6 +131,10 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
                     base = orig if orig is not None else DEFAULT_PORTS.get(kind, port)
                     out_port = port_map.get(base, base)
                 kind_port[(size, orig)] = out_port
+                if kind == streams.OTHER:
+                    unknown_keys.add((size, orig))
+            if (size, orig) in unknown_keys:
+                stats.unknown += 1
             if rate is not None:
                 if t0 is None:
                     t0 = p.timestamp_ns
@@ -167,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
+            total.unknown += s.unknown
             for k, v in s.per_port.items():
                 total.per_port[k] = total.per_port.get(k, 0) + v
             if s.packets == 0:
@@ -177,4 +184,8 @@ def run(args: argparse.Namespace) -> int:
         ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
         print(f"lidarpkt replay: sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "
               f"{total.seconds:.2f} s: {ports}", file=sys.stderr)
+        if total.unknown:
+            print(f"lidarpkt replay: note: {total.unknown} packets of no known stream went to their original "
+                  "(or mapped) ports; a non-legacy Ouster lidar stream needs --metadata to go to --to",
+                  file=sys.stderr)
     return 0

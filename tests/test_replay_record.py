@@ -299,3 +299,26 @@ def test_replay_loop_repeats_until_interrupted():
     assert proc.returncode == 0 and "sent" in err
     payloads = [p.payload for p in read_capture(str(pcap))]
     assert first == payloads * 3
+
+
+def test_replay_without_metadata_counts_unknown_streams():
+    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy: needs its metadata
+    from lidarpkt.ouster.metadata import load_metadata
+
+    md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
+    lidar, other = _free_ports(2)
+    socks = []
+    for p in (lidar, other):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        s.bind(("127.0.0.1", p))
+        socks.append(s)
+    try:
+        packets = list(read_capture(str(pcap)))
+        blind = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7502: other, 7503: other})
+        assert blind.unknown == 64 and blind.per_port == {other: 74}
+        told = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7503: other}, ouster_metadata=md)
+        assert told.unknown == 0 and told.per_port == {lidar: 64, other: 10}
+    finally:
+        for s in socks:
+            s.close()
