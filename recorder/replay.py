@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
-    parser.add_argument("--metadata", metavar="M.json", help="Ouster metadata (to recognise non-legacy lidar packets)")
+    parser.add_argument("--metadata", metavar="M.json",
+                        help="Ouster metadata, to recognise non-legacy lidar packets (MCAP files carry their own)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no summary")
 
 
@@ -95,6 +96,24 @@ def read_capture(path: str) -> Iterator[Packet]:
         b = batches[which[k]]
         r = row[k]
         yield Packet(int(b.timestamp_ns[r]), b.src, b.dst, b.payload[r].tobytes())
+
+
+def embedded_metadata(path: str, look_ahead: int = 64):
+    """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
+    for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
+    from lidarpkt.source import container_kind
+
+    if container_kind(path) == "pcap":
+        return None
+    from lidarpkt.bags import BagReader
+    from lidarpkt.ouster.metadata import load_metadata
+
+    reader = BagReader(path)
+    for k, _ in enumerate(reader.batches()):
+        if reader.ouster_metadata() or k >= look_ahead:
+            break
+    text = reader.ouster_metadata()
+    return load_metadata(text) if text else None
 
 
 def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
@@ -162,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         from lidarpkt.ouster.metadata import load_metadata
 
         md = load_metadata(args.metadata)
+    else:
+        md = embedded_metadata(args.file)
     if not args.max and args.rate <= 0:
         raise RecorderError(f"--rate must be positive, got {args.rate}")
     rate = None if args.max else args.rate

@@ -322,3 +322,32 @@ def test_replay_without_metadata_counts_unknown_streams():
     finally:
         for s in socks:
             s.close()
+
+
+def test_replay_of_an_mcap_uses_the_metadata_recorded_in_it(tmp_path):
+    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")
+    meta = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json")
+    mcap = tmp_path / "os2.mcap"
+    assert subprocess.run([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "--metadata", str(meta), "-o",
+                           str(mcap), "--topics", "packets", "-q"], cwd=REPO, timeout=120).returncode == 0
+    lidar, other = _free_ports(2)
+    socks = []
+    for p in (lidar, other):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        s.bind(("127.0.0.1", p))
+        s.settimeout(5)
+        socks.append(s)
+    try:
+        r = subprocess.run([sys.executable, "-m", "lidarpkt", "replay", str(mcap), "--to", f"127.0.0.1:{lidar}",
+                            "--max", "--port-map", f"7503:{other}"], cwd=REPO, timeout=120, capture_output=True,
+                           text=True)
+        assert r.returncode == 0 and "no known stream" not in r.stderr, r.stderr
+        got_lidar = [socks[0].recv(65535) for _ in range(64)]
+        got_imu = [socks[1].recv(65535) for _ in range(10)]
+    finally:
+        for s in socks:
+            s.close()
+    packets = list(read_capture(str(pcap)))
+    assert got_lidar == [p.payload for p in packets if len(p.payload) > 48]
+    assert got_imu == [p.payload for p in packets if len(p.payload) == 48]
