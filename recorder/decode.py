@@ -182,8 +182,10 @@ def _to_mcap(args, out: Path) -> int:
     done_before = 0
     with McapWriter(out, chunk_seconds=float("inf"), chunk_bytes=4 << 20) as writer:
         if "packets" in groups:
+            from .replay import embedded_metadata
+
             for path in args.inputs:
-                sink = PacketSink(writer, ouster_metadata=md)
+                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path))
                 reader = _packet_reader(path)
                 for batch in reader.batches():
                     sink.push(batch)

@@ -342,3 +342,17 @@ def test_damaged_cdr_messages_raise_lidarpkt_errors():
         schemas.decode_packet_msg(schemas.encode_packet_msg(b"abc")[:-1])
     with pytest.raises(CaptureFormatError):
         schemas.decode_stamped_packet(schemas.encode_stamped_packet(b"abc", 1)[:-1])
+
+
+def test_mcap_to_mcap_keeps_non_legacy_ouster_topics_from_the_recorded_metadata(tmp_path):
+    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")
+    meta = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json")
+    first = _decode(tmp_path, pcap, "--metadata", meta, "--topics", "packets")
+    (tmp_path / "second").mkdir()
+    second = _decode(tmp_path / "second", first, "--topics", "packets")  # no --metadata: the file has it
+    _, _, a = _official(first)
+    _, _, b = _official(second)
+    topics = lambda msgs: sorted({t for t, _, _ in msgs})  # noqa: E731
+    assert topics(b) == topics(a) == ["/ouster/imu_packets", "/ouster/lidar_packets", "/ouster/metadata"]
+    lidar = lambda msgs: [bytes(m.buf) for t, _, m in msgs if t == "/ouster/lidar_packets"]  # noqa: E731
+    assert lidar(b) == lidar(a) and len(lidar(a)) == 64
