@@ -130,7 +130,9 @@ class PacketSink:
             self._push_velodyne(key, rep, batch)
             return
         if kind == streams.OUSTER_LIDAR and self.ouster_metadata is not None:
-            tracker = self._trackers.setdefault(key, streams.OusterLoss(self.ouster_metadata))
+            tracker = self._trackers.get(key)
+            if tracker is None:
+                tracker = self._trackers[key] = streams.OusterLoss(self.ouster_metadata)
             tracker.update(batch.payload)
             rep.count = tracker.count
         else:  # no layout to find gaps in: counted only
