@@ -180,7 +180,14 @@ def _to_mcap(args, out: Path) -> int:
     progress = _Progress(not args.quiet, total * (2 if "packets" in groups and groups - {"packets"} else 1))
     frames_written = 0
     done_before = 0
+    described: set[tuple] = set()
     with McapWriter(out, chunk_seconds=float("inf"), chunk_bytes=4 << 20) as writer:
+        if args.calibration:
+            try:
+                text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
+            except OSError as exc:
+                raise RecorderError(f"cannot read the calibration {args.calibration}: {exc.strerror}") from None
+            writer.add_metadata("lidarpkt.calibration", {"path": str(args.calibration), "content": text})
         if "packets" in groups:
             from .replay import embedded_metadata
 
@@ -199,6 +206,12 @@ def _to_mcap(args, out: Path) -> int:
                 reader = _open_frames(path, args)
                 for frame in reader:
                     log_time = _frame_log_time(frame, offsets)
+                    sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
+                    if sensor_key not in described:  # what the frames were decoded with, once per sensor
+                        described.add(sensor_key)
+                        writer.add_metadata("lidarpkt.frames", {
+                            "input": str(path), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
+                            "calibration": str(args.calibration or "stock")})
                     messages = []
                     if "points" in groups:
                         messages += pointcloud_messages(frame)

@@ -356,3 +356,17 @@ def test_mcap_to_mcap_keeps_non_legacy_ouster_topics_from_the_recorded_metadata(
     assert topics(b) == topics(a) == ["/ouster/imu_packets", "/ouster/lidar_packets", "/ouster/metadata"]
     lidar = lambda msgs: [bytes(m.buf) for t, _, m in msgs if t == "/ouster/lidar_packets"]  # noqa: E731
     assert lidar(b) == lidar(a) and len(lidar(a)) == 64
+
+
+def test_calibration_and_frame_sensor_info_are_metadata_records(tmp_path):
+    pcap = external(VLP)
+    calib = external("rust-lidar-utils/VLP16db.yaml")
+    out = _decode(tmp_path, pcap, "--calibration", calib, "--topics", "packets,points")
+    _, meta, _ = _official(out)
+    by_name = {}
+    for m in meta:
+        by_name.setdefault(m.name, []).append(m.metadata)
+    assert by_name["lidarpkt.calibration"][0]["content"] == calib.read_text()
+    (frames,) = by_name["lidarpkt.frames"]
+    info = json.loads(frames["sensor_info"])
+    assert info["vendor"] == "velodyne" and info["rows"] == 16 and frames["calibration"] == str(calib)
