@@ -5,7 +5,7 @@ copy re-encoded with our encoder with the next frame id and timestamps moved on 
 period (CRC recomputed where the firmware writes one), written with ``lidarpkt.pcapwrite``
 as unfragmented loopback datagrams like ouster-sdk's own recordings.
 
-    python benchmarks/bench_ouster.py [--capture dual|legacy|single|ldr] [--frames 500] [--keep PATH]
+    python benchmarks/bench_ouster.py [--capture dual|legacy|single|ldr] [--frames 500] [--repeat 3] [--keep PATH]
 
 Prints, for each decoder, wall time, frames/s and MB/s of UDP payload, and the ratio. Both
 decoders produce full frames (all channel fields); neither computes XYZ.
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import tempfile
 import time
@@ -105,6 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--capture", choices=sorted(CAPTURES), default="dual")
     ap.add_argument("--frames", type=int, default=500)
     ap.add_argument("--keep", type=Path, help="write the long capture here and keep it")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="runs of each decoder, alternating; medians are printed (the first run of a process "
+                         "also pays one-time costs: imports, first allocations)")
     args = ap.parse_args(argv)
     pcap, meta = (EXTERNAL / p for p in CAPTURES[args.capture])
     if not pcap.exists():
@@ -116,16 +120,21 @@ def main(argv: list[str] | None = None) -> int:
         n_packets, n_bytes = build_capture(pcap, meta, args.frames, path)
         print(f"capture: {args.capture} ({pcap.name}), {args.frames} frames, {n_packets} packets, "
               f"{n_bytes / 1e6:.0f} MB payload, {path.stat().st_size / 1e6:.0f} MB file, built in {time.perf_counter() - t:.1f} s")
-        ours_s, ours_n = bench_lidarpkt(path, meta)
+        ours, sdks = [], []
+        for _ in range(max(1, args.repeat)):
+            ours.append(bench_lidarpkt(path, meta))
+            sdk = bench_sdk(path, meta)
+            if sdk is None:
+                print("ouster-sdk : not installed (pip install ouster-sdk==1.0.1)")
+                return 0
+            sdks.append(sdk)
+        ours_s, ours_n = statistics.median(t for t, _ in ours), ours[-1][1]
+        sdk_s, sdk_n = statistics.median(t for t, _ in sdks), sdks[-1][1]
         reader_s = bench_reader(path)
         print(f"lidarpkt   : {ours_s:7.2f} s  {ours_n} frames  {ours_n / ours_s:8.1f} frames/s  {n_bytes / ours_s / 1e6:7.1f} MB/s"
-              f"  (of which pcap reading {reader_s:.2f} s)")
-        sdk = bench_sdk(path, meta)
-        if sdk is None:
-            print("ouster-sdk : not installed (pip install ouster-sdk==1.0.1)")
-            return 0
-        sdk_s, sdk_n = sdk
-        print(f"ouster-sdk : {sdk_s:7.2f} s  {sdk_n} frames  {sdk_n / sdk_s:8.1f} frames/s  {n_bytes / sdk_s / 1e6:7.1f} MB/s")
+              f"  (of which pcap reading {reader_s:.2f} s; median of {len(ours)}: {', '.join(f'{t:.2f}' for t, _ in ours)})")
+        print(f"ouster-sdk : {sdk_s:7.2f} s  {sdk_n} frames  {sdk_n / sdk_s:8.1f} frames/s  {n_bytes / sdk_s / 1e6:7.1f} MB/s"
+              f"  (median of {len(sdks)}: {', '.join(f'{t:.2f}' for t, _ in sdks)})")
         print(f"ratio lidarpkt/ouster-sdk throughput: {sdk_s / ours_s:.2f}  (>1 = lidarpkt faster)")
         if ours_n != sdk_n:
             print(f"WARNING: frame counts differ ({ours_n} vs {sdk_n})")
