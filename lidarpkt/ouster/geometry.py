@@ -66,13 +66,15 @@ class OusterGeometry:
 
         Each point is ``range_mm · direction + offset`` (the same double-precision products and
         sums as ouster-sdk's ``XYZLut``), computed a few rows at a time so that the temporaries
-        stay in cache, one coordinate plane at a time with contiguous operands; the offset is
-        multiplied by 0/1 (return or not) instead of masking the result afterwards.
+        stay in cache, one coordinate plane at a time with contiguous operands; pixels without a
+        return are zeroed by AND-ing the float64 bits with an all-ones/all-zeros mask in the same
+        pass that writes the (interleaved) output: +0.0 exactly, no separate masking pass.
         """
         direction, offset = self._planes
         rng = frame.range_mm
         r, h, w = rng.shape
         out = np.empty((r, h, w, 3), np.float64)
+        bits = out.view(np.uint64)
         rows = max(1, min(h, _BLOCK_PIXELS // max(1, r * w)))
         tmp = np.empty((r, rows, w), np.float64)
         for a in range(0, h, rows):
@@ -80,13 +82,12 @@ class OusterGeometry:
             t = tmp[:, : b - a]
             block = rng[:, a:b]
             scale = block.astype(np.float64)
-            has_return = (block != 0).astype(np.float64)
+            keep = (block != 0).view(np.uint8).astype(np.uint64)
+            np.negative(keep, out=keep)  # 1 → all ones, 0 → 0
             for k in range(3):
                 np.multiply(scale, direction[k, a:b], out=t)
-                t += 0.0  # -0.0 (range 0 times a negative direction) becomes +0.0
-                o = out[:, a:b, :, k]
-                np.multiply(has_return, offset[k, a:b], out=o)
-                o += t
+                t += offset[k, a:b]
+                np.bitwise_and(t.view(np.uint64), keep, out=bits[:, a:b, :, k])
         return out
 
 
