@@ -157,7 +157,14 @@ def read_pixel_field(words: np.ndarray, f: BitField, out: np.ndarray | None = No
     return out
 
 
-def decode_packets(payload: np.ndarray, metadata, *, verify_crc: bool | None = None, fields: tuple[str, ...] | None = None) -> OusterPacketFields:
+def decode_packets(
+    payload: np.ndarray,
+    metadata,
+    *,
+    verify_crc: bool | None = None,
+    fields: tuple[str, ...] | None = None,
+    header_fields: tuple[str, ...] | None = None,
+) -> OusterPacketFields:
     """Decode N lidar packets of one sensor.
 
     Args:
@@ -166,6 +173,7 @@ def decode_packets(payload: np.ndarray, metadata, *, verify_crc: bool | None = N
         verify_crc: check the CRC-64/XZ in the footer; default: when the firmware writes one
             (``metadata.footer_kind == "crc"``).
         fields: pixel fields to decode (default all, reserved bits included).
+        header_fields: packet-header fields to decode (default all, reserved bits included).
 
     Returns:
         :class:`OusterPacketFields`.
@@ -182,7 +190,8 @@ def decode_packets(payload: np.ndarray, metadata, *, verify_crc: bool | None = N
     if profile.header_fields:
         raw_header = pk["header"]
         for f in profile.header_fields:
-            header[f.name] = read_bits(raw_header, f)
+            if header_fields is None or f.name in header_fields:
+                header[f.name] = read_bits(raw_header, f)
     words = cols["pixels"]  # <u4[N, C, H, pixel_bytes // 4]
     pixels = {
         f.name: read_pixel_field(words, f) for f in profile.pixel_fields if fields is None or f.name in fields

@@ -232,7 +232,8 @@ class OusterDecoder:
                 stacklevel=2,
             )
             return []
-        f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=())
+        f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
+                           header_fields=("frame_id", "init_id", "prod_sn"))
         words = packet_view(batch.payload, md.profile, md.pixels_per_column, md.columns_per_packet)["columns"]["pixels"]
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
