@@ -31,6 +31,7 @@ from __future__ import annotations
 import warnings
 from collections import deque
 from dataclasses import dataclass, fields as dc_fields
+from functools import lru_cache
 
 import numpy as np
 
@@ -131,20 +132,62 @@ class _Builder:
         if not self.received.all():
             planes[:, :, ~self.received] = 0
         shape = planes.shape[1:]
-        names = set(profile.field_names)
-        slots = _SLOT_FIELDS[: profile.returns]
         out: dict[str, np.ndarray | None] = {}
-        for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
-            if slots[0][i] not in names:
+        for attr, per_slot, dtype in _field_plan(profile):
+            if not per_slot:
                 out[attr] = None
-                continue
-            arr = np.empty((len(slots),) + shape, profile.field(slots[0][i]).dtype)
-            for r, sl in enumerate(slots):
-                plane_field(planes, profile.field(sl[i]), arr[r])
-            out[attr] = arr
-        for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
-            out[attr] = plane_field(planes, profile.field(name), np.empty(shape, profile.field(name).dtype)) if name in names else None
+            elif attr in ("near_ir", "window"):
+                out[attr] = _extract(planes, per_slot[0], np.empty(shape, dtype))
+            else:
+                arr = np.empty((len(per_slot),) + shape, dtype)
+                for r, step in enumerate(per_slot):
+                    _extract(planes, step, arr[r])
+                out[attr] = arr
         return out
+
+
+@lru_cache(maxsize=None)
+def _field_plan(profile) -> tuple:
+    """Per frame attribute: (attr, one extraction step per return slot, dtype); no steps = absent.
+
+    A step is (word index, bit offset in the word, mask or 0 when the cast already drops the bits
+    above the field, up-shift): see :func:`plane_field`.
+    """
+    names = set(profile.field_names)
+    slots = _SLOT_FIELDS[: profile.returns]
+    plan = []
+    for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
+        if slots[0][i] not in names:
+            plan.append((attr, (), None))
+            continue
+        fs = [profile.field(sl[i]) for sl in slots]
+        plan.append((attr, tuple(_step(f) for f in fs), fs[0].dtype))
+    for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
+        f = profile.field(name) if name in names else None
+        plan.append((attr, (_step(f),) if f is not None else (), f.dtype if f is not None else None))
+    return tuple(plan)
+
+
+def _step(f) -> tuple[int, int, int, int]:
+    k, off = divmod(f.start_bit, 32)
+    masked = f.width < min(32 - off, 8 * f.dtype.itemsize)
+    return k, off, f.mask if masked else 0, f.upshift
+
+
+def _extract(planes: np.ndarray, step: tuple[int, int, int, int], out: np.ndarray) -> np.ndarray:
+    k, off, mask, upshift = step
+    w = planes[k]
+    if off:
+        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
+        if mask:
+            np.bitwise_and(out, out.dtype.type(mask), out=out)
+    elif mask:
+        np.bitwise_and(w, np.uint32(mask), out=out, casting="unsafe")
+    else:
+        np.copyto(out, w, casting="unsafe")
+    if upshift:
+        np.left_shift(out, out.dtype.type(upshift), out=out)
+    return out
 
 
 def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
@@ -155,20 +198,8 @@ def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
     up-shift are then passes over the narrow result.
     """
     k, off = divmod(f.start_bit, 32)
-    w = planes[k]
     masked = f.width < min(32 - off, 8 * out.dtype.itemsize)
-    if off:
-        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
-    elif masked:
-        np.bitwise_and(w, np.uint32(f.mask), out=out, casting="unsafe")
-        masked = False
-    else:
-        np.copyto(out, w, casting="unsafe")
-    if masked:
-        np.bitwise_and(out, out.dtype.type(f.mask), out=out)
-    if f.upshift:
-        np.left_shift(out, out.dtype.type(f.upshift), out=out)
-    return out
+    return _extract(planes, (k, off, f.mask if masked else 0, f.upshift), out)
 
 
 class OusterDecoder:
