@@ -17,9 +17,9 @@ pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode tim
 - VLP-16: 60 s strongest (built here) and dual (``bench_velodyne.build``) captures;
   ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
 - pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
-- memory: peak RSS (VmHWM, file-backed pages of the memory map included) of a child process
-  decoding an Ouster capture of ``--memory-gb`` and one ``--memory-factor`` times longer
-  (generated under ``--workdir`` and deleted afterwards; needs that much free disk).
+- memory: peak RSS (VmHWM) of a child process decoding an Ouster capture of ``--memory-gb``, one
+  ``--memory-factor`` times longer, and a VLP-16 dual capture of ``--memory-gb`` (generated under
+  ``--workdir`` and deleted afterwards; needs that much free disk).
 - analysis: ``image_statistics`` of a 64 × 1024 × 30 stack (``bench_analysis.synthetic_stack``).
 - record: ``bench_record.run_one`` at 10× real time (VLP-16, OS1-64), loss counters and the
   recorder's CPU use.
@@ -189,7 +189,7 @@ def pcap(args, work: Path) -> None:
 _CHILD = r"""
 import sys, lidarpkt
 n = 0
-for f in lidarpkt.open(sys.argv[1], metadata=sys.argv[2]):
+for f in lidarpkt.open(sys.argv[1], metadata=sys.argv[2] if len(sys.argv) > 2 else None):
     n += 1
 hwm = next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM'))
 print(n, hwm)
@@ -200,11 +200,12 @@ def memory(args, work: Path) -> None:
     import bench_ouster as bo
 
     pcap, meta = (bo.EXTERNAL / p for p in bo.CAPTURES["single"])
-    frame_bytes = 64 * 24896 + 64 * 16  # 64 packets of 24 896 B per OS-2-128 frame, plus record headers
-    frames = max(1, int(args.memory_gb * 1e9 / (frame_bytes + 64 * 42)))
+    frame_bytes = 64 * (16 + 42 + 24832)  # 64 records per OS-2-128 frame: record + Ethernet/IPv4/UDP headers + payload
+    frames = max(1, int(args.memory_gb * 1e9 / frame_bytes))
     small = work / f"mem_{frames}.pcap"
     big = work / f"mem_{frames}x{args.memory_factor}.pcap"
-    need = (args.memory_gb * (1 + args.memory_factor)) * 1e9
+    vlp = work / f"mem_vlp16_{args.memory_gb}gb.pcap"
+    need = (args.memory_gb * (2 + args.memory_factor)) * 1e9
     free = shutil.disk_usage(work).free
     print(f"\nmemory: peak RSS decoding {args.memory_gb} GB and {args.memory_factor}x that (load {load()}; "
           f"{free / 1e9:.0f} GB free under {work})")
@@ -230,9 +231,23 @@ def memory(args, work: Path) -> None:
             gb = path.stat().st_size / 1e9
             row(f"peak RSS, {gb:.1f} GB Ouster capture ({n} frames, {dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "",
                 "< 400 MB", hwm_mb < 400)
+        # VLP-16: a dual-return capture of the same size (generated sensor time; no 10x copy, whose
+        # repeated device times would be dropped as late packets)
+        import bench_velodyne as bv
+
+        seconds = args.memory_gb * 1e9 / (90422 * 1264 / 60)  # bytes per second of bench_velodyne's dual capture
+        if not vlp.exists():
+            bv.build(vlp, seconds)
+        t = time.perf_counter()
+        out = subprocess.run([sys.executable, "-c", _CHILD, str(vlp)], capture_output=True, text=True,
+                             cwd=REPO, check=True).stdout.split()
+        dt = time.perf_counter() - t
+        n, hwm_mb = int(out[0]), int(out[1]) / 1024
+        row(f"peak RSS, {vlp.stat().st_size / 1e9:.1f} GB VLP-16 dual capture ({n} frames, {dt:.0f} s)", f"{hwm_mb:.0f} MB",
+            "", "", "< 400 MB", hwm_mb < 400)
     finally:
         if not args.keep_memory_files:
-            for p in (small, big):
+            for p in (small, big, vlp):
                 p.unlink(missing_ok=True)
 
 
