@@ -21,6 +21,7 @@ beyond that the oldest pending datagram is evicted. Every dropped fragment is co
 
 from __future__ import annotations
 
+import bisect
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Hashable
@@ -52,6 +53,9 @@ class _Pending:
     pieces: dict[int, bytes] = field(default_factory=dict)  # offset -> bytes
     end: int | None = None  # total length, known once the last fragment arrived
     nbytes: int = 0
+    offsets: list[int] = field(default_factory=list)  # the keys of pieces, sorted
+    scan: int = 0  # offsets[:scan] are all inside the contiguous prefix
+    prefix: int = 0  # bytes 0..prefix are held (a lower bound of what _try_complete joins)
 
 
 class Reassembler:
@@ -154,10 +158,28 @@ class Reassembler:
         entry.pieces[offset] = bytes(data)
         entry.nbytes += len(data) + FRAGMENT_OVERHEAD
         self._held += len(data) + FRAGMENT_OVERHEAD
-        done = self._try_complete(key, entry)
+        self._extend_prefix(entry, offset, len(data))
+        done = self._try_complete(key, entry) if entry.end is not None and entry.prefix >= entry.end else None
         if done is None:
             self._enforce_bounds(keep=key)
         return done
+
+    @staticmethod
+    def _extend_prefix(entry: _Pending, offset: int, length: int) -> None:
+        """Grow the contiguous prefix held from byte 0, each piece visited once (amortised), so that
+        the full join of :meth:`_try_complete` runs only once the datagram can be whole. (Joining on
+        every fragment made a datagram of 8192 fragments with a hole at its end cost 3 s.)"""
+        offs = entry.offsets
+        i = bisect.bisect_left(offs, offset)
+        offs.insert(i, offset)
+        if i < entry.scan:  # starts inside the prefix already walked
+            entry.scan += 1
+            entry.prefix = max(entry.prefix, offset + length)
+        pieces = entry.pieces
+        while entry.scan < len(offs) and offs[entry.scan] <= entry.prefix:
+            o = offs[entry.scan]
+            entry.prefix = max(entry.prefix, o + len(pieces[o]))
+            entry.scan += 1
 
     def _try_complete(self, key: Hashable, entry: _Pending) -> bytes | None:
         if entry.end is None:
