@@ -136,6 +136,14 @@ def make_reassembly_target():
             held = sum(len(p) + FRAGMENT_OVERHEAD for e in r._pending.values() for p in e.pieces.values())
             if held != r.held_bytes:
                 raise Finding(f"held_bytes {r.held_bytes} but {held} bytes held")
+            for e in r._pending.values():  # the incremental prefix is what a full sort finds
+                covered = 0
+                for o in sorted(e.pieces):
+                    if o > covered:
+                        break
+                    covered = max(covered, o + len(e.pieces[o]))
+                if covered != e.prefix or e.offsets != sorted(e.pieces):
+                    raise Finding(f"contiguous prefix {e.prefix}, a full sort says {covered}")
             if r.pending_datagrams > r.max_datagrams:
                 raise Finding(f"{r.pending_datagrams} datagrams pending, more than {r.max_datagrams}")
             if r.held_bytes > r.max_bytes and r.pending_datagrams > 1:
