@@ -193,3 +193,32 @@ def test_a_datagram_of_8189_fragments_with_a_hole_is_joined_once_not_per_fragmen
     for off in range(8, 2001, 8):  # the last one ends at 3000, where the end fragment starts
         r.add("o", off, True, b"x" * 1000, 0)
     assert r.pending_datagrams == 1 and r.add("o", 0, True, b"x" * 8, 0) is not None
+
+
+# --------------------------------------------------------------------------- VLP-16: many sources
+def test_a_capture_from_hundreds_of_source_addresses_does_not_multiply_the_geometry_tables(tmp_path):
+    """Input: 300 source addresses sending one real VLP-16 data packet each (a 0.4 MB capture). Each
+    source gets its decoder, and each decoder built its own 0.6 MB cos/sin tables (9 MB with per-row
+    corrections): 2000 sources took 1.2 GB. The read-only tables are now shared."""
+    import fixtures
+    import lidarpkt
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.velodyne import VelodyneDecoder
+
+    good = next(p for p in lidarpkt.pcap.read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206)
+    pk = [Packet(1_600_000_000_000_000_000 + i * 1000, Endpoint(f"10.0.{i >> 8}.{i & 255}", 2368),
+                 Endpoint("10.0.0.1", 2368), good.payload) for i in range(300)]
+    write_pcap(tmp_path / "many.pcap", pk)
+    tracemalloc.start()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            frames = list(lidarpkt.open(tmp_path / "many.pcap"))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(frames) == 300 and all(int(f.column_valid.sum()) == 24 for f in frames)
+    assert peak < 60e6, f"{peak / 1e6:.0f} MB traced for 300 one-packet sources"
+    a, b = VelodyneDecoder(), VelodyneDecoder()
+    assert a.geometry._cos is b.geometry._cos and not a.geometry._cos.flags.writeable
