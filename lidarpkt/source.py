@@ -11,11 +11,13 @@ counted, not decoded.
 from __future__ import annotations
 
 import os
+import warnings
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
-from .errors import UnknownSensorError, UnsupportedContainerError
+from .errors import SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from .frame import Frame
 from .packet import PacketBatch
 
@@ -27,6 +29,7 @@ PCAP_MAGICS = {
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+_MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
 
 
 def container_kind(path: str | os.PathLike[str]) -> str:
@@ -96,6 +99,16 @@ class FrameReader:
 
     Made by :func:`open_frames` (``lidarpkt.open``). Frames come out when their last packet has
     been read, so memory stays bounded whatever the length of the capture.
+
+    Read-ahead (``read_ahead``): for pcap/pcapng captures of at least
+    :data:`READ_AHEAD_MIN_BYTES`, the packets are read by a background thread into a queue
+    bounded in bytes (:data:`lidarpkt._readahead.DEFAULT_MAX_BYTES`) while this thread routes
+    and decodes; file reads and NumPy copies release the GIL, so the two overlap on two cores.
+    Frames, their order and ``stats`` are those of the unthreaded path; the reader's errors
+    are raised and its warnings re-emitted (same category and message) here, at the same point
+    of the stream. ``reader.stats`` (the packet reader's own counters) may run ahead of the
+    frames while iterating; it is complete at the end. ``close()`` (or ``with``, or dropping
+    the reader) stops the thread.
     """
 
     def __init__(
@@ -110,10 +123,15 @@ class FrameReader:
         include_partial: bool = True,
         verify_crc: bool = True,
         soft_id_check: bool = False,
+        max_sensors: int = 64,
+        read_ahead: bool | None = None,
         **filters: Any,
     ) -> None:
         self.path = Path(path)
+        self._max_sensors = int(max_sensors)
         self.reader = _open_packet_source(path, **filters)
+        self.read_ahead = _want_read_ahead(self.reader, read_ahead)
+        self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
         self.decoders: dict[tuple, Any] = {}
         self._velodyne_options = {"calibration": calibration, "cut_angle_deg": cut_angle_deg,
@@ -122,7 +140,10 @@ class FrameReader:
         self._source_filter = source
         self._include_partial = include_partial
         self._ouster_metadata = _load_ouster_metadata(metadata)
-        self._iter = self._frames()
+        self._warned_max_sensors = False
+        # the generator holds a weak proxy, not self: dropping the last reference to the reader
+        # finalises it at once (no cycle left to the garbage collector), which stops the thread
+        self._iter = FrameReader._frames(weakref.proxy(self))
 
     def __iter__(self) -> "FrameReader":
         return self
@@ -130,21 +151,51 @@ class FrameReader:
     def __next__(self) -> Frame:
         return next(self._iter)
 
+    def close(self) -> None:
+        """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
+        self._iter.close()
+        ra, self._read_ahead = self._read_ahead, None
+        if ra is not None:
+            ra.close()
+
+    def __enter__(self) -> "FrameReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        ra = getattr(self, "_read_ahead", None)
+        if ra is not None:
+            ra.close()
+
     # ------------------------------------------------------------------ routing
+    def _batches(self) -> Iterator[PacketBatch]:
+        if not self.read_ahead:
+            return self.reader.batches()
+        from ._readahead import ReadAhead
+
+        self._read_ahead = ReadAhead(self.reader.batches)
+        return self._read_ahead
+
     def _frames(self) -> Iterator[Frame]:
         from . import ouster, velodyne
 
         embedded = getattr(self.reader, "ouster_metadata", None)
-        for batch in self.reader.batches():
-            if embedded and not self._ouster_metadata:
-                # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
-                self._ouster_metadata = _load_ouster_metadata(embedded())
-            self.stats.batches += 1
-            self.stats.packets += len(batch)
-            src = batch.src.address if batch.src is not None else None
-            if self._source_filter is not None and src != self._source_filter:
-                continue
-            yield from self._emit(self._route(batch, src, ouster, velodyne))
+        batches = self._batches()
+        try:
+            for batch in batches:
+                if embedded and not self._ouster_metadata:
+                    # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
+                    self._ouster_metadata = _load_ouster_metadata(embedded())
+                self.stats.batches += 1
+                self.stats.packets += len(batch)
+                src = batch.src.address if batch.src is not None else None
+                if self._source_filter is not None and src != self._source_filter:
+                    continue
+                yield from self._emit(self._route(batch, src, ouster, velodyne))
+        finally:
+            batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
         for decoder in list(self.decoders.values()):
             yield from self._emit(decoder.finish())
         if self.stats.packets and not self.decoders:
@@ -157,6 +208,8 @@ class FrameReader:
                 kind, md = match
                 decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(
                     md, source=_source_name(batch), **self._ouster_options))
+                if decoder is None:
+                    return self._unrouted(batch)
                 if kind == "lidar":
                     self.stats.ouster_lidar_packets += len(batch)
                     return decoder.push(batch)
@@ -167,20 +220,39 @@ class FrameReader:
         if kind is not None:
             decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(
                 source=_source_name(batch), **self._velodyne_options))
+            if decoder is None:
+                return self._unrouted(batch)
             if kind == "data":
                 self.stats.velodyne_data_packets += len(batch)
                 return decoder.push(batch)
             self.stats.velodyne_position_packets += len(batch)
             decoder.push_position(batch)
             return []
+        return self._unrouted(batch)
+
+    def _unrouted(self, batch: PacketBatch) -> list[Frame]:
         key = f"{_source_name(batch)} → {batch.dst if batch.dst is not None else '?'} ({batch.payload_size} B)"
         self.stats.unrouted_packets += len(batch)
-        self.stats.unrouted_streams[key] = self.stats.unrouted_streams.get(key, 0) + len(batch)
+        streams = self.stats.unrouted_streams
+        if key not in streams and len(streams) >= _MAX_LISTED_STREAMS:  # a capture of random traffic
+            key = "(other streams)"
+        streams[key] = streams.get(key, 0) + len(batch)
         return []
 
     def _decoder(self, key: tuple, make):
+        """The decoder of one sensor, made on its first packet; ``None`` beyond ``max_sensors``: each
+        decoder holds up to a frame (~3 MB for an OS-128), so a capture with thousands of source
+        addresses (400 one-packet Ouster sources took 660 MB) must not get one each."""
         decoder = self.decoders.get(key)
         if decoder is None:
+            if len(self.decoders) >= self._max_sensors:
+                if not self._warned_max_sensors:
+                    self._warned_max_sensors = True
+                    warnings.warn(SkippedPacketWarning(
+                        f"{self.path}: more than {self._max_sensors} sensors (source addresses) in one capture; the "
+                        "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
+                        "source=..., or raise max_sensors=...)"), stacklevel=4)
+                return None
             decoder = self.decoders[key] = make()
         return decoder
 
@@ -219,6 +291,11 @@ def open_frames(
         verify_crc: Ouster: check the CRC-64 of packets whose firmware writes one (default True).
         soft_id_check: Ouster: accept packets whose init_id differs from the metadata's (a
             changed init_id still ends the frame).
+        max_sensors: most sensors (one decoder each) decoded from one capture (64); packets of
+            further sources are counted as unrouted, with a SkippedPacketWarning.
+        read_ahead: read the packets in a background thread while decoding (pcap/pcapng only):
+            ``None`` (default) when the file has at least 8 MB and the machine 2+ CPUs; ``False``
+            never; ``True`` always. Same frames, order, stats, errors and warnings either way.
         **filters: passed to the packet reader (``ports``, ``src_addresses``, ``payload_sizes``).
 
     Raises:
@@ -227,6 +304,25 @@ def open_frames(
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
     """
     return FrameReader(path, metadata=metadata, **options)
+
+
+READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thread (a thread would not pay)
+
+
+def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
+    """Read ahead in a thread? pcap/pcapng only (a bag reader's embedded metadata is looked up as its
+    batches arrive); by default when the file has at least READ_AHEAD_MIN_BYTES and there are 2+ CPUs."""
+    from .pcap import PcapReader
+
+    if not isinstance(reader, PcapReader) or read_ahead is False:
+        return False
+    if read_ahead:
+        return True
+    try:
+        size = os.path.getsize(reader.path)
+    except OSError:
+        return False
+    return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
 
 
 def _load_ouster_metadata(metadata) -> list:

@@ -214,7 +214,7 @@ def test_a_capture_from_hundreds_of_source_addresses_does_not_multiply_the_geome
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            frames = list(lidarpkt.open(tmp_path / "many.pcap"))
+            frames = list(lidarpkt.open(tmp_path / "many.pcap", max_sensors=300))
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -222,3 +222,30 @@ def test_a_capture_from_hundreds_of_source_addresses_does_not_multiply_the_geome
     assert peak < 60e6, f"{peak / 1e6:.0f} MB traced for 300 one-packet sources"
     a, b = VelodyneDecoder(), VelodyneDecoder()
     assert a.geometry._cos is b.geometry._cos and not a.geometry._cos.flags.writeable
+
+
+def test_a_capture_from_thousands_of_sources_decodes_at_most_max_sensors(tmp_path):
+    """Input: one real OS-2-128 lidar packet from each of 100 source addresses (2.5 MB), then 1500
+    junk streams. Each Ouster decoder holds up to a frame (~1.6 MB here): 400 sources took 660 MB
+    and 4000 would take 6 GB. Now the first 64 sensors are decoded, the rest counted as unrouted with
+    one SkippedPacketWarning, and the list of unrouted streams stays short."""
+    import lidarpkt
+    from lidarpkt.errors import SkippedPacketWarning
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.pcapwrite import write_pcap
+
+    meta = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json")
+    src = next(p for p in lidarpkt.pcap.read_packets(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap"))
+               if len(p.payload) == 24832)
+    pk = [Packet(1_600_000_000_000_000_000 + i * 1000, Endpoint(f"10.0.{i >> 8}.{i & 255}", 7502),
+                 Endpoint("10.0.0.1", 7502), src.payload) for i in range(100)]
+    pk += [Packet(1_600_000_000_100_000_000 + i, Endpoint(f"10.1.{i >> 8}.{i & 255}", 9000 + i % 7),
+                  Endpoint("10.0.0.1", 9999), bytes([i & 255]) * (20 + i % 50)) for i in range(1500)]
+    write_pcap(tmp_path / "many.pcap", pk, mtu=None)
+    reader = lidarpkt.open(tmp_path / "many.pcap", metadata=meta)
+    with pytest.warns(SkippedPacketWarning, match="more than 64 sensors"):
+        frames = list(reader)
+    assert len(reader.decoders) == 64 and len(frames) == 64
+    assert reader.stats.unrouted_packets == 36 + 1500
+    assert len(reader.stats.unrouted_streams) <= 1001
+    assert sum(reader.stats.unrouted_streams.values()) == 36 + 1500
