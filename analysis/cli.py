@@ -56,13 +56,14 @@ def _write_json(doc: dict, path: str) -> None:
         raise AnalysisError(f"cannot write {out}: {exc.strerror or exc}") from None
 
 
-def _load(path: str, metadata: str | None, frames: str | None, grid: float | None = None):
+def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None):
     from .stack import load_stack, parse_frame_range
 
     if not Path(path).exists():
         raise AnalysisError(f"{path}: no such file")
-    if metadata is not None and not Path(metadata).exists():
-        raise AnalysisError(f"--metadata {metadata}: no such file")
+    for m in metadata or ():
+        if not Path(m).exists():
+            raise AnalysisError(f"--metadata {m}: no such file")
     if grid is not None and grid <= 0:
         raise AnalysisError(f"--grid {grid}: the azimuth grid must be a positive number of degrees dividing 360")
     rng = parse_frame_range(frames) if frames else None
@@ -87,7 +88,8 @@ def _source(path: str, stack) -> str:
 
 
 def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
-    p.add_argument("--metadata", metavar="JSON", help="Ouster metadata JSON (needed for Ouster pcaps; VLP-16 needs none)")
+    p.add_argument("--metadata", action="append", metavar="JSON",
+                   help="Ouster metadata JSON (needed for Ouster pcaps; VLP-16 needs none); repeat for several sensors")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None,
@@ -242,7 +244,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="OUT", help="write the comparison as one JSON document")
     p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
     _add_input(p)
-    p.add_argument("--metadata2", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
+    p.add_argument("--metadata2", action="append", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
     p.add_argument("--pixel", metavar="ROW,COL", action="append", default=[],
                    help="raypath whose temporal CDFs to compare in detail; repeatable")
     p.add_argument("--return", dest="slot", metavar="SLOT", default="0",

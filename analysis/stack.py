@@ -24,7 +24,7 @@ _MAX_PARTIAL_FALLBACK = 8
 def load_stack(
     path: str | Path,
     *,
-    metadata: str | Path | None = None,
+    metadata: str | Path | list[str | Path] | None = None,
     frames: tuple[int | None, int | None] | None = None,
     include_partial: bool = False,
     resolution_deg: float | None = None,
@@ -33,7 +33,7 @@ def load_stack(
 
     Args:
         path: the capture.
-        metadata: Ouster metadata JSON (VLP-16 needs none).
+        metadata: Ouster metadata JSON, or a list of them for several sensors (VLP-16 needs none).
         frames: ``(A, B)`` keeps complete frames A..B-1 (Python slice semantics, counted over
             the complete frames of the capture; ``None`` = open end).
         include_partial: also stack partial frames (start/end of a capture). Without it, a
@@ -50,7 +50,9 @@ def load_stack(
     opener = getattr(lidarpkt, "open", None)
     if opener is None:  # pragma: no cover - only while the decoders are being written
         raise AnalysisError("this lidarpkt build has no lidarpkt.open(): cannot read captures yet")
-    kwargs = {} if metadata is None else {"metadata": str(metadata)}
+    if isinstance(metadata, (list, tuple)):
+        metadata = [str(m) for m in metadata] or None
+    kwargs = {} if metadata is None else {"metadata": metadata if isinstance(metadata, list) else str(metadata)}
     complete: list = []
     partial: list = []
     a, b = frames if frames is not None else (None, None)

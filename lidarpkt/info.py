@@ -291,8 +291,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of text")
     parser.add_argument(
-        "--metadata", nargs="+", action="extend", default=[], metavar="M.json",
-        help="Ouster metadata JSON file(s) of the sensors in the capture (names profiles exactly)",
+        "--metadata", action="append", default=[], metavar="M.json",
+        help="Ouster metadata JSON of a sensor in the capture (names profiles exactly); repeat for several sensors",
     )
 
 

@@ -19,7 +19,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def _info(relpath: str, *metadata: str) -> dict:
-    meta = ["--metadata", *(str(external(m)) for m in metadata)] if metadata else []
+    meta = [arg for m in metadata for arg in ("--metadata", str(external(m)))]
     res = _cli(str(external(relpath)), "--json", *meta)
     assert res.returncode == 0, res.stderr
     return json.loads(res.stdout)
