@@ -193,11 +193,11 @@ class FrameReader:
                 src = batch.src.address if batch.src is not None else None
                 if self._source_filter is not None and src != self._source_filter:
                     continue
-                yield from self._emit(self._route(batch, src, ouster, velodyne))
+                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne))  # self: the weak proxy
         finally:
             batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
         for decoder in list(self.decoders.values()):
-            yield from self._emit(decoder.finish())
+            yield from FrameReader._emit(self, decoder.finish())
         if self.stats.packets and not self.decoders:
             raise UnknownSensorError(self._no_sensor_message())
 
