@@ -13,7 +13,8 @@ pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode tim
 - Ouster: ``bench_ouster.build_capture`` (one real frame repeated, re-encoded with new frame
   ids and times) for the OS-2-128 single, OS-0-32 dual and OS-1-64 legacy captures;
   ``lidarpkt.open`` → frames (every field) vs ouster-sdk ``PcapFrameSetSource``; and the same
-  with ``frame.xyz()`` of every frame.
+  with ``frame.xyz()`` of every frame; then both again with ``read_ahead=False`` (no reader
+  thread; rows marked "(info)"). CPU time counts every thread of the process.
 - VLP-16: 60 s strongest (built here) and dual (``bench_velodyne.build``) captures;
   ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
 - pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
@@ -101,9 +102,9 @@ def ouster(args, work: Path) -> None:
         if not path.exists():
             bo.build_capture(pcap, meta, args.ouster_frames, path)
 
-        def ours(xyz=False):
+        def ours(xyz=False, read_ahead=None):
             n = 0
-            for f in lidarpkt.open(path, metadata=meta):
+            for f in lidarpkt.open(path, metadata=meta, read_ahead=read_ahead):
                 if xyz:
                     f.xyz()
                 n += 1
@@ -117,12 +118,18 @@ def ouster(args, work: Path) -> None:
                 src = sdk_pcap.PcapFrameSetSource(str(path), meta=[str(meta)])
                 return sum(1 for fs in src if fs[0] is not None)
 
-        (ow, oc, on), (sw, sc, sn), (xw, xc, _) = alternate(args.repeat, ours, sdk, lambda: ours(True))
+        (ow, oc, on), (sw, sc, sn), (xw, xc, _), (uw, uc, _), (vw, vc, _) = alternate(
+            args.repeat, ours, sdk, lambda: ours(True), lambda: ours(read_ahead=False), lambda: ours(True, False))
         note = "" if on == sn else f" (frames differ: {on} vs {sn})"
         row(f"{label}: pcap→frames vs ouster-sdk{note}", fmt(ow, oc), fmt(sw, sc), f"{sw / ow:.2f} (cpu {sc / oc:.2f})",
             "≥ 1", sw / ow >= 1)
         row(f"{label}: decode+XYZ / decode", fmt(xw, xc), fmt(ow, oc), f"{xw / ow:.2f} (cpu {xc / oc:.2f})", "≤ 1.5",
             xw / ow <= 1.5)
+        # the same without the read-ahead thread (lidarpkt.open(..., read_ahead=False)): what the thread buys
+        row(f"{label}: no read-ahead, pcap→frames vs ouster-sdk", fmt(uw, uc), fmt(sw, sc),
+            f"{sw / uw:.2f} (cpu {sc / uc:.2f})", "(info)", sw / uw >= 1)
+        row(f"{label}: no read-ahead, decode+XYZ / decode", fmt(vw, vc), fmt(uw, uc),
+            f"{vw / uw:.2f} (cpu {vc / uc:.2f})", "(info)", vw / uw <= 1.5)
 
 
 # ------------------------------------------------------------------------------------ VLP-16

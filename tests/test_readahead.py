@@ -1,9 +1,8 @@
-"""Read-ahead (packets read by a background thread) and threaded XYZ: same results as without threads.
+"""Read-ahead (packets read by a background thread): same results as without the thread.
 
 ``lidarpkt.open(..., read_ahead=True)`` must give the frames (every field), their order, the
 stats, the errors and the warnings of ``read_ahead=False``, at the same point of the stream;
-abandoning the iteration must leave no thread. Ouster XYZ split over threads must be
-bit-identical to the single-threaded computation.
+abandoning the iteration must leave no thread.
 """
 
 from __future__ import annotations
@@ -305,20 +304,3 @@ def test_read_ahead_propagates_any_exception_after_the_batches_before_it():
         for b in ra:
             got.append(b)
     assert len(got) == 4 and not ra.alive
-
-
-# ------------------------------------------------------------------------------------ XYZ
-@pytest.mark.parametrize("pcap,meta", OUSTER[:3])
-def test_threaded_ouster_xyz_is_bit_identical(ext, pcap, meta, monkeypatch):
-    import lidarpkt.ouster.geometry as geometry
-
-    frames = list(lidarpkt.open(ext(pcap), metadata=ext(meta)))
-    assert frames
-    for frame in frames:
-        monkeypatch.setattr(geometry, "XYZ_THREADS", 1)
-        one = frame.xyz()
-        for threads in (2, 3, 4):
-            monkeypatch.setattr(geometry, "XYZ_THREADS", threads)
-            many = frame.xyz()
-            assert many.dtype == one.dtype and many.shape == one.shape
-            assert np.array_equal(many.view(np.uint64), one.view(np.uint64))
