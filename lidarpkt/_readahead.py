@@ -25,7 +25,7 @@ from typing import Callable, Iterator
 _local = threading.local()
 
 THREAD_NAME = "lidarpkt-read-ahead"
-DEFAULT_MAX_BYTES = 48 << 20  # queued batches (payload bytes); one batch is always allowed
+DEFAULT_MAX_BYTES = 16 << 20  # queued batches (payload bytes; one read block); one batch is always allowed. 8-48 MB measured alike, 16 MB steadier
 
 
 def warn(message: Warning, stacklevel: int = 1) -> None:
