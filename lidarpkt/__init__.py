@@ -8,11 +8,14 @@
 from __future__ import annotations
 
 import os
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any
 
 from .errors import LidarpktError
 from .frame import Frame, FrameCounters, FrameStack, SensorInfo
 from .packet import Endpoint, Packet, PacketBatch
+
+if TYPE_CHECKING:
+    from .source import FrameReader
 
 __all__ = [
     "open",
@@ -32,13 +35,17 @@ def open(  # noqa: A001 - the public name is part of the API contract
     *,
     metadata: str | os.PathLike[str] | list[str | os.PathLike[str]] | None = None,
     **options: Any,
-) -> Iterator[Frame]:
+) -> "FrameReader":
     """Frames from a capture: pcap/pcapng, an MCAP file, or a ROS bag holding raw packet topics.
+
+    Returns a :class:`~lidarpkt.source.FrameReader`: iterate it for frames; its ``stats`` say
+    what was routed where and what was skipped; ``close()`` (or ``with``) stops reading early.
 
     Args:
         path: the capture file (or rosbag2 directory).
         metadata: Ouster metadata JSON path (a list of paths for several sensors); VLP-16 needs none.
-        **options: see :func:`lidarpkt.source.open_frames` (calibration, cut angle, filters...).
+        **options: see :func:`lidarpkt.source.open_frames` (calibration, cut angle, read-ahead,
+            packet filters...).
 
     Yields:
         :class:`Frame` objects in the order their last packet arrived.
