@@ -35,7 +35,7 @@ def open(  # noqa: A001 - the public name is part of the API contract
     *,
     metadata: str | os.PathLike[str] | list[str | os.PathLike[str]] | None = None,
     **options: Any,
-) -> "FrameReader":
+) -> FrameReader:
     """Frames from a capture: pcap/pcapng, an MCAP file, or a ROS bag holding raw packet topics.
 
     Returns a :class:`~lidarpkt.source.FrameReader`: iterate it for frames; its ``stats`` say
