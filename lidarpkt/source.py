@@ -91,6 +91,7 @@ class SourceStats:
     ouster_imu_packets: int = 0
     unrouted_packets: int = 0
     unrouted_streams: dict[str, int] = field(default_factory=dict)  # "src → dst (size B)" → packets
+    filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
     frames: int = 0
 
 
@@ -192,6 +193,8 @@ class FrameReader:
                 self.stats.packets += len(batch)
                 src = batch.src.address if batch.src is not None else None
                 if self._source_filter is not None and src != self._source_filter:
+                    if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
+                        self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
                     continue
                 yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne))  # self: the weak proxy
         finally:
@@ -264,6 +267,9 @@ class FrameReader:
             yield frame
 
     def _no_sensor_message(self) -> str:
+        if not self.stats.unrouted_streams and self.stats.filtered_sources:
+            seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
+            return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
         hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
         return f"{self.path}: no VLP-16 or Ouster stream found among {streams}.{hint}"

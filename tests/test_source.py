@@ -105,3 +105,27 @@ def test_not_a_capture_names_the_file_and_its_first_bytes(tmp_path):
         lidarpkt.open(tmp_path / "missing.pcap")
     with pytest.raises(UnsupportedContainerError, match="metadata.yaml"):
         lidarpkt.open(tmp_path)
+
+
+def test_source_filter_that_matches_nothing_names_the_sources_seen(ext):
+    # SOURCES.md: velodyne_example.pcap comes from 192.168.1.200.
+    with pytest.raises(UnknownSensorError, match=r"no packets from source 10\.0\.0\.1.*192\.168\.1\.200 \(84 packets\)"):
+        list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap"), source="10.0.0.1"))
+
+
+def test_calibration_files_are_accepted_by_path(ext):
+    """A ROS YAML / VeloView XML passed by path is used: both generic files have the stock beam angles
+    but no vertical beam offset, where the stock calibration (like velodyne_decoder's) has
+    vert_offset = 0.04191 m · tan(−ω) (REFERENCE.md). So x, y agree and z differs by exactly that."""
+    path = ext("rust-lidar-utils/velodyne_example.pcap")
+    stock = list(lidarpkt.open(path))
+    omega = np.deg2rad(stock[0].sensor.beam_altitude_deg)  # per row
+    for cal in ("rust-lidar-utils/VLP16db.yaml", "veloview/VLP-16.xml"):
+        frames = list(lidarpkt.open(path, calibration=ext(cal)))
+        assert [f.shape for f in frames] == [f.shape for f in stock]
+        a, b = stock[0].xyz(), frames[0].xyz()
+        hit = stock[0].range_mm > 0
+        assert np.abs(a[..., :2] - b[..., :2])[hit].max() < 1e-6
+        dz = (a[..., 2] - b[..., 2])  # [R, H, W]
+        expected = np.broadcast_to((0.04191 * np.tan(-omega))[None, :, None], dz.shape)
+        assert np.abs(dz - expected)[hit].max() < 1e-5
