@@ -12,6 +12,7 @@ from lidarpkt.bags import BagReader
 from lidarpkt.errors import CaptureFormatError, LidarpktError
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
+from reference_tools import velodyne_scan_mcap
 
 NEBULA = "nebula/vlp16/1673400471837873222"
 
@@ -86,25 +87,9 @@ def _dual_payloads(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_mcap_written_by_mcap_ros2(tmp_path):
-    writer_mod = pytest.importorskip("mcap_ros2.writer")
     payload, host = _dual_payloads()
-    schema = (
-        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
-        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
-        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
-    )
     path = tmp_path / "scan.mcap"
-    with open(path, "wb") as fh:
-        w = writer_mod.Writer(fh)
-        s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
-        for start in range(0, len(payload), 20):
-            rows = range(start, min(start + 20, len(payload)))
-            msg = {"header": {"stamp": {"sec": int(host[start] // 10**9), "nanosec": int(host[start] % 10**9)},
-                              "frame_id": "velodyne"},
-                   "packets": [{"stamp": {"sec": int(host[i] // 10**9), "nanosec": int(host[i] % 10**9)},
-                                "data": payload[i].tobytes()} for i in rows]}
-            w.write_message("/velodyne_packets", s, msg, log_time=int(host[rows[-1]]), publish_time=int(host[rows[-1]]))
-        w.finish()
+    path.write_bytes(velodyne_scan_mcap(payload, host, packets_per_message=20, frame_id="velodyne"))
     batch = PacketBatch.concatenate(list(BagReader(path).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
@@ -161,23 +146,9 @@ def test_unreadable_bag_is_a_library_error(tmp_path):
 
 
 def test_truncated_mcap_gives_what_it_holds_then_a_warning(tmp_path):
-    writer_mod = pytest.importorskip("mcap_ros2.writer")
     payload, host = _dual_payloads(60)
-    schema = (
-        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
-        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
-        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
-    )
     path = tmp_path / "scan.mcap"
-    with open(path, "wb") as fh:
-        w = writer_mod.Writer(fh, chunk_size=20_000)
-        s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
-        for i in range(60):
-            stamp = {"sec": int(host[i] // 10**9), "nanosec": int(host[i] % 10**9)}
-            w.write_message("/velodyne_packets", s, {"header": {"stamp": stamp, "frame_id": "v"},
-                                                     "packets": [{"stamp": stamp, "data": payload[i].tobytes()}]},
-                            log_time=int(host[i]), publish_time=int(host[i]))
-        w.finish()
+    path.write_bytes(velodyne_scan_mcap(payload, host, chunk_size=20_000))
     data = path.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 2 // 3])

@@ -19,6 +19,7 @@ from lidarpkt.errors import MetadataError
 from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
 from lidarpkt.packet import PacketBatch
 from lidarpkt.reassembly import FRAGMENT_OVERHEAD, Reassembler
+from reference_tools import velodyne_scan_mcap
 
 DATA = Path(__file__).parent / "data" / "fuzz"
 
@@ -134,31 +135,14 @@ def test_mcap_with_a_corrupt_compressed_chunk_warns_instead_of_raising_zstd_erro
     """Input (test_hostile_input's mutated-bag test): the 30-packet VelodyneScan MCAP with the byte at
     45.7 % of the file set to 0, inside a zstd chunk: zstandard's ZstdError ('Data corruption
     detected') came out raw. Now the messages before the chunk, then a TruncatedCaptureWarning."""
-    import io
-
     import fixtures
     from lidarpkt.bags import BagReader
     from lidarpkt.errors import TruncatedCaptureWarning
     from lidarpkt.pcap import read_packets
 
-    writer_mod = pytest.importorskip("mcap_ros2.writer")
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
-    schema = (
-        "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
-        "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
-        "builtin_interfaces/Time stamp\nuint8[1206] data\n"
-    )
-    fh = io.BytesIO()
-    w = writer_mod.Writer(fh, chunk_size=6_000)
-    s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
-    for p in pk:
-        stamp = {"sec": p.timestamp_ns // 10**9, "nanosec": p.timestamp_ns % 10**9}
-        w.write_message("/velodyne_packets", s, {"header": {"stamp": stamp, "frame_id": "v"},
-                                                 "packets": [{"stamp": stamp, "data": p.payload}]},
-                        log_time=p.timestamp_ns, publish_time=p.timestamp_ns)
-    w.finish()
     payloads = [p.payload for p in pk]
-    raw = bytearray(fh.getvalue())
+    raw = bytearray(velodyne_scan_mcap(payloads, [p.timestamp_ns for p in pk], chunk_size=6_000))
     raw[int(0.45687118274246324 * len(raw))] = 0
     path = tmp_path / "corrupt.mcap"
     path.write_bytes(bytes(raw))

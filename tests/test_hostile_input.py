@@ -28,6 +28,7 @@ from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning, 
 from lidarpkt.packet import Endpoint, Packet, PacketBatch
 from lidarpkt.pcap import PcapReader
 from lidarpkt.pcapwrite import Interface, frames_for, pcap_bytes, pcapng_bytes
+from reference_tools import velodyne_scan_mcap
 
 FIXTURE_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -528,26 +529,10 @@ _BAG = {}
 
 def _small_mcap() -> tuple[bytes, list[bytes], list[int]]:
     if not _BAG:
-        writer_mod = pytest.importorskip("mcap_ros2.writer")
-        import io
-
         base = _vlp_base()
         pk = [p for p in base["packets"] if len(p.payload) == 1206][:30]
-        schema = (
-            "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"
-            "builtin_interfaces/Time stamp\nstring frame_id\n" + "=" * 80 + "\nMSG: velodyne_msgs/VelodynePacket\n"
-            "builtin_interfaces/Time stamp\nuint8[1206] data\n"
-        )
-        fh = io.BytesIO()
-        w = writer_mod.Writer(fh, chunk_size=6_000)
-        s = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", schema)
-        for p in pk:
-            stamp = {"sec": p.timestamp_ns // 10**9, "nanosec": p.timestamp_ns % 10**9}
-            w.write_message("/velodyne_packets", s, {"header": {"stamp": stamp, "frame_id": "v"},
-                                                     "packets": [{"stamp": stamp, "data": p.payload}]},
-                            log_time=p.timestamp_ns, publish_time=p.timestamp_ns)
-        w.finish()
-        _BAG.update(data=fh.getvalue(), payloads=[p.payload for p in pk], times=[p.timestamp_ns for p in pk])
+        data = velodyne_scan_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk], chunk_size=6_000)
+        _BAG.update(data=data, payloads=[p.payload for p in pk], times=[p.timestamp_ns for p in pk])
     return _BAG["data"], _BAG["payloads"], _BAG["times"]
 
 

@@ -29,6 +29,7 @@ from lidarpkt.pcapwrite import (
     write_pcapng,
 )
 from conftest import external
+from reference_tools import ouster_sdk_pcap_packets
 
 LINKS = ["ethernet", "linux_sll", "linux_sll2", "raw", "null"]
 
@@ -55,23 +56,8 @@ def _v6(packets):
 
 
 def _sdk_read(path):
-    pytest.importorskip("ouster.sdk")
-    from ouster.sdk._bindings import pcap as sdk_pcap
-
-    out = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        handle = sdk_pcap.replay_initialize(str(path))
-        info = sdk_pcap.PacketInfo()
-        buf = np.zeros(1 << 17, np.uint8)
-        try:
-            while sdk_pcap.next_packet_info(handle, info):
-                n = sdk_pcap.read_packet(handle, buf)
-                out.append((Endpoint(info.src_ip, info.src_port), Endpoint(info.dst_ip, info.dst_port),
-                            round(info.timestamp * 1e6), buf[:n].tobytes()))
-        finally:
-            sdk_pcap.replay_uninitialize(handle)
-    return out
+    """ouster-sdk's view of a capture, times rounded to µs (the resolution it reports)."""
+    return [(src, dst, round(t * 1e6), payload) for src, dst, t, payload in ouster_sdk_pcap_packets(path)]
 
 
 def _as_tuples(packets, us=False):
