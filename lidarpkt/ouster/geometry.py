@@ -16,6 +16,8 @@ from functools import cached_property
 
 import numpy as np
 
+from .. import kernels
+
 
 class OusterGeometry:
     """XYZ of Ouster frames (implements :class:`lidarpkt.frame.Geometry`)."""
@@ -74,6 +76,10 @@ class OusterGeometry:
         rng = frame.range_mm
         r, h, w = rng.shape
         out = np.empty((r, h, w, 3), np.float64)
+        native = kernels.native
+        if native is not None:
+            native.xyz_lut(np.ascontiguousarray(rng, np.uint32), direction, offset, out)
+            return out
         bits = out.view(np.uint64)
         rows = max(1, min(h, _BLOCK_PIXELS // max(1, r * w)))
         tmp = np.empty((r, rows, w), np.float64)
