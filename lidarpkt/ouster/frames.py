@@ -87,7 +87,10 @@ class _Builder:
         h, w = md.pixels_per_column, md.columns_per_frame
         self.key = key
         self.frame_id = frame_id
-        self.planes = np.empty((md.profile.pixel_bytes // 4, h, w), np.uint32)
+        # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
+        self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
+            (md.profile.pixel_bytes // 4, h, w), np.uint32)
+        decoder._spare_planes = None
         self.timestamp_ns = np.zeros(w, np.int64)
         self.measurement_id = np.zeros(w, np.uint16)
         self.status = np.zeros(w, np.uint32)
@@ -237,6 +240,7 @@ class OusterDecoder:
         self.sensor = metadata.sensor_info(source)
         self.stats = OusterDecoderStats()
         self._current: _Builder | None = None
+        self._spare_planes: np.ndarray | None = None  # the last released frame's word planes, for the next
         self._released: deque[tuple[int, int]] = deque(maxlen=16)
         self._pending_counters = FrameCounters()  # skips seen while no frame was open
         self._window = metadata.window_mask
@@ -373,6 +377,7 @@ class OusterDecoder:
         else:
             status_ok = (b.status & 1).astype(bool)
         px = b.fields(md.profile)
+        self._spare_planes, b.planes = b.planes, None
         extra = {"window": px["window"]} if px["window"] is not None else {}
         return Frame(
             sensor=self.sensor,

@@ -1,0 +1,20 @@
+"""The optional C extension; everything else about the package is in pyproject.toml.
+
+``_lidarpkt_native`` holds the compiled kernels of lidarpkt/kernels.py (the pcap record walk,
+row gathers, Ouster XYZ). ``optional=True``: on a machine without a C compiler the install
+still succeeds and lidarpkt runs the pure-NumPy twins of the same kernels (same results, slower).
+``-ffp-contract=off`` keeps ``r * d + o`` rounded twice, bit-identical to NumPy and ouster-sdk.
+"""
+
+from setuptools import Extension, setup
+
+setup(
+    ext_modules=[
+        Extension(
+            "_lidarpkt_native",
+            sources=["lidarpkt/_native.c"],
+            optional=True,
+            extra_compile_args=["-O3", "-ffp-contract=off"],
+        )
+    ]
+)
