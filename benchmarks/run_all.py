@@ -50,6 +50,8 @@ REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(REPO))
 
+from lidarpkt import kernels  # noqa: E402
+
 ROWS: list[tuple] = []  # (name, ours, reference, ratio, target, met)
 
 
@@ -183,6 +185,12 @@ def pcap(args, work: Path) -> None:
     import bench_pcap as bp
 
     print(f"\npcap reading alone, warm page cache (load {load()})")
+    # real VLP-16 data interleaved with position packets (VeloView's capture repeated): record sizes
+    # alternate every 3 records on average, so no run of equal strides can be checked at once
+    velo = bp.EXTERNAL / "veloview" / "vlp-16-test-90deg-1-50-frames.pcap"
+    mixed = work / "mixed_vlp16_veloview_100mb.pcap"
+    if velo.exists() and not mixed.exists():
+        bp.build(mixed, velo, 100_000_000)
     files = sorted((p for p in work.glob("*.pcap") if not p.name.startswith("mem_")), key=lambda p: -p.stat().st_size)
     for path in files:
         bp.run_cat(path)  # warm the page cache
@@ -302,6 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     work = args.workdir or Path(tempfile.mkdtemp(prefix="lidarpkt_bench_"))
     work.mkdir(parents=True, exist_ok=True)
     print(f"machine: {machine()}")
+    print(f"lidarpkt kernels: {kernels.describe()}")
     print(f"start: {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average {load()}, repeat {args.repeat} (medians)")
     try:
         for s in only:

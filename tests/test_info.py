@@ -40,6 +40,11 @@ def test_vlp16_early_firmware():
     assert pos["kind"] == "VLP-16 position"
     assert pos["details"]["nmea_first"] is None  # "position packets with an empty NMEA field"
     assert doc["first_time"].startswith("2014-11-10")  # captured 2014-11-10
+    # the text line names the product byte once and says why the stream is still a VLP-16
+    res = _cli(str(external("rust-lidar-utils/velodyne_vlp16.pcap")))
+    assert res.returncode == 0, res.stderr
+    (line,) = [ln for ln in res.stdout.splitlines() if "VLP-16 data" in ln]
+    assert line.count("HDL-32E") == 1 and "an early VLP-16 by its packet timing and layout" in line
 
 
 def test_vlp16_modern_and_veloview():

@@ -152,7 +152,7 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         if kind == "vlp16":
             out["rotation_hz"] = _estimate_frequency(good) if len(good) else None
             if product == PRODUCT_HDL32E:
-                out["note"] = "product id 0x21 (HDL-32E) on a packet timing/layout of an early VLP-16"
+                out["note"] = "an early VLP-16 by its packet timing and layout"  # the product byte is shown beside it
         return out
     if batch.payload_size == POSITION_PACKET_SIZE:
         kind = position_kind(batch)
