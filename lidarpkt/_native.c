@@ -22,6 +22,21 @@ static int get_buffer(PyObject *obj, Py_buffer *view, int flags, Py_ssize_t item
     return 0;
 }
 
+/* A buffer format of one native-order item whose code is in `codes` ("q", "=q", "<q" on a
+ * little-endian machine...); the callers check the item size. */
+static int is_native(const char *format, const char *codes) {
+    if (format == NULL) return 0;
+    if (*format == '@' || *format == '=') format++;
+#if PY_LITTLE_ENDIAN
+    else if (*format == '<') format++;
+#else
+    else if (*format == '>' || *format == '!') format++;
+#endif
+    return format[0] != '\0' && format[1] == '\0' && strchr(codes, format[0]) != NULL;
+}
+
+#define INTEGER_CODES "bBhHiIlLqQnN"
+
 static inline uint32_t bswap32(uint32_t v) { return __builtin_bswap32(v); }
 
 /* walk_pcap(buf, start, end, caplen_at, header_bytes, swap, max_cap, max_records, byte_limit, offsets)
@@ -46,7 +61,8 @@ static PyObject *walk_pcap(PyObject *self, PyObject *args) {
         return NULL;
     }
     if (end > buf.len) end = buf.len;
-    if (start < 0 || hdr < caplen_at + 4 || max_records > offs.len / 8) {
+    if (start < 0 || caplen_at < 0 || hdr < caplen_at + 4 || max_records > offs.len / 8 ||
+        !is_native(offs.format, INTEGER_CODES)) {
         PyBuffer_Release(&buf);
         PyBuffer_Release(&offs);
         PyErr_SetString(PyExc_ValueError, "walk_pcap: bad arguments");
@@ -95,14 +111,15 @@ static PyObject *gather_rows(PyObject *self, PyObject *args) {
     }
     PyObject *result = NULL;
     Py_ssize_t n = o.len / 8;
-    Py_ssize_t width = n ? x.len / n : 0;
-    if (width * n != x.len) {
-        PyErr_SetString(PyExc_ValueError, "gather_rows: out must hold width bytes per offset");
+    Py_ssize_t width = x.ndim == 2 ? x.shape[1] : -1;
+    if (x.ndim != 2 || x.shape[0] != n || !is_native(o.format, INTEGER_CODES)) {
+        PyErr_SetString(PyExc_ValueError, "gather_rows: offsets must be native int64 and out uint8 [len(offsets), width]");
         goto done;
     }
     const int64_t *offs = (const int64_t *)o.buf;
     for (Py_ssize_t i = 0; i < n; i++) {
-        if (offs[i] < 0 || offs[i] + width > b.len) {
+        /* written so that no sum can overflow, whatever the offset */
+        if (offs[i] < 0 || width > b.len || offs[i] > b.len - width) {
             PyErr_Format(PyExc_IndexError, "gather_rows: row at %lld of %zd bytes leaves the %zd-byte buffer",
                          (long long)offs[i], width, b.len);
             goto done;
@@ -158,8 +175,11 @@ static PyObject *xyz_lut(PyObject *self, PyObject *args) {
     }
     PyObject *result = NULL;
     Py_ssize_t hw = db.len / 24;
-    if (db.len != ob.len || hw == 0 || (rb.len / 4) % hw != 0 || xb.len != (rb.len / 4) * 24) {
-        PyErr_SetString(PyExc_ValueError, "xyz_lut: sizes of range, direction, offset and out disagree");
+    if (db.len != ob.len || hw == 0 || (rb.len / 4) % hw != 0 || xb.len != (rb.len / 4) * 24 ||
+        !is_native(rb.format, "IL") || !is_native(db.format, "d") || !is_native(ob.format, "d") ||
+        !is_native(xb.format, "d")) {
+        PyErr_SetString(PyExc_ValueError, "xyz_lut: range must be uint32 and direction, offset, out float64, of "
+                                          "agreeing sizes");
         goto done;
     }
     {

@@ -193,7 +193,7 @@ def test_early_unit_with_hdl32e_product_id_is_a_vlp16(ext):
     assert kinds == {1206: "data", 512: "position"}
     data = next(b for b in batches if b.payload_size == 1206)
     info = describe_stream(data)
-    assert info["kind"] == "VLP-16 data" and info["product_id"] == 0x21 and "0x21" in info["note"]
+    assert info["kind"] == "VLP-16 data" and info["product_id"] == 0x21 and "early VLP-16" in info["note"]
     assert classify(data.select(np.array([0]))) == "data"  # one packet: the layout decides
     pos = describe_stream(next(b for b in batches if b.payload_size == 512))
     assert pos["kind"] == "VLP-16 position" and pos["nmea_first"] is None
