@@ -241,7 +241,7 @@ class BagReader:
         known: dict[int, bool] = {}
         n = 0
         with self.path.open("rb") as fh:
-            it = NonSeekingReader(fh).iter_messages(log_time_order=False)
+            it = NonSeekingReader(_FileRemainder(fh)).iter_messages(log_time_order=False)
             while True:
                 try:
                     schema, channel, message = next(it)
@@ -277,3 +277,24 @@ class BagReader:
                         f"{self.path}: message on {channel.topic} ({schema.name}) at {message.log_time} ns cannot "
                         f"be decoded: {exc}") from None
                 yield channel.topic, schema.name, int(message.log_time), msg
+
+
+class _FileRemainder:
+    """A binary file whose ``read(n)`` asks for no more than the bytes left in the file.
+
+    A damaged MCAP record length (up to 2**64 - 1) would otherwise make the mcap reader's
+    ``read(length)`` allocate that much up front (a ``MemoryError``, or gigabytes); capped, the read
+    comes back short and the reader reports the file as cut short.
+    """
+
+    def __init__(self, fh) -> None:
+        self._fh = fh
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(0, self._size - self._fh.tell())
+        return self._fh.read(left if n is None or n < 0 else min(n, left))
+
+    def __getattr__(self, name: str):
+        return getattr(self._fh, name)
+

@@ -233,3 +233,34 @@ def test_a_capture_from_thousands_of_sources_decodes_at_most_max_sensors(tmp_pat
     assert reader.stats.unrouted_packets == 36 + 1500
     assert len(reader.stats.unrouted_streams) <= 1001
     assert sum(reader.stats.unrouted_streams.values()) == 36 + 1500
+
+
+def test_mcap_with_a_huge_record_length_warns_instead_of_raising_memory_error(tmp_path):
+    """Input (test_hostile_input's mutated-bag test, 2026-11-21): the 30-packet VelodyneScan MCAP with
+    the byte at 16.8 % of the file set to 1. It lands in a chunk's data-length field, and the mcap
+    reader's ``read(length)`` asked for exabytes up front (MemoryError). The same with the top byte
+    of each length field set: every one must end in a warning after a prefix of the packets."""
+    import fixtures
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import TruncatedCaptureWarning
+    from lidarpkt.pcap import read_packets
+
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
+    payloads = [p.payload for p in pk]
+    clean = velodyne_scan_mcap(payloads, [p.timestamp_ns for p in pk], chunk_size=6_000)
+    edits = [(int(0.16771957051606856 * len(clean)), 1)]
+    # every record's 8-byte length (after its 1-byte opcode, from the 8-byte magic on): top byte 0x7f
+    pos = 8
+    while pos + 9 <= len(clean) - 8:
+        length = int.from_bytes(clean[pos + 1 : pos + 9], "little")
+        edits.append((pos + 8, 0x7F))
+        pos += 9 + length
+    assert len(edits) > 5
+    for where, value in edits:
+        raw = bytearray(clean)
+        raw[where] = value
+        path = tmp_path / "huge.mcap"
+        path.write_bytes(bytes(raw))
+        with pytest.warns(TruncatedCaptureWarning):
+            got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+        assert got == payloads[: len(got)], where  # (damage in the summary section comes after all 30)
