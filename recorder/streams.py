@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarpkt.ouster.profiles import IMU_PACKET_SIZE, LEGACY
 from lidarpkt.velodyne import packet as vlp
 
 VELODYNE_DATA = "velodyne_data"
@@ -32,9 +33,8 @@ OUSTER_LIDAR = "ouster_lidar"
 OUSTER_IMU = "ouster_imu"
 OTHER = "other"
 
-_OUSTER_IMU_BYTES = 48
 # LEGACY lidar packets of 16, 32, 64, 128 beams: recognisable without metadata
-_LEGACY_SIZES = {16 * (16 + 12 * h + 4) for h in (16, 32, 64, 128)}
+_LEGACY_SIZES = {LEGACY.packet_size(h) for h in (16, 32, 64, 128)}
 
 
 def classify_size(size: int, ouster_metadata=None) -> str:
@@ -49,7 +49,7 @@ def classify_size(size: int, ouster_metadata=None) -> str:
         return VELODYNE_POSITION
     if ouster_metadata is not None and size == ouster_metadata.packet_size:
         return OUSTER_LIDAR
-    if size == _OUSTER_IMU_BYTES:
+    if size == IMU_PACKET_SIZE:
         return OUSTER_IMU
     if ouster_metadata is None and size in _LEGACY_SIZES:
         return OUSTER_LIDAR
