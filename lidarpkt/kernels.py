@@ -9,8 +9,11 @@ Three loops do not vectorise well in NumPy, and run in C when they can
   costs ~10-20 ns a row);
 - Ouster XYZ, ``range · direction + offset`` in one pass instead of thirteen NumPy passes.
 
-(The transposition of Ouster packets into row-major planes was tried in C too, in four loop
-orders: NumPy's blocked strided copy was faster, 0.125 against 0.17-0.28 ms per OS-2-128 frame.)
+The Ouster transposition (column-major packets into row-major word planes) stays in NumPy: in
+C it was tried per packet in three loop orders, with SSE2 4x4 transposes, and fused with the field
+extraction; none beat NumPy's blocked strided copy (alone: 0.16 ms per OS-2-128 frame against
+0.17-0.46; in the pipeline the fused kernel took 0.55-0.72 ms where NumPy's copy and field passes
+take 0.47). See benchmarks/README.md.
 
 Each has a pure-NumPy twin in the module that calls it, used when the extension is absent (a
 machine without a C compiler at install time) or disabled with ``LIDARPKT_NATIVE=0``; the
