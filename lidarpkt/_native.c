@@ -89,6 +89,84 @@ static PyObject *walk_pcap(PyObject *self, PyObject *args) {
     return Py_BuildValue("nni", n, rel, reason);
 }
 
+/* walk_pcapng(buf, start, end, swap, interfaces, max_block, max_records, byte_limit,
+ *             data_out, caplen_out, interface_out, timestamp_out)
+ *
+ * Walks the enhanced packet blocks (type 6) of one pcapng section in buf[start:end] and writes, for
+ * each, the offset of its packet data, its captured length, its interface and its raw 64-bit time
+ * stamp (int64, int64, int64, uint64 arrays).  It stops, without consuming it, at the first block
+ * that needs a decision (any other block type, a length that is not a multiple of 4, below 12 or
+ * above max_block, a block cut by `end`, a trailing length that differs, a body too short for the
+ * EPB header, an interface >= `interfaces`, data longer than the block), and when max_records
+ * records were written or the next block starts at or after byte_limit.
+ * Returns (records, offset of the next block).
+ */
+static PyObject *walk_pcapng(PyObject *self, PyObject *args) {
+    PyObject *b_obj, *d_obj, *c_obj, *i_obj, *t_obj;
+    Py_ssize_t start, end, interfaces, max_block, max_records, byte_limit;
+    int swap;
+    if (!PyArg_ParseTuple(args, "OnnpnnnnOOOO", &b_obj, &start, &end, &swap, &interfaces, &max_block, &max_records,
+                          &byte_limit, &d_obj, &c_obj, &i_obj, &t_obj))
+        return NULL;
+    Py_buffer b, d, c, i, t;
+    int have = 0;
+    PyObject *result = NULL;
+    if (get_buffer(b_obj, &b, PyBUF_SIMPLE, 1, "walk_pcapng buf") < 0) goto done;
+    have = 1;
+    if (get_buffer(d_obj, &d, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "walk_pcapng data") < 0) goto done;
+    have = 2;
+    if (get_buffer(c_obj, &c, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "walk_pcapng caplen") < 0) goto done;
+    have = 3;
+    if (get_buffer(i_obj, &i, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "walk_pcapng interface") < 0) goto done;
+    have = 4;
+    if (get_buffer(t_obj, &t, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "walk_pcapng timestamp") < 0) goto done;
+    have = 5;
+    if (end > b.len) end = b.len;
+    if (start < 0 || max_records < 0 || max_records > d.len / 8 || max_records > c.len / 8 || max_records > i.len / 8 ||
+        max_records > t.len / 8 || !is_native(d.format, INTEGER_CODES) || !is_native(c.format, INTEGER_CODES) ||
+        !is_native(i.format, INTEGER_CODES) || !is_native(t.format, INTEGER_CODES)) {
+        PyErr_SetString(PyExc_ValueError, "walk_pcapng: bad arguments (outputs: native 64-bit integers, max_records each)");
+        goto done;
+    }
+    {
+        const unsigned char *p = (const unsigned char *)b.buf;
+        int64_t *data = (int64_t *)d.buf, *caplen = (int64_t *)c.buf, *iface = (int64_t *)i.buf;
+        uint64_t *stamp = (uint64_t *)t.buf;
+        Py_ssize_t rel = start, n = 0;
+        Py_BEGIN_ALLOW_THREADS
+        while (n < max_records && rel < byte_limit && rel + 12 <= end) {
+            uint32_t w[7];  /* block type, length, interface, ts high, ts low, captured, original */
+            memcpy(w, p + rel, 8);
+            if (swap) { w[0] = bswap32(w[0]); w[1] = bswap32(w[1]); }
+            Py_ssize_t blen = (Py_ssize_t)w[1];
+            if (w[0] != 6 || blen < 12 + 20 || blen % 4 || blen > max_block || rel + blen > end) break;
+            uint32_t trailer;
+            memcpy(&trailer, p + rel + blen - 4, 4);
+            if (swap) trailer = bswap32(trailer);
+            if ((Py_ssize_t)trailer != blen) break;
+            memcpy(w + 2, p + rel + 8, 20);
+            if (swap) for (int k = 2; k < 7; k++) w[k] = bswap32(w[k]);
+            Py_ssize_t body_end = rel + blen - 4, at = rel + 8 + 20;
+            if ((Py_ssize_t)w[2] >= interfaces || at + (Py_ssize_t)w[5] > body_end) break;
+            data[n] = at;
+            caplen[n] = w[5];
+            iface[n] = w[2];
+            stamp[n] = ((uint64_t)w[3] << 32) | w[4];
+            n++;
+            rel += blen;
+        }
+        Py_END_ALLOW_THREADS
+        result = Py_BuildValue("nn", n, rel);
+    }
+done:
+    if (have >= 5) PyBuffer_Release(&t);
+    if (have >= 4) PyBuffer_Release(&i);
+    if (have >= 3) PyBuffer_Release(&c);
+    if (have >= 2) PyBuffer_Release(&d);
+    if (have >= 1) PyBuffer_Release(&b);
+    return result;
+}
+
 /* gather_rows(buf, offsets, out)
  *
  * out[i, :] = buf[offsets[i] : offsets[i] + width] for uint8 out [n, width] (C-contiguous) and
@@ -220,6 +298,7 @@ done:
 
 static PyMethodDef methods[] = {
     {"walk_pcap", walk_pcap, METH_VARARGS, "Offsets of whole classic-pcap records; see lidarpkt/_native.c."},
+    {"walk_pcapng", walk_pcapng, METH_VARARGS, "Enhanced packet blocks of a pcapng section; see lidarpkt/_native.c."},
     {"gather_rows", gather_rows, METH_VARARGS, "Rows of bytes at offsets of a buffer."},
     {"xyz_lut", xyz_lut, METH_VARARGS, "range * direction + offset, zero where range is 0."},
     {NULL, NULL, 0, NULL},

@@ -342,6 +342,108 @@ def test_byte_limit_exact_multiple_of_the_stride(tmp_path, monkeypatch):
     assert [len(b[7]) for b in batches] == [20] * 5
 
 
+# --- 2b. pcapng: the compiled walk over enhanced packet blocks against the record-by-record walk -----
+def _pcapng_of(records, *, big_endian=False, seed=0, extra_blocks=True, raw_epb_iface=None) -> bytes:
+    """One section with four interfaces (µs; ns with an offset; 2^-20 s; 10^-10 s, whose stamps pass
+    2^63 and take the per-record conversion), the records spread over them, and between
+    them the blocks the compiled walk must stop at and hand back: simple and obsolete packet blocks,
+    a name resolution block, a custom block, an EPB naming an undeclared interface."""
+    from lidarpkt.pcapwrite import Interface, _block, pcapng_bytes
+
+    rng = random.Random(seed)
+    e = ">" if big_endian else "<"
+    interfaces = (Interface(), Interface(tsresol=9, tsoffset_s=-3600), Interface(tsresol=0x80 | 20),
+                  Interface(tsresol=10))
+    which = [rng.choice((0, 0, 0, 1, 2, 3)) for _ in records]
+    body = pcapng_bytes([(w, ts, f) for w, (ts, f) in zip(which, records)], interfaces=interfaces,
+                        big_endian=big_endian)
+    if not extra_blocks:
+        return body
+    # split after the section and interface blocks, then after every block, inserting odd blocks
+    off, blocks = 0, []
+    while off < len(body):
+        blen = struct.unpack_from(e + "I", body, off + 4)[0]
+        blocks.append(body[off : off + blen])
+        off += blen
+    head, packets = blocks[:5], blocks[5:]
+    spb = _block(e, 3, struct.pack(e + "I", 60) + bytes(range(60)))
+    opb = _block(e, 2, struct.pack(e + "HHIIII", 0, 0, 1, 2, 54, 54) + bytes(54))
+    nrb = _block(e, 4, struct.pack(e + "HH", 0, 0))
+    custom = _block(e, 0x40000BAD, b"lidarpkt")
+    stray = _block(e, 6, struct.pack(e + "IIIII", 9, 0, 0, 4, 4) + b"abcd")  # interface 9 of 4
+    out = list(head)
+    for i, blk in enumerate(packets):
+        out.append(blk)
+        if i % 17 == 3:
+            out.append(rng.choice((spb, opb, nrb, custom, stray)))
+    return b"".join(out)
+
+
+@needs_native
+@pytest.mark.parametrize("big_endian", [False, True])
+@pytest.mark.parametrize("batch_packets", [1, 5, 4096])
+def test_generated_pcapng_native_equals_record_by_record(tmp_path, mixed, big_endian, batch_packets):
+    path = tmp_path / "m.pcapng"
+    path.write_bytes(_pcapng_of(mixed, big_endian=big_endian))
+    batches, stats, _ = _assert_same(path, batch_packets=batch_packets)
+    assert stats["format"] == "pcapng" and stats["interfaces"] == 4
+    assert stats["malformed_reasons"].get("pcapng packet for an undeclared interface", 0) > 0  # the stray blocks
+    assert sum(len(b[7]) for b in batches) > 150
+
+
+@needs_native
+@pytest.mark.parametrize("block", [1600, 4999])
+def test_generated_pcapng_small_read_blocks(tmp_path, monkeypatch, mixed, block):
+    monkeypatch.setattr(pcap_module, "READ_BLOCK_BYTES", block + 12_000)  # still holds the largest block
+    path = tmp_path / "m.pcapng"
+    path.write_bytes(_pcapng_of(mixed, seed=2))
+    _assert_same(path, batch_packets=7)
+
+
+@needs_native
+def test_pcapng_time_stamps_outside_int64_are_malformed_either_way(tmp_path, mixed):
+    """Whole-second stamps times 10^9 that pass 2^63 take the record-by-record conversion; a time
+    beyond 2^63 ns is counted malformed and dropped by both walks."""
+    from lidarpkt.pcapwrite import Interface, _block, pcapng_bytes
+
+    head = pcapng_bytes([], interfaces=(Interface(tsresol=0),))  # whole seconds
+    e = "<"
+    frame = mixed[0][1]
+    epbs = b"".join(
+        _block(e, 6, struct.pack(e + "IIIII", 0, sec >> 32, sec & 0xFFFFFFFF, len(frame), len(frame)) + frame)
+        for sec in (1_700_000_000, 2**40, 9_223_372_036, 9_223_372_037, 2**63 - 1, 5)
+    )
+    path = tmp_path / "t.pcapng"
+    path.write_bytes(head + epbs)
+    batches, stats, _ = _assert_same(path)
+    assert stats["malformed_reasons"]["pcapng time stamp out of range"] == 3
+    assert [t for b in batches for t in b[3]] == [1_700_000_000 * 10**9, 9_223_372_036 * 10**9, 5 * 10**9]
+
+
+@needs_native
+def test_pcapng_cut_and_damaged_anywhere(tmp_path, mixed):
+    data = _pcapng_of(mixed[:60], seed=3)
+    rng = random.Random(5)
+    cuts = sorted(set(range(len(data) - 40, len(data) + 1)) | {rng.randrange(28, len(data)) for _ in range(60)})
+    path = tmp_path / "c.pcapng"
+    inputs = [data[:cut] for cut in cuts]
+    for _ in range(80):  # one byte of a block length or body changed
+        raw = bytearray(data)
+        raw[rng.randrange(28, len(raw))] = rng.randrange(256)
+        inputs.append(bytes(raw))
+    refused = 0
+    for blob in inputs:
+        path.write_bytes(blob)
+        try:
+            _assert_same(path, batch_packets=5)
+        except CaptureFormatError as native_error:  # then the record-by-record walk refuses it alike
+            refused += 1
+            with pytest.raises(CaptureFormatError) as ref_error:
+                _read(path, None, batch_packets=5)
+            assert str(ref_error.value) == str(native_error)
+    assert refused < len(inputs) // 2
+
+
 # --- 3. truncation and corruption ---------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def mixed_bytes(mixed):
