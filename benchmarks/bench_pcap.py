@@ -10,7 +10,7 @@ capture, repeated with shifted times), then times, on each:
 - ``PcapReader.batches()`` (the decoders' path) and ``PcapReader.packets()``.
 
 Captures: ``uniform`` (VLP-16 data packets only: the common case), ``mixed`` (data and
-position packets interleaved as recorded) and ``fragmented`` (Ouster 12608-B packets as
+position packets interleaved as recorded), ``mixed-ng`` (the same as pcapng) and ``fragmented`` (Ouster 12608-B packets as
 9 IPv4 fragments each, a tenth of the size).
 
     python benchmarks/bench_pcap.py --size-mb 200 [--repeat 3] [--keep DIR]
@@ -33,13 +33,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from lidarpkt.pcap import PcapReader, read_packets  # noqa: E402
-from lidarpkt.pcapwrite import frames_for, write_pcap_records  # noqa: E402
+from lidarpkt.pcapwrite import frames_for, write_pcap_records, write_pcapng_records  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
 
-def build(path: Path, source: Path, size_bytes: int, *, only_size: int | None = None) -> int:
-    """Repeat the packets of ``source`` (shifting times) until the file holds about ``size_bytes``."""
+def build(path: Path, source: Path, size_bytes: int, *, only_size: int | None = None, pcapng: bool = False) -> int:
+    """Repeat the packets of ``source`` (shifting times) until the file holds about ``size_bytes``
+    (a classic pcap, or pcapng with enhanced packet blocks)."""
     packets = [p for p in read_packets(source) if only_size is None or len(p.payload) == only_size]
     framed = [(p.timestamp_ns, frames_for(p, ident=i)) for i, p in enumerate(packets)]
     span = packets[-1].timestamp_ns - packets[0].timestamp_ns + 1_000_000
@@ -53,7 +54,10 @@ def build(path: Path, source: Path, size_bytes: int, *, only_size: int | None = 
                 for f in fs:
                     yield ts + shift, f
 
-    write_pcap_records(path, records())
+    if pcapng:
+        write_pcapng_records(path, ((0, ts, f) for ts, f in records()))
+    else:
+        write_pcap_records(path, records())
     return rounds * len(packets)
 
 
@@ -86,7 +90,8 @@ def run_dpkt(path: Path) -> int:
 
     n = 0
     with open(path, "rb") as fh:
-        for _ts, frame in dpkt.pcap.Reader(fh):
+        reader = dpkt.pcapng.Reader(fh) if path.suffix == ".pcapng" else dpkt.pcap.Reader(fh)
+        for _ts, frame in reader:
             ip = dpkt.ethernet.Ethernet(frame).data
             udp = ip.data
             if isinstance(udp, dpkt.udp.UDP):
@@ -121,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         files["uniform"] = (workdir / "uniform.pcap", build(workdir / "uniform.pcap", velo, size, only_size=1206))
         files["mixed"] = (workdir / "mixed.pcap", build(workdir / "mixed.pcap", velo, size))
+        files["mixed-ng"] = (workdir / "mixed.pcapng", build(workdir / "mixed.pcapng", velo, size, pcapng=True))
         files["fragmented"] = (workdir / "fragmented.pcap", build(workdir / "fragmented.pcap", ouster, size // 10, only_size=12608))
         print(f"built captures in {time.perf_counter() - t0:.1f} s under {workdir}")
         print(f"{'capture':<11} {'MB':>7} {'packets':>9} | {'reader':<16} {'s':>7} {'kpkt/s':>9} {'MB/s':>8} | {'x dpkt':>7} {'x cat':>7}")

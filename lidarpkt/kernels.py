@@ -3,8 +3,8 @@
 Three loops do not vectorise well in NumPy, and run in C when they can
 (``lidarpkt/_native.c``):
 
-- the walk over classic-pcap record headers when record sizes are mixed (each record's offset
-  depends on the one before it);
+- the walk over classic-pcap record headers when record sizes are mixed, and over pcapng's
+  enhanced packet blocks (each record's offset depends on the one before it);
 - gathering rows of bytes at offsets (header fields of 1-8 bytes, where NumPy's fancy index
   costs ~10-20 ns a row);
 - Ouster XYZ, ``range · direction + offset`` in one pass instead of thirteen NumPy passes.
