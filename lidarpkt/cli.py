@@ -38,7 +38,10 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
         prog="lidarpkt",
         description="Decode, record and analyse Velodyne VLP-16 and Ouster OS1 lidar packets.",
     )
-    parser.add_argument("--version", action="version", version=f"lidarpkt {_version()}")
+    from . import kernels
+
+    # says which implementation runs: the compiled kernels, or why not (their NumPy twins are slower)
+    parser.add_argument("--version", action="version", version=f"lidarpkt {_version()}, {kernels.describe()}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for name, (_, help_text) in VERBS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

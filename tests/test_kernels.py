@@ -199,6 +199,16 @@ def _python(code: str, **env) -> str:
     return res.stdout.strip()
 
 
+def test_version_says_which_implementation_runs():
+    res = subprocess.run([sys.executable, "-m", "lidarpkt", "--version"], capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "LIDARPKT_NATIVE": "0"})
+    assert res.returncode == 0 and res.stdout.strip().endswith(", pure NumPy (disabled by LIDARPKT_NATIVE=0)"), res
+    if NATIVE is not None:
+        res = subprocess.run([sys.executable, "-m", "lidarpkt", "--version"], capture_output=True, text=True,
+                             timeout=60, env={k: v for k, v in os.environ.items() if k != "LIDARPKT_NATIVE"})
+        assert res.returncode == 0 and ", compiled kernels (_lidarpkt_native" in res.stdout, res
+
+
 def test_environment_switch_in_a_fresh_interpreter():
     code = "from lidarpkt import kernels; print(kernels.native); print(kernels.describe())"
     assert _python(code, LIDARPKT_NATIVE="0").splitlines() == ["None", "pure NumPy (disabled by LIDARPKT_NATIVE=0)"]
