@@ -45,6 +45,6 @@ native: ModuleType | None = _load()
 def describe() -> str:
     """One line for reports: which implementation runs."""
     if native is not None:
-        return f"compiled kernels ({os.path.basename(native.__file__ or '_lidarpkt_native')})"
+        return f"compiled kernels ({native.__name__})"
     why = "disabled by LIDARPKT_NATIVE=0" if os.environ.get("LIDARPKT_NATIVE") == "0" else "extension not built"
     return f"pure NumPy ({why})"
