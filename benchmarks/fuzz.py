@@ -21,6 +21,12 @@ Targets (each checks more than "does not crash"):
   packets of its size for :class:`~lidarpkt.ouster.OusterDecoder`; frames must have consistent shapes.
 - ``metadata``: the input is an Ouster metadata JSON for ``load_metadata``; a metadata it accepts must
   also build a decoder and decode a packet of its own size.
+- ``bags``: the first byte picks the container (see :func:`bag_files`): an ``.mcap`` file, a ROS 1 ``.bag``,
+  a rosbag2 sqlite3 bag (opened by its ``.db3`` or its directory) or a rosbag2 directory with MCAP
+  storage; for the rosbag2 kinds the input also carries the ``metadata.yaml``. ``BagReader.batches()``
+  is read to the end: batch indices follow on, ``stats["packets"]`` counts them, ``ouster_metadata()`` is
+  a JSON object or ``None``, no file stays open (also while a lidarpkt error is kept); then
+  ``lidarpkt.open`` reads the same bag and routes as many packets.
 
 Each target runs as libFuzzer processes of at most ``--segment`` seconds (60) on one corpus folder, one
 after the other: under atheris the process RSS grows by tens of KB per execution (the same inputs in
@@ -49,22 +55,33 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
-TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata")
-MAX_LEN = {"pcap": 70_000, "reassembly": 4096, "velodyne": 1206 * 4 + 600, "ouster": 70_000, "metadata": 16_384}
+TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata", "bags")
+MAX_LEN = {"pcap": 70_000, "reassembly": 4096, "velodyne": 1206 * 4 + 600, "ouster": 70_000, "metadata": 16_384,
+           "bags": 70_000}
 
 
 class Finding(AssertionError):
     """An invariant of a target does not hold (libFuzzer reports it as a crash)."""
 
 
-def _import_lidarpkt(instrument: bool):
+def _import_lidarpkt(instrument: bool, target: str = ""):
     if instrument:
         import atheris
 
-        with atheris.instrument_imports(include=["lidarpkt"]):
+        # bags: the container parsers it drives (mcap, rosbags) are instrumented too, so that coverage
+        # leads the mutations past their checks into the records lidarpkt reads
+        third_party = ["mcap", "rosbags"] if target == "bags" else []
+        with atheris.instrument_imports(include=["lidarpkt"] + third_party):
+            if third_party:
+                import mcap.reader  # noqa: F401
+                import rosbags.highlevel  # noqa: F401
+                import rosbags.rosbag1  # noqa: F401
+                import rosbags.rosbag2  # noqa: F401
+            import lidarpkt.bags  # noqa: F401
             import lidarpkt.ouster  # noqa: F401
             import lidarpkt.pcap  # noqa: F401
             import lidarpkt.reassembly  # noqa: F401
+            import lidarpkt.source  # noqa: F401
             import lidarpkt.velodyne  # noqa: F401
     else:
         import lidarpkt.ouster  # noqa: F401
@@ -275,16 +292,292 @@ def make_metadata_target():
     return target
 
 
+BAG_KINDS = ("mcap", "ros1", "rosbag2-sqlite3", "rosbag2-mcap")
+
+
+def bag_files(data: bytes) -> tuple[str, dict[str, bytes], str]:
+    """An input of the ``bags`` target as files: ``(kind, {name: bytes}, name of the path to open)``.
+
+    Byte 0 picks the kind (``BAG_KINDS[byte % 4]``). ``mcap`` and ``ros1``: the rest is ``b.mcap`` /
+    ``b.bag``. The rosbag2 kinds: bytes 1-2 (little-endian) are the length of the ``metadata.yaml``
+    that follows (0: no metadata.yaml, a bare ``.db3``), the rest is the storage file ``b_0.db3`` /
+    ``b_0.mcap``; a sqlite3 bag is opened by its ``.db3`` if bit 2 of byte 0 is set, else by its folder.
+    """
+    kind = BAG_KINDS[data[0] % 4] if data else "mcap"
+    if kind in ("mcap", "ros1"):
+        name = "b.mcap" if kind == "mcap" else "b.bag"
+        return kind, {name: data[1:]}, name
+    n = int.from_bytes(data[1:3], "little")
+    meta, body = data[3 : 3 + n], data[3 + n :]
+    storage = "b_0.db3" if kind == "rosbag2-sqlite3" else "b_0.mcap"
+    files = {storage: body} | ({"metadata.yaml": meta} if n else {})
+    opened = storage if kind == "rosbag2-sqlite3" and (data[0] & 4 or not n) else "."
+    return kind, files, opened
+
+
+def bag_input(kind: str, files: dict[str, bytes], opened: str = ".") -> bytes:
+    """The inverse of :func:`bag_files` (for seeds)."""
+    sel = BAG_KINDS.index(kind) | (4 if opened != "." else 0)
+    if kind in ("mcap", "ros1"):
+        return bytes([sel]) + next(iter(files.values()))
+    meta = files.get("metadata.yaml", b"")
+    body = next(v for k, v in files.items() if k != "metadata.yaml")
+    return bytes([sel]) + len(meta).to_bytes(2, "little") + meta + body
+
+
+def make_bags_target():
+    import shutil
+
+    import numpy as np
+
+    import lidarpkt
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import LidarpktError
+
+    root = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}-bags")
+
+    def open_fds() -> dict[str, str]:
+        out = {}
+        for fd in os.listdir("/proc/self/fd") if os.path.isdir("/proc/self/fd") else ():
+            try:
+                out[fd] = os.readlink(f"/proc/self/fd/{fd}")
+            except OSError:  # the listing's own descriptor, closed by now
+                pass
+        return out
+
+    def target(data: bytes) -> None:
+        if not data:
+            return
+        _, files, opened = bag_files(data)
+        os.makedirs(root, exist_ok=True)
+        fds = open_fds()
+        error = None
+        try:
+            for name, body in files.items():
+                Path(root, name).write_bytes(body)
+            path = os.path.normpath(os.path.join(root, opened))
+            reader = BagReader(path)
+            count = 0
+            batches = reader.batches()
+            try:
+                for b in batches:
+                    if (b.payload.ndim != 2 or b.payload.dtype != np.uint8 or len(b.timestamp_ns) != len(b)
+                            or list(b.index) != list(range(count, count + len(b)))):
+                        raise Finding(f"batch of shape {b.payload.shape}, {len(b.timestamp_ns)} times, index "
+                                      f"{b.index[:3]}... after {count} packets")
+                    count += len(b)
+            finally:
+                batches.close()
+            if reader.stats["packets"] != count:
+                raise Finding(f"stats['packets'] = {reader.stats['packets']}, {count} packets yielded")
+            md = reader.ouster_metadata()
+            if md is not None and not isinstance(json.loads(md), dict):  # callers hand it to load_metadata
+                raise Finding(f"ouster_metadata() is {md[:40]!r}..., not a JSON object")
+            if count or md is not None:
+                fr = lidarpkt.open(path)
+                try:
+                    for _ in fr:
+                        pass
+                finally:
+                    fr.close()
+                if fr.stats.packets != count:
+                    raise Finding(f"lidarpkt.open routed {fr.stats.packets} packets, BagReader gave {count}")
+        except LidarpktError as exc:
+            error = exc  # kept, as a caller may keep it, while the open files are counted
+        finally:
+            shutil.rmtree(root, ignore_errors=True)  # libFuzzer ends the process with exit(): leave nothing behind
+        if open_fds().keys() - fds.keys():
+            import gc
+
+            gc.collect()
+            if left := {fd: name for fd, name in open_fds().items() if fd not in fds}:
+                raise Finding(f"file descriptor(s) left open: {left}" + (f" after {error!r}" if error else ""))
+        if error is not None:
+            raise error
+
+    return target
+
+
 MAKERS = {
     "pcap": make_pcap_target,
     "reassembly": make_reassembly_target,
     "velodyne": make_velodyne_target,
     "ouster": make_ouster_target,
     "metadata": make_metadata_target,
+    "bags": make_bags_target,
 }
 
 
 # ------------------------------------------------------------------------------------------ seeds
+def _bag_seeds() -> list[bytes]:
+    """Small bags of every kind the reader opens, written with the official writers (``mcap_ros2``,
+    ``rosbags``) from real packets: the nebula VLP-16 dual bag (also cut down to one 3-packet message,
+    keeping its own old sqlite schema and metadata.yaml) and an OS-1-32 capture with its metadata."""
+    import io
+    import shutil
+    import sqlite3
+
+    import numpy as np
+    from mcap_ros2.writer import Writer as McapWriter
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from lidarpkt.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.pcap import read_packets
+
+    def store(which):
+        st = get_typestore(which)
+        extra: dict = {}
+        for name, text in MESSAGE_DEFINITIONS.items():
+            extra.update(get_types_from_msg(text, name))
+        st.register(extra)
+        return st
+
+    ros2 = store(Stores.ROS2_HUMBLE)
+    scan_t = "velodyne_msgs/msg/VelodyneScan"
+    neb_dir = EXTERNAL / "nebula/vlp16/1673400471837873222"
+    neb_db = neb_dir / "1673400471837873222_0.db3"
+    vel: list[tuple[int, bytes]] = []
+    if neb_db.exists():
+        con = sqlite3.connect(f"file:{neb_db}?mode=ro", uri=True)
+        raw = con.execute("SELECT data FROM messages ORDER BY timestamp LIMIT 1").fetchone()[0]
+        con.close()
+        scan = ros2.deserialize_cdr(raw, scan_t)
+        vel = [(p.stamp.sec * 10**9 + p.stamp.nanosec, bytes(p.data)) for p in scan.packets[:3]]
+    else:
+        vel = [(1_600_000_000_000_000_000 + i * 1_327_000, bytes(1206)) for i in range(3)]
+    os_md = EXTERNAL / "ouster-sdk/OS-1-32-G_v2.1.1_1024x10.json"
+    os_cap = EXTERNAL / "ouster-sdk/OS-1-32-G_v2.1.1_1024x10.pcap"
+    md_text, lidar, imu = "{}", bytes(6464), bytes(48)
+    if os_md.exists() and os_cap.exists():
+        md_text = os_md.read_text()
+        for p in read_packets(os_cap):
+            if len(p.payload) == 6464 and lidar == bytes(6464):
+                lidar = p.payload
+            elif len(p.payload) == 48:
+                imu = p.payload
+    t0 = vel[0][0]
+
+    def ros_msgs(st, ros1: bool):
+        """(topic, type, log time ns, message) of a mixed bag: VelodyneScan (one with packet stamps 0, read
+        at the bag time), VelodynePacket, NebulaPacket (a position packet), ouster PacketMsg lidar and IMU,
+        the Ouster metadata String and a topic of another type."""
+        T = st.types
+        time = lambda ns: T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)  # noqa: E731
+        u8 = lambda b: np.frombuffer(b, np.uint8)  # noqa: E731
+        hdr = (lambda ns: T["std_msgs/msg/Header"](seq=0, stamp=time(ns), frame_id="velodyne")) if ros1 else (
+            lambda ns: T["std_msgs/msg/Header"](stamp=time(ns), frame_id="velodyne"))
+        pkt = T["velodyne_msgs/msg/VelodynePacket"]
+        out = [("/ouster/metadata", "std_msgs/msg/String", t0, T["std_msgs/msg/String"](data=md_text))]
+        out += [("/velodyne_packets", scan_t, t, T[scan_t](header=hdr(t), packets=[pkt(stamp=time(t if i else 0), data=u8(d))]))
+                for i, (t, d) in enumerate(vel)]
+        out.append(("/velodyne_packet", "velodyne_msgs/msg/VelodynePacket", t0 + 1, pkt(stamp=time(0), data=u8(vel[0][1]))))
+        out.append(("/velodyne_position", "nebula_msgs/msg/NebulaPacket", t0 + 2,
+                    T["nebula_msgs/msg/NebulaPacket"](stamp=time(t0 + 2), data=u8(bytes(512)))))
+        out.append(("/ouster/lidar_packets", "ouster_sensor_msgs/msg/PacketMsg", t0 + 3, T["ouster_sensor_msgs/msg/PacketMsg"](buf=u8(lidar))))
+        out.append(("/ouster/imu_packets", "ouster_sensor_msgs/msg/PacketMsg", t0 + 4, T["ouster_sensor_msgs/msg/PacketMsg"](buf=u8(imu))))
+        out.append(("/chatter", "std_msgs/msg/Int32", t0 + 5, T["std_msgs/msg/Int32"](data=7)))
+        return out
+
+    out: list[bytes] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmpdir = Path(tmp)
+        # MCAP files (the mcap_ros2 writer: zstd, lz4 and uncompressed chunks)
+        for i, (compression, chunk) in enumerate((("zstd", 2000), ("lz4", 1 << 20), ("none", 1 << 20))):
+            from mcap.writer import CompressionType
+
+            fh = io.BytesIO()
+            w = McapWriter(fh, chunk_size=chunk, compression=CompressionType[compression.upper()])
+            schemas: dict = {}
+            for topic, typ, t, msg in ros_msgs(ros2, False) if i < 2 else [m for m in ros_msgs(ros2, False) if "velodyne" in m[0]]:
+                if typ not in schemas:
+                    text, _ = ros2.generate_msgdef(typ, ros_version=2)
+                    schemas[typ] = w.register_msgdef(typ, text)
+                w.write_message(topic, schemas[typ], _ros_dict(msg), log_time=t, publish_time=t)
+            w.finish()
+            out.append(bag_input("mcap", {"b.mcap": fh.getvalue()}))
+            if i == 0:
+                out.append(bag_input("rosbag2-mcap", {"b_0.mcap": fh.getvalue(), "metadata.yaml": _rosbag2_yaml("mcap", ros_msgs(ros2, False))}))
+        # ROS 1 bags (uncompressed, bz2 and lz4 chunks)
+        ros1 = store(Stores.ROS1_NOETIC)
+        for i, compression in enumerate((None, "BZ2", "LZ4")):
+            path = tmpdir / f"r{i}.bag"
+            w1 = Writer1(path)
+            if compression:
+                w1.set_compression(Writer1.CompressionFormat[compression])
+            w1.open()
+            conns: dict = {}
+            for topic, typ, t, msg in ros_msgs(ros1, True):
+                if topic not in conns:
+                    conns[topic] = w1.add_connection(topic, typ, typestore=ros1)
+                w1.write(conns[topic], t, ros1.serialize_ros1(msg, typ))
+            w1.close()
+            out.append(bag_input("ros1", {"b.bag": path.read_bytes()}))
+        # rosbag2 sqlite3 (version 8, plain and with zstd-compressed messages)
+        for i, mode in enumerate(("NONE", "MESSAGE")):
+            path = tmpdir / f"s{i}"
+            w2 = Writer2(path)
+            w2.set_compression(Writer2.CompressionMode[mode], Writer2.CompressionFormat.ZSTD)
+            w2.open()
+            conns = {}
+            for topic, typ, t, msg in ros_msgs(ros2, False):
+                if topic not in conns:
+                    conns[topic] = w2.add_connection(topic, typ, typestore=ros2)
+                w2.write(conns[topic], t, ros2.serialize_cdr(msg, typ))
+            w2.close()
+            meta = (path / "metadata.yaml").read_bytes().replace(f"s{i}.db3".encode(), b"b_0.db3")
+            out.append(bag_input("rosbag2-sqlite3", {"b_0.db3": (path / f"s{i}.db3").read_bytes(), "metadata.yaml": meta},
+                                 opened="b_0.db3" if i else "."))
+        # the real nebula bag (rosbag2 version 5: no message definitions inside), cut to one 3-packet message
+        if neb_db.exists():
+            db = tmpdir / "neb.db3"
+            shutil.copy(neb_db, db)
+            con = sqlite3.connect(db)
+            first = con.execute("SELECT id, data FROM messages ORDER BY timestamp LIMIT 1").fetchone()
+            scan = ros2.deserialize_cdr(first[1], scan_t)
+            scan = type(scan)(header=scan.header, packets=scan.packets[:3])
+            con.execute("DELETE FROM messages WHERE id != ?", (first[0],))
+            con.execute("UPDATE messages SET data = ?", (ros2.serialize_cdr(scan, scan_t),))
+            con.commit()
+            con.execute("VACUUM")
+            con.close()
+            meta = (neb_dir / "metadata.yaml").read_bytes().replace(b"1673400471837873222_0.db3", b"b_0.db3")
+            out.append(bag_input("rosbag2-sqlite3", {"b_0.db3": db.read_bytes(), "metadata.yaml": meta}))
+            out.append(bag_input("rosbag2-sqlite3", {"b_0.db3": db.read_bytes()}, opened="b_0.db3"))  # no metadata.yaml
+    return [s for s in out if len(s) <= MAX_LEN["bags"]]
+
+
+def _ros_dict(msg):
+    """A rosbags message as the nested dict the mcap_ros2 writer takes."""
+    import numpy as np
+
+    if isinstance(msg, np.ndarray):
+        return msg.tobytes()
+    if isinstance(msg, list):
+        return [_ros_dict(m) for m in msg]
+    if hasattr(msg, "__dataclass_fields__"):
+        return {k: _ros_dict(getattr(msg, k)) for k in msg.__dataclass_fields__ if k != "__msgtype__"}
+    return msg
+
+
+def _rosbag2_yaml(storage: str, msgs) -> bytes:
+    """A rosbag2 (version 8) metadata.yaml for ``b_0.STORAGE`` holding ``msgs`` (topic, type, time, msg)."""
+    topics: dict[str, tuple[str, int]] = {}
+    for topic, typ, _, _ in msgs:
+        topics[topic] = (typ, topics.get(topic, (typ, 0))[1] + 1)
+    times = [t for _, _, t, _ in msgs]
+    lines = ["rosbag2_bagfile_information:", "  version: 8", f"  storage_identifier: {storage}",
+             "  duration:", f"    nanoseconds: {max(times) - min(times)}", "  starting_time:",
+             f"    nanoseconds_since_epoch: {min(times)}", f"  message_count: {len(msgs)}", "  topics_with_message_count:"]
+    for topic, (typ, n) in topics.items():
+        lines += ["    - topic_metadata:", f"        name: {topic}", f"        type: {typ}", "        serialization_format: cdr",
+                  "        offered_qos_profiles: \"\"", "        type_description_hash: \"\"", f"      message_count: {n}"]
+    lines += ['  compression_format: ""', '  compression_mode: ""', "  relative_file_paths:", f"    - b_0.{storage}",
+              "  files: []", "  custom_data: {}", "  ros_distro: humble", ""]
+    return "\n".join(lines).encode()
+
+
 def seeds(target: str) -> list[bytes]:
     """Starting inputs from the real captures (and generated ones where none is small enough)."""
     out: list[bytes] = []
@@ -368,6 +661,8 @@ def seeds(target: str) -> list[bytes]:
             text = Path(f).read_bytes()
             if len(text) <= MAX_LEN["metadata"]:
                 out.append(text)
+    elif target == "bags":
+        out += _bag_seeds()
     return out
 
 
@@ -431,7 +726,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import atheris
 
-    _import_lidarpkt(True)
+    _import_lidarpkt(True, args.target)
     run = _guard(MAKERS[args.target]())
     corpus = args.corpus or f"/tmp/lidarpkt-fuzz/corpus-{args.target}"
     os.makedirs(corpus, exist_ok=True)
