@@ -14,15 +14,17 @@ type, its ``.msg`` definition to :data:`MESSAGE_DEFINITIONS`).
 
 from __future__ import annotations
 
+import json
 import os
 import struct
+import traceback
 import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .errors import CaptureFormatError, TruncatedCaptureWarning
+from .errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from .packet import PacketBatch
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
@@ -99,6 +101,51 @@ def _normalise_type(msgtype: str) -> str:
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
 
 
+def _release(exc: BaseException) -> None:
+    """Clear the locals of the library frames that ``exc`` (and what it chains) keeps, then close the
+    sqlite3 connections among them. An error met while stepping a query keeps rosbags' cursor, and so
+    the ``.db3``, open; rosbags' sqlite3 storage does not close the connection it opened when the
+    tables are missing. Either file would stay open while the caller keeps our error, and after it
+    until a garbage collection (a sqlite3 connection lives in a reference cycle). Cursors go first: a
+    connection closed under a live cursor stays open for as long as the cursor."""
+    import sqlite3
+
+    connections = []
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        for frame, _ in traceback.walk_tb(exc.__traceback__):
+            if frame.f_globals is globals():
+                continue  # ours, still running
+            names = frame.f_locals
+            connections += [v for v in names.values() if isinstance(v, sqlite3.Connection)]
+            try:
+                frame.clear()
+            except RuntimeError:  # still running
+                continue
+            if isinstance(names, dict):
+                names.clear()  # before Python 3.13, the f_locals snapshot outlives frame.clear()
+        exc = exc.__cause__ or exc.__context__
+    for connection in connections:
+        connection.close()
+
+
+def _close_failed_open(reader: Any, exc: BaseException) -> None:
+    """Close what rosbags opened before its ``open()`` failed, which it leaves open: the ROS 1 reader's
+    file (first line not UTF-8), a rosbag2's MCAP storage files (bad magic, cut index), its sqlite3
+    connections, the folder of a decompressed bag."""
+    for sub in getattr(reader, "readers", ()):
+        storage = getattr(sub, "storage", None)
+        opened = [getattr(sub, "bio", None), *getattr(storage, "dbconns", ()),
+                  *(getattr(f, "bio", None) for f in getattr(storage, "readers", ()))]
+        for obj in opened:
+            if obj is not None:
+                obj.close()
+        if getattr(sub, "tmpdir", None) is not None:
+            sub.tmpdir.cleanup()
+    _release(exc)
+
+
 def _guarded(messages: Iterator, path: Path) -> Iterator:
     """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
     :class:`CaptureFormatError` once every message before it was delivered."""
@@ -109,6 +156,7 @@ def _guarded(messages: Iterator, path: Path) -> Iterator:
         except StopIteration:
             return
         except Exception as exc:  # rosbags / sqlite3 raise their own types
+            _release(exc)
             raise CaptureFormatError(f"{path}: the bag is damaged after the messages already read: {exc}") from None
         yield item
 
@@ -140,6 +188,21 @@ class BagReader:
         """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``), once
         :meth:`batches` has read past it; ``None`` if there is none."""
         return self._ouster_metadata
+
+    def _metadata_text(self, topic: str, text: str) -> str | None:
+        """``text`` if it is a JSON object, as Ouster metadata is; else ``None`` and a warning. Callers hand
+        it to ``load_metadata``, which reads other text as the path of a file."""
+        try:
+            doc = json.loads(text)
+            reason = f"a JSON {type(doc).__name__}, not an object"
+        except (ValueError, RecursionError) as exc:  # not JSON; an int of > 4300 digits; nested too deep
+            doc, reason = None, f"not JSON: {str(exc)[:80]}"
+        if isinstance(doc, dict):
+            return text
+        warnings.warn(SkippedPacketWarning(
+            f"{self.path}: the message on {topic} is not Ouster metadata ({reason}; it starts with {text[:40]!r}); "
+            "ignored. Pass the sensor's metadata JSON (metadata=... / --metadata) to decode its packets"))
+        return None
 
     def _wanted(self, topic: str, msgtype: str) -> bool:
         kind = _normalise_type(msgtype)
@@ -173,11 +236,7 @@ class BagReader:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
             reader.open()
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
-            for sub in getattr(reader, "readers", ()):
-                # rosbags' ROS 1 reader leaves its file open when the first line is not UTF-8
-                bio = getattr(sub, "bio", None)
-                if bio is not None:
-                    bio.close()
+            _close_failed_open(reader, exc)
             raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
         return reader
 
@@ -186,22 +245,29 @@ class BagReader:
         ``index`` counts packets."""
         count = 0
         messages = self._mcap_messages() if self._is_mcap_file() else self._rosbags_messages()
-        for topic, msgtype, bag_time_ns, msg in messages:
-            kind = _normalise_type(msgtype)
-            if kind == "std_msgs/msg/String":
-                if self._ouster_metadata is None:
-                    self._ouster_metadata = msg.data
-                continue
-            payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
-            self.stats["messages"] += 1
-            if payload.shape[0] == 0:
-                continue
-            if self.payload_sizes is not None and payload.shape[1] not in self.payload_sizes:
-                continue
-            batch = PacketBatch.from_payloads(payload, times, first_index=count)
-            count += len(batch)
-            self.stats["packets"] += len(batch)
-            yield batch
+        try:
+            for topic, msgtype, bag_time_ns, msg in messages:
+                kind = _normalise_type(msgtype)
+                if kind == "std_msgs/msg/String":
+                    if self._ouster_metadata is None:
+                        self._ouster_metadata = self._metadata_text(topic, msg.data)
+                    continue
+                if bag_time_ns >= 1 << 63:  # MCAP log times are uint64; packet times are int64 ns
+                    raise CaptureFormatError(
+                        f"{self.path}: the message on {topic} has the bag time {bag_time_ns} ns, more than a time can "
+                        "hold (int64 ns, past the year 2262): the bag is damaged there")
+                payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+                self.stats["messages"] += 1
+                if payload.shape[0] == 0:
+                    continue
+                if self.payload_sizes is not None and payload.shape[1] not in self.payload_sizes:
+                    continue
+                batch = PacketBatch.from_payloads(payload, times, first_index=count)
+                count += len(batch)
+                self.stats["packets"] += len(batch)
+                yield batch
+        finally:  # now, not when an error raised here (and the frames it keeps) is dropped: the bag's file closes
+            messages.close()
 
     def _rosbags_messages(self) -> Iterator[tuple[str, str, int, Any]]:
         reader = self._open()
@@ -212,6 +278,8 @@ class BagReader:
                     conns.append(c)
                 else:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
+            if not conns:
+                return  # (rosbags reads no connections as all of them)
             for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
@@ -247,7 +315,8 @@ class BagReader:
                     schema, channel, message = next(it)
                 except StopIteration:
                     return
-                except (McapError, struct.error, EOFError, ValueError, OSError, *_DECOMPRESSION_ERRORS) as exc:
+                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError,
+                        *_DECOMPRESSION_ERRORS) as exc:  # OverflowError: a record length of 2**63 or more in a chunk
                     warnings.warn(TruncatedCaptureWarning(
                         f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
                         "messages before the damage were read (a recording that was killed ends like this)"))

@@ -264,3 +264,310 @@ def test_mcap_with_a_huge_record_length_warns_instead_of_raising_memory_error(tm
         with pytest.warns(TruncatedCaptureWarning):
             got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
         assert got == payloads[: len(got)], where  # (damage in the summary section comes after all 30)
+
+
+# --------------------------------------------------------------------------- bags (fuzzer `bags`)
+def _open_files_under(folder) -> list[str]:
+    """The files under ``folder`` this process holds open (from /proc/self/fd)."""
+    import os
+
+    if not os.path.isdir("/proc/self/fd"):
+        pytest.skip("needs /proc/self/fd")
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith(str(folder)):
+            out.append(target)
+    return out
+
+
+def _velodyne_packet_rosbag2(folder, n: int = 12) -> Path:
+    """A rosbag2 sqlite3 bag of ``n`` VelodynePacket messages (rosbags' writer); returns its .db3."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from lidarpkt.bags import MESSAGE_DEFINITIONS
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    typ = "velodyne_msgs/msg/VelodynePacket"
+    store.register(get_types_from_msg(MESSAGE_DEFINITIONS[typ], typ))
+    msg, stamp = store.types[typ], store.types["builtin_interfaces/msg/Time"]
+    w = Writer(folder)
+    w.open()
+    conn = w.add_connection("/velodyne_packet", typ, typestore=store)
+    for i in range(n):
+        data = np.full(1206, i, np.uint8)
+        w.write(conn, 1_000 + i, store.serialize_cdr(msg(stamp=stamp(sec=1, nanosec=i), data=data), typ))
+    w.close()
+    return Path(folder) / f"{Path(folder).name}.db3"
+
+
+def test_rosbag2_whose_second_db3_is_damaged_closes_it_while_the_error_is_kept(tmp_path):
+    """Fuzzer `bags` (a rosbag2 sqlite3 bag with a page of its .db3 overwritten): the query for the
+    messages failed in sqlite ('database disk image is malformed') and the CaptureFormatError kept
+    rosbags' cursor alive through its context, so the .db3 stayed open for as long as the caller kept
+    the error. Here a bag split in two files whose second has its timestamp index damaged: the 12
+    messages of the first come out, then the error, and no file of the bag is open any more."""
+    import shutil
+    import sqlite3
+
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import CaptureFormatError
+
+    db = _velodyne_packet_rosbag2(tmp_path / "bag")
+    second = db.with_name("bag_1.db3")
+    shutil.copy(db, second)
+    con = sqlite3.connect(second)
+    root = con.execute("SELECT rootpage FROM sqlite_master WHERE name = 'timestamp_idx'").fetchone()[0]
+    page = con.execute("PRAGMA page_size").fetchone()[0]
+    con.close()
+    raw = bytearray(second.read_bytes())
+    raw[(root - 1) * page] = 0  # not a b-tree page type
+    second.write_bytes(bytes(raw))
+    meta = db.parent / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("  - bag.db3", "  - bag.db3\n  - bag_1.db3"))
+
+    got = []
+    with pytest.raises(CaptureFormatError, match="damaged after the messages already read") as caught:
+        for b in BagReader(db.parent).batches():
+            got += [int(row[0]) for row in b.payload]
+    assert got == list(range(12))
+    assert caught.value is not None and _open_files_under(tmp_path) == []
+
+
+def _mcap_storage_rosbag2(folder, mcap: bytes) -> Path:
+    """A rosbag2 folder whose storage is the MCAP file ``mcap`` (metadata.yaml written out by hand)."""
+    folder.mkdir()
+    (folder / "b_0.mcap").write_bytes(mcap)
+    (folder / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  version: 8\n  storage_identifier: mcap\n  duration:\n    nanoseconds: 0\n"
+        "  starting_time:\n    nanoseconds_since_epoch: 0\n  message_count: 3\n  topics_with_message_count:\n"
+        "    - topic_metadata:\n        name: /velodyne_packets\n        type: velodyne_msgs/msg/VelodyneScan\n"
+        "        serialization_format: cdr\n        offered_qos_profiles: ''\n      message_count: 3\n"
+        "  compression_format: ''\n  compression_mode: ''\n  relative_file_paths:\n    - b_0.mcap\n")
+    return folder
+
+
+@pytest.mark.parametrize("damage", ["mcap storage: summary offset at the end magic", "mcap storage: not an MCAP file",
+                                    "sqlite3 storage: no messages table"])
+def test_rosbag2_that_fails_to_open_leaves_no_file_open(tmp_path, damage):
+    """Fuzzer `bags` (a rosbag2 folder with MCAP storage whose footer was damaged): rosbags' open() failed
+    reading the summary ('ord() expected a character', a TypeError) and left the MCAP file open; it
+    stayed open while the CaptureFormatError was kept and was then closed by the garbage collector
+    (ResourceWarning). Here the footer's summary offset points at the end magic (a struct.error, the
+    same leak); the same for a storage file that is no MCAP at all, and (found while fixing these) for
+    a .db3 without the messages table, whose sqlite3 connection rosbags never closes. Now a
+    CaptureFormatError, and the file is closed before it is raised."""
+    import gc
+
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import CaptureFormatError
+    from lidarpkt.pcap import read_packets
+
+    import fixtures
+
+    if damage.startswith("sqlite3"):
+        import sqlite3
+
+        db = _velodyne_packet_rosbag2(tmp_path / "bag")
+        con = sqlite3.connect(db)
+        con.execute("DROP TABLE messages")
+        con.commit()
+        con.close()
+        folder = db.parent
+    else:
+        pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:3]
+        mcap = bytearray(velodyne_scan_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk]))
+        if "summary" in damage:  # the footer's summary_start (8 bytes after its opcode and length)
+            mcap[-37 + 9 : -37 + 17] = (len(mcap) - 8).to_bytes(8, "little")
+        else:
+            mcap[:8] = b"NOTMCAP!"
+        folder = _mcap_storage_rosbag2(tmp_path / "bag", bytes(mcap))
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with pytest.raises(CaptureFormatError, match="cannot open as a ROS bag") as caught:
+            list(BagReader(folder).batches())
+        assert caught.value is not None and _open_files_under(tmp_path) == []
+        del caught
+        gc.collect()
+    assert not [w for w in seen if issubclass(w.category, ResourceWarning)]
+
+
+def test_mcap_chunk_record_length_of_2_63_or_more_warns_instead_of_overflow_error(tmp_path):
+    """Fuzzer `bags` (an uncompressed-chunk MCAP with a length field inside a chunk damaged): a record
+    length of 2**63 or more inside a chunk made the mcap reader's BytesIO.read raise a raw OverflowError
+    ('cannot fit int into an index-sized integer'). Now the messages of the chunks before, then a
+    TruncatedCaptureWarning."""
+    import io
+
+    from mcap.writer import CompressionType
+    from mcap_ros2.writer import Writer
+
+    import fixtures
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import TruncatedCaptureWarning
+    from lidarpkt.pcap import read_packets
+    from reference_tools import VELODYNE_SCAN_SCHEMA
+
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:6]
+    fh = io.BytesIO()
+    w = Writer(fh, chunk_size=1_000, compression=CompressionType.NONE)  # one message a chunk
+    schema = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", VELODYNE_SCAN_SCHEMA)
+    for p in pk:
+        t = {"sec": p.timestamp_ns // 10**9, "nanosec": p.timestamp_ns % 10**9}
+        w.write_message("/velodyne_packets", schema, {"header": {"stamp": t, "frame_id": "v"},
+                        "packets": [{"stamp": t, "data": p.payload}]}, log_time=p.timestamp_ns)
+    w.finish()
+    clean = fh.getvalue()
+    chunks, pos = [], 8  # (offset of the records inside each chunk) from the top-level records
+    while pos + 9 <= len(clean) - 8:
+        op, length = clean[pos], int.from_bytes(clean[pos + 1 : pos + 9], "little")
+        if op == 0x06:  # chunk: start, end, uncompressed size (8 each), crc (4), compression (4 + n), records length (8)
+            n = int.from_bytes(clean[pos + 9 + 28 : pos + 9 + 32], "little")
+            chunks.append(pos + 9 + 32 + n + 8)
+        pos += 9 + length
+    assert len(chunks) >= 4
+    raw = bytearray(clean)
+    third = chunks[2]
+    while raw[third] != 0x05:  # to the message record of the third chunk (after its schema / channel)
+        third += 9 + int.from_bytes(raw[third + 1 : third + 9], "little")
+    raw[third + 8] = 0x80  # its length's top byte: >= 2**63
+    path = tmp_path / "long.mcap"
+    path.write_bytes(bytes(raw))
+    with pytest.warns(TruncatedCaptureWarning, match="cut short or damaged after 2 messages"):
+        got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+    assert got == [p.payload for p in pk[:2]]
+
+
+def _scan_and_string_mcap(payloads, times, metadata_text: str) -> bytes:
+    """An MCAP (mcap_ros2 writer) of VelodyneScan messages and an /ouster/metadata String."""
+    import io
+
+    from mcap_ros2.writer import Writer
+
+    from reference_tools import VELODYNE_SCAN_SCHEMA
+
+    fh = io.BytesIO()
+    w = Writer(fh)
+    text = w.register_msgdef("std_msgs/msg/String", "string data\n")
+    w.write_message("/ouster/metadata", text, {"data": metadata_text}, log_time=int(times[0]))
+    scan = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", VELODYNE_SCAN_SCHEMA)
+    for p, t in zip(payloads, times):
+        stamp = {"sec": int(t) // 10**9, "nanosec": int(t) % 10**9}
+        w.write_message("/velodyne_packets", scan, {"header": {"stamp": stamp, "frame_id": "v"},
+                        "packets": [{"stamp": stamp, "data": p}]}, log_time=int(t))
+    w.finish()
+    return fh.getvalue()
+
+
+@pytest.mark.parametrize("text, was", [
+    ("os1\x00.json", "ValueError: embedded null byte"),
+    ("METADATA_FILE", "the file at that path read as the sensor's metadata"),
+    ('{"a": ' + "[" * 5000 + "]" * 5000 + "}", "RecursionError in json.loads"),
+    ('{"a": 1' + "0" * 5000 + "}", "ValueError: integer string conversion limit"),
+    ("[1, 2]", "MetadataError (kept: fine, now a warning like the others)"),
+])
+def test_bag_ouster_metadata_message_that_is_no_json_object_is_skipped_with_a_warning(tmp_path, text, was):
+    """Fuzzer `bags` (an MCAP whose /ouster/metadata String was mutated to start with a 0 byte):
+    ``lidarpkt.open`` handed the bag's text to ``load_metadata``, which reads any text not starting
+    with '{' as the path of a file: a raw ValueError (embedded null byte), and a bag could make lidarpkt
+    read (or hang on, /dev/zero) any local file. A JSON object nested too deep or with a 5000-digit
+    int gave a raw RecursionError / ValueError. Now ``BagReader.ouster_metadata()`` is only ever a JSON
+    object's text; any other message there is skipped with a SkippedPacketWarning, and the VLP-16
+    packets of the same bag are decoded."""
+    import lidarpkt
+    import fixtures
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import SkippedPacketWarning
+    from lidarpkt.pcap import read_packets
+
+    if text == "METADATA_FILE":
+        text = str(external("ouster-sdk/OS-1-32-G_v2.1.1_1024x10.json"))
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:80]
+    path = tmp_path / "b.mcap"
+    path.write_bytes(_scan_and_string_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk], text))
+    reader = BagReader(path)
+    with pytest.warns(SkippedPacketWarning, match="/ouster/metadata is not Ouster metadata"):
+        assert sum(len(b) for b in reader.batches()) == 80
+    assert reader.ouster_metadata() is None
+    with pytest.warns(SkippedPacketWarning, match="not Ouster metadata"):
+        frames = list(lidarpkt.open(path))
+    assert frames and all(f.range_mm.shape[1] == 16 for f in frames), was
+
+
+@pytest.mark.parametrize("container", ["MCAP file", "rosbag2 with MCAP storage"])
+def test_bag_time_beyond_int64_is_a_capture_format_error(tmp_path, container):
+    """Fuzzer `bags` (an MCAP whose VelodynePacket message had a log time with the top bit set): MCAP log
+    times are uint64, packet times int64 ns, and the packet's bag time raised a raw OverflowError in NumPy
+    (and the MCAP file stayed open while that error was kept). Now the packets before, then a
+    CaptureFormatError naming the topic and the time, and no file of the bag left open."""
+    from lidarpkt.bags import BagReader
+    from lidarpkt.errors import CaptureFormatError
+    from lidarpkt.pcap import read_packets
+
+    import fixtures
+
+    import io
+
+    from mcap_ros2.writer import Writer
+
+    from reference_tools import VELODYNE_SCAN_SCHEMA
+
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:3]
+    fh = io.BytesIO()
+    w = Writer(fh)
+    schema = w.register_msgdef("velodyne_msgs/msg/VelodyneScan", VELODYNE_SCAN_SCHEMA)
+    for p, log_time in zip(pk, [pk[0].timestamp_ns, pk[1].timestamp_ns, 2**64 - 1]):
+        t = {"sec": p.timestamp_ns // 10**9, "nanosec": p.timestamp_ns % 10**9}
+        w.write_message("/velodyne_packets", schema, {"header": {"stamp": t, "frame_id": "v"},
+                        "packets": [{"stamp": t, "data": p.payload}]}, log_time=log_time, publish_time=log_time)
+    w.finish()
+    mcap = fh.getvalue()
+    if container == "MCAP file":
+        path = tmp_path / "b.mcap"
+        path.write_bytes(mcap)
+    else:
+        path = _mcap_storage_rosbag2(tmp_path / "bag", mcap)
+    got = []
+    with pytest.raises(CaptureFormatError, match=r"/velodyne_packets has the bag time 18446744073709551615 ns") as caught:
+        for b in BagReader(path).batches():
+            got += [row.tobytes() for row in b.payload]
+    assert got == [p.payload for p in pk[:2]]
+    assert caught.value is not None and _open_files_under(tmp_path) == []
+
+
+@pytest.mark.parametrize("container", ["rosbag2", "ROS 1"])
+def test_bag_without_packet_topics_gives_no_batches_not_key_error(tmp_path, container):
+    """Found while writing the fuzzer's `bags` target (reading `_rosbags_messages`): a rosbag2 or ROS 1
+    bag with no topic of a packet type (a bag of other topics) made rosbags read every connection
+    (it takes an empty connection list as "all"), and the first message of another type raised a raw
+    KeyError in ``batches()``. Now no batches, the topics listed in ``stats['skipped_topics']``, and
+    ``lidarpkt.open`` yields no frame."""
+    import lidarpkt
+    from rosbags.typesys import Stores, get_typestore
+
+    from lidarpkt.bags import BagReader
+
+    if container == "rosbag2":
+        from rosbags.rosbag2 import Writer
+
+        store, path = get_typestore(Stores.ROS2_HUMBLE), tmp_path / "bag"
+    else:
+        from rosbags.rosbag1 import Writer
+
+        store, path = get_typestore(Stores.ROS1_NOETIC), tmp_path / "b.bag"
+    w = Writer(path)
+    w.open()
+    conn = w.add_connection("/chatter", "std_msgs/msg/Int32", typestore=store)
+    for i in range(3):
+        msg = store.types["std_msgs/msg/Int32"](data=i)
+        raw = store.serialize_cdr(msg, msg.__msgtype__) if container == "rosbag2" else store.serialize_ros1(msg, msg.__msgtype__)
+        w.write(conn, 1_000 + i, raw)
+    w.close()
+    reader = BagReader(path)
+    assert list(reader.batches()) == []
+    assert reader.stats["skipped_topics"] == {"/chatter": "std_msgs/msg/Int32"}
+    assert list(lidarpkt.open(path)) == []
