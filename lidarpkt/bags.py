@@ -256,7 +256,12 @@ class BagReader:
                     raise CaptureFormatError(
                         f"{self.path}: the message on {topic} has the bag time {bag_time_ns} ns, more than a time can "
                         "hold (int64 ns, past the year 2262): the bag is damaged there")
-                payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+                try:
+                    payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+                except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # a bag's own definition of the type
+                    raise CaptureFormatError(
+                        f"{self.path}: the message on {topic} ({msgtype}) has not the fields lidarpkt reads for that "
+                        f"type ({type(exc).__name__}: {exc}); the bag's definition of {kind} differs") from None
                 self.stats["messages"] += 1
                 if payload.shape[0] == 0:
                     continue

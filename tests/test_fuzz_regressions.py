@@ -571,3 +571,44 @@ def test_bag_without_packet_topics_gives_no_batches_not_key_error(tmp_path, cont
     assert list(reader.batches()) == []
     assert reader.stats["skipped_topics"] == {"/chatter": "std_msgs/msg/Int32"}
     assert list(lidarpkt.open(path)) == []
+
+
+@pytest.mark.parametrize("renamed", [(b"time stamp\nuint8[] data", b"time stsmp\nuint8[] data"),
+                                     (b"VelodynePacket[] packets", b"VelodynePacket[] packetz")])
+def test_ros1_bag_whose_own_definition_renames_a_field_is_a_capture_format_error(tmp_path, renamed):
+    """Fuzzer `bags` (a ROS 1 bag whose connection header spelled NebulaPacket's ``stamp`` as ``stsmp``): a
+    ROS 1 bag carries its own message definitions, rosbags decodes with them, and the packet extractor
+    met a message without the field it reads: a raw AttributeError. The same for a VelodyneScan whose
+    ``packets`` is renamed. Now the batches before, then a CaptureFormatError naming the topic and type."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from lidarpkt.bags import MESSAGE_DEFINITIONS, BagReader
+    from lidarpkt.errors import CaptureFormatError
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    for name, text in MESSAGE_DEFINITIONS.items():
+        store.register(get_types_from_msg(text, name))
+    T = store.types
+    time = T["builtin_interfaces/msg/Time"](sec=1, nanosec=5)
+    u8 = np.arange(1206, dtype=np.uint16).astype(np.uint8)
+    msgs = [("/first", "velodyne_msgs/msg/VelodynePacket", T["velodyne_msgs/msg/VelodynePacket"](stamp=time, data=u8)),
+            ("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", T["velodyne_msgs/msg/VelodyneScan"](
+                header=T["std_msgs/msg/Header"](seq=0, stamp=time, frame_id="v"),
+                packets=[T["velodyne_msgs/msg/VelodynePacket"](stamp=time, data=u8)])),
+            ("/position", "nebula_msgs/msg/NebulaPacket", T["nebula_msgs/msg/NebulaPacket"](stamp=time, data=u8[:512]))]
+    path = tmp_path / "b.bag"
+    w = Writer(path)
+    w.open()
+    for i, (topic, typ, msg) in enumerate(msgs):
+        w.write(w.add_connection(topic, typ, typestore=store), 1_000 + i, store.serialize_ros1(msg, typ))
+    w.close()
+    raw = path.read_bytes()
+    assert raw.count(renamed[0]) >= 1
+    path.write_bytes(raw.replace(*renamed))
+    got = []
+    with pytest.raises(CaptureFormatError, match="has not the fields lidarpkt reads") as caught:
+        for b in BagReader(path).batches():
+            got += [row.tobytes() for row in b.payload]
+    assert got[0] == u8.tobytes()  # the packet before the damage
+    assert caught.value is not None and _open_files_under(tmp_path) == []
