@@ -612,3 +612,19 @@ def test_ros1_bag_whose_own_definition_renames_a_field_is_a_capture_format_error
             got += [row.tobytes() for row in b.payload]
     assert got[0] == u8.tobytes()  # the packet before the damage
     assert caught.value is not None and _open_files_under(tmp_path) == []
+
+
+def test_metadata_that_breaks_the_json_parser_is_a_metadata_error(tmp_path):
+    """Found by the bags fuzzer's review (2026-11-21): deep nesting gave a raw RecursionError, a
+    5000-digit number a raw ValueError, a NUL in a path a raw ValueError from the file system."""
+    deep = "[" * 100_000 + "]" * 100_000  # nesting deeper than the parser's recursion limit
+    huge = '{"lidar_mode": ' + "9" * 5000 + "}"  # an integer beyond Python's digit limit for str -> int
+    for i, text in enumerate((deep, huge)):
+        path = tmp_path / f"m{i}.json"
+        path.write_text(text, encoding="utf-8")
+        with pytest.raises(MetadataError, match="is not valid JSON"):
+            load_metadata(path)
+    with pytest.raises(MetadataError, match="is not valid JSON"):
+        load_metadata(huge)  # JSON text rather than a path
+    with pytest.raises(MetadataError, match="cannot read Ouster metadata file"):
+        load_metadata("\x00metadata.json")  # not JSON text, so a path, with a NUL in it

@@ -276,11 +276,11 @@ def load_metadata(source: str | os.PathLike | dict) -> OusterMetadata:
             path = os.fspath(source)
             try:
                 text = Path(path).read_text(encoding="utf-8")
-            except (OSError, UnicodeDecodeError) as exc:
-                raise MetadataError(f"cannot read Ouster metadata file {path}: {exc}") from None
+            except (OSError, ValueError) as exc:  # ValueError: undecodable bytes, a NUL in the path
+                raise MetadataError(f"cannot read Ouster metadata file {path!r}: {exc}") from None
         try:
             doc = json.loads(text)
-        except json.JSONDecodeError as exc:
+        except (ValueError, RecursionError) as exc:  # bad JSON, a number of thousands of digits, deep nesting
             raise MetadataError(f"Ouster metadata {path or '(text)'} is not valid JSON: {exc}") from None
     if not isinstance(doc, dict):
         raise MetadataError(f"Ouster metadata {path or ''} must be a JSON object, got {type(doc).__name__}")
