@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import copy
 import json
+import subprocess
+import sys
 import tracemalloc
 import warnings
 from pathlib import Path
@@ -628,3 +630,91 @@ def test_metadata_that_breaks_the_json_parser_is_a_metadata_error(tmp_path):
         load_metadata(huge)  # JSON text rather than a path
     with pytest.raises(MetadataError, match="cannot read Ouster metadata file"):
         load_metadata("\x00metadata.json")  # not JSON text, so a path, with a NUL in it
+
+
+
+def _mcap_with_second_chunk_replaced(path, compression: str, body: bytes, declared: int) -> list[bytes]:
+    """Write to ``path`` the 30-packet VelodyneScan MCAP (zstd chunks of ~6 KB) with its second chunk
+    record replaced by one holding ``body`` (compressed as ``compression``) that declares ``declared``
+    uncompressed bytes; return the 30 payloads."""
+    import fixtures
+    from lidarpkt.pcap import read_packets
+
+    pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
+    raw = velodyne_scan_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk], chunk_size=6_000)
+    pos, chunks = 8, []
+    while pos + 9 <= len(raw) - 8:  # records: opcode, u64 length, body
+        length = int.from_bytes(raw[pos + 1 : pos + 9], "little")
+        if raw[pos] == 0x06:
+            chunks.append((pos, 9 + length))
+        pos += 9 + length
+    assert len(chunks) >= 3
+    at, length = chunks[1]
+    name = compression.encode()
+    fields = (raw[at + 9 : at + 25] + declared.to_bytes(8, "little") + bytes(4) + len(name).to_bytes(4, "little")
+              + name + len(body).to_bytes(8, "little") + body)  # start/end times kept, crc 0
+    path.write_bytes(raw[:at] + bytes([0x06]) + len(fields).to_bytes(8, "little") + fields + raw[at + length :])
+    return [p.payload for p in pk]
+
+
+def _zero_bomb(compression: str, size: int) -> bytes:
+    """``size`` zero bytes compressed (a few KB), the zstd frame header naming ``size``."""
+    block = bytes(1 << 20)
+    if compression == "zstd":
+        import zstandard
+
+        obj = zstandard.ZstdCompressor(write_content_size=True).compressobj(size=size)
+        return b"".join(obj.compress(block) for _ in range(size >> 20)) + obj.flush()
+    import lz4.frame
+
+    comp = lz4.frame.LZ4FrameCompressor()
+    return comp.begin(source_size=size) + b"".join(comp.compress(block) for _ in range(size >> 20)) + comp.flush()
+
+
+_READ_AND_REPORT_PEAK = r"""
+import sys, warnings
+from lidarpkt.bags import BagReader
+from lidarpkt.errors import LidarpktError
+n, outcome = 0, "ok"
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    try:
+        for b in BagReader(sys.argv[1]).batches():
+            n += len(b)
+    except LidarpktError as exc:
+        outcome = type(exc).__name__
+outcome = outcome if outcome != "ok" or not caught else type(caught[-1].message).__name__
+hwm = next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM'))
+print(n, outcome, int(hwm) // 1024)
+"""
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_mcap_chunk_that_inflates_past_its_declared_size_is_not_inflated(tmp_path, compression):
+    """Found reading the bags fuzzer's report (2026-11-21): the mcap library inflates a zstd chunk into
+    the size its zstd frame header names and an lz4 chunk without any limit, so a 512 MB zero "bomb"
+    of a few KB in a chunk declaring 1000 bytes took over 512 MB. Now a chunk inflates into at most
+    what it declares: the packets of the first chunk, a TruncatedCaptureWarning, and a small peak."""
+    bomb = _zero_bomb(compression, 512 << 20)
+    assert len(bomb) < 4 << 20
+    path = tmp_path / "bomb.mcap"
+    _mcap_with_second_chunk_replaced(path, compression, bomb, declared=1000)
+    res = subprocess.run([sys.executable, "-c", _READ_AND_REPORT_PEAK, str(path)], capture_output=True, text=True,
+                         timeout=120, cwd=Path(__file__).resolve().parents[1])
+    assert res.returncode == 0, res.stderr[-2000:]
+    n, outcome, peak_mb = res.stdout.split()
+    assert 0 < int(n) < 30 and outcome == "TruncatedCaptureWarning"
+    assert int(peak_mb) < 300, f"peak RSS {peak_mb} MB while reading a chunk that declares 1000 bytes"
+
+
+def test_mcap_chunk_declaring_more_than_the_limit_is_a_capture_format_error(tmp_path):
+    from lidarpkt.bags import MAX_MCAP_CHUNK_BYTES, BagReader
+    from lidarpkt.errors import CaptureFormatError
+
+    path = tmp_path / "big.mcap"
+    payloads = _mcap_with_second_chunk_replaced(path, "zstd", b"\x28\xb5\x2f\xfd", declared=MAX_MCAP_CHUNK_BYTES + 1)
+    got = []
+    with pytest.raises(CaptureFormatError, match="MiB"):
+        for b in BagReader(path).batches():
+            got += [row.tobytes() for row in b.payload]
+    assert 0 < len(got) < len(payloads) and got == payloads[: len(got)]
