@@ -237,10 +237,22 @@ def test_not_a_capture_is_refused_as_before(tmp_path):
             lidarpkt.open(path, read_ahead=ra)
 
 
+@pytest.fixture(scope="module")
+def longer_than_the_queue(tmp_path_factory):
+    """A capture of more payload than the read-ahead queue holds (16 MB), so that the thread is still
+    reading, blocked on the full queue, when the first frame comes out (with a shorter one, the
+    compiled pcap walk could read it all before that, and the thread would be gone already)."""
+    from lidarpkt._readahead import DEFAULT_MAX_BYTES
+
+    path = tmp_path_factory.mktemp("readahead") / "vlp16.pcap"
+    n = DEFAULT_MAX_BYTES // 1206 + 4000
+    _vlp16_capture(path, n=n)
+    return path
+
+
 @pytest.mark.parametrize("how", ["break", "close", "with", "del"])
-def test_abandoned_iteration_leaves_no_thread(tmp_path, how):
-    path = tmp_path / "vlp16.pcap"
-    _vlp16_capture(path, n=3000)
+def test_abandoned_iteration_leaves_no_thread(longer_than_the_queue, how):
+    path = longer_than_the_queue
     if how == "break":
         for _ in lidarpkt.open(path, read_ahead=True, batch_packets=32):
             assert len(_read_ahead_threads()) == 1
@@ -248,15 +260,18 @@ def test_abandoned_iteration_leaves_no_thread(tmp_path, how):
     elif how == "close":
         reader = lidarpkt.open(path, read_ahead=True, batch_packets=32)
         next(reader)
+        assert len(_read_ahead_threads()) == 1
         reader.close()
         reader.close()  # idempotent
         assert list(reader) == []
     elif how == "with":
         with lidarpkt.open(path, read_ahead=True, batch_packets=32) as reader:
             next(reader)
+            assert len(_read_ahead_threads()) == 1
     else:
         reader = lidarpkt.open(path, read_ahead=True, batch_packets=32)
         next(reader)
+        assert len(_read_ahead_threads()) == 1
         del reader  # no reference cycle: finalised at once, without gc.collect()
     assert not _read_ahead_threads()
 
