@@ -31,31 +31,38 @@ from lidarpkt.packet import Endpoint, Packet  # noqa: E402
 from lidarpkt.pcapwrite import write_pcap  # noqa: E402
 from lidarpkt.velodyne import encode_data_packets  # noqa: E402
 
-DUAL_PERIOD_NS = 663_552
+PACKET_PERIOD_NS = {"strongest": 1_327_104, "dual": 663_552}  # 12 blocks of one firing pair, or 6 of two returns
 START_NS = 1_700_000_000_000_000_000
 
 
-def build(path: Path, seconds: float, seed: int = 0) -> int:
-    """A dual-return capture: a wall of range ~12 m with noise, 10 % of firings with a second return."""
-    n = int(seconds * 1e9 / DUAL_PERIOD_NS)
+def build(path: Path, seconds: float, seed: int = 0, mode: str = "dual") -> int:
+    """A VLP-16 capture at 600 RPM of ``seconds`` of sensor time: a wall of range ~12 m with noise and
+    5 % of firings without a return; in dual mode 10 % of firings have a second, nearer return."""
+    period_ns = PACKET_PERIOD_NS[mode]
+    n = int(seconds * 1e9 / period_ns)
     rng = np.random.default_rng(seed)
-    t_ns = START_NS + np.arange(n, dtype=np.int64) * DUAL_PERIOD_NS
+    t_ns = START_NS + np.arange(n, dtype=np.int64) * period_ns
     t_us = (t_ns // 1000) % 3_600_000_000
-    pair_t_us = np.arange(6) * 2 * 55.296
-    az = (np.rint((np.arange(n)[:, None] * 663.552 + pair_t_us[None, :]) * 0.36) % 36000).astype(np.int64)
-    az = np.repeat(az, 2, axis=1)
+    azimuths = 12 if mode == "strongest" else 6  # dual: each azimuth's block repeated for the two returns
+    first_t_us = np.arange(azimuths) * 2 * 55.296
+    az = (np.rint((np.arange(n)[:, None] * period_ns / 1000 + first_t_us[None, :]) * 0.36) % 36000).astype(np.int64)
+    az = np.repeat(az, 12 // azimuths, axis=1)
     src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
     chunk = 20000
 
     def packets():
         for a in range(0, n, chunk):
             b = min(n, a + chunk)
-            last = rng.integers(5000, 7000, size=(b - a, 6, 32))
-            strong = np.where(rng.random(last.shape) < 0.1, last - rng.integers(100, 2000, size=last.shape), last)
-            last[rng.random(last.shape) < 0.05] = 0
-            dist = np.stack([last, strong], axis=2).reshape(b - a, 12, 32)
+            last = rng.integers(5000, 7000, size=(b - a, azimuths, 32))
+            if mode == "strongest":
+                last[rng.random(last.shape) < 0.05] = 0
+                dist = last
+            else:
+                strong = np.where(rng.random(last.shape) < 0.1, last - rng.integers(100, 2000, size=last.shape), last)
+                last[rng.random(last.shape) < 0.05] = 0
+                dist = np.stack([last, strong], axis=2).reshape(b - a, 12, 32)
             refl = rng.integers(0, 120, size=(b - a, 12, 32))
-            payload = encode_data_packets(az[a:b], dist, refl, t_us[a:b], "dual")
+            payload = encode_data_packets(az[a:b], dist, refl, t_us[a:b], mode)
             for i in range(b - a):
                 yield Packet(int(t_ns[a + i]), src, dst, payload[i].tobytes())
 

@@ -15,7 +15,7 @@ pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode tim
   ``lidarpkt.open`` → frames (every field) vs ouster-sdk ``PcapFrameSetSource``; and the same
   with ``frame.xyz()`` of every frame; then both again with ``read_ahead=False`` (no reader
   thread; rows marked "(info)"). CPU time counts every thread of the process.
-- VLP-16: 60 s strongest (built here) and dual (``bench_velodyne.build``) captures;
+- VLP-16: 60 s strongest and dual captures (``bench_velodyne.build``);
   ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
 - pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
 - memory: peak RSS (VmHWM) of a child process decoding an Ouster capture of ``--memory-gb``, one
@@ -135,38 +135,6 @@ def ouster(args, work: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------ VLP-16
-STRONGEST_PERIOD_NS = 1_327_104
-
-
-def build_vlp16_strongest(path: Path, seconds: float, seed: int = 0) -> int:
-    """A strongest-return VLP-16 capture (600 RPM, 754 packets/s): a noisy wall at ~12 m."""
-    import bench_velodyne as bv
-    from lidarpkt.packet import Endpoint, Packet
-    from lidarpkt.pcapwrite import write_pcap
-    from lidarpkt.velodyne import encode_data_packets
-
-    n = int(seconds * 1e9 / STRONGEST_PERIOD_NS)
-    rng = np.random.default_rng(seed)
-    t_ns = bv.START_NS + np.arange(n, dtype=np.int64) * STRONGEST_PERIOD_NS
-    t_us = (t_ns // 1000) % 3_600_000_000
-    block_t_us = np.arange(12) * 2 * 55.296
-    az = (np.rint((np.arange(n)[:, None] * 1327.104 + block_t_us[None, :]) * 0.36) % 36000).astype(np.int64)
-    src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
-
-    def packets():
-        for a in range(0, n, 20000):
-            b = min(n, a + 20000)
-            dist = rng.integers(5000, 7000, size=(b - a, 12, 32))
-            dist[rng.random(dist.shape) < 0.05] = 0
-            refl = rng.integers(0, 120, size=(b - a, 12, 32))
-            payload = encode_data_packets(az[a:b], dist, refl, t_us[a:b], "strongest")
-            for i in range(b - a):
-                yield Packet(int(t_ns[a + i]), src, dst, payload[i].tobytes())
-
-    write_pcap(path, packets(), udp_checksum=False)
-    return n
-
-
 def velodyne(args, work: Path) -> None:
     import bench_velodyne as bv
 
@@ -174,7 +142,7 @@ def velodyne(args, work: Path) -> None:
     for mode in ("strongest", "dual"):
         path = work / f"vlp16_{mode}_{int(args.vlp_seconds)}s.pcap"
         if not path.exists():
-            (build_vlp16_strongest if mode == "strongest" else bv.build)(path, args.vlp_seconds)
+            bv.build(path, args.vlp_seconds, mode=mode)
         (ow, oc, _), (vw, vc, _) = alternate(args.repeat, lambda: bv.run_lidarpkt(path), lambda: bv.run_velodyne_decoder(path))
         row(f"VLP-16 {mode}: pcap→frames+XYZ vs velodyne_decoder", fmt(ow, oc), fmt(vw, vc),
             f"{vw / ow:.2f} (cpu {vc / oc:.2f})", "≥ 3", vw / ow >= 3)
