@@ -6,19 +6,15 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 import tty
-from pathlib import Path
 
 import pytest
 
 from lidarpkt.errors import NMEAError, SerialPortError
 from lidarpkt.velodyne import nmea
 from recorder.gps import GpsReader, verify_sentence
-
-REPO = Path(__file__).resolve().parents[1]
+from test_replay_record import Recorder
 
 # The classic NMEA 0183 example sentences (GGA, RMC, GSA, VTG) with their published checksums;
 # the first test checks them against an independent XOR.
@@ -102,27 +98,17 @@ def test_record_writes_gps_sentences_into_the_mcap(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     master, slave, name = _pty()
-    out, report, log = tmp_path / "gps.mcap", tmp_path / "gps.json", tmp_path / "gps.log"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
-         "--gps", name, "--baud", "115200", "-o", str(out), "--report", str(report), "-q"],
-        stderr=log.open("w"), cwd=REPO)
     try:
-        deadline = time.monotonic() + 30
-        while "listening on" not in log.read_text():
-            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.02)
-        for s in [GOOD[0], BAD[0], GOOD[1], GOOD[3]]:
-            os.write(master, (s + "\r\n").encode())
-            time.sleep(0.05)
-        time.sleep(0.5)
-        proc.send_signal(signal.SIGINT)  # Ctrl-C: a clean stop
-        assert proc.wait(timeout=60) == 0, log.read_text()
+        with Recorder(tmp_path, [port], "--gps", name, "--baud", "115200", "-q") as rec:
+            for s in [GOOD[0], BAD[0], GOOD[1], GOOD[3]]:
+                os.write(master, (s + "\r\n").encode())
+                time.sleep(0.05)
+            time.sleep(0.5)
+            assert rec.stop(signal.SIGINT) == 0, rec.log.read_text()  # Ctrl-C: a clean stop
     finally:
-        if proc.poll() is None:
-            proc.kill()
         os.close(master)
         os.close(slave)
+    out, report = rec.out, rec.report
     summary = json.loads(report.read_text())
     assert summary["gps_sentences"] == 3 and summary["gps_bad_checksum"] == 1 and summary["stopped_by"] == "SIGINT"
     with open(out, "rb") as fh:

@@ -93,27 +93,15 @@ def test_multicast_group_on_loopback(tmp_path):
         UdpCapture([port], multicast=group, interface="127.0.0.1").close()
     except Exception as exc:  # no multicast route on this machine
         pytest.skip(f"cannot join a multicast group on loopback here: {exc}")
-    # Recorder binds 127.0.0.1; a multicast listener binds the group, so it is started by hand here
-    out, report, log = tmp_path / "mc.mcap", tmp_path / "mc.json", tmp_path / "mc.log"
-    proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--multicast", group,
-                             "--interface", "lo", "-o", str(out), "--report", str(report), "-q"],
-                            stderr=log.open("w"), cwd=REPO)
-    try:
-        deadline = time.monotonic() + 30
-        while "listening on" not in log.read_text():
-            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.02)
+    with Recorder(tmp_path, [port], "--multicast", group, "--interface", "lo", "-q", bind=None) as rec:
         payloads = [p.payload for p in read_capture(str(external("rust-lidar-utils/velodyne_example.pcap")))]
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
             for p in payloads:
                 tx.sendto(p, (group, port))
         time.sleep(0.5)
-        proc.terminate()
-        assert proc.wait(timeout=60) == 0, log.read_text()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+        assert rec.stop() == 0, rec.log.read_text()
+    out, report = rec.out, rec.report
     summary = json.loads(report.read_text())
     assert summary["streams"][0]["dst"] == f"{group}:{port}" and summary["lost_total"] == 0
     _, msgs = _messages(out)
@@ -179,21 +167,12 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
         span = packets[-1].timestamp_ns - packets[0].timestamp_ns + 1_327_000
         packets += [type(p)(p.timestamp_ns + span, p.src, p.dst, p.payload) for p in packets]  # ~1.7 MB zstd
         (port,) = _free_ports(1)
-        out, log = mnt / "full.mcap", tmp_path / "full.log"
-        proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind",
-                                 "127.0.0.1", "-o", str(out), "--chunk-seconds", "0.05", "-q"],
-                                stderr=log.open("w"), cwd=REPO)
-        try:
-            deadline = time.monotonic() + 30
-            while "listening on" not in log.read_text():
-                assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
-                time.sleep(0.02)
+        out = mnt / "full.mcap"
+        with Recorder(tmp_path, [port], "--chunk-seconds", "0.05", "-q", out=out) as rec:
             # a chunk closes every 0.05 s or 1 MiB raw (~0.4 MB zstd): several fit before the disk fills
             replay(packets, "127.0.0.1", port, rate=4.0)
-            assert proc.wait(timeout=60) == 2
-        finally:
-            if proc.poll() is None:
-                proc.kill()
+            assert rec.proc.wait(timeout=60) == 2
+        log = rec.log
         text = log.read_text()
         assert "no space left" in text and "readable up to its last complete chunk" in text
         assert "Traceback" not in text

@@ -37,13 +37,19 @@ def _free_ports(n: int) -> list[int]:
 
 
 class Recorder:
-    """``lidarpkt record`` in a subprocess, waited on until it listens."""
+    """``lidarpkt record`` in a subprocess, waited on until it listens.
 
-    def __init__(self, tmp_path: Path, ports: list[int], *extra: str) -> None:
-        self.out = tmp_path / "rec.mcap"
+    ``bind=None`` leaves ``--bind`` out (a multicast listener binds its group); ``out`` puts the MCAP
+    elsewhere than ``tmp_path`` (a small tmpfs). As a context manager it kills the process on the
+    way out if the test left it running, so that a failing test leaves no recorder behind.
+    """
+
+    def __init__(self, tmp_path: Path, ports: list[int], *extra: str, bind: str | None = "127.0.0.1",
+                 out: Path | None = None) -> None:
+        self.out = out or tmp_path / "rec.mcap"
         self.report = tmp_path / "rec.json"
         self.log = tmp_path / "rec.log"
-        cmd = [sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "-o", str(self.out),
+        cmd = [sys.executable, "-m", "lidarpkt", "record", *(["--bind", bind] if bind else []), "-o", str(self.out),
                "--report", str(self.report), *extra]
         for p in ports:
             cmd += ["--port", str(p)]
@@ -58,6 +64,14 @@ class Recorder:
     def stop(self, sig=signal.SIGTERM) -> int:
         self.proc.send_signal(sig)
         return self.proc.wait(timeout=60)
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=60)
 
 
 def _messages(path: Path):
