@@ -65,7 +65,19 @@ def test_frames_hold_every_firing_once(mode, n, start_cdeg, rpm, split, seed):
     for i in range(0, n, split):
         frames += dec.push(PacketBatch.from_payloads(payload[i:i + split], host[i:i + split], first_index=i))
     frames += dec.finish()
-    assert frames and frames[0].partial and frames[-1].partial
+    # partial = columns of the rotation missing: the first frame is whole only if it starts within
+    # one firing interval after 0°, the last only if it ends within one before 0° (±1 for rounding)
+    step_cdeg = rpm * 6e-4 * 55.296
+    seqs = n * (12 if dual else 24)
+    last_cdeg = (start_cdeg + (seqs - 1) * step_cdeg) % 36000
+    assert frames
+    if start_cdeg > step_cdeg + 1 or (len(frames) == 1 and last_cdeg < 36000 - step_cdeg - 1):
+        assert frames[0].partial
+    if len(frames) > 1 and start_cdeg < step_cdeg - 1:
+        assert not frames[0].partial
+    if last_cdeg < 36000 - step_cdeg - 1:
+        assert frames[-1].partial
+    assert not any(f.partial for f in frames[1:-1])
     per_packet = 12 if dual else 24
     assert sum(f.shape[2] for f in frames) == n * per_packet
     assert all(f.column_valid.all() for f in frames)

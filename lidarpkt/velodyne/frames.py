@@ -19,9 +19,14 @@ slots hold it, as the sensor sends it.
 ``second_strongest``.
 
 Cuts. A frame ends before the first column whose azimuth (minus the cut angle) wrapped
-past 0, i.e. dropped by more than half a turn. The first frame of a stream, the last one
-(:meth:`VelodyneDecoder.finish`) and frames cut by a long loss of packets or a return-mode
-change are ``partial``. Lost packets (time gaps between packets, shorter than
+past 0, i.e. dropped by more than half a turn. ``partial`` means columns of the rotation are
+missing: a frame that does not begin at a wrap (the first of a stream, the first after a long
+loss of packets, a return-mode change or an overlong frame) is whole only if its first column
+fires within one firing interval (the azimuth advance of one firing sequence; of one block with
+``cut_on_block``) after the cut angle, and a frame that does not end at a wrap (the last one,
+:meth:`VelodyneDecoder.finish`, or one cut by a long loss or a mode change) only if its last
+column fires within one firing interval before it. Frames released by ``max_frame_columns``
+are always partial. Lost packets (time gaps between packets, shorter than
 ``max_gap_s``) become invalid columns (no sample: ``column_valid`` False, zero range, zero
 timestamp, azimuth interpolated in time for :meth:`Frame.on_grid`) and are counted in the
 frame's ``counters.lost_packets``.
@@ -139,7 +144,7 @@ class VelodyneDecoder:
         cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
         source: a name for reports (``"192.168.1.201:2368"``).
         max_gap_s: lost stretches shorter than this become invalid columns; longer ones end the
-            frame (partial) without inserting anything. Default 0.2 s.
+            frame (partial unless it reached the cut angle) without inserting anything. Default 0.2 s.
         cut_on_block: cut only where a *block* azimuth wraps, so that both firing sequences of a
             block stay in one frame (VeloView's convention; its per-frame point counts need it).
             By default a frame is cut at the first firing sequence whose azimuth wrapped.
@@ -147,7 +152,8 @@ class VelodyneDecoder:
             rotation at the slowest 5 Hz has 3617) is released as partial, so that a sensor that stops
             turning cannot grow memory without bound (counted in ``stats.overlong_frames``).
 
-    ``push`` returns the frames completed by a batch; ``finish`` the last, partial one.
+    ``push`` returns the frames completed by a batch; ``finish`` the last one (see "Cuts" above for
+    when a frame is ``partial``).
     Malformed packets (wrong size, bad block flag, unknown return mode) are counted in
     :attr:`stats` and skipped with one :class:`~lidarpkt.errors.SkippedPacketWarning` per batch.
     """
@@ -168,7 +174,7 @@ class VelodyneDecoder:
         self.stats = DecoderStats()
         self._row_laser = self.geometry.row_laser  # laser id of each row
         self._pending: list[_Columns] = []
-        self._pending_partial = True  # the first frame of a stream is partial
+        self._pending_partial = True  # the pending frame does not begin at a wrap (the first of a stream)
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
         self._last_abs_ns: int | None = None  # sensor time of the last packet kept
@@ -303,7 +309,7 @@ class VelodyneDecoder:
         mode = RETURN_MODES[int(raw.return_mode[0])]
         frames: list[Frame] = []
         if self._mode is not None and mode != self._mode:
-            frames += self._flush(partial=True)
+            frames += self._flush(end="cut")
             self._last_abs_ns = None
             self._last_key = None
             self._last_az_cdeg = None
@@ -344,7 +350,7 @@ class VelodyneDecoder:
                 self.stats.long_gaps += 1
                 self.stats.lost_packets += int(missing[a])
                 self._pending_counters.lost_packets += int(missing[a])
-                frames += self._flush(partial=True)
+                frames += self._flush(end="cut")
                 self._last_key = None
                 self._last_az_cdeg = None
                 miss = missing[a:b].copy()
@@ -439,34 +445,59 @@ class VelodyneDecoder:
         for piece in pieces[:-1]:
             if len(piece):
                 self._pending.append(piece)
-            frames += self._flush(partial=self._pending_partial)
+            frames += self._flush(end="wrap")
         self._pending.append(pieces[-1])
         self._pending_columns = sum(len(p) for p in self._pending)
         if self._pending_columns > self.max_frame_columns:
             # the azimuth never wrapped (sensor not rotating, or a broken encoder): bound the memory
             self.stats.overlong_frames += 1
-            frames += self._flush(partial=True)
-            self._pending_partial = True
+            frames += self._flush(end="overlong")
         return frames
 
-    def _flush(self, *, partial: bool) -> list[Frame]:
+    def _flush(self, *, end: str) -> list[Frame]:
+        """Release the pending columns as a frame. ``end`` says why it ends: ``"wrap"`` (the next
+        column wrapped past the cut), ``"cut"`` (a long loss, a mode change, the end of the stream) or
+        ``"overlong"`` (no wrap within ``max_frame_columns``: always partial)."""
         parts = [p for p in self._pending if len(p)]
         counters = self._pending_counters
+        start_unknown = self._pending_partial
         self._pending = []
         self._pending_counters = FrameCounters()
-        self._pending_partial = False
+        self._pending_partial = end != "wrap"  # the next frame begins at a wrap only after one
         if not parts:
-            self._pending_partial = True
             return []
         cols = _Columns.concat(parts)
         counters.lost_packets += int(cols.lost.sum())
+        partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut")
         frame = self._make_frame(cols, partial, counters)
         return [frame]
 
+    def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
+        """Whether a frame's columns (azimuths in 0.01°) hold its whole rotation: where it did not
+        begin (end) at a wrap, its first (last) column must lie within one firing interval after
+        (before) the cut angle, i.e. the firing before (after) it belongs to another rotation."""
+        if not (check_start or check_end):
+            return True
+        key = (azimuth_cdeg - self.cut_cdeg) % 36000.0
+        if len(key) >= 2:
+            step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
+        elif self._frequency_hz:
+            step = self._frequency_hz * 36000.0 * SEQUENCE_NS * 1e-9
+        else:
+            return False
+        if self.cut_on_block:  # a frame begins and ends with whole blocks: the interval is two sequences
+            key[1::2] = key[0::2]
+            step *= 2
+        if check_start and not key[0] < step:
+            return False
+        return not check_end or key[-1] >= 36000.0 - step
+
     def finish(self) -> list[Frame]:
-        """The last frame (partial), if any columns are pending. The decoder can be reused afterwards."""
-        frames = self._flush(partial=True)
-        self._pending_partial = True
+        """The last frame, if any columns are pending (partial unless it reaches the cut angle).
+
+        The decoder can be reused afterwards.
+        """
+        frames = self._flush(end="cut")
         self._last_key = None
         self._last_az_cdeg = None
         self.stats.frames += len(frames)
