@@ -3,11 +3,12 @@
 Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PACKET_SIZE`,
 :func:`classify`, :func:`describe_stream`, :class:`VelodyneDecoder`, :func:`decode_packets`,
 :func:`decode_position_packets`, :func:`encode_data_packets`, :func:`encode_position_packets`,
-:func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`.
+:func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`, :class:`VelodyneModel`, :data:`VLP16`.
 
 Modules: ``packet`` (the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a
 batch), ``encode`` (the inverse), ``timing`` (firing times, per-firing azimuth), ``frames``
 (:class:`VelodyneDecoder`: frames, absolute time, losses), ``detect`` (VLP-16 or not),
+``models`` (the model table: lasers, product ids, firing timing, per model),
 ``calibration`` (stock, ROS YAML, VeloView XML), ``geometry`` (XYZ), ``points`` (flat point
 lists in velodyne_decoder's layout), ``nmea`` ($GPRMC/$GPGGA).
 """
@@ -20,6 +21,7 @@ from .detect import classify, describe_stream
 from .encode import encode_data_packets, encode_frames, encode_position_packets
 from .frames import DecoderStats, VelodyneDecoder
 from .geometry import VelodyneGeometry
+from .models import MODELS, VLP16, VelodyneModel, model_for_product
 from .nmea import NMEAFix, parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
 from .points import POINT_DTYPE, frame_points
@@ -46,4 +48,8 @@ __all__ = [
     "parse_nmea",
     "frame_points",
     "POINT_DTYPE",
+    "VelodyneModel",
+    "VLP16",
+    "MODELS",
+    "model_for_product",
 ]

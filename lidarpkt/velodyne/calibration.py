@@ -15,44 +15,51 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import CalibrationError
-from .packet import LASER_ELEVATION_DEG, LASERS
+from .models import VLP16, VelodyneModel
 
-BEAM_ORIGIN_FORWARD_M = 0.04191  # velodyne_decoder's VLP-16 stock vertical-offset lever arm
+BEAM_ORIGIN_FORWARD_M = VLP16.beam_origin_forward_m  # velodyne_decoder's VLP-16 stock vertical-offset lever arm
 
 
 @dataclass(eq=False)
 class VelodyneCalibration:
     """Per-laser corrections, indexed by laser id (firing order), in SI units.
 
-    Attributes:
-        vert_correction_rad: ``float64[16]`` elevation ω of each laser.
-        rot_correction_rad: ``float64[16]`` azimuth offset subtracted from the firing azimuth.
-        vert_offset_m, horiz_offset_m: ``float64[16]`` beam origin offsets (ROS driver model).
-        dist_correction_m: ``float64[16]`` added to every distance (ROS driver model).
+    Attributes (one value per laser: 16 on a VLP-16; the corrections default to zeros):
+        vert_correction_rad: ``float64[L]`` elevation ω of each laser.
+        rot_correction_rad: ``float64[L]`` azimuth offset subtracted from the firing azimuth.
+        vert_offset_m, horiz_offset_m: ``float64[L]`` beam origin offsets (ROS driver model).
+        dist_correction_m: ``float64[L]`` added to every distance (ROS driver model).
         distance_resolution_m: metres per raw distance unit (0.002 for the VLP-16).
         source: where it came from (``"stock"`` or the file path).
     """
 
     vert_correction_rad: np.ndarray
-    rot_correction_rad: np.ndarray = field(default_factory=lambda: np.zeros(LASERS))
-    vert_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(LASERS))
-    horiz_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(LASERS))
-    dist_correction_m: np.ndarray = field(default_factory=lambda: np.zeros(LASERS))
-    distance_resolution_m: float = 0.002
+    rot_correction_rad: np.ndarray | None = None
+    vert_offset_m: np.ndarray | None = None
+    horiz_offset_m: np.ndarray | None = None
+    dist_correction_m: np.ndarray | None = None
+    distance_resolution_m: float = VLP16.distance_resolution_m
     source: str = "stock"
 
     def __post_init__(self) -> None:
+        lasers = int(np.size(self.vert_correction_rad))
         for name in ("vert_correction_rad", "rot_correction_rad", "vert_offset_m", "horiz_offset_m", "dist_correction_m"):
-            arr = np.asarray(getattr(self, name), dtype=np.float64)
-            if arr.shape != (LASERS,):
-                raise CalibrationError(f"{self.source}: {name} must have {LASERS} values (one per laser), got {arr.shape}")
+            value = getattr(self, name)
+            arr = np.zeros(lasers) if value is None else np.asarray(value, dtype=np.float64)
+            if arr.shape != (lasers,):
+                raise CalibrationError(f"{self.source}: {name} must have {lasers} values (one per laser), got {arr.shape}")
             setattr(self, name, arr)
+
+    @property
+    def lasers(self) -> int:
+        """Number of lasers described."""
+        return int(self.vert_correction_rad.shape[0])
 
     @property
     def elevation_deg(self) -> np.ndarray:
@@ -65,26 +72,28 @@ class VelodyneCalibration:
         return np.argsort(-self.vert_correction_rad, kind="stable")
 
 
-def stock_calibration() -> VelodyneCalibration:
-    """The built-in VLP-16 calibration (see the module docstring)."""
-    omega = np.radians(LASER_ELEVATION_DEG)
+def stock_calibration(model: VelodyneModel = VLP16) -> VelodyneCalibration:
+    """The built-in calibration of ``model`` (the VLP-16's: see the module docstring), from the model table."""
+    omega = np.radians(np.asarray(model.elevation_deg, dtype=np.float64))
     return VelodyneCalibration(
         vert_correction_rad=omega,
-        vert_offset_m=BEAM_ORIGIN_FORWARD_M * np.tan(-omega),
+        vert_offset_m=model.beam_origin_forward_m * np.tan(-omega),
+        distance_resolution_m=model.distance_resolution_m,
         source="stock",
     )
 
 
-def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None) -> VelodyneCalibration:
-    """A VLP-16 calibration from a ROS driver YAML or a VeloView XML file (detected by content).
+def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None,
+                     model: VelodyneModel = VLP16) -> VelodyneCalibration:
+    """A calibration of ``model`` (the VLP-16) from a ROS driver YAML or a VeloView XML file (detected by content).
 
-    ``None`` gives the stock calibration; a :class:`VelodyneCalibration` is returned as is.
+    ``None`` gives the model's stock calibration; a :class:`VelodyneCalibration` is returned as is.
 
     Raises:
-        CalibrationError: unreadable file, unknown format, or not 16 lasers.
+        CalibrationError: unreadable file, unknown format, or not the model's number of lasers (16).
     """
     if path is None:
-        return stock_calibration()
+        return stock_calibration(model)
     if isinstance(path, VelodyneCalibration):
         return path
     p = Path(path)
@@ -94,11 +103,11 @@ def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None) 
         raise CalibrationError(f"cannot read VLP-16 calibration {p}: {exc.strerror}") from None
     head = text.lstrip()[:400]
     if head.startswith("<?xml") or "<boost_serialization" in head or head.startswith("<"):
-        return _from_veloview_xml(text, str(p))
-    return _from_ros_yaml(text, str(p))
+        return _from_veloview_xml(text, str(p), model)
+    return _from_ros_yaml(text, str(p), model)
 
 
-def _from_ros_yaml(text: str, source: str) -> VelodyneCalibration:
+def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCalibration:
     from ruamel.yaml import YAML, YAMLError
 
     try:
@@ -109,16 +118,17 @@ def _from_ros_yaml(text: str, source: str) -> VelodyneCalibration:
         raise CalibrationError(f"{source}: no 'lasers' list: not a ROS velodyne calibration YAML")
     lasers = doc["lasers"]
     n = doc.get("num_lasers", len(lasers))
-    if n != LASERS or len(lasers) != LASERS:
-        raise CalibrationError(f"{source} describes {len(lasers)} lasers (num_lasers {n}): a VLP-16 has {LASERS}")
-    values = {k: np.zeros(LASERS) for k in ("vert", "rot", "voff", "hoff", "dist")}
+    count = model.lasers
+    if n != count or len(lasers) != count:
+        raise CalibrationError(f"{source} describes {len(lasers)} lasers (num_lasers {n}): a {model.name} has {count}")
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist")}
     seen = set()
     keys = {"vert": "vert_correction", "rot": "rot_correction", "voff": "vert_offset_correction",
             "hoff": "horiz_offset_correction", "dist": "dist_correction"}
     for entry in lasers:
         try:
             i = int(entry["laser_id"])
-            if not 0 <= i < LASERS or i in seen:
+            if not 0 <= i < count or i in seen:
                 raise ValueError(f"laser_id {i} out of range or repeated")
             seen.add(i)
             values["vert"][i] = float(entry["vert_correction"])
@@ -133,23 +143,24 @@ def _from_ros_yaml(text: str, source: str) -> VelodyneCalibration:
     )
 
 
-def _from_veloview_xml(text: str, source: str) -> VelodyneCalibration:
+def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> VelodyneCalibration:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         raise CalibrationError(f"{source}: malformed VeloView XML: {exc}") from None
     px = root.findall(".//points_/item/px")
-    if len(px) < LASERS:
-        raise CalibrationError(f"{source}: VeloView XML with {len(px)} <px> laser entries; a VLP-16 needs {LASERS}")
+    count = model.lasers
+    if len(px) < count:
+        raise CalibrationError(f"{source}: VeloView XML with {len(px)} <px> laser entries; a {model.name} needs {count}")
     lsb = root.findtext(".//distLSB_")
-    values = {k: np.zeros(LASERS) for k in ("vert", "rot", "voff", "hoff", "dist")}
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist")}
     # VeloView stores angles in degrees and lengths in centimetres
     tags = {"vert": "vertCorrection_", "rot": "rotCorrection_", "voff": "vertOffsetCorrection_",
             "hoff": "horizOffsetCorrection_", "dist": "distCorrection_"}
     try:
         for node in px:
             i = int(node.findtext("id_"))
-            if i >= LASERS:
+            if i >= count:
                 continue  # the 64-entry table of the XML; only the first 16 ids exist on a VLP-16
             for k, tag in tags.items():
                 values[k][i] = float(node.findtext(tag) or 0.0)

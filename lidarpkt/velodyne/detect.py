@@ -20,19 +20,8 @@ import numpy as np
 from ..packet import PacketBatch
 from .decode import decode_packets, decode_position_packets
 from .nmea import parse_nmea
-from .packet import (
-    DATA_PACKET_SIZE,
-    DUAL_PACKET_PERIOD_US,
-    HDL32E_PACKET_PERIOD_US,
-    LASERS,
-    POSITION_PACKET_SIZE,
-    PPS_STATUS,
-    PRODUCT_HDL32E,
-    PRODUCT_NAMES,
-    PRODUCT_VLP16,
-    RETURN_MODES,
-    SINGLE_PACKET_PERIOD_US,
-)
+from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, VLP16
+from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
 
 HOUR_US = 3_600_000_000
 
@@ -52,8 +41,8 @@ def _layout_says_vlp16(raw) -> bool:
     decides. At the usual 600 RPM a VLP-16 block spans 0.4° (two 55.296 µs sequences), an HDL-32E
     block 0.17° (46.08 µs); 0.27° separates them for any rate between 500 and 720 RPM.
     """
-    a = raw.distance_2mm[:, :, :LASERS].astype(np.int32)
-    b = raw.distance_2mm[:, :, LASERS:].astype(np.int32)
+    a = raw.distance_2mm[:, :, :VLP16.lasers].astype(np.int32)
+    b = raw.distance_2mm[:, :, VLP16.lasers:].astype(np.int32)
     both = (a > 0) & (b > 0)
     if np.count_nonzero(both) < 16:
         steps = np.diff(raw.azimuth_cdeg.astype(np.int32), axis=1) % 36000
@@ -79,7 +68,7 @@ def data_kind(batch: PacketBatch) -> str | None:
         return "other" if product in PRODUCT_NAMES else None
     raw = raw.select(ok)
     dual = bool(np.median(raw.return_mode) == 0x39)
-    expected = DUAL_PACKET_PERIOD_US if dual else SINGLE_PACKET_PERIOD_US
+    expected = VLP16.packet_period_us("dual" if dual else "strongest")
     hdl = HDL32E_PACKET_PERIOD_US / 2 if dual else HDL32E_PACKET_PERIOD_US
     period = _median_period_us(raw.timestamp_us)
     if period is not None:

@@ -181,7 +181,7 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     Raises:
         PacketFormatError: frames of several return modes, or columns that do not fill whole packets.
     """
-    from .packet import LASER_ELEVATION_DEG, LASERS
+    from .models import VLP16, model_named
 
     frames = list(frames)
     if not frames:
@@ -190,8 +190,9 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     if len(modes) != 1:
         raise PacketFormatError(f"frames of several return modes {sorted(modes)}: encode each mode separately")
     mode = modes.pop()
+    model = model_named(frames[0].sensor.model) if frames[0].sensor.model else VLP16
     geometry = frames[0].sensor.geometry
-    row_laser = getattr(geometry, "row_laser", np.argsort(-LASER_ELEVATION_DEG, kind="stable"))
+    row_laser = getattr(geometry, "row_laser", np.argsort(-np.asarray(model.elevation_deg), kind="stable"))
     laser_row = np.argsort(row_laser)  # row of each laser id
     valid = np.concatenate([f.column_valid for f in frames])
     rng = np.concatenate([f.range_mm for f in frames], axis=-1)[..., valid]
@@ -199,7 +200,9 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     az = np.concatenate([f.extra["azimuth_cdeg"] for f in frames], axis=-1)[:, valid]
     ts = np.concatenate([f.column_timestamp_ns for f in frames])[valid]
     dual = mode == "dual"
-    per = 12 if dual else 24
+    per = model.columns_per_packet(mode)
+    lasers, blocks, seqs = model.lasers, model.blocks_per_packet, model.sequences_per_block
+    channels = lasers * seqs
     w = rng.shape[-1]
     if w % per:
         raise PacketFormatError(f"{w} valid columns do not fill whole {mode} packets of {per} columns")
@@ -208,13 +211,14 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     refl = refl[:, laser_row]
     if dual:
         # [2 slots, 16, n, 6 pairs, 2 seq] → [n, 6, 2 slots, 2 seq, 16]
-        dist = dist.reshape(2, LASERS, n, 6, 2).transpose(2, 3, 0, 4, 1).reshape(n, 12, 32)
-        refl = refl.reshape(2, LASERS, n, 6, 2).transpose(2, 3, 0, 4, 1).reshape(n, 12, 32)
-        block_az = np.repeat(az[laser_row[0]].reshape(n, 6, 2)[:, :, 0], 2, axis=1)
+        pairs = blocks // 2
+        dist = dist.reshape(2, lasers, n, pairs, seqs).transpose(2, 3, 0, 4, 1).reshape(n, blocks, channels)
+        refl = refl.reshape(2, lasers, n, pairs, seqs).transpose(2, 3, 0, 4, 1).reshape(n, blocks, channels)
+        block_az = np.repeat(az[laser_row[0]].reshape(n, pairs, seqs)[:, :, 0], 2, axis=1)
     else:
-        dist = dist.reshape(LASERS, n, 12, 2).transpose(1, 2, 3, 0).reshape(n, 12, 32)
-        refl = refl.reshape(LASERS, n, 12, 2).transpose(1, 2, 3, 0).reshape(n, 12, 32)
-        block_az = az[laser_row[0]].reshape(n, 12, 2)[:, :, 0]
+        dist = dist.reshape(lasers, n, blocks, seqs).transpose(1, 2, 3, 0).reshape(n, blocks, channels)
+        refl = refl.reshape(lasers, n, blocks, seqs).transpose(1, 2, 3, 0).reshape(n, blocks, channels)
+        block_az = az[laser_row[0]].reshape(n, blocks, seqs)[:, :, 0]
     toh_us = (ts.reshape(n, per)[:, 0] // 1000) % 3_600_000_000
     product = frames[0].sensor.product_id if frames[0].sensor.product_id is not None else PRODUCT_VLP16
     return encode_data_packets(block_az, dist, refl, toh_us, mode, product)

@@ -63,16 +63,9 @@ from ..packet import PacketBatch
 from .decode import DataPackets, decode_packets, decode_position_packets
 from .geometry import VelodyneGeometry
 from .nmea import parse_nmea
-from .packet import (
-    DATA_PACKET_SIZE,
-    DUAL_PACKET_PERIOD_US,
-    LASERS,
-    POSITION_PACKET_SIZE,
-    RETURN_MODE_CODES,
-    RETURN_MODES,
-    SINGLE_PACKET_PERIOD_US,
-)
-from .timing import FIRING_NS, SEQUENCE_NS, firing_azimuth_cdeg
+from .models import VLP16, VelodyneModel
+from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
+from .timing import firing_azimuth_cdeg
 
 HOUR_NS = 3_600_000_000_000
 HOUR_US = 3_600_000_000
@@ -163,6 +156,7 @@ class VelodyneDecoder:
                  **options) -> None:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
+        self.model: VelodyneModel = VLP16  # the one row of the model table (lidarpkt.velodyne.models)
         self.geometry = VelodyneGeometry(calibration)
         self.calibration = self.geometry.calibration
         self.cut_cdeg = 0.0 if cut_angle_deg is None else float(cut_angle_deg) % 360.0 * 100.0
@@ -315,7 +309,7 @@ class VelodyneDecoder:
             self._last_az_cdeg = None
         self._mode = mode
         if self._frequency_hz is None:
-            self._frequency_hz = _estimate_frequency(raw)
+            self._frequency_hz = _estimate_frequency(raw, self.model)
         # Packets out of order inside a batch are put back in order (counted, kept); duplicates and
         # packets older than the last one of an earlier batch (its frame may be gone) are dropped, counted.
         last = self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min
@@ -339,7 +333,7 @@ class VelodyneDecoder:
             if len(raw) == 0:
                 return frames
         self.stats.decoded_packets += len(raw)
-        period_ns = (DUAL_PACKET_PERIOD_US if mode == "dual" else SINGLE_PACKET_PERIOD_US) * 1000
+        period_ns = self.model.packet_period_ns(mode)
         gaps = np.diff(np.concatenate([[abs_ns[0] if self._last_abs_ns is None else self._last_abs_ns], abs_ns]))
         missing = np.where(gaps > 1.5 * period_ns, np.rint(gaps / period_ns).astype(np.int64) - 1, 0)
         long_gap = gaps > self.max_gap_ns
@@ -366,8 +360,10 @@ class VelodyneDecoder:
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:
         n = len(raw)
         dual = mode == "dual"
-        per_packet = 12 if dual else 24
+        model = self.model
+        per_packet = model.columns_per_packet(mode)
         lasers = self._row_laser
+        n_lasers, blocks, seqs = model.lasers, model.blocks_per_packet, model.sequences_per_block
         slots = 2 if dual else 1
         w0 = n * per_packet
         # Two passes: the strided 3-byte records of the batch copied once into [slot, column, laser]
@@ -379,23 +375,23 @@ class VelodyneDecoder:
         else:
             fa = firing_azimuth_cdeg(raw.azimuth_cdeg, False)  # [n, 12, 32]
         # [n, blocks per slot, slots, 2 seq, 16 lasers] → [slots, n, blocks per slot, 2 seq, 16 lasers]
-        split = (n, 12 // slots, slots, 2, LASERS)
-        d = np.empty((slots, n, 12 // slots, 2, LASERS), np.uint16)
+        split = (n, blocks // slots, slots, seqs, n_lasers)
+        d = np.empty((slots, n, blocks // slots, seqs, n_lasers), np.uint16)
         d[...] = raw.distance_2mm.reshape(split).transpose(2, 0, 1, 3, 4)
-        f = np.empty((slots, n, 12 // slots, 2, LASERS), np.uint8)
+        f = np.empty((slots, n, blocks // slots, seqs, n_lasers), np.uint8)
         f[...] = raw.reflectivity.reshape(split).transpose(2, 0, 1, 3, 4)
-        d, f = d.reshape(slots, w0, LASERS), f.reshape(slots, w0, LASERS)
-        a = fa.reshape(w0, LASERS)
-        rng = np.empty((slots, LASERS, w0), np.uint32)
-        refl = np.empty((slots, LASERS, w0), np.uint8)
-        az_px = np.empty((LASERS, w0), np.uint16)
+        d, f = d.reshape(slots, w0, n_lasers), f.reshape(slots, w0, n_lasers)
+        a = fa.reshape(w0, n_lasers)
+        rng = np.empty((slots, n_lasers, w0), np.uint32)
+        refl = np.empty((slots, n_lasers, w0), np.uint8)
+        az_px = np.empty((n_lasers, w0), np.uint16)
         two = np.uint32(2)
         for row, laser in enumerate(lasers.tolist()):
             np.multiply(d[:, :, laser], two, out=rng[:, row])
             refl[:, row] = f[:, :, laser]
             az_px[row] = a[:, laser]
         col_az = az_px[int(np.flatnonzero(lasers == 0)[0])].astype(np.float64)  # laser 0 fires first
-        seq = np.arange(per_packet, dtype=np.int64) * SEQUENCE_NS
+        seq = np.arange(per_packet, dtype=np.int64) * model.sequence_ns
         ts = (abs_ns[:, None] + seq[None, :]).reshape(-1)
         pidx = np.repeat(index.astype(np.int64), per_packet)
         total_missing = int(miss.sum())
@@ -408,7 +404,7 @@ class VelodyneDecoder:
         cols = (slot[:, None] * per_packet + np.arange(per_packet)[None, :]).reshape(-1)
         r_out = np.zeros(rng.shape[:2] + (w,), np.uint32)
         f_out = np.zeros(refl.shape[:2] + (w,), np.uint8)
-        a_out = np.zeros((LASERS, w), np.uint16)
+        a_out = np.zeros((n_lasers, w), np.uint16)
         r_out[..., cols], f_out[..., cols], a_out[:, cols] = rng, refl, az_px
         valid = np.zeros(w, bool)
         valid[cols] = True
@@ -482,7 +478,7 @@ class VelodyneDecoder:
         if len(key) >= 2:
             step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
         elif self._frequency_hz:
-            step = self._frequency_hz * 36000.0 * SEQUENCE_NS * 1e-9
+            step = self._frequency_hz * 36000.0 * self.model.sequence_ns * 1e-9
         else:
             return False
         if self.cut_on_block:  # a frame begins and ends with whole blocks: the interval is two sequences
@@ -512,19 +508,18 @@ class VelodyneDecoder:
             rows = self._row_laser
             freq = self._frequency_hz
             info = self._sensors[mode] = SensorInfo(
-                vendor="velodyne", model="VLP-16", rows=LASERS,
-                columns_per_frame=int(round(1e9 / (freq * SEQUENCE_NS))) if freq else 1808,
+                vendor="velodyne", model=self.model.name, rows=self.model.lasers,
+                columns_per_frame=self.model.columns_per_rotation(freq),
                 return_mode=mode, return_labels=LABELS[mode],
                 beam_altitude_deg=cal.elevation_deg[rows], beam_azimuth_deg=np.degrees(cal.rot_correction_rad[rows]),
-                frequency_hz=freq, grid_resolution_deg=0.2, geometry=self.geometry, product_id=self._product_id,
+                frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry, product_id=self._product_id,
                 source=self.source, profile=mode,
             )
         return info
 
     def _make_frame(self, cols: _Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
-        w = len(cols)
-        toff = np.where(cols.valid[None, :], (FIRING_NS * self._row_laser.astype(np.int64))[:, None], 0)
+        toff = np.where(cols.valid[None, :], (self.model.firing_ns * self._row_laser.astype(np.int64))[:, None], 0)
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
             r0, r1 = cols.range_mm[0], cols.range_mm[1]
@@ -536,16 +531,17 @@ class VelodyneDecoder:
             column_timestamp_ns=cols.timestamp_ns, azimuth_deg=cols.azimuth_cdeg / 100.0,
             pixel_time_offset_ns=toff, partial=partial, counters=counters, extra=extra,
         )
-        assert frame.range_mm.shape == (len(LABELS[mode]), LASERS, w)
         self._frame_id += 1
         return frame
 
 
-def _estimate_frequency(raw: DataPackets) -> float | None:
+def _estimate_frequency(raw: DataPackets, model: VelodyneModel = VLP16) -> float | None:
     """Rotation rate in Hz from the azimuth advance inside packets (median), ``None`` if unmeasurable."""
     dual = raw.return_mode == DUAL
     diff = (raw.azimuth_cdeg[:, -1].astype(np.int64) - raw.azimuth_cdeg[:, 0]) % 36000
-    seqs = np.where(dual, 10, 22)  # firing sequences between the first and last block
-    rate = diff / (seqs * SEQUENCE_NS)  # cdeg per ns
+    # firing sequences between the first and the last block (dual: block pairs share their firings)
+    b, s = model.blocks_per_packet, model.sequences_per_block
+    seqs = np.where(dual, (b // 2 - 1) * s, (b - 1) * s)
+    rate = diff / (seqs * model.sequence_ns)  # cdeg per ns
     hz = float(np.median(rate)) * 1e9 / 36000.0
     return round(hz, 2) if hz > 0 else None

@@ -26,21 +26,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import PacketFormatError
+from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, RETURN_MODES, VLP16
 
 DATA_PACKET_SIZE = 1206
 POSITION_PACKET_SIZE = 512
 BLOCKS_PER_PACKET = 12
 CHANNELS_PER_BLOCK = 32
-LASERS = 16
-SEQUENCES_PER_BLOCK = CHANNELS_PER_BLOCK // LASERS
+# The VLP-16's facts under their old names (lidarpkt.velodyne.models holds them, per model)
+LASERS = VLP16.lasers
 
 BLOCK_FLAG = 0xEEFF  # bytes FF EE read as u16 little-endian
 
-RETURN_MODES = {0x37: "strongest", 0x38: "last", 0x39: "dual"}
 RETURN_MODE_CODES = {name: code for code, name in RETURN_MODES.items()}
-PRODUCT_VLP16 = 0x22
+PRODUCT_VLP16 = VLP16.product_ids[0]
 PRODUCT_HDL32E = 0x21  # also written by early (2014) VLP-16 firmware
-PRODUCT_NAMES = {0x21: "HDL-32E", 0x22: "VLP-16", 0x24: "Puck Hi-Res", 0x28: "VLP-32C", 0x31: "Velarray", 0xA1: "VLS-128"}
 
 PPS_STATUS = {0: "absent", 1: "synchronizing", 2: "locked", 3: "error"}
 
@@ -72,21 +71,18 @@ POSITION_PACKET_DTYPE = np.dtype(
     }
 )
 
-assert DATA_PACKET_DTYPE.itemsize == DATA_PACKET_SIZE
-assert BLOCK_DTYPE.itemsize == 100
+if DATA_PACKET_DTYPE.itemsize != DATA_PACKET_SIZE or BLOCK_DTYPE.itemsize != 100:  # a layout typo, caught at import
+    raise PacketFormatError(f"VLP-16 layout declares {DATA_PACKET_DTYPE.itemsize} B packets of "
+                            f"{BLOCK_DTYPE.itemsize} B blocks; the manual says {DATA_PACKET_SIZE} and 100")
 
 # Laser elevation by laser id (manual, "Laser Angles"), degrees.
-LASER_ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], dtype=np.float64)
-# Row of each laser id in a frame: row 0 = highest elevation (laser 15), row 15 = laser 0.
-LASER_TO_ROW = np.argsort(np.argsort(-LASER_ELEVATION_DEG, kind="stable"), kind="stable")
+LASER_ELEVATION_DEG = np.array(VLP16.elevation_deg, dtype=np.float64)
+# Laser id of each frame row: row 0 = highest elevation (laser 15), row 15 = laser 0.
 ROW_TO_LASER = np.argsort(-LASER_ELEVATION_DEG, kind="stable")
 
-# Firing timing (manual, "Precision Azimuth Calculation" / "Timing"), µs.
-FIRING_SEQUENCE_US = 55.296
-LASER_FIRING_US = 2.304
-SINGLE_PACKET_PERIOD_US = BLOCKS_PER_PACKET * SEQUENCES_PER_BLOCK * FIRING_SEQUENCE_US  # 1327.104
-DUAL_PACKET_PERIOD_US = SINGLE_PACKET_PERIOD_US / 2  # 663.552
-HDL32E_PACKET_PERIOD_US = BLOCKS_PER_PACKET * 46.080  # 552.96
+# Packet periods (manual, "Timing"), µs.
+SINGLE_PACKET_PERIOD_US = VLP16.packet_period_us("strongest")  # 1327.104
+DUAL_PACKET_PERIOD_US = VLP16.packet_period_us("dual")  # 663.552
 
 
 def as_data_packets(payload: np.ndarray) -> np.ndarray:

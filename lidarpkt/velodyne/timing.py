@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .packet import BLOCKS_PER_PACKET, CHANNELS_PER_BLOCK, LASERS
+from .models import VLP16
+from .packet import BLOCKS_PER_PACKET, CHANNELS_PER_BLOCK
 
-SEQUENCE_NS = 55_296  # 55.296 µs, exact in ns
-FIRING_NS = 2_304  # 2.304 µs
+SEQUENCE_NS = VLP16.sequence_ns  # 55.296 µs, exact in ns
+FIRING_NS = VLP16.firing_ns  # 2.304 µs
+LASERS = VLP16.lasers
 
 # Single-mode delay of block b, channel j after the packet timestamp, ns: [12, 32].
 _b, _j = np.meshgrid(np.arange(BLOCKS_PER_PACKET), np.arange(CHANNELS_PER_BLOCK), indexing="ij")
-FIRING_OFFSET_NS = (SEQUENCE_NS * (2 * _b + _j // LASERS) + FIRING_NS * (_j % LASERS)).astype(np.int64)
+FIRING_OFFSET_NS = (SEQUENCE_NS * (VLP16.sequences_per_block * _b + _j // LASERS) + FIRING_NS * (_j % LASERS)).astype(np.int64)
 # The same in float32 seconds, as velodyne_decoder tabulates them (double → float).
 _FIRING_OFFSET_S32 = (FIRING_OFFSET_NS.astype(np.float64) * 1e-9).astype(np.float32)
 
