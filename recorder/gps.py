@@ -19,6 +19,7 @@ import threading
 import time
 
 from lidarpkt.errors import NMEAError, SerialPortError
+from lidarpkt.velodyne.clock import fix_time_ns
 from lidarpkt.velodyne.nmea import checksum, parse_nmea
 
 MAX_LINE = 512  # NMEA 0183 allows 82 characters; proprietary sentences run a little longer
@@ -52,26 +53,16 @@ def verify_sentence(line: bytes | str) -> str:
     return text
 
 
-DAY_NS = 86_400_000_000_000
-
-
 def sentence_time_ns(sentence: str, host_time_ns: int) -> int:
     """The UTC time a $--RMC / $--GGA sentence reports, ns since the epoch; ``host_time_ns`` for
-    other sentences and for empty time fields. GGA has no date: the day nearest the host time."""
+    other sentences and for empty time fields. GGA has no date: the day nearest the host time
+    (:func:`lidarpkt.velodyne.clock.fix_time_ns`, as the VLP-16 decoder resolves it)."""
     try:
         fix = parse_nmea(sentence)
     except NMEAError:
         return host_time_ns
-    if fix.utc_ns is not None:
-        return fix.utc_ns
-    if fix.time_of_day_s is None:
-        return host_time_ns
-    t = host_time_ns - host_time_ns % DAY_NS + round(fix.time_of_day_s * 1e9)
-    if t - host_time_ns > DAY_NS // 2:
-        t -= DAY_NS
-    elif host_time_ns - t > DAY_NS // 2:
-        t += DAY_NS
-    return t
+    t = fix_time_ns(fix, host_time_ns)
+    return host_time_ns if t is None else t
 
 
 class GpsReader:

@@ -24,22 +24,18 @@ import numpy as np
 
 from lidarpkt.packet import Endpoint, PacketBatch
 from lidarpkt.velodyne import packet as vlp
+from lidarpkt.velodyne.clock import in_nearest_hour_ns
 
 from . import schemas, streams
 from .mcap_writer import McapWriter
 
-HOUR_NS = 3_600_000_000_000
 
 
 def velodyne_sensor_time_ns(timestamp_us: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
     """Sensor time (ns since the epoch) of VLP-16 packets: their µs past the hour, in the hour
-    nearest their host receive time (the convention of velodyne_decoder; ±30 min)."""
-    toh_ns = np.asarray(timestamp_us, np.int64) * 1000
-    host = np.asarray(host_time_ns, np.int64)
-    hour = host - host % HOUR_NS
-    t = hour + toh_ns
-    t = np.where(t - host > HOUR_NS // 2, t - HOUR_NS, t)
-    return np.where(host - t > HOUR_NS // 2, t + HOUR_NS, t)
+    nearest their host receive time (the convention of velodyne_decoder; ±30 min), as the decoder
+    resolves it (:func:`lidarpkt.velodyne.clock.in_nearest_hour_ns`)."""
+    return in_nearest_hour_ns(timestamp_us, host_time_ns)
 
 
 @dataclass

@@ -36,7 +36,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..errors import SensorMismatchError, SkippedPacketWarning
-from ..frame import Frame, FrameCounters
+from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
 from .imu import decode_imu
@@ -206,7 +206,7 @@ def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
 
 
 class OusterDecoder:
-    """Frames of one Ouster sensor from its lidar (and IMU) packets.
+    """Frames of one Ouster sensor from its lidar (and IMU) packets (a :class:`lidarpkt.decoder.Decoder`).
 
     Args:
         metadata: the sensor's :class:`OusterMetadata`.
@@ -418,7 +418,15 @@ class OusterDecoder:
             )
         return out
 
+    def sensor_info(self, mode: str | None = None) -> SensorInfo:
+        """The sensor's :class:`~lidarpkt.frame.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
+        return self.sensor
+
     # ------------------------------------------------------------------ IMU
+    def push_auxiliary(self, batch: PacketBatch) -> None:
+        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_imu`."""
+        self.push_imu(batch)
+
     def push_imu(self, batch: PacketBatch) -> None:
         """Keep this sensor's IMU samples (see :meth:`imu_samples`); wrong-size packets are counted and skipped."""
         if batch.payload_size != self.metadata.imu_packet_size:

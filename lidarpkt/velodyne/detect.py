@@ -18,19 +18,22 @@ from __future__ import annotations
 import numpy as np
 
 from ..packet import PacketBatch
+from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
 from .nmea import parse_nmea
 from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, VLP16
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
 
-HOUR_US = 3_600_000_000
+
+
+def _forward_steps_us(timestamp_us: np.ndarray) -> np.ndarray:
+    """Steps between consecutive packet stamps that go forward by less than 0.1 s (across the hour)."""
+    d = hour_steps_us(timestamp_us)[1:]
+    return d[(d > 0) & (d < 100_000)]
 
 
 def _median_period_us(timestamp_us: np.ndarray) -> float | None:
-    if timestamp_us.shape[0] < 2:
-        return None
-    d = np.diff(timestamp_us.astype(np.int64)) % HOUR_US
-    d = d[(d > 0) & (d < 100_000)]
+    d = _forward_steps_us(timestamp_us)
     return float(np.median(d)) if d.size else None
 
 
@@ -77,8 +80,7 @@ def data_kind(batch: PacketBatch) -> str | None:
         if abs(period - hdl) < 0.05 * hdl:
             return "hdl32e"
         # neither: lost packets stretch the steps; count steps that are whole VLP-16 periods
-        d = np.diff(raw.timestamp_us.astype(np.int64)) % HOUR_US
-        d = d[(d > 0) & (d < 100_000)]
+        d = _forward_steps_us(raw.timestamp_us)
         fits = lambda p: np.abs(d - np.rint(d / p) * p) <= 3  # noqa: E731 - µs stamps jitter by 1
         n_vlp, n_hdl = int(np.count_nonzero(fits(expected))), int(np.count_nonzero(fits(hdl)))
         if n_vlp != n_hdl:

@@ -60,15 +60,15 @@ import numpy as np
 from ..errors import NMEAError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
+from .clock import SensorClock, fix_time_ns
 from .decode import DataPackets, decode_packets, decode_position_packets
 from .geometry import VelodyneGeometry
 from .nmea import parse_nmea
 from .models import VLP16, VelodyneModel
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
+from .stream import packets_lost, wrapped
 from .timing import firing_azimuth_cdeg
 
-HOUR_NS = 3_600_000_000_000
-HOUR_US = 3_600_000_000
 DUAL = RETURN_MODE_CODES["dual"]
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
@@ -129,7 +129,8 @@ class _Columns:
 
 
 class VelodyneDecoder:
-    """Frames of one VLP-16 (one source address) from its data and position packets.
+    """Frames of one VLP-16 (one source address) from its data and position packets
+    (a :class:`lidarpkt.decoder.Decoder`).
 
     Args:
         calibration: a :class:`~lidarpkt.velodyne.calibration.VelodyneCalibration`, a path to a ROS
@@ -172,10 +173,9 @@ class VelodyneDecoder:
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
         self._last_abs_ns: int | None = None  # sensor time of the last packet kept
-        self._clock_ns: int | None = None  # sensor time of the last packet seen
         self._last_key: float | None = None  # cut key of the last column
         self._last_az_cdeg: float | None = None
-        self._gps_anchor: tuple[int, int] | None = None  # (host ns, absolute ns) of a position packet with a fix
+        self.clock = SensorClock()  # the hour of the packet stamps
         self._sensors: dict[str, SensorInfo] = {}
         self._product_id: int | None = None
         self._frame_id = 0
@@ -183,34 +183,9 @@ class VelodyneDecoder:
 
     # ------------------------------------------------------------------ time
     def absolute_time_ns(self, timestamp_us: np.ndarray, host_ns: np.ndarray) -> np.ndarray:
-        """``int64[N]`` ns since the epoch for hour-relative packet times, updating the decoder's clock.
-
-        The hour is the one that puts the packet nearest its reference time: the GPS time of
-        the last position packet with a fix (carried forward by the capture clock), else the
-        capture time, else (no capture time, e.g. raw payload files) the previous packet, so
-        that the top of the hour is crossed correctly in every case.
-        """
-        toh_ns = timestamp_us.astype(np.int64) * 1000
-        host_ns = np.asarray(host_ns, dtype=np.int64)
-        if host_ns.size and np.all(host_ns != 0):
-            ref = host_ns
-            if self._gps_anchor is not None:
-                ref = self._gps_anchor[1] + (host_ns - self._gps_anchor[0])
-            hour = np.round((ref - toh_ns) / HOUR_NS).astype(np.int64)
-            out = hour * HOUR_NS + toh_ns
-        else:
-            if self._clock_ns is not None:
-                start = self._clock_ns
-            elif self._gps_anchor is not None:
-                start = round((self._gps_anchor[1] - int(toh_ns[0])) / HOUR_NS) * HOUR_NS + int(toh_ns[0])
-            else:
-                start = int(toh_ns[0])
-            seq = np.concatenate([[start // 1000 % HOUR_US], timestamp_us.astype(np.int64)])
-            d = (np.diff(seq) + HOUR_US // 2) % HOUR_US - HOUR_US // 2  # signed step, within half an hour
-            out = start + np.cumsum(d) * 1000
-        if out.size:
-            self._clock_ns = int(out[-1])
-        return out
+        """``int64[N]`` ns since the epoch for hour-relative packet times, updating the decoder's clock
+        (see :class:`~lidarpkt.velodyne.clock.SensorClock`: GPS, else capture time, else the previous packet)."""
+        return self.clock.absolute_ns(timestamp_us, host_ns)
 
     # ------------------------------------------------------------------ position packets
     def push_position(self, batch: PacketBatch) -> None:
@@ -242,16 +217,13 @@ class VelodyneDecoder:
         i = int(has[last])
         fix = fixes[int(inverse.ravel()[last])]
         host = int(batch.timestamp_ns[i])
-        utc = fix.utc_ns
-        if utc is None and fix.time_of_day_s is not None and host != 0:
-            # $GPGGA has no date: take the capture clock's, to the nearest midnight
-            day = 86_400_000_000_000
-            utc = host - host % day + round(fix.time_of_day_s * 1e9)
-            utc += day * round((host - utc) / day)
-        if utc is None:
-            return
-        toh = int(pos.timestamp_us[i]) * 1000
-        self._gps_anchor = (host, round((utc - toh) / HOUR_NS) * HOUR_NS + toh)
+        utc = fix_time_ns(fix, host)  # $GPGGA has no date: the capture clock's, to the nearest midnight
+        if utc is not None:
+            self.clock.anchor(host, int(pos.timestamp_us[i]), utc)
+
+    def push_auxiliary(self, batch: PacketBatch) -> None:
+        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_position`."""
+        self.push_position(batch)
 
     # ------------------------------------------------------------------ data packets
     def push(self, batch: PacketBatch) -> list[Frame]:
@@ -335,7 +307,7 @@ class VelodyneDecoder:
         self.stats.decoded_packets += len(raw)
         period_ns = self.model.packet_period_ns(mode)
         gaps = np.diff(np.concatenate([[abs_ns[0] if self._last_abs_ns is None else self._last_abs_ns], abs_ns]))
-        missing = np.where(gaps > 1.5 * period_ns, np.rint(gaps / period_ns).astype(np.int64) - 1, 0)
+        missing = packets_lost(gaps, period_ns)
         long_gap = gaps > self.max_gap_ns
         cuts = np.flatnonzero(long_gap)
         bounds = sorted({0, *cuts.tolist(), len(raw)})
@@ -432,8 +404,7 @@ class VelodyneDecoder:
         key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
         if self.cut_on_block:
             key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
-        prev = np.concatenate([[key[0] if self._last_key is None else self._last_key], key[:-1]])
-        cut_at = np.flatnonzero(key < prev - 18000.0).tolist()
+        cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
         self._last_az_cdeg = float(cols.azimuth_cdeg[-1])
         frames = []
@@ -500,8 +471,10 @@ class VelodyneDecoder:
         return frames
 
     # ------------------------------------------------------------------ frames
-    def sensor_info(self, mode: str) -> SensorInfo:
-        """The :class:`SensorInfo` of this sensor in return mode ``mode``."""
+    def sensor_info(self, mode: str | None = None) -> SensorInfo:
+        """The :class:`SensorInfo` of this sensor in return mode ``mode`` (default: the current one,
+        ``"strongest"`` before any packet)."""
+        mode = mode or self._mode or "strongest"
         info = self._sensors.get(mode)
         if info is None:
             cal = self.calibration

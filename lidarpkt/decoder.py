@@ -1,0 +1,85 @@
+"""What every vendor decoder offers (:class:`Decoder`), and what every vendor's cheap stream counter
+offers (:class:`StreamCounter`, :class:`StreamCounts`).
+
+A :class:`Decoder` turns the packet batches of one sensor into frames: the packet source
+(:func:`lidarpkt.open`) makes one per sensor, pushes it the sensor's lidar batches (:meth:`push`)
+and its auxiliary ones (:meth:`push_auxiliary`: Velodyne position packets, Ouster IMU packets),
+and calls :meth:`finish` at the end of the capture. :class:`~lidarpkt.velodyne.VelodyneDecoder`
+and :class:`~lidarpkt.ouster.OusterDecoder` meet it.
+
+A :class:`StreamCounter` is the recorder's live path: no frames, only packets, losses and
+rotations counted from the packets' own counters, one NumPy pass per batch. Each vendor package
+has one (:class:`lidarpkt.velodyne.stream.PacketCounter`, :class:`lidarpkt.ouster.stream.PacketCounter`),
+built on the same packet periods and rotation rules as its decoder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from .frame import Frame, SensorInfo
+    from .packet import PacketBatch
+
+#: A jump of more than this in a stream's own counters (the sensor stopped, restarted, or the cable
+#: was out) is an interruption: counted on its own, not as packets lost.
+INTERRUPTION_S = 1.0
+
+
+class DecoderCounts(Protocol):
+    """The counters every decoder's ``stats`` has (each vendor adds its own)."""
+
+    packets: int  # lidar packets pushed
+    frames: int  # frames released
+
+
+@runtime_checkable
+class Decoder(Protocol):
+    """Frames of one sensor from its packet batches."""
+
+    source: str | None  # where the packets come from, for reports ("192.168.1.201:2368")
+
+    @property
+    def stats(self) -> DecoderCounts: ...
+
+    def push(self, batch: PacketBatch) -> list[Frame]:
+        """Decode a batch of lidar packets (one stream, one payload size, capture order); return
+        the frames it completed. Bad packets are counted in :attr:`stats` and skipped."""
+        ...
+
+    def push_auxiliary(self, batch: PacketBatch) -> None:
+        """Take a batch of the sensor's auxiliary packets (Velodyne position, Ouster IMU)."""
+        ...
+
+    def finish(self) -> list[Frame]:
+        """The frame still being filled, if any, at the end of the capture."""
+        ...
+
+    def sensor_info(self, mode: str | None = None) -> SensorInfo:
+        """The sensor's description (``mode``: a Velodyne return mode; the current one by default)."""
+        ...
+
+
+@dataclass
+class StreamCounts:
+    """Counts of one stream: packets seen, lost (gaps), out of order, rotations completed, interruptions."""
+
+    packets: int = 0
+    lost: int = 0
+    out_of_order: int = 0
+    frames: int = 0
+    interruptions: int = 0  # jumps of more than INTERRUPTION_S in the stream's own counters
+
+
+@runtime_checkable
+class StreamCounter(Protocol):
+    """Counts one lidar stream from its payloads, batch after batch, in arrival order."""
+
+    count: StreamCounts
+
+    def update(self, payload: np.ndarray) -> np.ndarray:
+        """Count ``uint8[N, L]`` payloads; returns ``bool[N]``, True where a packet starts a new rotation."""
+        ...

@@ -1,0 +1,91 @@
+"""A VLP-16 stream's packets counted: what a payload size is, how many packets a gap lost, where a
+rotation ends. The decoder (:mod:`lidarpkt.velodyne.frames`) and the recorder's live path
+(:class:`PacketCounter`, through ``recorder/streams.py``) both use these rules, so that they cannot
+disagree about packet periods and rotations.
+
+* Packet period: the model table's (:meth:`VelodyneModel.packet_period_us`: 1327.104 µs in the
+  single-return modes, 663.552 µs in dual). A gap of k periods between consecutive packets means
+  k − 1 packets lost (:func:`packets_lost`), whatever the rotation rate and the replay speed.
+* Rotation: a rotation ends where the azimuth (minus the cut angle) drops by more than half a turn
+  (:func:`wrapped`): the decoder asks it of every firing sequence, the live path of the first block
+  of each packet, so both count the same wraps.
+* A step back (or a repeat) is out of order, never loss; a jump of more than
+  :data:`~lidarpkt.decoder.INTERRUPTION_S` in the packets' own clock is an interruption, counted on
+  its own.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..decoder import INTERRUPTION_S, StreamCounts
+from .clock import hour_steps_us
+from .models import VLP16
+from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, as_data_packets
+
+HALF_TURN_CDEG = 18_000
+
+
+def stream_kind(payload_size: int) -> str | None:
+    """``"data"`` or ``"position"`` by payload size alone (the live path's cheap test; :func:`classify`
+    also checks the content), ``None`` for another size."""
+    return {DATA_PACKET_SIZE: "data", POSITION_PACKET_SIZE: "position"}.get(payload_size)
+
+
+def packets_lost(step: np.ndarray, period: float) -> np.ndarray:
+    """``int64``: packets lost in a step between consecutive packets (same unit as ``period``): the
+    number of whole periods it spans, minus one; 0 for a step back or a repeat."""
+    return np.maximum(np.rint(np.asarray(step) / period).astype(np.int64) - 1, 0)
+
+
+def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndarray:
+    """``bool[N]``: True where an azimuth (minus the cut angle, 0.01°) dropped by more than half a
+    turn from the one before it (``previous_cdeg`` for the first; ``None``: the first did not wrap)."""
+    key = np.asarray(key_cdeg)
+    prev = np.concatenate([[key[0] if previous_cdeg is None else previous_cdeg], key[:-1]]) if key.size else key
+    return key < prev - HALF_TURN_CDEG
+
+
+class PacketCounter:
+    """Loss and rotation counting of one VLP-16 data stream from its payloads (feed batches in arrival order).
+
+    ``single_period_us`` is the packet period in single-return modes (half of it in dual mode): the
+    VLP-16's by default, the HDL-32E's for that sensor; ``None`` for a model whose timing is not
+    known here (then packets and rotations are counted, gaps are not).
+    """
+
+    def __init__(self, single_period_us: float | None = VLP16.packet_period_us("strongest")) -> None:
+        self.single_period_us = single_period_us
+        self.count = StreamCounts()
+        self._last_ts: int | None = None
+        self._last_az: int | None = None
+
+    def update(self, payload: np.ndarray) -> np.ndarray:
+        """Count ``uint8[N, 1206]`` payloads; returns ``bool[N]``, True where a packet starts a new
+        rotation (its first block's azimuth wrapped).
+
+        Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of another size.
+        """
+        p = as_data_packets(payload)
+        n = len(p)
+        self.count.packets += n
+        if n == 0:
+            return np.zeros(0, bool)
+        ts = p["timestamp_us"].astype(np.int64)
+        az = p["blocks"]["azimuth_cdeg"][:, 0].astype(np.int64)
+        single = self.single_period_us or 1.0
+        period = np.where(p["return_mode"] == RETURN_MODE_CODES["dual"], single / 2, single)
+        dt = hour_steps_us(ts, self._last_ts)  # a step back stays negative
+        steps = np.rint(dt / period).astype(np.int64)
+        if self._last_ts is None:
+            steps[0] = 1
+        jump = np.abs(dt) > INTERRUPTION_S * 1e6
+        self.count.interruptions += int(np.count_nonzero(jump))
+        steps[jump] = 1
+        if self.single_period_us is not None:
+            self.count.lost += int(packets_lost(steps, 1).sum())
+            self.count.out_of_order += int(np.count_nonzero(steps <= 0))
+        new_rotation = wrapped(az, self._last_az)
+        self.count.frames += int(np.count_nonzero(new_rotation))
+        self._last_ts, self._last_az = int(ts[-1]), int(az[-1])
+        return new_rotation
