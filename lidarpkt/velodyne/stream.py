@@ -7,8 +7,8 @@ disagree about packet periods and rotations.
   single-return modes, 663.552 µs in dual). A gap of k periods between consecutive packets means
   k − 1 packets lost (:func:`packets_lost`), whatever the rotation rate and the replay speed.
 * Rotation: a rotation ends where the azimuth (minus the cut angle) drops by more than half a turn
-  (:func:`wrapped`): the decoder asks it of every firing sequence, the live path of the first block
-  of each packet, so both count the same wraps.
+  (:func:`wrapped`): the decoder asks it of every firing sequence, the live path of every block, so
+  both count the same wraps (a wrap inside the last packet of a capture too).
 * A step back (or a repeat) is out of order, never loss; a jump of more than
   :data:`~lidarpkt.decoder.INTERRUPTION_S` in the packets' own clock is an interruption, counted on
   its own.
@@ -58,11 +58,13 @@ class PacketCounter:
         self.single_period_us = single_period_us
         self.count = StreamCounts()
         self._last_ts: int | None = None
-        self._last_az: int | None = None
+        self._last_az: int | None = None  # first block of the last packet
+        self._last_block_az: int | None = None  # last block of the last packet
 
     def update(self, payload: np.ndarray) -> np.ndarray:
-        """Count ``uint8[N, 1206]`` payloads; returns ``bool[N]``, True where a packet starts a new
-        rotation (its first block's azimuth wrapped).
+        """Count ``uint8[N, 1206]`` payloads; returns ``bool[N]``, True where a packet is the first of a
+        new rotation (its first block's azimuth wrapped from the previous packet's). ``count.frames``
+        counts the rotations completed: the wraps between any two consecutive blocks.
 
         Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of another size.
         """
@@ -72,7 +74,8 @@ class PacketCounter:
         if n == 0:
             return np.zeros(0, bool)
         ts = p["timestamp_us"].astype(np.int64)
-        az = p["blocks"]["azimuth_cdeg"][:, 0].astype(np.int64)
+        blocks_az = p["blocks"]["azimuth_cdeg"].astype(np.int64)
+        az = blocks_az[:, 0]
         single = self.single_period_us or 1.0
         period = np.where(p["return_mode"] == RETURN_MODE_CODES["dual"], single / 2, single)
         dt = hour_steps_us(ts, self._last_ts)  # a step back stays negative
@@ -86,6 +89,6 @@ class PacketCounter:
             self.count.lost += int(packets_lost(steps, 1).sum())
             self.count.out_of_order += int(np.count_nonzero(steps <= 0))
         new_rotation = wrapped(az, self._last_az)
-        self.count.frames += int(np.count_nonzero(new_rotation))
-        self._last_ts, self._last_az = int(ts[-1]), int(az[-1])
+        self.count.frames += int(np.count_nonzero(wrapped(blocks_az.ravel(), self._last_block_az)))
+        self._last_ts, self._last_az, self._last_block_az = int(ts[-1]), int(az[-1]), int(blocks_az[-1, -1])
         return new_rotation
