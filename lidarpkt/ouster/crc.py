@@ -16,6 +16,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from .profiles import CRC_BYTES
+
 POLY_REFLECTED = 0xC96C5795D7870F42
 INIT = 0xFFFFFFFFFFFFFFFF
 XOROUT = 0xFFFFFFFFFFFFFFFF
@@ -99,5 +101,5 @@ def crc64_xz(data: np.ndarray) -> np.ndarray:
 
 def footer_crc_ok(payload: np.ndarray) -> np.ndarray:
     """``bool[N]``: the last 8 bytes of each packet are the CRC-64/XZ of the bytes before them."""
-    stored = np.ascontiguousarray(payload[:, -8:]).view("<u8")[:, 0]
-    return crc64_xz(payload[:, :-8]) == stored
+    stored = np.ascontiguousarray(payload[:, -CRC_BYTES:]).view("<u8")[:, 0]
+    return crc64_xz(payload[:, :-CRC_BYTES]) == stored

@@ -154,7 +154,7 @@ def _field_plan(profile) -> tuple:
     """Per frame attribute: (attr, one extraction step per return slot, dtype); no steps = absent.
 
     A step is (word index, bit offset in the word, mask or 0 when the cast already drops the bits
-    above the field, up-shift): see :func:`plane_field`.
+    above the field, up-shift): see :func:`_extract`.
     """
     names = set(profile.field_names)
     slots = _SLOT_FIELDS[: profile.returns]
@@ -191,18 +191,6 @@ def _extract(planes: np.ndarray, step: tuple[int, int, int, int], out: np.ndarra
     if upshift:
         np.left_shift(out, out.dtype.type(upshift), out=out)
     return out
-
-
-def plane_field(planes: np.ndarray, f, out: np.ndarray) -> np.ndarray:
-    """Field ``f`` of word planes ``uint32[words, ...]`` into ``out`` (``f.dtype``), up-shift applied.
-
-    One ufunc pass over the field's (contiguous) word plane writes the narrow result; a mask,
-    where the cast to ``f.dtype`` does not already drop the bits above the field, and the
-    up-shift are then passes over the narrow result.
-    """
-    k, off = divmod(f.start_bit, 32)
-    masked = f.width < min(32 - off, 8 * out.dtype.itemsize)
-    return _extract(planes, (k, off, f.mask if masked else 0, f.upshift), out)
 
 
 class OusterDecoder:

@@ -25,7 +25,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import MetadataError
+from ..errors import MetadataError, PacketFormatError
 
 # --------------------------------------------------------------------------- bit fields
 
@@ -70,10 +70,10 @@ def _check_cover(fields: tuple[BitField, ...], n_bits: int, what: str) -> None:
     used = np.zeros(n_bits, np.int32)
     for f in fields:
         if f.start_bit + f.width > n_bits or f.width <= 0:
-            raise AssertionError(f"{what}: field {f.name} outside the record")
+            raise PacketFormatError(f"{what}: field {f.name} outside the record")
         used[f.start_bit : f.start_bit + f.width] += 1
     if not np.all(used == 1):
-        raise AssertionError(f"{what}: bits {np.flatnonzero(used != 1).tolist()} not covered exactly once")
+        raise PacketFormatError(f"{what}: bits {np.flatnonzero(used != 1).tolist()} not covered exactly once")
 
 
 def _reserved(start_bit: int, width: int) -> tuple[BitField, ...]:
@@ -291,7 +291,8 @@ for _p in PROFILES.values():
     if _p.header_fields:
         _check_cover(_p.header_fields, HEADER_BYTES * 8, f"{_p.name} header")
     for _f in _p.pixel_fields:  # decode reads each pixel field from one 32-bit word
-        assert _f.start_bit // 32 == (_f.start_bit + _f.width - 1) // 32, (_p.name, _f)
+        if _f.start_bit // 32 != (_f.start_bit + _f.width - 1) // 32:
+            raise PacketFormatError(f"{_p.name} pixel: field {_f.name} straddles a 32-bit word")
 
 
 def get_profile(name: str) -> Profile:

@@ -23,7 +23,6 @@ import numpy as np
 from ..errors import CalibrationError
 from .models import VLP16, VelodyneModel
 
-BEAM_ORIGIN_FORWARD_M = VLP16.beam_origin_forward_m  # velodyne_decoder's VLP-16 stock vertical-offset lever arm
 
 
 @dataclass(eq=False)

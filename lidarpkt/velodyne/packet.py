@@ -82,7 +82,6 @@ ROW_TO_LASER = np.argsort(-LASER_ELEVATION_DEG, kind="stable")
 
 # Packet periods (manual, "Timing"), µs.
 SINGLE_PACKET_PERIOD_US = VLP16.packet_period_us("strongest")  # 1327.104
-DUAL_PACKET_PERIOD_US = VLP16.packet_period_us("dual")  # 663.552
 
 
 def as_data_packets(payload: np.ndarray) -> np.ndarray:
