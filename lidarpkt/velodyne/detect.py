@@ -20,10 +20,10 @@ import numpy as np
 from ..packet import PacketBatch
 from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
-from .nmea import parse_nmea
 from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, VLP16
+from .nmea import parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
-
+from .timing import rotation_frequency_hz
 
 
 def _forward_steps_us(timestamp_us: np.ndarray) -> np.ndarray:
@@ -127,8 +127,6 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         good = raw.select(ok)
         product = int(np.bincount(good.product_id).argmax())
         modes = sorted({RETURN_MODES[int(m)] for m in np.unique(good.return_mode)})
-        from .frames import _estimate_frequency
-
         out = {
             "kind": "VLP-16 data" if kind == "vlp16" else
                     f"{'HDL-32E' if kind == 'hdl32e' else PRODUCT_NAMES[product]} data (not a VLP-16)",
@@ -141,7 +139,7 @@ def describe_stream(batch: PacketBatch) -> dict | None:
             "first_timestamp_us": int(good.timestamp_us[0]) if len(good) else None,
         }
         if kind == "vlp16":
-            out["rotation_hz"] = _estimate_frequency(good) if len(good) else None
+            out["rotation_hz"] = rotation_frequency_hz(good.azimuth_cdeg, good.return_mode == 0x39) if len(good) else None
             if product == PRODUCT_HDL32E:
                 out["note"] = "an early VLP-16 by its packet timing and layout"  # the product byte is shown beside it
         return out

@@ -67,7 +67,7 @@ from .nmea import parse_nmea
 from .models import VLP16, VelodyneModel
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from .stream import packets_lost, wrapped
-from .timing import firing_azimuth_cdeg
+from .timing import firing_azimuth_cdeg, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
@@ -281,7 +281,7 @@ class VelodyneDecoder:
             self._last_az_cdeg = None
         self._mode = mode
         if self._frequency_hz is None:
-            self._frequency_hz = _estimate_frequency(raw, self.model)
+            self._frequency_hz = rotation_frequency_hz(raw.azimuth_cdeg, raw.return_mode == DUAL, self.model)
         # Packets out of order inside a batch are put back in order (counted, kept); duplicates and
         # packets older than the last one of an earlier batch (its frame may be gone) are dropped, counted.
         last = self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min
@@ -506,15 +506,3 @@ class VelodyneDecoder:
         )
         self._frame_id += 1
         return frame
-
-
-def _estimate_frequency(raw: DataPackets, model: VelodyneModel = VLP16) -> float | None:
-    """Rotation rate in Hz from the azimuth advance inside packets (median), ``None`` if unmeasurable."""
-    dual = raw.return_mode == DUAL
-    diff = (raw.azimuth_cdeg[:, -1].astype(np.int64) - raw.azimuth_cdeg[:, 0]) % 36000
-    # firing sequences between the first and the last block (dual: block pairs share their firings)
-    b, s = model.blocks_per_packet, model.sequences_per_block
-    seqs = np.where(dual, (b // 2 - 1) * s, (b - 1) * s)
-    rate = diff / (seqs * model.sequence_ns)  # cdeg per ns
-    hz = float(np.median(rate)) * 1e9 / 36000.0
-    return round(hz, 2) if hz > 0 else None

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .models import VLP16
+from .models import VLP16, VelodyneModel
 from .packet import BLOCKS_PER_PACKET, CHANNELS_PER_BLOCK
 
 SEQUENCE_NS = VLP16.sequence_ns  # 55.296 µs, exact in ns
@@ -85,3 +85,15 @@ def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool, block
     rounded = value.astype(np.uint16)
     np.minimum(rounded, rounded - np.uint16(36000), out=rounded)
     return rounded
+
+
+def rotation_frequency_hz(azimuth_cdeg: np.ndarray, dual: np.ndarray, model: VelodyneModel = VLP16) -> float | None:
+    """Rotation rate in Hz (2 decimals) from the azimuth advance inside packets (median over the
+    packets), ``None`` if unmeasurable. ``azimuth_cdeg``: ``[N, 12]`` block azimuths; ``dual``: ``bool[N]``."""
+    diff = (azimuth_cdeg[:, -1].astype(np.int64) - azimuth_cdeg[:, 0]) % 36000
+    # firing sequences between the first and the last block (dual: block pairs share their firings)
+    b, s = model.blocks_per_packet, model.sequences_per_block
+    seqs = np.where(dual, (b // 2 - 1) * s, (b - 1) * s)
+    rate = diff / (seqs * model.sequence_ns)  # 0.01° per ns
+    hz = float(np.median(rate)) * 1e9 / 36000.0 if rate.size else 0.0
+    return round(hz, 2) if hz > 0 else None
