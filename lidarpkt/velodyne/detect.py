@@ -23,6 +23,7 @@ from .decode import decode_packets, decode_position_packets
 from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, VLP16
 from .nmea import parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
+from .stream import stream_kind
 from .timing import rotation_frequency_hz
 
 
@@ -100,10 +101,14 @@ def position_kind(batch: PacketBatch) -> str | None:
 
 
 def classify(batch: PacketBatch) -> str | None:
-    """``"data"`` or ``"position"`` for VLP-16 packet streams, ``None`` for anything else (an HDL-32E too)."""
-    if batch.payload_size == DATA_PACKET_SIZE:
+    """``"data"`` or ``"position"`` for VLP-16 packet streams, ``None`` for anything else (an HDL-32E too).
+
+    The size says which stream it could be (:func:`lidarpkt.velodyne.stream.stream_kind`, the recorder's
+    cheap test); the content decides."""
+    kind = stream_kind(batch.payload_size)
+    if kind == "data":
         return "data" if data_kind(batch) == "vlp16" else None
-    if batch.payload_size == POSITION_PACKET_SIZE:
+    if kind == "position":
         return "position" if position_kind(batch) == "vlp16" else None
     return None
 

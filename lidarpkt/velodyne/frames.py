@@ -169,7 +169,7 @@ class VelodyneDecoder:
         self.stats = DecoderStats()
         self._row_laser = self.geometry.row_laser  # laser id of each row
         self._pending: list[_Columns] = []
-        self._pending_partial = True  # the pending frame does not begin at a wrap (the first of a stream)
+        self._start_unknown = True  # the pending frame does not begin at a wrap (the first of a stream)
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
         self._last_abs_ns: int | None = None  # sensor time of the last packet kept
@@ -427,10 +427,10 @@ class VelodyneDecoder:
         ``"overlong"`` (no wrap within ``max_frame_columns``: always partial)."""
         parts = [p for p in self._pending if len(p)]
         counters = self._pending_counters
-        start_unknown = self._pending_partial
+        start_unknown = self._start_unknown
         self._pending = []
         self._pending_counters = FrameCounters()
-        self._pending_partial = end != "wrap"  # the next frame begins at a wrap only after one
+        self._start_unknown = end != "wrap"  # the next frame begins at a wrap only after one
         if not parts:
             return []
         cols = _Columns.concat(parts)
