@@ -236,8 +236,8 @@ class VelodyneDecoder:
             self.stats.malformed_size += n
             self._pending_counters.malformed_packets += n
             warnings.warn(SkippedPacketWarning(
-                f"{self.source or 'VLP-16'}: skipped {n} packets of {batch.payload_size} B (a VLP-16 data packet has "
-                f"{DATA_PACKET_SIZE} B)"), stacklevel=2)
+                f"{self.source or self.model.name}: skipped {n} packets of {batch.payload_size} B (a "
+                f"{self.model.name} data packet has {DATA_PACKET_SIZE} B)"), stacklevel=2)
             return []
         raw = decode_packets(batch.payload, copy=False)
         ok = raw.flag_ok
@@ -249,7 +249,7 @@ class VelodyneDecoder:
             self.stats.unknown_return_mode += bad_mode
             self._pending_counters.malformed_packets += bad_flag + bad_mode
             warnings.warn(SkippedPacketWarning(
-                f"{self.source or 'VLP-16'}: skipped {bad_flag} packets with a bad block flag or azimuth and "
+                f"{self.source or self.model.name}: skipped {bad_flag} packets with a bad block flag or azimuth and "
                 f"{bad_mode} with an unknown return mode"), stacklevel=2)
             keep = ok & known
             raw = raw.select(keep)
@@ -485,8 +485,8 @@ class VelodyneDecoder:
                 columns_per_frame=self.model.columns_per_rotation(freq),
                 return_mode=mode, return_labels=LABELS[mode],
                 beam_altitude_deg=cal.elevation_deg[rows], beam_azimuth_deg=np.degrees(cal.rot_correction_rad[rows]),
-                frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry, product_id=self._product_id,
-                source=self.source, profile=mode,
+                frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry,
+                product_id=self._product_id, source=self.source, profile=mode,
             )
         return info
 

@@ -64,7 +64,8 @@ class VelodyneModel:
     def __post_init__(self) -> None:
         if len(self.elevation_deg) != self.lasers:
             raise PacketFormatError(f"{self.name}: {len(self.elevation_deg)} elevations for {self.lasers} lasers")
-        if (self.blocks_per_packet, self.lasers * self.sequences_per_block) != (_BLOCKS_PER_PACKET, _CHANNELS_PER_BLOCK):
+        layout = (self.blocks_per_packet, self.lasers * self.sequences_per_block)
+        if layout != (_BLOCKS_PER_PACKET, _CHANNELS_PER_BLOCK):
             raise PacketFormatError(f"{self.name}: {self.blocks_per_packet} blocks of {self.lasers} × "
                                     f"{self.sequences_per_block} firings do not fill the 12 × 32-channel packet")
         if self.lasers * self.firing_ns > self.sequence_ns:

@@ -25,7 +25,8 @@ LASERS = VLP16.lasers
 
 # Single-mode delay of block b, channel j after the packet timestamp, ns: [12, 32].
 _b, _j = np.meshgrid(np.arange(BLOCKS_PER_PACKET), np.arange(CHANNELS_PER_BLOCK), indexing="ij")
-FIRING_OFFSET_NS = (SEQUENCE_NS * (VLP16.sequences_per_block * _b + _j // LASERS) + FIRING_NS * (_j % LASERS)).astype(np.int64)
+_SEQ = VLP16.sequences_per_block * _b + _j // LASERS  # firing sequence of block b, channel j
+FIRING_OFFSET_NS = (SEQUENCE_NS * _SEQ + FIRING_NS * (_j % LASERS)).astype(np.int64)
 # The same in float32 seconds, as velodyne_decoder tabulates them (double → float).
 _FIRING_OFFSET_S32 = (FIRING_OFFSET_NS.astype(np.float64) * 1e-9).astype(np.float32)
 
