@@ -135,3 +135,14 @@ def test_decoder_reads_the_table():
     assert dec.model is VLP16
     info = dec.sensor_info("dual")
     assert (info.model, info.rows, info.grid_resolution_deg) == ("VLP-16", 16, VLP16.grid_resolution_deg)
+
+
+def test_decoder_takes_a_model_by_row_or_name_and_checks_the_calibration():
+    from lidarpkt.errors import CalibrationError
+    from lidarpkt.velodyne import VelodyneCalibration
+
+    assert VelodyneDecoder(model="VLP-16").model is VLP16
+    with pytest.raises(UnknownSensorError, match="VLP-32C"):
+        VelodyneDecoder(model="VLP-32C")
+    with pytest.raises(CalibrationError, match="32 lasers"):
+        VelodyneDecoder(calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))

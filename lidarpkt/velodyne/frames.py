@@ -57,14 +57,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import NMEAError, SkippedPacketWarning
+from ..errors import CalibrationError, NMEAError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .clock import SensorClock, fix_time_ns
 from .decode import DataPackets, decode_packets, decode_position_packets
 from .geometry import VelodyneGeometry
 from .nmea import parse_nmea
-from .models import VLP16, VelodyneModel
+from .calibration import load_calibration
+from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from .stream import packets_lost, wrapped
 from .timing import firing_azimuth_cdeg, rotation_frequency_hz
@@ -145,6 +146,12 @@ class VelodyneDecoder:
         max_frame_columns: a frame still without a wrap after this many columns (8192 ≈ 0.45 s; a
             rotation at the slowest 5 Hz has 3617) is released as partial, so that a sensor that stops
             turning cannot grow memory without bound (counted in ``stats.overlong_frames``).
+        model: the sensor's row of the model table (:mod:`lidarpkt.velodyne.models`) or its name;
+            the VLP-16, the only row today, by default.
+
+    Raises:
+        UnknownSensorError: a model name not in the table.
+        CalibrationError: an unreadable calibration, or one for another number of lasers.
 
     ``push`` returns the frames completed by a batch; ``finish`` the last one (see "Cuts" above for
     when a frame is ``partial``).
@@ -154,11 +161,15 @@ class VelodyneDecoder:
 
     def __init__(self, *, calibration=None, cut_angle_deg: float | None = None, source: str | None = None,
                  max_gap_s: float = 0.2, cut_on_block: bool = False, max_frame_columns: int = 8192,
-                 **options) -> None:
+                 model: VelodyneModel | str = VLP16, **options) -> None:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
-        self.model: VelodyneModel = VLP16  # the one row of the model table (lidarpkt.velodyne.models)
-        self.geometry = VelodyneGeometry(calibration)
+        self.model: VelodyneModel = model_named(model) if isinstance(model, str) else model
+        cal = load_calibration(calibration, self.model)
+        if cal.lasers != self.model.lasers:
+            raise CalibrationError(f"{cal.source}: a calibration of {cal.lasers} lasers for a {self.model.name}, "
+                                   f"which has {self.model.lasers}; pass the sensor's own calibration")
+        self.geometry = VelodyneGeometry(cal)
         self.calibration = self.geometry.calibration
         self.cut_cdeg = 0.0 if cut_angle_deg is None else float(cut_angle_deg) % 360.0 * 100.0
         self.source = source
