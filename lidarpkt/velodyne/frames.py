@@ -57,17 +57,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import CalibrationError, NMEAError, SkippedPacketWarning
+from ..errors import CalibrationError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .clock import SensorClock, fix_time_ns
 from .decode import DataPackets, decode_packets, decode_position_packets
 from .geometry import VelodyneGeometry
-from .nmea import parse_nmea
+from .nmea import parse_sentence_rows
 from .calibration import load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
-from .stream import packets_lost, wrapped
+from .stream import packets_lost, rotation_is_whole, wrapped
 from .timing import firing_azimuth_cdeg, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
@@ -210,23 +210,16 @@ class VelodyneDecoder:
         has = np.flatnonzero(pos.nmea[:, 0] != 0)
         if has.size == 0:
             return
-        # a sentence changes once per second while packets come far more often: parse each distinct one once
-        uniq, inverse = np.unique(pos.nmea[has], axis=0, return_inverse=True)
-        fixes = []
-        for row in uniq:
-            try:
-                fixes.append(parse_nmea(row.tobytes()))
-            except NMEAError:
-                fixes.append(None)
-        ok = np.array([f is not None for f in fixes])[inverse.ravel()]
-        valid = np.array([f is not None and f.valid for f in fixes])[inverse.ravel()]
+        fixes, inverse = parse_sentence_rows(pos.nmea[has])
+        ok = np.array([f is not None for f in fixes])[inverse]
+        valid = np.array([f is not None and f.valid for f in fixes])[inverse]
         self.stats.nmea_errors += int(np.count_nonzero(~ok))
         self.stats.gps_fixes += int(np.count_nonzero(valid))
         if not valid.any():
             return
         last = int(np.flatnonzero(valid)[-1])
         i = int(has[last])
-        fix = fixes[int(inverse.ravel()[last])]
+        fix = fixes[int(inverse[last])]
         host = int(batch.timestamp_ns[i])
         utc = fix_time_ns(fix, host)  # $GPGGA has no date: the capture clock's, to the nearest midnight
         if utc is not None:
@@ -451,24 +444,11 @@ class VelodyneDecoder:
         return [frame]
 
     def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
-        """Whether a frame's columns (azimuths in 0.01°) hold its whole rotation: where it did not
-        begin (end) at a wrap, its first (last) column must lie within one firing interval after
-        (before) the cut angle, i.e. the firing before (after) it belongs to another rotation."""
-        if not (check_start or check_end):
-            return True
-        key = (azimuth_cdeg - self.cut_cdeg) % 36000.0
-        if len(key) >= 2:
-            step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
-        elif self._frequency_hz:
-            step = self._frequency_hz * 36000.0 * self.model.sequence_ns * 1e-9
-        else:
-            return False
-        if self.cut_on_block:  # a frame begins and ends with whole blocks: the interval is two sequences
-            key[1::2] = key[0::2]
-            step *= 2
-        if check_start and not key[0] < step:
-            return False
-        return not check_end or key[-1] >= 36000.0 - step
+        """Whether a frame's columns hold its whole rotation (see :func:`~.stream.rotation_is_whole`)."""
+        hz = self._frequency_hz
+        fallback = hz * 36000.0 * self.model.sequence_ns * 1e-9 if hz else None
+        return rotation_is_whole(azimuth_cdeg, self.cut_cdeg, check_start=check_start, check_end=check_end,
+                                 by_block=self.cut_on_block, fallback_step_cdeg=fallback)
 
     def finish(self) -> list[Frame]:
         """The last frame, if any columns are pending (partial unless it reaches the cut angle).

@@ -8,6 +8,8 @@ from __future__ import annotations
 import calendar
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..errors import NMEAError
 
 
@@ -121,3 +123,20 @@ def parse_nmea(sentence: str | bytes) -> NMEAFix:
         return NMEAFix("GGA", talker, _time_of_day(fields[1]), None, quality > 0,
                        _coord(fields[2], fields[3], 2, "latitude"), _coord(fields[4], fields[5], 3, "longitude"))
     raise NMEAError(f"unsupported NMEA sentence {head!r} (lidarpkt reads RMC and GGA)")
+
+
+def parse_sentence_rows(rows: np.ndarray) -> tuple[list[NMEAFix | None], np.ndarray]:
+    """Parse the NUL-padded sentences of ``uint8[N, L]`` rows (position packets' NMEA fields), each
+    distinct one once: a sentence changes once per second while packets come far more often.
+
+    Returns (the fix of each distinct row, ``None`` where it does not parse; ``intp[N]`` index of
+    each row's fix in that list).
+    """
+    uniq, inverse = np.unique(rows, axis=0, return_inverse=True)
+    fixes: list[NMEAFix | None] = []
+    for row in uniq:
+        try:
+            fixes.append(parse_nmea(row.tobytes()))
+        except NMEAError:
+            fixes.append(None)
+    return fixes, inverse.ravel()

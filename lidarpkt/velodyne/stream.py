@@ -8,7 +8,9 @@ disagree about packet periods and rotations.
   k − 1 packets lost (:func:`packets_lost`), whatever the rotation rate and the replay speed.
 * Rotation: a rotation ends where the azimuth (minus the cut angle) drops by more than half a turn
   (:func:`wrapped`): the decoder asks it of every firing sequence, the live path of every block, so
-  both count the same wraps (a wrap inside the last packet of a capture too).
+  both count the same wraps (a wrap inside the last packet of a capture too). A frame that does
+  not begin or end at a wrap is whole when it reaches the cut within one firing interval
+  (:func:`rotation_is_whole`).
 * A step back (or a repeat) is out of order, never loss; a jump of more than
   :data:`~lidarpkt.decoder.INTERRUPTION_S` in the packets' own clock is an interruption, counted on
   its own.
@@ -44,6 +46,32 @@ def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndar
     key = np.asarray(key_cdeg)
     prev = np.concatenate([[key[0] if previous_cdeg is None else previous_cdeg], key[:-1]]) if key.size else key
     return key < prev - HALF_TURN_CDEG
+
+
+def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start: bool, check_end: bool,
+                      by_block: bool = False, fallback_step_cdeg: float | None = None) -> bool:
+    """Whether the columns of a frame (``azimuth_cdeg``: each column's azimuth, 0.01°) hold its whole
+    rotation. Where the frame did not begin (``check_start``) or end (``check_end``) at a wrap, its
+    first (last) column must lie within one firing interval after (before) the cut angle: the firing
+    before (after) it then belongs to another rotation. The interval is the median azimuth step of
+    the columns (``fallback_step_cdeg`` for a one-column frame; without it such a frame is not
+    whole); with ``by_block`` (frames cut at whole blocks, even columns opening a block) it is two
+    steps, and a block's second column takes its first's place."""
+    if not (check_start or check_end):
+        return True
+    key = (np.asarray(azimuth_cdeg, np.float64) - cut_cdeg) % 36000.0
+    if len(key) >= 2:
+        step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
+    elif fallback_step_cdeg:
+        step = fallback_step_cdeg
+    else:
+        return False
+    if by_block:
+        key[1::2] = key[0::2]
+        step *= 2
+    if check_start and not key[0] < step:
+        return False
+    return not check_end or key[-1] >= 36000.0 - step
 
 
 class PacketCounter:
