@@ -7,7 +7,8 @@ Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metad
 layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
 :mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
-:mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests).
+:mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
+packet/loss/frame counter the recorder runs live).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
 >>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP

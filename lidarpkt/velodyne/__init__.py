@@ -3,14 +3,17 @@
 Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PACKET_SIZE`,
 :func:`classify`, :func:`describe_stream`, :class:`VelodyneDecoder`, :func:`decode_packets`,
 :func:`decode_position_packets`, :func:`encode_data_packets`, :func:`encode_position_packets`,
-:func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`, :class:`VelodyneModel`, :data:`VLP16`.
+:func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`, :class:`VelodyneModel`,
+:data:`VLP16`.
 
-Modules: ``packet`` (the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a
-batch), ``encode`` (the inverse), ``timing`` (firing times, per-firing azimuth), ``frames``
-(:class:`VelodyneDecoder`: frames, absolute time, losses), ``detect`` (VLP-16 or not),
-``models`` (the model table: lasers, product ids, firing timing, per model),
-``calibration`` (stock, ROS YAML, VeloView XML), ``geometry`` (XYZ), ``points`` (flat point
-lists in velodyne_decoder's layout), ``nmea`` ($GPRMC/$GPGGA).
+Modules: ``models`` (the model table: lasers, product ids, firing timing, per model), ``packet``
+(the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a batch), ``encode``
+(the inverse), ``timing`` (firing times, per-firing azimuth, rotation rate), ``clock`` (the hour of
+a packet stamp, the day of an NMEA time), ``stream`` (size classifier; loss, rotation and
+whole-rotation rules shared by the decoder and the recorder), ``frames`` (:class:`VelodyneDecoder`:
+frames, absolute time, losses), ``detect`` (VLP-16 or not), ``calibration`` (stock, ROS YAML,
+VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_decoder's layout),
+``nmea`` ($GPRMC/$GPGGA).
 """
 
 from __future__ import annotations
