@@ -36,7 +36,7 @@ from .errors import InputFileError, OutputError, UsageError
 __all__ = [
     "add_output", "add_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
     "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
-    "discard_outputs", "error_line", "show_progress", "progress",
+    "discard_outputs", "error_line", "show_progress", "Progress",
 ]
 
 JSON_STDOUT = "-"
@@ -267,12 +267,37 @@ def show_progress(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty()
 
 
-def progress(quiet: bool, *, total: int | None = None, unit: str = "B", desc: str = "") :
-    """The progress bar every verb uses (tqdm on stderr); disabled with ``-q`` or off a terminal.
+class Progress:
+    """The progress bar of every verb (tqdm on stderr): bytes of the input read when known, else a
+    count, with a status text (``"52 frames"``) beside it. Off with ``-q`` or off a terminal."""
 
-    Returns a tqdm object: ``update(n)``, ``set_postfix_str(text)``, ``close()``.
-    """
-    from tqdm import tqdm
+    def __init__(self, quiet: bool, *, total: int | None = None, unit: str = "B", desc: str = "") -> None:
+        from tqdm import tqdm
 
-    return tqdm(total=total, unit=unit, unit_scale=unit == "B", unit_divisor=1024 if unit == "B" else 1000,
-                desc=desc, disable=not show_progress(quiet), file=sys.stderr, dynamic_ncols=True, leave=False)
+        enabled = show_progress(quiet)
+        try:  # a terminal that reports no size (a bare pty) would get no bar at all from tqdm
+            size = os.get_terminal_size(sys.stderr.fileno())
+            sized = size.columns > 0 and size.lines > 0
+        except OSError:
+            sized = False
+        self.bar = tqdm(total=total or None, unit=unit, unit_scale=True, unit_divisor=1024 if unit == "B" else 1000,
+                        desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=sized,
+                        ncols=None if sized else 80, nrows=None if sized else 24, leave=False, mininterval=0.1)
+
+    def update(self, done: int | None, status: str = "") -> None:
+        """``done``: how far (bytes or items) from the start, ``None`` if unknown; ``status``: text after the bar."""
+        if self.bar.disable:
+            return
+        if done is not None and done != self.bar.n:
+            self.bar.update(done - self.bar.n)
+        if status:
+            self.bar.set_postfix_str(status, refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

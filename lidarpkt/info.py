@@ -1,4 +1,4 @@
-"""``lidarpkt info FILE... [--json] [--metadata M.json ...]``: what streams and sensors a capture holds.
+"""``lidarpkt info FILE... [--json [OUT.json]] [--metadata M.json ...]``: what streams and sensors a capture holds.
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
@@ -7,7 +7,7 @@ VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the 
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
 records. ``--json`` prints the same as one JSON document (one capture object, or
-``{"captures": [...]}`` for several files).
+``{"captures": [...]}`` for several files); ``--json OUT.json`` writes it to a file.
 """
 
 from __future__ import annotations
@@ -285,36 +285,44 @@ def _expand(paths: Sequence[str]) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt info``."""
+    from . import cliargs
+
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
         help="pcap/pcapng capture(s), MCAP files or ROS bags; a directory stands for every capture under it",
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON document instead of text")
-    parser.add_argument(
-        "--metadata", action="append", default=[], metavar="M.json",
-        help="Ouster metadata JSON of a sensor in the capture (names profiles exactly); repeat for several sensors",
-    )
+    cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
+    cliargs.add_metadata(parser, "Ouster metadata JSON of a sensor in the capture (names profiles exactly); "
+                                 "repeat for several sensors")
 
 
 def run(args: argparse.Namespace) -> int:
     """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
+    from . import cliargs
     from .ouster import load_metadata
 
-    metadata = [load_metadata(m) for m in args.metadata]
+    cliargs.check_inputs(args.metadata or (), "--metadata")
+    cliargs.check_json_output(args.json)
+    metadata = [load_metadata(m) for m in args.metadata or ()]
     docs = []
     status = 0
     for path in _expand(args.files):
         try:
+            if not os.path.exists(path):
+                cliargs.check_inputs([path])
             docs.append(describe_capture(path, metadata))
         except LidarpktError as exc:
             status = 2
             docs.append({"file": os.fspath(path), "error": str(exc)})
-            if not args.json:
-                print(f"lidarpkt: error: {exc}", file=sys.stderr)
+            print(cliargs.error_line(exc), file=sys.stderr)
     if args.json:
         doc = docs[0] if len(docs) == 1 else {"captures": docs}
-        json.dump(doc, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        text = json.dumps(doc, indent=2) + "\n"
+        if args.json == cliargs.JSON_STDOUT:
+            sys.stdout.write(text)
+        else:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                fh.write(text)
     else:
         print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
     return status
