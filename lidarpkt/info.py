@@ -235,7 +235,9 @@ def format_capture(doc: dict) -> str:
         links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
         head = f"{doc['file']}: {doc['format']} ({links}), {doc['records']} records, {doc['udp_packets']} UDP packets"
     else:
-        head = f"{doc['file']}: {doc['format']}, {doc['records']} messages, {doc['udp_packets']} packets"
+        other = doc.get("skipped_topics") or {}
+        head = (f"{doc['file']}: {doc['format']}, {doc['records']} packet messages, {doc['udp_packets']} packets"
+                + (f" (not read: {', '.join(other)})" if other else ""))
     lines = [head + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")]
     for s in doc["streams"]:
         where = f"{s['src']} → {s['dst_port']}" if s["src"] else "(no addresses)"
