@@ -96,6 +96,16 @@ def _json_target(text: str, flag: str = "--json") -> str:
                      f"to print JSON to stdout give --json after the input files, or --json -")
 
 
+def port_type(flag: str = "--port"):
+    """argparse ``type=`` for a UDP port (1-65535)."""
+    return _argparse_type(port, flag)
+
+
+def json_type(flag: str = "--json"):
+    """argparse ``type=`` for a JSON output (``.json`` or ``-``)."""
+    return _argparse_type(_json_target, flag)
+
+
 # ------------------------------------------------------------------------------ adders
 def add_output(parser: argparse.ArgumentParser, suffixes: Sequence[str], *, required: bool = True,
                help: str | None = None, aliases: Sequence[str] = ()) -> None:
@@ -174,9 +184,11 @@ def _writable_folder(folder: Path, flag: str, path: Path) -> None:
                           "choose a writable folder") from None
 
 
-def check_output(path: str | os.PathLike[str], flag: str = "-o", suffixes: Sequence[str] = ()) -> Path:
+def check_output(path: str | os.PathLike[str], flag: str = "-o", suffixes: Sequence[str] = (), *,
+                 keep_on_error: bool = False) -> Path:
     """Check an output file before any work: known suffix, existing and writable parent folder,
-    not a folder itself. Remembers it for :func:`discard_outputs` if it does not exist yet.
+    not a folder itself. Remembers it for :func:`discard_outputs` if it does not exist yet, unless
+    ``keep_on_error`` (a recording: what was written before a disk filled up stays readable).
 
     Raises :class:`~lidarpkt.errors.OutputError` naming the flag, the path and what to do.
     """
@@ -190,7 +202,7 @@ def check_output(path: str | os.PathLike[str], flag: str = "-o", suffixes: Seque
     _writable_folder(out.parent if str(out.parent) else Path("."), flag, out)
     if out.exists() and not os.access(out, os.W_OK):
         raise OutputError(f"{flag} {out}: the file exists and is not writable; choose another path")
-    if not out.exists():
+    if not out.exists() and not keep_on_error:
         _created.append((out, False))
     return out
 
