@@ -325,6 +325,6 @@ def run(args: argparse.Namespace) -> int:
         else:
             with open(args.json, "w", encoding="utf-8") as fh:
                 fh.write(text)
-    else:
+    elif any("error" not in d for d in docs):
         print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
     return status
