@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv))
     verb = next((a for a in argv if not a.startswith("-")), None)
-    cliargs.forget_outputs()
+    mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning
     warnings.showwarning = _show_warning
     try:
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         runner = getattr(module, f"run_{args.verb.replace('-', '_')}", None) or module.run
         return int(runner(args) or 0)
     except LidarpktError as exc:
-        cliargs.discard_outputs()
+        cliargs.discard_outputs(mark)
         print(cliargs.error_line(exc), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -117,12 +117,13 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # output piped into head & co.
         return 0
     except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
-        cliargs.discard_outputs()
+        cliargs.discard_outputs(mark)
         where = exc.filename or "output"
         print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
               file=sys.stderr)
         return 2
     finally:
+        cliargs.forget_outputs(mark)
         warnings.showwarning = previous_showwarning
 
 

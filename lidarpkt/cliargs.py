@@ -245,15 +245,20 @@ def check_json_output(target: str | None) -> None:
         check_output(target, "--json", (".json",))
 
 
-def forget_outputs() -> None:
-    """Start a run with no outputs remembered (``lidarpkt.cli.main`` calls it)."""
-    _created.clear()
+def outputs_mark() -> int:
+    """Where a run's outputs start in the list of remembered ones (runs nest: ``demo`` runs ``decode``)."""
+    return len(_created)
 
 
-def discard_outputs() -> list[Path]:
-    """Remove the outputs this run created (it failed): files, and folders it made. Returns them."""
+def forget_outputs(since: int = 0) -> None:
+    """Forget the outputs remembered since ``since`` (the run that made them is over)."""
+    del _created[since:]
+
+
+def discard_outputs(since: int = 0) -> list[Path]:
+    """Remove the outputs created since ``since`` (that run failed): files, and folders it made."""
     removed = []
-    for out, is_folder in reversed(_created):
+    for out, is_folder in reversed(_created[since:]):
         try:
             if is_folder and out.is_dir():
                 shutil.rmtree(out)
@@ -263,7 +268,7 @@ def discard_outputs() -> list[Path]:
                 removed.append(out)
         except OSError:
             pass
-    _created.clear()
+    forget_outputs(since)
     return removed
 
 
