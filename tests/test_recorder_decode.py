@@ -31,7 +31,8 @@ def test_npz_of_the_veloview_capture_has_its_52_frames_on_the_grid(tmp_path):
     assert r.returncode == 0, r.stderr
     d = np.load(out)
     # SOURCES.md / vlp-16.test: VeloView counts 52 frames, partial first and last included
-    assert d["range_mm"].shape == (52, 1, 16, 1800) and d["range_mm"].dtype == np.uint32
+    # a 20 Hz capture: the one default grid is 0.4° (the firing rate), 900 columns (issue 14 item 1)
+    assert d["range_mm"].shape == (52, 1, 16, 900) and d["range_mm"].dtype == np.uint32
     assert d["partial"][0] and d["partial"][-1] and not d["partial"][1:-1].any()
     frames = [f.on_grid() for f in lidarpkt.open(pcap)]
     assert np.array_equal(d["range_mm"], np.stack([f.range_mm for f in frames]))
