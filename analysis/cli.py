@@ -85,21 +85,35 @@ def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float
     cliargs.check_inputs([path])
     cliargs.check_inputs(metadata or (), "--metadata")
     if grid is not None and grid <= 0:
-        raise AnalysisError(f"--grid {grid}: the azimuth grid must be a positive number of degrees dividing 360")
+        raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
     rng = parse_frame_range(frames) if frames else None
     return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid)
 
 
+def _check_pixel(stack, row: int, col: int, slot: int) -> None:
+    """:func:`analysis.stack.check_pixel`, its message in the CLI's words (the flag, then what to do)."""
+    from .stack import check_pixel
+
+    try:
+        check_pixel(stack, row, col, slot)
+    except AnalysisError as exc:
+        _, r, h, w = stack.range_mm.shape
+        if 0 <= slot < r:
+            raise AnalysisError(f"--pixel {row},{col}: outside the {h} x {w} range image of this capture; use ROW in "
+                                f"0..{h - 1} and COL in 0..{w - 1}") from None
+        raise AnalysisError(f"--return: {exc}; choose one of its slots") from None
+
+
 def _check_neighbourhood(n: int) -> None:
     if n < 1 or n % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {n}: must be an odd number >= 1 (3 and 5 in the paper)")
+        raise AnalysisError(f"--neighbourhood {n}: not an odd number >= 1; give e.g. 3 or 5 (the paper's)")
 
 
 def _plots():
     try:
         from . import plots
     except ImportError:  # pragma: no cover - depends on the install
-        raise AnalysisError("--plot needs matplotlib: pip install 'lidarpkt[plot]'") from None
+        raise AnalysisError("--plot: needs matplotlib, which is not installed; pip install 'lidarpkt[plot]'") from None
     return plots
 
 
@@ -142,7 +156,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 def run_analyze(args: argparse.Namespace) -> int:
     from .gmm import parse_method
     from .raypath import analyze_raypath
-    from .stack import check_pixel, slot_index
+    from .stack import slot_index
 
     # options and outputs first: a typo should not cost a decode
     pixels = list(args.pixel)
@@ -155,7 +169,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     slot = slot_index(stack, args.slot)
     for r, c in pixels:
-        check_pixel(stack, r, c, slot)
+        _check_pixel(stack, r, c, slot)
     results = [
         analyze_raypath(stack, r, c, slot, neighbourhood=args.neighbourhood,
                         motion_compensation=args.motion_compensation, gmm=gmm)
@@ -226,12 +240,12 @@ def run_multireturn(args: argparse.Namespace) -> int:
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
+        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
     _check_neighbourhood(args.neighbourhood)
     method = args.method
     if args.monitor_by_row:
         if method not in (None, "row"):
-            raise AnalysisError(f"--monitor-by-row is --method row: it contradicts --method {method}")
+            raise AnalysisError(f"--monitor-by-row: it means --method row, which contradicts --method {method}; give one of them")
         method = "row"
     _check_outputs(args, output_suffixes=(".npz",))
     stack = _load(args.input, args.metadata, args.frames, args.grid)
@@ -257,7 +271,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         plots = _plots()
         slot = slot_index(stack, args.slot)
         if not 0 <= slot < len(s.return_labels):
-            raise AnalysisError(f"--return {args.slot}: this capture has slots {list(s.return_labels)}")
+            raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
         if args.plot.lower().endswith(".png"):  # the old spelling: the map's own file name
             figure, roc = Path(args.plot), Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
         else:
@@ -295,7 +309,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
     from .compare import compare_slots, compare_stacks, ks_image
-    from .stack import check_pixel, slot_index
+    from .stack import slot_index
 
     pixels = list(args.pixel)
     if args.plot and args.plot.lower().endswith(".png"):
@@ -304,7 +318,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     print = _say(args)  # noqa: A001 - the report's own print
     a = _load(args.input, args.metadata, args.frames, args.grid)
     for r, c in pixels:  # before any heavy work
-        check_pixel(a, r, c, 0)
+        _check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
     doc: dict[str, Any] = {"inputs": [args.input]}
     plots = _plots() if args.plot else None
@@ -355,8 +369,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     raypaths = []
     for r, c in pixels:
         for sa, ia, sb, ib in pairs:
-            check_pixel(sa, r, c, ia)
-            check_pixel(sb, r, c, ib)
+            _check_pixel(sa, r, c, ia)
+            _check_pixel(sb, r, c, ib)
             ca, cb = temporal_cdf(sa, r, c, ia), temporal_cdf(sb, r, c, ib)
 
             ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sa.column_valid[:, c:c + 1],

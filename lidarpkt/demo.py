@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from . import cliargs
 
     if args.frames is not None and args.frames < 1:
-        raise UsageError(f"--frames {args.frames}: give a whole number of frames >= 1, e.g. --frames 20")
+        raise UsageError(f"--frames {args.frames}: not a whole number >= 1; give e.g. --frames 20")
     out = cliargs.check_folder(args.output, "-o")  # checked (and made) before minutes of work
     plots = None if args.no_plots else _plots_module()
     progress = cliargs.Progress(getattr(args, "quiet", False), total=len(CAPTURES), unit="capture", desc="demo")
@@ -127,7 +127,7 @@ def _decode_to_mcap(pcap: Path, mcap_path: Path, metadata: Path | None) -> None:
     if status:
         from .errors import RecorderError
 
-        raise RecorderError(f"decoding {pcap} to {mcap_path} failed (exit status {status})")
+        raise RecorderError(f"{pcap}: decoding to {mcap_path} failed (exit status {status}, error above); run lidarpkt decode on it to see why")
 
 
 def _mode_comparison_figures(plots, stacks, fixtures, out: Path, args) -> None:

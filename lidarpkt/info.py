@@ -176,13 +176,9 @@ def _open_reader(path: str | os.PathLike[str]):
     for MCAP files and ROS bags. Anything else raises the pcap reader's error, which names the
     file and shows its first bytes."""
     if capture_format(path) is None and os.path.exists(path):
-        from .errors import UnsupportedContainerError
         from .source import container_kind
 
-        try:
-            kind = container_kind(path)
-        except UnsupportedContainerError:
-            kind = None
+        kind = container_kind(path)  # its error is the one every verb gives for "not a capture"
         if kind in ("mcap", "rosbag1", "rosbag2"):
             from .bags import BagReader
 

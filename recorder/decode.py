@@ -132,8 +132,8 @@ def run(args: argparse.Namespace) -> int:
     if args.calibration:
         cliargs.check_inputs([args.calibration], "--calibration")
     if args.grid is not None and not args.grid > 0:
-        raise UsageError(f"--grid {args.grid}: the azimuth grid must be a positive number of degrees dividing 360 "
-                         "(e.g. 0.2)")
+        raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
+                         "e.g. --grid 0.2")
     out = cliargs.check_output(args.output, "-o", OUTPUT_SUFFIXES)
     if out.suffix.lower() == ".npz":
         return _to_npz(args, out)
@@ -151,7 +151,7 @@ def _to_mcap(args, out: Path) -> int:
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
-        raise RecorderError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
+        raise RecorderError(f"--topics {args.topics}: unknown group; choose among {', '.join(TOPIC_GROUPS)}")
     md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
@@ -169,7 +169,7 @@ def _to_mcap(args, out: Path) -> int:
             try:
                 text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
             except OSError as exc:
-                raise RecorderError(f"cannot read the calibration {args.calibration}: {exc.strerror}") from None
+                raise RecorderError(f"--calibration {args.calibration}: cannot read it ({exc.strerror}); check the file") from None
             writer.add_metadata("lidarpkt.calibration", {"path": str(args.calibration), "content": text})
         if "packets" in groups:
             from .replay import embedded_metadata
@@ -319,7 +319,7 @@ def _to_npz(args, out: Path) -> int:
                     np.lib.format.write_array(fh, np.array([_prefix(s.index) for s in spools.values()]),
                                               allow_pickle=False)
         except OSError as exc:
-            raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from None
+            raise RecorderError(f"-o {out}: cannot write ({exc.strerror or exc}); check the folder and the free space") from None
     if not args.quiet:
         print(f"lidarpkt decode: {n} frames from {len(spools)} sensor(s) in {out}", file=sys.stderr)
     return 0

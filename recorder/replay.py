@@ -135,7 +135,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
-        raise RecorderError(f"cannot resolve replay destination {host!r}: {exc.strerror or exc}") from None
+        raise RecorderError(f"--to {host}: cannot resolve the host ({exc.strerror or exc}); give an address such as 127.0.0.1") from None
     sock = socket.socket(family, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
     dest_host = addr[0]
@@ -172,7 +172,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             try:
                 sock.sendto(p.payload, (dest_host, out_port))
             except OSError as exc:
-                raise RecorderError(f"sending to {dest_host}:{out_port} failed: {exc.strerror or exc}") from None
+                raise RecorderError(f"--to {dest_host}:{out_port}: sending failed ({exc.strerror or exc}); check the address and the network") from None
             stats.packets += 1
             stats.bytes += size
             stats.per_port[out_port] = stats.per_port.get(out_port, 0) + 1
@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         md = embedded_metadata(args.file)
     if not args.max and not args.rate > 0:
-        raise RecorderError(f"--rate {args.rate}: the speed factor must be positive (1 = real time)")
+        raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
     import signal
     import threading
 
