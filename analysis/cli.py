@@ -37,6 +37,14 @@ def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...]
             cliargs.check_folder(args.plot, "--plot")
 
 
+def _status(args: argparse.Namespace, text: str) -> None:
+    """A status line ("wrote ..."): on stderr, and none with -q."""
+    import sys
+
+    if not getattr(args, "quiet", False):
+        print(text, file=sys.stderr)
+
+
 def _say(args: argparse.Namespace):
     """print() for the text report: on stderr when the JSON document goes to stdout."""
     import functools
@@ -125,6 +133,7 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     from lidarpkt import cliargs
 
     cliargs.add_metadata(p)
+    cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None,
@@ -191,7 +200,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     if args.json:
         _write_json({"frames": len(stack), "pixels": [ra.to_json() for ra in results]}, args.json)
         if args.json != "-":
-            print(f"wrote {args.json}")
+            _status(args, f"wrote {args.json}")
     if args.plot:
         plots = _plots()
         out = Path(args.plot)
@@ -204,7 +213,7 @@ def run_analyze(args: argparse.Namespace) -> int:
                 written.append(plots.save(plots.plot_motion_compensation(ra, source), out / f"{stem}_motion.png"))
             if ra.gmm is not None:
                 written.append(plots.save(plots.plot_gmm(ra, source), out / f"{stem}_gmm.png"))
-        print(f"wrote {len(written)} figures to {out}")
+        _status(args, f"wrote {len(written)} figures to {out}")
     return 0
 
 
@@ -266,7 +275,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
               f"(>= 2 clusters, gap > {gap:g} m); monitor ({mr.method}) on frame {mr.monitor_frame}: "
               f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
               f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
-    print(f"wrote {out}")
+    _status(args, f"wrote {out}")
     if args.plot:
         plots = _plots()
         slot = slot_index(stack, args.slot)
@@ -280,7 +289,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         ev = mr.evaluation[slot]
         plots.save(plots.plot_roc(ev, f"Multi-return monitor ({mr.method}) ROC, {s.return_labels[slot]} return\n"
                                       f"{ev.n_pixels} raypaths, {Path(args.input).name}"), roc)
-        print(f"wrote {figure} and {roc}")
+        _status(args, f"wrote {figure} and {roc}")
     return 0
 
 
@@ -389,9 +398,9 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(doc, args.json)
         if args.json != "-":
-            print(f"wrote {args.json}")
+            _status(args, f"wrote {args.json}")
     if plots:
         for fig, name in figs:
             plots.save(fig, Path(args.plot) / name)
-        print(f"wrote {len(figs)} figures to {args.plot}")
+        _status(args, f"wrote {len(figs)} figures to {args.plot}")
     return 0

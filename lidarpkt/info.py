@@ -292,6 +292,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
     cliargs.add_metadata(parser, "Ouster metadata JSON of a sensor in the capture (names profiles exactly); "
                                  "repeat for several sensors")
+    cliargs.add_quiet(parser, "accepted by every verb; info draws no progress bar or status line anyway")
 
 
 def run(args: argparse.Namespace) -> int:
