@@ -212,7 +212,8 @@ def _summary(stream: dict) -> str:
         if d.get("profile_source") == "guess" and len(candidates) > 1:
             bits.append("profile guessed from size and header: " + " or ".join(candidates))
         else:
-            bits.append(f"{d['profile']} ({d.get('profile_source', '?')})")
+            source = d.get("profile_source", "?")
+            bits.append(f"{d['profile']} ({'guessed from size and header' if source == 'guess' else source})")
             if d.get("pixels_per_column"):
                 bits.append(f"{d['pixels_per_column']} px")
         if "frame_id" in d:
@@ -221,6 +222,8 @@ def _summary(stream: dict) -> str:
             bits.append(f"CRC {d['crc']}")
     if d.get("note"):
         bits.append(d["note"])
+    if kind == "Ouster lidar" and d.get("profile_source") == "guess":  # what decode & co will ask for
+        bits.append("no metadata given: decoding needs the sensor's metadata JSON, --metadata M.json")
     return ", ".join(str(b) for b in bits)
 
 
