@@ -256,12 +256,19 @@ def _grid_positions(azimuth_deg: np.ndarray, timestamp_ns: np.ndarray, res: floa
     t = (timestamp_ns - timestamp_ns[0]).astype(np.float64)
     if not np.all(np.diff(t) >= 0) or t[-1] <= 0:
         return measured / res + 1e-9
-    slope, intercept = np.polyfit(t, unwrapped, 1)
-    line = intercept + slope * t
-    # the slow wander of the rate about the line (up to ~0.06° a rotation) is kept, the jitter averaged out
-    window = np.ones(_SMOOTH_FIRINGS)
+    # least-squares line azimuth = a + b·t, in closed form (np.polyfit costs ~0.2 ms a frame)
+    t_mean, az_mean = t.mean(), unwrapped.mean()
+    dt = t - t_mean
+    slope = float(dt @ (unwrapped - az_mean)) / float(dt @ dt)
+    line = az_mean + slope * dt
+    # the slow wander of the rate about the line (up to ~0.06° a rotation) is kept, the jitter averaged out:
+    # a running mean of the residual over _SMOOTH_FIRINGS firings (fewer at the ends)
     residual = unwrapped - line
-    fitted = line + np.convolve(residual, window, "same") / np.convolve(np.ones_like(residual), window, "same")
+    half = _SMOOTH_FIRINGS // 2
+    csum = np.concatenate([[0.0], np.cumsum(residual)])
+    idx = np.arange(residual.size)
+    lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, residual.size)
+    fitted = line + (csum[hi] - csum[lo]) / (hi - lo)
     steady = np.abs(fitted - unwrapped) < 0.5 * res
     # the epsilon keeps an azimuth on a bin edge (187.6° / 0.4 = 468.99999...) in its bin
     return np.mod(np.where(steady, fitted, unwrapped), 360.0) / res + 1e-9
