@@ -190,10 +190,12 @@ class Frame:
     def on_grid(self, resolution_deg: float | None = None) -> "Frame":
         """This frame on a fixed azimuth grid, so that pixel (i, j) is the same raypath in every frame.
 
-        Column j covers azimuths [j·res, (j+1)·res). Where two firings fall in one bin the
-        first is kept and the collision is counted in ``counters.grid_collisions``; an empty
-        bin is an invalid column (no sample). Per-column and per-pixel arrays, and every array
-        in ``extra``, move with their columns.
+        Column j covers azimuths [j·res, (j+1)·res); a firing is placed by its azimuth smoothed
+        over neighbouring firings (the encoder's jitter would otherwise empty some bins and double
+        others on a grid as fine as the firings), and keeps its measured ``azimuth_deg``. Where two
+        firings fall in one bin the first is kept and the collision is counted in
+        ``counters.grid_collisions``; an empty bin is an invalid column (no sample: a packet was
+        lost). Per-column and per-pixel arrays, and every array in ``extra``, move with their columns.
 
         ``resolution_deg`` defaults to :func:`default_grid_deg` of the sensor, the one grid that
         ``FrameStack.from_frames``, ``lidarpkt decode -o x.npz`` and ``lidarpkt analyze`` use. A
