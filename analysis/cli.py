@@ -20,14 +20,37 @@ from lidarpkt.errors import AnalysisError
 # ---------------------------------------------------------------------------- helpers
 
 
-def _parse_pixel(text: str) -> tuple[int, int]:
-    parts = text.replace(" ", "").split(",")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        return int(parts[0]), int(parts[1])
-    except ValueError:
-        raise AnalysisError(f"--pixel {text!r}: expected ROW,COL with two integers, e.g. --pixel 7,900") from None
+def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...] = ()) -> None:
+    """Every input and output checked before any decoding (lidarpkt.cliargs' one rule for all verbs)."""
+    from lidarpkt import cliargs
+
+    cliargs.check_inputs([p for p in (args.input, getattr(args, "input2", None)) if p])
+    cliargs.check_inputs((args.metadata or []) + (getattr(args, "metadata2", None) or []), "--metadata")
+    if output_suffixes:
+        cliargs.check_output(args.output, "-o", output_suffixes)
+    cliargs.check_json_output(getattr(args, "json", None))
+    if args.plot:
+        _plots()  # matplotlib missing: said before the work, not after
+        if args.plot.lower().endswith(".png"):  # multireturn's old spelling: --plot MAP.png
+            cliargs.check_output(args.plot, "--plot", (".png",))
+        else:
+            cliargs.check_folder(args.plot, "--plot")
+
+
+def _status(args: argparse.Namespace, text: str) -> None:
+    """A status line ("wrote ..."): on stderr, and none with -q."""
+    import sys
+
+    if not getattr(args, "quiet", False):
+        print(text, file=sys.stderr)
+
+
+def _say(args: argparse.Namespace):
+    """print() for the text report: on stderr when the JSON document goes to stdout."""
+    import functools
+    import sys
+
+    return functools.partial(print, file=sys.stderr if getattr(args, "json", None) == "-" else sys.stdout)
 
 
 def _clean(obj: Any) -> Any:
@@ -48,38 +71,57 @@ def _fmt(value: float | None, digits: int = 4) -> str:
 
 
 def _write_json(doc: dict, path: str) -> None:
+    """The document to ``path`` (``-`` = stdout); its folder was checked before the work."""
+    text = json.dumps(_clean(doc), allow_nan=False) + "\n"
+    if path == "-":
+        import sys
+
+        sys.stdout.write(text)
+        return
     out = Path(path)
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(_clean(doc), allow_nan=False) + "\n")
+        out.write_text(text)
     except OSError as exc:
-        raise AnalysisError(f"cannot write {out}: {exc.strerror or exc}") from None
+        raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
 
 
 def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None):
     from .stack import load_stack, parse_frame_range
 
-    if not Path(path).exists():
-        raise AnalysisError(f"{path}: no such file")
-    for m in metadata or ():
-        if not Path(m).exists():
-            raise AnalysisError(f"--metadata {m}: no such file")
+    from lidarpkt import cliargs
+
+    cliargs.check_inputs([path])
+    cliargs.check_inputs(metadata or (), "--metadata")
     if grid is not None and grid <= 0:
-        raise AnalysisError(f"--grid {grid}: the azimuth grid must be a positive number of degrees dividing 360")
+        raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
     rng = parse_frame_range(frames) if frames else None
     return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid)
 
 
+def _check_pixel(stack, row: int, col: int, slot: int) -> None:
+    """:func:`analysis.stack.check_pixel`, its message in the CLI's words (the flag, then what to do)."""
+    from .stack import check_pixel
+
+    try:
+        check_pixel(stack, row, col, slot)
+    except AnalysisError as exc:
+        _, r, h, w = stack.range_mm.shape
+        if 0 <= slot < r:
+            raise AnalysisError(f"--pixel {row},{col}: outside the {h} x {w} range image of this capture; use ROW in "
+                                f"0..{h - 1} and COL in 0..{w - 1}") from None
+        raise AnalysisError(f"--return: {exc}; choose one of its slots") from None
+
+
 def _check_neighbourhood(n: int) -> None:
     if n < 1 or n % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {n}: must be an odd number >= 1 (3 and 5 in the paper)")
+        raise AnalysisError(f"--neighbourhood {n}: not an odd number >= 1; give e.g. 3 or 5 (the paper's)")
 
 
 def _plots():
     try:
         from . import plots
     except ImportError:  # pragma: no cover - depends on the install
-        raise AnalysisError("--plot needs matplotlib: pip install 'lidarpkt[plot]'") from None
+        raise AnalysisError("--plot: needs matplotlib, which is not installed; pip install 'lidarpkt[plot]'") from None
     return plots
 
 
@@ -88,12 +130,15 @@ def _source(path: str, stack) -> str:
 
 
 def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
-    p.add_argument("--metadata", action="append", metavar="JSON",
-                   help="Ouster metadata JSON (needed for Ouster pcaps; VLP-16 needs none); repeat for several sensors")
+    from lidarpkt import cliargs
+
+    cliargs.add_metadata(p)
+    cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None,
-                   help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz, 0.4 at 20 Hz); Ouster frames keep their columns")
+                   help="VLP-16 azimuth grid in degrees (default: from the firing rate, 0.2 at 10 Hz, 0.4 at 20 Hz, "
+                        "as decode -o x.npz and FrameStack.from_frames); Ouster frames keep their columns")
 
 
 # ---------------------------------------------------------------------------- analyze
@@ -101,8 +146,10 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
 
 def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
-    p.add_argument("--pixel", metavar="ROW,COL", action="append", required=True,
-                   help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); repeatable")
+    from lidarpkt import cliargs
+
+    cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
+                                             "repeatable")
     p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
                    help="return slot: index (0, 1) or label (strongest, last, second_strongest); default 0")
     _add_input(p)
@@ -111,23 +158,27 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
                    help="also compute the motion-compensated CDF (5×5 patch, ±2 px, against frame 0)")
     p.add_argument("--gmm", metavar="em|auto|THRESHOLDS", default="em",
                    help="Gaussian mixture: EM with BIC (default), auto gap thresholds, CDF thresholds like 0.14,0.38,0.68, or none")
-    p.add_argument("--json", metavar="OUT", help="write the results as one JSON document")
-    p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
+    cliargs.add_json(p, "the results as one JSON document")
+    cliargs.add_plot(p)
 
 
 def run_analyze(args: argparse.Namespace) -> int:
     from .gmm import parse_method
     from .raypath import analyze_raypath
-    from .stack import check_pixel, slot_index
+    from .stack import slot_index
 
-    # options first: a typo should not cost a decode
-    pixels = [_parse_pixel(p) for p in args.pixel]
+    # options and outputs first: a typo should not cost a decode
+    pixels = list(args.pixel)
     gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
     _check_neighbourhood(args.neighbourhood)
+    if args.plot and args.plot.lower().endswith(".png"):
+        raise AnalysisError(f"--plot {args.plot}: analyze writes several figures; give a folder")
+    _check_outputs(args)
+    print = _say(args)  # noqa: A001 - the report's own print
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     slot = slot_index(stack, args.slot)
     for r, c in pixels:
-        check_pixel(stack, r, c, slot)
+        _check_pixel(stack, r, c, slot)
     results = [
         analyze_raypath(stack, r, c, slot, neighbourhood=args.neighbourhood,
                         motion_compensation=args.motion_compensation, gmm=gmm)
@@ -148,7 +199,8 @@ def run_analyze(args: argparse.Namespace) -> int:
             print(f"{'':>4} motion compensation: {moved} of {len(stack)} frames moved")
     if args.json:
         _write_json({"frames": len(stack), "pixels": [ra.to_json() for ra in results]}, args.json)
-        print(f"wrote {args.json}")
+        if args.json != "-":
+            _status(args, f"wrote {args.json}")
     if args.plot:
         plots = _plots()
         out = Path(args.plot)
@@ -161,7 +213,7 @@ def run_analyze(args: argparse.Namespace) -> int:
                 written.append(plots.save(plots.plot_motion_compensation(ra, source), out / f"{stem}_motion.png"))
             if ra.gmm is not None:
                 written.append(plots.save(plots.plot_gmm(ra, source), out / f"{stem}_gmm.png"))
-        print(f"wrote {len(written)} figures to {out}")
+        _status(args, f"wrote {len(written)} figures to {out}")
     return 0
 
 
@@ -170,8 +222,11 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
-    p.add_argument("-o", "--output", metavar="MAP.npz", required=True, help="write the statistics and monitor flags here")
-    p.add_argument("--plot", metavar="MAP.png", help="write the multi-return map figure")
+    from lidarpkt import cliargs
+
+    cliargs.add_output(p, (".npz",), help="the statistics and monitor flags: MAP.npz")
+    cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder "
+                        "(--plot MAP.png, the old spelling, writes MAP.png and MAP_roc.png)")
     _add_input(p)
     p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
@@ -194,22 +249,22 @@ def run_multireturn(args: argparse.Namespace) -> int:
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
+        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
     _check_neighbourhood(args.neighbourhood)
     method = args.method
     if args.monitor_by_row:
         if method not in (None, "row"):
-            raise AnalysisError(f"--monitor-by-row is --method row: it contradicts --method {method}")
+            raise AnalysisError(f"--monitor-by-row: it means --method row, which contradicts --method {method}; give one of them")
         method = "row"
+    _check_outputs(args, output_suffixes=(".npz",))
     stack = _load(args.input, args.metadata, args.frames, args.grid)
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
     out = Path(args.output)
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, **mr.to_npz_dict(), frame_id=stack.frame_id)
     except OSError as exc:
-        raise AnalysisError(f"cannot write {out}: {exc.strerror or exc}") from None
+        raise AnalysisError(f"-o {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
     s = mr.stats
     print(f"{_source(args.input, stack)}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
     for i, label in enumerate(s.return_labels):
@@ -220,18 +275,21 @@ def run_multireturn(args: argparse.Namespace) -> int:
               f"(>= 2 clusters, gap > {gap:g} m); monitor ({mr.method}) on frame {mr.monitor_frame}: "
               f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
               f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
-    print(f"wrote {out}")
+    _status(args, f"wrote {out}")
     if args.plot:
         plots = _plots()
         slot = slot_index(stack, args.slot)
         if not 0 <= slot < len(s.return_labels):
-            raise AnalysisError(f"--return {args.slot}: this capture has slots {list(s.return_labels)}")
-        plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), args.plot)
-        roc = Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
+            raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
+        if args.plot.lower().endswith(".png"):  # the old spelling: the map's own file name
+            figure, roc = Path(args.plot), Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
+        else:
+            figure, roc = Path(args.plot) / "multireturn_map.png", Path(args.plot) / "multireturn_roc.png"
+        plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), figure)
         ev = mr.evaluation[slot]
         plots.save(plots.plot_roc(ev, f"Multi-return monitor ({mr.method}) ROC, {s.return_labels[slot]} return\n"
                                       f"{ev.n_pixels} raypaths, {Path(args.input).name}"), roc)
-        print(f"wrote {args.plot} and {roc}")
+        _status(args, f"wrote {figure} and {roc}")
     return 0
 
 
@@ -241,12 +299,13 @@ def run_multireturn(args: argparse.Namespace) -> int:
 def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="a dual-return capture, or the first of two captures of one scene")
     p.add_argument("input2", metavar="IN2", nargs="?", help="a capture of the same scene in another return mode")
-    p.add_argument("--json", metavar="OUT", help="write the comparison as one JSON document")
-    p.add_argument("--plot", metavar="DIR", help="write the figures (PNG) to this folder")
+    from lidarpkt import cliargs
+
+    cliargs.add_json(p, "the comparison as one JSON document")
+    cliargs.add_plot(p)
     _add_input(p)
-    p.add_argument("--metadata2", action="append", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
-    p.add_argument("--pixel", metavar="ROW,COL", action="append", default=[],
-                   help="raypath whose temporal CDFs to compare in detail; repeatable")
+    p.add_argument("--metadata2", action="append", metavar="M.json", help="Ouster metadata JSON of IN2 (default: --metadata)")
+    cliargs.add_pixel(p, required=False, help="raypath whose temporal CDFs to compare in detail; repeatable")
     p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
                    help="with IN2: the slot of IN to compare, index or label (default 0)")
     p.add_argument("--return2", dest="slot2", metavar="SLOT", default="0",
@@ -259,12 +318,16 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
     from .compare import compare_slots, compare_stacks, ks_image
-    from .stack import check_pixel, slot_index
+    from .stack import slot_index
 
-    pixels = [_parse_pixel(p) for p in args.pixel]
+    pixels = list(args.pixel)
+    if args.plot and args.plot.lower().endswith(".png"):
+        raise AnalysisError(f"--plot {args.plot}: compare-returns writes several figures; give a folder")
+    _check_outputs(args)
+    print = _say(args)  # noqa: A001 - the report's own print
     a = _load(args.input, args.metadata, args.frames, args.grid)
     for r, c in pixels:  # before any heavy work
-        check_pixel(a, r, c, 0)
+        _check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
     doc: dict[str, Any] = {"inputs": [args.input]}
     plots = _plots() if args.plot else None
@@ -315,8 +378,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     raypaths = []
     for r, c in pixels:
         for sa, ia, sb, ib in pairs:
-            check_pixel(sa, r, c, ia)
-            check_pixel(sb, r, c, ib)
+            _check_pixel(sa, r, c, ia)
+            _check_pixel(sb, r, c, ib)
             ca, cb = temporal_cdf(sa, r, c, ia), temporal_cdf(sb, r, c, ib)
 
             ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sa.column_valid[:, c:c + 1],
@@ -334,9 +397,10 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     doc["raypaths"] = raypaths
     if args.json:
         _write_json(doc, args.json)
-        print(f"wrote {args.json}")
+        if args.json != "-":
+            _status(args, f"wrote {args.json}")
     if plots:
         for fig, name in figs:
             plots.save(fig, Path(args.plot) / name)
-        print(f"wrote {len(figs)} figures to {args.plot}")
+        _status(args, f"wrote {len(figs)} figures to {args.plot}")
     return 0

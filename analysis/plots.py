@@ -176,7 +176,8 @@ def plot_range_image(
     """Figs. 2–3: the range image of one frame (destaggered for display) with raypaths marked.
 
     Marked pixels are given in the stack's (staggered) coordinates and drawn where they appear
-    in the destaggered image. Black: non-return; grey hatch-free white: lost column.
+    in the destaggered image. Black: non-return; grey: no sample (the column's packet was lost),
+    as the colour bar says. Labels of nearby marks are stacked so that none hides another.
     """
     from matplotlib import colormaps
 
@@ -195,18 +196,23 @@ def plot_range_image(
     im = ax.imshow(img, aspect="auto", interpolation="nearest", cmap=cmap, vmin=0, vmax=vmax)
     if missing.any():
         ax.imshow(np.where(missing, 1.0, np.nan), aspect="auto", interpolation="nearest", cmap="Greys", vmin=0, vmax=2)
+    placed: list[tuple[int, int]] = []
     for i, (r, c) in enumerate(pixels):
         dc = (c + shift[r]) % w
         ax.plot(dc, r, marker="s", ms=9, mfc="none", mec="red", mew=1.8)
         right = dc > 0.85 * w  # keep the label inside the image near the right edge
-        ax.annotate(f"({r}, {c})", (dc, r), xytext=(-8 if right else 6, -6), textcoords="offset points",
+        # a label ~8 characters wide covers ~10% of a 12-inch image: stack those of nearby marks
+        level = sum(1 for pr, pc in placed if abs(pc - dc) < 0.12 * w and abs(pr - r) <= max(2, h // 8))
+        placed.append((r, dc))
+        dy = (-6, 9, -21, 24, -36, 39)[level % 6]
+        ax.annotate(f"({r}, {c})", (dc, r), xytext=(-8 if right else 6, dy), textcoords="offset points",
                     ha="right" if right else "left", color="red", fontsize=8,
                     bbox=dict(boxstyle="round,pad=0.15", fc="white", alpha=0.7, lw=0))
     ax.set_xlabel("column (azimuth step" + (", destaggered" if np.any(shift) else "") + ")")
     ax.set_ylabel("row (beam, 0 = top)")
     ax.yaxis.get_major_locator().set_params(integer=True)
     cb = fig.colorbar(im, ax=ax, pad=0.01)
-    cb.set_label("range (m); black = no return")
+    cb.set_label("range (m)\nblack: no return, grey: no sample", fontsize=8)  # two short lines: never cut off
     label = stack.return_labels[slot]
     src = f" — {source}" if source else ""
     ax.set_title(f"Range image, frame id {int(stack.frame_id[frame])}, {label} return, {stack.sensor.model}{src}", fontsize=10)
@@ -236,7 +242,7 @@ def plot_multireturn_map(mr: MultiReturnMap, stack: FrameStack | None = None, sl
     im = axes[1].imshow(show(s.nonreturn_fraction[slot]), aspect="auto", interpolation="nearest",
                         cmap=colormaps["magma"].with_extremes(bad="0.6"), vmin=0, vmax=1)
     fig.colorbar(im, ax=axes[1], pad=0.01).set_label("fraction")
-    axes[1].set_title("Non-return fraction")
+    axes[1].set_title("Non-return fraction (grey: no sample)")
     gap = np.where(s.n_clusters[slot] >= 2, s.gap_m[slot], np.nan)
     finite = gap[np.isfinite(gap)]
     im = axes[2].imshow(show(gap), aspect="auto", interpolation="nearest",
@@ -253,7 +259,8 @@ def plot_multireturn_map(mr: MultiReturnMap, stack: FrameStack | None = None, sl
                         cmap=ListedColormap(["#f0f0f0", "#fdae61", "#2c7bb6", "#d7191c"]),
                         norm=BoundaryNorm(np.arange(-0.5, 4.5), 4))
     cb = fig.colorbar(im, ax=axes[3], ticks=range(4), pad=0.01)
-    cb.ax.set_yticklabels(["neither", "flagged only", "missed", "flagged & multi"])
+    # short lines: a long tick label ("flagged & multi…") was cut off at the figure's edge
+    cb.ax.set_yticklabels(["neither", "flagged\nonly", "missed", "flagged &\nmulti-return"], fontsize=8)
     n = mr.neighbourhood
     what = {
         "detrend": f"{n}×{n}, gap about local planes",

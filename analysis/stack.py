@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarpkt.errors import AnalysisError, LidarpktWarning
-from lidarpkt.frame import FrameStack
+from lidarpkt.frame import FrameStack, default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
 
 _MAX_PARTIAL_FALLBACK = 8
 
@@ -93,19 +93,6 @@ def _slim(frame):
     """The frame without the per-pixel arrays the analysis does not use (signal, near-IR, flags,
     firing times...), so that a long capture costs only its ranges and reflectivities."""
     return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra={})
-
-
-def default_grid_deg(sensor) -> float | None:
-    """Azimuth grid to stack a sensor's frames on: its own ``grid_resolution_deg``, coarsened for a
-    VLP-16 spinning faster than 10 Hz so that each bin still holds a firing (at 20 Hz firing
-    sequences are 0.4° apart, and a 0.2° grid would leave every other column empty, i.e. missing)."""
-    res = sensor.grid_resolution_deg
-    if res is None or sensor.vendor != "velodyne" or not sensor.frequency_hz:
-        return res
-    factor = max(1, int(round(float(sensor.frequency_hz) / 10.0)))
-    while factor > 1 and abs(round(360.0 / (res * factor)) * res * factor - 360.0) > 1e-9:
-        factor -= 1  # keep a grid that divides 360°
-    return res * factor
 
 
 def parse_frame_range(text: str) -> tuple[int | None, int | None]:
@@ -195,21 +182,3 @@ def neighbour_columns(stack: FrameStack, row: int, col: int, rows: np.ndarray, d
     shift = pixel_shift(stack)
     base = col + shift[row] - shift[np.asarray(rows)]
     return (base[:, None] + np.asarray(dcols)[None, :]) % w
-
-
-def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """``[..., H, W]`` staggered → destaggered (no copy of the logic in Frame: stacks have no Frame)."""
-    if not np.any(shift):
-        return image
-    w = image.shape[-1]
-    src = (np.arange(w)[None, :] - shift[:, None]) % w
-    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
-
-
-def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`destagger`."""
-    if not np.any(shift):
-        return image
-    w = image.shape[-1]
-    src = (np.arange(w)[None, :] + shift[:, None]) % w
-    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)

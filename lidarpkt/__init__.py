@@ -11,11 +11,26 @@ import os
 from typing import TYPE_CHECKING, Any
 
 from .errors import LidarpktError
-from .frame import Frame, FrameCounters, FrameStack, SensorInfo
-from .packet import Endpoint, Packet, PacketBatch
 
 if TYPE_CHECKING:
+    from .frame import Frame, FrameCounters, FrameStack, SensorInfo
+    from .packet import Endpoint, Packet, PacketBatch
     from .source import FrameReader
+
+# imported on first use, so that `lidarpkt --help` and `--version` start without NumPy
+_LAZY = {"Frame": "frame", "FrameCounters": "frame", "FrameStack": "frame", "SensorInfo": "frame",
+         "Endpoint": "packet", "Packet": "packet", "PacketBatch": "packet"}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'lidarpkt' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
 
 __all__ = [
     "open",

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 
 from .errors import LidarpktError, LidarpktWarning
 
-# verb -> (module implementing it, one-line help)
+# verb -> (module implementing it, one-line help). Other verbs are added as one line each.
 VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.info", "say what streams and sensors a capture holds"),
     "decode": ("recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
@@ -27,25 +28,33 @@ VERBS: dict[str, tuple[str, str]] = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line errors: ``lidarpkt: error: <flag>: <what>; <what to do>``, exit 2."""
+
+    def error(self, message: str):  # noqa: D102 - argparse's hook
+        verb = self.prog.split()[-1] if " " in self.prog else None
+        hint = f"see lidarpkt {verb} --help" if verb else "see lidarpkt --help"
+        print(f"lidarpkt: error: {message}; {hint}", file=sys.stderr)
+        sys.exit(2)
+
+
 def _verb_module(verb: str):
-    module = importlib.import_module(VERBS[verb][0])
-    return module
+    return importlib.import_module(VERBS[verb][0])
 
 
 def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
-    """The argument parser; only ``verb``'s sub-parser is filled in (all of them when None)."""
-    parser = argparse.ArgumentParser(
+    """The argument parser. Every verb is listed from :data:`VERBS`; only ``verb``'s sub-parser is
+    filled in, so that ``lidarpkt --help`` imports no verb module (``"*"`` fills them all)."""
+    parser = _Parser(
         prog="lidarpkt",
         description="Decode, record and analyse Velodyne VLP-16 and Ouster OS1 lidar packets.",
     )
-    from . import kernels
-
     # says which implementation runs: the compiled kernels, or why not (their NumPy twins are slower)
-    parser.add_argument("--version", action="version", version=f"lidarpkt {_version()}, {kernels.describe()}")
-    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    parser.add_argument("--version", action="version", version=f"lidarpkt {_version()}, {_kernels()}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     for name, (_, help_text) in VERBS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        if verb is None or verb == name:
+        if verb == "*" or verb == name:
             module = _verb_module(name)
             adder = getattr(module, f"add_{name.replace('-', '_')}_arguments", None) or module.add_arguments
             adder(p)
@@ -61,35 +70,61 @@ def _version() -> str:
         return "unknown"
 
 
+def _kernels() -> str:
+    """:func:`lidarpkt.kernels.describe` without importing the extension (and so NumPy)."""
+    import importlib.util
+
+    if os.environ.get("LIDARPKT_NATIVE") == "0":
+        return "pure NumPy (disabled by LIDARPKT_NATIVE=0)"
+    if importlib.util.find_spec("_lidarpkt_native") is None:
+        return "pure NumPy (extension not built)"
+    return "compiled kernels (_lidarpkt_native)"
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    if issubclass(category, LidarpktWarning):
+        print(f"lidarpkt: warning: {message}", file=sys.stderr)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``lidarpkt`` console script. Returns the exit status."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Entry point of the ``lidarpkt`` console script. Returns the exit status: 0 done, 1 done with
+    losses (``record``), 2 error (one line on stderr, no output left behind), 130 interrupted."""
+    from . import cliargs
+
+    argv = cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv))
     verb = next((a for a in argv if not a.startswith("-")), None)
-    parser = build_parser(verb if verb in VERBS else None)
-    args = parser.parse_args(argv)
-    if args.verb is None:
-        parser.print_help()
-        return 2
-    module = _verb_module(args.verb)
-    runner = getattr(module, f"run_{args.verb.replace('-', '_')}", None) or module.run
-
-    def show_warning(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, LidarpktWarning):
-            print(f"lidarpkt: warning: {message}", file=sys.stderr)
-        else:
-            print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
-
-    warnings.showwarning = show_warning
+    mark = cliargs.outputs_mark()
+    previous_showwarning = warnings.showwarning
+    warnings.showwarning = _show_warning
     try:
+        parser = build_parser(verb if verb in VERBS else None)
+        args = parser.parse_args(argv)
+        if args.verb is None:
+            parser.print_help()
+            return 2
+        module = _verb_module(args.verb)
+        runner = getattr(module, f"run_{args.verb.replace('-', '_')}", None) or module.run
         return int(runner(args) or 0)
     except LidarpktError as exc:
-        print(f"lidarpkt: error: {exc}", file=sys.stderr)
+        cliargs.discard_outputs(mark)
+        print(cliargs.error_line(exc), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("lidarpkt: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into head & co.
         return 0
+    except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
+        cliargs.discard_outputs(mark)
+        where = exc.filename or "output"
+        print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
+              file=sys.stderr)
+        return 2
+    finally:
+        cliargs.forget_outputs(mark)
+        warnings.showwarning = previous_showwarning
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,7 +9,7 @@ dual; see ``fixtures/README.md``) it
    (temporal CDF, GMM by EM/BIC) and the whole image (multi-return map),
 
 then prints one table (raypath, capture, slot, returns, clusters, GMM means) and writes the
-paper's figures and a ``summary.json`` into ``--out``.
+paper's figures and a ``summary.json`` into ``-o DIR`` (``--out`` is its old spelling).
 
 The CLI sits at the top of the stack, so this module may import ``recorder``, ``analysis``
 and ``fixtures`` (lazily, inside :func:`run`).
@@ -24,27 +24,37 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .errors import UsageError
+
 CAPTURES = ("vlp16-strongest", "vlp16-last", "vlp16-dual", "os1-64-legacy", "os1-64-dual")
 # Raypaths whose figures are drawn (all are analysed and tabulated).
 FIGURE_RAYPATHS = ("window", "foliage")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="demo-out", metavar="DIR", help="folder for MCAP files, figures, summary (demo-out)")
+    from . import cliargs
+
+    parser.add_argument("-o", "--output", "--out", dest="output", default="demo-out", metavar="DIR",
+                        help="folder for MCAP files, figures, summary (demo-out; --out is the old spelling)")
     parser.add_argument("--frames", type=int, metavar="N",
                         help="frames per capture (default: 50 VLP-16, 30 Ouster, the fixtures' full length)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene's per-firing draws (0)")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures (no matplotlib needed)")
     parser.add_argument("--no-mcap", action="store_true", help="skip writing MCAP files")
+    cliargs.add_quiet(parser, "no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     import fixtures
     from analysis import analyze_raypath, load_stack, multireturn_map
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from . import cliargs
+
+    if args.frames is not None and args.frames < 1:
+        raise UsageError(f"--frames {args.frames}: not a whole number >= 1; give e.g. --frames 20")
+    out = cliargs.check_folder(args.output, "-o")  # checked (and made) before minutes of work
     plots = None if args.no_plots else _plots_module()
+    progress = cliargs.Progress(getattr(args, "quiet", False), total=len(CAPTURES), unit="capture", desc="demo")
     started = time.monotonic()
     rows: list[dict[str, Any]] = []
     captures: dict[str, Any] = {}
@@ -91,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
                         for i, ev in enumerate(mr.evaluation)],
             "seconds": round(time.monotonic() - t0, 2),
         }
+        progress.update(len(captures), name)
+    progress.close()
 
     if plots is not None:
         _mode_comparison_figures(plots, stacks, fixtures, out, args)
@@ -115,7 +127,7 @@ def _decode_to_mcap(pcap: Path, mcap_path: Path, metadata: Path | None) -> None:
     if status:
         from .errors import RecorderError
 
-        raise RecorderError(f"decoding {pcap} to {mcap_path} failed (exit status {status})")
+        raise RecorderError(f"{pcap}: decoding to {mcap_path} failed (exit status {status}, error above); run lidarpkt decode on it to see why")
 
 
 def _mode_comparison_figures(plots, stacks, fixtures, out: Path, args) -> None:

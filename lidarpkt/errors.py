@@ -14,6 +14,19 @@ class LidarpktError(Exception):
     """Base of every error lidarpkt raises on bad input or a failed operation."""
 
 
+# --- command line and files ------------------------------------------------------
+class UsageError(LidarpktError):
+    """A command-line flag has a value that cannot be used (out of range, malformed)."""
+
+
+class InputFileError(LidarpktError):
+    """An input file is missing or unreadable."""
+
+
+class OutputError(LidarpktError):
+    """An output cannot be written where asked: missing or unwritable folder, unknown suffix."""
+
+
 # --- input files and containers -------------------------------------------------
 class CaptureFormatError(LidarpktError):
     """A file is not a capture lidarpkt can read (wrong magic, unsupported link type, corrupt block)."""
@@ -81,3 +94,7 @@ class TruncatedCaptureWarning(LidarpktWarning):
 
 class SkippedPacketWarning(LidarpktWarning):
     """Malformed packets were counted and skipped."""
+
+
+class DroppedPacketsWarning(LidarpktWarning):
+    """At the end of a capture: packets that were skipped, lost or discarded, and why (one summary)."""

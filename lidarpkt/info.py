@@ -1,4 +1,4 @@
-"""``lidarpkt info FILE... [--json] [--metadata M.json ...]``: what streams and sensors a capture holds.
+"""``lidarpkt info FILE... [--json [OUT.json]] [--metadata M.json ...]``: what streams and sensors a capture holds.
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
@@ -7,7 +7,7 @@ VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the 
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
 records. ``--json`` prints the same as one JSON document (one capture object, or
-``{"captures": [...]}`` for several files).
+``{"captures": [...]}`` for several files); ``--json OUT.json`` writes it to a file.
 """
 
 from __future__ import annotations
@@ -176,13 +176,9 @@ def _open_reader(path: str | os.PathLike[str]):
     for MCAP files and ROS bags. Anything else raises the pcap reader's error, which names the
     file and shows its first bytes."""
     if capture_format(path) is None and os.path.exists(path):
-        from .errors import UnsupportedContainerError
         from .source import container_kind
 
-        try:
-            kind = container_kind(path)
-        except UnsupportedContainerError:
-            kind = None
+        kind = container_kind(path)  # its error is the one every verb gives for "not a capture"
         if kind in ("mcap", "rosbag1", "rosbag2"):
             from .bags import BagReader
 
@@ -216,7 +212,8 @@ def _summary(stream: dict) -> str:
         if d.get("profile_source") == "guess" and len(candidates) > 1:
             bits.append("profile guessed from size and header: " + " or ".join(candidates))
         else:
-            bits.append(f"{d['profile']} ({d.get('profile_source', '?')})")
+            source = d.get("profile_source", "?")
+            bits.append(f"{d['profile']} ({'guessed from size and header' if source == 'guess' else source})")
             if d.get("pixels_per_column"):
                 bits.append(f"{d['pixels_per_column']} px")
         if "frame_id" in d:
@@ -225,6 +222,8 @@ def _summary(stream: dict) -> str:
             bits.append(f"CRC {d['crc']}")
     if d.get("note"):
         bits.append(d["note"])
+    if kind == "Ouster lidar" and d.get("profile_source") == "guess":  # what decode & co will ask for
+        bits.append("no metadata given: decoding needs the sensor's metadata JSON, --metadata M.json")
     return ", ".join(str(b) for b in bits)
 
 
@@ -235,7 +234,9 @@ def format_capture(doc: dict) -> str:
         links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
         head = f"{doc['file']}: {doc['format']} ({links}), {doc['records']} records, {doc['udp_packets']} UDP packets"
     else:
-        head = f"{doc['file']}: {doc['format']}, {doc['records']} messages, {doc['udp_packets']} packets"
+        other = doc.get("skipped_topics") or {}
+        head = (f"{doc['file']}: {doc['format']}, {doc['records']} packet messages, {doc['udp_packets']} packets"
+                + (f" (not read: {', '.join(other)})" if other else ""))
     lines = [head + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")]
     for s in doc["streams"]:
         where = f"{s['src']} → {s['dst_port']}" if s["src"] else "(no addresses)"
@@ -285,36 +286,45 @@ def _expand(paths: Sequence[str]) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt info``."""
+    from . import cliargs
+
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
         help="pcap/pcapng capture(s), MCAP files or ROS bags; a directory stands for every capture under it",
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON document instead of text")
-    parser.add_argument(
-        "--metadata", action="append", default=[], metavar="M.json",
-        help="Ouster metadata JSON of a sensor in the capture (names profiles exactly); repeat for several sensors",
-    )
+    cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
+    cliargs.add_metadata(parser, "Ouster metadata JSON of a sensor in the capture (names profiles exactly); "
+                                 "repeat for several sensors")
+    cliargs.add_quiet(parser, "accepted by every verb; info draws no progress bar or status line anyway")
 
 
 def run(args: argparse.Namespace) -> int:
     """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
+    from . import cliargs
     from .ouster import load_metadata
 
-    metadata = [load_metadata(m) for m in args.metadata]
+    cliargs.check_inputs(args.metadata or (), "--metadata")
+    cliargs.check_json_output(args.json)
+    metadata = [load_metadata(m) for m in args.metadata or ()]
     docs = []
     status = 0
     for path in _expand(args.files):
         try:
+            if not os.path.exists(path):
+                cliargs.check_inputs([path])
             docs.append(describe_capture(path, metadata))
         except LidarpktError as exc:
             status = 2
             docs.append({"file": os.fspath(path), "error": str(exc)})
-            if not args.json:
-                print(f"lidarpkt: error: {exc}", file=sys.stderr)
+            print(cliargs.error_line(exc), file=sys.stderr)
     if args.json:
         doc = docs[0] if len(docs) == 1 else {"captures": docs}
-        json.dump(doc, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-    else:
+        text = json.dumps(doc, indent=2) + "\n"
+        if args.json == cliargs.JSON_STDOUT:
+            sys.stdout.write(text)
+        else:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                fh.write(text)
+    elif any("error" not in d for d in docs):
         print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
     return status

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
-from .errors import SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
+from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from .frame import Frame
 from .packet import PacketBatch
 
@@ -203,6 +203,16 @@ class FrameReader:
             yield from FrameReader._emit(self, decoder.finish())
         if self.stats.packets and not self.decoders:
             raise UnknownSensorError(self._no_sensor_message())
+        from .dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
+
+        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets):
+            wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
+            if wrong:  # Ouster lidar packets without (fitting) metadata: say so, not "no frames"
+                raise UnknownSensorError(wrong)
+
+        summary = dropped_summary(self)
+        if summary:
+            warnings.warn(DroppedPacketsWarning(summary), stacklevel=3)
 
     def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne) -> list[Frame]:
         if self._ouster_metadata:
@@ -271,6 +281,11 @@ class FrameReader:
             seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
             return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
+        from .dropped import no_sensor_hint
+
+        wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
+        if wrong:
+            return wrong
         hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
         return f"{self.path}: no VLP-16 or Ouster stream found among {streams}.{hint}"
 

@@ -14,9 +14,11 @@
     ``near_ir``, ``flags``; per column ``column_valid [K, W]``, ``column_timestamp_ns``,
     ``azimuth_deg``, ``measurement_id``, ``status``; per frame ``frame_id [K]``, ``partial``,
     ``lost_packets``; and ``return_labels``, ``sensor_json`` (the sensor description).
-    Several sensors in one input get key prefixes ``s0_``, ``s1_`` ….
+    The first sensor's keys are bare, whatever the input holds; further sensors' keys are prefixed
+    ``s1_``, ``s2_`` …; ``sensor_prefixes`` lists the prefixes (``["", "s1_"]``).
 
-A progress bar is drawn on stderr when it is a terminal.
+A progress bar is drawn on stderr when it is a terminal (not with ``-q``). At the end, what was
+skipped, lost or discarded is said once per input (:mod:`lidarpkt.dropped`).
 """
 
 from __future__ import annotations
@@ -25,55 +27,29 @@ import argparse
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from lidarpkt.errors import LidarpktError, RecorderError
+from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 TOPIC_GROUPS = ("packets", "points", "images")
+OUTPUT_SUFFIXES = (".mcap", ".npz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from lidarpkt import cliargs
+
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="OUT.mcap or OUT.npz")
-    parser.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (repeatable)")
+    cliargs.add_output(parser, OUTPUT_SUFFIXES)
+    cliargs.add_metadata(parser)
     parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
-    parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
+    parser.add_argument("--grid", type=float, metavar="DEG",
+                        help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
-
-
-class _Progress:
-    """A one-line progress bar on a terminal (nothing otherwise)."""
-
-    def __init__(self, enabled: bool, total_bytes: int) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.total = max(total_bytes, 1)
-        self.start = time.monotonic()
-        self.last = 0.0
-
-    def update(self, done_bytes: int | None, frames: int, force: bool = False) -> None:
-        now = time.monotonic()
-        if not self.enabled or (now - self.last < 0.1 and not force):
-            return
-        self.last = now
-        elapsed = now - self.start
-        if done_bytes is None:
-            bar = f"{frames} frames"
-        else:
-            frac = min(done_bytes / self.total, 1.0)
-            filled = int(frac * 30)
-            bar = f"[{'#' * filled}{'.' * (30 - filled)}] {frac * 100:5.1f}%  {frames} frames"
-        print(f"\rdecode {bar}  {elapsed:6.1f} s", end="", file=sys.stderr, flush=True)
-
-    def done(self, frames: int) -> None:
-        if self.enabled:
-            self.update(self.total, frames, force=True)
-            print(file=sys.stderr)
+    cliargs.add_quiet(parser, "no progress bar and no summary")
 
 
 def _bytes_read(reader) -> int | None:
@@ -148,21 +124,26 @@ def _open_frames(path: str, args) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.output)
-    for path in args.inputs:
-        if not Path(path).exists():
-            raise LidarpktError(f"{path}: no such file or directory")
-    if not out.parent.is_dir():
-        raise RecorderError(f"-o {out}: the folder {out.parent} does not exist")
-    if out.suffix == ".npz":
+    from lidarpkt import cliargs
+
+    # every check before any decoding: a typo must not cost a decode, nor leave a file behind
+    cliargs.check_inputs(args.inputs)
+    cliargs.check_inputs(args.metadata or (), "--metadata")
+    if args.calibration:
+        cliargs.check_inputs([args.calibration], "--calibration")
+    if args.grid is not None and not args.grid > 0:
+        raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
+                         "e.g. --grid 0.2")
+    out = cliargs.check_output(args.output, "-o", OUTPUT_SUFFIXES)
+    if out.suffix.lower() == ".npz":
         return _to_npz(args, out)
-    if out.suffix == ".mcap":
-        return _to_mcap(args, out)
-    raise RecorderError(f"-o {out}: the output must end in .mcap or .npz")
+    return _to_mcap(args, out)
 
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
+    from lidarpkt import cliargs
+
     from .mcap_writer import McapWriter
     from .pointcloud import image_messages, pointcloud_messages
     from .sink import PacketSink
@@ -170,14 +151,16 @@ def _to_mcap(args, out: Path) -> int:
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
-        raise RecorderError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
+        raise RecorderError(f"--topics {args.topics}: unknown group; choose among {', '.join(TOPIC_GROUPS)}")
     md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
         md = load_metadata(args.metadata[0])
     total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
-    progress = _Progress(not args.quiet, total * (2 if "packets" in groups and groups - {"packets"} else 1))
+    progress = cliargs.Progress(args.quiet, total=total * (2 if "packets" in groups and groups - {"packets"} else 1),
+                                desc="decode")
+    frame_messages = 0
     frames_written = 0
     done_before = 0
     described: set[tuple] = set()
@@ -186,7 +169,7 @@ def _to_mcap(args, out: Path) -> int:
             try:
                 text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
             except OSError as exc:
-                raise RecorderError(f"cannot read the calibration {args.calibration}: {exc.strerror}") from None
+                raise RecorderError(f"--calibration {args.calibration}: cannot read it ({exc.strerror}); check the file") from None
             writer.add_metadata("lidarpkt.calibration", {"path": str(args.calibration), "content": text})
         if "packets" in groups:
             from .replay import embedded_metadata
@@ -197,7 +180,7 @@ def _to_mcap(args, out: Path) -> int:
                 for batch in reader.batches():
                     sink.push(batch)
                     b = getattr(reader.stats, "bytes_read", None)
-                    progress.update(None if b is None else done_before + b, frames_written)
+                    progress.update(None if b is None else done_before + b, f"{frames_written} frames")
                 sink.finish()
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         if groups & {"points", "images"}:
@@ -219,14 +202,16 @@ def _to_mcap(args, out: Path) -> int:
                         messages += image_messages(frame)
                     for topic, msg in messages:
                         writer.write_message(topic, msg, log_time)
+                    frame_messages += len(messages)
                     frames_written += 1
                     b = _bytes_read(reader)
-                    progress.update(None if b is None else done_before + b, frames_written)
+                    progress.update(None if b is None else done_before + b, f"{frames_written} frames")
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-    progress.done(frames_written)
-    if not args.quiet:
-        print(f"lidarpkt decode: {writer.messages_written} messages ({frames_written} frames) in {out} "
-              f"({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+    progress.close()
+    if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
+        print(f"lidarpkt decode: {writer.messages_written - frame_messages} packet messages and {frame_messages} "
+              f"frame messages ({frames_written} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)",
+              file=sys.stderr)
     return 0
 
 
@@ -289,11 +274,19 @@ class _Spool:
                 np.lib.format.write_array(out, arr, allow_pickle=False)
 
 
+def _prefix(index: int) -> str:
+    """NPZ key prefix of the ``index``-th sensor of the input: none for the first, ``s1_``, ``s2_`` … after."""
+    return "" if index == 0 else f"s{index}_"
+
+
 def _to_npz(args, out: Path) -> int:
     import tempfile
     import zipfile
 
-    progress = _Progress(not args.quiet, sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()))
+    from lidarpkt import cliargs
+
+    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
+                                desc="decode")
     n = 0
     done_before = 0
     with tempfile.TemporaryDirectory(prefix="lidarpkt-npz-", dir=out.parent) as tmp:
@@ -309,18 +302,24 @@ def _to_npz(args, out: Path) -> int:
                 spool.append(gridded)
                 n += 1
                 b = _bytes_read(reader)
-                progress.update(None if b is None else done_before + b, n)
+                progress.update(None if b is None else done_before + b, f"{n} frames")
             done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-        progress.done(n)
+        progress.close()
         if not spools:
-            raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+            raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded (every packet was skipped, see the "
+                                "warning above); check the capture with lidarpkt info")
         try:
             with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED if args.compress else zipfile.ZIP_STORED,
                                  allowZip64=True) as zf:
+                # one rule whatever the input holds: the first sensor's keys are bare (range_mm ...), the
+                # others' prefixed s1_, s2_ ...; "sensor_prefixes" lists them
                 for spool in spools.values():
-                    spool.write_into(zf, "" if len(spools) == 1 else f"s{spool.index}_")
+                    spool.write_into(zf, _prefix(spool.index))
+                with zf.open("sensor_prefixes.npy", "w") as fh:
+                    np.lib.format.write_array(fh, np.array([_prefix(s.index) for s in spools.values()]),
+                                              allow_pickle=False)
         except OSError as exc:
-            raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from None
+            raise RecorderError(f"-o {out}: cannot write ({exc.strerror or exc}); check the folder and the free space") from None
     if not args.quiet:
         print(f"lidarpkt decode: {n} frames from {len(spools)} sensor(s) in {out}", file=sys.stderr)
     return 0

@@ -29,17 +29,19 @@ from .sink import PacketSink, batch_from_packets
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", type=int, action="append", metavar="PORT",
+    from lidarpkt import cliargs
+
+    parser.add_argument("--port", type=cliargs.port_type("--port"), action="append", metavar="PORT",
                         help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
                              "Ouster: 7502 lidar, 7503 IMU; default with --metadata: the ports it names)")
     parser.add_argument("--bind", metavar="ADDR", help="local address to listen on (default: all, broadcast included)")
     parser.add_argument("--multicast", metavar="GROUP", help="join this IPv4 multicast group")
     parser.add_argument("--interface", metavar="IF", help="interface (name or address) for --multicast")
-    parser.add_argument("--metadata", metavar="M.json", help="Ouster sensor metadata JSON (stored in the file)")
+    cliargs.add_metadata(parser, "Ouster sensor metadata JSON (stored in the file); one per recording")
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP file to write")
+    cliargs.add_output(parser, (".mcap",), help="MCAP file to write")
     parser.add_argument("--rotate-size", type=float, metavar="MB",
                         help="start a new file every MB megabytes (files are then OUT_0000.mcap, OUT_0001.mcap ...)")
     parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds (as above)")
@@ -50,8 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rcvbuf", type=float, default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
     parser.add_argument("--queue", type=float, default=256, metavar="MB",
                         help="payload megabytes allowed to wait for the writer before drops are counted (256)")
-    parser.add_argument("--report", metavar="FILE.json", help="also write the summary as JSON")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no status line and no summary")
+    cliargs.add_json(parser, "also write the summary as JSON")
+    parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),
+                        help="old spelling of --json FILE (kept for scripts)")
+    cliargs.add_quiet(parser, "no status line and no summary")
 
 
 class _StopFlag:
@@ -67,11 +71,21 @@ class _StopFlag:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lidarpkt import cliargs
+
+    cliargs.check_inputs(args.metadata or (), "--metadata")
+    if len(args.metadata or ()) > 1:
+        raise RecorderError(f"--metadata {args.metadata[1]}: a recording stores one Ouster metadata; give one "
+                            "--metadata (record each Ouster sensor to its own file)")
+    cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
+    cliargs.check_json_output(args.json)
+    if args.gps:
+        cliargs.check_inputs([args.gps], "--gps")
     md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
-        md = load_metadata(args.metadata)
+        md = load_metadata(args.metadata[0])
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -82,15 +96,15 @@ def run(args: argparse.Namespace) -> int:
         ports = args.port or ([md.lidar_port, md.imu_port] if md is not None else [])
         capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
-        writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
-                            rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
-                            rotate_seconds=args.rotate_time)
-        sink = PacketSink(writer, ouster_metadata=md, log_time_ns=time.time_ns())
-        if args.gps:
+        if args.gps:  # opened before the file, so that a wrong port leaves no empty recording
             from .gps import GpsReader
 
             gps = GpsReader(args.gps, args.baud)
             gps.start()
+        writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
+                            rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
+                            rotate_seconds=args.rotate_time)
+        sink = PacketSink(writer, ouster_metadata=md, log_time_ns=time.time_ns())
         granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
         # printed even with --quiet: it says the recorder is ready (scripts wait for it)
         print(f"lidarpkt record: listening on {capture.bind_address} port(s) "
@@ -174,8 +188,10 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     summary = _summary(capture, writer, sink, gps, elapsed, reason)
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
-    if args.report:
-        Path(args.report).write_text(json.dumps(summary, indent=2))
+    if args.json == "-":
+        print(json.dumps(summary, indent=2))
+    elif args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
 
 

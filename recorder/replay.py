@@ -31,6 +31,8 @@ DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from lidarpkt import cliargs
+
     parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
     parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
     pace = parser.add_mutually_exclusive_group()
@@ -39,9 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
-    parser.add_argument("--metadata", metavar="M.json",
-                        help="Ouster metadata, to recognise non-legacy lidar packets (MCAP files carry their own)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    cliargs.add_metadata(parser, "Ouster metadata JSON, to recognise the lidar packets exactly (without it they are "
+                                 "recognised as `lidarpkt info` does; MCAP files carry their own)")
+    cliargs.add_quiet(parser, "no summary")
 
 
 @dataclass
@@ -53,13 +55,16 @@ class ReplayStats:
     seconds: float = 0.0
     per_port: dict[int, int] | None = None
     unknown: int = 0  # packets of no known stream (sent to their original or mapped port)
+    interrupted: bool = False  # stopped by Ctrl-C or SIGTERM before the end
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
     """``"HOST:PORT"`` (``[v6]:PORT`` too) → (host, port). Raises :class:`RecorderError`."""
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not host:
-        raise RecorderError(f"--to {text!r}: expected HOST:PORT, e.g. 127.0.0.1:2368")
+        raise RecorderError(f"--to {text}: expected HOST:PORT; write e.g. --to 127.0.0.1:2368")
+    if not 1 <= int(port) <= 65535:
+        raise RecorderError(f"--to {text}: port {port} is out of range; a UDP port is in 1-65535")
     return host.strip("[]"), int(port)
 
 
@@ -69,8 +74,10 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
     for item in items:
         a, sep, b = item.partition(":")
         if not sep or not a.isdigit() or not b.isdigit():
-            raise RecorderError(f"--port-map {item!r}: expected SRC:DST port numbers, e.g. 8308:9308")
-        out[int(a)] = int(b)
+            raise RecorderError(f"--port-map {item}: expected SRC:DST port numbers; write e.g. --port-map 8308:9308")
+        from lidarpkt.cliargs import port as port_number
+
+        out[port_number(a, "--port-map")] = port_number(b, "--port-map")
     return out
 
 
@@ -128,7 +135,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
-        raise RecorderError(f"cannot resolve replay destination {host!r}: {exc.strerror or exc}") from None
+        raise RecorderError(f"--to {host}: cannot resolve the host ({exc.strerror or exc}); give an address such as 127.0.0.1") from None
     sock = socket.socket(family, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
     dest_host = addr[0]
@@ -144,6 +151,8 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             out_port = kind_port.get((size, orig))
             if out_port is None:
                 kind = streams.classify_size(size, ouster_metadata)
+                if kind == streams.OTHER and ouster_metadata is None and _ouster_lidar_by_header(p):
+                    kind = streams.OUSTER_LIDAR  # as `lidarpkt info` recognises it without metadata
                 if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR):
                     out_port = port
                 else:
@@ -163,28 +172,61 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             try:
                 sock.sendto(p.payload, (dest_host, out_port))
             except OSError as exc:
-                raise RecorderError(f"sending to {dest_host}:{out_port} failed: {exc.strerror or exc}") from None
+                raise RecorderError(f"--to {dest_host}:{out_port}: sending failed ({exc.strerror or exc}); check the address and the network") from None
             stats.packets += 1
             stats.bytes += size
             stats.per_port[out_port] = stats.per_port.get(out_port, 0) + 1
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what was sent is still counted
+        stats.interrupted = True
     finally:
         sock.close()
     stats.seconds = clock() - start
     return stats
 
 
+def _ouster_lidar_by_header(p: Packet) -> bool:
+    """Whether one payload reads as an Ouster lidar packet the way ``lidarpkt info`` guesses without metadata."""
+    from lidarpkt import ouster
+    from lidarpkt.packet import PacketBatch
+
+    payload = np.frombuffer(p.payload, np.uint8)[None, :]
+    batch = PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
+    try:
+        found = ouster.describe_stream(batch)
+    except Exception:  # a guess: a payload it cannot read is no Ouster lidar packet
+        return False
+    return bool(found) and found.get("kind") == "Ouster lidar"
+
+
+def _sigterm_as_interrupt(signum, _frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
+    from lidarpkt import cliargs
+
     host, port = parse_host_port(args.to)
     port_map = parse_port_map(args.port_map)
+    cliargs.check_inputs([args.file])
+    cliargs.check_inputs(args.metadata or (), "--metadata")
+    if len(args.metadata or ()) > 1:
+        raise RecorderError(f"--metadata {args.metadata[1]}: replay takes one Ouster metadata (its lidar stream goes "
+                            "to --to); give one --metadata")
     md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
-        md = load_metadata(args.metadata)
+        md = load_metadata(args.metadata[0])
     else:
         md = embedded_metadata(args.file)
-    if not args.max and args.rate <= 0:
-        raise RecorderError(f"--rate must be positive, got {args.rate}")
+    if not args.max and not args.rate > 0:
+        raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
+    import signal
+    import threading
+
+    previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     rate = None if args.max else args.rate
     rounds = itertools.count() if args.loop else range(1)
     total = ReplayStats(per_port={})
@@ -197,16 +239,22 @@ def run(args: argparse.Namespace) -> int:
             total.unknown += s.unknown
             for k, v in s.per_port.items():
                 total.per_port[k] = total.per_port.get(k, 0) + v
+            if s.interrupted:
+                total.interrupted = True
+                break
             if s.packets == 0:
-                raise LidarpktError(f"{args.file} holds no UDP packets to replay")
+                raise LidarpktError(f"{args.file}: holds no UDP packets to replay; check it with lidarpkt info")
     except KeyboardInterrupt:
         pass
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     if not args.quiet:
         ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
-        print(f"lidarpkt replay: sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "
+        print(f"lidarpkt replay: {'interrupted; ' if total.interrupted else ''}sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "
               f"{total.seconds:.2f} s: {ports}", file=sys.stderr)
         if total.unknown:
             print(f"lidarpkt replay: note: {total.unknown} packets of no known stream went to their original "
-                  "(or mapped) ports; a non-legacy Ouster lidar stream needs --metadata to go to --to",
+                  "(or mapped) ports; if one is an Ouster lidar stream, give its --metadata to send it to --to",
                   file=sys.stderr)
     return 0

@@ -31,7 +31,8 @@ def test_npz_of_the_veloview_capture_has_its_52_frames_on_the_grid(tmp_path):
     assert r.returncode == 0, r.stderr
     d = np.load(out)
     # SOURCES.md / vlp-16.test: VeloView counts 52 frames, partial first and last included
-    assert d["range_mm"].shape == (52, 1, 16, 1800) and d["range_mm"].dtype == np.uint32
+    # a 20 Hz capture: the one default grid is 0.4° (the firing rate), 900 columns (issue 14 item 1)
+    assert d["range_mm"].shape == (52, 1, 16, 900) and d["range_mm"].dtype == np.uint32
     assert d["partial"][0] and d["partial"][-1] and not d["partial"][1:-1].any()
     frames = [f.on_grid() for f in lidarpkt.open(pcap)]
     assert np.array_equal(d["range_mm"], np.stack([f.range_mm for f in frames]))
@@ -109,7 +110,7 @@ def test_mcap_topic_choice(tmp_path):
 def test_decode_errors_are_clear(tmp_path):
     pcap = external("rust-lidar-utils/velodyne_example.pcap")
     for args, message in (
-        ((pcap, "-o", tmp_path / "x.txt"), "must end in .mcap or .npz"),
+        ((pcap, "-o", tmp_path / "x.txt"), "the accepted suffixes are .mcap, .npz"),
         ((tmp_path / "missing.pcap", "-o", tmp_path / "x.npz"), "no such file"),
         ((pcap, "-o", tmp_path / "x.mcap", "--topics", "bogus"), "choose among"),
         ((external("einride-vlp16-go/packet.bin"), "-o", tmp_path / "x.npz"), "not a capture"),
@@ -142,20 +143,21 @@ def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
     finally:
         os.close(master)
     text = b"".join(chunks).decode(errors="replace")
-    assert "\rdecode [" in text and "100.0%" in text and "52 frames" in text
+    assert "decode:" in text and "%|" in text and "52 frames" in text  # tqdm's bar, with the frame count
     piped = _decode(pcap, "-o", tmp_path / "q.npz")
     assert piped.returncode == 0 and "\r" not in piped.stderr and "52 frames" in piped.stderr
 
 
-def test_npz_of_two_sensors_has_one_prefixed_stack_each(tmp_path):
+def test_npz_of_two_sensors_has_the_first_bare_and_the_second_prefixed(tmp_path):
     out = tmp_path / "two.npz"
     vlp = external("rust-lidar-utils/velodyne_example.pcap")
     r = _decode(vlp, external(OS1), "--metadata", external(OS1_JSON), "-o", out, "-q")
     assert r.returncode == 0, r.stderr
     d = np.load(out)
     n_vlp = len(list(lidarpkt.open(vlp)))
-    assert d["s0_range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
-    assert "s0_signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
+    assert d["range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
+    assert "signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
+    assert d["sensor_prefixes"].tolist() == ["", "s1_"] and "s0_range_mm" not in d
     assert d["s1_frame_id"].tolist() == [189]
 
 

@@ -123,10 +123,11 @@ def test_record_errors_are_clear_and_leave_no_traceback(tmp_path):
         holder.close()
     assert r.returncode == 2 and "already in use" in r.stderr and "Traceback" not in r.stderr
     r = _run_cli("record", "--port", str(_free_ports(1)[0]), "-o", str(tmp_path / "nodir" / "x.mcap"))
-    assert r.returncode == 2 and "cannot create the MCAP output" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "does not exist" in r.stderr and "Traceback" not in r.stderr
     r = _run_cli("record", "--port", str(_free_ports(1)[0]), "--gps", str(tmp_path / "ttyNONE"),
                  "-o", str(tmp_path / "g.mcap"))
-    assert r.returncode == 2 and "cannot open GPS serial port" in r.stderr
+    assert r.returncode == 2 and "--gps" in r.stderr and "no such file or directory" in r.stderr
+    assert not (tmp_path / "g.mcap").exists()  # issue 14: it left an empty 307-byte MCAP
     r = _run_cli("record", "-o", str(tmp_path / "p.mcap"))
     assert r.returncode == 2 and "no UDP port to listen on" in r.stderr
     r = _run_cli("replay", str(external("rust-lidar-utils/velodyne_example.pcap")), "--to", "nohostport")

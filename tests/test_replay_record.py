@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import signal
 import socket
+from dataclasses import replace
 import subprocess
 import sys
 import threading
@@ -315,8 +316,10 @@ def test_replay_loop_repeats_until_interrupted():
     assert first == payloads * 3
 
 
-def test_replay_without_metadata_counts_unknown_streams():
-    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy: needs its metadata
+def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_recognises_it():
+    """Issue 14: without --metadata the non-legacy lidar packets went to 7502 (mapped), not --to,
+    although `lidarpkt info` calls the stream Ouster lidar; now both recognise it by its header."""
+    pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy
     from lidarpkt.ouster.metadata import load_metadata
 
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
@@ -330,7 +333,10 @@ def test_replay_without_metadata_counts_unknown_streams():
     try:
         packets = list(read_capture(str(pcap)))
         blind = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7502: other, 7503: other})
-        assert blind.unknown == 64 and blind.per_port == {other: 74}
+        assert blind.unknown == 0 and blind.per_port == {lidar: 64, other: 10}
+        noise = [replace(p, payload=bytes(len(p.payload))) for p in packets if len(p.payload) != 48]
+        zeros = replay(noise, "127.0.0.1", lidar, rate=None, port_map={7502: other})
+        assert zeros.unknown == 64 and zeros.per_port == {other: 64}  # the size alone is not enough
         told = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7503: other}, ouster_metadata=md)
         assert told.unknown == 0 and told.per_port == {lidar: 64, other: 10}
     finally:

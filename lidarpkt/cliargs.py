@@ -1,0 +1,320 @@
+"""The command line's conventions, in one place: the common flags, their checks, the error line.
+
+Every verb builds its options from these helpers, so a flag means the same thing everywhere:
+
+``-o/--output PATH``   the output; its suffix picks the format and must be one the verb writes.
+``--json [FILE]``      JSON to FILE (``.json``), or to stdout when given without a value or as ``-``.
+``--plot DIR``         always a folder for figures (created if missing; its parent must exist).
+``--metadata M.json``  repeatable, one per Ouster sensor.
+``-q/--quiet``         no progress bar and no status lines.
+``--workers N``        parallelism of the verbs that decode.
+``--pixel ROW,COL``    a raypath; repeatable where several make sense.
+``--port N``           a UDP port, 1–65535.
+
+Outputs are checked before any computing (:func:`check_output`, :func:`check_folder`), by one
+rule: the parent folder of an output must exist (nothing is created at the filesystem root by a
+typo), and must be writable. Outputs a failed run created are removed (:func:`discard_outputs`),
+so a failure leaves no half-written file. Errors are :class:`~lidarpkt.errors.UsageError`, and
+the CLI prints them as one line, ``lidarpkt: error: <file or flag>: <what is wrong>; <what to do>``,
+with exit status 2 (:func:`error_line`).
+
+This module imports nothing heavy: ``lidarpkt --help`` goes through it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from .errors import InputFileError, OutputError, UsageError
+
+__all__ = [
+    "add_output", "add_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
+    "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
+    "discard_outputs", "error_line", "show_progress", "Progress",
+]
+
+JSON_STDOUT = "-"
+
+
+# ------------------------------------------------------------------------------ flag parsers
+def parse_pixel(text: str, flag: str = "--pixel") -> tuple[int, int]:
+    """``"ROW,COL"`` → (row, col), two non-negative integers. Raises :class:`UsageError`."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        row, col = int(parts[0]), int(parts[1])
+    except ValueError:
+        raise UsageError(f"{flag} {text}: expected ROW,COL, two integers; write e.g. {flag} 7,900") from None
+    if row < 0 or col < 0:
+        raise UsageError(f"{flag} {text}: row and column count from 0; give non-negative numbers, e.g. {flag} 7,900")
+    return row, col
+
+
+def _argparse_type(fn, flag: str):
+    """An argparse ``type=`` that raises our UsageError (one line, exit 2) rather than argparse's usage dump."""
+
+    def convert(text: str):
+        return fn(text, flag)
+
+    convert.__name__ = flag.lstrip("-")
+    return convert
+
+
+def port(text: str, flag: str = "--port") -> int:
+    """A UDP port number, 1–65535. Raises :class:`UsageError`."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise UsageError(f"{flag} {text}: not a port number; give an integer in 1-65535, e.g. {flag} 2368") from None
+    if not 1 <= value <= 65535:
+        raise UsageError(f"{flag} {text}: out of range; a UDP port is in 1-65535 (e.g. {flag} 2368)")
+    return value
+
+
+def positive_int(text: str, flag: str) -> int:
+    """An integer >= 1. Raises :class:`UsageError`."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise UsageError(f"{flag} {text}: expected a whole number >= 1, e.g. {flag} 2")
+    return value
+
+
+def _json_target(text: str, flag: str = "--json") -> str:
+    if text == JSON_STDOUT or text.lower().endswith(".json"):
+        return text
+    raise UsageError(f"{flag} {text}: a JSON output must end in .json (or be - for stdout); "
+                     f"to print JSON to stdout give --json after the input files, or --json -")
+
+
+def port_type(flag: str = "--port"):
+    """argparse ``type=`` for a UDP port (1-65535)."""
+    return _argparse_type(port, flag)
+
+
+def json_type(flag: str = "--json"):
+    """argparse ``type=`` for a JSON output (``.json`` or ``-``)."""
+    return _argparse_type(_json_target, flag)
+
+
+# ------------------------------------------------------------------------------ adders
+def add_output(parser: argparse.ArgumentParser, suffixes: Sequence[str], *, required: bool = True,
+               help: str | None = None, aliases: Sequence[str] = ()) -> None:
+    """``-o/--output PATH``; ``suffixes`` (e.g. ``(".mcap", ".npz")``) are checked by :func:`check_output`.
+    ``aliases`` are older spellings kept for scripts (``--out``)."""
+    what = " or ".join(f"OUT{s}" for s in suffixes) if suffixes else "DIR"
+    parser.add_argument("-o", "--output", *aliases, dest="output", required=required, metavar=what.split(" or ")[0],
+                        help=help or f"the output: {what}")
+    parser.set_defaults(_output_suffixes=tuple(suffixes))
+
+
+def add_json(parser: argparse.ArgumentParser, help: str = "the results as one JSON document") -> None:
+    """``--json [FILE]``: to FILE.json, or to stdout without a value or with ``-``."""
+    parser.add_argument("--json", nargs="?", const=JSON_STDOUT, default=None, metavar="FILE",
+                        type=_argparse_type(_json_target, "--json"),
+                        help=f"{help}: to FILE (.json), or to stdout when given without FILE or as -")
+
+
+def add_plot(parser: argparse.ArgumentParser, help: str = "write the figures (PNG) into this folder") -> None:
+    """``--plot DIR``: always a folder (created if missing; its parent must exist)."""
+    parser.add_argument("--plot", metavar="DIR", help=help)
+
+
+def add_metadata(parser: argparse.ArgumentParser, help: str | None = None) -> None:
+    """``--metadata M.json``, repeatable: one per Ouster sensor (VLP-16 needs none)."""
+    parser.add_argument("--metadata", action="append", default=None, metavar="M.json",
+                        help=help or "Ouster metadata JSON of a sensor in the input; repeat for several sensors "
+                                     "(VLP-16 needs none; MCAP files recorded by lidarpkt carry it)")
+
+
+def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and no status lines") -> None:
+    parser.add_argument("-q", "--quiet", action="store_true", help=help)
+
+
+def add_workers(parser: argparse.ArgumentParser) -> None:
+    """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
+    parser.add_argument("--workers", type=_argparse_type(positive_int, "--workers"), default=1, metavar="N",
+                        help="decode with N workers (default 1)")
+
+
+def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:
+    """``--pixel ROW,COL``, repeatable; parsed into (row, col) tuples (a leading ``-`` is read as a value)."""
+    parser.add_argument("--pixel", metavar="ROW,COL", action="append", default=[] if not required else None,
+                        required=required, type=_argparse_type(parse_pixel, "--pixel"), help=help)
+
+
+def preparse_pixel(argv: list[str]) -> list[str]:
+    """``--pixel -1,5`` → ``--pixel=-1,5``, so that argparse passes a negative value to the parser
+    (which names the problem) instead of saying "expected one argument"."""
+    out = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--pixel" and i + 1 < len(argv) and argv[i + 1].startswith("-") and argv[i + 1] != "-":
+            out.append(f"--pixel={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+# ------------------------------------------------------------------------------ checks
+_created: list[tuple[Path, bool]] = []  # outputs this run created (path, is_folder): removed on failure
+
+
+def _writable_folder(folder: Path, flag: str, path: Path) -> None:
+    if not folder.is_dir():
+        raise OutputError(f"{flag} {path}: the folder {folder} does not exist; create it first or choose another path")
+    try:  # the real test: root ignores permission bits, /proc and read-only mounts do not
+        fd, probe = tempfile.mkstemp(prefix=".lidarpkt-probe-", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{flag} {path}: cannot write in {folder} ({exc.strerror or exc}); "
+                          "choose a writable folder") from None
+
+
+def check_output(path: str | os.PathLike[str], flag: str = "-o", suffixes: Sequence[str] = (), *,
+                 keep_on_error: bool = False) -> Path:
+    """Check an output file before any work: known suffix, existing and writable parent folder,
+    not a folder itself. Remembers it for :func:`discard_outputs` if it does not exist yet, unless
+    ``keep_on_error`` (a recording: what was written before a disk filled up stays readable).
+
+    Raises :class:`~lidarpkt.errors.OutputError` naming the flag, the path and what to do.
+    """
+    out = Path(path)
+    if suffixes and out.suffix.lower() not in suffixes:
+        accepted = ", ".join(suffixes)
+        raise OutputError(f"{flag} {out}: unknown output type {out.suffix or '(no suffix)'!r}; "
+                          f"the accepted suffixes are {accepted}")
+    if out.is_dir():
+        raise OutputError(f"{flag} {out}: is a folder; give a file name ending in {', '.join(suffixes) or 'a suffix'}")
+    _writable_folder(out.parent if str(out.parent) else Path("."), flag, out)
+    if out.exists() and not os.access(out, os.W_OK):
+        raise OutputError(f"{flag} {out}: the file exists and is not writable; choose another path")
+    if not out.exists() and not keep_on_error:
+        _created.append((out, False))
+    return out
+
+
+def check_folder(path: str | os.PathLike[str], flag: str = "--plot") -> Path:
+    """Check (and create) an output folder before any work: its parent must exist and be writable.
+
+    Raises :class:`~lidarpkt.errors.OutputError`.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{flag} {out}: is a file, not a folder; {flag} takes a folder for the figures")
+    if out.is_dir():
+        _writable_folder(out, flag, out)
+        return out
+    _writable_folder(out.parent if str(out.parent) else Path("."), flag, out)
+    try:
+        out.mkdir()
+    except OSError as exc:
+        raise OutputError(f"{flag} {out}: cannot create the folder ({exc.strerror or exc}); choose another") from None
+    _created.append((out, True))
+    return out
+
+
+def check_inputs(paths: Iterable[str | os.PathLike[str]], flag: str | None = None) -> None:
+    """Each input exists and is readable. Raises :class:`~lidarpkt.errors.InputFileError`:
+    ``<flag> <path>: no such file or directory; ...``."""
+    for path in paths:
+        p = Path(path)
+        name = f"{flag} {p}" if flag else str(p)
+        if not p.exists():
+            raise InputFileError(f"{name}: no such file or directory; check the path")
+        if p.is_file() and not os.access(p, os.R_OK):
+            raise InputFileError(f"{name}: not readable (permission denied); check its permissions")
+
+
+def check_json_output(target: str | None) -> None:
+    """``--json FILE`` checked like any output (stdout needs nothing)."""
+    if target and target != JSON_STDOUT:
+        check_output(target, "--json", (".json",))
+
+
+def outputs_mark() -> int:
+    """Where a run's outputs start in the list of remembered ones (runs nest: ``demo`` runs ``decode``)."""
+    return len(_created)
+
+
+def forget_outputs(since: int = 0) -> None:
+    """Forget the outputs remembered since ``since`` (the run that made them is over)."""
+    del _created[since:]
+
+
+def discard_outputs(since: int = 0) -> list[Path]:
+    """Remove the outputs created since ``since`` (that run failed): files, and folders it made."""
+    removed = []
+    for out, is_folder in reversed(_created[since:]):
+        try:
+            if is_folder and out.is_dir():
+                shutil.rmtree(out)
+                removed.append(out)
+            elif not is_folder and out.exists():
+                out.unlink()
+                removed.append(out)
+        except OSError:
+            pass
+    forget_outputs(since)
+    return removed
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line the CLI prints for an error."""
+    text = " ".join(str(exc).split())  # one line whatever the message held
+    return f"lidarpkt: error: {text}"
+
+
+# ------------------------------------------------------------------------------ progress
+def show_progress(quiet: bool) -> bool:
+    """Progress bars only on a terminal and without ``-q``."""
+    return not quiet and sys.stderr.isatty()
+
+
+class Progress:
+    """The progress bar of every verb (tqdm on stderr): bytes of the input read when known, else a
+    count, with a status text (``"52 frames"``) beside it. Off with ``-q`` or off a terminal."""
+
+    def __init__(self, quiet: bool, *, total: int | None = None, unit: str = "B", desc: str = "") -> None:
+        from tqdm import tqdm
+
+        enabled = show_progress(quiet)
+        try:  # a terminal that reports no size (a bare pty) would get no bar at all from tqdm
+            size = os.get_terminal_size(sys.stderr.fileno())
+            sized = size.columns > 0 and size.lines > 0
+        except OSError:
+            sized = False
+        self.bar = tqdm(total=total or None, unit=unit, unit_scale=True, unit_divisor=1024 if unit == "B" else 1000,
+                        desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=sized,
+                        ncols=None if sized else 80, nrows=None if sized else 24, leave=False, mininterval=0.1)
+
+    def update(self, done: int | None, status: str = "") -> None:
+        """``done``: how far (bytes or items) from the start, ``None`` if unknown; ``status``: text after the bar."""
+        if self.bar.disable:
+            return
+        if done is not None and done != self.bar.n:
+            self.bar.update(done - self.bar.n)
+        if status:
+            self.bar.set_postfix_str(status, refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

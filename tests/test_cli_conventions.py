@@ -1,0 +1,190 @@
+"""One tool, not eight (issue 14): every verb, driven as a user does, with bad inputs of every kind.
+
+Each case runs through ``lidarpkt.cli.main`` in this process and as ``python -m lidarpkt`` in a
+subprocess, and must give exit status 2, exactly one line on stderr of the form
+``lidarpkt: error: <file or flag>: <what is wrong>; <what to do>`` naming the file or flag, no
+traceback, and no output file left behind.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lidarpkt.cli import VERBS, main
+
+from conftest import external
+
+REPO = Path(__file__).resolve().parents[1]
+VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
+VLP10 = "rust-lidar-utils/velodyne_example.pcap"
+OS0 = "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap"
+OS0_JSON = "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"
+OS2 = "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap"
+
+
+def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
+    """(case id, argv, text the error line must hold, outputs that must not exist afterwards)."""
+    vlp, vlp10 = str(external(VLP20)), str(external(VLP10))
+    os0, os0_json, os2 = str(external(OS0)), str(external(OS0_JSON)), str(external(OS2))
+    missing = str(tmp / "missing.pcap")
+    out = tmp / "out"
+    return [
+        # info
+        ("info-missing", ["info", missing], f"{missing}: no such file or directory", []),
+        ("info-metadata-missing", ["info", vlp, "--metadata", str(tmp / "m.json")], "--metadata", []),
+        ("info-json-suffix", ["info", vlp, "--json", str(tmp / "i.txt")], "--json", [tmp / "i.txt"]),
+        ("info-json-unwritable", ["info", vlp, "--json", "/proc/lidarpkt-i.json"], "/proc", []),
+        ("info-not-a-capture", ["info", str(external("einride-vlp16-go/packet.bin"))], "is not a capture lidarpkt reads",
+         []),
+        ("decode-not-a-capture", ["decode", str(external("einride-vlp16-go/packet.bin")), "-o", str(tmp / "n.npz")],
+         "is not a capture lidarpkt reads", [tmp / "n.npz"]),
+        # decode
+        ("decode-missing", ["decode", missing, "-o", str(out / "x.npz")], "no such file or directory", []),
+        ("decode-proc", ["decode", vlp10, "-o", "/proc/lidarpkt-out.npz"], "-o /proc/lidarpkt-out.npz", []),
+        ("decode-sys", ["decode", vlp10, "-o", "/sys/lidarpkt-out.mcap"], "-o /sys/lidarpkt-out.mcap", []),
+        ("decode-suffix", ["decode", vlp10, "-o", str(tmp / "x.png")], ".mcap, .npz", [tmp / "x.png"]),
+        ("decode-no-folder", ["decode", vlp10, "-o", str(tmp / "nodir" / "x.npz")], "does not exist",
+         [tmp / "nodir"]),
+        ("decode-grid", ["decode", vlp10, "-o", str(tmp / "g.npz"), "--grid", "-1"], "--grid", [tmp / "g.npz"]),
+        ("decode-ouster-no-metadata", ["decode", os0, "-o", str(tmp / "o.npz")], "no Ouster metadata",
+         [tmp / "o.npz"]),
+        ("decode-wrong-metadata", ["decode", os2, "--metadata", os0_json, "-o", str(tmp / "w.mcap")],
+         "24832 B", [tmp / "w.mcap"]),
+        # record
+        ("record-port-range", ["record", "--port", "80000", "-o", str(tmp / "r.mcap")], "--port 80000",
+         [tmp / "r.mcap"]),
+        ("record-port-zero", ["record", "--port", "0", "-o", str(tmp / "r.mcap")], "--port 0", [tmp / "r.mcap"]),
+        ("record-gps", ["record", "--port", "2368", "--gps", "/dev/ttyNOPE", "-o", str(tmp / "g.mcap")],
+         "--gps /dev/ttyNOPE: no such file or directory", [tmp / "g.mcap"]),
+        ("record-suffix", ["record", "--port", "2368", "-o", str(tmp / "r.bag")], ".mcap", [tmp / "r.bag"]),
+        ("record-proc", ["record", "--port", "2368", "-o", "/proc/lidarpkt-r.mcap"], "/proc", []),
+        # replay
+        ("replay-missing", ["replay", missing, "--to", "127.0.0.1:2368"], "no such file or directory", []),
+        ("replay-port-range", ["replay", vlp10, "--to", "127.0.0.1:80000"], "--to 127.0.0.1:80000", []),
+        ("replay-port-map", ["replay", vlp10, "--to", "127.0.0.1:2368", "--port-map", "8308:0"], "--port-map", []),
+        ("replay-rate", ["replay", vlp10, "--to", "127.0.0.1:2368", "--rate", "0"], "--rate", []),
+        # analyze
+        ("analyze-missing", ["analyze", missing, "--pixel", "7,100"], "no such file or directory", []),
+        ("analyze-pixel-negative", ["analyze", vlp, "--pixel", "-1,5"], "--pixel -1,5", []),
+        ("analyze-pixel-form", ["analyze", vlp, "--pixel", "7"], "--pixel 7", []),
+        ("analyze-pixel-range", ["analyze", vlp, "--pixel", "7,5000"], "--pixel 7,5000: outside", []),
+        ("analyze-plot-proc", ["analyze", vlp, "--pixel", "7,100", "--plot", "/proc/lidarpkt-figs"], "--plot", []),
+        ("analyze-json-root", ["analyze", vlp, "--pixel", "7,100", "--json", "/nonexistent-lidarpkt/r.json"],
+         "does not exist", [Path("/nonexistent-lidarpkt")]),
+        ("analyze-ouster-no-metadata", ["analyze", os0, "--pixel", "1,1", "--json", str(tmp / "a.json"),
+                                        "--plot", str(tmp / "afigs")], "--metadata",
+         [tmp / "a.json", tmp / "afigs"]),
+        # multireturn
+        ("multireturn-png", ["multireturn", vlp, "-o", str(tmp / "x.png")], "accepted suffixes are .npz",
+         [tmp / "x.png", tmp / "x.png.npz"]),
+        ("multireturn-noext", ["multireturn", vlp, "-o", str(tmp / "mapnoext")], "accepted suffixes are .npz",
+         [tmp / "mapnoext.npz"]),
+        ("multireturn-root", ["multireturn", vlp, "-o", "/nonexistent-lidarpkt/m.npz"], "does not exist",
+         [Path("/nonexistent-lidarpkt")]),
+        ("multireturn-plot-proc", ["multireturn", vlp, "-o", str(tmp / "m.npz"), "--plot", "/proc/x/m.png"],
+         "--plot", [tmp / "m.npz"]),
+        ("multireturn-wrong-metadata", ["multireturn", os2, "--metadata", os0_json, "-o", str(tmp / "mm.npz"),
+                                        "--plot", str(tmp / "mfigs")], "does not fit", [tmp / "mm.npz", tmp / "mfigs"]),
+        # compare-returns
+        ("compare-json-proc", ["compare-returns", vlp, "--json", "/proc/lidarpkt-c.json"], "--json", []),
+        ("compare-plot-file", ["compare-returns", vlp, "--plot", str(tmp / "c.png")], "--plot", [tmp / "c.png"]),
+        ("compare-missing-second", ["compare-returns", vlp, missing], "no such file or directory", []),
+        # demo
+        ("demo-out-proc", ["demo", "--out", "/proc/lidarpkt-demo"], "/proc/lidarpkt-demo", []),
+        ("demo-root", ["demo", "-o", "/nonexistent-lidarpkt/demo"], "does not exist", [Path("/nonexistent-lidarpkt")]),
+        ("demo-frames", ["demo", "-o", str(tmp / "demo"), "--frames", "0"], "--frames 0", [tmp / "demo"]),
+        # argparse's own errors are one line too
+        ("decode-no-output", ["decode", vlp10], "-o/--output", []),
+        ("unknown-flag", ["info", vlp10, "--bogus"], "--bogus", []),
+    ]
+
+
+
+
+def _check(case: str, status: int, err: str, expected: str, outputs: list[Path]) -> None:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("lidarpkt: error: ")]
+    assert status == 2, (case, status, err)
+    assert "Traceback" not in err, (case, err)
+    assert len(errors) == 1, (case, err)
+    assert expected in errors[0], (case, expected, err)
+    if "not-a-capture" not in case:  # the container error says what the file starts with instead
+        assert "; " in errors[0], (case, "no 'what to do' part", err)  # <what is wrong>; <what to do>
+    # the error is the only line, but for warnings that came before it (what a decode skipped)
+    assert all(ln.startswith("lidarpkt: warning: ") for ln in lines if ln not in errors), (case, err)
+    for out in outputs:
+        assert not out.exists(), (case, f"{out} left behind")
+
+
+def _all_cases(tmp_path: Path):
+    cases = _cases(tmp_path)
+    assert {argv[0] for _, argv, _, _ in cases if argv[0] in VERBS} == set(VERBS)  # every verb is driven
+    return cases
+
+
+def test_every_verb_with_bad_input_gives_one_line_and_status_2_in_process(tmp_path, capsys):
+    for case, argv, expected, outputs in _all_cases(tmp_path):
+        try:
+            status = main(list(argv))
+        except SystemExit as exc:  # argparse's errors exit: through our one-line hook
+            status = exc.code
+        captured = capsys.readouterr()
+        _check(case, status, captured.err, expected, outputs)
+
+
+def test_every_verb_with_bad_input_gives_one_line_and_status_2_as_a_subprocess(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    for case, argv, expected, outputs in _all_cases(tmp_path):
+        r = subprocess.run([sys.executable, "-m", "lidarpkt", *argv], capture_output=True, text=True, cwd=tmp_path,
+                           env=env, timeout=120)
+        _check(case, r.returncode, r.stderr, expected, outputs)
+
+
+def test_an_unreadable_input_is_named(tmp_path, capsys):
+    src = tmp_path / "locked.pcap"
+    src.write_bytes(external(VLP10).read_bytes())
+    src.chmod(0)
+    if os.access(src, os.R_OK):
+        pytest.skip("running as root: chmod 000 does not stop reads here (the /proc cases cover unwritable paths)")
+    status = main(["decode", str(src), "-o", str(tmp_path / "x.npz")])
+    _check("unreadable", status, capsys.readouterr().err, f"{src}: not readable", [tmp_path / "x.npz"])
+
+
+def test_json_without_a_value_goes_to_stdout_in_every_verb_that_has_it(tmp_path):
+    """--json [FILE]: a switch (stdout) or a file, the same in info and analyze; the text report
+    then goes to stderr so that stdout is one JSON document."""
+    import json
+
+    vlp = str(external(VLP10))
+    for argv in (["info", vlp, "--json"], ["info", vlp, "--json", "-"],
+                 ["analyze", vlp, "--pixel", "7,100", "--gmm", "none", "--json"]):
+        r = subprocess.run([sys.executable, "-m", "lidarpkt", *argv], capture_output=True, text=True, cwd=REPO,
+                           env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
+        assert r.returncode == 0, (argv, r.stderr)
+        json.loads(r.stdout)
+    out = tmp_path / "info.json"
+    r = subprocess.run([sys.executable, "-m", "lidarpkt", "info", vlp, "--json", str(out)], capture_output=True,
+                       text=True, cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
+    assert r.returncode == 0 and r.stdout == "" and json.loads(out.read_text())["file"] == vlp
+
+
+def test_old_spellings_still_work(tmp_path, capsys):
+    """demo --out, multireturn --plot MAP.png and record --report are kept as aliases (README)."""
+    from lidarpkt.cli import build_parser
+
+    args = build_parser("demo").parse_args(["demo", "--out", str(tmp_path / "d")])
+    assert args.output == str(tmp_path / "d")
+    args = build_parser("record").parse_args(["record", "--port", "2368", "-o", "x.mcap", "--report", "r.json"])
+    assert args.json == "r.json" and args.port == [2368]
+    vlp = str(external(VLP10))
+    status = main(["multireturn", vlp, "-o", str(tmp_path / "m.npz"), "--plot", str(tmp_path / "map.png")])
+    assert status == 0, capsys.readouterr().err
+    assert (tmp_path / "map.png").stat().st_size > 0 and (tmp_path / "map_roc.png").stat().st_size > 0
+    status = main(["multireturn", vlp, "-o", str(tmp_path / "m2.npz"), "--plot", str(tmp_path / "figs")])
+    assert status == 0 and sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
+        "multireturn_map.png", "multireturn_roc.png"]
