@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import socket
 import sys
 import time
@@ -39,8 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
-    parser.add_argument("--metadata", metavar="M.json",
-                        help="Ouster metadata, to recognise non-legacy lidar packets (MCAP files carry their own)")
+    parser.add_argument("--metadata", action="append", metavar="M.json",
+                        help="Ouster metadata, to recognise non-legacy lidar packets (MCAP files carry their own); "
+                             "repeat, one per sensor")
+    parser.add_argument("--http", metavar="HOST:PORT",
+                        help="also serve the (first) --metadata at GET /api/v1/sensor/metadata there, as the "
+                             "sensor does (for record/view --sensor)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no summary")
 
 
@@ -121,10 +126,15 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
            clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
     """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
 
-    ``rate`` None = as fast as possible. Returns :class:`ReplayStats`. Raises
+    ``ouster_metadata``: one :class:`~lidarpkt.ouster.metadata.OusterMetadata` or a list (one per
+    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible. Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
     port_map = port_map or {}
+    if isinstance(ouster_metadata, (list, tuple)):
+        mds = list(ouster_metadata) or [None]
+    else:
+        mds = [ouster_metadata]
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
@@ -143,7 +153,8 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             orig = p.dst.port if p.dst is not None else None
             out_port = kind_port.get((size, orig))
             if out_port is None:
-                kind = streams.classify_size(size, ouster_metadata)
+                kinds = [streams.classify_size(size, md) for md in mds]
+                kind = next((k for k in kinds if k != streams.OTHER), streams.OTHER)
                 if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR):
                     out_port = port
                 else:
@@ -176,21 +187,39 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
 def run(args: argparse.Namespace) -> int:
     host, port = parse_host_port(args.to)
     port_map = parse_port_map(args.port_map)
-    md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
-        md = load_metadata(args.metadata)
+        mds = [load_metadata(path) for path in args.metadata]
     else:
-        md = embedded_metadata(args.file)
+        mds = [md] if (md := embedded_metadata(args.file)) is not None else []
     if not args.max and args.rate <= 0:
         raise RecorderError(f"--rate must be positive, got {args.rate}")
+    http = None
+    if args.http:
+        if not mds:
+            raise RecorderError(f"--http {args.http}: there is no Ouster metadata to serve; give --metadata M.json")
+        from lidarpkt.ouster.sensor_http import MetadataHttpServer, parse_sensor
+
+        http_host, http_port = parse_sensor(args.http, "--http")
+        http = MetadataHttpServer(json.dumps(mds[0].raw), http_host, http_port)
+        # printed even with --quiet: scripts wait for it before starting the client
+        print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
+              "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
+    try:
+        return _replay_rounds(args, host, port, port_map, mds)
+    finally:
+        if http is not None:
+            http.close()
+
+
+def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: list) -> int:
     rate = None if args.max else args.rate
     rounds = itertools.count() if args.loop else range(1)
     total = ReplayStats(per_port={})
     try:
         for _ in rounds:
-            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=md)
+            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=mds)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
