@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http", metavar="HOST:PORT",
                         help="also serve the (first) --metadata at GET /api/v1/sensor/metadata there, as the "
                              "sensor does (for record/view --sensor)")
+    parser.add_argument("--start-after-fetch", type=float, metavar="S",
+                        help="with --http: send nothing until the metadata has been fetched, then start S seconds "
+                             "later (the client opens its sockets after fetching)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no summary")
 
 
@@ -206,7 +209,15 @@ def run(args: argparse.Namespace) -> int:
         # printed even with --quiet: scripts wait for it before starting the client
         print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
               "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
+    elif args.start_after_fetch is not None:
+        raise RecorderError("--start-after-fetch needs --http HOST:PORT")
     try:
+        if http is not None and args.start_after_fetch is not None:
+            try:
+                http.fetched.wait()
+            except KeyboardInterrupt:
+                return 0
+            time.sleep(args.start_after_fetch)
         return _replay_rounds(args, host, port, port_map, mds)
     finally:
         if http is not None:

@@ -86,6 +86,7 @@ class MetadataHttpServer:
 
     def __init__(self, metadata_text: str, host: str = "127.0.0.1", port: int = 0) -> None:
         body = metadata_text.encode("utf-8")
+        fetched = self.fetched = threading.Event()  # set once the metadata has been served
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:  # noqa: N802 (http.server's name)
@@ -97,6 +98,7 @@ class MetadataHttpServer:
                 self.send_header("Content-Length", str(len(body)))
                 self.end_headers()
                 self.wfile.write(body)
+                fetched.set()
 
             def log_message(self, *args) -> None:  # quiet: replay prints its own summary
                 pass

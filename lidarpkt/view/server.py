@@ -42,6 +42,9 @@ STATUS_SCHEMA = {
 }
 
 
+SUBSCRIBE_SETTLE_S = 0.25  # after a client's first subscription, time for the rest of its subscriptions
+
+
 class ViewError(LidarpktError):
     """The view server cannot start (address in use, foxglove-sdk missing)."""
 
@@ -63,20 +66,32 @@ class _Sensor:
     reflectivity_images: list = field(default_factory=list)
     transform: object = None
     status: object = None
+    channel_ids: set = field(default_factory=set)
+    subscribed: threading.Event = field(default_factory=threading.Event)
     packets: int = 0
     frames: int = 0
     lost_packets: int = 0
     last: tuple[float, int, int] = (0.0, 0, 0)  # (monotonic s, packets, frames) at the last status
 
 
-class _Listener:
-    """foxglove-sdk server listener: notes that a client subscribed."""
+def _listener():
+    """A foxglove-sdk ``ServerListener`` whose ``subscribed`` event is set once a client subscribes
+    (the SDK's protocol class supplies no-op defaults for the other callbacks)."""
+    from foxglove.websocket import ServerListener
 
-    def __init__(self) -> None:
-        self.subscribed = threading.Event()
+    class Listener(ServerListener):
+        def __init__(self) -> None:
+            self.subscribed = threading.Event()
+            self.channels: set[int] = set()  # ids of the channels somebody subscribed to
+            self.on_channel = None
 
-    def on_subscribe(self, client, channel) -> None:
-        self.subscribed.set()
+        def on_subscribe(self, client, channel) -> None:
+            self.channels.add(channel.id)
+            self.subscribed.set()
+            if self.on_channel is not None:
+                self.on_channel(channel.id)
+
+    return Listener()
 
 
 class ViewServer:
@@ -85,20 +100,25 @@ class ViewServer:
     Args:
         host, port: where to listen (port 0: any free port; :attr:`port` says which).
         name: the server name clients show.
+        first_frame_wait_s: a new sensor's first frame waits up to this long for a client to
+            subscribe to its channels (just advertised), so that connected clients see it.
 
     Raises:
         ViewError: foxglove-sdk is not installed (``pip install lidarpkt[view]``) or the
             address cannot be bound.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, name: str = "lidarpkt") -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, name: str = "lidarpkt",
+                 first_frame_wait_s: float = 1.0) -> None:
         try:
             import foxglove
         except ImportError:
             raise ViewError("the view needs foxglove-sdk: pip install 'lidarpkt[view]'") from None
         self._foxglove = foxglove
         self.context = foxglove.Context()
-        self._listener = _Listener()
+        self._listener = _listener()
+        self._listener.on_channel = self._subscribed
+        self.first_frame_wait_s = first_frame_wait_s
         try:
             self._server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
                                                  server_listener=self._listener)
@@ -119,8 +139,14 @@ class ViewServer:
         return f"ws://{self.host}:{self.port}"
 
     def wait_for_subscriber(self, timeout: float | None = None) -> bool:
-        """Block until a client has subscribed to any channel; False on timeout."""
-        return self._listener.subscribed.wait(timeout)
+        """Block until a client has subscribed to any channel; False on timeout. A client subscribes
+        to several channels one after the other: this returns :data:`SUBSCRIBE_SETTLE_S` after the first."""
+        if self._listener.subscribed.is_set():
+            return True
+        if not self._listener.subscribed.wait(timeout):
+            return False
+        time.sleep(SUBSCRIBE_SETTLE_S)
+        return True
 
     # ------------------------------------------------------------------ sensors
     def _sensor(self, frame) -> _Sensor:
@@ -146,11 +172,21 @@ class ViewServer:
             sensor.reflectivity_images.append(ch.RawImageChannel(f"/{name}/reflectivity_image/{label}", context=ctx))
         sensor.transform = ch.FrameTransformChannel(f"/{name}/transform", context=ctx)
         sensor.status = self._foxglove.Channel(f"/{name}/status", schema=STATUS_SCHEMA, context=ctx)
+        sensor.channel_ids = {c.id() for c in [*sensor.points, *sensor.range_images, *sensor.reflectivity_images,
+                                               sensor.transform, sensor.status]}
+        if sensor.channel_ids & self._listener.channels:
+            sensor.subscribed.set()
         sensor.last = (time.monotonic(), 0, 0)
         self._sensors[key] = sensor
         if frame.sensor.source is not None:
             self._by_source[str(frame.sensor.source)] = sensor
         return sensor
+
+    def _subscribed(self, channel_id: int) -> None:
+        with self._lock:
+            for sensor in self._sensors.values():
+                if channel_id in sensor.channel_ids:
+                    sensor.subscribed.set()
 
     def sensor_name(self, frame) -> str:
         """The name (and frame_id) of ``frame``'s sensor, advertising its channels if new."""
@@ -166,6 +202,9 @@ class ViewServer:
         """
         with self._lock:
             sensor = self._sensor(frame)
+        if not sensor.frames and self.first_frame_wait_s > 0 and not sensor.subscribed.is_set():
+            if sensor.subscribed.wait(self.first_frame_wait_s):
+                time.sleep(SUBSCRIBE_SETTLE_S)  # the client's other subscriptions follow the first
         if xyz is None:
             xyz = frame.xyz()
         sensor.transform.log(messages.transform(frame, sensor.name))

@@ -114,7 +114,7 @@ class FrameDropper:
     """A frame consumer that passes frames to ``consume`` in its own thread, at most ``depth``
     waiting; frames beyond are dropped (counted in :attr:`dropped`, and ``on_drop`` called)."""
 
-    def __init__(self, consume: FrameConsumer, *, depth: int = 8,
+    def __init__(self, consume: FrameConsumer, *, depth: int = 16,
                  on_drop: Callable[[int], None] | None = None) -> None:
         self.consume = consume
         self.on_drop = on_drop
