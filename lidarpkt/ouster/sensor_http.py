@@ -23,11 +23,13 @@ DEFAULT_HTTP_PORT = 80
 
 
 def parse_sensor(text: str, flag: str = "--sensor") -> tuple[str, int]:
-    """``"HOST[:PORT]"`` → (host, port), port 80 by default. Raises :class:`RecorderError`."""
+    """``"HOST[:PORT]"`` → (host, port), port 80 by default; port 0 (any free port) only for the
+    server side (``--http``). Raises :class:`RecorderError`."""
     host, sep, port = text.rpartition(":")
     if not sep or "]" in port:  # no port (or a bare IPv6 address in brackets)
         host, port = text, str(DEFAULT_HTTP_PORT)
-    if not host or not port.isdigit() or not 0 < int(port) <= 65535:
+    lowest = 0 if flag == "--http" else 1
+    if not host or not port.isdigit() or not lowest <= int(port) <= 65535:
         raise RecorderError(f"{flag} {text!r}: expected HOST or HOST:PORT, e.g. os-122201000001.local or 10.5.6.101:80")
     return host.strip("[]"), int(port)
 

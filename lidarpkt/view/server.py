@@ -67,7 +67,6 @@ class _Sensor:
     transform: object = None
     status: object = None
     channel_ids: set = field(default_factory=set)
-    subscribed: threading.Event = field(default_factory=threading.Event)
     packets: int = 0
     frames: int = 0
     lost_packets: int = 0
@@ -83,13 +82,11 @@ def _listener():
         def __init__(self) -> None:
             self.subscribed = threading.Event()
             self.channels: set[int] = set()  # ids of the channels somebody subscribed to
-            self.on_channel = None
 
         def on_subscribe(self, client, channel) -> None:
+            # called on the SDK's thread, which may hold the SDK's own locks: take none of ours here
             self.channels.add(channel.id)
             self.subscribed.set()
-            if self.on_channel is not None:
-                self.on_channel(channel.id)
 
     return Listener()
 
@@ -117,7 +114,6 @@ class ViewServer:
         self._foxglove = foxglove
         self.context = foxglove.Context()
         self._listener = _listener()
-        self._listener.on_channel = self._subscribed
         self.first_frame_wait_s = first_frame_wait_s
         try:
             self._server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
@@ -174,19 +170,19 @@ class ViewServer:
         sensor.status = self._foxglove.Channel(f"/{name}/status", schema=STATUS_SCHEMA, context=ctx)
         sensor.channel_ids = {c.id() for c in [*sensor.points, *sensor.range_images, *sensor.reflectivity_images,
                                                sensor.transform, sensor.status]}
-        if sensor.channel_ids & self._listener.channels:
-            sensor.subscribed.set()
         sensor.last = (time.monotonic(), 0, 0)
         self._sensors[key] = sensor
         if frame.sensor.source is not None:
             self._by_source[str(frame.sensor.source)] = sensor
         return sensor
 
-    def _subscribed(self, channel_id: int) -> None:
-        with self._lock:
-            for sensor in self._sensors.values():
-                if channel_id in sensor.channel_ids:
-                    sensor.subscribed.set()
+    def _wait_for_sensor_subscription(self, sensor: _Sensor, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while not (sensor.channel_ids & self._listener.channels):
+            if time.monotonic() >= deadline:
+                return
+            time.sleep(0.02)
+        time.sleep(SUBSCRIBE_SETTLE_S)  # the client's other subscriptions follow the first
 
     def sensor_name(self, frame) -> str:
         """The name (and frame_id) of ``frame``'s sensor, advertising its channels if new."""
@@ -202,9 +198,8 @@ class ViewServer:
         """
         with self._lock:
             sensor = self._sensor(frame)
-        if not sensor.frames and self.first_frame_wait_s > 0 and not sensor.subscribed.is_set():
-            if sensor.subscribed.wait(self.first_frame_wait_s):
-                time.sleep(SUBSCRIBE_SETTLE_S)  # the client's other subscriptions follow the first
+        if not sensor.frames and self.first_frame_wait_s > 0:
+            self._wait_for_sensor_subscription(sensor, self.first_frame_wait_s)
         if xyz is None:
             xyz = frame.xyz()
         sensor.transform.log(messages.transform(frame, sensor.name))
@@ -249,14 +244,18 @@ class ViewServer:
                           "lost_packets": int(lost), "packets": sensor.packets, "frames": sensor.frames,
                           "view_frames_dropped": self.frames_dropped}
                 sensor.last = (now, sensor.packets, sensor.frames)
-                sensor.status.log(status)
-                out.append({"sensor": sensor.name, **status})
-        return out
+                out.append((sensor, status))
+        for sensor, status in out:  # outside our lock: the SDK takes its own
+            sensor.status.log(status)
+        return [{"sensor": sensor.name, **status} for sensor, status in out]
 
-    def close(self) -> None:
-        """Stop the server (clients are disconnected). Idempotent."""
+    def close(self, grace_s: float = 0.2) -> None:
+        """Stop the server (clients are disconnected) after ``grace_s`` seconds in which the last
+        messages reach them. Idempotent."""
         server, self._server = getattr(self, "_server", None), None
         if server is not None:
+            if grace_s > 0:
+                time.sleep(grace_s)
             server.stop()
 
     def __enter__(self) -> "ViewServer":
