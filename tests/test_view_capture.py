@@ -109,3 +109,40 @@ def test_bad_ws_flag_is_one_line_error(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["lidarpkt: error: --ws 'nohost': expected HOST:PORT, e.g. 127.0.0.1:8765"]
+
+
+def _run_view(*args: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "lidarpkt", "view", *args], capture_output=True, text=True,
+                          timeout=60, cwd=CANNED.parents[1])
+
+
+def test_unreadable_capture_is_an_error_before_serving(tmp_path):
+    missing = tmp_path / "missing.pcap"
+    r = _run_view(str(missing), "--ws", "127.0.0.1:0")
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [f"lidarpkt: error: {missing}: no such file"]
+    r = _run_view(str(CANNED / "os1-64-legacy.pcap"), "--ws", "127.0.0.1:0")  # Ouster without its metadata
+    assert r.returncode == 2 and "serving" not in r.stderr
+    assert r.stderr.startswith("lidarpkt: error: ") and "--metadata" in r.stderr
+
+
+def test_ws_address_in_use_is_one_line_error():
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = _run_view(str(CANNED / "vlp16-dual.pcap"), "--ws", f"127.0.0.1:{port}")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"lidarpkt: error: --ws 127.0.0.1:{port}: cannot serve there")
+    assert lines[0].endswith("choose another HOST:PORT")
+
+
+def test_capture_and_live_flags_together_are_refused():
+    r = _run_view(str(CANNED / "vlp16-dual.pcap"), "--port", "2368")
+    assert r.returncode == 2 and r.stderr.startswith("lidarpkt: error: --port/--bind/--multicast/--sensor: not with")

@@ -71,7 +71,11 @@ def run(args: argparse.Namespace) -> int:
     from lidarpkt.errors import LidarpktError
 
     if args.source is not None and (args.port or args.bind or args.multicast or args.sensor):
-        raise LidarpktError("SOURCE and --port/--bind/--multicast/--sensor: view either a capture or a live sensor")
+        raise LidarpktError(f"--port/--bind/--multicast/--sensor: not with SOURCE {args.source}; view either a "
+                            "capture or a live sensor")
+    from .server import parse_ws
+
+    parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
         raise LidarpktError(f"--rate must be positive, got {args.rate}")
     stop = _Stop()
@@ -90,16 +94,17 @@ def _deadline(args) -> float:
 def _view_capture(args, stop: threading.Event) -> int:
     from .sources import play_capture
 
-    server = start_server(args.ws, quiet=args.quiet)
     deadline = _deadline(args)
     readers = []
     counted = [0]
+    servers = []  # started at the first frame: a capture that cannot be read is an error before any serving
 
     def wait_for_client(first) -> None:
-        server.sensor_name(first)  # advertise its channels, then wait until somebody looks
+        servers.append(start_server(args.ws, quiet=args.quiet))
+        servers[0].sensor_name(first)  # advertise its channels, then wait until somebody looks
         if not args.quiet:
             print("lidarpkt view: waiting for a client to subscribe", file=sys.stderr, flush=True)
-        while not server.wait_for_subscriber(0.1) and not stop.is_set() and time.monotonic() < deadline:
+        while not servers[0].wait_for_subscriber(0.1) and not stop.is_set() and time.monotonic() < deadline:
             pass
 
     try:
@@ -107,6 +112,7 @@ def _view_capture(args, stop: threading.Event) -> int:
         frames = play_capture(args.source, metadata=args.metadata or None, rate=args.rate, loop=args.loop,
                               stop=stop, on_reader=readers.append, before_first=wait_for_client)
         for frame in frames:
+            server = servers[0]
             server.publish(frame)
             reader = readers[-1]
             server.count_packets(str(frame.sensor.source), reader.stats.packets - counted[0])
@@ -116,13 +122,18 @@ def _view_capture(args, stop: threading.Event) -> int:
                 _status_line(server.publish_status(), args.quiet)
             if time.monotonic() >= deadline:
                 stop.set()
+        if not servers:  # no frame at all (lidarpkt.open raised otherwise)
+            from lidarpkt.errors import LidarpktError
+
+            raise LidarpktError(f"{args.source}: no frame to show; check it with lidarpkt info")
         if not stop.is_set() and time.monotonic() < deadline and not args.quiet:
-            print(f"lidarpkt view: end of {args.source} ({server.frames_published} frames); still serving, "
+            print(f"lidarpkt view: end of {args.source} ({servers[0].frames_published} frames); still serving, "
                   "Ctrl-C to stop", file=sys.stderr, flush=True)
         while not stop.wait(1.0) and time.monotonic() < deadline:
-            server.publish_status()
+            servers[0].publish_status()
     finally:
-        server.close()
+        for server in servers:
+            server.close()
     return 0
 
 
