@@ -23,9 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -40,6 +38,7 @@ sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from lidarpkt.packet import Packet  # noqa: E402
+from bench_record import _cpu_seconds, _free_port  # noqa: E402
 from recorder.replay import read_capture, replay  # noqa: E402
 
 OUSTER_METADATA = REPO / "fixtures" / "canned" / "os1-64-legacy.json"
@@ -77,17 +76,6 @@ def os1_64_legacy(seconds_of_sensor_time: float, tmp: Path) -> tuple[list[Packet
 
 
 SENSORS = {"vlp16-dual": vlp16_dual, "os1-64-legacy": os1_64_legacy}
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _cpu_seconds(pid: int) -> float:
-    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def run_one(name: str, packets: list[Packet], extra: list[str], rate: float, view: bool, tmp: Path) -> dict:

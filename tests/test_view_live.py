@@ -6,8 +6,6 @@ is published when the view is stopped."""
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 
@@ -19,18 +17,8 @@ pytest.importorskip("websockets")
 pytest.importorskip("google.protobuf")
 
 from test_view_capture import CANNED, expected_points  # noqa: E402
+from test_replay_record import _free_ports as free_udp_ports  # noqa: E402  (one helper for free UDP ports)
 from view_client import FoxgloveClient, LidarpktProcess, points_of, stamp_ns  # noqa: E402
-
-
-def free_udp_ports(n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
 
 
 def check_live_frames(client: FoxgloveClient, frames: list, name: str, *, same_clock: bool) -> None:
