@@ -64,12 +64,12 @@ def run_live(tmp_path, capture, frames, name, *, view_args, replay_args, rate="2
 def test_vlp16_dual_replayed_live(tmp_path):
     capture = CANNED / "vlp16-dual.pcap"
     frames = list(lidarpkt.open(capture))
-    # the position packet goes to a port nobody listens on: its GPS time (the capture's, months ago)
-    # would re-anchor the decoder's clock mid-stream, away from the replay's host times
-    data, unheard = free_udp_ports(2)
+    # the position packet arrives mid-stream with the capture's GPS time (months before the replay's
+    # host times): live frame times keep the host clock's hour, so no frame is lost to it
+    data, position = free_udp_ports(2)
     client, view = run_live(tmp_path, capture, frames, "velodyne",
-                            view_args=["--bind", "127.0.0.1", "--port", str(data)],
-                            replay_args=["--to", f"127.0.0.1:{data}", "--port-map", f"8308:{unheard}"])
+                            view_args=["--bind", "127.0.0.1", "--port", str(data), "--port", str(position)],
+                            replay_args=["--to", f"127.0.0.1:{data}", "--port-map", f"8308:{position}"])
     statuses = [m.message for m in client.on("/velodyne/status")]
     assert statuses and statuses[-1]["frames"] == len(frames) and statuses[-1]["lost_packets"] == 0
     assert statuses[-1]["view_frames_dropped"] == 0

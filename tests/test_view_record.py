@@ -69,16 +69,16 @@ def check_points(messages, frames, topics) -> None:
 
 def record_replay(tmp_path, capture, *record_args, replay_args, name="rec", view_client=False, rate="4"):
     """Run ``record`` on fresh ports while ``replay`` sends ``capture``; returns (report, messages, client)."""
-    data, unheard = free_udp_ports(2)
+    data, position = free_udp_ports(2)
     out, report = tmp_path / f"{name}.mcap", tmp_path / f"{name}.json"
     client = None
     with LidarpktProcess(tmp_path / f"{name}.log", "record", "--bind", "127.0.0.1", "--port", str(data),
-                         "-o", str(out), "--report", str(report), *record_args, ready="listening on") as rec:
+                         "--port", str(position), "-o", str(out), "--report", str(report), *record_args, ready="listening on") as rec:
         try:
             if view_client:
                 client = FoxgloveClient(f"ws://127.0.0.1:{rec.port_after('serving ws://')}")
             with LidarpktProcess(tmp_path / f"{name}-replay.log", "replay", str(capture), "--rate", rate,
-                                 "--to", f"127.0.0.1:{data}", "--port-map", f"8308:{unheard}",
+                                 "--to", f"127.0.0.1:{data}", "--port-map", f"8308:{position}",
                                  *replay_args) as replay:
                 assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
             assert rec.stop() == 0, rec.log.read_text()
@@ -92,7 +92,7 @@ def test_record_points_vlp16_dual(tmp_path):
     capture = CANNED / "vlp16-dual.pcap"
     frames = list(lidarpkt.open(capture))
     summary, messages, _ = record_replay(tmp_path, capture, "--points", replay_args=[])
-    assert summary["lost_total"] == 0 and summary["packets"] == 828
+    assert summary["lost_total"] == 0 and summary["packets"] == 829  # 828 data + 1 position
     assert summary["points_frames_written"] == len(frames) and summary["packets_not_decoded"] == 0
     check_points(messages, frames, ["/velodyne_points", "/velodyne_points2"])
 
@@ -128,7 +128,7 @@ def test_record_view_loses_no_packet(tmp_path):
                                                 replay_args=[], name="viewed", view_client=True)
     for s in (alone, viewed):
         assert s["lost_total"] == 0 and s["kernel_drops"] == 0 and s["queue_overflow"] == 0
-    assert viewed["packets"] == alone["packets"] == 1902  # every data packet (position ones went elsewhere)
+    assert viewed["packets"] == alone["packets"] == 1902 + 367  # every data and position packet
 
     def payloads(msgs):
         return [bytes(p.data) for t, _, m in msgs if t == "/velodyne_packets" for p in m.packets]

@@ -5,6 +5,11 @@
 * :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
   routed to one frame decoder per sensor, as ``lidarpkt.open`` routes a capture's:
   VLP-16 streams by their packets, Ouster streams by the metadata given.
+
+Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
+as the ROS driver stamps them; position packets are counted but not used for it: a GPS fix
+arriving mid-stream whose time disagrees with the host clock (no NTP, or a replayed capture)
+would move the decoder's clock back and every later packet would be dropped as late.
 """
 
 from __future__ import annotations
@@ -79,6 +84,7 @@ class LiveDecoder:
         self.max_sensors = max_sensors
         self.decoders: dict[tuple, object] = {}
         self.unrouted_packets = 0
+        self.position_packets = 0  # VLP-16 position packets seen (not used for the time: module doc)
 
     def push(self, batch: PacketBatch) -> list[Frame]:
         """Decode one batch; returns the frames it completed."""
@@ -101,14 +107,14 @@ class LiveDecoder:
         if kind is None:
             self.unrouted_packets += len(batch)
             return []
+        if kind == "position":
+            self.position_packets += len(batch)
+            return []
         decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(source=src))
         if decoder is None:
             self.unrouted_packets += len(batch)
             return []
-        if kind == "data":
-            return decoder.push(batch)
-        decoder.push_position(batch)
-        return []
+        return decoder.push(batch)
 
     def _decoder(self, key: tuple, make):
         decoder = self.decoders.get(key)
