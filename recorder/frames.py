@@ -18,6 +18,7 @@ If decoding falls behind, batches are dropped for the frames (counted in the sum
 from __future__ import annotations
 
 import queue
+import time
 
 from . import schemas
 
@@ -41,6 +42,7 @@ class LiveFrames:
         from lidarpkt.view.tap import FrameDropper, FrameTap
 
         self.view = self.dropper = None
+        self._last_status = time.monotonic()
         self.points_frames = 0
         self._points: queue.SimpleQueue = queue.SimpleQueue()
         consumers = []
@@ -82,8 +84,11 @@ class LiveFrames:
                 return
             writer.write(topic, data, t)
 
-    def publish_status(self, lost_packets: int) -> None:
-        if self.view is not None:
+    def tick(self, lost_packets: int) -> None:
+        """Publish the view's status once a second (call often); ``lost_packets`` = the recorder's count."""
+        now = time.monotonic()
+        if self.view is not None and now - self._last_status >= 1.0:
+            self._last_status = now
             self.view.publish_status(lost_packets)
 
     def finish(self, writer) -> None:

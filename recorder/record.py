@@ -110,14 +110,14 @@ def run(args: argparse.Namespace) -> int:
         ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
         capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
+        if args.points or args.view:  # before the file: a view that cannot serve leaves no empty recording
+            from .frames import LiveFrames
+
+            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None, quiet=args.quiet)
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
                             rotate_seconds=args.rotate_time)
         sink = PacketSink(writer, ouster_metadata=mds or None, log_time_ns=time.time_ns())
-        if args.points or args.view:
-            from .frames import LiveFrames
-
-            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None, quiet=args.quiet)
         if args.gps:
             from .gps import GpsReader
 
@@ -189,8 +189,8 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
             reason = f"duration {args.duration:g} s"
         elif args.frames is not None and sink.frames >= args.frames:
             reason = f"{args.frames} frames"
-        if frames is not None and now - last_status >= 1.0:
-            frames.publish_status(_lost_total(capture, sink))
+        if frames is not None:
+            frames.tick(_lost_total(capture, sink))
         if now - last_status >= 1.0 and not args.quiet:
             rate = (sink.packets - last_packets) / (now - last_status)
             last_packets, last_status = sink.packets, now

@@ -139,3 +139,22 @@ def test_record_view_loses_no_packet(tmp_path):
     # the viewer saw every frame it was not made to drop (the last one is published at the stop)
     assert len(seen) == len(frames) - viewed["view_frames_dropped"], (len(seen), viewed)
     assert viewed["frames_decoded"] == len(frames)
+
+
+def test_record_view_that_cannot_serve_leaves_no_recording(tmp_path):
+    import socket
+    import subprocess
+    import sys
+
+    out = tmp_path / "never.mcap"
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = subprocess.run([sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "--port",
+                            str(free_udp_ports(1)[0]), "-o", str(out), "--view", "--ws", f"127.0.0.1:{port}"],
+                           capture_output=True, text=True, timeout=60, cwd=CANNED.parents[1])
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"lidarpkt: error: --ws 127.0.0.1:{port}: cannot serve there")
+    assert not out.exists()
