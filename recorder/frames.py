@@ -30,14 +30,13 @@ class LiveFrames:
         ouster_metadata: metadata of each Ouster sensor (list, possibly empty).
         points: encode PointCloud2 messages for the MCAP.
         ws: ``--ws HOST:PORT`` of the view server, ``None`` for no view.
-        quiet: passed to the view's address line (which is printed anyway).
+        queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
 
     Raises:
         lidarpkt.view.server.ViewError: the view server cannot start.
     """
 
-    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, quiet: bool = False,
-                 queue_bytes: int = 64 << 20) -> None:
+    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20) -> None:
         from lidarpkt.view.sources import LiveDecoder
         from lidarpkt.view.tap import FrameDropper, FrameTap
 
@@ -51,7 +50,7 @@ class LiveFrames:
         if ws is not None:
             from lidarpkt.view.cli import start_server
 
-            self.view = start_server(ws, quiet=quiet, verb="record")
+            self.view = start_server(ws, verb="record")
             view = self.view
 
             def dropped(n: int) -> None:

@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         if args.points or args.view:  # before the file: a view that cannot serve leaves no empty recording
             from .frames import LiveFrames
 
-            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None, quiet=args.quiet)
+            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None)
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
                             rotate_seconds=args.rotate_time)

@@ -146,3 +146,24 @@ def test_ws_address_in_use_is_one_line_error():
 def test_capture_and_live_flags_together_are_refused():
     r = _run_view(str(CANNED / "vlp16-dual.pcap"), "--port", "2368")
     assert r.returncode == 2 and r.stderr.startswith("lidarpkt: error: --port/--bind/--multicast/--sensor: not with")
+
+
+def test_loop_plays_the_capture_again(tmp_path):
+    path = CANNED / "vlp16-dual.pcap"
+    frames = list(lidarpkt.open(path))
+    with LidarpktProcess(tmp_path / "view.log", "view", str(path), "--ws", "127.0.0.1:0", "--loop", "--rate", "5",
+                         ready="serving ws://") as view:
+        client = FoxgloveClient(f"ws://127.0.0.1:{view.port_after('serving ws://')}")
+        try:
+            topic = "/velodyne/points/strongest"
+            assert client.wait_for(lambda c: len(c.on(topic)) >= 2 * len(frames) + 1, 60), view.log.read_text()
+            assert client.wait_for(lambda c: len(c.on("/velodyne/status")) >= 2, 30)
+        finally:
+            client.close()
+            assert view.stop() == 0, view.log.read_text()
+    got = [len(points_of(m.message)[0]) for m in client.on(topic)[:2 * len(frames)]]
+    slot = frames[0].return_labels.index("strongest")
+    want = [int(((f.range_mm[slot] > 0) & f.column_valid[None, :]).sum()) for f in frames]
+    assert got == want * 2
+    packets = [m.message["packets"] for m in client.on("/velodyne/status")]
+    assert packets == sorted(packets) and packets[-1] > 829  # counted on through the rounds

@@ -36,7 +36,7 @@ def add_ws_argument(parser: argparse.ArgumentParser) -> None:
                         help="address of the Foxglove WebSocket server (127.0.0.1:8765; port 0 = any free port)")
 
 
-def start_server(ws: str, *, quiet: bool = False, verb: str = "view"):
+def start_server(ws: str, *, verb: str = "view"):
     """A :class:`~lidarpkt.view.server.ViewServer` on ``--ws``; says where to connect (even with
     ``--quiet``: scripts wait for that line)."""
     from .server import ViewServer, parse_ws
@@ -99,8 +99,12 @@ def _view_capture(args, stop: threading.Event) -> int:
     counted = [0]
     servers = []  # started at the first frame: a capture that cannot be read is an error before any serving
 
+    def new_round(reader) -> None:  # each round of --loop reads the capture again, counting from 0
+        readers.append(reader)
+        counted[0] = 0
+
     def wait_for_client(first) -> None:
-        servers.append(start_server(args.ws, quiet=args.quiet))
+        servers.append(start_server(args.ws))
         servers[0].sensor_name(first)  # advertise its channels, then wait until somebody looks
         if not args.quiet:
             print("lidarpkt view: waiting for a client to subscribe", file=sys.stderr, flush=True)
@@ -110,7 +114,7 @@ def _view_capture(args, stop: threading.Event) -> int:
     try:
         last_status = time.monotonic()
         frames = play_capture(args.source, metadata=args.metadata or None, rate=args.rate, loop=args.loop,
-                              stop=stop, on_reader=readers.append, before_first=wait_for_client)
+                              stop=stop, on_reader=new_round, before_first=wait_for_client)
         for frame in frames:
             server = servers[0]
             server.publish(frame)
@@ -151,7 +155,7 @@ def _view_live(args, stop: threading.Event) -> int:
                          rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
     server = tap = dropper = None
     try:
-        server = start_server(args.ws, quiet=args.quiet)
+        server = start_server(args.ws)
         view = server
 
         def dropped(n: int) -> None:
