@@ -167,3 +167,25 @@ def test_loop_plays_the_capture_again(tmp_path):
     assert got == want * 2
     packets = [m.message["packets"] for m in client.on("/velodyne/status")]
     assert packets == sorted(packets) and packets[-1] > 829  # counted on through the rounds
+
+
+def test_real_vlp16_dual_rosbag2(tmp_path):
+    """tier4/nebula's rosbag2 of a real VLP-16 in dual mode (the only real dual capture here)."""
+    bag = external("nebula/vlp16/1673400471837873222")
+    frames = list(lidarpkt.open(bag))
+    client = view_file(tmp_path, bag, "--rate", "4", frames_expected=len(frames), name="velodyne",
+                       labels=frames[0].return_labels)
+    check_frames(client, frames, "velodyne")
+
+
+def test_mcap_recorded_by_lidarpkt(tmp_path):
+    import subprocess
+    import sys
+
+    mcap = tmp_path / "os.mcap"
+    subprocess.run([sys.executable, "-m", "lidarpkt", "decode", str(CANNED / "os1-64-legacy.pcap"), "--metadata",
+                    str(CANNED / "os1-64-legacy.json"), "-o", str(mcap), "--topics", "packets", "-q"],
+                   check=True, timeout=120, cwd=CANNED.parents[1])
+    frames = list(lidarpkt.open(mcap))  # the metadata travels in the file
+    client = view_file(tmp_path, mcap, frames_expected=len(frames), name="ouster", labels=frames[0].return_labels)
+    check_frames(client, frames, "ouster")
