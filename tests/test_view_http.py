@@ -143,3 +143,37 @@ def test_record_takes_metadata_once_per_sensor(tmp_path):
         assert rec.stop() == 0, rec.log.read_text()
     served = [json.loads(m.data) for t, _, m in read_mcap(out) if t == "/ouster/metadata"]
     assert served == [md1, md2]
+
+
+def test_replay_takes_metadata_once_per_sensor(tmp_path):
+    """With two --metadata, the non-legacy stream (known only from its metadata) still goes to --to."""
+    from recorder.replay import read_capture
+
+    capture = CANNED / "os1-64-dual.pcap"
+    from lidarpkt.ouster import load_metadata
+
+    imu = load_metadata(str(CANNED / "os1-64-dual.json")).imu_port
+    lidar_size = {len(p.payload) for p in read_capture(str(capture))} - {48}
+    expected = sum(1 for p in read_capture(str(capture)) if len(p.payload) in lidar_size)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 16 << 20)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(2)
+    imu_port = free_udp_ports(1)[0]
+    try:
+        r = subprocess.run([sys.executable, "-m", "lidarpkt", "replay", str(capture), "--max", "--to",
+                            f"127.0.0.1:{sock.getsockname()[1]}", "--port-map", f"{imu}:{imu_port}",
+                            "--metadata", str(CANNED / "os1-64-legacy.json"), "--metadata", str(CANNED / "os1-64-dual.json")],
+                           capture_output=True, text=True, timeout=60, cwd=REPO)
+        assert r.returncode == 0, r.stderr
+        got = 0
+        try:
+            while True:
+                data = sock.recv(65535)
+                assert len(data) in lidar_size
+                got += 1
+        except TimeoutError:
+            pass
+    finally:
+        sock.close()
+    assert got == expected and "no known stream" not in r.stderr
