@@ -130,7 +130,8 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
 
     ``ouster_metadata``: one :class:`~lidarpkt.ouster.metadata.OusterMetadata` or a list (one per
-    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible. Returns :class:`ReplayStats`. Raises
+    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible.
+    Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
     port_map = port_map or {}

@@ -89,7 +89,8 @@ def test_a_sensor_that_never_answers_times_out():
         listener.close()
 
 
-@pytest.mark.parametrize("text, expected", [("10.5.6.101", ("10.5.6.101", 80)), ("os-1.local:8080", ("os-1.local", 8080)),
+@pytest.mark.parametrize("text, expected", [("10.5.6.101", ("10.5.6.101", 80)),
+                                            ("os-1.local:8080", ("os-1.local", 8080)),
                                             ("[fe80::1]:80", ("fe80::1", 80))])
 def test_parse_sensor(text, expected):
     assert parse_sensor(text) == expected
@@ -163,7 +164,8 @@ def test_replay_takes_metadata_once_per_sensor(tmp_path):
     try:
         r = subprocess.run([sys.executable, "-m", "lidarpkt", "replay", str(capture), "--max", "--to",
                             f"127.0.0.1:{sock.getsockname()[1]}", "--port-map", f"{imu}:{imu_port}",
-                            "--metadata", str(CANNED / "os1-64-legacy.json"), "--metadata", str(CANNED / "os1-64-dual.json")],
+                            "--metadata", str(CANNED / "os1-64-legacy.json"),
+                            "--metadata", str(CANNED / "os1-64-dual.json")],
                            capture_output=True, text=True, timeout=60, cwd=REPO)
         assert r.returncode == 0, r.stderr
         got = 0

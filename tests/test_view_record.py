@@ -73,7 +73,8 @@ def record_replay(tmp_path, capture, *record_args, replay_args, name="rec", view
     out, report = tmp_path / f"{name}.mcap", tmp_path / f"{name}.json"
     client = None
     with LidarpktProcess(tmp_path / f"{name}.log", "record", "--bind", "127.0.0.1", "--port", str(data),
-                         "--port", str(position), "-o", str(out), "--report", str(report), *record_args, ready="listening on") as rec:
+                         "--port", str(position), "-o", str(out), "--report", str(report), *record_args,
+                         ready="listening on") as rec:
         try:
             if view_client:
                 client = FoxgloveClient(f"ws://127.0.0.1:{rec.port_after('serving ws://')}")
