@@ -6,6 +6,8 @@ is published when the view is stopped."""
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -42,23 +44,22 @@ def check_live_frames(client: FoxgloveClient, frames: list, name: str, *, same_c
             np.testing.assert_array_equal(fields["row"], want_rows)
 
 
-def run_live(tmp_path, capture, frames, name, *, view_args, replay_args, rate="2"):
-    with LidarpktProcess(tmp_path / "view.log", "view", "--ws", "127.0.0.1:0", *view_args,
-                         ready="listening on") as view:
-        client = FoxgloveClient(f"ws://127.0.0.1:{view.port_after('serving ws://')}")
-        try:
-            with LidarpktProcess(tmp_path / "replay.log", "replay", str(capture), "--rate", rate,
-                                 *replay_args) as replay:
-                assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
-            topic = f"/{name}/points/{frames[0].return_labels[0]}"
-            # all but the last frame arrive while the stream runs; the last is released at the stop
-            assert client.wait_for(lambda c: len(c.on(topic)) >= len(frames) - 1, 60), view.log.read_text()
-            assert view.stop() == 0, view.log.read_text()
-            assert client.closed.wait(30)
-        finally:
-            client.close()
+def watch(view: LidarpktProcess, start_replay, frames, name) -> FoxgloveClient:
+    """Connect a client to ``view``, run the replay ``start_replay()`` gives (a LidarpktProcess context)
+    to its end, then stop the view (which publishes the last frame) and check what the client got."""
+    client = FoxgloveClient(f"ws://127.0.0.1:{view.port_after('serving ws://')}")
+    try:
+        with start_replay() as replay:
+            assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
+        topic = f"/{name}/points/{frames[0].return_labels[0]}"
+        # all but the last frame arrive while the stream runs; the last is released at the stop
+        assert client.wait_for(lambda c: len(c.on(topic)) >= len(frames) - 1, 60), view.log.read_text()
+        assert view.stop() == 0, view.log.read_text()
+        assert client.closed.wait(30)
+    finally:
+        client.close()
     check_live_frames(client, frames, name, same_clock=(name == "ouster"))
-    return client, view
+    return client
 
 
 def test_vlp16_dual_replayed_live(tmp_path):
@@ -67,9 +68,11 @@ def test_vlp16_dual_replayed_live(tmp_path):
     # the position packet arrives mid-stream with the capture's GPS time (months before the replay's
     # host times): live frame times keep the host clock's hour, so no frame is lost to it
     data, position = free_udp_ports(2)
-    client, view = run_live(tmp_path, capture, frames, "velodyne",
-                            view_args=["--bind", "127.0.0.1", "--port", str(data), "--port", str(position)],
-                            replay_args=["--to", f"127.0.0.1:{data}", "--port-map", f"8308:{position}"])
+    with LidarpktProcess(tmp_path / "view.log", "view", "--ws", "127.0.0.1:0", "--bind", "127.0.0.1",
+                         "--port", str(data), "--port", str(position), ready="listening on") as view:
+        client = watch(view, lambda: LidarpktProcess(
+            tmp_path / "replay.log", "replay", str(capture), "--rate", "2", "--to", f"127.0.0.1:{data}",
+            "--port-map", f"8308:{position}"), frames, "velodyne")
     statuses = [m.message for m in client.on("/velodyne/status")]
     assert statuses and statuses[-1]["frames"] == len(frames) and statuses[-1]["lost_packets"] == 0
     assert statuses[-1]["view_frames_dropped"] == 0
@@ -93,13 +96,4 @@ def test_ouster_live_with_metadata_over_http(tmp_path, capture, metadata):
         with LidarpktProcess(tmp_path / "view.log", "view", "--ws", "127.0.0.1:0", "--bind", "127.0.0.1",
                              "--sensor", f"127.0.0.1:{http}", "--port", str(lidar), "--port", str(imu),
                              ready="listening on") as view:
-            client = FoxgloveClient(f"ws://127.0.0.1:{view.port_after('serving ws://')}")
-            try:
-                assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
-                topic = f"/ouster/points/{frames[0].return_labels[0]}"
-                assert client.wait_for(lambda c: len(c.on(topic)) >= len(frames) - 1, 60), view.log.read_text()
-                assert view.stop() == 0, view.log.read_text()
-                assert client.closed.wait(30)
-            finally:
-                client.close()
-    check_live_frames(client, frames, "ouster", same_clock=True)
+            watch(view, lambda: contextlib.nullcontext(replay), frames, "ouster")  # already started: it waits
