@@ -52,6 +52,8 @@ def test_three_sensors_each_with_their_channels():
         got = client.on(f"/{name}/points/strongest")
         assert [m.message.frame_id for m in got] == [name] * 3
         assert [stamp_ns(m.message) for m in got] == [f.timestamp_ns for f in vlp]
+    cloud = client.on("/ouster/points/strongest")[0].message
+    assert cloud.pose.orientation.w == 1.0 and cloud.point_stride == 24  # points in the sensor frame itself
     tf = client.on("/ouster/transform")[0].message
     assert (tf.parent_frame_id, tf.child_frame_id, tf.rotation.w) == ("base_link", "ouster", 1.0)
     for slot, label in enumerate(ous[0].return_labels):

@@ -81,11 +81,12 @@ def frame_points(frame, slot: int, xyz: np.ndarray | None = None) -> np.ndarray:
 
 def point_cloud(frame, slot: int, frame_id: str, xyz: np.ndarray | None = None):
     """``foxglove.PointCloud`` of one return slot, stamped with the frame's sensor time."""
-    from foxglove.messages import PointCloud
+    from foxglove.messages import PointCloud, Pose, Quaternion, Vector3
 
     pts = frame_points(frame, slot, xyz)
-    return PointCloud(timestamp=timestamp(frame.timestamp_ns), frame_id=frame_id, point_stride=POINT_DTYPE.itemsize,
-                      fields=point_fields(), data=pts.tobytes())
+    origin = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    return PointCloud(timestamp=timestamp(frame.timestamp_ns), frame_id=frame_id, pose=origin,
+                      point_stride=POINT_DTYPE.itemsize, fields=point_fields(), data=pts.tobytes())
 
 
 def _display(frame, image: np.ndarray) -> np.ndarray:
