@@ -21,6 +21,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "decode": ("recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
     "record": ("recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("recorder.replay", "send a capture's packets over UDP at the original pace"),
+    "view": ("lidarpkt.view.cli", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
     "analyze": ("analysis.cli", "range CDFs, motion compensation and GMMs of chosen raypaths"),
     "multireturn": ("analysis.cli", "whole-image multi-return statistics and monitor flags"),
     "compare-returns": ("analysis.cli", "compare return slots or captures of one scene in different modes"),

@@ -28,16 +28,43 @@ from .mcap_writer import McapWriter
 from .sink import PacketSink, batch_from_packets
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags of the live receive path, shared by ``record`` and ``view``."""
     from lidarpkt import cliargs
 
     parser.add_argument("--port", type=cliargs.port_type("--port"), action="append", metavar="PORT",
                         help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
-                             "Ouster: 7502 lidar, 7503 IMU; default with --metadata: the ports it names)")
+                             "Ouster: 7502 lidar, 7503 IMU; default with --metadata/--sensor: the ports it names)")
     parser.add_argument("--bind", metavar="ADDR", help="local address to listen on (default: all, broadcast included)")
     parser.add_argument("--multicast", metavar="GROUP", help="join this IPv4 multicast group")
     parser.add_argument("--interface", metavar="IF", help="interface (name or address) for --multicast")
-    cliargs.add_metadata(parser, "Ouster sensor metadata JSON (stored in the file); one per recording")
+    cliargs.add_metadata(parser, "Ouster sensor metadata JSON (record: stored in the file); repeat, one per sensor")
+    parser.add_argument("--sensor", metavar="HOST[:PORT]",
+                        help="Ouster sensor to fetch the metadata from (GET /api/v1/sensor/metadata, port 80)")
+    parser.add_argument("--rcvbuf", type=float, default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
+    parser.add_argument("--queue", type=float, default=256, metavar="MB",
+                        help="payload megabytes allowed to wait for the writer before drops are counted (256)")
+
+
+def load_ouster_metadata(args: argparse.Namespace) -> list:
+    """The Ouster metadata of ``--metadata`` (each) and of ``--sensor`` (fetched over HTTP).
+
+    Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`RecorderError` (a sensor
+    that does not answer; the message names the host and the URL tried).
+    """
+    from lidarpkt.ouster.metadata import load_metadata
+
+    mds = [load_metadata(path) for path in (args.metadata or [])]
+    if getattr(args, "sensor", None):
+        from lidarpkt.ouster.sensor_http import fetch_metadata, parse_sensor
+
+        host, port = parse_sensor(args.sensor)
+        mds.append(fetch_metadata(host, port))
+    return mds
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_receive_arguments(parser)
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
@@ -49,9 +76,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="close an MCAP chunk every S seconds: at most that much is lost if killed (0.5)")
     parser.add_argument("--gps", metavar="PORT", help="serial port of an NMEA GPS (e.g. /dev/ttyUSB0)")
     parser.add_argument("--baud", type=int, default=9600, help="GPS baud rate (9600)")
-    parser.add_argument("--rcvbuf", type=float, default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
-    parser.add_argument("--queue", type=float, default=256, metavar="MB",
-                        help="payload megabytes allowed to wait for the writer before drops are counted (256)")
+    parser.add_argument("--points", action="store_true",
+                        help="also write PointCloud2 frames (decoded off the receive path) to the MCAP")
+    parser.add_argument("--view", action="store_true",
+                        help="serve a Foxglove live view while recording (see --ws); it never costs a packet")
+    from lidarpkt import cliargs
+    from lidarpkt.view.cli import add_ws_argument
+
+    add_ws_argument(parser)
     cliargs.add_json(parser, "also write the summary as JSON")
     parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),
                         help="old spelling of --json FILE (kept for scripts)")
@@ -74,26 +106,19 @@ def run(args: argparse.Namespace) -> int:
     from lidarpkt import cliargs
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
-    if len(args.metadata or ()) > 1:
-        raise RecorderError(f"--metadata {args.metadata[1]}: a recording stores one Ouster metadata; give one "
-                            "--metadata (record each Ouster sensor to its own file)")
     cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
     cliargs.check_json_output(args.json)
     if args.gps:
         cliargs.check_inputs([args.gps], "--gps")
-    md = None
-    if args.metadata:
-        from lidarpkt.ouster.metadata import load_metadata
-
-        md = load_metadata(args.metadata[0])
+    mds = load_ouster_metadata(args)
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, stop)
-    capture = gps = writer = None
+    capture = gps = writer = frames = None
     try:
-        ports = args.port or ([md.lidar_port, md.imu_port] if md is not None else [])
+        ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
         capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
         if args.gps:  # opened before the file, so that a wrong port leaves no empty recording
@@ -101,10 +126,14 @@ def run(args: argparse.Namespace) -> int:
 
             gps = GpsReader(args.gps, args.baud)
             gps.start()
+        if args.points or args.view:  # before the file: a view that cannot serve leaves no empty recording
+            from .frames import LiveFrames
+
+            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None)
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
                             rotate_seconds=args.rotate_time)
-        sink = PacketSink(writer, ouster_metadata=md, log_time_ns=time.time_ns())
+        sink = PacketSink(writer, ouster_metadata=mds or None, log_time_ns=time.time_ns())
         granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
         # printed even with --quiet: it says the recorder is ready (scripts wait for it)
         print(f"lidarpkt record: listening on {capture.bind_address} port(s) "
@@ -112,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
               f"{capture.stats.rcvbuf_requested / (1 << 20):.0f} MiB, granted {granted}; writing {args.output}",
               file=sys.stderr, flush=True)
         capture.start()
-        return _loop(args, capture, writer, sink, gps, stop)
+        return _loop(args, capture, writer, sink, gps, stop, frames)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -120,6 +149,8 @@ def run(args: argparse.Namespace) -> int:
             gps.close()
         if capture is not None:
             capture.close()
+        if frames is not None:
+            frames.close()
         if writer is not None:
             try:
                 writer.close()
@@ -127,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
                 pass  # the error that stopped the loop is the one reported
 
 
-def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag) -> int:
+def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag, frames=None) -> int:
     start = time.monotonic()
     last_status = start
     last_packets = 0
@@ -147,8 +178,12 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         elif last_rx is not None and not silent and now - last_rx > 1.0:
             silent = True  # the sensor stopped, restarted or was unplugged: keep recording
             _notice(f"no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); still listening")
-        for batch in batch_from_packets(items):
+        batches = batch_from_packets(items)
+        for batch in batches:
             sink.push(batch)
+        if frames is not None:  # after the packets are written; never waits (see recorder.frames)
+            frames.offer(batches)
+            frames.write_points(writer)
         for note in sink.notes[notes_shown:]:
             _notice(f"note: {note}")
         notes_shown = len(sink.notes)
@@ -165,6 +200,8 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
             reason = f"duration {args.duration:g} s"
         elif args.frames is not None and sink.frames >= args.frames:
             reason = f"{args.frames} frames"
+        if frames is not None:
+            frames.tick(_lost_total(capture, sink))
         if now - last_status >= 1.0 and not args.quiet:
             rate = (sink.packets - last_packets) / (now - last_status)
             last_packets, last_status = sink.packets, now
@@ -177,8 +214,13 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         items = capture.drain(timeout=0.0, max_items=65536)
         if not items:
             break
-        for batch in batch_from_packets(items):
+        batches = batch_from_packets(items)
+        for batch in batches:
             sink.push(batch)
+        if frames is not None:
+            frames.offer(batches)
+    if frames is not None:
+        frames.finish(writer)  # decodes what is queued and the last partial frames, writes their points
     if gps is not None:
         gps.close()
         _write_gps(writer, gps)
@@ -186,6 +228,8 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     writer.close()
     elapsed = time.monotonic() - start
     summary = _summary(capture, writer, sink, gps, elapsed, reason)
+    if frames is not None:
+        summary.update(frames.summary())
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
     if args.json == "-":
@@ -215,6 +259,11 @@ def _lost(capture: UdpCapture, sink: PacketSink) -> str:
     return f"{sink.lost} (gaps) + {s.kernel_dropped} (kernel) + {s.queue_overflow} (queue)"
 
 
+def _lost_total(capture: UdpCapture, sink: PacketSink) -> int:
+    s = capture.stats
+    return max(sink.lost, s.kernel_dropped + s.queue_overflow)
+
+
 def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> dict:
     s = capture.stats
     return {
@@ -233,7 +282,7 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "queue_overflow": s.queue_overflow,
         # datagrams dropped here (kernel, queue) leave gaps in the stream counters too: counting both
         # would count them twice; gaps beyond the local drops were lost before reaching this machine
-        "lost_total": max(sink.lost, s.kernel_dropped + s.queue_overflow),
+        "lost_total": _lost_total(capture, sink),
         "rcvbuf_requested": s.rcvbuf_requested,
         "rcvbuf_granted": {str(k): v for k, v in s.rcvbuf_granted.items()},
         "gps_sentences": gps.sentences if gps is not None else 0,
@@ -262,5 +311,11 @@ def _summary_text(d: dict, sink: PacketSink) -> str:
                      "in its own counters: stopped, restarted or unplugged); recording went on")
     if d["gps_sentences"] or d["gps_bad_checksum"]:
         lines.append(f"  GPS: {d['gps_sentences']} sentences, {d['gps_bad_checksum']} rejected (bad checksum)")
+    if "frames_decoded" in d:
+        lines.append(f"  frames decoded off the receive path: {d['frames_decoded']}, {d['points_frames_written']} "
+                     f"written as points, {d['view_frames_dropped']} dropped for the view, "
+                     f"{d['packets_not_decoded']} packets not decoded (decoding fell behind; all were recorded)")
+        if d.get("frames_error"):
+            lines.append(f"  decoding for the view/points failed on some frames: {d['frames_error']}")
     return "\n".join(lines + sink.report_lines())
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import socket
 import sys
 import time
@@ -42,7 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
     cliargs.add_metadata(parser, "Ouster metadata JSON, to recognise the lidar packets exactly (without it they are "
-                                 "recognised as `lidarpkt info` does; MCAP files carry their own)")
+                                 "recognised as `lidarpkt info` does; MCAP files carry their own); repeat, one per "
+                                 "sensor")
+    parser.add_argument("--http", metavar="HOST:PORT",
+                        help="also serve the (first) --metadata at GET /api/v1/sensor/metadata there, as the "
+                             "sensor does (for record/view --sensor)")
+    parser.add_argument("--start-after-fetch", type=float, metavar="S",
+                        help="with --http: send nothing until the metadata has been fetched, then start S seconds "
+                             "later (the client opens its sockets after fetching)")
     cliargs.add_quiet(parser, "no summary")
 
 
@@ -128,10 +136,16 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
            clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
     """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
 
-    ``rate`` None = as fast as possible. Returns :class:`ReplayStats`. Raises
+    ``ouster_metadata``: one :class:`~lidarpkt.ouster.metadata.OusterMetadata` or a list (one per
+    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible.
+    Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
     port_map = port_map or {}
+    if isinstance(ouster_metadata, (list, tuple)):
+        mds = list(ouster_metadata) or [None]
+    else:
+        mds = [ouster_metadata]
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
@@ -150,8 +164,9 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             orig = p.dst.port if p.dst is not None else None
             out_port = kind_port.get((size, orig))
             if out_port is None:
-                kind = streams.classify_size(size, ouster_metadata)
-                if kind == streams.OTHER and ouster_metadata is None and _ouster_lidar_by_header(p):
+                kinds = [streams.classify_size(size, md) for md in mds]
+                kind = next((k for k in kinds if k != streams.OTHER), streams.OTHER)
+                if kind == streams.OTHER and mds == [None] and _ouster_lidar_by_header(p):
                     kind = streams.OUSTER_LIDAR  # as `lidarpkt info` recognises it without metadata
                 if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR):
                     out_port = port
@@ -209,30 +224,55 @@ def run(args: argparse.Namespace) -> int:
     port_map = parse_port_map(args.port_map)
     cliargs.check_inputs([args.file])
     cliargs.check_inputs(args.metadata or (), "--metadata")
-    if len(args.metadata or ()) > 1:
-        raise RecorderError(f"--metadata {args.metadata[1]}: replay takes one Ouster metadata (its lidar stream goes "
-                            "to --to); give one --metadata")
-    md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
-        md = load_metadata(args.metadata[0])
+        mds = [load_metadata(path) for path in args.metadata]
     else:
-        md = embedded_metadata(args.file)
+        mds = [md] if (md := embedded_metadata(args.file)) is not None else []
     if not args.max and not args.rate > 0:
         raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
+    http = None
+    if args.http:
+        if not mds:
+            raise RecorderError(f"--http {args.http}: there is no Ouster metadata to serve; give --metadata M.json")
+        from lidarpkt.ouster.sensor_http import MetadataHttpServer, parse_sensor
+
+        http_host, http_port = parse_sensor(args.http, "--http")
+        http = MetadataHttpServer(json.dumps(mds[0].raw), http_host, http_port)
+        # printed even with --quiet: scripts wait for it before starting the client
+        print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
+              "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
+    elif args.start_after_fetch is not None:
+        raise RecorderError("--start-after-fetch: it needs --http HOST:PORT; give both or neither")
     import signal
     import threading
 
     previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+    try:
+        if http is not None and args.start_after_fetch is not None:
+            try:
+                http.fetched.wait()
+            except KeyboardInterrupt:
+                return 0
+            time.sleep(args.start_after_fetch)
+        return _replay_rounds(args, host, port, port_map, mds)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+        if http is not None:
+            http.close()
+
+
+def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: list) -> int:
     rate = None if args.max else args.rate
     rounds = itertools.count() if args.loop else range(1)
     total = ReplayStats(per_port={})
     try:
         for _ in rounds:
-            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=md)
+            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=mds)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
@@ -246,9 +286,6 @@ def run(args: argparse.Namespace) -> int:
                 raise LidarpktError(f"{args.file}: holds no UDP packets to replay; check it with lidarpkt info")
     except KeyboardInterrupt:
         pass
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
     if not args.quiet:
         ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
         print(f"lidarpkt replay: {'interrupted; ' if total.interrupted else ''}sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "

@@ -56,7 +56,9 @@ class PacketSink:
     Args:
         writer: the MCAP output.
         ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of the Ouster sensor,
-            if any (needed for non-legacy profiles and for Ouster loss accounting).
+            if any (needed for non-legacy profiles and for Ouster loss accounting), or a list of
+            them, one per sensor: a batch uses the one whose lidar or IMU port is its
+            destination port, else the first.
         max_scan_packets: bound on one ``VelodyneScan`` (memory stays bounded if the
             azimuth never wraps).
     """
@@ -64,19 +66,30 @@ class PacketSink:
     def __init__(self, writer: McapWriter, *, ouster_metadata=None, max_scan_packets: int = 2000,
                  log_time_ns: int | None = None) -> None:
         self.writer = writer
-        self.ouster_metadata = ouster_metadata
+        if isinstance(ouster_metadata, (list, tuple)):
+            self._ouster_mds = list(ouster_metadata)
+        else:
+            self._ouster_mds = [ouster_metadata] if ouster_metadata is not None else []
+        self.ouster_metadata = self._ouster_mds[0] if self._ouster_mds else None  # the first sensor's
         self.max_scan_packets = max_scan_packets
         self.streams: dict[tuple, StreamReport] = {}
         self._trackers: dict[tuple, object] = {}
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
-        if ouster_metadata is not None:
-            self._write_ouster_metadata(log_time_ns or 0)
+        for md in self._ouster_mds:
+            self._write_ouster_metadata(md, log_time_ns or 0)
+
+    def _metadata_for(self, batch: PacketBatch):
+        """The Ouster metadata of the sensor sending ``batch`` (by destination port), else the first."""
+        if len(self._ouster_mds) > 1 and batch.dst is not None:
+            for md in self._ouster_mds:
+                if batch.dst.port in (md.lidar_port, md.imu_port):
+                    return md
+        return self.ouster_metadata
 
     # ----------------------------------------------------------------- metadata
-    def _write_ouster_metadata(self, log_time_ns: int) -> None:
-        md = self.ouster_metadata
+    def _write_ouster_metadata(self, md, log_time_ns: int) -> None:
         text = json.dumps(md.raw)
         self.writer.write_latched(schemas.OUSTER_METADATA, schemas.encode(
             schemas.STRING, schemas.typestore().types[schemas.STRING](data=text)), log_time_ns)
@@ -109,13 +122,14 @@ class PacketSink:
         n = len(batch)
         if n == 0:
             return
-        kind = streams.classify_size(batch.payload_size, self.ouster_metadata)
+        md = self._metadata_for(batch)
+        kind = streams.classify_size(batch.payload_size, md)
         key = (kind, batch.src, batch.dst, batch.payload_size)
         rep = self.streams.get(key)
         if rep is None:
             rep = self.streams[key] = StreamReport(kind, str(batch.src), str(batch.dst), batch.payload_size)
             where = f"{batch.payload_size}-byte packets from {batch.src} to {batch.dst}"
-            if kind == streams.OUSTER_LIDAR and self.ouster_metadata is None:
+            if kind == streams.OUSTER_LIDAR and md is None:
                 self.notes.append(f"{where} look like Ouster LEGACY lidar packets; without --metadata they are "
                                   "recorded but not checked for loss nor counted as frames")
             elif kind == streams.OTHER:
@@ -125,10 +139,10 @@ class PacketSink:
         if kind == streams.VELODYNE_DATA:
             self._push_velodyne(key, rep, batch)
             return
-        if kind == streams.OUSTER_LIDAR and self.ouster_metadata is not None:
+        if kind == streams.OUSTER_LIDAR and md is not None:
             tracker = self._trackers.get(key)
             if tracker is None:
-                tracker = self._trackers[key] = streams.OusterLoss(self.ouster_metadata)
+                tracker = self._trackers[key] = streams.OusterLoss(md)
             tracker.update(batch.payload)
             rep.count = tracker.count
         else:  # no layout to find gaps in: counted only

@@ -1,0 +1,204 @@
+"""``lidarpkt view [SOURCE]``: see a capture or a live sensor in Foxglove (Open connection → ws://localhost:8765).
+
+With SOURCE (pcap/pcapng, MCAP, ROS bag) the frames of ``lidarpkt.open`` are published at the
+capture's own pace (``--rate``, ``--loop``) once a client has subscribed, and the view keeps
+serving after the end until interrupted. Without SOURCE it receives a live sensor with the
+flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multicast``,
+``--metadata``, ``--sensor``); decoding and publishing run off the receive path (see
+:mod:`lidarpkt.view.tap`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from recorder.record import add_receive_arguments
+
+    parser.add_argument("source", nargs="?", metavar="SOURCE",
+                        help="capture to show (pcap/pcapng, MCAP, ROS bag); without it, a live sensor")
+    add_ws_argument(parser)
+    parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
+    parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
+    add_receive_arguments(parser)
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no status lines")
+
+
+def add_ws_argument(parser: argparse.ArgumentParser) -> None:
+    """``--ws HOST:PORT``, shared with ``record --view``."""
+    parser.add_argument("--ws", default="127.0.0.1:8765", metavar="HOST:PORT",
+                        help="address of the Foxglove WebSocket server (127.0.0.1:8765; port 0 = any free port)")
+
+
+def start_server(ws: str, *, verb: str = "view"):
+    """A :class:`~lidarpkt.view.server.ViewServer` on ``--ws``; says where to connect (even with
+    ``--quiet``: scripts wait for that line)."""
+    from .server import ViewServer, parse_ws
+
+    host, port = parse_ws(ws)
+    server = ViewServer(host, port)
+    shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::", "::1") else host
+    print(f"lidarpkt {verb}: serving ws://{host}:{server.port} (Foxglove: Open connection → "
+          f"ws://{shown}:{server.port})", file=sys.stderr, flush=True)
+    return server
+
+
+class _Stop:
+    """SIGINT/SIGTERM set it; the loops finish cleanly."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.previous[sig] = signal.signal(sig, self)
+
+    def __call__(self, signum, _frame) -> None:
+        self.event.set()
+
+    def restore(self) -> None:
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+
+
+def run(args: argparse.Namespace) -> int:
+    from lidarpkt.errors import LidarpktError
+
+    if args.source is not None and (args.port or args.bind or args.multicast or args.sensor):
+        raise LidarpktError(f"--port/--bind/--multicast/--sensor: not with SOURCE {args.source}; view either a "
+                            "capture or a live sensor")
+    from .server import parse_ws
+
+    parse_ws(args.ws)  # a wrong flag is an error before any work
+    if args.source is not None and args.rate <= 0:
+        raise LidarpktError(f"--rate must be positive, got {args.rate}")
+    stop = _Stop()
+    try:
+        if args.source is not None:
+            return _view_capture(args, stop.event)
+        return _view_live(args, stop.event)
+    finally:
+        stop.restore()
+
+
+def _deadline(args) -> float:
+    return time.monotonic() + args.duration if args.duration is not None else float("inf")
+
+
+def _view_capture(args, stop: threading.Event) -> int:
+    from .sources import play_capture
+
+    deadline = _deadline(args)
+    readers = []
+    counted = [0]
+    servers = []  # started at the first frame: a capture that cannot be read is an error before any serving
+
+    def new_round(reader) -> None:  # each round of --loop reads the capture again, counting from 0
+        readers.append(reader)
+        counted[0] = 0
+
+    def wait_for_client(first) -> None:
+        servers.append(start_server(args.ws))
+        servers[0].sensor_name(first)  # advertise its channels, then wait until somebody looks
+        if not args.quiet:
+            print("lidarpkt view: waiting for a client to subscribe", file=sys.stderr, flush=True)
+        while not servers[0].wait_for_subscriber(0.1) and not stop.is_set() and time.monotonic() < deadline:
+            pass
+
+    try:
+        last_status = time.monotonic()
+        frames = play_capture(args.source, metadata=args.metadata or None, rate=args.rate, loop=args.loop,
+                              stop=stop, on_reader=new_round, before_first=wait_for_client)
+        for frame in frames:
+            server = servers[0]
+            server.publish(frame)
+            reader = readers[-1]
+            server.count_packets(str(frame.sensor.source), reader.stats.packets - counted[0])
+            counted[0] = reader.stats.packets
+            if time.monotonic() - last_status >= 1.0:
+                last_status = time.monotonic()
+                _status_line(server.publish_status(), args.quiet)
+            if time.monotonic() >= deadline:
+                stop.set()
+        if not servers:  # no frame at all (lidarpkt.open raised otherwise)
+            from lidarpkt.errors import LidarpktError
+
+            raise LidarpktError(f"{args.source}: no frame to show; check it with lidarpkt info")
+        if not stop.is_set() and time.monotonic() < deadline and not args.quiet:
+            print(f"lidarpkt view: end of {args.source} ({servers[0].frames_published} frames); still serving, "
+                  "Ctrl-C to stop", file=sys.stderr, flush=True)
+        while not stop.wait(1.0) and time.monotonic() < deadline:
+            servers[0].publish_status()
+    finally:
+        for server in servers:
+            server.close()
+    return 0
+
+
+def _view_live(args, stop: threading.Event) -> int:
+    from recorder.capture import UdpCapture
+    from recorder.record import load_ouster_metadata
+    from recorder.sink import batch_from_packets
+
+    from .sources import LiveDecoder
+    from .tap import FrameDropper, FrameTap
+
+    mds = load_ouster_metadata(args)
+    ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
+    capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
+                         rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
+    server = tap = dropper = None
+    try:
+        server = start_server(args.ws)
+        view = server
+
+        def dropped(n: int) -> None:
+            view.frames_dropped = n
+
+        dropper = FrameDropper(server.publish, on_drop=dropped)
+        tap = FrameTap(LiveDecoder(mds), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
+        print(f"lidarpkt view: listening on {capture.bind_address} port(s) {', '.join(map(str, capture.ports))}",
+              file=sys.stderr, flush=True)
+        capture.start()
+        deadline = _deadline(args)
+        last_status = time.monotonic()
+        while not stop.is_set() and time.monotonic() < deadline:
+            tap.offer(batch_from_packets(capture.drain(timeout=0.05)))
+            if time.monotonic() - last_status >= 1.0:
+                last_status = time.monotonic()
+                _status_line(server.publish_status(), args.quiet)
+        capture.stop()
+        while items := capture.drain(timeout=0.0, max_items=65536):
+            tap.offer(batch_from_packets(items))
+    finally:
+        capture.close()
+        if tap is not None:
+            tap.close()
+        if dropper is not None:
+            dropper.close()
+        if server is not None:
+            server.publish_status()
+            server.close()
+    _report_errors(tap, dropper)
+    return 0
+
+
+def _report_errors(tap, dropper) -> None:
+    for what, err in (("decoding", tap.error if tap else None), ("publishing", dropper.error if dropper else None)):
+        if err is not None:
+            print(f"lidarpkt view: warning: {what} failed for some frames: {err}", file=sys.stderr)
+
+
+def _status_line(statuses: list[dict], quiet: bool) -> None:
+    if quiet:
+        return
+    for s in statuses:
+        print(f"lidarpkt view: {s['sensor']}: {s['packets_per_s']:.0f} pkt/s, {s['frames_per_s']:.1f} frames/s, "
+              f"lost {s['lost_packets']}, {s['frames']} frames, {s['view_frames_dropped']} dropped for the view",
+              file=sys.stderr, flush=True)

@@ -1,0 +1,119 @@
+"""Frames as Foxglove messages: ``foxglove.PointCloud``, ``foxglove.RawImage``, ``foxglove.FrameTransform``.
+
+Pure functions, no server: the schema classes are foxglove-sdk's own (``foxglove.messages``).
+
+Point cloud of one return slot (one message per slot): only the pixels with a return
+(``range_mm > 0`` in a valid column), in frame order (row-major over ``[H, W]``, Ouster
+columns staggered as on the wire), so no point sits on the sensor's origin. Each point is
+:data:`POINT_DTYPE` (24 bytes, little-endian):
+
+=============  =======  =================================================================
+field          type     meaning
+=============  =======  =================================================================
+x, y, z        float32  metres, ``Frame.xyz()`` (the reference tools' sensor frame)
+range          uint32   millimetres, ``Frame.range_mm``
+reflectivity   uint16   the sensor's reflectivity
+row            uint16   image row (0 = top beam)
+return         uint8    return slot (index into ``Frame.return_labels``)
+=============  =======  =================================================================
+
+Images (one pair per slot): range as ``32FC1`` in metres (0 = no return) and reflectivity as
+``mono8`` (VLP-16) or ``mono16``; Ouster images are destaggered for display.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+POINT_DTYPE = np.dtype({
+    "names": ["x", "y", "z", "range", "reflectivity", "row", "return"],
+    "formats": ["<f4", "<f4", "<f4", "<u4", "<u2", "<u2", "u1"],
+    "offsets": [0, 4, 8, 12, 16, 18, 20],
+    "itemsize": 24,
+})
+
+BASE_FRAME = "base_link"  # parent of every sensor frame in the view's transforms
+
+
+def _numeric_types() -> dict:
+    from foxglove.messages import PackedElementFieldNumericType as T
+
+    return {np.dtype("<f4"): T.Float32, np.dtype("<u4"): T.Uint32, np.dtype("<u2"): T.Uint16,
+            np.dtype("u1"): T.Uint8}
+
+
+def point_fields() -> list:
+    """The ``PackedElementField`` list of :data:`POINT_DTYPE`."""
+    from foxglove.messages import PackedElementField
+
+    types = _numeric_types()
+    return [PackedElementField(name=name, offset=POINT_DTYPE.fields[name][1], type=types[POINT_DTYPE.fields[name][0]])
+            for name in POINT_DTYPE.names]
+
+
+def timestamp(ns: int):
+    """``foxglove.messages.Timestamp`` of an int64 ns time since the epoch."""
+    from foxglove.messages import Timestamp
+
+    return Timestamp(int(ns) // 1_000_000_000, int(ns) % 1_000_000_000)
+
+
+def frame_points(frame, slot: int, xyz: np.ndarray | None = None) -> np.ndarray:
+    """``POINT_DTYPE[N]``: the returns of ``frame``'s slot ``slot`` (see the module doc).
+
+    ``xyz`` is ``frame.xyz()`` (float ``[R, H, W, 3]``, metres) when already computed.
+    Raises :class:`lidarpkt.errors.CalibrationError` when the sensor has no geometry.
+    """
+    if xyz is None:
+        xyz = frame.xyz()
+    rng = frame.range_mm[slot]
+    hit = (rng > 0) & np.asarray(frame.column_valid, bool)[None, :]
+    rows, _cols = np.nonzero(hit)
+    pts = np.empty(rows.size, POINT_DTYPE)
+    sel = xyz[slot][hit]
+    pts["x"], pts["y"], pts["z"] = sel[:, 0], sel[:, 1], sel[:, 2]
+    pts["range"] = rng[hit]
+    pts["reflectivity"] = frame.reflectivity[slot][hit]
+    pts["row"] = rows
+    pts["return"] = slot
+    return pts
+
+
+def point_cloud(frame, slot: int, frame_id: str, xyz: np.ndarray | None = None):
+    """``foxglove.PointCloud`` of one return slot, stamped with the frame's sensor time."""
+    from foxglove.messages import PointCloud, Pose, Quaternion, Vector3
+
+    pts = frame_points(frame, slot, xyz)
+    origin = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    return PointCloud(timestamp=timestamp(frame.timestamp_ns), frame_id=frame_id, pose=origin,
+                      point_stride=POINT_DTYPE.itemsize, fields=point_fields(), data=pts.tobytes())
+
+
+def _display(frame, image: np.ndarray) -> np.ndarray:
+    return frame.destaggered(image) if frame.sensor.vendor == "ouster" else image
+
+
+def images(frame, slot: int, frame_id: str) -> tuple:
+    """``(range, reflectivity)`` ``foxglove.RawImage`` of one return slot (see the module doc)."""
+    from foxglove.messages import RawImage
+
+    h, w = frame.shape[1:]
+    stamp = timestamp(frame.timestamp_ns)
+    range_m = np.ascontiguousarray(_display(frame, frame.range_mm[slot]).astype("<f4") * np.float32(1e-3))
+    refl = _display(frame, frame.reflectivity[slot])
+    if refl.dtype.itemsize == 1:
+        refl, encoding = np.ascontiguousarray(refl, np.uint8), "mono8"
+    else:
+        refl, encoding = np.ascontiguousarray(refl, "<u2"), "mono16"
+    return (RawImage(timestamp=stamp, frame_id=frame_id, width=w, height=h, encoding="32FC1", step=4 * w,
+                     data=range_m.tobytes()),
+            RawImage(timestamp=stamp, frame_id=frame_id, width=w, height=h, encoding=encoding,
+                     step=refl.itemsize * w, data=refl.tobytes()))
+
+
+def transform(frame, frame_id: str, parent: str = BASE_FRAME):
+    """``foxglove.FrameTransform`` placing the sensor frame at the origin of ``parent`` (identity)."""
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    return FrameTransform(timestamp=timestamp(frame.timestamp_ns), parent_frame_id=parent, child_frame_id=frame_id,
+                          translation=Vector3(x=0.0, y=0.0, z=0.0), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))

@@ -1,0 +1,130 @@
+"""Where the view's frames come from: a capture played at its own pace, or live packet batches.
+
+* :func:`play_capture`: ``lidarpkt.open``'s frames, released at the pace of their sensor
+  timestamps divided by ``rate`` (optionally looping).
+* :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
+  routed to one frame decoder per sensor, as ``lidarpkt.open`` routes a capture's:
+  VLP-16 streams by their packets, Ouster streams by the metadata given.
+
+Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
+as the ROS driver stamps them; position packets are counted but not used for it: a GPS fix
+arriving mid-stream whose time disagrees with the host clock (no NTP, or a replayed capture)
+would move the decoder's clock back and every later packet would be dropped as late.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from typing import Iterator
+
+from lidarpkt.frame import Frame
+from lidarpkt.packet import PacketBatch
+
+
+def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1.0, loop: bool = False,
+                 stop: threading.Event | None = None, on_reader=None, before_first=None,
+                 **options) -> Iterator[Frame]:
+    """Frames of a capture (``lidarpkt.open(path, metadata=metadata, **options)``) at their own pace.
+
+    A frame is yielded once ``(its timestamp_ns − the first's) / rate`` seconds have passed since
+    the start of the round; ``loop`` starts again at the end until ``stop`` is set (``stop`` also
+    ends the wait between frames). ``on_reader(reader)`` sees each round's
+    :class:`lidarpkt.source.FrameReader` (for its packet counts); ``before_first(frame)`` is
+    called with the very first frame before the clock starts (to wait for a viewer).
+
+    Raises what ``lidarpkt.open`` raises; :class:`lidarpkt.errors.LidarpktError` if ``rate`` ≤ 0.
+    """
+    import lidarpkt
+    from lidarpkt.errors import LidarpktError
+
+    if not rate > 0:
+        raise LidarpktError(f"--rate must be positive, got {rate}")
+    stop = stop or threading.Event()
+    while not stop.is_set():
+        t0 = None
+        start = time.monotonic()
+        frames = 0
+        with lidarpkt.open(path, metadata=metadata, **options) as reader:
+            if on_reader is not None:
+                on_reader(reader)
+            for frame in reader:
+                if t0 is None:
+                    if before_first is not None:
+                        before_first(frame)
+                        before_first = None
+                    t0 = frame.timestamp_ns
+                    start = time.monotonic()
+                ahead = (frame.timestamp_ns - t0) / 1e9 / rate - (time.monotonic() - start)
+                if ahead > 0 and stop.wait(ahead):
+                    return
+                if stop.is_set():
+                    return
+                frames += 1
+                yield frame
+        if not loop or frames == 0:
+            return
+
+
+class LiveDecoder:
+    """Packet batches (one stream and payload size each, arrival order) → frames, per sensor.
+
+    Args:
+        ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of each Ouster sensor
+            (none for VLP-16 only).
+        max_sensors: most sensors (source addresses) decoded; packets of more are counted in
+            :attr:`unrouted_packets`.
+
+    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on.
+    """
+
+    def __init__(self, ouster_metadata=(), *, max_sensors: int = 16) -> None:
+        self.ouster_metadata = list(ouster_metadata or ())
+        self.max_sensors = max_sensors
+        self.decoders: dict[tuple, object] = {}
+        self.unrouted_packets = 0
+        self.position_packets = 0  # VLP-16 position packets seen (not used for the time: module doc)
+
+    def push(self, batch: PacketBatch) -> list[Frame]:
+        """Decode one batch; returns the frames it completed."""
+        from lidarpkt import ouster, velodyne
+
+        src = str(batch.src) if batch.src is not None else "unknown source"
+        if self.ouster_metadata:
+            match = ouster.classify(batch, self.ouster_metadata)
+            if match is not None:
+                kind, md = match
+                decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(md, source=src))
+                if decoder is None:
+                    self.unrouted_packets += len(batch)
+                    return []
+                if kind == "lidar":
+                    return decoder.push(batch)
+                decoder.push_imu(batch)
+                return []
+        kind = velodyne.classify(batch)
+        if kind is None:
+            self.unrouted_packets += len(batch)
+            return []
+        if kind == "position":
+            self.position_packets += len(batch)
+            return []
+        decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(source=src))
+        if decoder is None:
+            self.unrouted_packets += len(batch)
+            return []
+        return decoder.push(batch)
+
+    def _decoder(self, key: tuple, make):
+        decoder = self.decoders.get(key)
+        if decoder is None and len(self.decoders) < self.max_sensors:
+            decoder = self.decoders[key] = make()
+        return decoder
+
+    def finish(self) -> list[Frame]:
+        """The frames still being assembled (the last, partial ones)."""
+        out: list[Frame] = []
+        for decoder in self.decoders.values():
+            out += decoder.finish()
+        return out

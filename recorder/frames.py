@@ -1,0 +1,117 @@
+"""Frames while recording: ``record --points`` and ``record --view``, decoded off the receive path.
+
+:class:`LiveFrames` gets the batches the recorder has just written (:meth:`LiveFrames.offer`
+never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
+then goes, as chosen, to
+
+* ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`recorder.pointcloud`),
+  encoded in the decoding thread and written by the recorder's loop
+  (:meth:`LiveFrames.write_points`: the MCAP writer is used from one thread only); log time =
+  host receive time of the last packet of the batch that completed the frame;
+* ``--view``: the Foxglove server, through a :class:`lidarpkt.view.tap.FrameDropper` that
+  drops frames for the viewer (counted) when publishing falls behind.
+
+If decoding falls behind, batches are dropped for the frames (counted in the summary as
+``packets_not_decoded``); the packets themselves are already in the file.
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+
+from . import schemas
+
+
+class LiveFrames:
+    """Off-path frame decoding for points and view (see the module doc).
+
+    Args:
+        ouster_metadata: metadata of each Ouster sensor (list, possibly empty).
+        points: encode PointCloud2 messages for the MCAP.
+        ws: ``--ws HOST:PORT`` of the view server, ``None`` for no view.
+        queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
+
+    Raises:
+        lidarpkt.view.server.ViewError: the view server cannot start.
+    """
+
+    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20) -> None:
+        from lidarpkt.view.sources import LiveDecoder
+        from lidarpkt.view.tap import FrameDropper, FrameTap
+
+        self.view = self.dropper = None
+        self._last_status = time.monotonic()
+        self.points_frames = 0
+        self._points: queue.SimpleQueue = queue.SimpleQueue()
+        consumers = []
+        if points:
+            consumers.append(self._encode_points)
+        if ws is not None:
+            from lidarpkt.view.cli import start_server
+
+            self.view = start_server(ws, verb="record")
+            view = self.view
+
+            def dropped(n: int) -> None:
+                view.frames_dropped = n
+
+            self.dropper = FrameDropper(view.publish, on_drop=dropped)
+            consumers.append(self.dropper)
+        on_batch = (lambda b: view.count_packets(str(b.src), len(b))) if self.view is not None else None
+        self.tap = FrameTap(LiveDecoder(ouster_metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
+
+    def _encode_points(self, frame) -> None:  # runs in the tap's thread
+        from .pointcloud import pointcloud_messages
+
+        t = self.tap.host_time_ns
+        encoded = [(topic, schemas.encode(topic.msgtype, msg)) for topic, msg in pointcloud_messages(frame)]
+        for topic, data in encoded:
+            self._points.put((topic, data, t))
+        self.points_frames += 1
+
+    def offer(self, batches: list) -> None:
+        """Hand the batches just written over for decoding; never waits."""
+        self.tap.offer(batches)
+
+    def write_points(self, writer) -> None:
+        """Write the point clouds encoded so far (call from the thread that owns ``writer``)."""
+        while True:
+            try:
+                topic, data, t = self._points.get_nowait()
+            except queue.Empty:
+                return
+            writer.write(topic, data, t)
+
+    def tick(self, lost_packets: int) -> None:
+        """Publish the view's status once a second (call often); ``lost_packets`` = the recorder's count."""
+        now = time.monotonic()
+        if self.view is not None and now - self._last_status >= 1.0:
+            self._last_status = now
+            self.view.publish_status(lost_packets)
+
+    def finish(self, writer) -> None:
+        """Decode what is queued and the last partial frames; write their points; publish the last frames."""
+        self.tap.close()
+        if self.dropper is not None:
+            self.dropper.close()
+        self.write_points(writer)
+
+    def close(self) -> None:
+        """Stop the threads and the view server. Idempotent."""
+        self.tap.close()
+        if self.dropper is not None:
+            self.dropper.close()
+        if self.view is not None:
+            self.view.close()
+
+    def summary(self) -> dict:
+        """Counts for the recorder's summary."""
+        error = self.tap.error or (self.dropper.error if self.dropper is not None else None)
+        return {
+            "frames_decoded": self.tap.frames,
+            "points_frames_written": self.points_frames,
+            "view_frames_dropped": self.dropper.dropped if self.dropper is not None else 0,
+            "packets_not_decoded": self.tap.dropped_packets,
+            "frames_error": str(error) if error is not None else None,
+        }
