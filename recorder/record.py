@@ -64,6 +64,9 @@ def load_ouster_metadata(args: argparse.Namespace) -> list:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from lidarpkt import cliargs
+    from lidarpkt.view.cli import add_ws_argument
+
     add_receive_arguments(parser)
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
@@ -80,9 +83,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write PointCloud2 frames (decoded off the receive path) to the MCAP")
     parser.add_argument("--view", action="store_true",
                         help="serve a Foxglove live view while recording (see --ws); it never costs a packet")
-    from lidarpkt import cliargs
-    from lidarpkt.view.cli import add_ws_argument
-
     add_ws_argument(parser)
     cliargs.add_json(parser, "also write the summary as JSON")
     parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),

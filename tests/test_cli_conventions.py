@@ -68,6 +68,12 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("replay-port-range", ["replay", vlp10, "--to", "127.0.0.1:80000"], "--to 127.0.0.1:80000", []),
         ("replay-port-map", ["replay", vlp10, "--to", "127.0.0.1:2368", "--port-map", "8308:0"], "--port-map", []),
         ("replay-rate", ["replay", vlp10, "--to", "127.0.0.1:2368", "--rate", "0"], "--rate", []),
+        # view
+        ("view-missing", ["view", missing, "--ws", "127.0.0.1:0"], "no such file or directory", []),
+        ("view-ws-port", ["view", vlp10, "--ws", "127.0.0.1:80000"], "--ws", []),
+        ("view-rate", ["view", vlp10, "--ws", "127.0.0.1:0", "--rate", "0"], "--rate 0", []),
+        ("view-metadata-missing", ["view", vlp10, "--metadata", str(tmp / "m.json")], "--metadata", []),
+        ("view-port-range", ["view", "--port", "80000"], "--port 80000", []),
         # analyze
         ("analyze-missing", ["analyze", missing, "--pixel", "7,100"], "no such file or directory", []),
         ("analyze-pixel-negative", ["analyze", vlp, "--pixel", "-1,5"], "--pixel -1,5", []),

@@ -108,7 +108,7 @@ def test_bad_ws_flag_is_one_line_error(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lidarpkt", "view", str(CANNED / "vlp16-dual.pcap"), "--ws", "nohost"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == ["lidarpkt: error: --ws 'nohost': expected HOST:PORT, e.g. 127.0.0.1:8765"]
+    assert r.stderr.strip().splitlines() == ["lidarpkt: error: --ws nohost: not HOST:PORT with a port in 0-65535; give e.g. --ws 127.0.0.1:8765"]
 
 
 def _run_view(*args: str):
@@ -123,7 +123,7 @@ def test_unreadable_capture_is_an_error_before_serving(tmp_path):
     missing = tmp_path / "missing.pcap"
     r = _run_view(str(missing), "--ws", "127.0.0.1:0")
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == [f"lidarpkt: error: {missing}: no such file"]
+    assert r.stderr.strip().splitlines() == [f"lidarpkt: error: {missing}: no such file or directory; check the path"]
     r = _run_view(str(CANNED / "os1-64-legacy.pcap"), "--ws", "127.0.0.1:0")  # Ouster without its metadata
     assert r.returncode == 2 and "serving" not in r.stderr
     assert r.stderr.startswith("lidarpkt: error: ") and "--metadata" in r.stderr

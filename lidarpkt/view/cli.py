@@ -27,7 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
     add_receive_arguments(parser)
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no status lines")
+    from lidarpkt import cliargs
+
+    cliargs.add_quiet(parser, "no status lines")
 
 
 def add_ws_argument(parser: argparse.ArgumentParser) -> None:
@@ -68,8 +70,12 @@ class _Stop:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lidarpkt import cliargs
     from lidarpkt.errors import LidarpktError
 
+    if args.source is not None:
+        cliargs.check_inputs([args.source])
+    cliargs.check_inputs(args.metadata or (), "--metadata")
     if args.source is not None and (args.port or args.bind or args.multicast or args.sensor):
         raise LidarpktError(f"--port/--bind/--multicast/--sensor: not with SOURCE {args.source}; view either a "
                             "capture or a live sensor")
@@ -77,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
 
     parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
-        raise LidarpktError(f"--rate must be positive, got {args.rate}")
+        raise LidarpktError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time)")
     stop = _Stop()
     try:
         if args.source is not None:

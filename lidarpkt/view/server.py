@@ -53,7 +53,7 @@ def parse_ws(text: str) -> tuple[str, int]:
     """``"HOST:PORT"`` of ``--ws`` → (host, port); port 0 lets the system choose. Raises :class:`ViewError`."""
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise ViewError(f"--ws {text!r}: expected HOST:PORT, e.g. 127.0.0.1:8765")
+        raise ViewError(f"--ws {text}: not HOST:PORT with a port in 0-65535; give e.g. --ws 127.0.0.1:8765")
     return host.strip("[]"), int(port)
 
 
