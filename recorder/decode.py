@@ -37,13 +37,19 @@ TOPIC_GROUPS = ("packets", "points", "images")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="OUT.mcap or OUT.npz")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
+                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     parser.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (repeatable)")
     parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    parser.add_argument("--layout", choices=("points", "frames"), default="points",
+                        help="Parquet: one row per return (points) or per frame (frames)")
+    parser.add_argument("--frames-per-file", type=int, metavar="N",
+                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
 
@@ -148,17 +154,20 @@ def _open_frames(path: str, args) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lidarpkt.writers import FORMATS, format_from_suffix
+
     out = Path(args.output)
     for path in args.inputs:
         if not Path(path).exists():
             raise LidarpktError(f"{path}: no such file or directory")
+    fmt = format_from_suffix(out)
     if not out.parent.is_dir():
         raise RecorderError(f"-o {out}: the folder {out.parent} does not exist")
-    if out.suffix == ".npz":
-        return _to_npz(args, out)
-    if out.suffix == ".mcap":
+    if fmt == "mcap":
         return _to_mcap(args, out)
-    raise RecorderError(f"-o {out}: the output must end in .mcap or .npz")
+    if fmt == "npz":
+        return _to_npz(args, out)
+    return _to_format(args, out, fmt, FORMATS[fmt].directory)
 
 
 # ----------------------------------------------------------------------------- MCAP
@@ -252,3 +261,51 @@ def _to_npz(args, out: Path) -> int:
     if not args.quiet:
         print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
+
+
+# ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
+def _format_options(args, fmt: str) -> dict:
+    if fmt == "parquet":
+        return {"layout": args.layout}
+    if fmt in ("las", "laz") and args.frames_per_file is not None:
+        if args.frames_per_file < 1:
+            raise RecorderError(f"--frames-per-file {args.frames_per_file}: give a positive number of frames")
+        return {"frames_per_file": args.frames_per_file}
+    return {}
+
+
+def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
+    """Folder formats get one writer per input (files named by capture), one-file formats one
+    writer for all inputs."""
+    from lidarpkt.writers import open_writer
+
+    options = _format_options(args, fmt)
+    progress = _Progress(not args.quiet, sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()))
+    counts = {"frames": 0, "done_before": 0}
+    written: list[Path] = []
+    if per_input:
+        for path in args.inputs:
+            with open_writer(fmt, out, capture=path, **options) as writer:
+                _write_frames(writer, path, args, progress, counts)
+            written += writer.close()
+    else:
+        with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
+            for path in args.inputs:
+                _write_frames(writer, path, args, progress, counts)
+        written = writer.close()
+    progress.done(counts["frames"])
+    if not counts["frames"]:
+        raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+    if not args.quiet:
+        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+    return 0
+
+
+def _write_frames(writer, path: str, args, progress: _Progress, counts: dict) -> None:
+    reader = _open_frames(path, args)
+    for frame in reader:
+        writer.write(frame)
+        counts["frames"] += 1
+        b = _bytes_read(reader)
+        progress.update(None if b is None else counts["done_before"] + b, counts["frames"])
+    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
