@@ -32,7 +32,8 @@ topic                             type                                   content
 ``/gps/nmea_sentence``            ``nmea_msgs/msg/Sentence``             one verified NMEA sentence
 ================================  =====================================  ==================================
 
-MCAP log time is always the host receive time (ns since the Unix epoch).
+MCAP log time is always the host receive time (ns since the Unix epoch), inside the capture's
+time span: ``/ouster/metadata`` and ``/tf_static`` are logged at the first packet's time.
 """
 
 from __future__ import annotations
@@ -64,6 +65,7 @@ STRING = "std_msgs/msg/String"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
 NMEA_SENTENCE = "nmea_msgs/msg/Sentence"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 VELODYNE_PACKET_BYTES = 1206
 
@@ -106,6 +108,7 @@ OUSTER_IMU = Topic("/ouster/imu_packets", PACKET_MSG)
 OUSTER_METADATA = Topic("/ouster/metadata", STRING, QOS_LATCHED)
 OTHER_PACKETS = Topic("/lidarpkt/other_packets", NEBULA_PACKET)
 NMEA = Topic("/gps/nmea_sentence", NMEA_SENTENCE, QOS_RELIABLE)
+TF_STATIC = Topic("/tf_static", TF_MESSAGE, QOS_LATCHED)
 
 
 def points_topic(vendor: str, slot: int) -> Topic:
