@@ -78,8 +78,11 @@ class SensorFrames:
             frame_ids = [frame_ids]
         self._ordered = [f for f in (frame_ids or []) if "=" not in f]
         self._keyed = dict(f.split("=", 1) for f in (frame_ids or []) if "=" in f)
-        if any(not v for v in [*self._ordered, *self._keyed.values()]):
+        names = [*self._ordered, *self._keyed.values()]
+        if any(not v for v in names):
             raise OutputError("--frame-id: a frame id cannot be empty")
+        if len(set(names)) != len(names):
+            raise OutputError(f"--frame-id {' '.join(frame_ids or [])}: each sensor needs its own frame id")
         self.base_frame = base_frame or None
         self.mounts = [parse_mount(m) if isinstance(m, str) else tuple(float(v) for v in m) for m in (mounts or [])]
         if self.mounts and not self.base_frame:
