@@ -46,6 +46,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    add_frame_arguments(parser)
+    parser.add_argument("--layout", choices=("points", "frames"), default="points",
+                        help="Parquet: one row per return (points) or per frame (frames)")
+    parser.add_argument("--frames-per-file", type=int, metavar="N",
+                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+
+def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--frame-id``, ``--base-frame``, ``--mount``: the MCAP frame options, the same in every verb
+    that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
     parser.add_argument("--frame-id", action="append", metavar="NAME",
                         help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
                              "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
@@ -54,12 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MCAP: write each sensor's mount on this frame to /tf_static")
     parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
                         help="MCAP: a sensor's pose on --base-frame, metres and degrees (repeat once per sensor; "
-                             "default: identity)")
-    parser.add_argument("--layout", choices=("points", "frames"), default="points",
-                        help="Parquet: one row per return (points) or per frame (frames)")
-    parser.add_argument("--frames-per-file", type=int, metavar="N",
-                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+                             "default: identity; write --mount=-1,... when the first value is negative)")
+
+
+def frame_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :class:`lidarpkt.writers.mcap.frames.SensorFrames` from the flags."""
+    return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
 class _Progress:
@@ -197,8 +208,7 @@ def _to_mcap(args, out: Path) -> int:
     done_before = 0
     described: set[tuple] = set()
     times = {path: _capture_times(path, md) for path in args.inputs}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, frame_ids=args.frame_id,
-                     base_frame=args.base_frame, mounts=args.mount) as frame_writer:
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
         writer = frame_writer.mcap
         if args.calibration:
             try:
