@@ -258,13 +258,23 @@ class ParquetWriter(BaseWriter):
 
     def _finish(self) -> None:
         self._flush()
-        if self._writer is None:
-            if self.frames_written == 0:
-                self.files.abort()  # no frame: no file (an empty capture has no rows to partition)
-                return
+        if self._writer is None:  # no frame: no file (an empty capture has no rows to partition)
+            self.files.abort()
+            self._remove_empty_partition()
+            return
         self._writer.close()
         self._writer = None
         self.files.commit(self._tmp)
+
+    def abort(self) -> None:
+        super().abort()
+        self._remove_empty_partition()
+
+    def _remove_empty_partition(self) -> None:
+        try:
+            self.path.parent.rmdir()  # only if empty: another segment's file may be there
+        except OSError:
+            pass
 
     def _release(self) -> None:
         if self._writer is not None:
