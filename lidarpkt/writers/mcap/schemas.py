@@ -25,11 +25,14 @@ topic                             type                                   content
 ``/ouster/metadata``              ``std_msgs/msg/String``                the sensor metadata JSON (latched)
 ``/lidarpkt/other_packets``       ``nebula_msgs/msg/NebulaPacket``       datagrams of no known stream (kept,
                                                                          never dropped)
-``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1)
+``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1);
+                                                                         NaN x/y/z where no return
 ``/ouster/points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        organised frame, destaggered
 ``<prefix>/range_image`` (``2``)  ``sensor_msgs/msg/Image``              ``32FC1`` range in metres
 ``<prefix>/reflectivity_image``   ``sensor_msgs/msg/Image``              ``mono8`` reflectivity
 ``/gps/nmea_sentence``            ``nmea_msgs/msg/Sentence``             one verified NMEA sentence
+``/tf_static``                    ``tf2_msgs/msg/TFMessage``             each sensor's mount on the base frame
+                                                                         (``--base-frame``), latched
 ================================  =====================================  ==================================
 
 MCAP log time is always the host receive time (ns since the Unix epoch), inside the capture's
