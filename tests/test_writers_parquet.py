@@ -160,3 +160,19 @@ def test_points_dataset_read_by_dask_dataframe(tmp_path):
     got = df.groupby("capture", observed=True).size().compute(scheduler="synchronous")
     assert {str(k): int(v) for k, v in got.items()} == want
     assert set(df.columns) >= {"x", "y", "z", "timestamp_ns", "return_label", "signal", "near_ir"}
+
+
+def test_frames_layout_keeps_a_custom_velodyne_calibration(tmp_path):
+    from conftest import external
+    from lidarpkt.writers.parquet import read_frames
+
+    import lidarpkt
+
+    cap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    cal = external("veloview/VLP-16.xml")
+    frames = list(lidarpkt.open(cap, calibration=cal))[:3]
+    stock = list(lidarpkt.open(cap))[:3]
+    assert not np.array_equal(frames[1].xyz(), stock[1].xyz())  # the file's corrections change the points
+    _write(frames, tmp_path / "ds", cap, layout="frames")
+    for a, b in zip(frames, read_frames(tmp_path / "ds")):
+        np.testing.assert_array_equal(a.xyz(), b.xyz())
