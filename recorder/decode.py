@@ -47,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
     add_frame_arguments(parser)
-    parser.add_argument("--layout", choices=("points", "frames"), default="points",
-                        help="Parquet: one row per return (points) or per frame (frames)")
+    parser.add_argument("--layout", choices=("points", "frames"),
+                        help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=int, metavar="N",
                         help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
@@ -179,11 +179,14 @@ def run(args: argparse.Namespace) -> int:
     fmt = format_from_suffix(out)
     if not out.parent.is_dir():
         raise RecorderError(f"-o {out}: the folder {out.parent} does not exist")
+    if fmt in ("mcap", "npz"):
+        _format_options(args, fmt)  # rejects the flags of other formats
     if fmt == "mcap":
         return _to_mcap(args, out)
     if fmt == "npz":
         return _to_npz(args, out)
-    return _to_format(args, out, fmt, FORMATS[fmt].directory)
+    # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
+    return _to_format(args, out, fmt, FORMATS[fmt].directory or bool(args.frames_per_file))
 
 
 # ----------------------------------------------------------------------------- MCAP
@@ -278,9 +281,14 @@ def _to_npz(args, out: Path) -> int:
 
 # ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
 def _format_options(args, fmt: str) -> dict:
+    """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    if args.layout is not None and fmt != "parquet":
+        raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
+    if args.frames_per_file is not None and fmt not in ("las", "laz"):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
     if fmt == "parquet":
-        return {"layout": args.layout}
-    if fmt in ("las", "laz") and args.frames_per_file is not None:
+        return {"layout": args.layout or "points"}
+    if args.frames_per_file is not None:
         if args.frames_per_file < 1:
             raise RecorderError(f"--frames-per-file {args.frames_per_file}: give a positive number of frames")
         return {"frames_per_file": args.frames_per_file}
