@@ -152,3 +152,12 @@ def test_decode_verb_writes_every_export_suffix(tmp_path, capsys):
     assert decode("-o", tmp_path / "clouds.ply") == 0
     assert len(list((tmp_path / "clouds.ply").iterdir())) == 14
     assert not [p for p in tmp_path.rglob("*") if _hidden(p, tmp_path)]
+
+
+def test_a_missing_export_library_names_the_extra(tmp_path):
+    code = ("import sys\nsys.modules['plyfile'] = None  # as if the export extra were not installed\n"
+            "from lidarpkt.writers import open_writer\nfrom lidarpkt.errors import OutputError\n"
+            f"try:\n    open_writer('ply', {str(tmp_path / 'out')!r})\nexcept OutputError as e:\n    print(e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
+    assert "needs the Python package 'plyfile'" in r.stdout and "lidarpkt[export]" in r.stdout, r.stdout + r.stderr
+    assert not (tmp_path / "out").exists()
