@@ -330,3 +330,28 @@ def _write_frames(writer, path: str, args, progress: _Progress, counts: dict) ->
         b = _bytes_read(reader)
         progress.update(None if b is None else counts["done_before"] + b, counts["frames"])
     counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
+
+
+# ------------------------------------------------------------------------------ Python API
+def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathLike[str], *, quiet: bool = True,
+                    **options) -> None:
+    """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
+
+    ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
+    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
+    :class:`~lidarpkt.errors.OutputError` for an unknown option.
+    """
+    from lidarpkt.errors import OutputError
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_arguments(parser)
+    args = parser.parse_args([*(str(p) for p in inputs), "-o", str(output)])
+    unknown = sorted(set(options) - set(vars(args)))
+    if unknown:
+        raise OutputError(f"decode: no option {', '.join(unknown)}")
+    for name, value in options.items():
+        setattr(args, name, [str(v) for v in value] if isinstance(value, (list, tuple)) else value)
+    args.quiet = quiet
+    run(args)

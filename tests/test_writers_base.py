@@ -161,3 +161,18 @@ def test_a_missing_export_library_names_the_extra(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
     assert "needs the Python package 'plyfile'" in r.stdout and "lidarpkt[export]" in r.stdout, r.stdout + r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_decode_python_api_has_the_cli_defaults(tmp_path):
+    from recorder.decode import decode_captures
+
+    cap = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.pcap"
+    md = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.json"
+    decode_captures([cap], tmp_path / "x.mcap", metadata=[md], base_frame="base", mount=["0,0,1,0,0,0"])
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "x.mcap", "rb") as fh:
+        topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}
+    assert {"/ouster/lidar_packets", "/ouster/points", "/ouster/points2", "/tf_static"} <= topics  # packets,points
+    with pytest.raises(OutputError, match="no option colour"):
+        decode_captures([cap], tmp_path / "y.npz", colour=True)
