@@ -120,7 +120,7 @@ def _packet_reader(path: str):
     return BagReader(path)
 
 
-def _capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
+def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
     """(clock offsets, first and last packet host time in ns) of one input.
 
     The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
@@ -210,7 +210,7 @@ def _to_mcap(args, out: Path) -> int:
     frames_written = 0
     done_before = 0
     described: set[tuple] = set()
-    times = {path: _capture_times(path, md) for path in args.inputs}
+    times = {path: capture_times(path, md) for path in args.inputs}
     with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
         writer = frame_writer.mcap
         if args.calibration:
