@@ -11,6 +11,9 @@ import os
 from typing import TYPE_CHECKING, Any
 
 from .errors import LidarpktError
+from . import _moved
+
+_moved.install()  # old paths of moved modules (lidarpkt.pcapwrite, recorder.mcap_writer ...)
 
 if TYPE_CHECKING:
     from .frame import Frame, FrameCounters, FrameStack, SensorInfo

@@ -101,6 +101,11 @@ def port_type(flag: str = "--port"):
     return _argparse_type(port, flag)
 
 
+def positive_int_type(flag: str):
+    """argparse ``type=`` for a whole number ≥ 1 (``--workers``, ``--frames-per-file`` ...)."""
+    return _argparse_type(positive_int, flag)
+
+
 def json_type(flag: str = "--json"):
     """argparse ``type=`` for a JSON output (``.json`` or ``-``)."""
     return _argparse_type(_json_target, flag)
@@ -142,7 +147,7 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
-    parser.add_argument("--workers", type=_argparse_type(positive_int, "--workers"), default=1, metavar="N",
+    parser.add_argument("--workers", type=positive_int_type("--workers"), default=1, metavar="N",
                         help="decode with N workers (default 1)")
 
 

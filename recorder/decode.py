@@ -27,21 +27,24 @@ import argparse
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
-TOPIC_GROUPS = ("packets", "points", "images")
-OUTPUT_SUFFIXES = (".mcap", ".npz")
+TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt import cliargs
+    from lidarpkt.writers import SUFFIXES
 
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
-    cliargs.add_output(parser, OUTPUT_SUFFIXES)
+    cliargs.add_output(parser, SUFFIXES,
+                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
+                            "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     cliargs.add_metadata(parser)
     parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
@@ -49,7 +52,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=float, metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    add_frame_arguments(parser)
+    parser.add_argument("--layout", choices=("points", "frames"),
+                        help="Parquet: one row per return (points, the default) or per frame (frames)")
+    parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_quiet(parser, "no progress bar and no summary")
+
+
+def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--frame-id``, ``--base-frame``, ``--mount``: the MCAP frame options, the same in every verb
+    that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
+    parser.add_argument("--frame-id", action="append", metavar="NAME",
+                        help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
+                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
+                             "os_sensor)")
+    parser.add_argument("--base-frame", metavar="NAME",
+                        help="MCAP: write each sensor's mount on this frame to /tf_static")
+    parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
+                        help="MCAP: a sensor's pose on --base-frame, metres and degrees (repeat once per sensor; "
+                             "default: identity; write --mount=-1,... when the first value is negative)")
+
+
+def frame_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :class:`lidarpkt.writers.mcap.frames.SensorFrames` from the flags."""
+    return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
 def _bytes_read(reader) -> int | None:
@@ -70,22 +97,29 @@ def _packet_reader(path: str):
     return BagReader(path)
 
 
-def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:
-    """Host receive time minus sensor time (ns) of each lidar source, from its first packet among
-    the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the hour:
-    frames are logged at sensor time + this offset, i.e. when their last packet was received."""
+def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
+    """(clock offsets, first and last packet host time in ns) of one input.
+
+    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
+    among the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the
+    hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
+    kept inside the capture's span (its first and last packet)."""
     from lidarpkt.velodyne import packet as vlp
 
     from . import streams
     from .sink import velodyne_sensor_time_ns
 
     offsets: dict[str, int] = {}
+    start = end = None
     reader = _packet_reader(path)
     for k, batch in enumerate(reader.batches()):
-        if k >= look_ahead:
-            break
+        if len(batch) == 0:
+            continue
+        t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
+        start = t0 if start is None else min(start, t0)
+        end = t1 if end is None else max(end, t1)
         src = str(batch.src) if batch.src is not None else "unknown source"
-        if src in offsets:
+        if k >= look_ahead or src in offsets:
             continue
         if md is None and getattr(reader, "ouster_metadata", None) and reader.ouster_metadata():
             from lidarpkt.ouster.metadata import load_metadata
@@ -100,18 +134,7 @@ def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:
             dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
             first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
             offsets[src] = host - int(first["timestamp_ns"])
-    return offsets
-
-
-def _frame_log_time(frame, offsets: dict[str, int]) -> int:
-    """When the frame's last packet was received (host time, ns): its last column's sensor time plus
-    its source's clock offset (the only offset when the frame's source is not named)."""
-    valid = frame.column_timestamp_ns[frame.column_valid]
-    end = int(valid.max()) if valid.size else frame.timestamp_ns
-    offset = offsets.get(frame.sensor.source)
-    if offset is None:
-        offset = next(iter(offsets.values())) if len(offsets) == 1 else 0
-    return end + offset
+    return offsets, start, end
 
 
 def _open_frames(path: str, args) -> object:
@@ -125,6 +148,7 @@ def _open_frames(path: str, args) -> object:
 
 def run(args: argparse.Namespace) -> int:
     from lidarpkt import cliargs
+    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
@@ -134,48 +158,57 @@ def run(args: argparse.Namespace) -> int:
     if args.grid is not None and not args.grid > 0:
         raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
                          "e.g. --grid 0.2")
-    out = cliargs.check_output(args.output, "-o", OUTPUT_SUFFIXES)
-    if out.suffix.lower() == ".npz":
+    fmt = format_from_suffix(args.output)
+    folder = FORMATS[fmt].directory or bool(args.frames_per_file)
+    out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
+    if fmt in ("mcap", "npz"):
+        _format_options(args, fmt)  # rejects the flags of other formats
+    if fmt == "mcap":
+        return _to_mcap(args, out)
+    if fmt == "npz":
         return _to_npz(args, out)
-    return _to_mcap(args, out)
+    # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
+    return _to_format(args, out, fmt, folder)
 
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.writers import open_writer
+    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
 
-    from .mcap_writer import McapWriter
-    from .pointcloud import image_messages, pointcloud_messages
     from .sink import PacketSink
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
-        raise RecorderError(f"--topics {args.topics}: unknown group; choose among {', '.join(TOPIC_GROUPS)}")
+        raise RecorderError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
     md = None
     if args.metadata:
         from lidarpkt.ouster.metadata import load_metadata
 
         md = load_metadata(args.metadata[0])
     total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
+    from lidarpkt import cliargs
+
     progress = cliargs.Progress(args.quiet, total=total * (2 if "packets" in groups and groups - {"packets"} else 1),
                                 desc="decode")
-    frame_messages = 0
     frames_written = 0
     done_before = 0
     described: set[tuple] = set()
-    with McapWriter(out, chunk_seconds=float("inf"), chunk_bytes=4 << 20) as writer:
+    times = {path: capture_times(path, md) for path in args.inputs}
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
+        writer = frame_writer.mcap
         if args.calibration:
             try:
                 text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
             except OSError as exc:
-                raise RecorderError(f"--calibration {args.calibration}: cannot read it ({exc.strerror}); check the file") from None
+                raise RecorderError(f"cannot read the calibration {args.calibration}: {exc.strerror}") from None
             writer.add_metadata("lidarpkt.calibration", {"path": str(args.calibration), "content": text})
         if "packets" in groups:
             from .replay import embedded_metadata
 
             for path in args.inputs:
-                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path))
+                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path), log_time_ns=times[path][1])
                 reader = _packet_reader(path)
                 for batch in reader.batches():
                     sink.push(batch)
@@ -183,105 +216,35 @@ def _to_mcap(args, out: Path) -> int:
                     progress.update(None if b is None else done_before + b, f"{frames_written} frames")
                 sink.finish()
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+        packet_messages = writer.messages_written
         if groups & {"points", "images"}:
             for path in args.inputs:
-                offsets = _clock_offsets(path, md)
+                frame_writer.set_capture_times(*times[path])
                 reader = _open_frames(path, args)
                 for frame in reader:
-                    log_time = _frame_log_time(frame, offsets)
                     sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
                     if sensor_key not in described:  # what the frames were decoded with, once per sensor
                         described.add(sensor_key)
                         writer.add_metadata("lidarpkt.frames", {
                             "input": str(path), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
                             "calibration": str(args.calibration or "stock")})
-                    messages = []
-                    if "points" in groups:
-                        messages += pointcloud_messages(frame)
-                    if "images" in groups:
-                        messages += image_messages(frame)
-                    for topic, msg in messages:
-                        writer.write_message(topic, msg, log_time)
-                    frame_messages += len(messages)
+                    frame_writer.write(frame)
                     frames_written += 1
                     b = _bytes_read(reader)
                     progress.update(None if b is None else done_before + b, f"{frames_written} frames")
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+    frame_writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
-        print(f"lidarpkt decode: {writer.messages_written - frame_messages} packet messages and {frame_messages} "
-              f"frame messages ({frames_written} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)",
-              file=sys.stderr)
+        frame_messages = writer.messages_written - packet_messages
+        print(f"lidarpkt decode: {packet_messages} packet messages and {frame_messages} frame messages "
+              f"({frames_written} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 
 # ------------------------------------------------------------------------------ NPZ
-_PER_FRAME_FIELDS = ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg",
-                     "signal", "near_ir", "flags", "measurement_id", "status")
-
-
-class _Spool:
-    """The frames of one sensor, each field appended to its own temporary file as raw bytes, so
-    that memory stays bounded however long the input; :meth:`write_into` streams them into the
-    ``.npz`` (a zip of ``.npy`` files) as ``[K, ...]`` arrays."""
-
-    def __init__(self, tmpdir: Path, index: int, first) -> None:
-        self.tmpdir = tmpdir
-        self.index = index
-        self.files: dict[str, tuple[object, np.dtype, tuple]] = {}
-        self.scalars: dict[str, list] = {"frame_id": [], "partial": [], "lost_packets": []}
-        self.constants = {"return_labels": np.array(first.return_labels),
-                          "sensor_json": np.array(json.dumps(first.sensor.describe(), default=str))}
-        self.count = 0
-
-    def append(self, frame) -> None:
-        for name in _PER_FRAME_FIELDS:
-            arr = getattr(frame, name)
-            if arr is None:
-                continue
-            arr = np.ascontiguousarray(arr)
-            entry = self.files.get(name)
-            if entry is None:
-                fh = open(self.tmpdir / f"s{self.index}_{name}.raw", "w+b")
-                entry = self.files[name] = (fh, arr.dtype, arr.shape)
-            fh, dtype, shape = entry
-            if arr.dtype != dtype or arr.shape != shape:
-                raise LidarpktError(f"frame {frame.frame_id}: {name} is {arr.dtype}{list(arr.shape)}, unlike the "
-                                    f"frames before it ({dtype}{list(shape)}); cannot stack them")
-            fh.write(arr.tobytes())
-        self.scalars["frame_id"].append(frame.frame_id)
-        self.scalars["partial"].append(frame.partial)
-        self.scalars["lost_packets"].append(frame.counters.lost_packets)
-        self.count += 1
-
-    def write_into(self, zf, prefix: str) -> None:
-        import shutil
-
-        for name, (fh, dtype, shape) in self.files.items():
-            fh.flush()
-            fh.seek(0)
-            with zf.open(prefix + name + ".npy", "w", force_zip64=True) as out:
-                np.lib.format.write_array_header_2_0(out, {
-                    "descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
-                    "shape": (self.count,) + tuple(shape)})
-                shutil.copyfileobj(fh, out, 16 << 20)
-            fh.close()
-        arrays = {"frame_id": np.array(self.scalars["frame_id"], np.int64),
-                  "partial": np.array(self.scalars["partial"], bool),
-                  "lost_packets": np.array(self.scalars["lost_packets"], np.int64), **self.constants}
-        for name, arr in arrays.items():
-            with zf.open(prefix + name + ".npy", "w", force_zip64=True) as out:
-                np.lib.format.write_array(out, arr, allow_pickle=False)
-
-
-def _prefix(index: int) -> str:
-    """NPZ key prefix of the ``index``-th sensor of the input: none for the first, ``s1_``, ``s2_`` … after."""
-    return "" if index == 0 else f"s{index}_"
-
-
 def _to_npz(args, out: Path) -> int:
-    import tempfile
-    import zipfile
+    from lidarpkt.writers import open_writer
 
     from lidarpkt import cliargs
 
@@ -289,37 +252,99 @@ def _to_npz(args, out: Path) -> int:
                                 desc="decode")
     n = 0
     done_before = 0
-    with tempfile.TemporaryDirectory(prefix="lidarpkt-npz-", dir=out.parent) as tmp:
-        spools: dict[tuple, _Spool] = {}
+    with open_writer("npz", out, grid=args.grid, compress=args.compress) as writer:
         for path in args.inputs:
             reader = _open_frames(path, args)
             for frame in reader:
-                key = (frame.sensor.vendor, frame.sensor.model, frame.sensor.source, frame.shape[0], frame.shape[1])
-                gridded = frame.on_grid(args.grid)
-                spool = spools.get(key)
-                if spool is None:
-                    spool = spools[key] = _Spool(Path(tmp), len(spools), gridded)
-                spool.append(gridded)
+                writer.write(frame)
                 n += 1
                 b = _bytes_read(reader)
                 progress.update(None if b is None else done_before + b, f"{n} frames")
             done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         progress.close()
-        if not spools:
-            raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded (every packet was skipped, see the "
-                                "warning above); check the capture with lidarpkt info")
-        try:
-            with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED if args.compress else zipfile.ZIP_STORED,
-                                 allowZip64=True) as zf:
-                # one rule whatever the input holds: the first sensor's keys are bare (range_mm ...), the
-                # others' prefixed s1_, s2_ ...; "sensor_prefixes" lists them
-                for spool in spools.values():
-                    spool.write_into(zf, _prefix(spool.index))
-                with zf.open("sensor_prefixes.npy", "w") as fh:
-                    np.lib.format.write_array(fh, np.array([_prefix(s.index) for s in spools.values()]),
-                                              allow_pickle=False)
-        except OSError as exc:
-            raise RecorderError(f"-o {out}: cannot write ({exc.strerror or exc}); check the folder and the free space") from None
+        if not n:
+            raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {n} frames from {len(spools)} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
+
+
+# ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
+def _format_options(args, fmt: str) -> dict:
+    """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    if args.layout is not None and fmt != "parquet":
+        raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
+    if args.frames_per_file is not None and fmt not in ("las", "laz"):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
+    if fmt == "parquet":
+        return {"layout": args.layout or "points"}
+    if args.frames_per_file is not None:
+        if args.frames_per_file < 1:
+            raise RecorderError(f"--frames-per-file {args.frames_per_file}: give a positive number of frames")
+        return {"frames_per_file": args.frames_per_file}
+    return {}
+
+
+def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
+    """Folder formats get one writer per input (files named by capture), one-file formats one
+    writer for all inputs."""
+    from lidarpkt.writers import open_writer
+
+    from lidarpkt import cliargs
+
+    options = _format_options(args, fmt)
+    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
+                                desc="decode")
+    counts = {"frames": 0, "done_before": 0}
+    written: list[Path] = []
+    if per_input:
+        for path in args.inputs:
+            with open_writer(fmt, out, capture=path, **options) as writer:
+                _write_frames(writer, path, args, progress, counts)
+            written += writer.close()
+    else:
+        with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
+            for path in args.inputs:
+                _write_frames(writer, path, args, progress, counts)
+        written = writer.close()
+    progress.close()
+    if not counts["frames"]:
+        raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
+    if not args.quiet:
+        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+    return 0
+
+
+def _write_frames(writer, path: str, args, progress, counts: dict) -> None:
+    reader = _open_frames(path, args)
+    for frame in reader:
+        writer.write(frame)
+        counts["frames"] += 1
+        b = _bytes_read(reader)
+        progress.update(None if b is None else counts["done_before"] + b, f"{counts['frames']} frames")
+    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
+
+
+# ------------------------------------------------------------------------------ Python API
+def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathLike[str], *, quiet: bool = True,
+                    **options) -> None:
+    """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
+
+    ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
+    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
+    :class:`~lidarpkt.errors.OutputError` for an unknown option.
+    """
+    from lidarpkt.errors import OutputError
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_arguments(parser)
+    args = parser.parse_args([*(str(p) for p in inputs), "-o", str(output)])
+    unknown = sorted(set(options) - set(vars(args)))
+    if unknown:
+        raise OutputError(f"decode: no option {', '.join(unknown)}")
+    for name, value in options.items():
+        setattr(args, name, [str(v) for v in value] if isinstance(value, (list, tuple)) else value)
+    args.quiet = quiet
+    run(args)
