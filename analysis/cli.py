@@ -103,8 +103,10 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
     p.add_argument("--pixel", metavar="ROW,COL", action="append", required=True,
                    help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); repeatable")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
-                   help="return slot: index (0, 1) or label (strongest, last, second_strongest); default 0")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
+                   help="return: strongest, last or second_strongest, selected per firing as the sensor defines "
+                        "them (VLP-16 dual: slot 1 holds the second strongest where the last was the strongest), "
+                        "or a raw slot index (0, 1); default 0")
     _add_input(p)
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
     p.add_argument("--motion-compensation", action="store_true",
@@ -118,14 +120,16 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 def run_analyze(args: argparse.Namespace) -> int:
     from .gmm import parse_method
     from .raypath import analyze_raypath
-    from .stack import check_pixel, slot_index
+    from .returns import parse_return, resolve
+    from .stack import check_pixel
 
     # options first: a typo should not cost a decode
     pixels = [_parse_pixel(p) for p in args.pixel]
     gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
     _check_neighbourhood(args.neighbourhood)
+    selection = parse_return(args.slot)
     stack = _load(args.input, args.metadata, args.frames, args.grid)
-    slot = slot_index(stack, args.slot)
+    stack, slot = resolve(stack, selection)
     for r, c in pixels:
         check_pixel(stack, r, c, slot)
     results = [
@@ -135,7 +139,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     ]
     source = _source(args.input, stack)
     print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
-          f"slot {slot} = {stack.return_labels[slot]}")
+          f"return {stack.return_labels[slot]}")
     print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'GMM':>5}  component means (m) [weights]")
     for ra in results:
         t = ra.temporal
@@ -177,20 +181,24 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
     p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
     p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
-    p.add_argument("--method", choices=("detrend", "plane", "gap", "row"), default=None,
+    from .multireturn import MONITOR_METHODS
+
+    p.add_argument("--method", choices=MONITOR_METHODS, default=None,
                    help="monitor score: detrend (default) = largest gap of the neighbourhood's ranges about a local "
                         "plane, the smallest over the windows of N//2+1 rows holding the pixel (ground and walls at "
                         "a shallow angle are one surface, not two); plane = one plane over the whole N×N; gap = the "
                         "paper's §4.3 score, largest gap of the N×N spatial CDF; row = gap within each row of the "
                         "neighbourhood")
     p.add_argument("--monitor-by-row", action="store_true", help="same as --method row (kept for old scripts)")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0", help="slot shown in the plot (default 0)")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
+                   help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
+                        "map's returns (a VLP-16 dual map has last, strongest, second_strongest); default 0")
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
     from .gmm import DEFAULT_GAP_M
     from .multireturn import multireturn_map
-    from .stack import slot_index
+    from .returns import available_returns, parse_return, select_returns
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
@@ -201,7 +209,9 @@ def run_multireturn(args: argparse.Namespace) -> int:
         if method not in (None, "row"):
             raise AnalysisError(f"--monitor-by-row is --method row: it contradicts --method {method}")
         method = "row"
+    shown = parse_return(args.slot)
     stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = select_returns(stack, available_returns(stack))  # the returns as the sensor defines them
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
     out = Path(args.output)
@@ -223,7 +233,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     print(f"wrote {out}")
     if args.plot:
         plots = _plots()
-        slot = slot_index(stack, args.slot)
+        slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
         if not 0 <= slot < len(s.return_labels):
             raise AnalysisError(f"--return {args.slot}: this capture has slots {list(s.return_labels)}")
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), args.plot)
@@ -247,21 +257,42 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metadata2", action="append", metavar="JSON", help="Ouster metadata JSON of IN2 (default: --metadata)")
     p.add_argument("--pixel", metavar="ROW,COL", action="append", default=[],
                    help="raypath whose temporal CDFs to compare in detail; repeatable")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
-                   help="with IN2: the slot of IN to compare, index or label (default 0)")
-    p.add_argument("--return2", dest="slot2", metavar="SLOT", default="0",
-                   help="with IN2: the slot of IN2 to compare, index or label (default 0)")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default=None,
+                   help="with IN2: the return of IN to compare: strongest, last, second_strongest (per firing, as "
+                        "the sensor defines them) or a raw slot index (default: a return kind both captures report)")
+    p.add_argument("--return2", dest="slot2", metavar="RETURN", default=None,
+                   help="with IN2: the return of IN2 to compare (default: the same kind as --return)")
     p.add_argument("--paired", action="store_true",
                    help="with IN2: frame k of both captures is the same firing (captures generated from one seed); "
                         "also compare them frame by frame")
 
 
+def _pair_returns(a, b, sel_a, sel_b):
+    """The returns of two captures to compare: given ones, else the same kind on both sides
+    (``compare-returns STRONGEST.pcap DUAL.pcap`` pairs strongest with strongest)."""
+    from .returns import available_returns
+
+    if sel_a is None and sel_b is None:
+        common = [k for k in available_returns(a) if k in available_returns(b)]
+        if not common:  # two modes with nothing in common (strongest vs last): their own returns
+            return available_returns(a)[0], available_returns(b)[0]
+        return common[0], common[0]
+    if sel_b is None:
+        return sel_a, sel_a if isinstance(sel_a, str) else 0
+    if sel_a is None:
+        return (sel_b if isinstance(sel_b, str) else 0), sel_b
+    return sel_a, sel_b
+
+
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
     from .compare import compare_slots, compare_stacks, ks_image
-    from .stack import check_pixel, slot_index
+    from .returns import available_returns, parse_return, resolve, sample_mask, select_returns
+    from .stack import check_pixel
 
     pixels = [_parse_pixel(p) for p in args.pixel]
+    sel_a = None if args.slot is None else parse_return(args.slot)
+    sel_b = None if args.slot2 is None else parse_return(args.slot2)
     a = _load(args.input, args.metadata, args.frames, args.grid)
     for r, c in pixels:  # before any heavy work
         check_pixel(a, r, c, 0)
@@ -275,6 +306,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
                 f"{args.input} has one return slot ({a.return_labels[0]}): give a dual-return capture, "
                 "or a second capture of the same scene (IN2) to compare modes"
             )
+        a = select_returns(a, available_returns(a)[:2])  # VLP-16 dual: last vs strongest, per firing
         pc = compare_slots(a, 0, 1)
         pairs = [(a, 0, a, 1)]
         doc["frames"] = len(a)
@@ -293,7 +325,9 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
-        sa_i, sb_i = slot_index(a, args.slot), slot_index(b, args.slot2)
+        sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)
+        a, sa_i = resolve(a, sel_a)
+        b, sb_i = resolve(b, sel_b)
         res = compare_stacks(a, b, sa_i, sb_i, paired=args.paired)
         dist, pc = res if args.paired else (res, None)
         doc["modes"] = dist.summary()
@@ -319,8 +353,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
             check_pixel(sb, r, c, ib)
             ca, cb = temporal_cdf(sa, r, c, ia), temporal_cdf(sb, r, c, ib)
 
-            ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sa.column_valid[:, c:c + 1],
-                                sb.range_mm[:, ib, r:r + 1, c:c + 1], sb.column_valid[:, c:c + 1])[0, 0])
+            ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sample_mask(sa, ia)[:, r:r + 1, c:c + 1],
+                                sb.range_mm[:, ib, r:r + 1, c:c + 1], sample_mask(sb, ib)[:, r:r + 1, c:c + 1])[0, 0])
             la, lb = sa.return_labels[ia], sb.return_labels[ib]
             if la == lb:
                 la, lb = f"{la} ({Path(args.input).name})", f"{lb} ({Path(args.input2).name})"

@@ -182,7 +182,9 @@ def plot_range_image(
 
     shift = pixel_shift(stack)
     rng = stack.range_mm[frame, slot].astype(np.float64) / 1000.0
-    valid = np.broadcast_to(stack.column_valid[frame], rng.shape)
+    from .returns import sample_mask
+
+    valid = sample_mask(stack, slot)[frame]
     img = np.where(valid & (rng > 0), rng, np.nan)
     img = destagger(img, shift)
     missing = destagger(~valid, shift)

@@ -47,9 +47,6 @@ def load_stack(
     """
     import lidarpkt
 
-    opener = getattr(lidarpkt, "open", None)
-    if opener is None:  # pragma: no cover - only while the decoders are being written
-        raise AnalysisError("this lidarpkt build has no lidarpkt.open(): cannot read captures yet")
     if isinstance(metadata, (list, tuple)):
         metadata = [str(m) for m in metadata] or None
     kwargs = {} if metadata is None else {"metadata": metadata if isinstance(metadata, list) else str(metadata)}
@@ -59,7 +56,7 @@ def load_stack(
     if (a is not None and a < 0) or (b is not None and b < 0):
         raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
     n_complete = 0
-    for f in opener(str(path), **kwargs):
+    for f in lidarpkt.open(str(path), **kwargs):
         if include_partial or not f.partial:
             n_complete += 1
             if a is not None and n_complete <= a:
@@ -86,13 +83,31 @@ def load_stack(
             "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
-    return FrameStack.from_frames(picked, include_partial=True, resolution_deg=res)
+    return stack_frames(picked, res)
 
 
 def _slim(frame):
     """The frame without the per-pixel arrays the analysis does not use (signal, near-IR, flags,
-    firing times...), so that a long capture costs only its ranges and reflectivities."""
-    return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra={})
+    firing times...), so that a long capture costs only its ranges and reflectivities. The VLP-16
+    dual mark of the second strongest returns is kept: :mod:`analysis.returns` needs it."""
+    keep = {k: v for k, v in frame.extra.items() if k == "second_strongest"}
+    return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra=keep)
+
+
+def stack_frames(frames: list, resolution_deg: float | None) -> FrameStack:
+    """:meth:`FrameStack.from_frames` that also carries the VLP-16 dual ``second_strongest`` mark
+    (a :class:`~analysis.returns.ReturnStack` with ``second_strongest`` set, its raw slots kept)."""
+    from dataclasses import fields
+
+    from .returns import ReturnStack
+
+    gridded = [f.on_grid(resolution_deg) for f in frames]
+    stack = FrameStack.from_frames(gridded, include_partial=True, resolution_deg=resolution_deg)
+    marks = [f.extra.get("second_strongest") for f in gridded]
+    if any(m is None for m in marks):
+        return stack
+    base = {f.name: getattr(stack, f.name) for f in fields(FrameStack)}
+    return ReturnStack(**base, second_strongest=np.stack(marks).astype(bool))
 
 
 def default_grid_deg(sensor) -> float | None:
@@ -128,8 +143,13 @@ def select_frames(stack: FrameStack, start: int | None = None, stop: int | None 
     sl = slice(start, stop)
     if not range(len(stack))[sl]:
         raise AnalysisError(f"frames {start}:{stop} select nothing from a stack of {len(stack)} frames")
+    per_frame = {}
+    for name in ("pixel_valid", "second_strongest"):  # ReturnStack's per-frame arrays
+        if getattr(stack, name, None) is not None:
+            per_frame[name] = getattr(stack, name)[sl]
     return replace(
         stack,
+        **per_frame,
         frame_id=stack.frame_id[sl],
         range_mm=stack.range_mm[sl],
         reflectivity=stack.reflectivity[sl],
@@ -162,15 +182,21 @@ def check_pixel(stack: FrameStack, row: int, col: int, slot: int = 0) -> None:
 
 
 def slot_index(stack: FrameStack, slot: int | str) -> int:
-    """A slot given as its index or its label (``"strongest"``, ``"last"``...) → index."""
-    if isinstance(slot, str) and not slot.lstrip("-").isdigit():
-        try:
-            return stack.return_labels.index(slot)
-        except ValueError:
-            raise AnalysisError(
-                f"return {slot!r} is not in this capture; its slots are {list(stack.return_labels)}"
-            ) from None
-    return int(slot)
+    """A slot given as its index or its label → the index of the slot holding it.
+
+    Only for a kind that *is* one slot: a VLP-16 dual's strongest return is not (use
+    :func:`analysis.returns.resolve`, which every analysis verb does). Raises AnalysisError."""
+    from .returns import is_vlp16_dual, parse_return
+
+    sel = parse_return(slot)
+    if isinstance(sel, int):
+        return sel
+    if is_vlp16_dual(stack) and sel != "last":
+        raise AnalysisError(f"return {sel!r} of a VLP-16 dual capture is not one slot: select it with analysis.returns.resolve")
+    try:
+        return stack.return_labels.index(sel)
+    except ValueError:
+        raise AnalysisError(f"return {sel!r} is not in this capture; its slots are {list(stack.return_labels)}") from None
 
 
 def pixel_shift(stack: FrameStack) -> np.ndarray:
