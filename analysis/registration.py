@@ -163,17 +163,18 @@ def removal_masks(
     gap_m: float = DEFAULT_GAP_M,
     neighbourhood: int = 5,
     threshold_m: float | None = None,
+    conditions: Sequence[str] = CONDITIONS,
 ) -> dict[str, np.ndarray]:
     """``bool[K, H, W]`` per condition: the raypaths left out of each frame (see module docstring)."""
     k, _, h, w = stack.range_mm.shape
     thr = gap_m if threshold_m is None else float(threshold_m)
-    monitor = np.stack([monitor_score(stack, frame=i, n=neighbourhood, method=method)[slot] > thr for i in range(k)])
-    multi = image_statistics(stack, gap_m=gap_m).multi_return[slot]
-    return {
-        "all": np.zeros((k, h, w), bool),
-        "monitor_removed": monitor,
-        "multireturn_removed": np.broadcast_to(multi, (k, h, w)),
-    }
+    out = {"all": np.zeros((k, h, w), bool)}
+    if "monitor_removed" in conditions:
+        out["monitor_removed"] = np.stack(
+            [monitor_score(stack, frame=i, n=neighbourhood, method=method)[slot] > thr for i in range(k)])
+    if "multireturn_removed" in conditions:
+        out["multireturn_removed"] = np.broadcast_to(image_statistics(stack, gap_m=gap_m).multi_return[slot], (k, h, w))
+    return out
 
 
 def pose_error(t: np.ndarray) -> tuple[float, float]:
@@ -223,6 +224,7 @@ def registration_impact(
     threshold_m: float | None = None,
     settings: RegistrationSettings | None = None,
     map_range_mm: np.ndarray | None = None,
+    conditions: Sequence[str] = CONDITIONS,
 ) -> RegistrationImpact:
     """Register every frame of a stationary capture and report the pose errors per condition.
 
@@ -236,6 +238,7 @@ def registration_impact(
         map_range_mm: ``[C, H, W]`` ranges (mm, 0 = none) to use as the scan-to-map target instead
             of all frames: e.g. a probabilistic raypath map's component means
             (:meth:`analysis.gmm_map.GmmMap.map_range_mm`), taken in frame 0's columns.
+        conditions: a subset of :data:`CONDITIONS` to measure (all three by default).
 
     Raises:
         AnalysisError: fewer than two frames, unknown names, no geometry, too few points;
@@ -249,6 +252,9 @@ def registration_impact(
     for m in modes:
         if m not in MODES:
             raise AnalysisError(f"unknown registration mode {m!r}; choose from {', '.join(MODES)}")
+    for c in conditions:
+        if c not in CONDITIONS:
+            raise AnalysisError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
     if monitor_method not in MONITOR_METHODS:
         raise AnalysisError(f"unknown monitor method {monitor_method!r}; choose one of {', '.join(MONITOR_METHODS)}")
     stack, slot = resolve(stack, slot)
@@ -256,7 +262,7 @@ def registration_impact(
     if k < 2:
         raise AnalysisError(f"registration needs at least 2 frames, the stack has {k}")
     removed = removal_masks(stack, slot, method=monitor_method, gap_m=gap_m, neighbourhood=neighbourhood,
-                            threshold_m=threshold_m)
+                            threshold_m=threshold_m, conditions=conditions)
     rng = stack.range_mm[:, slot]
     has_return = sample_mask(stack, slot) & (rng > 0)
     xyz = np.stack([points_of(stack, i, np.where(has_return[i], rng[i], 0)) for i in range(k)])  # [K, H, W, 3]
@@ -264,7 +270,7 @@ def registration_impact(
     errors: dict = {a: {m: {} for m in modes} for a in algorithms}
     removed_fraction = {}
     n_ret = int(has_return.sum())
-    for cond in CONDITIONS:
+    for cond in conditions:
         keep = has_return & ~removed[cond]
         removed_fraction[cond] = float(np.count_nonzero(has_return & removed[cond]) / max(1, n_ret))
         sources = [reg.prepare(xyz[i][keep[i]]) for i in range(k)]
