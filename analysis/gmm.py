@@ -209,7 +209,9 @@ def fit_em(
         if m == 1:
             starts.append(np.array([x.mean()]))
         else:
-            cuts = np.sort(np.argsort(np.diff(x))[::-1][: m - 1]) + 1  # widest gaps
+            # the widest gaps; among equal gaps the first (a stable order, which the per-pixel
+            # maps of analysis.gmm_map reproduce)
+            cuts = np.sort(np.argsort(-np.diff(x), kind="stable")[: m - 1]) + 1
             starts.append(np.array([seg.mean() for seg in np.split(x, cuts)]))
             starts.append(np.quantile(x, (np.arange(m) + 0.5) / m))
         fits = []
