@@ -190,6 +190,9 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
                         "paper's §4.3 score, largest gap of the N×N spatial CDF; row = gap within each row of the "
                         "neighbourhood")
     p.add_argument("--monitor-by-row", action="store_true", help="same as --method row (kept for old scripts)")
+    p.add_argument("--gmm-map", metavar="OUT", help="also fit a Gaussian mixture per pixel and return (a probabilistic "
+                   "raypath map) and write it: NPZ, or Parquet when OUT ends in .parquet")
+    p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
                         "map's returns (a VLP-16 dual map has last, strongest, second_strongest); default 0")
@@ -204,6 +207,10 @@ def run_multireturn(args: argparse.Namespace) -> int:
     if not gap > 0:
         raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
     _check_neighbourhood(args.neighbourhood)
+    if args.gmm_components < 1:
+        raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
+    if args.gmm_map and Path(args.gmm_map).suffix not in (".npz", ".parquet"):
+        raise AnalysisError(f"--gmm-map {args.gmm_map}: name a .npz or .parquet file")
     method = args.method
     if args.monitor_by_row:
         if method not in (None, "row"):
@@ -231,6 +238,8 @@ def run_multireturn(args: argparse.Namespace) -> int:
               f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
               f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
     print(f"wrote {out}")
+    if args.gmm_map:
+        _write_gmm_map(stack, args.gmm_map, args.gmm_components, gap)
     if args.plot:
         plots = _plots()
         slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
@@ -243,6 +252,16 @@ def run_multireturn(args: argparse.Namespace) -> int:
                                       f"{ev.n_pixels} raypaths, {Path(args.input).name}"), roc)
         print(f"wrote {args.plot} and {roc}")
     return 0
+
+
+def _write_gmm_map(stack, path: str, components: int, gap_m: float) -> None:
+    from .gmm_map import fit_gmm_map
+
+    gm = fit_gmm_map(stack, max_components=components, min_separation_m=gap_m)
+    gm.save(path)
+    counts = np.bincount(gm.n_components.ravel(), minlength=components + 1)
+    print(f"wrote {path}: mixtures of up to {components} components per pixel "
+          f"({', '.join(f'{n} with {m}' for m, n in enumerate(counts) if n)})")
 
 
 # ---------------------------------------------------------------------------- compare-returns

