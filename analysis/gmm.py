@@ -37,6 +37,11 @@ DEFAULT_GAP_M = 0.1
 #: component cannot collapse onto one repeated quantised value.
 DEFAULT_MIN_SIGMA_M = 0.003
 
+#: EM stops after this many iterations, or when the log-likelihood gains less than this share
+#: (see :func:`fit_em`); the per-pixel maps of :mod:`analysis.gmm_map` use the same.
+DEFAULT_EM_ITERATIONS = 300
+DEFAULT_EM_TOL = 1e-6
+
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 
 
@@ -182,8 +187,8 @@ def fit_em(
     max_components: int = 4,
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
     min_separation_m: float = DEFAULT_GAP_M,
-    iterations: int = 300,
-    tol: float = 1e-6,
+    iterations: int = DEFAULT_EM_ITERATIONS,
+    tol: float = DEFAULT_EM_TOL,
 ) -> GaussianMixture:
     """Mixture by expectation maximisation on the returns, the number of components (1..max_components)
     chosen by BIC (eqs. 8–9). Deterministic: each M starts from the M − 1 widest gaps and from

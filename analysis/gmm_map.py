@@ -25,7 +25,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
 
-from .gmm import DEFAULT_GAP_M, DEFAULT_MIN_SIGMA_M
+from .gmm import DEFAULT_EM_ITERATIONS, DEFAULT_EM_TOL, DEFAULT_GAP_M, DEFAULT_MIN_SIGMA_M
 from .returns import resolve, sample_mask
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
@@ -154,8 +154,8 @@ def fit_gmm_map(
     max_components: int = 4,
     min_separation_m: float = DEFAULT_GAP_M,
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
-    iterations: int = 300,
-    tol: float = 1e-6,
+    iterations: int = DEFAULT_EM_ITERATIONS,
+    tol: float = DEFAULT_EM_TOL,
 ) -> GmmMap:
     """The mixture of every pixel and return slot of ``stack`` (module docstring), equal to
     :func:`analysis.gmm.fit_em` on each pixel's temporal CDF. Raises AnalysisError for bad settings."""
