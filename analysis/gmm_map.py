@@ -26,7 +26,7 @@ from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
 
 from .gmm import DEFAULT_EM_ITERATIONS, DEFAULT_EM_TOL, DEFAULT_GAP_M, DEFAULT_MIN_SIGMA_M
-from .returns import resolve, sample_mask
+from .returns import sample_mask
 
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 
@@ -301,13 +301,3 @@ def _em_batch(x, ok, n, mu, sigma, w, min_sigma, iters, tol):
     top = logp.max(axis=1)
     ll = np.where(ok, top + np.log(np.exp(logp - top[:, None, :]).sum(axis=1)), 0.0).sum(axis=1)
     return np.where(failed, -np.inf, ll), w, mu, sigma
-
-
-def gmm_map_of(stack: FrameStack, ret: int | str | None = None, **options) -> GmmMap:
-    """:func:`fit_gmm_map` of one return of ``stack`` (index or kind), or of all its slots (None)."""
-    if ret is not None:
-        from .returns import select_returns
-
-        stack, slot = resolve(stack, ret)
-        stack = select_returns(stack, [slot])
-    return fit_gmm_map(stack, **options)

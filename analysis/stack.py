@@ -181,24 +181,6 @@ def check_pixel(stack: FrameStack, row: int, col: int, slot: int = 0) -> None:
         raise AnalysisError(f"return slot {slot} does not exist: this capture has {r} slot(s) ({labels})")
 
 
-def slot_index(stack: FrameStack, slot: int | str) -> int:
-    """A slot given as its index or its label → the index of the slot holding it.
-
-    Only for a kind that *is* one slot: a VLP-16 dual's strongest return is not (use
-    :func:`analysis.returns.resolve`, which every analysis verb does). Raises AnalysisError."""
-    from .returns import is_vlp16_dual, parse_return
-
-    sel = parse_return(slot)
-    if isinstance(sel, int):
-        return sel
-    if is_vlp16_dual(stack) and sel != "last":
-        raise AnalysisError(f"return {sel!r} of a VLP-16 dual capture is not one slot: select it with analysis.returns.resolve")
-    try:
-        return stack.return_labels.index(sel)
-    except ValueError:
-        raise AnalysisError(f"return {sel!r} is not in this capture; its slots are {list(stack.return_labels)}") from None
-
-
 def pixel_shift(stack: FrameStack) -> np.ndarray:
     """``int64[H]`` stagger shift of each row (zeros for sensors without a stagger)."""
     h = stack.range_mm.shape[2]
