@@ -246,17 +246,11 @@ def registration_impact(
     """
     settings = settings or RegistrationSettings()
     settings.check()
-    for a in algorithms:
-        if a not in ALGORITHMS:
-            raise AnalysisError(f"unknown registration algorithm {a!r}; choose from {', '.join(ALGORITHMS)}")
-    for m in modes:
-        if m not in MODES:
-            raise AnalysisError(f"unknown registration mode {m!r}; choose from {', '.join(MODES)}")
-    for c in conditions:
-        if c not in CONDITIONS:
-            raise AnalysisError(f"unknown condition {c!r}; choose from {', '.join(CONDITIONS)}")
-    if monitor_method not in MONITOR_METHODS:
-        raise AnalysisError(f"unknown monitor method {monitor_method!r}; choose one of {', '.join(MONITOR_METHODS)}")
+    for kind, names, known in (("registration algorithm", algorithms, tuple(ALGORITHMS)), ("registration mode", modes, MODES),
+                               ("condition", conditions, CONDITIONS), ("monitor method", [monitor_method], MONITOR_METHODS)):
+        for name in names:
+            if name not in known:
+                raise AnalysisError(f"unknown {kind} {name!r}; choose from {', '.join(known)}")
     stack, slot = resolve(stack, slot)
     k = len(stack)
     if k < 2:
@@ -287,12 +281,17 @@ def registration_impact(
             frames = np.fromiter(frames, np.int64)
             lost = int(np.count_nonzero((has_return & removed[cond])[frames]))
             for alg in algorithms:
-                poses = [reg.align(target, sources[i], alg) for i in frames]
-                err = np.array([pose_error(t) for t, _ in poses]).reshape(-1, 2)
-                errors[alg][mode][cond] = PoseErrors(frames, err[:, 0], err[:, 1], np.array([c for _, c in poses], bool), lost)
+                errors[alg][mode][cond] = _register(reg, target, [sources[i] for i in frames], alg, frames, lost)
     label = stack.return_labels[slot]
     return RegistrationImpact(label, k, n_ret / k, settings, monitor_method, errors, removed_fraction,
                               "frames" if map_range_mm is None else "gmm_map")
+
+
+def _register(reg: _Registrar, target, sources: list, algorithm: str, frames: np.ndarray, lost: int) -> PoseErrors:
+    """Each source registered to ``target``: their pose errors (the truth is no motion)."""
+    poses = [reg.align(target, src, algorithm) for src in sources]
+    err = np.array([pose_error(t) for t, _ in poses]).reshape(-1, 2)
+    return PoseErrors(frames, err[:, 0], err[:, 1], np.array([c for _, c in poses], bool), lost)
 
 
 def _map_points(stack: FrameStack, map_range_mm: np.ndarray, keep: np.ndarray) -> np.ndarray:
