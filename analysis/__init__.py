@@ -1,6 +1,8 @@
 """The multi-return analysis of Rife & Li, "Characterizing Lidar Range-Measurement Ambiguity due
 to Multiple Returns": temporal and spatial range CDFs per raypath, motion compensation, Gaussian
-mixtures, whole-image multi-return statistics and monitor, return-mode comparison, plots.
+mixtures, whole-image multi-return statistics and monitor, return-mode comparison, return selection as the
+sensor defines it (:mod:`analysis.returns`), the scan-matching error multi-return raypaths cause
+(:mod:`analysis.registration`), per-pixel mixture maps (:mod:`analysis.gmm_map`), plots.
 
 Input is a :class:`lidarpkt.frame.FrameStack` (``load_stack(path)`` makes one from a capture).
 Plots live in :mod:`analysis.plots` (matplotlib, the ``plot`` extra) and are not imported here.
@@ -23,7 +25,10 @@ from .multireturn import (
     multireturn_map,
     spatial_gap_score,
 )
+from .gmm_map import GmmMap, fit_gmm_map, load_gmm_map
 from .raypath import RaypathAnalysis, analyze, analyze_pixel, analyze_raypath
+from .registration import RegistrationImpact, RegistrationSettings, registration_impact
+from .returns import RETURN_KINDS, ReturnStack, available_returns, resolve, sample_mask, select_returns
 from .stack import load_stack, select_frames
 
 __all__ = [
@@ -35,5 +40,8 @@ __all__ = [
     "multireturn_map", "spatial_gap_score", "detrended_gap_score", "monitor_score", "MONITOR_METHODS",
     "DEFAULT_MONITOR_METHOD",
     "RaypathAnalysis", "analyze", "analyze_pixel", "analyze_raypath",
+    "GmmMap", "fit_gmm_map", "load_gmm_map",
+    "RegistrationImpact", "RegistrationSettings", "registration_impact",
+    "RETURN_KINDS", "ReturnStack", "available_returns", "resolve", "sample_mask", "select_returns",
     "load_stack", "select_frames",
 ]

@@ -16,6 +16,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
 
+from .returns import resolve, sample_mask
 from .stack import check_pixel, neighbour_columns
 
 
@@ -64,32 +65,37 @@ class RangeCDF:
         return {"range_m": self.range_m.tolist(), "F": self.F.tolist()}
 
 
-def pixel_samples(stack: FrameStack, row: int, col: int, slot: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pixel_samples(stack: FrameStack, row: int, col: int, slot: int | str = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The samples of one raypath over the stack.
 
+    ``slot``: a slot index or a return kind (``"strongest"``, ``"last"``, ``"second_strongest"``,
+    selected per firing: see :mod:`analysis.returns`).
+
     Returns:
-        ``(frames int64[n], range_mm uint32[n], reflectivity uint8[n])`` for the n frames whose
-        column is valid, in frame order; range 0 = non-return.
+        ``(frames int64[n], range_mm uint32[n], reflectivity uint8[n])`` for the n frames with a
+        sample (column valid and the return reported), in frame order; range 0 = non-return.
 
     Raises:
-        AnalysisError: pixel or slot out of range, empty stack.
+        AnalysisError: pixel or slot out of range, a return the capture does not report, empty stack.
     """
+    stack, slot = resolve(stack, slot)
     check_pixel(stack, row, col, slot)
-    frames = np.flatnonzero(stack.column_valid[:, col])
+    frames = np.flatnonzero(sample_mask(stack, slot)[:, row, col])
     return frames, stack.range_mm[frames, slot, row, col], stack.reflectivity[frames, slot, row, col]
 
 
-def temporal_cdf(stack: FrameStack, row: int, col: int, slot: int = 0) -> RangeCDF:
+def temporal_cdf(stack: FrameStack, row: int, col: int, slot: int | str = 0) -> RangeCDF:
     """Temporal CDF (eq. 1) of pixel (row, col), return slot ``slot``, over the K frames of the stack.
 
-    Non-returns count in the denominator; frames where the column is missing are left out and
-    counted in ``n_missing``. Raises AnalysisError for a pixel or slot out of range.
+    Non-returns count in the denominator; frames without a sample (column lost, or a return the
+    sensor did not report in that firing) are left out and counted in ``n_missing``. Raises
+    AnalysisError for a pixel or slot out of range.
     """
     frames, rng, _ = pixel_samples(stack, row, col, slot)
     return RangeCDF.from_samples(rng, n_missing=len(stack) - frames.size)
 
 
-def reflectivity_vs_range(stack: FrameStack, row: int, col: int, slot: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def reflectivity_vs_range(stack: FrameStack, row: int, col: int, slot: int | str = 0) -> tuple[np.ndarray, np.ndarray]:
     """Reflectivity against range for the returns of a raypath.
 
     Returns ``(range_m float64[n], reflectivity uint8[n])`` sorted by range (stable: frame
@@ -119,7 +125,7 @@ def neighbourhood(stack: FrameStack, row: int, col: int, n: int) -> tuple[np.nda
 
 
 def spatial_cdf(
-    stack: FrameStack, row: int, col: int, slot: int = 0, *, n: int = 5, frame: int | None = 0
+    stack: FrameStack, row: int, col: int, slot: int | str = 0, *, n: int = 5, frame: int | None = 0
 ) -> RangeCDF:
     """Spatial CDF (eq. 3) over the n × n neighbourhood of pixel (row, col).
 
@@ -132,6 +138,7 @@ def spatial_cdf(
     Neighbourhood pixels in lost columns are missing (counted in ``n_missing``); non-returns
     count in the denominator. Raises AnalysisError for bad pixel, slot, frame or n.
     """
+    stack, slot = resolve(stack, slot)
     check_pixel(stack, row, col, slot)
     rows, cols = neighbourhood(stack, row, col, n)
     if frame is None:
@@ -141,5 +148,5 @@ def spatial_cdf(
             raise AnalysisError(f"frame {frame} is not in this stack of {len(stack)} frames")
         frames = np.array([frame % len(stack)])
     ranges = stack.range_mm[frames[:, None, None], slot, rows[None, :, None], cols[None, :, :]]
-    valid = stack.column_valid[frames[:, None, None], cols[None, :, :]]
+    valid = sample_mask(stack, slot)[frames[:, None, None], rows[None, :, None], cols[None, :, :]]
     return RangeCDF.from_samples(ranges[valid], n_missing=int(valid.size - np.count_nonzero(valid)))

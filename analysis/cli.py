@@ -150,8 +150,10 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 
     cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
                                              "repeatable")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
-                   help="return slot: index (0, 1) or label (strongest, last, second_strongest); default 0")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
+                   help="return: strongest, last or second_strongest, selected per firing as the sensor defines "
+                        "them (VLP-16 dual: slot 1 holds the second strongest where the last was the strongest), "
+                        "or a raw slot index (0, 1); default 0")
     _add_input(p)
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
     p.add_argument("--motion-compensation", action="store_true",
@@ -165,7 +167,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 def run_analyze(args: argparse.Namespace) -> int:
     from .gmm import parse_method
     from .raypath import analyze_raypath
-    from .stack import slot_index
+    from .returns import parse_return, resolve
 
     # options and outputs first: a typo should not cost a decode
     pixels = list(args.pixel)
@@ -173,10 +175,11 @@ def run_analyze(args: argparse.Namespace) -> int:
     _check_neighbourhood(args.neighbourhood)
     if args.plot and args.plot.lower().endswith(".png"):
         raise AnalysisError(f"--plot {args.plot}: analyze writes several figures; give a folder")
+    selection = parse_return(args.slot)
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
     stack = _load(args.input, args.metadata, args.frames, args.grid)
-    slot = slot_index(stack, args.slot)
+    stack, slot = resolve(stack, selection)
     for r, c in pixels:
         _check_pixel(stack, r, c, slot)
     results = [
@@ -186,7 +189,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     ]
     source = _source(args.input, stack)
     print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
-          f"slot {slot} = {stack.return_labels[slot]}")
+          f"return {stack.return_labels[slot]}")
     print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'GMM':>5}  component means (m) [weights]")
     for ra in results:
         t = ra.temporal
@@ -232,32 +235,47 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
     p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
     p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
-    p.add_argument("--method", choices=("detrend", "plane", "gap", "row"), default=None,
+    from .multireturn import MONITOR_METHODS
+
+    p.add_argument("--method", choices=MONITOR_METHODS, default=None,
                    help="monitor score: detrend (default) = largest gap of the neighbourhood's ranges about a local "
                         "plane, the smallest over the windows of N//2+1 rows holding the pixel (ground and walls at "
                         "a shallow angle are one surface, not two); plane = one plane over the whole N×N; gap = the "
                         "paper's §4.3 score, largest gap of the N×N spatial CDF; row = gap within each row of the "
                         "neighbourhood")
     p.add_argument("--monitor-by-row", action="store_true", help="same as --method row (kept for old scripts)")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0", help="slot shown in the plot (default 0)")
+    p.add_argument("--gmm-map", metavar="OUT", help="also fit a Gaussian mixture per pixel and return (a probabilistic "
+                   "raypath map) and write it: NPZ, or Parquet when OUT ends in .parquet")
+    p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
+                   help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
+                        "map's returns (a VLP-16 dual map has last, strongest, second_strongest); default 0")
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
     from .gmm import DEFAULT_GAP_M
     from .multireturn import multireturn_map
-    from .stack import slot_index
+    from .returns import available_returns, parse_return, select_returns
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
         raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
     _check_neighbourhood(args.neighbourhood)
+    if args.gmm_components < 1:
+        raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
     method = args.method
     if args.monitor_by_row:
         if method not in (None, "row"):
             raise AnalysisError(f"--monitor-by-row: it means --method row, which contradicts --method {method}; give one of them")
         method = "row"
+    shown = parse_return(args.slot)
     _check_outputs(args, output_suffixes=(".npz",))
+    if args.gmm_map:
+        from lidarpkt import cliargs
+
+        cliargs.check_output(args.gmm_map, "--gmm-map", (".npz", ".parquet"))
     stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = select_returns(stack, available_returns(stack))  # the returns as the sensor defines them
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
     out = Path(args.output)
@@ -276,9 +294,11 @@ def run_multireturn(args: argparse.Namespace) -> int:
               f"{int(np.count_nonzero(mr.monitor_flags[i]))} flagged, precision {_fmt(ev.precision, 3)}, "
               f"recall {_fmt(ev.recall, 3)}, ROC AUC {_fmt(ev.auc, 3)}")
     _status(args, f"wrote {out}")
+    if args.gmm_map:
+        _status(args, _write_gmm_map(stack, args.gmm_map, args.gmm_components, gap))
     if args.plot:
         plots = _plots()
-        slot = slot_index(stack, args.slot)
+        slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
         if not 0 <= slot < len(s.return_labels):
             raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
         if args.plot.lower().endswith(".png"):  # the old spelling: the map's own file name
@@ -291,6 +311,16 @@ def run_multireturn(args: argparse.Namespace) -> int:
                                       f"{ev.n_pixels} raypaths, {Path(args.input).name}"), roc)
         _status(args, f"wrote {figure} and {roc}")
     return 0
+
+
+def _write_gmm_map(stack, path: str, components: int, gap_m: float) -> str:
+    from .gmm_map import fit_gmm_map
+
+    gm = fit_gmm_map(stack, max_components=components, min_separation_m=gap_m)
+    gm.save(path)
+    counts = np.bincount(gm.n_components.ravel(), minlength=components + 1)
+    return (f"wrote {path}: mixtures of up to {components} components per pixel "
+            f"({', '.join(f'{n} with {m}' for m, n in enumerate(counts) if n)})")
 
 
 # ---------------------------------------------------------------------------- compare-returns
@@ -306,21 +336,41 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     _add_input(p)
     p.add_argument("--metadata2", action="append", metavar="M.json", help="Ouster metadata JSON of IN2 (default: --metadata)")
     cliargs.add_pixel(p, required=False, help="raypath whose temporal CDFs to compare in detail; repeatable")
-    p.add_argument("--return", dest="slot", metavar="SLOT", default="0",
-                   help="with IN2: the slot of IN to compare, index or label (default 0)")
-    p.add_argument("--return2", dest="slot2", metavar="SLOT", default="0",
-                   help="with IN2: the slot of IN2 to compare, index or label (default 0)")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default=None,
+                   help="with IN2: the return of IN to compare: strongest, last, second_strongest (per firing, as "
+                        "the sensor defines them) or a raw slot index (default: a return kind both captures report)")
+    p.add_argument("--return2", dest="slot2", metavar="RETURN", default=None,
+                   help="with IN2: the return of IN2 to compare (default: the same kind as --return)")
     p.add_argument("--paired", action="store_true",
                    help="with IN2: frame k of both captures is the same firing (captures generated from one seed); "
                         "also compare them frame by frame")
 
 
+def _pair_returns(a, b, sel_a, sel_b):
+    """The returns of two captures to compare: given ones, else the same kind on both sides
+    (``compare-returns STRONGEST.pcap DUAL.pcap`` pairs strongest with strongest)."""
+    from .returns import available_returns
+
+    if sel_a is None and sel_b is None:
+        common = [k for k in available_returns(a) if k in available_returns(b)]
+        if not common:  # two modes with nothing in common (strongest vs last): their own returns
+            return available_returns(a)[0], available_returns(b)[0]
+        return common[0], common[0]
+    if sel_b is None:
+        return sel_a, sel_a if isinstance(sel_a, str) else 0
+    if sel_a is None:
+        return (sel_b if isinstance(sel_b, str) else 0), sel_b
+    return sel_a, sel_b
+
+
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
     from .compare import compare_slots, compare_stacks, ks_image
-    from .stack import slot_index
+    from .returns import available_returns, parse_return, resolve, sample_mask, select_returns
 
     pixels = list(args.pixel)
+    sel_a = None if args.slot is None else parse_return(args.slot)
+    sel_b = None if args.slot2 is None else parse_return(args.slot2)
     if args.plot and args.plot.lower().endswith(".png"):
         raise AnalysisError(f"--plot {args.plot}: compare-returns writes several figures; give a folder")
     _check_outputs(args)
@@ -338,6 +388,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
                 f"{args.input} has one return slot ({a.return_labels[0]}): give a dual-return capture, "
                 "or a second capture of the same scene (IN2) to compare modes"
             )
+        a = select_returns(a, available_returns(a)[:2])  # VLP-16 dual: last vs strongest, per firing
         pc = compare_slots(a, 0, 1)
         pairs = [(a, 0, a, 1)]
         doc["frames"] = len(a)
@@ -356,7 +407,9 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
-        sa_i, sb_i = slot_index(a, args.slot), slot_index(b, args.slot2)
+        sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)
+        a, sa_i = resolve(a, sel_a)
+        b, sb_i = resolve(b, sel_b)
         res = compare_stacks(a, b, sa_i, sb_i, paired=args.paired)
         dist, pc = res if args.paired else (res, None)
         doc["modes"] = dist.summary()
@@ -382,8 +435,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
             _check_pixel(sb, r, c, ib)
             ca, cb = temporal_cdf(sa, r, c, ia), temporal_cdf(sb, r, c, ib)
 
-            ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sa.column_valid[:, c:c + 1],
-                                sb.range_mm[:, ib, r:r + 1, c:c + 1], sb.column_valid[:, c:c + 1])[0, 0])
+            ks = float(ks_image(sa.range_mm[:, ia, r:r + 1, c:c + 1], sample_mask(sa, ia)[:, r:r + 1, c:c + 1],
+                                sb.range_mm[:, ib, r:r + 1, c:c + 1], sample_mask(sb, ib)[:, r:r + 1, c:c + 1])[0, 0])
             la, lb = sa.return_labels[ia], sb.return_labels[ib]
             if la == lb:
                 la, lb = f"{la} ({Path(args.input).name})", f"{lb} ({Path(args.input2).name})"

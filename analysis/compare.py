@@ -19,6 +19,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
 
+from .returns import resolve, sample_mask
 from .stack import check_stack
 
 _NO_SAMPLE = np.iinfo(np.int64).max
@@ -66,8 +67,9 @@ class PairedComparison:
 
 
 def _paired(ra, rb, va, vb, labels, edges) -> PairedComparison:
-    """``ra, rb``: uint32 [K, H, W] (0 = non-return); ``va, vb``: bool [K, W] valid columns."""
-    both_valid = (va & vb)[:, None, :]
+    """``ra, rb``: uint32 [K, H, W] (0 = non-return); ``va, vb``: bool [K, W] valid columns or
+    [K, H, W] samples."""
+    both_valid = _pixels(va) & _pixels(vb)
     ret_a, ret_b = ra > 0, rb > 0
     differ = both_valid & (ra != rb)
     one_sided = both_valid & (ret_a ^ ret_b)
@@ -85,20 +87,34 @@ def _paired(ra, rb, va, vb, labels, edges) -> PairedComparison:
                             frac, mean_delta, max_delta, edges, counts.astype(np.int64))
 
 
-def compare_slots(stack: FrameStack, a: int = 0, b: int = 1, *, delta_edges_m: np.ndarray | None = None) -> PairedComparison:
-    """Compare return slots ``a`` and ``b`` of a dual capture frame by frame.
+def _pixels(valid: np.ndarray) -> np.ndarray:
+    """A ``[K, W]`` column mask as ``[K, 1, W]``; a ``[K, H, W]`` sample mask as is."""
+    return valid[:, None, :] if valid.ndim == 2 else valid
 
-    Raises AnalysisError when the stack does not have both slots.
+
+def compare_slots(stack: FrameStack, a: int | str = 0, b: int | str = 1, *, delta_edges_m: np.ndarray | None = None) -> PairedComparison:
+    """Compare two returns of a dual capture frame by frame: slot indices or return kinds
+    (``"last"``, ``"strongest"``..., selected per firing, see :mod:`analysis.returns`).
+
+    Raises AnalysisError when the stack does not have both.
     """
     check_stack(stack)
     r = stack.range_mm.shape[1]
+    from .returns import parse_return, select_returns
+
+    a, b = parse_return(a), parse_return(b)
+    if not (isinstance(a, int) and isinstance(b, int)):
+        if a == b:
+            raise AnalysisError(f"cannot compare return {a!r} with itself")
+        stack, a, b = select_returns(stack, [a, b]), 0, 1
+        r = 2
     if not (0 <= a < r and 0 <= b < r) or a == b:
         raise AnalysisError(
             f"cannot compare slots {a} and {b}: this capture has {r} return slot(s) {list(stack.return_labels)}; "
             "slot comparison needs a dual-return capture (or give a second capture to compare modes)"
         )
     labels = (stack.return_labels[a], stack.return_labels[b])
-    return _paired(stack.range_mm[:, a], stack.range_mm[:, b], stack.column_valid, stack.column_valid, labels, delta_edges_m)
+    return _paired(stack.range_mm[:, a], stack.range_mm[:, b], sample_mask(stack, a), sample_mask(stack, b), labels, delta_edges_m)
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,8 +151,9 @@ class DistributionComparison:
 
 
 def _samples(range_mm: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """[K, H, W] uint32 + [K, W] → values int64 [K, H, W] (sentinel for non-return or missing) and n_samples [H, W]."""
-    v = np.broadcast_to(valid[:, None, :], range_mm.shape)
+    """[K, H, W] uint32 + [K, W] columns or [K, H, W] samples → values int64 [K, H, W] (sentinel
+    for non-return or missing) and n_samples [H, W]."""
+    v = np.broadcast_to(_pixels(valid), range_mm.shape)
     vals = np.where(v & (range_mm > 0), range_mm.astype(np.int64), _NO_SAMPLE)
     return vals, v.sum(axis=0)
 
@@ -167,8 +184,8 @@ def ks_image(a_mm: np.ndarray, a_valid: np.ndarray, b_mm: np.ndarray, b_valid: n
 def compare_stacks(
     a: FrameStack,
     b: FrameStack,
-    slot_a: int = 0,
-    slot_b: int = 0,
+    slot_a: int | str = 0,
+    slot_b: int | str = 0,
     *,
     paired: bool = False,
     delta_edges_m: np.ndarray | None = None,
@@ -182,6 +199,8 @@ def compare_stacks(
     """
     check_stack(a)
     check_stack(b)
+    a, slot_a = resolve(a, slot_a)
+    b, slot_b = resolve(b, slot_b)
     if a.range_mm.shape[2:] != b.range_mm.shape[2:]:
         raise AnalysisError(
             f"the captures have different range images ({a.range_mm.shape[2]}x{a.range_mm.shape[3]} and "
@@ -192,9 +211,10 @@ def compare_stacks(
             raise AnalysisError(f"the {name} capture has no return slot {slot} (it has {list(stack.return_labels)})")
     ra, rb = a.range_mm[:, slot_a], b.range_mm[:, slot_b]
     labels = (a.return_labels[slot_a], b.return_labels[slot_b])
-    ks = ks_image(ra, a.column_valid, rb, b.column_valid)
-    va, na = _samples(ra, a.column_valid)
-    vb, nb = _samples(rb, b.column_valid)
+    ma, mb = sample_mask(a, slot_a), sample_mask(b, slot_b)
+    ks = ks_image(ra, ma, rb, mb)
+    va, na = _samples(ra, ma)
+    vb, nb = _samples(rb, mb)
 
     def median_m(vals):
         f = np.where(vals != _NO_SAMPLE, vals, np.nan).astype(np.float64)
@@ -210,5 +230,5 @@ def compare_stacks(
         return dist
     if len(a) != len(b):
         raise AnalysisError(f"paired comparison needs the same number of frames ({len(a)} and {len(b)})")
-    return dist, _paired(ra, rb, a.column_valid, b.column_valid, labels, delta_edges_m)
+    return dist, _paired(ra, rb, ma, mb, labels, delta_edges_m)
 

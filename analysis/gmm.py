@@ -37,6 +37,11 @@ DEFAULT_GAP_M = 0.1
 #: component cannot collapse onto one repeated quantised value.
 DEFAULT_MIN_SIGMA_M = 0.003
 
+#: EM stops after this many iterations, or when the log-likelihood gains less than this share
+#: (see :func:`fit_em`); the per-pixel maps of :mod:`analysis.gmm_map` use the same.
+DEFAULT_EM_ITERATIONS = 300
+DEFAULT_EM_TOL = 1e-6
+
 _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 
 
@@ -182,8 +187,8 @@ def fit_em(
     max_components: int = 4,
     min_sigma_m: float = DEFAULT_MIN_SIGMA_M,
     min_separation_m: float = DEFAULT_GAP_M,
-    iterations: int = 300,
-    tol: float = 1e-9,
+    iterations: int = DEFAULT_EM_ITERATIONS,
+    tol: float = DEFAULT_EM_TOL,
 ) -> GaussianMixture:
     """Mixture by expectation maximisation on the returns, the number of components (1..max_components)
     chosen by BIC (eqs. 8–9). Deterministic: each M starts from the M − 1 widest gaps and from
@@ -192,6 +197,10 @@ def fit_em(
     A fit whose component means lie closer than ``min_separation_m`` (the cluster gap of the
     multi-return map) is not a candidate: with a few dozen samples BIC alone sometimes splits
     one surface's Gaussian noise into two components a couple of centimetres apart.
+
+    EM stops when the log-likelihood gains less than ``tol`` (relative): at 1e-6 the means are
+    within 0.02 mm of those at 1e-9 (measured on the generated VLP-16 and OS1-64 scenes, 300
+    raypaths with spread), a hundredth of the range step, for a third of the iterations.
 
     Raises AnalysisError if there is no return or max_components < 1.
     """
@@ -209,7 +218,9 @@ def fit_em(
         if m == 1:
             starts.append(np.array([x.mean()]))
         else:
-            cuts = np.sort(np.argsort(np.diff(x))[::-1][: m - 1]) + 1  # widest gaps
+            # the widest gaps; among equal gaps the first (a stable order, which the per-pixel
+            # maps of analysis.gmm_map reproduce)
+            cuts = np.sort(np.argsort(-np.diff(x), kind="stable")[: m - 1]) + 1
             starts.append(np.array([seg.mean() for seg in np.split(x, cuts)]))
             starts.append(np.quantile(x, (np.arange(m) + 0.5) / m))
         fits = []

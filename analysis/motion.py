@@ -86,6 +86,9 @@ def motion_compensated_cdf(
     Raises:
         AnalysisError: bad pixel/slot/patch/search/reference.
     """
+    from .returns import resolve, sample_mask
+
+    stack, slot = resolve(stack, slot)
     check_pixel(stack, row, col, slot)
     if patch < 1 or patch % 2 == 0:
         raise AnalysisError(f"patch size {patch} must be an odd number >= 1 (the paper uses 5)")
@@ -105,7 +108,7 @@ def motion_compensated_cdf(
     rows_c = np.clip(rows, 0, h - 1)
     cols = neighbour_columns(stack, row, col, rows_c, np.arange(-reach, reach + 1))  # [2r+1, 2r+1]
     win_mm = stack.range_mm[:, slot, rows_c[:, None], cols].astype(np.float64)
-    win_ok = stack.column_valid[:, cols] & row_in[None, :, None]
+    win_ok = sample_mask(stack, slot)[:, rows_c[:, None], cols] & row_in[None, :, None]
     win_m = np.where(win_mm > 0, win_mm / 1000.0, np.nan)  # NaN = non-return
 
     ref_m = win_m[reference, search : search + patch, search : search + patch]  # [P, P]
@@ -162,9 +165,11 @@ def estimate_frame_offsets(
         ``(offsets int64[K, 2], cost_m2 float64[K])``: (Δrow, Δcol) with the meaning of
         :attr:`MotionCompensation.offsets`, and the cost at the chosen offset.
     """
+    from .returns import resolve, sample_mask
     from .stack import check_stack, destagger, pixel_shift
 
     check_stack(stack)
+    stack, slot = resolve(stack, slot)
     k, r, h, w = stack.range_mm.shape
     if not 0 <= slot < r:
         raise AnalysisError(f"return slot {slot} does not exist: this capture has {r} slot(s)")
@@ -173,7 +178,7 @@ def estimate_frame_offsets(
     if not -k <= reference < k:
         raise AnalysisError(f"reference frame {reference} is not in this stack of {k} frames")
     shift = pixel_shift(stack)
-    valid = np.broadcast_to(stack.column_valid[:, None, :], (k, h, w))
+    valid = sample_mask(stack, slot)
     img = destagger(np.where(valid, stack.range_mm[:, slot] / 1000.0, -1.0), shift)  # -1 = missing
     ref = img[reference]
     side = np.arange(-search, search + 1)

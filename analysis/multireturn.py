@@ -25,6 +25,7 @@ from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
 
 from .gmm import DEFAULT_GAP_M
+from .returns import sample_mask
 from .stack import check_stack, destagger, pixel_shift, restagger
 
 _NO_SAMPLE = np.iinfo(np.uint32).max  # sorts after every real range
@@ -67,9 +68,9 @@ _BLOCK_SAMPLES = 1 << 22
 
 
 def _block_statistics(rng: np.ndarray, valid: np.ndarray, gap_mm: float) -> tuple[np.ndarray, ...]:
-    """Statistics of one block ``rng uint32[K, R, h, W]`` with ``valid bool[K, W]``."""
+    """Statistics of one block ``rng uint32[K, R, h, W]`` with samples ``valid bool[K, R, h, W]``."""
     k = rng.shape[0]
-    present = (rng > 0) & valid[:, None, None, :]
+    present = (rng > 0) & valid
     srt = np.sort(np.where(present, rng, np.uint32(_NO_SAMPLE)), axis=0)
     is_ret = srt != _NO_SAMPLE  # returns sort first, then the non-returns and missing frames
     n_ret = is_ret.sum(axis=0)
@@ -101,12 +102,13 @@ def image_statistics(stack: FrameStack, *, gap_m: float = DEFAULT_GAP_M) -> Imag
     check_stack(stack)
     k, r, h, w = stack.range_mm.shape
     rows_per_block = max(1, _BLOCK_SAMPLES // max(1, k * r * w))
+    mask = sample_mask(stack)
     parts = [
-        _block_statistics(stack.range_mm[:, :, a : a + rows_per_block], stack.column_valid, gap_m * 1000.0)
+        _block_statistics(stack.range_mm[:, :, a : a + rows_per_block], mask[:, :, a : a + rows_per_block], gap_m * 1000.0)
         for a in range(0, h, rows_per_block)  # blocks of rows, each vectorised over all its pixels
     ]
     n_ret, mean, std, n_clusters, gap = (np.concatenate(p, axis=1) for p in zip(*parts))
-    n_samples = np.broadcast_to(stack.column_valid.sum(axis=0), (r, h, w)).astype(np.int64)
+    n_samples = mask.sum(axis=0).astype(np.int64)
     with np.errstate(invalid="ignore", divide="ignore"):
         nonret = (n_samples - n_ret) / n_samples
     return ImageStatistics(
@@ -140,7 +142,7 @@ def spatial_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5, by_row: 
         raise AnalysisError(f"frame {frame} is not in this stack of {len(stack)} frames")
     shift = pixel_shift(stack)
     rng = stack.range_mm[frame]
-    present = (rng > 0) & stack.column_valid[frame][None, None, :]
+    present = (rng > 0) & sample_mask(stack)[frame]
     img = destagger(np.where(present, rng, np.uint32(_NO_SAMPLE)), shift)  # [R, H, W]
     r, h, w = img.shape
     half = n // 2
@@ -252,7 +254,7 @@ def detrended_gap_score(stack: FrameStack, *, frame: int = 0, n: int = 5, window
         raise AnalysisError(f"window of {wr} rows does not fit the {n} x {n} neighbourhood")
     shift = pixel_shift(stack)
     rng = stack.range_mm[frame]
-    present = (rng > 0) & stack.column_valid[frame][None, None, :]
+    present = (rng > 0) & sample_mask(stack)[frame]
     img = destagger(np.where(present, rng.astype(np.float64) / 1000.0, np.nan), shift)  # [R, H, W] m
     neigh = _neighbours(img, n)  # [R, H, W, n, n]
     r, h, w = img.shape
@@ -306,6 +308,16 @@ def monitor_score(stack: FrameStack, *, frame: int = 0, n: int = 5, method: str 
     OS1, the hedge top (its 1 m steps per beam are not a plane), and misses much of the noisier
     ground, whose gaps over 50 frames need not show in one frame's 15 samples.
     A 64 × 1024 slot scores in about 0.1 s (``detrend``).
+
+    Judged by the scan-matching error it prevents (``benchmarks/monitor_methods.py``, issue 17 §3:
+    the first 10 frames registered by point-to-point ICP, point-to-plane ICP and VGICP to the
+    first frame and to the map of all frames; mean over them of 1 − median translation error with
+    the flagged raypaths removed / with all): detrend −7 %, plane −22 %, row −30 %, gap −122 %
+    (generated VLP-16 +5 / +4 / −19 / −107 %, generated OS1-64 −5 / −2 / −87 / −91 %, VeloView
+    −21 / −68 / +16 / −168 %). No method reduces the error on these static scenes: the raypaths a
+    single frame flags are mostly edges and creases that constrain the match, so removing them
+    costs more than their ranges' ambiguity does. ``detrend`` removes the fewest returns (2–6 %)
+    and costs the least, which is why it stays the default.
 
     Raises AnalysisError for an unknown method, a bad n or frame.
     """

@@ -183,7 +183,9 @@ def plot_range_image(
 
     shift = pixel_shift(stack)
     rng = stack.range_mm[frame, slot].astype(np.float64) / 1000.0
-    valid = np.broadcast_to(stack.column_valid[frame], rng.shape)
+    from .returns import sample_mask
+
+    valid = sample_mask(stack, slot)[frame]
     img = np.where(valid & (rng > 0), rng, np.nan)
     img = destagger(img, shift)
     missing = destagger(~valid, shift)
@@ -365,4 +367,42 @@ def plot_pixel_map(values: np.ndarray, title: str, label: str, stack: FrameStack
     ax.set_ylabel("row (beam, 0 = top)")
     ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_title(title + " (grey: no sample)", fontsize=10)
+    return fig
+
+
+# ---------------------------------------------------------------------------- registration impact
+
+
+def plot_registration_cdfs(impact, quantity: str = "translation_m", source: str = ""):
+    """Empirical CDFs of the pose error (``quantity``: ``"translation_m"``, drawn in mm, or
+    ``"rotation_deg"``) per condition, one panel per algorithm (columns) and target (rows),
+    in the style of the paper's range CDFs. ``impact``: :class:`analysis.registration.RegistrationImpact`."""
+    from .registration import CONDITIONS
+
+    algs = list(impact.errors)
+    modes = list(next(iter(impact.errors.values()))) if algs else []
+    scale, unit = (1000.0, "mm") if quantity == "translation_m" else (1.0, "deg")
+    what = "translation error" if quantity == "translation_m" else "rotation error"
+    fig = _figure(figsize=(4.0 * max(1, len(algs)), 3.2 * max(1, len(modes)) + 0.6), layout="constrained")
+    axes = fig.subplots(max(1, len(modes)), max(1, len(algs)), squeeze=False)
+    styles = {"all": "-", "monitor_removed": "--", "multireturn_removed": "-."}
+    for j, alg in enumerate(algs):
+        for i, mode in enumerate(modes):
+            ax = axes[i][j]
+            for cond in CONDITIONS:
+                e = impact.errors[alg][mode].get(cond)
+                if e is None or not e.frame.size:
+                    continue
+                x = np.sort(getattr(e, quantity) * scale)
+                y = np.arange(1, x.size + 1) / x.size
+                ax.step(np.r_[0.0, x], np.r_[0.0, y], where="post", ls=styles[cond], lw=1.6,
+                        label=f"{cond} (median {np.median(x):.3g} {unit})")
+            ax.set_title(f"{alg.replace('_', ' ')}, {mode.replace('_', ' ')}", fontsize=9)
+            ax.set_xlabel(f"{what} ({unit})")
+            ax.set_ylabel("CDF")
+            ax.set_ylim(-0.02, 1.02)
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="lower right", fontsize=7)
+    src = f" — {source}" if source else ""
+    fig.suptitle(f"Pose {what} of a stationary sensor ({impact.frames} frames, {impact.label} return){src}", fontsize=10)
     return fig

@@ -13,12 +13,16 @@ from lidarpkt.frame import FrameStack
 from .cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
 from .gmm import GaussianMixture, fit_gmm
 from .motion import MotionCompensation, motion_compensated_cdf
+from .returns import resolve
 from .stack import check_pixel
 
 
 @dataclass(frozen=True, eq=False)
 class RaypathAnalysis:
-    """The analysis of pixel (row, col), return slot ``slot``, over a stack.
+    """The analysis of pixel (row, col), return ``label`` over a stack.
+
+    ``slot`` is the capture's slot the return was read from, or None when it was selected per
+    firing from both slots (a VLP-16 dual capture's strongest or second strongest return).
 
     ``spatial`` is the spatial CDF of the first frame of the stack (the monitor's view);
     ``spatial_all`` the same neighbourhood over all frames superimposed (Fig. 9).
@@ -27,7 +31,7 @@ class RaypathAnalysis:
 
     row: int
     col: int
-    slot: int
+    slot: int | None
     label: str
     n_frames: int  # frames of the stack
     temporal: RangeCDF
@@ -52,7 +56,7 @@ class RaypathAnalysis:
         return {
             "row": self.row,
             "col": self.col,
-            "slot": self.slot,
+            "slot": self.slot,  # null: selected per firing from both slots (see analysis.returns)
             "label": self.label,
             "n_frames": t.n_samples,
             "n_returns": t.n_returns,
@@ -70,7 +74,7 @@ def analyze_raypath(
     stack: FrameStack,
     row: int,
     col: int,
-    slot: int = 0,
+    slot: int | str = 0,
     *,
     neighbourhood: int = 5,
     motion_compensation: bool = False,
@@ -80,9 +84,11 @@ def analyze_raypath(
     (``gmm``: ``"em"``, ``"auto"``, CDF thresholds, or None) of one raypath.
 
     The GMM is fitted to the motion-compensated samples when motion compensation is on, else
-    to the temporal ones; it is None when there is no return. Raises AnalysisError for a bad
-    pixel, slot or option.
+    to the temporal ones; it is None when there is no return. ``slot``: a slot index or a return
+    kind (``"strongest"``, ``"last"``, ``"second_strongest"``), selected per firing as the sensor
+    defines it (:mod:`analysis.returns`). Raises AnalysisError for a bad pixel, slot or option.
     """
+    stack, slot = resolve(stack, slot)
     check_pixel(stack, row, col, slot)
     temporal = temporal_cdf(stack, row, col, slot)
     _, refl = reflectivity_vs_range(stack, row, col, slot)
@@ -94,17 +100,20 @@ def analyze_raypath(
         target = motion.cdf if motion is not None else temporal
         if target.n_returns:
             fitted = fit_gmm(target, gmm)
+    sources = getattr(stack, "sources", None)
+    source_slot = slot if sources is None else sources[slot]
     return RaypathAnalysis(
-        row, col, slot, stack.return_labels[slot], len(stack), temporal, refl, spatial, spatial_all,
+        row, col, source_slot, stack.return_labels[slot], len(stack), temporal, refl, spatial, spatial_all,
         neighbourhood, motion, fitted,
     )
 
 
-def analyze_pixel(stack: FrameStack, row: int, col: int, slot: int = 0, **options) -> dict:
+def analyze_pixel(stack: FrameStack, row: int, col: int, slot: int | str = 0, **options) -> dict:
     """:func:`analyze_raypath` as the JSON-ready dict of one ``analyze --json`` pixel entry."""
     return analyze_raypath(stack, row, col, slot, **options).to_json()
 
 
-def analyze(stack: FrameStack, pixels: Iterable[tuple[int, int]], slot: int = 0, **options) -> dict:
+def analyze(stack: FrameStack, pixels: Iterable[tuple[int, int]], slot: int | str = 0, **options) -> dict:
     """The whole ``analyze --json`` document: ``{"frames": K, "pixels": [...]}``."""
+    stack, slot = resolve(stack, slot)  # once, not per pixel
     return {"frames": len(stack), "pixels": [analyze_pixel(stack, r, c, slot, **options) for r, c in pixels]}

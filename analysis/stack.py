@@ -47,9 +47,6 @@ def load_stack(
     """
     import lidarpkt
 
-    opener = getattr(lidarpkt, "open", None)
-    if opener is None:  # pragma: no cover - only while the decoders are being written
-        raise AnalysisError("this lidarpkt build has no lidarpkt.open(): cannot read captures yet")
     if isinstance(metadata, (list, tuple)):
         metadata = [str(m) for m in metadata] or None
     kwargs = {} if metadata is None else {"metadata": metadata if isinstance(metadata, list) else str(metadata)}
@@ -59,7 +56,7 @@ def load_stack(
     if (a is not None and a < 0) or (b is not None and b < 0):
         raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
     n_complete = 0
-    for f in opener(str(path), **kwargs):
+    for f in lidarpkt.open(str(path), **kwargs):
         if include_partial or not f.partial:
             n_complete += 1
             if a is not None and n_complete <= a:
@@ -86,13 +83,31 @@ def load_stack(
             "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
-    return FrameStack.from_frames(picked, include_partial=True, resolution_deg=res)
+    return stack_frames(picked, res)
 
 
 def _slim(frame):
     """The frame without the per-pixel arrays the analysis does not use (signal, near-IR, flags,
-    firing times...), so that a long capture costs only its ranges and reflectivities."""
-    return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra={})
+    firing times...), so that a long capture costs only its ranges and reflectivities. The VLP-16
+    dual mark of the second strongest returns is kept: :mod:`analysis.returns` needs it."""
+    keep = {k: v for k, v in frame.extra.items() if k == "second_strongest"}
+    return replace(frame, signal=None, near_ir=None, flags=None, pixel_time_offset_ns=None, extra=keep)
+
+
+def stack_frames(frames: list, resolution_deg: float | None) -> FrameStack:
+    """:meth:`FrameStack.from_frames` that also carries the VLP-16 dual ``second_strongest`` mark
+    (a :class:`~analysis.returns.ReturnStack` with ``second_strongest`` set, its raw slots kept)."""
+    from dataclasses import fields
+
+    from .returns import ReturnStack
+
+    gridded = [f.on_grid(resolution_deg) for f in frames]
+    stack = FrameStack.from_frames(gridded, include_partial=True, resolution_deg=resolution_deg)
+    marks = [f.extra.get("second_strongest") for f in gridded]
+    if any(m is None for m in marks):
+        return stack
+    base = {f.name: getattr(stack, f.name) for f in fields(FrameStack)}
+    return ReturnStack(**base, second_strongest=np.stack(marks).astype(bool))
 
 
 def parse_frame_range(text: str) -> tuple[int | None, int | None]:
@@ -115,8 +130,13 @@ def select_frames(stack: FrameStack, start: int | None = None, stop: int | None 
     sl = slice(start, stop)
     if not range(len(stack))[sl]:
         raise AnalysisError(f"frames {start}:{stop} select nothing from a stack of {len(stack)} frames")
+    per_frame = {}
+    for name in ("pixel_valid", "second_strongest"):  # ReturnStack's per-frame arrays
+        if getattr(stack, name, None) is not None:
+            per_frame[name] = getattr(stack, name)[sl]
     return replace(
         stack,
+        **per_frame,
         frame_id=stack.frame_id[sl],
         range_mm=stack.range_mm[sl],
         reflectivity=stack.reflectivity[sl],
@@ -146,18 +166,6 @@ def check_pixel(stack: FrameStack, row: int, col: int, slot: int = 0) -> None:
     if not 0 <= slot < r:
         labels = ", ".join(f"{i}={lab}" for i, lab in enumerate(stack.return_labels))
         raise AnalysisError(f"return slot {slot} does not exist: this capture has {r} slot(s) ({labels})")
-
-
-def slot_index(stack: FrameStack, slot: int | str) -> int:
-    """A slot given as its index or its label (``"strongest"``, ``"last"``...) → index."""
-    if isinstance(slot, str) and not slot.lstrip("-").isdigit():
-        try:
-            return stack.return_labels.index(slot)
-        except ValueError:
-            raise AnalysisError(
-                f"return {slot!r} is not in this capture; its slots are {list(stack.return_labels)}"
-            ) from None
-    return int(slot)
 
 
 def pixel_shift(stack: FrameStack) -> np.ndarray:

@@ -25,6 +25,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "analyze": ("analysis.cli", "range CDFs, motion compensation and GMMs of chosen raypaths"),
     "multireturn": ("analysis.cli", "whole-image multi-return statistics and monitor flags"),
     "compare-returns": ("analysis.cli", "compare return slots or captures of one scene in different modes"),
+    "registration-impact": ("analysis.registration_cli", "pose error multi-return raypaths cause in scan matching, with and without the monitor"),
     "demo": ("lidarpkt.demo", "the whole pipeline on the bundled fixtures: decode, MCAP, analysis, figures"),
 }
 

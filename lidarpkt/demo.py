@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import fixtures
-    from analysis import analyze_raypath, load_stack, multireturn_map
+    from analysis import analyze_raypath, available_returns, load_stack, multireturn_map, select_returns
 
     from . import cliargs
 
@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
             mcap_path = out / f"{name}.mcap"
             _decode_to_mcap(pcap, mcap_path, metadata)
         stack = load_stack(pcap, metadata=metadata)
+        # the returns as the sensor defines them (a VLP-16 dual: last, strongest, second strongest)
+        stack = select_returns(stack, available_returns(stack))
         stacks[name] = stack
         mr = multireturn_map(stack)
         for raypath, info in truth["raypaths"].items():

@@ -84,8 +84,15 @@ def test_analyze_return_slot_by_label_and_frame_range(canned, tmp_path, capsys):
     assert code == 0, err
     doc = json.loads(out.read_text())
     entry = doc["pixels"][0]
-    assert doc["frames"] == 3 and entry["slot"] == 1 and entry["label"] == "strongest"
-    x = np.array(truth["raypaths"]["foliage"]["samples"]["range_mm"])[1:4, 1]
+    # the strongest return of each firing, read from both slots: no single slot holds it
+    assert doc["frames"] == 3 and entry["slot"] is None and entry["label"] == "strongest"
+    # slot 0 (the last) where the decoder marks slot 1 as the second strongest (the last return had
+    # the higher reflectivity), else slot 1
+    rng = np.array(truth["raypaths"]["foliage"]["samples"]["range_mm"])[1:4]
+    refl = np.array(truth["raypaths"]["foliage"]["samples"]["reflectivity"])[1:4]
+    marked = (rng[:, 1] != rng[:, 0]) & (refl[:, 0] > refl[:, 1])
+    assert marked.any()  # this raypath shows the difference from raw slot 1
+    x = np.where(marked, rng[:, 0], rng[:, 1])
     assert entry["temporal_cdf"]["range_m"] == (np.sort(x[x > 0]) / 1000).tolist()
     assert entry["motion_compensated"] is None
     # 3 x 3 neighbourhood of one frame: 9 samples
@@ -145,8 +152,9 @@ def test_multireturn_writes_the_map_and_its_figure(canned, tmp_path, capsys):
     code, text, err = run(["multireturn", str(pcap), "-o", str(out), "--plot", str(tmp_path / "map.png"), "--return", "last"], capsys)
     assert code == 0, err
     with np.load(out) as z:
-        assert z["n_clusters"].shape == (2, 16, 1800)
-        assert z["return_labels"].tolist() == ["last", "strongest"]
+        # the returns as the sensor defines them, selected per firing from the two slots
+        assert z["n_clusters"].shape == (3, 16, 1800)
+        assert z["return_labels"].tolist() == ["last", "strongest", "second_strongest"]
         wall = tuple(truth["raypaths"]["wall"]["pixel"][0])
         assert z["n_clusters"][(0,) + wall] == 1 and z["n_returns"][(0,) + wall] == len(truth["frames"])
         assert z["monitor_flags"].dtype == bool and np.isfinite(z["slot0_auc"])

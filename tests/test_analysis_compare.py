@@ -82,7 +82,7 @@ def test_comparison_errors():
         compare_stacks(single, make_stack(np.ones((2, 1, 2, 4), np.uint32)))
     with pytest.raises(AnalysisError, match="same number of frames"):
         compare_stacks(single, make_stack(np.ones((3, 1, 2, 3), np.uint32)), paired=True)
-    with pytest.raises(AnalysisError, match="no return slot 1"):
+    with pytest.raises(AnalysisError, match="slot 1 does not exist"):
         compare_stacks(single, single, slot_b=1)
 
 

@@ -1,0 +1,121 @@
+"""``lidarpkt registration-impact CAPTURE``: the pose error multi-return raypaths cause in scan
+matching, with and without the raypaths the monitor flags (:mod:`analysis.registration`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lidarpkt.errors import AnalysisError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from .multireturn import MONITOR_METHODS
+    from .registration import ALGORITHMS, MODES
+
+    p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (needed for Ouster pcaps)")
+    p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
+    p.add_argument("--grid", metavar="DEG", type=float, default=None, help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz)")
+    p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
+                   help="return to register: strongest, last, second_strongest or a slot index (default 0)")
+    p.add_argument("--json", nargs="?", const="-", metavar="FILE", help="write the results as JSON to FILE (stdout without FILE, or -)")
+    p.add_argument("--plot", metavar="DIR", help="write the error CDF figures (PNG) to this folder")
+    p.add_argument("--algorithm", action="append", choices=tuple(ALGORITHMS), help="registration algorithm; repeatable (default all)")
+    p.add_argument("--mode", action="append", choices=MODES, help="target: each frame to the first, or to a map of all frames; repeatable (default both)")
+    p.add_argument("--map", metavar="GMM", help="a probabilistic raypath map (multireturn --gmm-map) as the scan-to-map target")
+    p.add_argument("--method", choices=MONITOR_METHODS, default=None, help="the monitor's score (default detrend)")
+    p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
+    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
+    p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--downsample", metavar="M", type=float, default=0.25, help="voxel-grid downsampling of every cloud, metres (default 0.25)")
+    p.add_argument("--max-correspondence", metavar="M", type=float, default=1.0, help="largest correspondence distance, metres (default 1)")
+    p.add_argument("--voxel", metavar="M", type=float, default=1.0, help="VGICP voxel size, metres (default 1)")
+    p.add_argument("--workers", metavar="N", type=int, default=1, help="threads small_gicp uses (default 1)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no table on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .cli import _check_neighbourhood, _clean, _load, _plots, _source
+    from .gmm import DEFAULT_GAP_M
+    from .multireturn import DEFAULT_MONITOR_METHOD
+    from .registration import ALGORITHMS, MODES, RegistrationSettings, registration_impact
+    from .returns import parse_return
+
+    # options first: a typo should not cost a decode
+    _check_neighbourhood(args.neighbourhood)
+    selection = parse_return(args.slot)
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap
+    if not gap > 0:
+        raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
+    if args.workers < 1:
+        raise AnalysisError(f"--workers {args.workers}: give 1 or more")
+    for flag, value in (("--downsample", args.downsample), ("--max-correspondence", args.max_correspondence), ("--voxel", args.voxel)):
+        if not value > 0:
+            raise AnalysisError(f"{flag} {value}: must be a positive number of metres")
+    settings = RegistrationSettings(downsampling_m=args.downsample, max_correspondence_m=args.max_correspondence,
+                                    voxel_m=args.voxel, threads=args.workers)
+    gmm_map = None
+    if args.map:
+        from .gmm_map import load_gmm_map
+
+        gmm_map = load_gmm_map(args.map)
+    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    map_range = None
+    if gmm_map is not None:
+        map_range = gmm_map.map_range_mm(stack)
+    impact = registration_impact(
+        stack, slot=selection, algorithms=args.algorithm or tuple(ALGORITHMS), modes=args.mode or MODES,
+        monitor_method=args.method or DEFAULT_MONITOR_METHOD, gap_m=gap, neighbourhood=args.neighbourhood,
+        threshold_m=args.threshold, settings=settings, map_range_mm=map_range,
+    )
+    doc = {"input": args.input, **impact.to_json()}
+    to_stdout = args.json == "-"
+    if not args.quiet and not to_stdout:
+        print_table(impact, _source(args.input, stack))
+    if args.json:
+        text = json.dumps(_clean(doc), allow_nan=False)
+        if to_stdout:
+            sys.stdout.write(text + "\n")
+        else:
+            out = Path(args.json)
+            try:
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(text + "\n")
+            except OSError as exc:
+                raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
+            if not args.quiet:
+                print(f"wrote {out}")
+    if args.plot:
+        plots = _plots()
+        out = Path(args.plot)
+        src = Path(args.input).name
+        for q, name in (("translation_m", "registration_translation_cdf.png"), ("rotation_deg", "registration_rotation_cdf.png")):
+            plots.save(plots.plot_registration_cdfs(impact, q, src), out / name)
+        if not args.quiet and not to_stdout:
+            print(f"wrote 2 figures to {out}")
+    return 0
+
+
+def print_table(impact, source: str) -> None:
+    """Median / 95th percentile of the translation (mm) and rotation (deg) errors per condition."""
+    from .registration import CONDITIONS
+
+    rf = impact.removed_fraction
+    print(f"{source}: {impact.frames} frames, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "
+          f"monitor ({impact.monitor_method}) removes {100 * rf['monitor_removed']:.1f} %, "
+          f"multi-return raypaths {100 * rf['multireturn_removed']:.1f} % of the returns")
+    head = f"{'algorithm':<20} {'target':<13}" + "".join(f" {c:>24}" for c in CONDITIONS)
+    print(head)
+    print(f"{'':<34}" + "".join(f" {'median/p95 mm, deg':>24}" for _ in CONDITIONS))
+    for alg, by_mode in impact.errors.items():
+        for mode, by_cond in by_mode.items():
+            cells = []
+            for c in CONDITIONS:
+                s = by_cond[c].summary()
+                t, r = s["translation_m"], s["rotation_deg"]
+                cells.append("n/a" if t["median"] is None else
+                             f"{1000 * t['median']:.2f}/{1000 * t['p95']:.2f}, {r['median']:.3f}")
+            print(f"{alg:<20} {mode:<13}" + "".join(f" {c:>24}" for c in cells))
