@@ -16,13 +16,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from .registration import ALGORITHMS, MODES
 
     p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP or ROS bag")
-    p.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (needed for Ouster pcaps)")
+    from lidarpkt import cliargs
+
+    cliargs.add_metadata(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None, help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return to register: strongest, last, second_strongest or a slot index (default 0)")
-    p.add_argument("--json", nargs="?", const="-", metavar="FILE", help="write the results as JSON to FILE (stdout without FILE, or -)")
-    p.add_argument("--plot", metavar="DIR", help="write the error CDF figures (PNG) to this folder")
+    cliargs.add_json(p, "the results as one JSON document")
+    cliargs.add_plot(p, "write the error CDF figures (PNG) into this folder")
     p.add_argument("--algorithm", action="append", choices=tuple(ALGORITHMS), help="registration algorithm; repeatable (default all)")
     p.add_argument("--mode", action="append", choices=MODES, help="target: each frame to the first, or to a map of all frames; repeatable (default both)")
     p.add_argument("--map", metavar="GMM", help="a probabilistic raypath map (multireturn --gmm-map) as the scan-to-map target")
@@ -33,12 +35,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--downsample", metavar="M", type=float, default=0.25, help="voxel-grid downsampling of every cloud, metres (default 0.25)")
     p.add_argument("--max-correspondence", metavar="M", type=float, default=1.0, help="largest correspondence distance, metres (default 1)")
     p.add_argument("--voxel", metavar="M", type=float, default=1.0, help="VGICP voxel size, metres (default 1)")
-    p.add_argument("--workers", metavar="N", type=int, default=1, help="threads small_gicp uses (default 1)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no table on stdout")
+    p.add_argument("--workers", metavar="N", type=cliargs.positive_int_type("--workers"), default=1,
+                   help="threads small_gicp uses (default 1)")
+    cliargs.add_quiet(p, "no table and no status lines")
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cli import _check_neighbourhood, _clean, _load, _plots, _source
+    from lidarpkt import cliargs
+
+    from .cli import _check_neighbourhood, _check_outputs, _clean, _load, _plots, _source, _status
     from .gmm import DEFAULT_GAP_M
     from .multireturn import DEFAULT_MONITOR_METHOD
     from .registration import ALGORITHMS, MODES, RegistrationSettings, registration_impact
@@ -49,12 +54,15 @@ def run(args: argparse.Namespace) -> int:
     selection = parse_return(args.slot)
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: the cluster gap must be a positive number of metres (e.g. 0.1)")
-    if args.workers < 1:
-        raise AnalysisError(f"--workers {args.workers}: give 1 or more")
+        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
     for flag, value in (("--downsample", args.downsample), ("--max-correspondence", args.max_correspondence), ("--voxel", args.voxel)):
         if not value > 0:
-            raise AnalysisError(f"{flag} {value}: must be a positive number of metres")
+            raise AnalysisError(f"{flag} {value}: not a positive number of metres; give e.g. {flag} 0.5")
+    if args.map:
+        cliargs.check_inputs([args.map], "--map")
+    if args.plot and args.plot.lower().endswith(".png"):
+        raise AnalysisError(f"--plot {args.plot}: registration-impact writes two figures; give a folder")
+    _check_outputs(args)
     settings = RegistrationSettings(downsampling_m=args.downsample, max_correspondence_m=args.max_correspondence,
                                     voxel_m=args.voxel, threads=args.workers)
     gmm_map = None
@@ -82,20 +90,17 @@ def run(args: argparse.Namespace) -> int:
         else:
             out = Path(args.json)
             try:
-                out.parent.mkdir(parents=True, exist_ok=True)
                 out.write_text(text + "\n")
             except OSError as exc:
                 raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
-            if not args.quiet:
-                print(f"wrote {out}")
+            _status(args, f"wrote {out}")
     if args.plot:
         plots = _plots()
         out = Path(args.plot)
         src = Path(args.input).name
         for q, name in (("translation_m", "registration_translation_cdf.png"), ("rotation_deg", "registration_rotation_cdf.png")):
             plots.save(plots.plot_registration_cdfs(impact, q, src), out / name)
-        if not args.quiet and not to_stdout:
-            print(f"wrote 2 figures to {out}")
+        _status(args, f"wrote 2 figures to {out}")
     return 0
 
 

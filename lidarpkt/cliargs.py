@@ -85,7 +85,7 @@ def positive_int(text: str, flag: str) -> int:
     except ValueError:
         value = 0
     if value < 1:
-        raise UsageError(f"{flag} {text}: expected a whole number >= 1, e.g. {flag} 2")
+        raise UsageError(f"{flag} {text}: not a whole number >= 1; give e.g. {flag} 2")
     return value
 
 

@@ -113,7 +113,7 @@ def test_multireturn_writes_the_map_and_registration_uses_it(canned, tmp_path, c
     pcap, _ = canned("vlp16-strongest")
     gpath = tmp_path / "g.npz"
     assert main(["multireturn", str(pcap), "-o", str(tmp_path / "m.npz"), "--gmm-map", str(gpath), "--gmm-components", "3"]) == 0
-    text = capsys.readouterr().out
+    text = capsys.readouterr().err  # status lines go to stderr
     assert f"wrote {gpath}" in text
     gm = load_gmm_map(gpath)
     assert gm.max_components == 3 and gm.weights.shape == (1, 3, 16, 1800)
@@ -125,5 +125,5 @@ def test_multireturn_writes_the_map_and_registration_uses_it(canned, tmp_path, c
     c = doc["algorithms"]["icp_point_to_plane_scan_to_map"]["conditions"]["all"]
     assert c["frames"] == 5 and c["translation_m"]["max"] < 0.05
     code = main(["multireturn", str(pcap), "-o", str(tmp_path / "x.npz"), "--gmm-map", str(tmp_path / "g.csv")])
-    assert code == 2 and "name a .npz or .parquet file" in capsys.readouterr().err
+    assert code == 2 and "the accepted suffixes are .npz, .parquet" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()

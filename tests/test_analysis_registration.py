@@ -121,8 +121,8 @@ def test_cli_on_a_real_capture_writes_the_documented_json_table_and_figures(ext,
 @pytest.mark.parametrize(
     "extra,message",
     [
-        (["--downsample", "0"], "--downsample 0.0: must be a positive number of metres"),
-        (["--workers", "0"], "--workers 0: give 1 or more"),
+        (["--downsample", "0"], "--downsample 0.0: not a positive number of metres"),
+        (["--workers", "0"], "--workers 0: not a whole number >= 1"),
         (["--return", "loudest"], "--return 'loudest'"),
         (["--neighbourhood", "4"], "--neighbourhood 4"),
     ],

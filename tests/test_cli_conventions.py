@@ -100,6 +100,13 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("compare-json-proc", ["compare-returns", vlp, "--json", "/proc/lidarpkt-c.json"], "--json", []),
         ("compare-plot-file", ["compare-returns", vlp, "--plot", str(tmp / "c.png")], "--plot", [tmp / "c.png"]),
         ("compare-missing-second", ["compare-returns", vlp, missing], "no such file or directory", []),
+        # registration-impact
+        ("registration-missing", ["registration-impact", missing], "no such file or directory", []),
+        ("registration-json-proc", ["registration-impact", vlp, "--json", "/proc/lidarpkt-r.json"], "--json", []),
+        ("registration-plot-file", ["registration-impact", vlp, "--plot", str(tmp / "r.png")], "--plot",
+         [tmp / "r.png"]),
+        ("registration-workers", ["registration-impact", vlp, "--workers", "0"], "--workers 0", []),
+        ("registration-map-missing", ["registration-impact", vlp, "--map", str(tmp / "g.npz")], "--map", []),
         # demo
         ("demo-out-proc", ["demo", "--out", "/proc/lidarpkt-demo"], "/proc/lidarpkt-demo", []),
         ("demo-root", ["demo", "-o", "/nonexistent-lidarpkt/demo"], "does not exist", [Path("/nonexistent-lidarpkt")]),
