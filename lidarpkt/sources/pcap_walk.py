@@ -128,19 +128,17 @@ class PcapWalk(Walk):
     def chunks(self, blocks: BlockReader) -> Iterator[tuple[np.ndarray, Chunk]]:
         """(block, chunk) pairs of a classic pcap file; chunk offsets are relative to the block."""
         hdr = self._rec_hdr
-        u32 = struct.Struct(self._endian + "I").unpack_from
-        caplen_at = field_offset(PCAP_RECORD_HEADER, "incl_len")
+        self._u32 = struct.Struct(self._endian + "I").unpack_from
+        self._caplen_at = field_offset(PCAP_RECORD_HEADER, "incl_len")
         # libpcap's own limit, or a larger snap length the file declares, but never more than a read block
-        max_cap = min(max(self._snaplen, MAX_RECORD_BYTES), blocks.block_bytes - hdr)
-        cap_dtype = np.dtype(self._endian + "u4")
-        chunk = self.batch_packets
+        self._max_cap = min(max(self._snaplen, MAX_RECORD_BYTES), blocks.block_bytes - hdr)
+        self._cap_dtype = np.dtype(self._endian + "u4")
+        self._swap = (self._endian == ">") != (sys.byteorder == "big")
+        self._window = 64  # speculative run length
+        self._backoff = 0  # records to walk one by one before speculating again
+        self._misses = 0  # speculations in a row that found short runs
         glob = PCAP_GLOBAL_HEADER.itemsize
-        window = 64  # speculative run length
-        backoff = 0  # records to walk one by one before speculating again
-        misses = 0  # speculations in a row that found short runs
         st = self.stats
-        native = kernels.native
-        swap = (self._endian == ">") != (sys.byteorder == "big")
         st.bytes_read = min(glob, blocks.size)
         if blocks.size < glob:
             self.truncate(f"file ends inside the pcap global header ({blocks.size} of {glob} bytes)")
@@ -150,103 +148,13 @@ class PcapWalk(Walk):
             buf = blocks.read(off)
             end = buf.shape[0]
             last_block = off + end >= blocks.size
-            mv = memoryview(buf)
             rel = 0
             stop = refill = False
             while not (stop or refill):
-                pieces: list[np.ndarray] = []
-                singles: list[int] = []
-                n = 0
                 chunk_start = rel
-                byte_end = self.split_limit(off, chunk_start)  # records of this chunk start before byte_end
-                while n < chunk and rel < byte_end:
-                    if rel + hdr > end:
-                        if not last_block:
-                            refill = True
-                        elif rel != end:
-                            self.truncate(
-                                f"capture cut short: {end - rel} byte(s) of a record header at offset {off + rel} "
-                                f"(after {st.records + n} complete records)"
-                            )
-                        stop = not refill
-                        break
-                    cap = u32(mv, rel + caplen_at)[0]
-                    if cap > max_cap:
-                        self.truncate(
-                            f"record at offset {off + rel} claims {cap} captured bytes (more than the snap length "
-                            f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit, or than {max_cap} bytes): the "
-                            f"file is corrupt from there; kept the {st.records + n} records before it"
-                        )
-                        stop = True
-                        break
-                    stride = hdr + cap
-                    if rel + stride > end:
-                        if not last_block:
-                            refill = True
-                        else:
-                            self.truncate(
-                                f"last record at offset {off + rel} claims {cap} captured bytes but only "
-                                f"{end - rel - hdr} remain in the file (after {st.records + n} complete records)"
-                            )
-                            stop = True
-                        break
-                    if native is not None:
-                        # the compiled walk: every whole record up to the chunk's limits, in one call
-                        room = chunk - n
-                        found = np.empty(room, np.int64)
-                        k, rel, _ = native.walk_pcap(buf, rel, end, caplen_at, hdr, swap, max_cap, room, byte_end, found)
-                        pieces.append(found[:k])
-                        n += k
-                        continue
-                    if backoff <= 0:
-                        k_max = min(chunk - n, (end - rel) // stride, window,
-                                    -(-(byte_end - rel) // stride))  # starts before the limit
-                        if k_max >= 8:
-                            # a run of records with this capture length, checked in one strided comparison
-                            caps = np.ndarray((k_max,), cap_dtype, buf, rel + caplen_at, (stride,))
-                            bad = np.flatnonzero(caps != cap)
-                            k = int(bad[0]) if bad.size else k_max
-                            if singles:
-                                pieces.append(np.asarray(singles, np.int64))
-                                singles = []
-                            pieces.append(rel + stride * np.arange(k, dtype=np.int64))
-                            n += k
-                            rel += k * stride
-                            if k == k_max:
-                                window = min(window * 2, 1 << 16)
-                            else:
-                                window = max(64, 2 * k)
-                            if k >= 32:
-                                misses = 0
-                            else:  # mixed sizes: speculate ever less often (each miss costs ~10 µs)
-                                backoff = min(32 << misses, 8192)
-                                misses += 1
-                            continue
-                    # record by record (mixed sizes, e.g. VLP-16 data and position packets): a tight loop
-                    # for up to `backoff` records; any record needing a decision ends it early
-                    singles.append(rel)
-                    rel += stride
-                    n += 1
-                    lim = min(chunk - n, backoff - 1)
-                    byte_lim = byte_end
-                    before = len(singles)
-                    append = singles.append
-                    while lim > 0 and rel < byte_lim and rel + hdr <= end:
-                        cap = u32(mv, rel + caplen_at)[0]
-                        nxt = rel + hdr + cap
-                        if cap > max_cap or nxt > end:
-                            break
-                        append(rel)
-                        rel = nxt
-                        lim -= 1
-                    walked = len(singles) - before
-                    n += walked
-                    backoff -= 1 + walked
-                if singles:
-                    pieces.append(np.asarray(singles, np.int64))
-                if n:
-                    offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
-                    st.records += n
+                offs, rel, stop, refill = self._chunk_records(buf, off, rel, end, last_block)
+                if offs is not None:
+                    st.records += offs.shape[0]
                     st.bytes_read = off + rel
                     self.chunk_at = off + chunk_start
                     yield buf, Chunk(
@@ -254,7 +162,7 @@ class PcapWalk(Walk):
                         caplen=field(buf, offs, PCAP_RECORD_HEADER, "incl_len", self._endian),
                         ts_ns=field(buf, offs, PCAP_RECORD_HEADER, "ts_sec", self._endian) * SEC_NS
                         + field(buf, offs, PCAP_RECORD_HEADER, "ts_frac", self._endian) * self._frac_ns,
-                        linktype=np.full(n, self._linktype, np.int64),
+                        linktype=np.full(offs.shape[0], self._linktype, np.int64),
                     )
                 if rel >= end:
                     break
@@ -264,3 +172,113 @@ class PcapWalk(Walk):
                 self.truncate(f"record at offset {off} does not fit a read block")
                 return
             off += rel
+
+    def _chunk_records(self, buf: np.ndarray, off: int, rel: int, end: int, last_block: bool):
+        """``(offsets, rel, stop, refill)``: the records of one chunk from ``buf[rel:]`` (the block read at
+        file offset ``off``; None when there are none), where the walk goes on, and whether it stops at
+        damage or needs the next block."""
+        pieces: list[np.ndarray] = []
+        singles: list[int] = []
+        n = 0
+        chunk = self.batch_packets
+        byte_end = self.split_limit(off, rel)  # records of this chunk start before byte_end
+        mv = memoryview(buf)
+        native = kernels.native
+        stop = refill = False
+        while n < chunk and rel < byte_end:
+            stride, stop, refill = self._next_stride(mv, off, rel, end, last_block, n)
+            if stride is None:
+                break
+            if native is not None:
+                # the compiled walk: every whole record up to the chunk's limits, in one call
+                room = chunk - n
+                found = np.empty(room, np.int64)
+                k, rel, _ = native.walk_pcap(buf, rel, end, self._caplen_at, self._rec_hdr, self._swap, self._max_cap,
+                                             room, byte_end, found)
+                pieces.append(found[:k])
+                n += k
+                continue
+            if self._backoff <= 0:
+                k = self._speculate(buf, rel, end, stride, chunk - n, byte_end)
+                if k:
+                    if singles:
+                        pieces.append(np.asarray(singles, np.int64))
+                        singles = []
+                    pieces.append(rel + stride * np.arange(k, dtype=np.int64))
+                    n += k
+                    rel += k * stride
+                    continue
+            rel, walked = self._singles(mv, rel, end, stride, chunk - n, byte_end, singles)
+            n += walked
+        if singles:
+            pieces.append(np.asarray(singles, np.int64))
+        if not n:
+            return None, rel, stop, refill
+        return (pieces[0] if len(pieces) == 1 else np.concatenate(pieces)), rel, stop, refill
+
+    def _next_stride(self, mv: memoryview, off: int, rel: int, end: int, last_block: bool, n: int):
+        """``(stride, stop, refill)`` of the record at ``rel``: its size with its header, or None with why
+        the walk cannot take it (the block ends: refill; damage: stop, reported by :meth:`truncate`)."""
+        hdr = self._rec_hdr
+        records = self.stats.records + n
+        if rel + hdr > end:
+            if not last_block:
+                return None, False, True
+            if rel != end:
+                self.truncate(f"capture cut short: {end - rel} byte(s) of a record header at offset {off + rel} "
+                              f"(after {records} complete records)")
+            return None, True, False
+        cap = self._u32(mv, rel + self._caplen_at)[0]
+        if cap > self._max_cap:
+            self.truncate(
+                f"record at offset {off + rel} claims {cap} captured bytes (more than the snap length "
+                f"{self._snaplen} and the {MAX_RECORD_BYTES}-byte limit, or than {self._max_cap} bytes): the "
+                f"file is corrupt from there; kept the {records} records before it"
+            )
+            return None, True, False
+        if rel + hdr + cap > end:
+            if not last_block:
+                return None, False, True
+            self.truncate(f"last record at offset {off + rel} claims {cap} captured bytes but only "
+                          f"{end - rel - hdr} remain in the file (after {records} complete records)")
+            return None, True, False
+        return hdr + cap, False, False
+
+    def _speculate(self, buf: np.ndarray, rel: int, end: int, stride: int, room: int, byte_end: int) -> int:
+        """How many records from ``rel`` on have the capture length of the first (a run checked in one
+        strided comparison); 0 when too few could (then the caller walks record by record)."""
+        k_max = min(room, (end - rel) // stride, self._window, -(-(byte_end - rel) // stride))  # starts before the limit
+        if k_max < 8:
+            return 0
+        caps = np.ndarray((k_max,), self._cap_dtype, buf, rel + self._caplen_at, (stride,))
+        bad = np.flatnonzero(caps != stride - self._rec_hdr)
+        k = int(bad[0]) if bad.size else k_max
+        self._window = min(self._window * 2, 1 << 16) if k == k_max else max(64, 2 * k)
+        if k >= 32:
+            self._misses = 0
+        else:  # mixed sizes: speculate ever less often (each miss costs ~10 µs)
+            self._backoff = min(32 << self._misses, 8192)
+            self._misses += 1
+        return k
+
+    def _singles(self, mv: memoryview, rel: int, end: int, stride: int, room: int, byte_end: int,
+                 singles: list[int]) -> tuple[int, int]:
+        """Record by record (mixed sizes, e.g. VLP-16 data and position packets): a tight loop for up to
+        ``backoff`` records; any record needing a decision ends it early. Returns (rel, records taken)."""
+        singles.append(rel)
+        rel += stride
+        lim = min(room - 1, self._backoff - 1)
+        hdr, max_cap, caplen_at, u32 = self._rec_hdr, self._max_cap, self._caplen_at, self._u32
+        before = len(singles)
+        append = singles.append
+        while lim > 0 and rel < byte_end and rel + hdr <= end:
+            cap = u32(mv, rel + caplen_at)[0]
+            nxt = rel + hdr + cap
+            if cap > max_cap or nxt > end:
+                break
+            append(rel)
+            rel = nxt
+            lim -= 1
+        walked = 1 + len(singles) - before
+        self._backoff -= walked
+        return rel, walked

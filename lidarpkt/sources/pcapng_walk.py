@@ -38,8 +38,47 @@ MAX_PCAPNG_BLOCK = 1 << 24  # larger "blocks" are taken as corruption, not alloc
 _NATIVE_ORDER = "<" if sys.byteorder == "little" else ">"
 
 
+class _Gathered:
+    """Records of the chunk being gathered: arrays from the compiled walk, then the lists of the
+    record-by-record walk (moved into ``pieces`` before the next array piece, to keep the order)."""
+
+    def __init__(self) -> None:
+        self.pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.lists: tuple[list[int], list[int], list[int], list[int]] = ([], [], [], [])
+        self.pending = 0  # records in pieces and lists
+
+    def add(self, data: int, cap: int, ts_ns: int, linktype: int) -> None:
+        offs, caps, tss, links = self.lists
+        offs.append(data)
+        caps.append(cap)
+        tss.append(ts_ns)
+        links.append(linktype)
+        self.pending += 1
+
+    def add_piece(self, piece: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self._lists_to_piece()
+        self.pieces.append(piece)
+        self.pending += piece[0].shape[0]
+
+    def take(self) -> Chunk:
+        self._lists_to_piece()
+        pieces = self.pieces
+        parts = pieces[0] if len(pieces) == 1 else tuple(np.concatenate(col) for col in zip(*pieces))
+        self.pieces = []
+        self.pending = 0
+        return Chunk(*parts)
+
+    def _lists_to_piece(self) -> None:
+        if self.lists[0]:
+            self.pieces.append(tuple(np.asarray(col, np.int64) for col in self.lists))
+            for col in self.lists:
+                col.clear()
+
+
 class PcapngWalk(Walk):
     """Chunks of packet records of a pcapng file."""
+
+    _interfaces_seen = 0  # interfaces of all sections so far in this pass (ReadStats.interfaces)
 
     def chunks(self, blocks: BlockReader) -> Iterator[tuple[np.ndarray, Chunk]]:
         """(block, chunk) pairs of a pcapng file (a Python loop over its blocks)."""
@@ -47,198 +86,188 @@ class PcapngWalk(Walk):
         chunk = self.batch_packets
         endian = "<"
         ifaces: list[tuple[int, int, int, int, int]] = []  # (linktype, snaplen, mul, div, offset_s) per section
-        n_ifaces_total = 0
-        # records of the chunk being gathered: arrays from the compiled walk, then the lists of the
-        # record-by-record walk (moved into `pieces` before the next array piece, to keep the order)
-        pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        offs: list[int] = []
-        caps: list[int] = []
-        tss: list[int] = []
-        links: list[int] = []
-        pending = 0  # records in pieces and lists
+        got = _Gathered()
         first = True
-        size = blocks.size
         native = kernels.native
-        if size < PCAPNG_BLOCK_HEADER.itemsize + 4:
-            raise CaptureFormatError(f"{self.path}: pcapng file cut short inside its first block ({size} bytes)")
-
-        def lists_to_piece() -> None:
-            if offs:
-                pieces.append((np.asarray(offs, np.int64), np.asarray(caps, np.int64), np.asarray(tss, np.int64),
-                               np.asarray(links, np.int64)))
-                offs.clear(), caps.clear(), tss.clear(), links.clear()
-
-        def flush(buf: np.ndarray, abs_end: int) -> tuple[np.ndarray, Chunk]:
-            nonlocal pending
-            lists_to_piece()
-            self.chunk_at = chunk_start
-            parts = pieces[0] if len(pieces) == 1 else tuple(np.concatenate(col) for col in zip(*pieces))
-            st.records += pending
-            st.bytes_read = abs_end
-            pieces.clear()
-            pending = 0
-            return buf, Chunk(*parts)
-
+        if blocks.size < PCAPNG_BLOCK_HEADER.itemsize + 4:
+            raise CaptureFormatError(f"{self.path}: pcapng file cut short inside its first block ({blocks.size} bytes)")
         off = 0  # file offset of the next pcapng block
         split = None if self.segment is None else self.segment.end_offset
         if self.segment is not None and self.segment.start_offset > 0:
             # a segment starts mid-file: its section's header and interface blocks come first
             endian, ifaces = self.preamble(blocks, self.segment.pcapng_preamble)
-            n_ifaces_total, first = len(ifaces), False
-            off = self.segment.start_offset
-        base = off  # file offset of buf[0]
+            first, off = False, self.segment.start_offset
+        self._interfaces_seen = len(ifaces)
+        base = chunk_start = off  # file offsets of buf[0] and of the chunk being gathered
         buf = blocks.read(off)
         mv = memoryview(buf)
-        chunk_start = off
-        def refill() -> bool:
-            """Read on from ``off`` when the current block ends inside the pcapng block there."""
-            nonlocal base, buf, mv, chunk_start
-            if base + buf.shape[0] >= blocks.size or off == base:
-                return False  # the file ends here (or one block cannot hold it: reported as damage)
-            base, buf = off, blocks.read(off)
-            mv = memoryview(buf)
-            chunk_start = off
-            return True
-
         while off < blocks.size:
-            if pending and split is not None and chunk_start < split <= off:
-                yield flush(buf, off)  # no chunk holds records from both sides of the segment's end
-                chunk_start = off
             rel = off - base
             end = buf.shape[0]
-            if rel + 12 > end and base + end < blocks.size:
-                if pending:
-                    yield flush(buf, off)
-                if refill():
-                    continue
+            if got.pending and ((split is not None and chunk_start < split <= off)  # no chunk spans a segment's end
+                                or (rel + 12 > end and base + end < blocks.size)):
+                yield self._flush(got, buf, chunk_start, off)
+                chunk_start = off
+            if rel + 12 > end and base + end < blocks.size and off != base:  # read on from here
+                base = chunk_start = off
+                buf = blocks.read(off)
+                mv = memoryview(buf)
+                continue
             if rel + 12 > end:
                 self.truncate(f"capture cut short: {end - rel} byte(s) of a pcapng block header at offset {off}")
                 break
             if native is not None and ifaces and not first:
                 # the compiled walk over the enhanced packet blocks that follow; it stops before any
                 # block that needs a decision, which the loop below then takes
-                room = chunk - pending
-                data, capl, iface, raw = (np.empty(room, np.int64), np.empty(room, np.int64),
-                                          np.empty(room, np.int64), np.empty(room, np.uint64))
-                k, nxt = native.walk_pcapng(buf, rel, end, endian != _NATIVE_ORDER, len(ifaces), MAX_PCAPNG_BLOCK,
-                                            room, self.split_limit(base, chunk_start - base), data, capl, iface, raw)
-                if k:
-                    lists_to_piece()
-                    got = self._times(ifaces, data[:k], capl[:k], iface[:k], raw[:k])
-                    pieces.append(got)
-                    pending += got[0].shape[0]
+                nxt = self._native_run(got, buf, rel, end, endian, ifaces, self.split_limit(base, chunk_start - base))
+                if nxt is not None:
                     off = base + nxt
-                    if pending >= chunk or off - chunk_start >= self.chunk_bytes:
-                        yield flush(buf, off)
+                    if got.pending >= chunk or off - chunk_start >= self.chunk_bytes:
+                        yield self._flush(got, buf, chunk_start, off)
                         chunk_start = off
                     continue
-            btype_le = struct.unpack_from("<I", mv, rel)[0]
-            if btype_le == PCAPNG_SHB:
-                if rel + 16 > end:
-                    self.truncate(f"capture cut short inside the section header block at offset {off}")
-                    break
-                bom_at = rel + PCAPNG_BLOCK_HEADER.itemsize + field_offset(PCAPNG_SECTION_HEADER, "byte_order_magic")
-                bom = mv[bom_at : bom_at + 4].tobytes()
-                if bom == b"\x4d\x3c\x2b\x1a":
-                    endian = "<"
-                elif bom == b"\x1a\x2b\x3c\x4d":
-                    endian = ">"
-                else:
-                    msg = f"pcapng section header at offset {off} has a bad byte-order magic {bom.hex(' ')}"
-                    if first:
-                        raise CaptureFormatError(f"{self.path}: {msg}")
-                    self.truncate(msg + "; stopped there")
+            if struct.unpack_from("<I", mv, rel)[0] == PCAPNG_SHB:
+                endian = self._section_endian(mv, rel, end, off, first)
+                if endian is None:
                     break
                 ifaces = []
-                st.big_endian = endian == ">"
             btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, rel)
-            if blen < 12 or blen % 4 or blen > MAX_PCAPNG_BLOCK:
-                msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
-                if first:
-                    raise CaptureFormatError(f"{self.path}: {msg}")
-                self.truncate(msg + f"; kept the {st.records + pending} records before it")
-                break
-            if rel + blen > end and base + end < blocks.size:
-                if pending:
-                    yield flush(buf, off)
-                if refill():
+            whole = self._check_length(btype, blen, off, first, got.pending)
+            if whole and rel + blen > end and base + end < blocks.size:
+                if got.pending:
+                    yield self._flush(got, buf, chunk_start, off)
+                if off != base:  # read on from here (a block larger than a read block is damage, below)
+                    base = chunk_start = off
+                    buf = blocks.read(off)
+                    mv = memoryview(buf)
                     continue
-            if rel + blen > end:
-                self.truncate(
-                    f"pcapng block at offset {off} (type {btype:#x}) claims {blen} bytes but only {end - rel} "
-                    f"remain in the file; kept the {st.records + pending} records before it"
-                )
-                break
-            trailer = struct.unpack_from(endian + "I", mv, rel + blen - 4)[0]
-            if trailer != blen:
-                msg = (
-                    f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing length "
-                    f"{trailer} differ"
-                )
-                if first:
-                    raise CaptureFormatError(f"{self.path}: {msg}")
-                self.truncate(msg + f"; kept the {st.records + pending} records before it")
+            if not (whole and self._check_trailer(mv, rel, end, btype, blen, endian, off, first, got.pending)):
                 break
             first = False
-            body = rel + PCAPNG_BLOCK_HEADER.itemsize
-            body_end = rel + blen - 4
+            body, body_end = rel + PCAPNG_BLOCK_HEADER.itemsize, rel + blen - 4
             off += blen
             if btype == 1:  # interface description block
-                iface_desc = _pcapng_interface(mv, body, body_end, endian)
-                if iface_desc is None:
-                    st.malformed += 1
-                    st.malformed_reasons["short pcapng interface block"] += 1
-                    continue
-                ifaces.append(iface_desc)
-                n_ifaces_total += 1
-                st.interfaces = n_ifaces_total
-                st.snaplen = max(st.snaplen, iface_desc[1])
-                continue
-            if btype not in (6, 2, 3):  # not an enhanced, obsolete or simple packet block
-                continue
-            if btype == 3:
-                if body_end - body < PCAPNG_SPB.itemsize:
-                    st.malformed += 1
-                    st.malformed_reasons["short pcapng packet block"] += 1
-                    continue
-                orig = header_struct(PCAPNG_SPB, endian).unpack_from(mv, body)[0]
-                iface, ts_raw, data = 0, None, body + PCAPNG_SPB.itemsize
-                cap = min(orig, body_end - data)
-            else:
-                if body_end - body < PCAPNG_EPB.itemsize:
-                    st.malformed += 1
-                    st.malformed_reasons["short pcapng packet block"] += 1
-                    continue
-                if btype == 6:
-                    iface, hi, lo, cap, _orig = header_struct(PCAPNG_EPB, endian).unpack_from(mv, body)
-                else:
-                    iface, _drops, hi, lo, cap, _orig = header_struct(PCAPNG_OPB, endian).unpack_from(mv, body)
-                ts_raw = (hi << 32) | lo
-                data = body + PCAPNG_EPB.itemsize  # the OPB header has the same size
-            if iface >= len(ifaces) or data + cap > body_end:
-                st.malformed += 1
-                st.malformed_reasons[
-                    "pcapng packet for an undeclared interface" if iface >= len(ifaces) else
-                    "pcapng packet longer than its block"
-                ] += 1
-                continue
-            lt = ifaces[iface][0]
-            ts_ns = 0 if ts_raw is None else _pcapng_time_ns(ts_raw, ifaces[iface])
-            if ts_ns is None:
-                st.malformed += 1
-                st.malformed_reasons["pcapng time stamp out of range"] += 1
-                continue
-            offs.append(data)
-            caps.append(cap)
-            tss.append(ts_ns)
-            links.append(lt)
-            pending += 1
-            if pending >= chunk or off - chunk_start >= self.chunk_bytes:
-                yield flush(buf, off)
-                chunk_start = off
-        if pending:
-            yield flush(buf, off)
+                self._interface(mv, body, body_end, endian, ifaces)
+            elif btype in (6, 2, 3):  # an enhanced, obsolete or simple packet block
+                record = self._packet(mv, btype, body, body_end, endian, ifaces)
+                if record is not None:
+                    got.add(*record)
+                    if got.pending >= chunk or off - chunk_start >= self.chunk_bytes:
+                        yield self._flush(got, buf, chunk_start, off)
+                        chunk_start = off
+        if got.pending:
+            yield self._flush(got, buf, chunk_start, off)
         st.bytes_read = off
+
+    def _flush(self, got: "_Gathered", buf: np.ndarray, chunk_start: int, abs_end: int) -> tuple[np.ndarray, Chunk]:
+        """The gathered records as a chunk (its first record at or after ``chunk_start``; the walk is at ``abs_end``)."""
+        self.chunk_at = chunk_start
+        self.stats.records += got.pending
+        self.stats.bytes_read = abs_end
+        return buf, got.take()
+
+    def _native_run(self, got: "_Gathered", buf: np.ndarray, rel: int, end: int, endian: str, ifaces: list,
+                    byte_limit: int) -> int | None:
+        """Enhanced packet blocks from ``rel`` by the compiled walk, added to ``got``; where the walk
+        stopped (relative to ``buf``), or None when it took none."""
+        room = self.batch_packets - got.pending
+        data, capl, iface, raw = (np.empty(room, np.int64), np.empty(room, np.int64),
+                                  np.empty(room, np.int64), np.empty(room, np.uint64))
+        k, nxt = kernels.native.walk_pcapng(buf, rel, end, endian != _NATIVE_ORDER, len(ifaces), MAX_PCAPNG_BLOCK,
+                                            room, byte_limit, data, capl, iface, raw)
+        if not k:
+            return None
+        got.add_piece(self._times(ifaces, data[:k], capl[:k], iface[:k], raw[:k]))
+        return nxt
+
+    def _section_endian(self, mv: memoryview, rel: int, end: int, off: int, first: bool) -> str | None:
+        """Byte order of the section header block at ``rel``; None (reported) when it is cut or bad."""
+        if rel + 16 > end:
+            self.truncate(f"capture cut short inside the section header block at offset {off}")
+            return None
+        bom_at = rel + PCAPNG_BLOCK_HEADER.itemsize + field_offset(PCAPNG_SECTION_HEADER, "byte_order_magic")
+        bom = mv[bom_at : bom_at + 4].tobytes()
+        if bom in (b"\x4d\x3c\x2b\x1a", b"\x1a\x2b\x3c\x4d"):
+            endian = "<" if bom == b"\x4d\x3c\x2b\x1a" else ">"
+            self.stats.big_endian = endian == ">"
+            return endian
+        msg = f"pcapng section header at offset {off} has a bad byte-order magic {bom.hex(' ')}"
+        if first:
+            raise CaptureFormatError(f"{self.path}: {msg}")
+        self.truncate(msg + "; stopped there")
+        return None
+
+    def _check_length(self, btype: int, blen: int, off: int, first: bool, pending: int) -> bool:
+        """False (reported; raised for the file's first block) when a block length is impossible."""
+        if 12 <= blen <= MAX_PCAPNG_BLOCK and not blen % 4:
+            return True
+        msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
+        if first:
+            raise CaptureFormatError(f"{self.path}: {msg}")
+        self.truncate(msg + f"; kept the {self.stats.records + pending} records before it")
+        return False
+
+    def _check_trailer(self, mv: memoryview, rel: int, end: int, btype: int, blen: int, endian: str, off: int,
+                       first: bool, pending: int) -> bool:
+        """False (reported) when the block runs past the file's end or its trailing length differs."""
+        if rel + blen > end:
+            self.truncate(
+                f"pcapng block at offset {off} (type {btype:#x}) claims {blen} bytes but only {end - rel} "
+                f"remain in the file; kept the {self.stats.records + pending} records before it"
+            )
+            return False
+        trailer = struct.unpack_from(endian + "I", mv, rel + blen - 4)[0]
+        if trailer == blen:
+            return True
+        msg = f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing length {trailer} differ"
+        if first:
+            raise CaptureFormatError(f"{self.path}: {msg}")
+        self.truncate(msg + f"; kept the {self.stats.records + pending} records before it")
+        return False
+
+    def _interface(self, mv: memoryview, body: int, body_end: int, endian: str, ifaces: list) -> None:
+        """An interface description block: its link type and time resolution join the section's interfaces."""
+        st = self.stats
+        desc = _pcapng_interface(mv, body, body_end, endian)
+        if desc is None:
+            st.malformed += 1
+            st.malformed_reasons["short pcapng interface block"] += 1
+            return
+        ifaces.append(desc)
+        self._interfaces_seen += 1
+        st.interfaces = self._interfaces_seen
+        st.snaplen = max(st.snaplen, desc[1])
+
+    def _packet(self, mv: memoryview, btype: int, body: int, body_end: int, endian: str, ifaces: list):
+        """``(data offset, caplen, ts_ns, linktype)`` of a packet block, or None (counted as malformed)."""
+        if btype == 3:
+            if body_end - body < PCAPNG_SPB.itemsize:
+                return self._malformed("short pcapng packet block")
+            orig = header_struct(PCAPNG_SPB, endian).unpack_from(mv, body)[0]
+            iface, ts_raw, data = 0, None, body + PCAPNG_SPB.itemsize
+            cap = min(orig, body_end - data)
+        else:
+            if body_end - body < PCAPNG_EPB.itemsize:
+                return self._malformed("short pcapng packet block")
+            if btype == 6:
+                iface, hi, lo, cap, _orig = header_struct(PCAPNG_EPB, endian).unpack_from(mv, body)
+            else:
+                iface, _drops, hi, lo, cap, _orig = header_struct(PCAPNG_OPB, endian).unpack_from(mv, body)
+            ts_raw = (hi << 32) | lo
+            data = body + PCAPNG_EPB.itemsize  # the OPB header has the same size
+        if iface >= len(ifaces):
+            return self._malformed("pcapng packet for an undeclared interface")
+        if data + cap > body_end:
+            return self._malformed("pcapng packet longer than its block")
+        ts_ns = 0 if ts_raw is None else _pcapng_time_ns(ts_raw, ifaces[iface])
+        if ts_ns is None:
+            return self._malformed("pcapng time stamp out of range")
+        return data, cap, ts_ns, ifaces[iface][0]
+
+    def _malformed(self, reason: str) -> None:
+        self.stats.malformed += 1
+        self.stats.malformed_reasons[reason] += 1
+        return None
 
     def preamble(self, blocks: BlockReader, offsets: tuple[int, ...]) -> tuple[str, list]:
         """Byte order and interfaces of a pcapng section, from its section header block and interface
