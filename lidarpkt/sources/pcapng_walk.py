@@ -47,14 +47,6 @@ class _Gathered:
         self.lists: tuple[list[int], list[int], list[int], list[int]] = ([], [], [], [])
         self.pending = 0  # records in pieces and lists
 
-    def add(self, data: int, cap: int, ts_ns: int, linktype: int) -> None:
-        offs, caps, tss, links = self.lists
-        offs.append(data)
-        caps.append(cap)
-        tss.append(ts_ns)
-        links.append(linktype)
-        self.pending += 1
-
     def add_piece(self, piece: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
         self._lists_to_piece()
         self.pieces.append(piece)
@@ -87,6 +79,7 @@ class PcapngWalk(Walk):
         endian = "<"
         ifaces: list[tuple[int, int, int, int, int]] = []  # (linktype, snaplen, mul, div, offset_s) per section
         got = _Gathered()
+        packet, unpack_from = self._packet, struct.unpack_from
         first = True
         native = kernels.native
         if blocks.size < PCAPNG_BLOCK_HEADER.itemsize + 4:
@@ -126,13 +119,14 @@ class PcapngWalk(Walk):
                         yield self._flush(got, buf, chunk_start, off)
                         chunk_start = off
                     continue
-            if struct.unpack_from("<I", mv, rel)[0] == PCAPNG_SHB:
+            if unpack_from("<I", mv, rel)[0] == PCAPNG_SHB:
                 endian = self._section_endian(mv, rel, end, off, first)
                 if endian is None:
                     break
                 ifaces = []
             btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, rel)
-            whole = self._check_length(btype, blen, off, first, got.pending)
+            whole = (12 <= blen <= MAX_PCAPNG_BLOCK and not blen % 4) or self._check_length(
+                btype, blen, off, first, got.pending)
             if whole and rel + blen > end and base + end < blocks.size:
                 if got.pending:
                     yield self._flush(got, buf, chunk_start, off)
@@ -141,7 +135,8 @@ class PcapngWalk(Walk):
                     buf = blocks.read(off)
                     mv = memoryview(buf)
                     continue
-            if not (whole and self._check_trailer(mv, rel, end, btype, blen, endian, off, first, got.pending)):
+            if not whole or not ((rel + blen <= end and unpack_from(endian + "I", mv, rel + blen - 4)[0] == blen)
+                                 or self._check_trailer(mv, rel, end, btype, blen, endian, off, first, got.pending)):
                 break
             first = False
             body, body_end = rel + PCAPNG_BLOCK_HEADER.itemsize, rel + blen - 4
@@ -149,9 +144,7 @@ class PcapngWalk(Walk):
             if btype == 1:  # interface description block
                 self._interface(mv, body, body_end, endian, ifaces)
             elif btype in (6, 2, 3):  # an enhanced, obsolete or simple packet block
-                record = self._packet(mv, btype, body, body_end, endian, ifaces)
-                if record is not None:
-                    got.add(*record)
+                if packet(mv, btype, body, body_end, endian, ifaces, got):
                     if got.pending >= chunk or off - chunk_start >= self.chunk_bytes:
                         yield self._flush(got, buf, chunk_start, off)
                         chunk_start = off
@@ -238,8 +231,10 @@ class PcapngWalk(Walk):
         st.interfaces = self._interfaces_seen
         st.snaplen = max(st.snaplen, desc[1])
 
-    def _packet(self, mv: memoryview, btype: int, body: int, body_end: int, endian: str, ifaces: list):
-        """``(data offset, caplen, ts_ns, linktype)`` of a packet block, or None (counted as malformed)."""
+    def _packet(self, mv: memoryview, btype: int, body: int, body_end: int, endian: str, ifaces: list,
+                got: "_Gathered") -> bool:
+        """Adds a packet block's record (data offset, caplen, ts_ns, link type) to ``got``; False when it is
+        malformed (counted)."""
         if btype == 3:
             if body_end - body < PCAPNG_SPB.itemsize:
                 return self._malformed("short pcapng packet block")
@@ -262,12 +257,18 @@ class PcapngWalk(Walk):
         ts_ns = 0 if ts_raw is None else _pcapng_time_ns(ts_raw, ifaces[iface])
         if ts_ns is None:
             return self._malformed("pcapng time stamp out of range")
-        return data, cap, ts_ns, ifaces[iface][0]
+        offs, caps, tss, links = got.lists
+        offs.append(data)
+        caps.append(cap)
+        tss.append(ts_ns)
+        links.append(ifaces[iface][0])
+        got.pending += 1
+        return True
 
-    def _malformed(self, reason: str) -> None:
+    def _malformed(self, reason: str) -> bool:
         self.stats.malformed += 1
         self.stats.malformed_reasons[reason] += 1
-        return None
+        return False
 
     def preamble(self, blocks: BlockReader, offsets: tuple[int, ...]) -> tuple[str, list]:
         """Byte order and interfaces of a pcapng section, from its section header block and interface
