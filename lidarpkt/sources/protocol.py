@@ -72,7 +72,7 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
 
 def _filter_message(path, kind: str, unknown: list[str], allowed: frozenset[str]) -> str:
     names = ", ".join(f"{n}=" for n in unknown)
-    if kind != "pcap" and set(unknown) <= PCAP_OPTIONS:
+    if kind != "pcap" and set(unknown) <= {"ports", "src_addresses"}:
         return (f"{path}: {names} cannot filter a {kind} file: it records no UDP ports or addresses; "
                 "choose packets by topics=... or payload_sizes=...")
     return f"{path}: unknown packet filter {names}; a {kind} reader takes {', '.join(sorted(allowed))}"
