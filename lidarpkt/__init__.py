@@ -3,37 +3,45 @@
 >>> import lidarpkt
 >>> for frame in lidarpkt.open("capture.pcap"):            # doctest: +SKIP
 ...     print(frame.frame_id, frame.range_mm.shape, frame.xyz().shape)
+
+``lidarpkt.open`` is :func:`lidarpkt.source.open_frames` (its typed keyword options are documented
+there). The names below are imported on first use, so that ``lidarpkt --help`` and ``--version``
+start without NumPy.
 """
 
 from __future__ import annotations
 
-import os
 from typing import TYPE_CHECKING, Any
 
-from .errors import LidarpktError
 from . import _moved
+from .errors import LidarpktError
 
 _moved.install()  # old paths of moved modules (lidarpkt.pcapwrite, recorder.mcap_writer ...)
 
 if TYPE_CHECKING:
     from .frame import Frame, FrameCounters, FrameStack, SensorInfo
     from .packet import Endpoint, Packet, PacketBatch
-    from .source import FrameReader
+    from .source import open_frames as open  # noqa: A001
 
-# imported on first use, so that `lidarpkt --help` and `--version` start without NumPy
-_LAZY = {"Frame": "frame", "FrameCounters": "frame", "FrameStack": "frame", "SensorInfo": "frame",
-         "Endpoint": "packet", "Packet": "packet", "PacketBatch": "packet"}
+# public name -> (module, attribute)
+_LAZY: dict[str, tuple[str, str]] = {
+    "open": ("source", "open_frames"),
+    "Frame": ("frame", "Frame"), "FrameCounters": ("frame", "FrameCounters"), "FrameStack": ("frame", "FrameStack"),
+    "SensorInfo": ("frame", "SensorInfo"),
+    "Endpoint": ("packet", "Endpoint"), "Packet": ("packet", "Packet"), "PacketBatch": ("packet", "PacketBatch"),
+}
 
 
 def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
+    target = _LAZY.get(name)
+    if target is None:
         raise AttributeError(f"module 'lidarpkt' has no attribute {name!r}")
     import importlib
 
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    value = getattr(importlib.import_module(f".{target[0]}", __name__), target[1])
     globals()[name] = value
     return value
+
 
 __all__ = [
     "open",
@@ -46,31 +54,3 @@ __all__ = [
     "Endpoint",
     "LidarpktError",
 ]
-
-
-def open(  # noqa: A001 - the public name is part of the API contract
-    path: str | os.PathLike[str],
-    *,
-    metadata: str | os.PathLike[str] | list[str | os.PathLike[str]] | None = None,
-    **options: Any,
-) -> FrameReader:
-    """Frames from a capture: pcap/pcapng, an MCAP file, or a ROS bag holding raw packet topics.
-
-    Returns a :class:`~lidarpkt.source.FrameReader`: iterate it for frames; its ``stats`` say
-    what was routed where and what was skipped; ``close()`` (or ``with``) stops reading early.
-
-    Args:
-        path: the capture file (or rosbag2 directory).
-        metadata: Ouster metadata JSON path (a list of paths for several sensors); VLP-16 needs none.
-        **options: see :func:`lidarpkt.source.open_frames` (calibration, cut angle, read-ahead,
-            packet filters...).
-
-    Yields:
-        :class:`Frame` objects in the order their last packet arrived.
-
-    Raises:
-        lidarpkt.errors.LidarpktError: subclasses say what is wrong with the input.
-    """
-    from .source import open_frames
-
-    return open_frames(path, metadata=metadata, **options)

@@ -98,3 +98,8 @@ class SkippedPacketWarning(LidarpktWarning):
 
 class DroppedPacketsWarning(LidarpktWarning):
     """At the end of a capture: packets that were skipped, lost or discarded, and why (one summary)."""
+
+
+class UnsupportedFilterError(LidarpktError, TypeError):
+    """A packet filter that the reader of this container does not know, or cannot apply (a ROS bag
+    records no UDP ports or addresses)."""
