@@ -177,7 +177,7 @@ def test_info_imports_only_what_it_needs():
     heavy = {n for n in names if n.split(".")[0] in ("scipy", "matplotlib", "recorder", "analysis", "dask", "tqdm")}
     assert not heavy, sorted(heavy)
     # (importlib.import_module of the verb module itself is not timed; what it imports is)
-    assert "lidarpkt.pcap" in names and "numpy" in names
+    assert "lidarpkt.sources.pcap_reader" in names and "numpy" in names
 
 
 def test_a_verbs_help_lists_the_common_flags_the_same_way():
