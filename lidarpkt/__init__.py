@@ -13,6 +13,9 @@ from typing import TYPE_CHECKING, Any
 from .errors import LidarpktError
 from .frame import Frame, FrameCounters, FrameStack, SensorInfo
 from .packet import Endpoint, Packet, PacketBatch
+from . import _moved
+
+_moved.install()  # old paths of moved modules (lidarpkt.pcapwrite, recorder.mcap_writer ...)
 
 if TYPE_CHECKING:
     from .source import FrameReader

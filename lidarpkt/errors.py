@@ -61,6 +61,10 @@ class DiskFullError(RecorderError):
     """The output file could not be written because the disk is full; what was written stays readable."""
 
 
+class OutputError(LidarpktError):
+    """An output cannot be written: unknown format or option, missing folder, unwritable file."""
+
+
 class SerialPortError(RecorderError):
     """The serial GPS port could not be opened or read."""
 

@@ -37,13 +37,19 @@ TOPIC_GROUPS = ("packets", "points", "images")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT", help="OUT.mcap or OUT.npz")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
+                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     parser.add_argument("--metadata", action="append", metavar="M.json", help="Ouster metadata JSON (repeatable)")
     parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    parser.add_argument("--layout", choices=("points", "frames"), default="points",
+                        help="Parquet: one row per return (points) or per frame (frames)")
+    parser.add_argument("--frames-per-file", type=int, metavar="N",
+                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
 
@@ -148,23 +154,26 @@ def _open_frames(path: str, args) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lidarpkt.writers import FORMATS, format_from_suffix
+
     out = Path(args.output)
     for path in args.inputs:
         if not Path(path).exists():
             raise LidarpktError(f"{path}: no such file or directory")
+    fmt = format_from_suffix(out)
     if not out.parent.is_dir():
         raise RecorderError(f"-o {out}: the folder {out.parent} does not exist")
-    if out.suffix == ".npz":
-        return _to_npz(args, out)
-    if out.suffix == ".mcap":
+    if fmt == "mcap":
         return _to_mcap(args, out)
-    raise RecorderError(f"-o {out}: the output must end in .mcap or .npz")
+    if fmt == "npz":
+        return _to_npz(args, out)
+    return _to_format(args, out, fmt, FORMATS[fmt].directory)
 
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
-    from .mcap_writer import McapWriter
-    from .pointcloud import image_messages, pointcloud_messages
+    from lidarpkt.writers.mcap.pointcloud import image_messages, pointcloud_messages
+    from lidarpkt.writers.mcap.writer import McapWriter
     from .sink import PacketSink
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
@@ -231,96 +240,72 @@ def _to_mcap(args, out: Path) -> int:
 
 
 # ------------------------------------------------------------------------------ NPZ
-_PER_FRAME_FIELDS = ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg",
-                     "signal", "near_ir", "flags", "measurement_id", "status")
-
-
-class _Spool:
-    """The frames of one sensor, each field appended to its own temporary file as raw bytes, so
-    that memory stays bounded however long the input; :meth:`write_into` streams them into the
-    ``.npz`` (a zip of ``.npy`` files) as ``[K, ...]`` arrays."""
-
-    def __init__(self, tmpdir: Path, index: int, first) -> None:
-        self.tmpdir = tmpdir
-        self.index = index
-        self.files: dict[str, tuple[object, np.dtype, tuple]] = {}
-        self.scalars: dict[str, list] = {"frame_id": [], "partial": [], "lost_packets": []}
-        self.constants = {"return_labels": np.array(first.return_labels),
-                          "sensor_json": np.array(json.dumps(first.sensor.describe(), default=str))}
-        self.count = 0
-
-    def append(self, frame) -> None:
-        for name in _PER_FRAME_FIELDS:
-            arr = getattr(frame, name)
-            if arr is None:
-                continue
-            arr = np.ascontiguousarray(arr)
-            entry = self.files.get(name)
-            if entry is None:
-                fh = open(self.tmpdir / f"s{self.index}_{name}.raw", "w+b")
-                entry = self.files[name] = (fh, arr.dtype, arr.shape)
-            fh, dtype, shape = entry
-            if arr.dtype != dtype or arr.shape != shape:
-                raise LidarpktError(f"frame {frame.frame_id}: {name} is {arr.dtype}{list(arr.shape)}, unlike the "
-                                    f"frames before it ({dtype}{list(shape)}); cannot stack them")
-            fh.write(arr.tobytes())
-        self.scalars["frame_id"].append(frame.frame_id)
-        self.scalars["partial"].append(frame.partial)
-        self.scalars["lost_packets"].append(frame.counters.lost_packets)
-        self.count += 1
-
-    def write_into(self, zf, prefix: str) -> None:
-        import shutil
-
-        for name, (fh, dtype, shape) in self.files.items():
-            fh.flush()
-            fh.seek(0)
-            with zf.open(prefix + name + ".npy", "w", force_zip64=True) as out:
-                np.lib.format.write_array_header_2_0(out, {
-                    "descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
-                    "shape": (self.count,) + tuple(shape)})
-                shutil.copyfileobj(fh, out, 16 << 20)
-            fh.close()
-        arrays = {"frame_id": np.array(self.scalars["frame_id"], np.int64),
-                  "partial": np.array(self.scalars["partial"], bool),
-                  "lost_packets": np.array(self.scalars["lost_packets"], np.int64), **self.constants}
-        for name, arr in arrays.items():
-            with zf.open(prefix + name + ".npy", "w", force_zip64=True) as out:
-                np.lib.format.write_array(out, arr, allow_pickle=False)
-
-
 def _to_npz(args, out: Path) -> int:
-    import tempfile
-    import zipfile
+    from lidarpkt.writers import open_writer
 
     progress = _Progress(not args.quiet, sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()))
     n = 0
     done_before = 0
-    with tempfile.TemporaryDirectory(prefix="lidarpkt-npz-", dir=out.parent) as tmp:
-        spools: dict[tuple, _Spool] = {}
+    with open_writer("npz", out, grid=args.grid, compress=args.compress) as writer:
         for path in args.inputs:
             reader = _open_frames(path, args)
             for frame in reader:
-                key = (frame.sensor.vendor, frame.sensor.model, frame.sensor.source, frame.shape[0], frame.shape[1])
-                gridded = frame.on_grid(args.grid)
-                spool = spools.get(key)
-                if spool is None:
-                    spool = spools[key] = _Spool(Path(tmp), len(spools), gridded)
-                spool.append(gridded)
+                writer.write(frame)
                 n += 1
                 b = _bytes_read(reader)
                 progress.update(None if b is None else done_before + b, n)
             done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         progress.done(n)
-        if not spools:
+        if not n:
             raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
-        try:
-            with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED if args.compress else zipfile.ZIP_STORED,
-                                 allowZip64=True) as zf:
-                for spool in spools.values():
-                    spool.write_into(zf, "" if len(spools) == 1 else f"s{spool.index}_")
-        except OSError as exc:
-            raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from None
     if not args.quiet:
-        print(f"lidarpkt decode: {n} frames from {len(spools)} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
+
+
+# ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
+def _format_options(args, fmt: str) -> dict:
+    if fmt == "parquet":
+        return {"layout": args.layout}
+    if fmt in ("las", "laz") and args.frames_per_file is not None:
+        if args.frames_per_file < 1:
+            raise RecorderError(f"--frames-per-file {args.frames_per_file}: give a positive number of frames")
+        return {"frames_per_file": args.frames_per_file}
+    return {}
+
+
+def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
+    """Folder formats get one writer per input (files named by capture), one-file formats one
+    writer for all inputs."""
+    from lidarpkt.writers import open_writer
+
+    options = _format_options(args, fmt)
+    progress = _Progress(not args.quiet, sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()))
+    counts = {"frames": 0, "done_before": 0}
+    written: list[Path] = []
+    if per_input:
+        for path in args.inputs:
+            with open_writer(fmt, out, capture=path, **options) as writer:
+                _write_frames(writer, path, args, progress, counts)
+            written += writer.close()
+    else:
+        with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
+            for path in args.inputs:
+                _write_frames(writer, path, args, progress, counts)
+        written = writer.close()
+    progress.done(counts["frames"])
+    if not counts["frames"]:
+        raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+    if not args.quiet:
+        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+    return 0
+
+
+def _write_frames(writer, path: str, args, progress: _Progress, counts: dict) -> None:
+    reader = _open_frames(path, args)
+    for frame in reader:
+        writer.write(frame)
+        counts["frames"] += 1
+        b = _bytes_read(reader)
+        progress.update(None if b is None else counts["done_before"] + b, counts["frames"])
+    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0

@@ -26,9 +26,9 @@ import struct
 from dataclasses import dataclass
 from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 
-from .errors import PacketFormatError
-from .packet import Packet
-from .pcap import (
+from ..errors import PacketFormatError
+from ..packet import Packet
+from ..pcap import (
     ETHERNET_HEADER,
     IPV4_HEADER,
     IPV6_FRAGMENT_HEADER,

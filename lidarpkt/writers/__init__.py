@@ -1,0 +1,112 @@
+"""Every output lidarpkt writes, behind one small frame-writer interface.
+
+>>> from lidarpkt.writers import open_writer, format_from_suffix     # doctest: +SKIP
+>>> with open_writer(format_from_suffix("out.npz"), "out.npz", capture="drive1.pcap") as w:
+...     for frame in lidarpkt.open("drive1.pcap"):
+...         w.write(frame)
+>>> w.close()          # the complete files written: [PosixPath('out.npz')]
+
+==========  ==================  ==========================================================  =========
+format      output              content                                                     module
+==========  ==================  ==========================================================  =========
+``mcap``    one file            ROS 2 MCAP: raw packets, PointCloud2, images, /tf_static     ``mcap``
+``npz``     one file            frames on the azimuth grid, stacked per sensor                ``npz``
+``parquet`` dataset folder      one row per return (``layout="points"``) or per frame         ``parquet``
+``las``     file, or folder     LAS 1.4 points, GPS time, return number / number of returns   ``las``
+``laz``     file, or folder     the same, LAZ-compressed (lazrs)                              ``las``
+``ply``     folder              one binary PLY per frame (x y z intensity ring time return)   ``ply``
+``pcd``     folder              one binary PCD per frame (the same fields)                    ``pcd``
+==========  ==================  ==========================================================  =========
+
+Writing packets (not frames) to pcap/pcapng is :mod:`lidarpkt.writers.pcap`. To add a format:
+a module with a :class:`~lidarpkt.writers.base.BaseWriter` subclass and a row in :data:`FORMATS`.
+The format libraries (pyarrow, laspy, plyfile, pypcd4: the ``export`` extra) are imported only
+by their writer.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lidarpkt.errors import OutputError
+
+from .base import AtomicFiles, BaseWriter, FrameWriter
+
+
+@dataclass(frozen=True)
+class Format:
+    """An output format: its name, the suffixes that choose it, its writer class, its extra."""
+
+    name: str
+    suffixes: tuple[str, ...]
+    writer: str  # "module:Class" under lidarpkt.writers
+    directory: bool  # True: ``out`` is a folder (per-frame files or a dataset)
+    requires: tuple[str, ...] = ()  # import names of the libraries it needs
+
+
+FORMATS: dict[str, Format] = {f.name: f for f in (
+    Format("mcap", (".mcap",), "mcap.frames:McapFrameWriter", False),
+    Format("npz", (".npz",), "npz:NpzWriter", False),
+    Format("parquet", (".parquet",), "parquet:ParquetWriter", True, ("pyarrow",)),
+    Format("las", (".las",), "las:LasWriter", False, ("laspy",)),
+    Format("laz", (".laz",), "las:LazWriter", False, ("laspy", "lazrs")),
+    Format("ply", (".ply",), "ply:PlyWriter", True, ("plyfile",)),
+    Format("pcd", (".pcd",), "pcd:PcdWriter", True, ("pypcd4",)),
+)}
+
+
+def format_from_suffix(path: str | os.PathLike[str]) -> str:
+    """The format name chosen by ``path``'s suffix (``"x.mcap"`` → ``"mcap"``).
+
+    Raises :class:`~lidarpkt.errors.OutputError` naming the accepted suffixes.
+    """
+    suffix = Path(path).suffix.lower()
+    for fmt in FORMATS.values():
+        if suffix in fmt.suffixes:
+            return fmt.name
+    others = ", ".join(s for f in FORMATS.values() for s in f.suffixes if f.name not in ("mcap", "npz"))
+    raise OutputError(f"-o {path}: the output must end in .mcap or .npz, or one of {others} "
+                      "(the suffix chooses the format)")
+
+
+def open_writer(fmt: str, out: str | os.PathLike[str], *, capture: str | os.PathLike[str] | None = None,
+                part: str | None = None, **format_options: Any) -> BaseWriter:
+    """A writer of format ``fmt`` (a key of :data:`FORMATS`) to ``out``.
+
+    Args:
+        fmt: ``"mcap"``, ``"npz"``, ``"parquet"``, ``"las"``, ``"laz"``, ``"ply"`` or ``"pcd"``.
+        out: the output file (mcap, npz, las/laz without ``frames_per_file``) or folder (the
+            others). Local paths only.
+        capture: the input the frames come from (its name goes into file names and columns).
+        part: a segment name (e.g. ``"seg0003"``) that keeps this segment's file names apart
+            from the other segments' of the same capture.
+        **format_options: the format's own options (see each writer class).
+
+    Raises:
+        OutputError: unknown format or option, a missing library (names the extra to install),
+            an output folder that does not exist.
+    """
+    spec = FORMATS.get(fmt)
+    if spec is None:
+        raise OutputError(f"--format {fmt}: unknown format; choose among {', '.join(FORMATS)}")
+    for lib in spec.requires:
+        try:
+            importlib.import_module(lib)
+        except ImportError:
+            raise OutputError(f"--format {fmt}: needs the Python package {lib!r}; "
+                              "install it with pip install 'lidarpkt[export]'") from None
+    module_name, cls_name = spec.writer.split(":")
+    cls = getattr(importlib.import_module(f"{__name__}.{module_name}"), cls_name)
+    try:
+        return cls(out, capture=capture, part=part, **format_options)
+    except TypeError as exc:
+        if "unexpected keyword" in str(exc):
+            raise OutputError(f"--format {fmt}: {exc}") from None
+        raise
+
+
+__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "format_from_suffix", "open_writer"]

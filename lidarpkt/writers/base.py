@@ -1,0 +1,186 @@
+"""The frame-writer interface every output format meets, and the temporary-then-rename files.
+
+A writer takes the frames of one capture (one or several sensors, in order) and writes them in
+its format. Every file is first written under a hidden temporary name in its final folder
+(``.NAME.<random>.tmp``) and renamed to ``NAME`` only when complete, so a killed job never
+leaves a partial file that looks complete; :meth:`FrameWriter.abort` (also what a ``with`` block
+that raises does) removes the temporaries.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from lidarpkt.errors import OutputError
+
+
+@runtime_checkable
+class FrameWriter(Protocol):
+    """What :func:`lidarpkt.writers.open_writer` returns."""
+
+    def write(self, frame: Any) -> None:
+        """Write one :class:`lidarpkt.Frame` (frames of one capture, in order)."""
+        ...
+
+    def close(self) -> list[Path]:
+        """Finish; return the complete files written (renamed from their temporaries)."""
+        ...
+
+    def abort(self) -> None:
+        """Stop and remove every temporary file; nothing partial is left."""
+        ...
+
+
+class AtomicFiles:
+    """Temporary files beside their final names, renamed into place when complete."""
+
+    def __init__(self) -> None:
+        self._pending: dict[Path, Path] = {}  # temporary -> final
+        self.committed: list[Path] = []
+
+    def temporary(self, final: str | os.PathLike[str]) -> Path:
+        """A new temporary path in ``final``'s folder (the folder must exist)."""
+        final = Path(final)
+        if not final.parent.is_dir():
+            raise OutputError(f"{final}: the folder {final.parent} does not exist; create it or choose another")
+        tmp = final.with_name(f".{final.name}.{secrets.token_hex(4)}.tmp")
+        self._pending[tmp] = final
+        return tmp
+
+    def commit(self, tmp: Path) -> Path:
+        """Rename a complete temporary to its final name (replacing an older file of that name)."""
+        final = self._pending.pop(tmp)
+        try:
+            os.replace(tmp, final)
+        except OSError as exc:
+            raise OutputError(f"{final}: cannot rename {tmp.name} into place: {exc.strerror or exc}") from None
+        self.committed.append(final)
+        return final
+
+    def abort(self) -> None:
+        """Remove every temporary not yet committed."""
+        for tmp in list(self._pending):
+            try:
+                tmp.unlink()
+            except FileNotFoundError:
+                pass
+            except OSError:
+                pass  # best effort: the name stays hidden and marked .tmp
+            self._pending.pop(tmp, None)
+
+
+class BaseWriter:
+    """Shared plumbing: ``with`` support (abort on error), idempotent close/abort, file names.
+
+    Subclasses implement :meth:`_write` and :meth:`_finish` (which commits its files through
+    ``self.files``) and may extend :meth:`abort`.
+    """
+
+    suffix = ""
+
+    def __init__(self, out: str | os.PathLike[str], *, capture: str | os.PathLike[str] | None = None,
+                 part: str | None = None) -> None:
+        self.out = Path(out)
+        self.capture = Path(capture).name if capture is not None else None
+        self.part = part
+        self.files = AtomicFiles()
+        self.frames_written = 0
+        self.points_written = 0
+        self._done = False
+
+    # ------------------------------------------------------------- naming
+    def single_file(self) -> Path:
+        """The output of a one-file format: ``out``, or ``STEM.PART.SUFFIX`` for a segment."""
+        if self.part is None:
+            return self.out
+        return self.out.with_name(f"{self.out.stem}.{_safe(self.part)}{self.out.suffix}")
+
+    def frame_file_name(self, frame: Any, suffix: str) -> str:
+        """``CAPTURESTEM_SENSOR_FRAMEID.SUFFIX``: the same whatever the segmentation."""
+        stem = Path(self.capture).stem if self.capture else "frames"
+        return f"{_safe(stem)}_{sensor_tag(frame.sensor)}_{frame.frame_id:06d}{suffix}"
+
+    def out_dir(self) -> Path:
+        """``out`` as a folder (created if missing; its parent must exist)."""
+        if not self.out.exists():
+            if not self.out.parent.is_dir():
+                raise OutputError(f"{self.out}: the folder {self.out.parent} does not exist; create it first")
+            try:
+                self.out.mkdir(exist_ok=True)
+            except OSError as exc:
+                raise OutputError(f"{self.out}: cannot create the folder: {exc.strerror or exc}") from None
+        elif not self.out.is_dir():
+            raise OutputError(f"{self.out}: this format writes a folder, and a file has that name; "
+                              "choose another output")
+        return self.out
+
+    # ------------------------------------------------------------- protocol
+    def write(self, frame: Any) -> None:
+        if self._done:
+            raise OutputError(f"{self.out}: the writer is closed")
+        try:
+            self._write(frame)
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.out}: writing failed: {exc.strerror or exc}") from None
+        self.frames_written += 1
+
+    def close(self) -> list[Path]:
+        if self._done:
+            return list(self.files.committed)
+        try:
+            self._finish()
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"{self.out}: writing failed: {exc.strerror or exc}") from None
+        except BaseException:
+            self.abort()
+            raise
+        self._done = True
+        return list(self.files.committed)
+
+    def abort(self) -> None:
+        self._done = True
+        self._release()
+        self.files.abort()
+
+    def _write(self, frame: Any) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _finish(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        """Close open handles (before the temporaries are removed)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _safe(text: str) -> str:
+    """``text`` with characters unsafe in file names replaced by ``-``."""
+    return re.sub(r"[^A-Za-z0-9._+-]", "-", str(text)).strip(".") or "x"
+
+
+def sensor_tag(sensor: Any) -> str:
+    """A file-name-safe name of a sensor: its serial, else its source address, else its vendor."""
+    if getattr(sensor, "serial", None):
+        return _safe(str(sensor.serial))
+    if getattr(sensor, "source", None):
+        return _safe(str(sensor.source))
+    return _safe(sensor.vendor)
+
+
+def sensor_name(sensor: Any) -> str:
+    """The ``sensor`` column/field value: its serial, else its source address, else its vendor."""
+    return str(sensor.serial or sensor.source or sensor.vendor)
