@@ -172,6 +172,11 @@ def export_job(
         finally:
             bar.close()
             manifest.flush()
+            if not is_remote(out):
+                try:
+                    (Path(local_path(out)) / STAGING).rmdir()  # empty once every unit has finished
+                except OSError:
+                    pass
     order = {t.key: i for i, t in enumerate(tasks)}
     report.rows.sort(key=lambda r: order.get(r["key"], -1))
     return report

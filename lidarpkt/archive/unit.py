@@ -23,15 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lidarpkt import errors as _errors
-from lidarpkt.errors import LidarpktError, LidarpktWarning
-
-OutputError = getattr(_errors, "OutputError", ())  # TEMP until wip/writers is merged
+from lidarpkt.errors import LidarpktError, LidarpktWarning, OutputError
 
 from .plan import is_remote, local_path
 
 STAGING = ".staging"  # under a local OUTDIR: the unfinished units' files (hidden from Parquet readers)
-ONE_FILE_FORMATS = ("npz", "mcap")  # one file per capture; the others write a folder or a dataset
 
 
 @dataclass(frozen=True)
@@ -108,14 +104,17 @@ class _Counts:
 
 
 def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) -> Path:
-    """Where a unit's writer writes, inside its staging folder: ``CAPTURE_STEM.FMT`` for one-file
-    formats (npz, mcap, and las/laz without ``frames_per_file``); the staging root for Parquet
-    (a dataset partitioned by capture: OUTDIR is the dataset); a folder ``CAPTURE_STEM/`` for
-    the formats that write several files per capture."""
+    """Where a unit's writer writes, inside its staging folder: the staging root for Parquet (a
+    dataset partitioned by capture: OUTDIR is the dataset); ``CAPTURE_STEM.FMT`` for one-file
+    formats (npz, mcap, las/laz); a folder ``CAPTURE_STEM/`` for the formats that write a folder
+    (ply, pcd, las/laz with ``frames_per_file``)."""
+    from lidarpkt.writers import FORMATS
+
     stem = Path(capture).stem
     if fmt == "parquet":
         return stage
-    if fmt in ONE_FILE_FORMATS or (fmt in ("las", "laz") and not options.get("frames_per_file")):
+    spec = FORMATS.get(fmt)
+    if spec is not None and not spec.directory and not options.get("frames_per_file"):
         return stage / f"{stem}.{fmt}"
     return stage / stem
 
@@ -162,12 +161,6 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
     return tuple(sorted(rels))
 
 
-def _frame_points(frame: Any) -> int:
-    import numpy as np
-
-    return int(np.count_nonzero(frame.range_mm))
-
-
 def _open_frames(path: str, task: UnitTask) -> Any:
     """The FrameReader of the task's capture (of its segment, when it has one)."""
     import lidarpkt
@@ -183,7 +176,6 @@ def _write_frames(writer: Any, reader: Any, counts: _Counts) -> None:
         for frame in reader:
             writer.write(frame)
             counts.frames += 1
-            counts.points += _frame_points(frame)
             counts.lost += frame.counters.lost_packets
             counts.malformed += frame.counters.malformed_packets
 
@@ -233,6 +225,7 @@ def run_unit(task: UnitTask) -> UnitResult:
                 error = _input_error(task, exc)
         counts.messages = [str(w.message) for w in caught if issubclass(w.category, LidarpktWarning)][:20]
         if writer is not None and counts.frames:
+            counts.points = int(getattr(writer, "points_written", 0))
             try:
                 outputs = _publish(writer.close(), stage, task)
             except LidarpktError as exc:
