@@ -54,7 +54,7 @@ def _count_frames(path: str, metadata: Sequence[str]) -> tuple[dict[str, dict[st
             warnings.simplefilter("ignore", LidarpktWarning)  # counted by the reader; the row says them
             with lidarpkt.open(path, metadata=list(metadata) or None) as reader:
                 for frame in reader:
-                    s = per.setdefault(_host(frame.sensor.source), {
+                    s = per.setdefault(frame.sensor.source or "unknown source", {
                         "frames": 0, "partial_frames": 0, "lost_packets": 0, "skipped_packets": 0,
                         "model": frame.sensor.model, "mode": frame.sensor.profile or frame.sensor.return_mode})
                     s["frames"] += 1
@@ -66,11 +66,16 @@ def _count_frames(path: str, metadata: Sequence[str]) -> tuple[dict[str, dict[st
     return per, error
 
 
-def _host(source: str | None) -> str:
-    """The address part of ``"10.5.6.101:7502"`` (the key decoders are made per)."""
-    if not source or source == "unknown source":
-        return "unknown source"
-    return source.rsplit(":", 1)[0]
+def _take(per_source: dict[str, dict[str, Any]], source: str) -> dict[str, Any] | None:
+    """The decoded counts of a lidar stream: those of the sensor named after it, else of a sensor
+    at the same address (a decoder is named after its first packet, which may be its IMU's)."""
+    if source in per_source:
+        return per_source.pop(source)
+    host = source.rsplit(":", 1)[0]
+    for name in list(per_source):
+        if name.rsplit(":", 1)[0] == host:
+            return per_source.pop(name)
+    return None
 
 
 def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
@@ -114,7 +119,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         source = s["src"] or "unknown source"
         # a decoder is per source address (its frames name the port of its first packet, which may be
         # the IMU's): the frames go to the first lidar stream of that address
-        decoded = per_source.pop(_host(s["src"]), None) if s["kind"] in ("VLP-16 data", "Ouster lidar") else None
+        decoded = _take(per_source, source) if s["kind"] in ("VLP-16 data", "Ouster lidar") else None
         row = dict(base)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
                    vendor=_vendor(s["kind"]), model=(decoded or {}).get("model") or details.get("product_name"),
