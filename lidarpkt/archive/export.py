@@ -55,6 +55,8 @@ def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int 
     if fmt not in FORMATS:
         raise PlanError(f"--format {fmt}: choose one of {', '.join(FORMATS)}")
     opts: dict[str, Any] = dict(extra)
+    if fmt == "parquet" and layout is None:
+        layout = "points"  # the writer's default, named so that a job with --layout points is the same job
     if layout is not None:
         if fmt != "parquet":
             raise PlanError(f"--layout {layout}: only --format parquet has layouts (points, frames)")

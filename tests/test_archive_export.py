@@ -1,0 +1,154 @@
+"""``lidarpkt export`` / ``lidarpkt.archive.export`` in this process (``--workers 1``): outputs equal
+to what ``lidarpkt.open`` decodes, read back with the format's own reader; the manifest; re-runs
+skip what is done; damaged inputs are recorded and the job goes on; leftovers of a killed job are
+cleaned; the CLI's exit status and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+
+import numpy as np
+import pyarrow.dataset as ds
+import pytest
+
+import lidarpkt
+from archive_cases import build_archive, lidarpkt_cli, manifest_rows, no_partial_files, output_files
+from lidarpkt.archive import export
+from lidarpkt.archive.manifest import LOCK_NAME, ExportBusyError
+
+
+def _expected_points(path, metadata=None) -> tuple[int, int]:
+    """(frames, returns) of a capture as lidarpkt.open decodes it: every slot with range > 0 in a valid column."""
+    frames = points = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for f in lidarpkt.open(path, metadata=metadata):
+            frames += 1
+            points += int(np.count_nonzero((f.range_mm > 0) & f.column_valid[None, None, :]))
+    return frames, points
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory):
+    return build_archive(tmp_path_factory.mktemp("arch") / "archive")
+
+
+def test_parquet_export_equals_lidarpkt_open_and_reruns_skip(archive, tmp_path):
+    out = tmp_path / "out"
+    table = export([archive], out, format="parquet", workers=1)
+    rows = table.to_pylist()
+    assert len(rows) == 7 and all(r["status"] == "done" and r["error"] is None for r in rows)
+    data = ds.dataset(out, format="parquet", partitioning="hive").to_table().to_pandas()
+    for r in rows:
+        path = r["input"]
+        md = [str(os.path.splitext(path)[0] + ".json")] if os.path.exists(os.path.splitext(path)[0] + ".json") else None
+        frames, points = _expected_points(path, md)
+        mine = data[data["capture"] == r["capture"]]
+        assert (r["frames"], r["points"]) == (frames, points), r["key"]
+        assert len(mine) == points and mine["frame_id"].nunique() == len({*mine["frame_id"]}) <= frames
+        assert r["outputs"] == [f"capture={r['capture']}/{os.path.splitext(r['capture'])[0]}.parquet"]
+    before = {rel: p.stat().st_mtime_ns for rel, p in output_files(out).items()}
+    again = export([archive], out, format="parquet", workers=1).to_pylist()
+    assert again == rows  # every unit skipped: the rows are the earlier ones
+    assert {rel: p.stat().st_mtime_ns for rel, p in output_files(out).items()} == before
+    assert len(manifest_rows(out)) == 7 and not no_partial_files(out) and not (out / LOCK_NAME).exists()
+    # another format or option is another job: not skipped
+    frames = export([archive], out, format="parquet", layout="frames", workers=1, glob="vlp16-dual.pcap")
+    assert frames.column("status").to_pylist() == ["done"] and len(manifest_rows(out)) == 8
+
+
+def test_npz_export_equals_the_npz_writer_on_each_capture(archive, tmp_path):
+    from lidarpkt.writers import open_writer
+
+    out = tmp_path / "npz"
+    rows = export([archive], out, format="npz", workers=1, glob="vlp16-*.pcap").to_pylist()
+    assert [r["outputs"] for r in rows] == [["vlp16-dual.npz"], ["vlp16-strongest.npz"]]
+    for r in rows:
+        ref = tmp_path / f"ref-{r['capture']}.npz"
+        with open_writer("npz", ref, capture=r["capture"]) as w:
+            for f in lidarpkt.open(r["input"]):
+                w.write(f)
+        with np.load(out / r["outputs"][0]) as got, np.load(ref) as want:
+            assert sorted(got.files) == sorted(want.files)
+            for k in want.files:
+                np.testing.assert_array_equal(got[k], want[k])
+
+
+def test_damaged_inputs_are_recorded_and_the_job_goes_on(archive, tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    good = (archive / "vlp16-strongest.pcap").read_bytes()
+    (src / "good.pcap").write_bytes(good)
+    (src / "garbage.pcap").write_bytes(b"garbage!" * 100)
+    (src / "cut.pcap").write_bytes(good[: len(good) * 2 // 3 + 7])  # ends inside a record
+    (src / "ouster-no-metadata.pcap").write_bytes((archive / "os1-64-dual.pcap").read_bytes())
+    out = tmp_path / "out"
+    res = lidarpkt_cli("export", str(src), "-o", str(out), "--format", "parquet", "--workers", "1", "-q")
+    assert res.returncode == 1, res.stderr
+    rows = {r["capture"]: r for r in manifest_rows(out)}
+    assert rows["good.pcap"]["status"] == "done" and rows["good.pcap"]["frames"] == 7
+    assert rows["garbage.pcap"]["status"] == "failed" and "garbage.pcap" in rows["garbage.pcap"]["error"]
+    assert "metadata" in rows["ouster-no-metadata.pcap"]["error"]  # says what to give
+    cut = rows["cut.pcap"]  # truncated: the frames before the damage, and the warning that says so
+    assert cut["status"] == "done" and 0 < cut["frames"] < 7 and any("cut.pcap" in w for w in cut["warnings"])
+    assert "failed: garbage.pcap" in res.stderr and "failed: ouster-no-metadata.pcap" in res.stderr
+    assert "2 failed" in res.stderr
+    assert sorted(output_files(out)) == ["capture=cut.pcap/cut.parquet", "capture=good.pcap/good.parquet"]
+
+
+def test_leftovers_of_a_killed_job_are_cleaned_and_redone(archive, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    stage = out / ".staging" / "vlp16-dual.pcap" / "capture=vlp16-dual.pcap"
+    stage.mkdir(parents=True)
+    (stage / ".vlp16-dual.parquet.1234abcd.tmp").write_bytes(b"PAR1 half a file")
+    (out / LOCK_NAME).write_text("999999999\n")  # the PID of a job that no longer runs
+    done = {"key": "vlp16-strongest.pcap", "status": "done"}
+    (out / "_manifest.jsonl").write_text(json.dumps(done) + "\n" + '{"key": "vlp16-du')  # torn last line
+    rows = export([archive], out, format="parquet", workers=1, glob="vlp16-*.pcap").to_pylist()
+    assert [r["status"] for r in rows] == ["done", "done"]  # the stale "done" row lacked the job: redone
+    assert not no_partial_files(out) and not (out / LOCK_NAME).exists()
+    assert sorted(output_files(out)) == ["capture=vlp16-dual.pcap/vlp16-dual.parquet",
+                                         "capture=vlp16-strongest.pcap/vlp16-strongest.parquet"]
+
+
+def test_a_second_job_on_the_same_outdir_is_refused(archive, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / LOCK_NAME).write_text(f"{os.getppid()}\n")  # a live process holds it
+    with pytest.raises(ExportBusyError, match="another export job"):
+        export([archive], out, format="npz", workers=1)
+
+
+def test_deleted_output_is_redone(archive, tmp_path):
+    out = tmp_path / "out"
+    export([archive], out, format="npz", workers=1, glob="vlp16-*.pcap")
+    (out / "vlp16-dual.npz").unlink()
+    rows = export([archive], out, format="npz", workers=1, glob="vlp16-*.pcap").to_pylist()
+    assert (out / "vlp16-dual.npz").is_file() and len(manifest_rows(out)) == 3 and len(rows) == 2
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--format", "parquet", "--workers", "0"], "--workers 0"),
+    (["--format", "parquet", "--segment-size", "lots"], "--segment-size lots"),
+    (["--format", "las", "--layout", "frames"], "--layout frames"),
+    (["--format", "parquet", "--frames-per-file", "3"], "--frames-per-file 3"),
+    (["--format", "npz", "--metadata", "/no/such.json"], "--metadata /no/such.json"),
+    (["--format", "npz", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers and --scheduler"),
+])
+def test_export_cli_errors_are_one_line_exit_2(archive, tmp_path, args, flag):
+    out = tmp_path / "out"
+    res = lidarpkt_cli("export", str(archive / "vlp16-dual.pcap"), "-o", str(out), *args, "-q")
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"lidarpkt: error: {flag}"), res.stderr
+    assert not out.exists() or not output_files(out)
+
+
+def test_export_cli_output_is_a_file(archive, tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    res = lidarpkt_cli("export", str(archive), "-o", str(f), "--format", "npz", "--workers", "1")
+    assert res.returncode == 2 and res.stderr.startswith(f"lidarpkt: error: -o {f}: a file has this name")
