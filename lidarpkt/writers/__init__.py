@@ -14,8 +14,8 @@ format      output              content                                         
 ``parquet`` dataset folder      one row per return (``layout="points"``) or per frame         ``parquet``
 ``las``     file, or folder     LAS 1.4 points, GPS time, return number / number of returns   ``las``
 ``laz``     file, or folder     the same, LAZ-compressed (lazrs)                              ``las``
-``ply``     folder              one binary PLY per frame (x y z intensity ring time return)   ``ply``
-``pcd``     folder              one binary PCD per frame (the same fields)                    ``pcd``
+``ply``     folder              one binary PLY per frame (x y z intensity ring time return)   ``cloud``
+``pcd``     folder              one binary PCD per frame (the same fields)                    ``cloud``
 ==========  ==================  ==========================================================  =========
 
 Writing packets (not frames) to pcap/pcapng is :mod:`lidarpkt.writers.pcap`. To add a format:
@@ -54,8 +54,8 @@ FORMATS: dict[str, Format] = {f.name: f for f in (
     Format("parquet", (".parquet",), "parquet:ParquetWriter", True, ("pyarrow",)),
     Format("las", (".las",), "las:LasWriter", False, ("laspy",)),
     Format("laz", (".laz",), "las:LazWriter", False, ("laspy", "lazrs")),
-    Format("ply", (".ply",), "ply:PlyWriter", True, ("plyfile",)),
-    Format("pcd", (".pcd",), "pcd:PcdWriter", True, ("pypcd4",)),
+    Format("ply", (".ply",), "cloud:PlyWriter", True, ("plyfile",)),
+    Format("pcd", (".pcd",), "cloud:PcdWriter", True, ("pypcd4",)),
 )}
 
 
