@@ -169,7 +169,10 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP or ROS bag; several captures "
+                   "or a folder: -o is a folder of maps and summary.csv (lidarpkt.archive.multireturn_maps)")
+    p.add_argument("--workers", type=int, metavar="N", help="several captures: processes of a local Dask cluster")
+    p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
     p.add_argument("-o", "--output", metavar="MAP.npz", required=True, help="write the statistics and monitor flags here")
     p.add_argument("--plot", metavar="MAP.png", help="write the multi-return map figure")
     _add_input(p)
@@ -188,6 +191,12 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
+    if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers or args.scheduler \
+            or not args.output.endswith(".npz"):  # an archive: one map per capture, in parallel
+        from lidarpkt.archive.multireturn import run_multireturn_archive
+
+        return run_multireturn_archive(args)
+    args.input = args.input[0]
     from .gmm import DEFAULT_GAP_M
     from .multireturn import multireturn_map
     from .stack import slot_index
