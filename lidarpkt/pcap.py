@@ -50,7 +50,7 @@ import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
@@ -59,6 +59,9 @@ from . import kernels
 from .errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from .packet import Endpoint, Packet, PacketBatch
 from .reassembly import Reassembler
+
+if TYPE_CHECKING:
+    from .sources.segments import Segment
 
 __all__ = [
     "PcapReader",
@@ -427,8 +430,12 @@ class PcapReader:
         reassembly_timeout_ns: int = 30_000_000_000,
         max_pending_datagrams: int = 1024,
         max_pending_bytes: int = 64 * 1024 * 1024,
+        segment: "Segment | None" = None,
     ) -> None:
         self.path = os.fspath(path)
+        self.segment = segment
+        self.split_ordinal: int | None = None  # segment reading: ordinal of the first packet at/after its end
+        self._chunk_at = 0  # file offset of the first record of the chunk being yielded
         self.ports = None if ports is None else frozenset(int(p) for p in ports)
         self.src_addresses = None if src_addresses is None else frozenset(_canonical_address(a) for a in src_addresses)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
@@ -498,7 +505,10 @@ class PcapReader:
             self._begin()
             base = 0
             walker = self._walk_pcap(blocks) if self.format == "pcap" else self._walk_pcapng(blocks)
+            split = self.segment.end_offset if self.segment is not None else None
             for buf, chunk in walker:
+                if split is not None and self.split_ordinal is None and self._chunk_at >= split:
+                    self.split_ordinal = base  # chunks never straddle the segment's end (see _split_limit)
                 produced = self._process_chunk(buf, chunk, base)
                 if produced:
                     base = max(int(b.index[-1]) for b in produced) + 1
@@ -532,6 +542,7 @@ class PcapReader:
         )
         old.__dict__.update(fresh.__dict__)  # in place: callers may hold a reference to stats
         self._reasm = Reassembler(**self._reassembly_args)
+        self.split_ordinal = None
         self._vec_fragments = 0  # fragments / datagrams reassembled by _fragment_trains
         self._vec_reassembled = 0
         self._warned_links: set[int] = set()
@@ -611,7 +622,7 @@ class PcapReader:
         if blocks.size < glob:
             self._truncate(f"file ends inside the pcap global header ({blocks.size} of {glob} bytes)")
             return
-        off = glob  # file offset of the next record
+        off = glob if self.segment is None else max(glob, self.segment.start_offset)  # file offset of the next record
         while off < blocks.size:
             buf = blocks.read(off)
             end = buf.shape[0]
@@ -624,7 +635,8 @@ class PcapReader:
                 singles: list[int] = []
                 n = 0
                 chunk_start = rel
-                while n < chunk and rel - chunk_start < MAX_CHUNK_BYTES:
+                byte_end = self._split_limit(off, chunk_start)  # records of this chunk start before byte_end
+                while n < chunk and rel < byte_end:
                     if rel + hdr > end:
                         if not last_block:
                             refill = True
@@ -659,14 +671,13 @@ class PcapReader:
                         # the compiled walk: every whole record up to the chunk's limits, in one call
                         room = chunk - n
                         found = np.empty(room, np.int64)
-                        k, rel, _ = native.walk_pcap(buf, rel, end, caplen_at, hdr, swap, max_cap, room,
-                                                     chunk_start + MAX_CHUNK_BYTES, found)
+                        k, rel, _ = native.walk_pcap(buf, rel, end, caplen_at, hdr, swap, max_cap, room, byte_end, found)
                         pieces.append(found[:k])
                         n += k
                         continue
                     if backoff <= 0:
                         k_max = min(chunk - n, (end - rel) // stride, window,
-                                    -(-(MAX_CHUNK_BYTES - (rel - chunk_start)) // stride))  # starts before the limit
+                                    -(-(byte_end - rel) // stride))  # starts before the limit
                         if k_max >= 8:
                             # a run of records with this capture length, checked in one strided comparison
                             caps = np.ndarray((k_max,), cap_dtype, buf, rel + caplen_at, (stride,))
@@ -694,7 +705,7 @@ class PcapReader:
                     rel += stride
                     n += 1
                     lim = min(chunk - n, backoff - 1)
-                    byte_lim = chunk_start + MAX_CHUNK_BYTES
+                    byte_lim = byte_end
                     before = len(singles)
                     append = singles.append
                     while lim > 0 and rel < byte_lim and rel + hdr <= end:
@@ -714,6 +725,7 @@ class PcapReader:
                     offs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
                     st.records += n
                     st.bytes_read = off + rel
+                    self._chunk_at = off + chunk_start
                     yield buf, _Chunk(
                         data_off=offs + hdr,
                         caplen=_field(buf, offs, PCAP_RECORD_HEADER, "incl_len", self._endian),
@@ -729,6 +741,15 @@ class PcapReader:
                 self._truncate(f"record at offset {off} does not fit a read block")
                 return
             off += rel
+
+    def _split_limit(self, base: int, chunk_start: int) -> int:
+        """Where the chunk that starts at ``chunk_start`` of the block read at file offset ``base`` ends
+        (relative to the block): MAX_CHUNK_BYTES on, or earlier at the end of the segment being read, so
+        that no chunk (and so no batch) holds records from both sides of it."""
+        lim = chunk_start + MAX_CHUNK_BYTES
+        if self.segment is not None and base + chunk_start < self.segment.end_offset:
+            lim = min(lim, self.segment.end_offset - base)
+        return lim
 
     def _walk_pcapng(self, blocks: "_Blocks") -> Iterator[tuple[np.ndarray, _Chunk]]:
         """(block, chunk) pairs of a pcapng file (a Python loop over its blocks)."""
@@ -760,6 +781,7 @@ class PcapReader:
         def flush(buf: np.ndarray, abs_end: int) -> tuple[np.ndarray, _Chunk]:
             nonlocal pending
             lists_to_piece()
+            self._chunk_at = chunk_start
             parts = pieces[0] if len(pieces) == 1 else tuple(np.concatenate(col) for col in zip(*pieces))
             st.records += pending
             st.bytes_read = abs_end
@@ -768,10 +790,16 @@ class PcapReader:
             return buf, _Chunk(*parts)
 
         off = 0  # file offset of the next pcapng block
-        base = 0  # file offset of buf[0]
-        buf = blocks.read(0)
+        split = None if self.segment is None else self.segment.end_offset
+        if self.segment is not None and self.segment.start_offset > 0:
+            # a segment starts mid-file: its section's header and interface blocks come first
+            endian, ifaces = self._pcapng_preamble(blocks, self.segment.pcapng_preamble)
+            n_ifaces_total, first = len(ifaces), False
+            off = self.segment.start_offset
+        base = off  # file offset of buf[0]
+        buf = blocks.read(off)
         mv = memoryview(buf)
-        chunk_start = 0
+        chunk_start = off
         def refill() -> bool:
             """Read on from ``off`` when the current block ends inside the pcapng block there."""
             nonlocal base, buf, mv, chunk_start
@@ -783,6 +811,9 @@ class PcapReader:
             return True
 
         while off < blocks.size:
+            if pending and split is not None and chunk_start < split <= off:
+                yield flush(buf, off)  # no chunk holds records from both sides of the segment's end
+                chunk_start = off
             rel = off - base
             end = buf.shape[0]
             if rel + 12 > end and base + end < blocks.size:
@@ -800,7 +831,7 @@ class PcapReader:
                 data, capl, iface, raw = (np.empty(room, np.int64), np.empty(room, np.int64),
                                           np.empty(room, np.int64), np.empty(room, np.uint64))
                 k, nxt = native.walk_pcapng(buf, rel, end, endian != _NATIVE_ORDER, len(ifaces), MAX_PCAPNG_BLOCK,
-                                            room, chunk_start - base + MAX_CHUNK_BYTES, data, capl, iface, raw)
+                                            room, self._split_limit(base, chunk_start - base), data, capl, iface, raw)
                 if k:
                     lists_to_piece()
                     got = self._pcapng_times(ifaces, data[:k], capl[:k], iface[:k], raw[:k])
@@ -863,27 +894,15 @@ class PcapReader:
             body_end = rel + blen - 4
             off += blen
             if btype == 1:  # interface description block
-                if body_end - body < PCAPNG_IDB.itemsize:
+                iface_desc = _pcapng_interface(mv, body, body_end, endian)
+                if iface_desc is None:
                     st.malformed += 1
                     st.malformed_reasons["short pcapng interface block"] += 1
                     continue
-                linktype, _res, snaplen = header_struct(PCAPNG_IDB, endian).unpack_from(mv, body)
-                mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
-                for code, val in _pcapng_options(mv, body + PCAPNG_IDB.itemsize, body_end, endian):
-                    if code == 9 and len(val) >= 1:  # if_tsresol
-                        r = val[0]
-                        if r & 0x80:
-                            mul, div = _SEC_NS, 1 << (r & 0x7F)
-                        elif r <= 9:
-                            mul, div = 10 ** (9 - r), 1
-                        else:
-                            mul, div = 1, 10 ** (r - 9)
-                    elif code == 14 and len(val) >= 8:  # if_tsoffset
-                        ts_off = struct.unpack(endian + "q", val[:8])[0]
-                ifaces.append((linktype, snaplen, mul, div, ts_off))
+                ifaces.append(iface_desc)
                 n_ifaces_total += 1
                 st.interfaces = n_ifaces_total
-                st.snaplen = max(st.snaplen, snaplen)
+                st.snaplen = max(st.snaplen, iface_desc[1])
                 continue
             if btype not in (6, 2, 3):  # not an enhanced, obsolete or simple packet block
                 continue
@@ -930,6 +949,33 @@ class PcapReader:
         if pending:
             yield flush(buf, off)
         st.bytes_read = off
+
+    def _pcapng_preamble(self, blocks: "_Blocks", offsets: tuple[int, ...]) -> tuple[str, list]:
+        """Byte order and interfaces of a pcapng section, from its section header block and interface
+        description blocks at ``offsets`` (as :func:`lidarpkt.sources.segments.plan_segments` found them)."""
+        endian, ifaces = "<", []
+        st = self.stats
+        for o in offsets:
+            blocks.fh.seek(o)
+            head = blocks.fh.read(PCAPNG_BLOCK_HEADER.itemsize + 4)
+            if len(head) < 12:
+                raise CaptureFormatError(f"{self.path}: pcapng block at offset {o} cut short; plan the segments again")
+            if struct.unpack_from("<I", head)[0] == PCAPNG_SHB:
+                endian = "<" if head[8:12] == b"\x4d\x3c\x2b\x1a" else ">"
+                ifaces = []
+                st.big_endian = endian == ">"
+                continue
+            btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(head)
+            if btype != 1 or not 12 <= blen <= MAX_PCAPNG_BLOCK:
+                raise CaptureFormatError(f"{self.path}: no pcapng interface block at offset {o}; plan the segments again")
+            blocks.fh.seek(o)
+            mv = memoryview(blocks.fh.read(blen))
+            desc = _pcapng_interface(mv, PCAPNG_BLOCK_HEADER.itemsize, blen - 4, endian)
+            if desc is not None:
+                ifaces.append(desc)
+                st.snaplen = max(st.snaplen, desc[1])
+        st.interfaces = len(ifaces)
+        return endian, ifaces
 
     def _pcapng_times(self, ifaces: list[tuple[int, int, int, int, int]], data: np.ndarray, caplen: np.ndarray,
                       iface: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1469,6 +1515,27 @@ def _is_ipv4_text(text: str) -> bool:
     except OSError:
         return False
     return text.count(".") == 3
+
+
+def _pcapng_interface(mv: memoryview, body: int, body_end: int, endian: str) -> tuple[int, int, int, int, int] | None:
+    """``(linktype, snaplen, mul, div, offset_s)`` of the interface description block body at ``mv[body:body_end]``
+    (time stamps in ns are ``offset_s·10⁹ + raw·mul // div``), or ``None`` when it is too short."""
+    if body_end - body < PCAPNG_IDB.itemsize:
+        return None
+    linktype, _res, snaplen = header_struct(PCAPNG_IDB, endian).unpack_from(mv, body)
+    mul, div, ts_off = 1000, 1, 0  # default resolution: microseconds
+    for code, val in _pcapng_options(mv, body + PCAPNG_IDB.itemsize, body_end, endian):
+        if code == 9 and len(val) >= 1:  # if_tsresol
+            r = val[0]
+            if r & 0x80:
+                mul, div = _SEC_NS, 1 << (r & 0x7F)
+            elif r <= 9:
+                mul, div = 10 ** (9 - r), 1
+            else:
+                mul, div = 1, 10 ** (r - 9)
+        elif code == 14 and len(val) >= 8:  # if_tsoffset
+            ts_off = struct.unpack(endian + "q", val[:8])[0]
+    return linktype, snaplen, mul, div, ts_off
 
 
 def _pcapng_options(mv: memoryview, p: int, end: int, endian: str) -> Iterator[tuple[int, bytes]]:

@@ -15,11 +15,16 @@ import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
+
+import numpy as np
 
 from .errors import SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from .frame import Frame
 from .packet import PacketBatch
+
+if TYPE_CHECKING:
+    from .sources.segments import Segment
 
 PCAP_MAGICS = {
     b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # µs, little / big endian
@@ -126,10 +131,21 @@ class FrameReader:
         soft_id_check: bool = False,
         max_sensors: int = 64,
         read_ahead: bool | None = None,
+        segment: "Segment | None" = None,
         **filters: Any,
     ) -> None:
         self.path = Path(path)
         self._max_sensors = int(max_sensors)
+        self.segment = segment
+        self._ownership = None
+        if segment is not None:
+            from .sources.segments import SegmentOwnership
+
+            if segment.container not in ("pcap", "pcapng") and segment.count != 1:
+                raise UnsupportedContainerError(f"{self.path}: a {segment.container} file is read whole (one segment)")
+            if segment.count > 1:
+                self._ownership = SegmentOwnership(segment)
+                filters["segment"] = segment
         self.reader = _open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, read_ahead)
         self._read_ahead = None  # the running ReadAhead, if any
@@ -142,6 +158,7 @@ class FrameReader:
         self._include_partial = include_partial
         self._ouster_metadata = _load_ouster_metadata(metadata)
         self._warned_max_sensors = False
+        self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter = FrameReader._frames(weakref.proxy(self))
@@ -184,6 +201,7 @@ class FrameReader:
 
         embedded = getattr(self.reader, "ouster_metadata", None)
         batches = self._batches()
+        ownership = self._ownership
         try:
             for batch in batches:
                 if embedded and not self._ouster_metadata:
@@ -196,42 +214,80 @@ class FrameReader:
                     if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
                         self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
                     continue
-                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne))  # self: the weak proxy
+                split = getattr(self.reader, "split_ordinal", None)
+                post_end = split is not None and int(batch.index[0]) >= split
+                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne, post_end))  # self: the weak proxy
+                if ownership is not None and ownership.done(post_end):
+                    break  # a segment: nothing further belongs to it
         finally:
             batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
-        for decoder in list(self.decoders.values()):
-            yield from FrameReader._emit(self, decoder.finish())
+        for key, decoder in list(self.decoders.items()):
+            frames = decoder.finish()
+            yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
             raise UnknownSensorError(self._no_sensor_message())
 
-    def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne) -> list[Frame]:
+    def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne, post_end: bool = False) -> list[Frame]:
         if self._ouster_metadata:
             match = ouster.classify(batch, self._ouster_metadata)
             if match is not None:
                 kind, md = match
-                decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(
+                key = ("ouster", src, id(md))
+                if self._ownership is not None and self._ownership.state(key, post_end).closed:
+                    return []
+                decoder = self._decoder(key, lambda: ouster.OusterDecoder(
                     md, source=_source_name(batch), **self._ouster_options))
                 if decoder is None:
                     return self._unrouted(batch)
                 if kind == "lidar":
                     self.stats.ouster_lidar_packets += len(batch)
-                    return decoder.push(batch)
+                    self._name_by_data(key, decoder, batch)
+                    return self._push(key, decoder, batch, post_end)
                 self.stats.ouster_imu_packets += len(batch)
                 decoder.push_imu(batch)
                 return []
         kind = velodyne.classify(batch)
         if kind is not None:
-            decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(
+            key = ("velodyne", src)
+            if self._ownership is not None and self._ownership.state(key, post_end).closed:
+                return []
+            decoder = self._decoder(key, lambda: velodyne.VelodyneDecoder(
                 source=_source_name(batch), **self._velodyne_options))
             if decoder is None:
                 return self._unrouted(batch)
             if kind == "data":
                 self.stats.velodyne_data_packets += len(batch)
-                return decoder.push(batch)
+                self._name_by_data(key, decoder, batch)
+                return self._push(key, decoder, batch, post_end)
             self.stats.velodyne_position_packets += len(batch)
             decoder.push_position(batch)
             return []
         return self._unrouted(batch)
+
+    def _name_by_data(self, key: tuple, decoder, batch: PacketBatch) -> None:
+        """A sensor is named after its data stream (address:port of its first data or lidar packet), even when
+        a position or IMU packet came first and made its decoder: so every segment of a capture names it alike."""
+        if key in self._named:
+            return
+        self._named.add(key)
+        name = _source_name(batch)
+        if decoder.source != name:
+            decoder.source = name
+            if getattr(decoder, "metadata", None) is not None:  # Ouster: the SensorInfo carries the name
+                decoder.sensor = decoder.metadata.sensor_info(name)
+
+    def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
+        """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
+        own = self._ownership
+        if own is None:
+            return decoder.push(batch)
+        frames: list[Frame] = []
+        for part in own.split_first_post(key, batch) if post_end else [batch]:
+            if own.streams[key].closed:
+                break
+            got = decoder.push(part)
+            frames += own.keep(key, got, post_end, lambda f, part=part: _holds_packet(f, part, decoder))
+        return frames
 
     def _unrouted(self, batch: PacketBatch) -> list[Frame]:
         key = f"{_source_name(batch)} → {batch.dst if batch.dst is not None else '?'} ({batch.payload_size} B)"
@@ -338,6 +394,21 @@ def _load_ouster_metadata(metadata) -> list:
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
     return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
+
+
+def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
+    """Does ``frame`` hold the (first) packet of ``batch``? VLP-16 frames list their packets' ordinals;
+    an Ouster frame holds the packets of its frame id."""
+    index = frame.extra.get("packet_index")
+    if index is not None:
+        return bool(np.isin(int(batch.index[0]), index))
+    metadata = getattr(decoder, "metadata", None)
+    if metadata is None:
+        return False
+    from .ouster import decode_packets
+
+    fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
+    return int(fields.frame_id[0]) == frame.frame_id
 
 
 def _source_name(batch: PacketBatch) -> str:
