@@ -70,7 +70,8 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         frames_per_file: LAS/LAZ: one file per N frames instead of one per capture.
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture, same stem).
         glob: in folders, only file names matching this pattern.
-        segment_bytes: captures above this size (bytes, or ``"256MB"``) are cut into segments.
+        segment_bytes: captures above this size (bytes, or ``"256MB"``; default 256 MiB) are cut
+            into segments, record-aligned byte ranges decoded in parallel (pcap/pcapng).
         workers: processes of a local Dask cluster (default: the CPU count); 1 runs here without Dask.
         scheduler: address of an existing Dask scheduler (``tcp://host:8786``), or ``DASK_SCHEDULER_ADDRESS``.
         client: a ``distributed.Client`` to run on (wins over the two above).

@@ -17,6 +17,7 @@ from pathlib import Path
 from lidarpkt.errors import LidarpktError
 
 from .export import FORMATS
+from .plan import DEFAULT_SEGMENT_BYTES
 
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
@@ -49,8 +50,8 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
     p.add_argument("--frames-per-file", type=int, metavar="N", help="LAS/LAZ: one file per N frames")
-    p.add_argument("--segment-size", default="256MB", metavar="S",
-                   help="captures larger than this are cut into segments run in parallel (256MB, 1GB; default 256MB)")
+    p.add_argument("--segment-size", metavar="S", help="captures larger than this are cut into segments run in "
+                   "parallel: bytes, or 256MB, 1GB, 512MiB (default 256MiB)")
     _add_engine(p)
 
 
@@ -114,7 +115,7 @@ def run_export(args: argparse.Namespace) -> int:
     _check_engine(args)
     report = export_job(args.paths, args.output, format=args.format, layout=args.layout,
                         frames_per_file=args.frames_per_file, metadata=args.metadata, glob=args.glob,
-                        segment_bytes=args.segment_size, workers=args.workers, scheduler=args.scheduler,
+                        segment_bytes=args.segment_size or DEFAULT_SEGMENT_BYTES, workers=args.workers, scheduler=args.scheduler,
                         progress=not args.quiet)
     if not args.quiet or report.failed:
         print("lidarpkt export: " + report.summary(), file=sys.stderr)

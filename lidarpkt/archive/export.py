@@ -84,13 +84,12 @@ def plan_units(paths: Sequence[str | os.PathLike[str]], out: str, fmt: str, opti
             failed.append((task, str(exc)))
             mtimes[task.key] = cap.mtime_ns
             continue
-        for i, seg in enumerate(segments):
+        for seg in segments:
             if seg is None:
                 task = UnitTask(key=cap.name, size_bytes=cap.size_bytes, **base)
             else:
-                part = f"seg{i:04d}"
-                size = int(getattr(seg, "end", 0) - getattr(seg, "start", 0)) or cap.size_bytes // len(segments)
-                task = UnitTask(key=f"{cap.name}#{part}", segment=seg, part=part, size_bytes=size, **base)
+                part = f"seg{seg.index:04d}"
+                task = UnitTask(key=f"{cap.name}#{part}", segment=seg, part=part, size_bytes=seg.size_bytes, **base)
             tasks.append(task)
             mtimes[task.key] = cap.mtime_ns
     return tasks, mtimes, failed

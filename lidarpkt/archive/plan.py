@@ -15,8 +15,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Iterable, Sequence
 
 from lidarpkt.errors import LidarpktError
-
-DEFAULT_SEGMENT_BYTES = 256_000_000  # 256 MB: a capture above it is cut into segments
+from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES  # a capture above it is cut into segments
 # names a directory walk takes without reading them (the magic bytes decide for the rest)
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3")
 _SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
@@ -234,17 +233,15 @@ def plan_captures(
 
 def plan_segments(capture: Capture, segment_bytes: int) -> list[Any | None]:
     """Segments of one capture: ``[None]`` (the whole file) at or below ``segment_bytes``, for
-    remote inputs and containers other than pcap/pcapng; else the record-aligned byte ranges
-    of :func:`lidarpkt.sources.segments.plan_segments`.
+    remote inputs, rosbag2 folders and files :func:`lidarpkt.sources.segments.plan_segments` keeps
+    whole (MCAP, bags); else its record-aligned :class:`~lidarpkt.sources.segments.Segment` s.
 
     Raises:
         lidarpkt.errors.LidarpktError: the capture cannot be indexed (the job records it as failed).
     """
+    from lidarpkt.sources.segments import plan_segments as _plan
+
     if capture.size_bytes <= segment_bytes or is_remote(capture.url) or os.path.isdir(local_path(capture.url)):
         return [None]
-    try:
-        from lidarpkt.sources.segments import plan_segments as _plan
-    except ImportError:  # segment reading not in this build: whole files only
-        return [None]
-    segments = list(_plan(local_path(capture.url), segment_bytes))
-    return segments or [None]
+    segments = _plan(local_path(capture.url), segment_bytes)
+    return segments if len(segments) > 1 else [None]
