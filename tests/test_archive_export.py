@@ -205,3 +205,20 @@ def _part_table(path):
     n = table.num_rows
     return table.append_column("capture", pa.array([path.parent.name.split("=", 1)[1]] * n)).append_column(
         "file", pa.array([path.name] * n))
+
+
+def test_names_that_differ_only_by_folder_or_suffix_get_distinct_outputs(archive, tmp_path):
+    src = tmp_path / "in"
+    for sub in ("day1", "day2"):
+        (src / sub).mkdir(parents=True)
+        import shutil
+
+        shutil.copy(archive / "vlp16-strongest.pcap", src / sub / "drive.pcap")
+    shutil.copy(archive / "vlp16-dual.pcap", src / "day1" / "drive.pcapng")  # pcap inside; the magic decides
+    rows = export([src], tmp_path / "out", format="npz", workers=1).to_pylist()
+    assert [r["status"] for r in rows] == ["done"] * 3
+    outs = sorted(o for r in rows for o in r["outputs"])
+    assert outs == ["day1__drive.npz", "day2__drive.npz", "drive.npz"]
+    (src / "day2" / "drive.pcap").unlink()  # now drive.pcap and drive.pcapng differ by their suffix only
+    rows = export([src], tmp_path / "out2", format="npz", workers=1).to_pylist()
+    assert sorted(o for r in rows for o in r["outputs"]) == ["drive_pcap.npz", "drive_pcapng.npz"]

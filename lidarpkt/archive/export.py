@@ -22,6 +22,9 @@ from .plan import DEFAULT_SEGMENT_BYTES, PlanError, is_remote, local_path, plan_
 from .unit import STAGING, UnitTask, run_unit
 
 FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap")
+# one file per frame named by frame id: a VLP-16 segment counts rotations from where it starts
+# reading, so two segments would name different frames alike; these formats run whole files
+WHOLE_FILE_FORMATS = ("ply", "pcd")
 
 
 @dataclass
@@ -78,7 +81,7 @@ def plan_units(paths: Sequence[str | os.PathLike[str]], out: str, fmt: str, opti
     for cap in plan_captures(paths, glob=glob, metadata=metadata):
         base = dict(input=cap.url, capture=cap.name, output=out, format=fmt, options=options, metadata=cap.metadata)
         try:
-            segments = plan_segments(cap, segment_bytes)
+            segments = [None] if fmt in WHOLE_FILE_FORMATS else plan_segments(cap, segment_bytes)
         except LidarpktError as exc:  # cannot be indexed: recorded as this input's failure
             task = UnitTask(key=cap.name, size_bytes=cap.size_bytes, **base)
             failed.append((task, str(exc)))
@@ -162,8 +165,14 @@ def export_job(
         todo.sort(key=lambda t: -t.size_bytes)  # the largest first: the job ends sooner
         bar = Progress(sum(t.size_bytes for t in todo), len(todo), enabled=progress, label=f"export {format}")
 
+        claimed = {rel: r["key"] for r in report.rows for rel in r["outputs"] or ()}
+
         def record(task: UnitTask, result) -> None:
             row = make_row(task, result, capture_mtime_ns=mtimes[task.key], job=job)
+            clash = [(rel, claimed[rel]) for rel in row["outputs"] if claimed.setdefault(rel, task.key) != task.key]
+            if clash:  # a safety net: names are made distinct per capture and segment
+                row.update(status="failed", error=f"{clash[0][0]}: written by {task.key} and by {clash[0][1]}; "
+                           "export these captures to separate folders")
             manifest.append(row)
             report.rows.append(row)
             bar.advance(task.size_bytes, failed=not result.ok)

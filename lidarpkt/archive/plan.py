@@ -176,7 +176,18 @@ def expand_paths(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = 
 
 
 def _unique_names(urls: Sequence[str]) -> list[str]:
-    """File names, with parent folders prefixed (``a__b__x.pcap``) only where names collide."""
+    """File names, with parent folders prefixed (``a__b__x.pcap``) only where names collide, and
+    ``x_pcapng.pcapng`` where only the suffix tells two apart (outputs are named by the stem)."""
+    names = _unique_paths(urls)
+    stems = [PurePosixPath(n).stem for n in names]
+    out = []
+    for name, stem in zip(names, stems):
+        suffix = PurePosixPath(name).suffix
+        out.append(f"{stem}_{suffix[1:]}{suffix}" if suffix and stems.count(stem) > 1 else name)
+    return out
+
+
+def _unique_paths(urls: Sequence[str]) -> list[str]:
     parts = [PurePosixPath(local_path(u).replace(os.sep, "/")).parts for u in urls]
     depth = [1] * len(urls)
     while True:
