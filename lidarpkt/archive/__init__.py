@@ -27,8 +27,8 @@ __all__ = ["catalog", "export", "to_dask", "multireturn_maps", "run_unit", "Unit
 
 _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "part": "string", "status": "string",
                    "frames": "int64", "points": "int64", "lost_packets": "int64", "skipped_packets": "int64",
-                   "malformed_packets": "int64", "seconds": "float64", "error": "string", "size_bytes": "int64",
-                   "mtime_ns": "int64", "job": "string", "finished_at": "string"}
+                   "malformed_packets": "int64", "seconds": "float64", "cpu_seconds": "float64", "error": "string",
+                   "size_bytes": "int64", "mtime_ns": "int64", "job": "string", "finished_at": "string"}
 
 
 def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,

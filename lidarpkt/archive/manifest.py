@@ -25,8 +25,8 @@ from .unit import UnitResult, UnitTask
 MANIFEST_NAME = "_manifest.jsonl"
 LOCK_NAME = "_lidarpkt_export.lock"
 COLUMNS = ("key", "input", "capture", "part", "status", "outputs", "frames", "points", "lost_packets",
-           "skipped_packets", "malformed_packets", "warnings", "seconds", "error", "size_bytes", "mtime_ns",
-           "job", "finished_at")
+           "skipped_packets", "malformed_packets", "warnings", "seconds", "cpu_seconds", "error", "size_bytes",
+           "mtime_ns", "job", "finished_at")
 
 
 class ExportBusyError(LidarpktError):
