@@ -222,3 +222,56 @@ def test_names_that_differ_only_by_folder_or_suffix_get_distinct_outputs(archive
     (src / "day2" / "drive.pcap").unlink()  # now drive.pcap and drive.pcapng differ by their suffix only
     rows = export([src], tmp_path / "out2", format="npz", workers=1).to_pylist()
     assert sorted(o for r in rows for o in r["outputs"]) == ["drive_pcap.npz", "drive_pcapng.npz"]
+
+
+@pytest.mark.parametrize("fmt", ["las", "laz", "ply", "pcd", "mcap"])
+def test_every_format_through_the_unit_reads_back_with_its_own_reader(archive, tmp_path, fmt):
+    out = tmp_path / fmt
+    opts = {"frames_per_file": 2} if fmt == "laz" else {}
+    rows = export([archive / "vlp16-dual.pcap", archive / "os1-64-dual.pcap"], out, format=fmt, workers=1,
+                  **opts).to_pylist()
+    assert [r["status"] for r in rows] == ["done", "done"]
+    for r in rows:
+        files = [out / o for o in r["outputs"]]
+        assert files and all(f.is_file() for f in files)
+        if fmt in ("las", "laz"):
+            import laspy
+
+            points = 0
+            for f in files:
+                las = laspy.read(f)
+                points += len(las.points)
+                assert (np.asarray(las.return_number) <= np.asarray(las.number_of_returns)).all()
+            assert points == r["points"] > 0
+            assert len(files) == (1 if fmt == "las" else -(-r["frames"] // 2))  # one per 2 frames of one sensor
+        elif fmt == "ply":
+            from plyfile import PlyData
+
+            assert len(files) == r["frames"]
+            assert sum(PlyData.read(f)["vertex"].count for f in files) == r["points"]
+        elif fmt == "pcd":
+            from pypcd4 import PointCloud
+
+            assert len(files) == r["frames"]
+            assert sum(PointCloud.from_path(f).points for f in files) == r["points"]
+        else:
+            from mcap.reader import make_reader
+
+            with open(files[0], "rb") as fh:
+                summary = make_reader(fh).get_summary()
+            assert summary.statistics.message_count > r["frames"]
+
+
+def test_in_process_job_does_not_import_dask(archive, tmp_path):
+    code = ("import sys; from lidarpkt.archive import export, catalog; "
+            f"export([{str(archive / 'vlp16-dual.pcap')!r}], {str(tmp_path / 'o')!r}, format='npz', workers=1); "
+            f"catalog([{str(archive / 'vlp16-dual.pcap')!r}]); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))")
+    import subprocess
+    import sys
+
+    from archive_cases import cli_env
+
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=cli_env(), timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
