@@ -32,7 +32,7 @@ import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError
 
-TOPIC_GROUPS = ("packets", "points", "images")
+TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,11 +46,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
+    add_frame_arguments(parser)
     parser.add_argument("--layout", choices=("points", "frames"), default="points",
                         help="Parquet: one row per return (points) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=int, metavar="N",
                         help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+
+def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--frame-id``, ``--base-frame``, ``--mount``: the MCAP frame options, the same in every verb
+    that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
+    parser.add_argument("--frame-id", action="append", metavar="NAME",
+                        help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
+                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
+                             "os_sensor)")
+    parser.add_argument("--base-frame", metavar="NAME",
+                        help="MCAP: write each sensor's mount on this frame to /tf_static")
+    parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
+                        help="MCAP: a sensor's pose on --base-frame, metres and degrees (repeat once per sensor; "
+                             "default: identity; write --mount=-1,... when the first value is negative)")
+
+
+def frame_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :class:`lidarpkt.writers.mcap.frames.SensorFrames` from the flags."""
+    return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
 class _Progress:
@@ -100,22 +120,29 @@ def _packet_reader(path: str):
     return BagReader(path)
 
 
-def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:
-    """Host receive time minus sensor time (ns) of each lidar source, from its first packet among
-    the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the hour:
-    frames are logged at sensor time + this offset, i.e. when their last packet was received."""
+def _capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
+    """(clock offsets, first and last packet host time in ns) of one input.
+
+    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
+    among the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the
+    hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
+    kept inside the capture's span (its first and last packet)."""
     from lidarpkt.velodyne import packet as vlp
 
     from . import streams
     from .sink import velodyne_sensor_time_ns
 
     offsets: dict[str, int] = {}
+    start = end = None
     reader = _packet_reader(path)
     for k, batch in enumerate(reader.batches()):
-        if k >= look_ahead:
-            break
+        if len(batch) == 0:
+            continue
+        t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
+        start = t0 if start is None else min(start, t0)
+        end = t1 if end is None else max(end, t1)
         src = str(batch.src) if batch.src is not None else "unknown source"
-        if src in offsets:
+        if k >= look_ahead or src in offsets:
             continue
         if md is None and getattr(reader, "ouster_metadata", None) and reader.ouster_metadata():
             from lidarpkt.ouster.metadata import load_metadata
@@ -130,18 +157,7 @@ def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:
             dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
             first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
             offsets[src] = host - int(first["timestamp_ns"])
-    return offsets
-
-
-def _frame_log_time(frame, offsets: dict[str, int]) -> int:
-    """When the frame's last packet was received (host time, ns): its last column's sensor time plus
-    its source's clock offset (the only offset when the frame's source is not named)."""
-    valid = frame.column_timestamp_ns[frame.column_valid]
-    end = int(valid.max()) if valid.size else frame.timestamp_ns
-    offset = offsets.get(frame.sensor.source)
-    if offset is None:
-        offset = next(iter(offsets.values())) if len(offsets) == 1 else 0
-    return end + offset
+    return offsets, start, end
 
 
 def _open_frames(path: str, args) -> object:
@@ -172,8 +188,9 @@ def run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
-    from lidarpkt.writers.mcap.pointcloud import image_messages, pointcloud_messages
-    from lidarpkt.writers.mcap.writer import McapWriter
+    from lidarpkt.writers import open_writer
+    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
+
     from .sink import PacketSink
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
@@ -190,7 +207,9 @@ def _to_mcap(args, out: Path) -> int:
     frames_written = 0
     done_before = 0
     described: set[tuple] = set()
-    with McapWriter(out, chunk_seconds=float("inf"), chunk_bytes=4 << 20) as writer:
+    times = {path: _capture_times(path, md) for path in args.inputs}
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
+        writer = frame_writer.mcap
         if args.calibration:
             try:
                 text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
@@ -201,7 +220,7 @@ def _to_mcap(args, out: Path) -> int:
             from .replay import embedded_metadata
 
             for path in args.inputs:
-                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path))
+                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path), log_time_ns=times[path][1])
                 reader = _packet_reader(path)
                 for batch in reader.batches():
                     sink.push(batch)
@@ -211,27 +230,21 @@ def _to_mcap(args, out: Path) -> int:
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         if groups & {"points", "images"}:
             for path in args.inputs:
-                offsets = _clock_offsets(path, md)
+                frame_writer.set_capture_times(*times[path])
                 reader = _open_frames(path, args)
                 for frame in reader:
-                    log_time = _frame_log_time(frame, offsets)
                     sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
                     if sensor_key not in described:  # what the frames were decoded with, once per sensor
                         described.add(sensor_key)
                         writer.add_metadata("lidarpkt.frames", {
                             "input": str(path), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
                             "calibration": str(args.calibration or "stock")})
-                    messages = []
-                    if "points" in groups:
-                        messages += pointcloud_messages(frame)
-                    if "images" in groups:
-                        messages += image_messages(frame)
-                    for topic, msg in messages:
-                        writer.write_message(topic, msg, log_time)
+                    frame_writer.write(frame)
                     frames_written += 1
                     b = _bytes_read(reader)
                     progress.update(None if b is None else done_before + b, frames_written)
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+    frame_writer.close()
     progress.done(frames_written)
     if not args.quiet:
         print(f"lidarpkt decode: {writer.messages_written} messages ({frames_written} frames) in {out} "

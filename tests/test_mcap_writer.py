@@ -190,7 +190,14 @@ def test_pointcloud2_decodes_to_frame_xyz(tmp_path, capture, meta):
             xyz = np.moveaxis(frame.destaggered(np.moveaxis(xyz, -1, 0)), 0, -1)
             rng = frame.destaggered(rng)
         got = np.stack([pts["x"], pts["y"], pts["z"]], axis=-1)
-        np.testing.assert_array_equal(got, xyz.astype(np.float32))
+        # pixels without a return are NaN (ROS organised-cloud convention), not points at the origin
+        no_return = rng == 0
+        if frame.sensor.vendor == "ouster":
+            no_return |= ~frame.destaggered(np.broadcast_to(frame.column_valid, rng.shape))
+        else:
+            no_return |= ~frame.column_valid[None, :]
+        np.testing.assert_array_equal(got, np.where(no_return[..., None], np.nan, xyz).astype(np.float32))
+        assert pc.is_dense == (not no_return.any())
         assert np.array_equal(pts["range"], rng)
         assert pc.header.stamp.sec * 10**9 + pc.header.stamp.nanosec == frame.timestamp_ns
         # time: seconds after header.stamp of each pixel's firing (column time + firing offset)
@@ -324,7 +331,9 @@ def test_one_velodyne_scan_per_rotation_and_dual_returns_on_their_own_topics(tmp
             pts = np.frombuffer(bytes(pc.data), np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")] + [
                 ("rest", "V%d" % (pc.point_step - 12))])).reshape(pc.height, pc.width)
             xyz = frame.xyz()[slot].astype(np.float32)
-            assert np.array_equal(np.stack([pts["x"], pts["y"], pts["z"]], -1), xyz)
+            no_return = (frame.range_mm[slot] == 0) | ~frame.column_valid[None, :]
+            xyz[no_return] = np.nan  # no return: NaN, not a point at the origin
+            assert np.array_equal(np.stack([pts["x"], pts["y"], pts["z"]], -1), xyz, equal_nan=True)
 
 
 def test_damaged_cdr_messages_raise_lidarpkt_errors():

@@ -27,6 +27,7 @@ by their writer.
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -101,12 +102,12 @@ def open_writer(fmt: str, out: str | os.PathLike[str], *, capture: str | os.Path
                               "install it with pip install 'lidarpkt[export]'") from None
     module_name, cls_name = spec.writer.split(":")
     cls = getattr(importlib.import_module(f"{__name__}.{module_name}"), cls_name)
-    try:
-        return cls(out, capture=capture, part=part, **format_options)
-    except TypeError as exc:
-        if "unexpected keyword" in str(exc):
-            raise OutputError(f"--format {fmt}: {exc}") from None
-        raise
+    accepted = set(inspect.signature(cls).parameters) - {"out", "capture", "part"}
+    unknown = sorted(set(format_options) - accepted)
+    if unknown:
+        raise OutputError(f"--format {fmt}: no option {', '.join(unknown)}; its options are "
+                          f"{', '.join(sorted(accepted)) or 'none'}")
+    return cls(out, capture=capture, part=part, **format_options)
 
 
 __all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "format_from_suffix", "open_writer"]

@@ -3,15 +3,17 @@
 One point cloud per return slot. The cloud is organised: ``height`` = H rows (row 0 = the
 top beam, as in :class:`lidarpkt.frame.Frame`), ``width`` = W columns; Ouster clouds and
 images are destaggered (as ouster-ros publishes them), VLP-16 ones keep the firing order.
-Pixels without a return hold zeros (the convention of ``Frame.xyz()`` and ouster-ros), so
-the cloud has no NaN and ``is_dense`` is true.
+Pixels without a return (range 0, or a column no packet delivered) have NaN x, y, z, and the
+cloud's ``is_dense`` is false (the ROS convention for an organised cloud: viewers skip them
+instead of drawing them on the sensor's origin). The ``header.frame_id`` is the sensor's
+(:class:`lidarpkt.writers.mcap.frames.SensorFrames`; by default ``velodyne`` / ``os_sensor``).
 
 Point fields (the layout is :data:`POINT_DTYPE`; the PointField list derives from it):
 
 =================  =========  ==================================================================
 field              type       meaning
 =================  =========  ==================================================================
-x, y, z            float32    metres, the reference tools' frame (``Frame.xyz()``)
+x, y, z            float32    metres, the reference tools' frame (``Frame.xyz()``); NaN: no return
 intensity          float32    VLP-16: calibrated reflectivity (as the ROS driver); Ouster: signal
 reflectivity       uint16     the sensor's reflectivity byte
 ring               uint16     VLP-16: ring as the ROS driver (0 = lowest beam, = 15 − row);
@@ -61,7 +63,8 @@ def frame_points(frame, xyz: np.ndarray | None = None) -> np.ndarray:
         xyz = frame.xyz()
     pts = np.zeros((r, h, w), POINT_DTYPE)
     xyz = _display(frame, np.moveaxis(xyz, -1, 0))  # [3, R, H, W] so the last two axes are (H, W)
-    pts["x"], pts["y"], pts["z"] = xyz[0], xyz[1], xyz[2]
+    no_return = _display(frame, (frame.range_mm == 0) | ~frame.column_valid)
+    pts["x"], pts["y"], pts["z"] = (np.where(no_return, np.float32(np.nan), c) for c in xyz)
     refl = _display(frame, frame.reflectivity)
     pts["reflectivity"] = refl
     if frame.sensor.vendor == "ouster" and frame.signal is not None:
@@ -78,29 +81,32 @@ def frame_points(frame, xyz: np.ndarray | None = None) -> np.ndarray:
     return pts
 
 
-def pointcloud_messages(frame, xyz: np.ndarray | None = None) -> list[tuple[schemas.Topic, object]]:
-    """``(topic, PointCloud2)`` for each return slot of ``frame``; ``header.stamp`` = sensor time."""
+def pointcloud_messages(frame, xyz: np.ndarray | None = None, *,
+                        frame_id: str | None = None) -> list[tuple[schemas.Topic, object]]:
+    """``(topic, PointCloud2)`` for each return slot of ``frame``; ``header.stamp`` = sensor time,
+    ``header.frame_id`` = ``frame_id`` (default: the vendor's, :data:`FRAME_IDS`)."""
     pts = frame_points(frame, xyz)
     store = schemas.typestore()
     pc2 = store.types[schemas.POINTCLOUD2]
     r, h, w = pts.shape
     fields = point_fields()
-    hdr = schemas.header(frame.timestamp_ns, FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
+    hdr = schemas.header(frame.timestamp_ns, frame_id or FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
     out = []
     for slot in range(r):
         data = np.ascontiguousarray(pts[slot]).view(np.uint8).reshape(-1)
+        dense = not np.isnan(pts["x"][slot]).any()
         msg = pc2(header=hdr, height=h, width=w, fields=fields, is_bigendian=False,
-                  point_step=POINT_DTYPE.itemsize, row_step=POINT_DTYPE.itemsize * w, data=data, is_dense=True)
+                  point_step=POINT_DTYPE.itemsize, row_step=POINT_DTYPE.itemsize * w, data=data, is_dense=dense)
         out.append((schemas.points_topic(frame.sensor.vendor, slot), msg))
     return out
 
 
-def image_messages(frame) -> list[tuple[schemas.Topic, object]]:
+def image_messages(frame, *, frame_id: str | None = None) -> list[tuple[schemas.Topic, object]]:
     """Range (``32FC1``, metres) and reflectivity (``mono8``) images of each return slot."""
     store = schemas.typestore()
     img = store.types[schemas.IMAGE]
     r, h, w = frame.shape
-    hdr = schemas.header(frame.timestamp_ns, FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
+    hdr = schemas.header(frame.timestamp_ns, frame_id or FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
     rng_m = _display(frame, frame.range_mm).astype("<f4") * np.float32(1e-3)
     refl = _display(frame, frame.reflectivity).astype(np.uint8)
     out = []

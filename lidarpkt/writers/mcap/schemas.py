@@ -25,14 +25,18 @@ topic                             type                                   content
 ``/ouster/metadata``              ``std_msgs/msg/String``                the sensor metadata JSON (latched)
 ``/lidarpkt/other_packets``       ``nebula_msgs/msg/NebulaPacket``       datagrams of no known stream (kept,
                                                                          never dropped)
-``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1)
+``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1);
+                                                                         NaN x/y/z where no return
 ``/ouster/points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        organised frame, destaggered
 ``<prefix>/range_image`` (``2``)  ``sensor_msgs/msg/Image``              ``32FC1`` range in metres
 ``<prefix>/reflectivity_image``   ``sensor_msgs/msg/Image``              ``mono8`` reflectivity
 ``/gps/nmea_sentence``            ``nmea_msgs/msg/Sentence``             one verified NMEA sentence
+``/tf_static``                    ``tf2_msgs/msg/TFMessage``             each sensor's mount on the base frame
+                                                                         (``--base-frame``), latched
 ================================  =====================================  ==================================
 
-MCAP log time is always the host receive time (ns since the Unix epoch).
+MCAP log time is always the host receive time (ns since the Unix epoch), inside the capture's
+time span: ``/ouster/metadata`` and ``/tf_static`` are logged at the first packet's time.
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ STRING = "std_msgs/msg/String"
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
 NMEA_SENTENCE = "nmea_msgs/msg/Sentence"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 VELODYNE_PACKET_BYTES = 1206
 
@@ -106,6 +111,7 @@ OUSTER_IMU = Topic("/ouster/imu_packets", PACKET_MSG)
 OUSTER_METADATA = Topic("/ouster/metadata", STRING, QOS_LATCHED)
 OTHER_PACKETS = Topic("/lidarpkt/other_packets", NEBULA_PACKET)
 NMEA = Topic("/gps/nmea_sentence", NMEA_SENTENCE, QOS_RELIABLE)
+TF_STATIC = Topic("/tf_static", TF_MESSAGE, QOS_LATCHED)
 
 
 def points_topic(vendor: str, slot: int) -> Topic:

@@ -1,6 +1,6 @@
 """The MCAP file lidarpkt writes: ROS 2 profile, zstd chunks sized by time, rotation.
 
-A :class:`McapWriter` takes encoded messages for the topics of :mod:`recorder.schemas` and
+A :class:`McapWriter` takes encoded messages for the topics of :mod:`lidarpkt.writers.mcap.schemas` and
 writes them with the ``mcap`` library: profile ``ros2``, schemas in ``ros2msg``, messages in
 ``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag play`` accepts the
 file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk and

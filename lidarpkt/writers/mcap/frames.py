@@ -1,0 +1,235 @@
+"""Frames into MCAP: point clouds and images per sensor frame, ``/tf_static``, log times in the capture.
+
+:class:`SensorFrames` names each sensor's coordinate frame (``--frame-id``) and its static mount on
+a base frame (``--base-frame``, ``--mount x,y,z,roll,pitch,yaw``: metres and degrees, roll about
+x, then pitch about y, then yaw about z, fixed axes, as tf2's ``setRPY``). :class:`FrameTopics`
+writes a frame's messages through a :class:`~lidarpkt.writers.mcap.writer.McapWriter` (what
+``record --points`` uses); :class:`McapFrameWriter` is the MCAP writer of
+:func:`lidarpkt.writers.open_writer` (what ``decode`` uses; ``decode`` also writes the raw packets
+into its :attr:`~McapFrameWriter.mcap` through :class:`recorder.sink.PacketSink`).
+
+Log times: a frame's messages are logged when its last packet was received: its last column's
+sensor time plus the sensor's clock offset (host − sensor time on its first packet), kept inside
+``[start_ns, end_ns]`` (the capture's first and last packet times) when those are given;
+``/tf_static`` at ``start_ns`` (else the first frame's log time).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from lidarpkt.errors import OutputError
+
+from ..base import BaseWriter
+from . import schemas
+from .pointcloud import FRAME_IDS, image_messages, pointcloud_messages
+
+TOPIC_GROUPS = ("packets", "points", "images")
+Mount = tuple[float, float, float, float, float, float]
+
+
+def parse_mount(text: str) -> Mount:
+    """``"x,y,z,roll,pitch,yaw"`` (metres, degrees) → six floats; raises OutputError naming --mount."""
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 6 or not all(np.isfinite(values)):
+        raise OutputError(f"--mount {text}: give six numbers x,y,z,roll,pitch,yaw (metres, degrees)")
+    return values  # type: ignore[return-value]
+
+
+def mount_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of the rotation roll about x, then pitch about y, then yaw about z (fixed axes)."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_euler("xyz", [roll_deg, pitch_deg, yaw_deg], degrees=True).as_quat()
+    return float(x), float(y), float(z), float(w)
+
+
+def _sensor_keys(sensor) -> set[str]:
+    keys = {str(k) for k in (sensor.serial, sensor.source) if k}
+    if sensor.source and ":" in str(sensor.source):
+        keys.add(str(sensor.source).rsplit(":", 1)[0])  # the address without the port
+    return keys
+
+
+class SensorFrames:
+    """Each sensor's ``frame_id`` and optional mount on a base frame.
+
+    Args:
+        frame_ids: ``NAME`` entries are given to the sensors in order of first appearance;
+            ``KEY=NAME`` entries to the sensor whose serial, source address or ``address:port``
+            is KEY. A sensor without one gets its vendor's (``velodyne``, ``os_sensor``), with
+            ``_1``, ``_2`` … for further sensors of that vendor.
+        base_frame: the parent frame of the mounts; ``None``: no ``/tf_static``.
+        mounts: one ``(x, y, z, roll, pitch, yaw)`` (or its text) per sensor in order of
+            appearance; sensors beyond the list are mounted at the identity.
+
+    Raises OutputError: mounts without a base frame, or a frame id given twice.
+    """
+
+    def __init__(self, frame_ids: Sequence[str] | str | None = None, base_frame: str | None = None,
+                 mounts: Iterable[Mount | str] | None = None) -> None:
+        if isinstance(frame_ids, str):
+            frame_ids = [frame_ids]
+        self._ordered = [f for f in (frame_ids or []) if "=" not in f]
+        self._keyed = dict(f.split("=", 1) for f in (frame_ids or []) if "=" in f)
+        names = [*self._ordered, *self._keyed.values()]
+        if any(not v for v in names):
+            raise OutputError("--frame-id: a frame id cannot be empty")
+        if len(set(names)) != len(names):
+            raise OutputError(f"--frame-id {' '.join(frame_ids or [])}: each sensor needs its own frame id")
+        self.base_frame = base_frame or None
+        self.mounts = [parse_mount(m) if isinstance(m, str) else tuple(float(v) for v in m) for m in (mounts or [])]
+        if self.mounts and not self.base_frame:
+            raise OutputError("--mount: a mount needs the frame it is on; add --base-frame NAME")
+        self._assigned: dict[tuple, str] = {}
+        self._unkeyed = 0  # sensors given an unkeyed NAME so far
+
+    @staticmethod
+    def key(sensor) -> tuple:
+        return (sensor.vendor, sensor.source, sensor.serial)
+
+    def is_new(self, sensor) -> bool:
+        return self.key(sensor) not in self._assigned
+
+    def frame_id(self, sensor) -> str:
+        """The frame id of ``sensor`` (assigned on first call, stable afterwards)."""
+        key = self.key(sensor)
+        name = self._assigned.get(key)
+        if name is not None:
+            return name
+        name = next((v for k, v in self._keyed.items() if k in _sensor_keys(sensor)), None)
+        if name is None and self._unkeyed < len(self._ordered):
+            name = self._ordered[self._unkeyed]
+            self._unkeyed += 1
+        if name is None:
+            base = FRAME_IDS.get(sensor.vendor, sensor.vendor)
+            same = sum(1 for k in self._assigned if k[0] == sensor.vendor)
+            name = base if same == 0 else f"{base}_{same}"
+        if name in self._assigned.values():
+            raise OutputError(f"--frame-id: two sensors would both be {name!r}; give one --frame-id per sensor")
+        self._assigned[key] = name
+        return name
+
+    def transform(self, sensor, stamp_ns: int):
+        """The ``tf2_msgs/msg/TFMessage`` mounting ``sensor`` on the base frame, or None without one."""
+        if not self.base_frame:
+            return None
+        name = self.frame_id(sensor)
+        index = list(self._assigned).index(self.key(sensor))
+        x, y, z, roll, pitch, yaw = self.mounts[index] if index < len(self.mounts) else (0.0,) * 6
+        qx, qy, qz, qw = mount_quaternion(roll, pitch, yaw)
+        t = schemas.typestore().types
+        stamped = t["geometry_msgs/msg/TransformStamped"](
+            header=schemas.header(stamp_ns, self.base_frame), child_frame_id=name,
+            transform=t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+        return t[schemas.TF_MESSAGE](transforms=[stamped])
+
+
+def frame_log_time(frame, offsets: dict[str, int]) -> int:
+    """When the frame's last packet was received (host time, ns): its last column's sensor time plus
+    its source's clock offset (the only offset when the frame's source is not named)."""
+    valid = frame.column_timestamp_ns[frame.column_valid]
+    end = int(valid.max()) if valid.size else frame.timestamp_ns
+    offset = offsets.get(frame.sensor.source)
+    if offset is None:
+        offset = next(iter(offsets.values())) if len(offsets) == 1 else 0
+    return end + offset
+
+
+class FrameTopics:
+    """Writes frames' point clouds and/or images and each new sensor's ``/tf_static`` to an MCAP file.
+
+    Args:
+        mcap: the :class:`~lidarpkt.writers.mcap.writer.McapWriter`.
+        groups: among ``"points"``, ``"images"`` (``"packets"`` is ignored here).
+        sensors: the :class:`SensorFrames` (default: the vendors' frame ids, no ``/tf_static``).
+    """
+
+    def __init__(self, mcap, groups: Iterable[str] = ("points",), sensors: SensorFrames | None = None) -> None:
+        self.mcap = mcap
+        self.groups = set(groups)
+        self.sensors = sensors or SensorFrames()
+
+    def write(self, frame, log_time_ns: int, tf_time_ns: int | None = None) -> None:
+        """Write one frame's messages at ``log_time_ns``; a new sensor's mount first, at ``tf_time_ns``."""
+        if self.sensors.is_new(frame.sensor):
+            tf = self.sensors.transform(frame.sensor, log_time_ns if tf_time_ns is None else tf_time_ns)
+            if tf is not None:
+                self.mcap.write_latched(schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf),
+                                        log_time_ns if tf_time_ns is None else tf_time_ns)
+        name = self.sensors.frame_id(frame.sensor)
+        messages: list = []
+        if "points" in self.groups:
+            messages += pointcloud_messages(frame, frame_id=name)
+        if "images" in self.groups:
+            messages += image_messages(frame, frame_id=name)
+        for topic, msg in messages:
+            self.mcap.write_message(topic, msg, log_time_ns)
+
+
+class McapFrameWriter(BaseWriter):
+    """ROS 2 MCAP of a capture's frames (see the module doc).
+
+    Args:
+        out: the ``.mcap`` file (its folder must exist).
+        capture, part: see :func:`lidarpkt.writers.open_writer`.
+        topics: groups among ``packets``, ``points``, ``images`` (packets are written by the
+            caller into :attr:`mcap`; this writer writes points and images).
+        frame_ids, base_frame, mounts: see :class:`SensorFrames`.
+        clock_offsets: host − sensor time (ns) per source address (see :func:`frame_log_time`).
+        start_ns, end_ns: the capture's first and last packet host times; log times are kept
+            inside them.
+        chunk_bytes: MCAP chunk size.
+    """
+
+    suffix = ".mcap"
+
+    def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
+                 topics: Iterable[str] = ("points",), frame_ids: Sequence[str] | str | None = None,
+                 base_frame: str | None = None, mounts: Iterable[Mount | str] | None = None,
+                 clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
+        from .writer import McapWriter
+
+        super().__init__(out, capture=capture, part=part)
+        groups = set(topics)
+        if not groups or groups - set(TOPIC_GROUPS):
+            raise OutputError(f"--topics {','.join(sorted(groups))}: choose among {', '.join(TOPIC_GROUPS)}")
+        sensors = SensorFrames(frame_ids, base_frame, mounts)
+        self.path = self.single_file()
+        self._tmp = self.files.temporary(self.path)
+        self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        self.topics = FrameTopics(self.mcap, groups, sensors)
+        self.clock_offsets = dict(clock_offsets or {})
+        self.start_ns, self.end_ns = start_ns, end_ns
+
+    def set_capture_times(self, clock_offsets: dict[str, int], start_ns: int | None, end_ns: int | None) -> None:
+        """The clock offsets and time span of the capture whose frames come next."""
+        self.clock_offsets = dict(clock_offsets)
+        self.start_ns, self.end_ns = start_ns, end_ns
+
+    def log_time(self, frame) -> int:
+        t = frame_log_time(frame, self.clock_offsets)
+        if self.end_ns is not None:
+            t = min(t, self.end_ns)
+        if self.start_ns is not None:
+            t = max(t, self.start_ns)
+        return t
+
+    def _write(self, frame) -> None:
+        self.topics.write(frame, self.log_time(frame), self.start_ns)
+
+    def _finish(self) -> None:
+        self.mcap.close()
+        self.files.commit(self._tmp)
+
+    def _release(self) -> None:
+        self.mcap._abandon()  # close without a summary; the temporary is removed next

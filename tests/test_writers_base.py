@@ -1,0 +1,119 @@
+"""The writer interface: choice by suffix or name, temporary-then-rename for every format, segment
+names, the old import paths of the moved modules, the light base import; NPZ on every capture read
+by NumPy equal to ``lidarpkt.open``'s frames on their grid."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import REPO_ROOT
+from lidarpkt.errors import LidarpktError, OutputError
+from lidarpkt.writers import FORMATS, format_from_suffix, open_writer
+from writers_cases import CASES, case, load  # noqa: F401 - the parametrised fixture
+
+
+def test_format_from_suffix_and_unknown_suffix():
+    assert [format_from_suffix(f"x.{s}") for s in ("mcap", "npz", "parquet", "las", "LAZ", "ply", "pcd")] == \
+        ["mcap", "npz", "parquet", "las", "laz", "ply", "pcd"]
+    with pytest.raises(OutputError, match=r"x\.txt: the output must end in \.mcap or \.npz, or one of \.parquet"):
+        format_from_suffix("x.txt")
+    with pytest.raises(LidarpktError, match="choose among mcap, npz, parquet, las, laz, ply, pcd"):
+        open_writer("xyz", "out")
+
+
+def _hidden(path, root) -> bool:
+    return any(part.startswith(".") for part in path.relative_to(root).parts)
+
+
+def _out(tmp_path, fmt):
+    return tmp_path / ("out" if FORMATS[fmt].directory else f"out.{fmt}")
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_every_format_hides_partial_files_and_abort_removes_them(tmp_path, fmt):
+    _, _, frames = load(next(c for c in CASES if c[0] == "canned-os1-dual"))
+    with pytest.raises(RuntimeError):
+        with open_writer(fmt, _out(tmp_path, fmt), capture="drive.pcap") as w:
+            w.write(frames[0])
+            w.write(frames[1])
+            visible = [p for p in tmp_path.rglob("*") if p.is_file() and not _hidden(p, tmp_path)]
+            # only per-frame formats have complete files yet (each renamed when its frame was done)
+            assert len(visible) == (2 if fmt in ("ply", "pcd") else 0), visible
+            raise RuntimeError("the job was killed")
+    left = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert not [p for p in tmp_path.rglob("*") if _hidden(p, tmp_path)], left  # no temporary left behind
+    assert len(left) == (2 if fmt in ("ply", "pcd") else 0)
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_every_format_segments_have_distinct_names(tmp_path, fmt):
+    _, _, frames = load(next(c for c in CASES if c[0] == "canned-vlp16-dual"))
+    out = _out(tmp_path, fmt)
+    names = []
+    for k, chunk in enumerate((frames[:3], frames[3:])):
+        with open_writer(fmt, out, capture="drive.pcap", part=f"seg{k:04d}") as w:
+            for f in chunk:
+                w.write(f)
+        names += [p.relative_to(tmp_path) for p in w.close()]
+    assert len(names) == len(set(names)) and names
+    if fmt in ("ply", "pcd"):  # per-frame files are named by capture, sensor and frame id only
+        assert sorted(p.name for p in names) == sorted(
+            f"drive_{frames[0].sensor.source.replace(':', '-')}_{f.frame_id:06d}.{fmt}" for f in frames)
+    assert not [p for p in tmp_path.rglob("*") if _hidden(p, tmp_path)]
+
+
+def test_missing_folder_is_an_output_error(tmp_path):
+    for fmt in FORMATS:
+        with pytest.raises(OutputError, match="does not exist"):
+            open_writer(fmt, tmp_path / "no" / "such" / f"x.{fmt}", capture="a.pcap")
+
+
+def test_npz_read_by_numpy_equals_frames_on_grid(tmp_path, case):
+    cap, _, frames = load(case)
+    with open_writer("npz", tmp_path / "x.npz", capture=cap) as w:
+        for f in frames:
+            w.write(f)
+    [path] = w.close()
+    sensors = list(dict.fromkeys((f.sensor.vendor, f.sensor.model, f.sensor.source, f.shape[0], f.shape[1])
+                                 for f in frames))
+    with np.load(path) as d:
+        for k, key in enumerate(sensors):
+            prefix = "" if len(sensors) == 1 else f"s{k}_"
+            mine = [f.on_grid() for f in frames if (f.sensor.vendor, f.sensor.model, f.sensor.source,
+                                                    f.shape[0], f.shape[1]) == key]
+            assert d[prefix + "frame_id"].tolist() == [f.frame_id for f in mine]
+            for name in ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg"):
+                np.testing.assert_array_equal(d[prefix + name], np.stack([getattr(f, name) for f in mine]), name)
+            assert tuple(d[prefix + "return_labels"]) == mine[0].return_labels
+
+
+def test_old_import_paths_are_the_moved_modules():
+    import lidarpkt.pcapwrite
+    import lidarpkt.writers.mcap.pointcloud
+    import lidarpkt.writers.mcap.schemas
+    import lidarpkt.writers.mcap.writer
+    import lidarpkt.writers.pcap
+    import recorder.mcap_writer
+    import recorder.pointcloud
+    import recorder.schemas
+
+    assert lidarpkt.pcapwrite is lidarpkt.writers.pcap
+    assert recorder.mcap_writer is lidarpkt.writers.mcap.writer
+    assert recorder.schemas is lidarpkt.writers.mcap.schemas
+    assert recorder.pointcloud is lidarpkt.writers.mcap.pointcloud
+    assert recorder.schemas.__spec__.name == "lidarpkt.writers.mcap.schemas"  # its own spec kept
+    from recorder.mcap_writer import McapWriter
+
+    assert McapWriter is lidarpkt.writers.mcap.writer.McapWriter
+
+
+def test_base_import_needs_no_export_library():
+    code = ("import sys, lidarpkt, lidarpkt.writers, lidarpkt.writers.mcap.frames, recorder.decode\n"
+            "heavy = {'pyarrow', 'laspy', 'plyfile', 'pypcd4', 'duckdb'} & set(sys.modules)\n"
+            "print(sorted(heavy))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
