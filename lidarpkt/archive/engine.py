@@ -39,7 +39,11 @@ class EngineOptions:
         return self.client is None and self._scheduler() is None and self._workers() == 1
 
     def _scheduler(self) -> str | None:
-        return self.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+        """``scheduler``, else the environment's when no worker count was given (an explicit
+        ``--workers N`` runs locally whatever the environment says)."""
+        if self.scheduler:
+            return self.scheduler
+        return os.environ.get("DASK_SCHEDULER_ADDRESS") or None if self.workers is None else None
 
     def _workers(self) -> int:
         if self.workers is not None and self.workers < 1:
@@ -117,7 +121,7 @@ class Progress:
         self.units_done = 0
         self.failed = 0
         self.bar = None
-        if enabled:
+        if enabled and sys.stderr.isatty():  # as decode does: no bar in logs and pipes
             try:
                 from tqdm import tqdm
             except ImportError:
