@@ -163,14 +163,15 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
     return tuple(sorted(rels))
 
 
-def _open_frames(path: str, task: UnitTask) -> Any:
+def _open_frames(path: str, task: UnitTask, scratch: list[str]) -> Any:
     """The FrameReader of the task's capture (of its segment, when it has one)."""
     import lidarpkt
 
     options: dict[str, Any] = {}
     if task.segment is not None:
         options["segment"] = task.segment
-    return lidarpkt.open(path, metadata=list(task.metadata) or None, **options)
+    metadata = [_fetch_input(m, scratch) for m in task.metadata]
+    return lidarpkt.open(path, metadata=metadata or None, **options)
 
 
 def _write_frames(writer: Any, reader: Any, counts: _Counts) -> None:
@@ -217,7 +218,7 @@ def run_unit(task: UnitTask) -> UnitResult:
             try:
                 local = _fetch_input(task.input, scratch)
                 target = writer_target(task.format, stage, task.capture, options)
-                reader = _open_frames(local, task)
+                reader = _open_frames(local, task, scratch)
                 writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
                 _write_frames(writer, reader, counts)
             except OutputError as exc:  # nothing of this unit can be trusted
