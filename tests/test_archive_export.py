@@ -264,7 +264,7 @@ def test_every_format_through_the_unit_reads_back_with_its_own_reader(archive, t
 def test_in_process_job_does_not_import_dask(archive, tmp_path):
     code = ("import sys; from lidarpkt.archive import export, catalog; "
             f"export([{str(archive / 'vlp16-dual.pcap')!r}], {str(tmp_path / 'o')!r}, format='npz', workers=1); "
-            f"catalog([{str(archive / 'vlp16-dual.pcap')!r}]); "
+            f"catalog([{str(archive / 'vlp16-dual.pcap')!r}], workers=1); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))")
     import subprocess
     import sys

@@ -32,7 +32,7 @@ _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "par
 
 
 def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
-            metadata: Sequence[str | os.PathLike[str]] = (), workers: int | None = 1,
+            metadata: Sequence[str | os.PathLike[str]] = (), workers: int | None = None,
             scheduler: str | None = None, client: Any = None):
     """One row per (capture file, sensor stream) under ``paths``, as a ``pyarrow.Table``.
 
@@ -46,7 +46,8 @@ def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
         paths: files, folders (walked recursively) or fsspec URLs.
         glob: in folders, only file names matching this pattern.
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture).
-        workers, scheduler, client: the engine (see :func:`export`); the default is this process.
+        workers, scheduler, client: the engine, as for :func:`export` (default: a local cluster of
+            the CPU count; ``workers=1`` runs in this process).
 
     Raises:
         lidarpkt.archive.plan.PlanError: a PATH does not exist or holds no capture.
