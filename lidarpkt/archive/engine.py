@@ -79,8 +79,13 @@ def dask_client(options: EngineOptions) -> Iterator[Any]:
         return
     import logging
 
-    with distributed.LocalCluster(n_workers=options._workers(), threads_per_worker=1, processes=True,
-                                  dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+    import dask
+
+    # one thread per worker process: the decode holds the GIL between NumPy calls; Dask's sampling
+    # profiler (a thread every 10 ms) only costs CPU on a job nobody watches on a dashboard
+    with dask.config.set({"distributed.worker.profile.enabled": False}), \
+            distributed.LocalCluster(n_workers=options._workers(), threads_per_worker=1, processes=True,
+                                     dashboard_address=None, silence_logs=logging.ERROR) as cluster:
         with distributed.Client(cluster, set_as_default=False) as client:
             yield client
 
