@@ -26,62 +26,16 @@ from .packet import PacketBatch
 if TYPE_CHECKING:
     from .sources.segments import Segment
 
-PCAP_MAGICS = {
-    b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # µs, little / big endian
-    b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d",  # ns
-    b"\x0a\x0d\x0d\x0a",  # pcapng section header block
-}
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-ROS1_MAGIC = b"#ROSBAG V2.0"
-SQLITE_MAGIC = b"SQLite format 3\x00"
+from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
+from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
+from .sources.protocol import PacketSource, open_packet_source
+
 _MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
 
 
-def container_kind(path: str | os.PathLike[str]) -> str:
-    """``"pcap"``, ``"mcap"``, ``"rosbag2"`` (directory or .db3) or ``"rosbag1"``, from the file's first bytes.
-
-    Raises :class:`UnsupportedContainerError` naming the file and what it starts with.
-    """
-    p = Path(path)
-    if p.is_dir():
-        if (p / "metadata.yaml").exists():
-            return "rosbag2"
-        raise UnsupportedContainerError(f"{p} is a directory without a rosbag2 metadata.yaml")
-    try:
-        with p.open("rb") as fh:
-            head = fh.read(16)
-    except FileNotFoundError:
-        raise UnsupportedContainerError(f"{p}: no such file") from None
-    except OSError as exc:
-        raise UnsupportedContainerError(f"{p}: cannot read ({exc.strerror})") from None
-    if head[:4] in PCAP_MAGICS:
-        return "pcap"
-    if head.startswith(MCAP_MAGIC):
-        return "mcap"
-    if head.startswith(ROS1_MAGIC):
-        return "rosbag1"
-    if head.startswith(SQLITE_MAGIC):
-        return "rosbag2"
-    shown = head.hex(" ") if head else "nothing (empty file)"
-    raise UnsupportedContainerError(
-        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag): it starts with {shown}"
-    )
-
-
 def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[PacketBatch]:
-    """Packet batches of any supported container, in capture order (see :class:`lidarpkt.pcap.PcapReader`)."""
-    return _open_packet_source(path, **filters).batches()
-
-
-def _open_packet_source(path: str | os.PathLike[str], **filters: Any):
-    kind = container_kind(path)
-    if kind == "pcap":
-        from .pcap import PcapReader
-
-        return PcapReader(path, **filters)
-    from .bags import BagReader
-
-    return BagReader(path, **filters)
+    """Packet batches of any supported container, in capture order (see :func:`lidarpkt.sources.open_packet_source`)."""
+    return open_packet_source(path, **filters).batches()
 
 
 @dataclass
@@ -146,7 +100,7 @@ class FrameReader:
             if segment.count > 1:
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
-        self.reader = _open_packet_source(path, **filters)
+        self.reader: PacketSource = open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, read_ahead)
         self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
@@ -199,7 +153,7 @@ class FrameReader:
     def _frames(self) -> Iterator[Frame]:
         from . import ouster, velodyne
 
-        embedded = getattr(self.reader, "ouster_metadata", None)
+        embedded = self.reader.ouster_metadata
         batches = self._batches()
         ownership = self._ownership
         try:
@@ -374,7 +328,7 @@ READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thre
 def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     """Read ahead in a thread? pcap/pcapng only (a bag reader's embedded metadata is looked up as its
     batches arrive); by default when the file has at least READ_AHEAD_MIN_BYTES and there are 2+ CPUs."""
-    from .pcap import PcapReader
+    from .sources.pcap_reader import PcapReader
 
     if not isinstance(reader, PcapReader) or read_ahead is False:
         return False

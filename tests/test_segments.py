@@ -1,7 +1,7 @@
 """Segments of a capture (lidarpkt.sources.segments): the frames of all segments are the whole file's.
 
 Every external capture and canned fixture is cut small (boundaries mid-frame, beside VLP-16
-position and Ouster IMU packets, next to fragment trains of 8-25 KB Ouster datagrams); the
+position and Ouster IMU packets, next to the 12-fragment trains of the canned OS1-64 datagrams); the
 frames of the segments, in segment order, must equal ``lidarpkt.open``'s frames of the whole
 file array for array. VLP-16 ordinals (``frame_id``, ``extra["packet_index"]``) count from the
 segment's reading start: they must differ from the whole file's by one constant per segment.
@@ -143,20 +143,31 @@ def test_boundaries_beside_position_packets():
     _check_union(path, None, 21_001)
 
 
-def test_boundaries_never_split_a_fragment_train():
-    # OS-2-128 lidar datagrams (24,896 B) travel as 17 IPv4 fragments: a target offset lands inside a
-    # train almost always, and the plan moves the boundary to the next datagram's first fragment
-    path, md = _capture("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10")
-    segments = plan_segments(path, 30_011)
+def _record_offsets(data: bytes) -> list[int]:
+    offs, off = [], 24
+    while off + 16 <= len(data):
+        offs.append(off)
+        off += 16 + struct.unpack_from("<I", data, off + 8)[0]
+    return offs
+
+
+@pytest.mark.parametrize("segment_bytes", [30_011, 47_777])
+def test_boundaries_never_split_a_fragment_train(segment_bytes):
+    # the canned OS1-64 captures send each lidar datagram as 12 IPv4 fragments: a target offset lands
+    # inside a train most of the time, and the plan moves the boundary to the next datagram's first fragment
+    path, md = _capture("os1-64-dual")
     data = path.read_bytes()
+    records = _record_offsets(data)
+    segments = plan_segments(path, segment_bytes)
     moved = 0
-    for seg in segments[1:]:
-        rec = data[seg.start_offset + 16 : seg.start_offset + 16 + 64]
-        assert not _continues_fragment(rec, 1)
-        prev_target = segments[seg.index - 1].start_offset + 30_011
-        moved += seg.start_offset - prev_target > 1600  # past at least one more whole record
-    assert moved >= 1
-    _check_union(path, md, 30_011)
+    for prev, seg in zip(segments, segments[1:]):
+        assert seg.start_offset in records
+        assert not _continues_fragment(data[seg.start_offset + 16 : seg.start_offset + 16 + 64], 1)
+        naive = next(o for o in records if o >= prev.start_offset + segment_bytes)
+        moved += naive != seg.start_offset
+        assert _continues_fragment(data[naive + 16 : naive + 16 + 64], 1) == (naive != seg.start_offset)
+    assert moved >= len(segments) // 2
+    _check_union(path, md, segment_bytes)
 
 
 @pytest.mark.parametrize("name", ["os1-64-dual", "vlp16-dual"])

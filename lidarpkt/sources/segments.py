@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import kernels
 from ..errors import CaptureFormatError
+from .magic import container_kind
 
 __all__ = ["Segment", "plan_segments", "DEFAULT_SEGMENT_BYTES"]
 
@@ -77,8 +78,6 @@ def plan_segments(path: str | os.PathLike[str], segment_bytes: int = DEFAULT_SEG
             segment there (the reader reports it as the whole-file reader does).
         ValueError: ``segment_bytes`` below 1.
     """
-    from ..source import container_kind
-
     if segment_bytes < 1:
         raise ValueError("segment_bytes must be at least 1")
     kind = container_kind(path)
