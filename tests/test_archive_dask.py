@@ -110,14 +110,21 @@ class DaskProcesses:
                 proc.wait()
 
 
-def _wait_for_rows(outdir: Path, n: int, proc: subprocess.Popen, timeout: float = 120) -> None:
+def _running_units(outdir: Path) -> int:
+    staging = outdir / ".staging"
+    return len(list(staging.iterdir())) if staging.is_dir() else 0
+
+
+def _wait_until(outdir: Path, proc: subprocess.Popen, *, rows: int, running: int, timeout: float = 120) -> None:
+    """Until the manifest has ``rows`` lines and ``running`` units are writing (their staging folders)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if (outdir / "_manifest.jsonl").exists() and len(manifest_rows(outdir)) >= n:
+        done = len(manifest_rows(outdir)) if (outdir / "_manifest.jsonl").exists() else 0
+        if done >= rows and _running_units(outdir) >= running:
             return
         if proc.poll() is not None:
-            raise AssertionError(f"the job ended before {n} units were done: {proc.stderr.read()}")
-        time.sleep(0.02)
+            raise AssertionError(f"the job ended first ({done} rows): {proc.stderr.read()}")
+        time.sleep(0.01)
     raise AssertionError("the job made no progress")
 
 
@@ -134,7 +141,7 @@ def test_separate_process_cluster_file_urls_and_a_killed_worker(archive, referen
         job = subprocess.Popen([sys.executable, "-m", "lidarpkt", "export", str(archive), "-o", str(out),
                                 "--format", "las", "-q"], env=env, stderr=subprocess.PIPE, text=True)
         try:
-            _wait_for_rows(out, 1, job)
+            _wait_until(out, job, rows=0, running=2)  # both workers inside a unit
             victim = cluster.workers[0]
             os.kill(victim.pid, signal.SIGKILL)
             victim.wait(timeout=20)
@@ -154,14 +161,14 @@ def test_killed_job_resumes_skips_done_units_and_leaves_no_partial_files(archive
             "--workers", "1", "-q"]
     job = subprocess.Popen(args, env=cli_env(), stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for_rows(out, 1, job)
-        time.sleep(0.05)  # inside the next unit
+        _wait_until(out, job, rows=1, running=1)  # one unit done, the next one writing
         job.send_signal(signal.SIGKILL)
         job.wait(timeout=20)
     finally:
         if job.poll() is None:
             job.kill()
             job.wait()
+    assert _running_units(out) == 1  # the killed unit's partial files, under .staging
     done_before = {r["key"] for r in manifest_rows(out) if r["status"] == "done"}
     total = len(reference_rows := manifest_rows(reference["parquet"]))
     assert 1 <= len(done_before) < total, "the kill came too late to test a resume"
