@@ -296,3 +296,16 @@ def test_remote_urls_are_fetched_and_put_through_fsspec(archive, tmp_path):
     assert again == rows  # done units skipped on a remote OUTDIR too
     mem.rm("/in", recursive=True)
     mem.rm("/out", recursive=True)
+
+
+def test_unwritable_outdir_is_an_error_per_unit_not_a_traceback(archive, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".staging").write_text("a file where the staging folder goes")  # works as root too
+    rows = export([archive / "vlp16-dual.pcap", archive / "vlp16-strongest.pcap"], out, format="npz",
+                  workers=1).to_pylist()
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert all("cannot create the staging folder" in r["error"] and str(out) in r["error"] for r in rows)
+    res = lidarpkt_cli("export", str(archive / "vlp16-dual.pcap"), "-o", str(out), "--format", "npz",
+                       "--workers", "1", "-q")
+    assert res.returncode == 1 and "Traceback" not in res.stderr and "failed: vlp16-dual.pcap" in res.stderr

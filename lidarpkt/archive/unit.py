@@ -153,12 +153,16 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
         fs, root = fsspec.core.url_to_fs(task.output)
     for f in files:
         rel = Path(f).resolve().relative_to(stage.resolve()).as_posix()
-        if remote:
-            fs.put_file(str(f), f"{root.rstrip('/')}/{rel}")
-        else:
-            dest = Path(local_path(task.output)) / rel
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(f, dest)
+        try:
+            if remote:
+                fs.put_file(str(f), f"{root.rstrip('/')}/{rel}")
+            else:
+                dest = Path(local_path(task.output)) / rel
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(f, dest)
+        except OSError as exc:
+            raise OutputError(f"{task.output}/{rel}: cannot put the output in place ({exc.strerror or exc}); "
+                              "check the output folder's space and permissions") from None
         rels.append(rel)
     return tuple(sorted(rels))
 
@@ -207,7 +211,12 @@ def run_unit(task: UnitTask) -> UnitResult:
     scratch: list[str] = []
     stage, _ = _stage_dir(task)
     shutil.rmtree(stage, ignore_errors=True)  # an earlier, killed attempt's files
-    stage.mkdir(parents=True, exist_ok=True)
+    try:
+        stage.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return UnitResult(key=task.key, input=task.input, part=task.part, size_bytes=task.size_bytes,
+                          error=f"{stage.parent}: cannot create the staging folder ({exc.strerror or exc}); "
+                                "check the output folder's space and permissions")
     options = dict(task.options)
     error: str | None = None
     outputs: tuple[str, ...] = ()
