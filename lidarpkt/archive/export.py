@@ -19,7 +19,7 @@ from lidarpkt.errors import LidarpktError
 from .engine import EngineOptions, Progress, run_all
 from .manifest import Manifest, OutdirLock, job_fingerprint, make_row
 from .plan import DEFAULT_SEGMENT_BYTES, PlanError, is_remote, local_path, plan_captures, plan_segments
-from .unit import STAGING, UnitTask, run_unit
+from .unit import STAGING, UnitResult, UnitTask, run_unit
 
 FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap")
 # one file per frame named by frame id: a VLP-16 segment counts rotations from where it starts
@@ -147,36 +147,15 @@ def export_job(
         tasks, mtimes, failed = plan_units(paths, out, format, options, glob=glob,
                                            metadata=[os.fspath(m) for m in metadata], segment_bytes=seg_bytes)
         report = ExportReport()
-        latest = manifest.latest()
-        todo = []
-        for task in tasks:
-            if manifest.is_done(task, mtime_ns=mtimes[task.key], job=job):
-                report.rows.append(latest[task.key])
-                report.skipped += 1
-            else:
-                todo.append(task)
+        todo = _not_done(manifest, tasks, mtimes, job, report)
         for task, error in failed:
-            from .unit import UnitResult
-
-            row = make_row(task, UnitResult(key=task.key, input=task.input, part=None, error=error,
-                                            size_bytes=task.size_bytes), capture_mtime_ns=mtimes[task.key], job=job)
+            result = UnitResult(key=task.key, input=task.input, part=None, error=error, size_bytes=task.size_bytes)
+            row = make_row(task, result, capture_mtime_ns=mtimes[task.key], job=job)
             manifest.append(row)
             report.rows.append(row)
         todo.sort(key=lambda t: -t.size_bytes)  # the largest first: the job ends sooner
         bar = Progress(sum(t.size_bytes for t in todo), len(todo), enabled=progress, label=f"export {format}")
-
-        claimed = {rel: r["key"] for r in report.rows for rel in r["outputs"] or ()}
-
-        def record(task: UnitTask, result) -> None:
-            row = make_row(task, result, capture_mtime_ns=mtimes[task.key], job=job)
-            clash = [(rel, claimed[rel]) for rel in row["outputs"] if claimed.setdefault(rel, task.key) != task.key]
-            if clash:  # a safety net: names are made distinct per capture and segment
-                row.update(status="failed", error=f"{clash[0][0]}: written by {task.key} and by {clash[0][1]}; "
-                           "export these captures to separate folders")
-            manifest.append(row)
-            report.rows.append(row)
-            bar.advance(task.size_bytes, failed=not result.ok)
-
+        record = _Recorder(manifest, report, bar, mtimes, job)
         try:
             run_all(run_unit, todo, engine, record)
         finally:
@@ -190,6 +169,40 @@ def export_job(
     order = {t.key: i for i, t in enumerate(tasks)}
     report.rows.sort(key=lambda r: order.get(r["key"], -1))
     return report
+
+
+def _not_done(manifest: Manifest, tasks: list[UnitTask], mtimes: dict[str, int], job: str,
+              report: ExportReport) -> list[UnitTask]:
+    """The tasks an earlier run has not finished; the finished ones' rows go into ``report``."""
+    latest = manifest.latest()
+    todo = []
+    for task in tasks:
+        if manifest.is_done(task, mtime_ns=mtimes[task.key], job=job):
+            report.rows.append(latest[task.key])
+            report.skipped += 1
+        else:
+            todo.append(task)
+    return todo
+
+
+class _Recorder:
+    """Called in the driver as each unit finishes: its manifest row, the report, the progress bar."""
+
+    def __init__(self, manifest: Manifest, report: ExportReport, bar: Progress, mtimes: dict[str, int],
+                 job: str) -> None:
+        self.manifest, self.report, self.bar, self.mtimes, self.job = manifest, report, bar, mtimes, job
+        self.claimed = {rel: r["key"] for r in report.rows for rel in r["outputs"] or ()}
+
+    def __call__(self, task: UnitTask, result: UnitResult) -> None:
+        row = make_row(task, result, capture_mtime_ns=self.mtimes[task.key], job=self.job)
+        clash = [(rel, self.claimed[rel]) for rel in row["outputs"]
+                 if self.claimed.setdefault(rel, task.key) != task.key]
+        if clash:  # a safety net: names are made distinct per capture and segment
+            row.update(status="failed", error=f"{clash[0][0]}: written by {task.key} and by {clash[0][1]}; "
+                       "export these captures to separate folders")
+        self.manifest.append(row)
+        self.report.rows.append(row)
+        self.bar.advance(task.size_bytes, failed=row["status"] != "done")
 
 
 def parse_size_arg(value: int | str) -> int:
