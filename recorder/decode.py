@@ -47,8 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=float, metavar="DEG", help="NPZ: azimuth grid resolution (sensor default)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
     add_frame_arguments(parser)
-    parser.add_argument("--layout", choices=("points", "frames"), default="points",
-                        help="Parquet: one row per return (points) or per frame (frames)")
+    parser.add_argument("--layout", choices=("points", "frames"),
+                        help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=int, metavar="N",
                         help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
@@ -114,7 +114,7 @@ def _packet_reader(path: str):
     return open_packet_source(path)
 
 
-def _capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
+def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
     """(clock offsets, first and last packet host time in ns) of one input.
 
     The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
@@ -173,11 +173,14 @@ def run(args: argparse.Namespace) -> int:
     fmt = format_from_suffix(out)
     if not out.parent.is_dir():
         raise RecorderError(f"-o {out}: the folder {out.parent} does not exist")
+    if fmt in ("mcap", "npz"):
+        _format_options(args, fmt)  # rejects the flags of other formats
     if fmt == "mcap":
         return _to_mcap(args, out)
     if fmt == "npz":
         return _to_npz(args, out)
-    return _to_format(args, out, fmt, FORMATS[fmt].directory)
+    # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
+    return _to_format(args, out, fmt, FORMATS[fmt].directory or bool(args.frames_per_file))
 
 
 # ----------------------------------------------------------------------------- MCAP
@@ -201,7 +204,7 @@ def _to_mcap(args, out: Path) -> int:
     frames_written = 0
     done_before = 0
     described: set[tuple] = set()
-    times = {path: _capture_times(path, md) for path in args.inputs}
+    times = {path: capture_times(path, md) for path in args.inputs}
     with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
         writer = frame_writer.mcap
         if args.calibration:
@@ -272,9 +275,14 @@ def _to_npz(args, out: Path) -> int:
 
 # ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
 def _format_options(args, fmt: str) -> dict:
+    """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    if args.layout is not None and fmt != "parquet":
+        raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
+    if args.frames_per_file is not None and fmt not in ("las", "laz"):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
     if fmt == "parquet":
-        return {"layout": args.layout}
-    if fmt in ("las", "laz") and args.frames_per_file is not None:
+        return {"layout": args.layout or "points"}
+    if args.frames_per_file is not None:
         if args.frames_per_file < 1:
             raise RecorderError(f"--frames-per-file {args.frames_per_file}: give a positive number of frames")
         return {"frames_per_file": args.frames_per_file}
@@ -316,3 +324,28 @@ def _write_frames(writer, path: str, args, progress: _Progress, counts: dict) ->
         b = _bytes_read(reader)
         progress.update(None if b is None else counts["done_before"] + b, counts["frames"])
     counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
+
+
+# ------------------------------------------------------------------------------ Python API
+def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathLike[str], *, quiet: bool = True,
+                    **options) -> None:
+    """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
+
+    ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
+    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
+    :class:`~lidarpkt.errors.OutputError` for an unknown option.
+    """
+    from lidarpkt.errors import OutputError
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_arguments(parser)
+    args = parser.parse_args([*(str(p) for p in inputs), "-o", str(output)])
+    unknown = sorted(set(options) - set(vars(args)))
+    if unknown:
+        raise OutputError(f"decode: no option {', '.join(unknown)}")
+    for name, value in options.items():
+        setattr(args, name, [str(v) for v in value] if isinstance(value, (list, tuple)) else value)
+    args.quiet = quiet
+    run(args)

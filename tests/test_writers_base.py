@@ -117,3 +117,62 @@ def test_base_import_needs_no_export_library():
             "print(sorted(heavy))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+
+
+def test_decode_verb_writes_every_export_suffix(tmp_path, capsys):
+    import warnings
+
+    from lidarpkt.cli import main
+
+    a, b = (REPO_ROOT / "fixtures" / "canned" / n for n in ("vlp16-dual.pcap", "vlp16-last.pcap"))
+
+    def decode(*argv):
+        saved = warnings.showwarning
+        try:
+            return main(["decode", str(a), str(b), "-q", *map(str, argv)])
+        finally:
+            warnings.showwarning = saved
+
+    assert decode("-o", tmp_path / "pts.parquet") == 0
+    assert sorted(p.name for p in (tmp_path / "pts.parquet").iterdir()) == \
+        ["capture=vlp16-dual.pcap", "capture=vlp16-last.pcap"]
+    assert decode("-o", tmp_path / "frames.parquet", "--layout", "frames") == 0
+    from lidarpkt.writers.parquet import read_frames
+
+    assert len(list(read_frames(tmp_path / "frames.parquet"))) == 14
+    assert decode("-o", tmp_path / "all.las") == 0 and (tmp_path / "all.las").is_file()
+    assert decode("-o", tmp_path / "laz", "--frames-per-file", "4") == 2  # a folder needs a suffix
+    assert "must end in" in capsys.readouterr().err
+    assert decode("-o", tmp_path / "by4.laz", "--frames-per-file", "4") == 0
+    assert len(list((tmp_path / "by4.laz").iterdir())) == 2 * 2  # frame ids 0-3 and 4-6 of each input
+    assert decode("-o", tmp_path / "x.laz", "--frames-per-file", "0") == 2
+    assert "--frames-per-file 0" in capsys.readouterr().err
+    assert decode("-o", tmp_path / "y.npz", "--layout", "frames") == 2
+    assert "--layout frames: only Parquet" in capsys.readouterr().err
+    assert decode("-o", tmp_path / "clouds.ply") == 0
+    assert len(list((tmp_path / "clouds.ply").iterdir())) == 14
+    assert not [p for p in tmp_path.rglob("*") if _hidden(p, tmp_path)]
+
+
+def test_a_missing_export_library_names_the_extra(tmp_path):
+    code = ("import sys\nsys.modules['plyfile'] = None  # as if the export extra were not installed\n"
+            "from lidarpkt.writers import open_writer\nfrom lidarpkt.errors import OutputError\n"
+            f"try:\n    open_writer('ply', {str(tmp_path / 'out')!r})\nexcept OutputError as e:\n    print(e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
+    assert "needs the Python package 'plyfile'" in r.stdout and "lidarpkt[export]" in r.stdout, r.stdout + r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_decode_python_api_has_the_cli_defaults(tmp_path):
+    from recorder.decode import decode_captures
+
+    cap = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.pcap"
+    md = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.json"
+    decode_captures([cap], tmp_path / "x.mcap", metadata=[md], base_frame="base", mount=["0,0,1,0,0,0"])
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "x.mcap", "rb") as fh:
+        topics = {c.topic for c in make_reader(fh).get_summary().channels.values()}
+    assert {"/ouster/lidar_packets", "/ouster/points", "/ouster/points2", "/tf_static"} <= topics  # packets,points
+    with pytest.raises(OutputError, match="no option colour"):
+        decode_captures([cap], tmp_path / "y.npz", colour=True)

@@ -102,6 +102,7 @@ def test_las_gps_time_is_adjusted_standard_gps_time(tmp_path):
     [path] = _write("las", frames, tmp_path / "x.las", cap)
     las = laspy.read(path)
     assert las.header.global_encoding.gps_time_type == laspy.header.GpsTimeType.STANDARD
+    assert las.header.global_encoding.wkt  # LAS 1.4 R15 §2.4: set for point formats 6-10
     f = frames[0]
     sel = np.flatnonzero(las["frame_id"] == f.frame_id)
     t_ns = f.column_timestamp_ns[las["column"][sel]] + f.pixel_time_offset_ns[las["row"][sel], las["column"][sel]]

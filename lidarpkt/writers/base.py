@@ -78,6 +78,11 @@ class BaseWriter:
 
     Subclasses implement :meth:`_write` and :meth:`_finish` (which commits its files through
     ``self.files``) and may extend :meth:`abort`.
+
+    Attributes:
+        frames_written: frames given to :meth:`write`.
+        points_written: points (or rows) written, for the formats that write points.
+        files: the :class:`AtomicFiles` (``files.committed``: the complete files so far).
     """
 
     suffix = ""

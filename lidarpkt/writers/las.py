@@ -130,6 +130,7 @@ class LasWriter(BaseWriter):
         header.scales = np.array([SCALE_M] * 3)
         header.offsets = np.zeros(3)
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+        header.global_encoding.wkt = True  # LAS 1.4: required for point formats 6-10 (no CRS is given)
         header.add_extra_dims([laspy.ExtraBytesParams("frame_id", np.int64, description="lidarpkt frame id"),
                                laspy.ExtraBytesParams("row", np.uint16, description="beam, 0 = top"),
                                laspy.ExtraBytesParams("column", np.uint16, description="frame column")])

@@ -37,8 +37,9 @@ near_ir                 uint16     Ouster ambient near-IR of the pixel (null for
 ``return_labels``, the shape ``returns``/``rows``/``columns``), each per-pixel array flattened in
 C order into a list column (``range_mm`` ``[R*H*W]`` …, ``near_ir`` and ``pixel_time_offset_ns``
 ``[H*W]``), each per-column array as a list ``[W]``, ``extra`` as ``(name, dtype, shape, bytes)``
-structs, and the sensor description (``sensor_json``, ``metadata_json``). :func:`read_frames`
-gives the :class:`~lidarpkt.Frame` objects back, equal array for array.
+structs, and the sensor description (``sensor_json``, ``metadata_json``: the Ouster metadata,
+``calibration_json``: the VLP-16 per-laser corrections). :func:`read_frames` gives the
+:class:`~lidarpkt.Frame` objects back, equal array for array, with the geometry they had.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ ROW_GROUP_BYTES = 64 << 20  # frames layout: frames per row group chosen to stay
 _POINTS_ENCODING = {"use_dictionary": ["sensor", "return_label", "frame_id", "frame_timestamp_ns", "row",
                                        "return_slot"],
                     "column_encoding": {"timestamp_ns": "DELTA_BINARY_PACKED"}}
-_FRAMES_ENCODING = {"use_dictionary": ["sensor", "sensor_json", "metadata_json"]}
+_FRAMES_ENCODING = {"use_dictionary": ["sensor", "sensor_json", "metadata_json", "calibration_json"]}
 
 # the frames layout's array columns and their element types (Frame's documented dtypes)
 PIXEL_ARRAYS = {"range_mm": "uint32", "reflectivity": "uint8", "signal": "uint16", "flags": "uint8"}
@@ -100,8 +101,19 @@ def frames_schema():
         cols.append((name, pa.large_list(pa.from_numpy_dtype(np.dtype(typ)))))
     cols.append(("extra", pa.list_(pa.struct([("name", pa.string()), ("dtype", pa.string()),
                                               ("shape", pa.list_(pa.int32())), ("data", pa.large_binary())]))))
-    cols += [("sensor_json", pa.string()), ("metadata_json", pa.string())]
+    cols += [("sensor_json", pa.string()), ("metadata_json", pa.string()), ("calibration_json", pa.string())]
     return pa.schema(cols)
+
+
+def _calibration_json(sensor) -> str | None:
+    """The VLP-16 calibration the frame's XYZ came from (per-laser corrections), as JSON."""
+    import dataclasses
+
+    cal = getattr(sensor.geometry, "calibration", None)
+    if cal is None or not dataclasses.is_dataclass(cal):
+        return None
+    return json.dumps({f.name: np.asarray(getattr(cal, f.name)).tolist() if isinstance(getattr(cal, f.name), np.ndarray)
+                       else getattr(cal, f.name) for f in dataclasses.fields(cal)})
 
 
 def _counters_cls():
@@ -239,6 +251,7 @@ class ParquetWriter(BaseWriter):
             "return_labels": list(frame.return_labels), "returns": r, "rows": h, "columns": w,
             "sensor_json": json.dumps(frame.sensor.describe(), default=str),
             "metadata_json": json.dumps(frame.sensor.metadata, default=str) if frame.sensor.metadata else None,
+            "calibration_json": _calibration_json(frame.sensor),
         }
         row.update({f.name: getattr(frame.counters, f.name) for f in fields(frame.counters)})
         for name, typ in {**PIXEL_ARRAYS, **IMAGE_ARRAYS, **COLUMN_ARRAYS}.items():
@@ -302,16 +315,18 @@ def _sensor_from(row: dict[str, Any]):
 
         sensor.geometry = load_metadata(metadata).sensor_info().geometry
     elif sensor.vendor == "velodyne":
+        from lidarpkt.velodyne.calibration import VelodyneCalibration
         from lidarpkt.velodyne.geometry import VelodyneGeometry
 
-        sensor.geometry = VelodyneGeometry()  # the stock calibration (a custom one is not stored)
+        cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
+        sensor.geometry = VelodyneGeometry(None if cal is None else VelodyneCalibration(**cal))
     return sensor
 
 
 def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
     """The :class:`~lidarpkt.Frame` objects of a ``layout="frames"`` dataset folder or file, in
     file order. Arrays, scalars, counters, labels and the sensor description are as written;
-    the sensor's geometry is rebuilt from the Ouster metadata, or is the stock VLP-16 one.
+    the sensor's geometry is rebuilt from the Ouster metadata or the VLP-16 calibration.
 
     Raises :class:`~lidarpkt.errors.OutputError` for a file that is not of the frames layout.
     """
@@ -325,7 +340,7 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
     sensors: dict[str, Any] = {}
     for batch in dataset.to_batches():
         for row in batch.to_pylist():
-            key = row["sensor_json"] + (row.get("metadata_json") or "")
+            key = row["sensor_json"] + (row.get("metadata_json") or "") + (row.get("calibration_json") or "")
             sensor = sensors.get(key) or sensors.setdefault(key, _sensor_from(row))
             r, h, w = row["returns"], row["rows"], row["columns"]
 

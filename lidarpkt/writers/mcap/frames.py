@@ -186,7 +186,9 @@ class McapFrameWriter(BaseWriter):
         frame_ids, base_frame, mounts: see :class:`SensorFrames`.
         clock_offsets: host − sensor time (ns) per source address (see :func:`frame_log_time`).
         start_ns, end_ns: the capture's first and last packet host times; log times are kept
-            inside them.
+            inside them. :func:`recorder.decode.capture_times` measures all three from the
+            capture; without them frames are logged at their sensor time (an Ouster clock counting
+            from boot then gives 1970 times: pass them, or use ``recorder.decode.decode_captures``).
         chunk_bytes: MCAP chunk size.
     """
 
