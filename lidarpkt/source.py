@@ -86,12 +86,18 @@ class FrameReader:
         max_sensors: int = 64,
         read_ahead: bool | None = None,
         segment: "Segment | None" = None,
-        **filters: Any,
+        ports: Iterable[int] | None = None,
+        src_addresses: Iterable[str] | None = None,
+        payload_sizes: Iterable[int] | None = None,
+        topics: Iterable[str] | None = None,
+        batch_packets: int | None = None,
     ) -> None:
         self.path = Path(path)
         self._max_sensors = int(max_sensors)
         self.segment = segment
         self._ownership = None
+        filters: dict[str, Any] = {"ports": ports, "src_addresses": src_addresses, "payload_sizes": payload_sizes,
+                                   "topics": topics, "batch_packets": batch_packets}  # None: the reader's default
         if segment is not None:
             from .sources.segments import SegmentOwnership
 
@@ -289,17 +295,35 @@ def open_frames(
     path: str | os.PathLike[str],
     *,
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = None,
-    **options: Any,
+    calibration: Any = None,
+    cut_angle_deg: float | None = None,
+    cut_on_block: bool = False,
+    source: str | None = None,
+    include_partial: bool = True,
+    verify_crc: bool = True,
+    soft_id_check: bool = False,
+    max_sensors: int = 64,
+    read_ahead: bool | None = None,
+    segment: "Segment | None" = None,
+    ports: Iterable[int] | None = None,
+    src_addresses: Iterable[str] | None = None,
+    payload_sizes: Iterable[int] | None = None,
+    topics: Iterable[str] | None = None,
+    batch_packets: int | None = None,
 ) -> FrameReader:
     """Frames from a capture; this is ``lidarpkt.open``.
+
+    Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
+    their last packet arrived; its ``stats`` say what was routed where and what was skipped;
+    ``close()`` (or ``with``) stops reading early.
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
         metadata: Ouster metadata JSON (path or parsed dict), or a list of them for several sensors.
-            MCAP files we record carry it and need none.
+            MCAP files we record carry it and need none. VLP-16 needs none.
         calibration: VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one);
             the stock VLP-16 calibration by default.
-        cut_angle_deg: VLP-16: cut frames at this azimuth instead of at the wrap through 0°.
+        cut_angle_deg: VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.
         cut_on_block: VLP-16: cut at the block that wraps (VeloView's frames) rather than at the
             firing sequence that wraps.
         source: decode only packets from this source IP address.
@@ -312,14 +336,28 @@ def open_frames(
         read_ahead: read the packets in a background thread while decoding (pcap/pcapng only):
             ``None`` (default) when the file has at least 8 MB and the machine 2+ CPUs; ``False``
             never; ``True`` always. Same frames, order, stats, errors and warnings either way.
-        **filters: passed to the packet reader (``ports``, ``src_addresses``, ``payload_sizes``).
+        segment: yield only the frames of this :class:`~lidarpkt.sources.segments.Segment` of the
+            capture (from :func:`~lidarpkt.sources.segments.plan_segments`); the frames of all
+            segments, in order, are the whole file's. VLP-16 ``frame_id`` and
+            ``extra["packet_index"]`` then count from the segment's start.
+        ports: pcap/pcapng: keep only packets sent to these UDP destination ports.
+        src_addresses: pcap/pcapng: keep only packets from these source addresses.
+        payload_sizes: keep only packets of these UDP payload sizes (bytes).
+        topics: bags and MCAP: read only these topics (default: every topic of a known packet type).
+        batch_packets: pcap/pcapng: most packets per batch (the reader's default, 8192, when None).
 
     Raises:
         UnsupportedContainerError: the file is no container lidarpkt reads.
+        UnsupportedFilterError: a filter the container cannot apply (bags record no ports or addresses).
         UnknownSensorError: the file holds packets, but none of a supported sensor (message lists the streams).
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
     """
-    return FrameReader(path, metadata=metadata, **options)
+    return FrameReader(
+        path, metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
+        source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
+        max_sensors=max_sensors, read_ahead=read_ahead, segment=segment, ports=ports, src_addresses=src_addresses,
+        payload_sizes=payload_sizes, topics=topics, batch_packets=batch_packets,
+    )
 
 
 READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thread (a thread would not pay)

@@ -152,3 +152,24 @@ def test_open_packet_source_passes_reader_options():
     batches = list(src.batches())
     assert batches and all(len(b) <= 50 and b.payload_size == 48 for b in batches)
     assert src.stats.filtered == 128 and src.stats.yielded == 20
+
+
+def test_open_takes_typed_keyword_options_with_the_readers_defaults():
+    import inspect
+
+    from lidarpkt.source import FrameReader, open_frames
+
+    assert lidarpkt.open is open_frames
+    sig = inspect.signature(lidarpkt.open)
+    params = list(sig.parameters.values())[1:]
+    assert params and all(p.kind is p.KEYWORD_ONLY and p.annotation is not p.empty for p in params)
+    assert not any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
+    # one set of options, one set of defaults: lidarpkt.open and the FrameReader it makes agree
+    reader_params = dict(list(inspect.signature(FrameReader.__init__).parameters.items())[2:])
+    assert {n: p.default for n, p in reader_params.items()} == {p.name: p.default for p in params}
+    doc = lidarpkt.open.__doc__
+    assert all(f"{p.name}:" in doc for p in params)  # every option documented
+    with pytest.raises(TypeError):
+        lidarpkt.open(CANNED / "vlp16-strongest.pcap", cut_angle=90)  # a misspelt option is refused at once
+    frames = list(lidarpkt.open(CANNED / "vlp16-strongest.pcap", ports=[2368], batch_packets=64, read_ahead=False))
+    assert frames and sum(f.counters.lost_packets for f in frames) == 0

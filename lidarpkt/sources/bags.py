@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning, UnsupportedFilterError
 from ..packet import Packet, PacketBatch
+from .inflate import bound_rosbags
 from .magic import MCAP_MAGIC
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
@@ -242,8 +243,11 @@ class BagReader:
         try:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
             reader.open()
+            bound_rosbags(reader, self.path)  # ROS 1 chunks and rosbag2 messages inflate into a bounded size
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
             _close_failed_open(reader, exc)
+            if isinstance(exc, CaptureFormatError):
+                raise
             raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
         return reader
 
