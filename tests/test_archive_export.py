@@ -21,6 +21,11 @@ from lidarpkt.archive import export
 from lidarpkt.archive.manifest import LOCK_NAME, ExportBusyError
 
 
+def _sidecar(path) -> list[str] | None:
+    json_path = os.path.splitext(path)[0] + ".json"
+    return [json_path] if os.path.exists(json_path) else None
+
+
 def _expected_points(path, metadata=None) -> tuple[int, int]:
     """(frames, returns) of a capture as lidarpkt.open decodes it: every slot with range > 0 in a valid column."""
     frames = points = 0
@@ -258,7 +263,15 @@ def test_every_format_through_the_unit_reads_back_with_its_own_reader(archive, t
 
             with open(files[0], "rb") as fh:
                 summary = make_reader(fh).get_summary()
-            assert summary.statistics.message_count > r["frames"]
+            topics = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+            assert r["frames"] == _expected_points(r["input"], _sidecar(r["input"]))[0]
+            packets = topics.get("/velodyne_packets", 0) + topics.get("/ouster/lidar_packets", 0)
+            assert packets >= r["frames"] > 0  # decode's output: the raw packets too (VelodyneScan: one per frame)
+            from recorder.decode import decode_captures
+
+            ref = tmp_path / f"decode-{r['capture']}.mcap"
+            decode_captures([r["input"]], ref, **({"metadata": _sidecar(r["input"])} if _sidecar(r["input"]) else {}))
+            assert files[0].read_bytes() == ref.read_bytes()  # exactly what `lidarpkt decode IN -o OUT.mcap` writes
 
 
 def test_in_process_job_does_not_import_dask(archive, tmp_path):

@@ -23,8 +23,9 @@ from .unit import STAGING, UnitResult, UnitTask, run_unit
 
 FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap")
 # one file per frame named by frame id: a VLP-16 segment counts rotations from where it starts
-# reading, so two segments would name different frames alike; these formats run whole files
-WHOLE_FILE_FORMATS = ("ply", "pcd")
+# reading, so two segments would name different frames alike; and MCAP is decode's whole-file
+# output (raw packets included): these formats run whole files
+WHOLE_FILE_FORMATS = ("ply", "pcd", "mcap")
 
 
 @dataclass

@@ -178,6 +178,25 @@ def _open_frames(path: str, task: UnitTask, scratch: list[str]) -> Any:
     return lidarpkt.open(path, metadata=metadata or None, **options)
 
 
+def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], counts: _Counts) -> list[Path]:
+    """``lidarpkt decode IN -o OUT.mcap`` (recorder.decode.decode_captures, imported here: lidarpkt
+    itself does not depend on the recorder); frames counted from the MCAP's statistics (the first
+    return slot's cloud topics); points are not counted for MCAP."""
+    from mcap.reader import make_reader
+
+    from recorder.decode import decode_captures
+
+    metadata = [_fetch_input(m, scratch) for m in task.metadata]
+    decode_captures([path], target, quiet=True, **({"metadata": metadata} if metadata else {}),
+                    **dict(task.options))
+    with open(target, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    if summary is not None and summary.statistics is not None:
+        counts.frames = sum(n for cid, n in summary.statistics.channel_message_counts.items()
+                            if summary.channels[cid].topic.endswith("points"))
+    return [target]
+
+
 def _write_frames(writer: Any, reader: Any, counts: _Counts) -> None:
     with reader:
         for frame in reader:
@@ -227,9 +246,12 @@ def run_unit(task: UnitTask) -> UnitResult:
             try:
                 local = _fetch_input(task.input, scratch)
                 target = writer_target(task.format, stage, task.capture, options)
-                reader = _open_frames(local, task, scratch)
-                writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
-                _write_frames(writer, reader, counts)
+                if task.format == "mcap":  # today's decode output: raw packets, clouds, log times in the capture
+                    outputs = _publish(_decode_mcap(local, target, task, scratch, counts), stage, task)
+                else:
+                    reader = _open_frames(local, task, scratch)
+                    writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
+                    _write_frames(writer, reader, counts)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)
                 counts.frames = 0
