@@ -22,6 +22,7 @@ from archive_cases import (CANNED, assert_same_outputs, cli_env, lidarpkt_cli, m
                            no_partial_files, output_files)
 from conftest import external  # noqa: E402
 from lidarpkt.archive import catalog, export  # noqa: E402
+from lidarpkt.archive.engine import EngineOptions, run_all  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -55,7 +56,11 @@ def reference(archive, tmp_path_factory):
 
 
 def test_local_cluster_equals_in_process(archive, reference, tmp_path):
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    import dask
+
+    # allowed-failures 0: the first death counts; saturation 1: a worker holds only the task it runs
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0, "distributed.scheduler.worker-saturation": 1.0}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         pids = set(client.run(os.getpid).values())
         assert len(pids) == 2 and os.getpid() not in pids  # two worker processes, not this one
@@ -64,6 +69,15 @@ def test_local_cluster_equals_in_process(archive, reference, tmp_path):
             assert all(r["status"] == "done" for r in rows)
             assert_same_outputs(tmp_path / fmt, reference[fmt])
         assert catalog([archive], client=client) == catalog([archive], workers=1)
+        # a unit that kills its worker process (here os._exit; in life a crash or the memory limit)
+        # is reported for that task and the others complete
+        results = {}
+        # (it dies half a second into its work: the worker has reported the task it finished before)
+        dies_on_3 = lambda x: (time.sleep(0.5), os._exit(1)) if x == 3 else x * 10  # noqa: E731 - pickled by value
+        run_all(dies_on_3, [1, 2, 3, 4], EngineOptions(client=client), results.__setitem__,
+                lost=lambda task, why: f"lost: {why}")
+        assert {k: v for k, v in results.items() if k != 3} == {1: 10, 2: 20, 4: 40}
+        assert results[3].startswith("lost: the worker process died")
 
 
 def _free_port() -> int:

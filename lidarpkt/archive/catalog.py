@@ -168,7 +168,9 @@ def catalog_rows(
         bar.advance(capture.size_bytes, failed=any(r["error"] for r in rows))
 
     try:
-        run_all(catalog_capture, captures, EngineOptions(workers=workers, scheduler=scheduler, client=client), record)
+        run_all(catalog_capture, captures, EngineOptions(workers=workers, scheduler=scheduler, client=client), record,
+                lost=lambda capture, why: [{**{c: None for c in CATALOG_COLUMNS}, "path": capture.url,
+                                            "size_bytes": capture.size_bytes, "error": f"{capture.url}: {why}"}])
     finally:
         bar.close()
     return [row for c in captures for row in results[c.url]]

@@ -95,10 +95,13 @@ def run_all(
     tasks: Sequence[Any],
     options: EngineOptions,
     on_result: Callable[[Any, Any], None],
+    lost: Callable[[Any, str], Any] | None = None,
 ) -> None:
     """Run ``fn(task)`` for every task and call ``on_result(task, result)`` in this process as each
     finishes (in completion order). Exceptions of ``fn`` (programming errors: bad input is in its
-    result) propagate after Dask's retries."""
+    result) propagate after Dask's retries. A task that killed its worker every time Dask tried it
+    (a crash or the memory limit: ``KilledWorker``) becomes ``on_result(task, lost(task, why))``
+    when ``lost`` is given, so one such input does not stop the job."""
     if not tasks:
         return
     if options.in_process():
@@ -112,7 +115,14 @@ def run_all(
         futures = client.map(fn, tasks, key=keys, retries=options.retries, pure=False)
         by_key = dict(zip(keys, tasks))
         try:
-            for future, result in distributed.as_completed(futures, with_results=True, loop=client.loop):
+            for future, result in distributed.as_completed(futures, with_results=True, raise_errors=False,
+                                                           loop=client.loop):
+                if future.status == "error":
+                    exc = future.exception()
+                    if lost is None or not isinstance(exc, distributed.KilledWorker):
+                        raise exc
+                    result = lost(by_key[future.key], "the worker process died each time it ran this unit (a "
+                                  "crash or the worker's memory limit); try a smaller --segment-size")
                 on_result(by_key[future.key], result)
         finally:
             client.cancel(futures)

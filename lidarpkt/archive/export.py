@@ -158,7 +158,7 @@ def export_job(
         bar = Progress(sum(t.size_bytes for t in todo), len(todo), enabled=progress, label=f"export {format}")
         record = _Recorder(manifest, report, bar, mtimes, job)
         try:
-            run_all(run_unit, todo, engine, record)
+            run_all(run_unit, todo, engine, record, lost=_lost_unit)
         finally:
             bar.close()
             manifest.flush()
@@ -204,6 +204,11 @@ class _Recorder:
         self.manifest.append(row)
         self.report.rows.append(row)
         self.bar.advance(task.size_bytes, failed=row["status"] != "done")
+
+
+def _lost_unit(task: UnitTask, why: str) -> UnitResult:
+    return UnitResult(key=task.key, input=task.input, part=task.part, error=f"{task.input}: {why}",
+                      size_bytes=task.size_bytes)
 
 
 def parse_size_arg(value: int | str) -> int:

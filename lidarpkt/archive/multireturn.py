@@ -149,7 +149,9 @@ def multireturn_maps(
         bar.advance(sizes[task.input], failed=any(r["error"] for r in rows))
 
     try:
-        run_all(map_capture, tasks, EngineOptions(workers=workers, scheduler=scheduler, client=client), record)
+        run_all(map_capture, tasks, EngineOptions(workers=workers, scheduler=scheduler, client=client), record,
+                lost=lambda task, why: [{**{c: None for c in SUMMARY_COLUMNS}, "capture": task.capture,
+                                         "input": task.input, "error": f"{task.input}: {why}"}])
     finally:
         bar.close()
     rows = [r for t in tasks for r in results[t.input]]
