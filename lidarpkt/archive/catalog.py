@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 
-from .engine import EngineOptions, Progress, run_all
+from .engine import EngineOptions, run_rows
 from .plan import Capture, is_remote, local_path, plan_captures
 
 # column -> pyarrow type name; the order of the table and of the JSON objects
@@ -160,20 +160,14 @@ def catalog_rows(
 ) -> list[dict[str, Any]]:
     """The catalog as a list of row dicts (columns :data:`CATALOG_COLUMNS`), in the order of the inputs."""
     captures = plan_captures(paths, glob=glob, metadata=metadata)
-    results: dict[str, list[dict[str, Any]]] = {}
-    bar = Progress(sum(c.size_bytes for c in captures), len(captures), enabled=progress, label="catalog")
+    return run_rows(catalog_capture, captures, [c.size_bytes for c in captures],
+                    EngineOptions(workers=workers, scheduler=scheduler, client=client), label="catalog",
+                    progress=progress, lost=_lost_capture)
 
-    def record(capture: Capture, rows: list[dict[str, Any]]) -> None:
-        results[capture.url] = rows
-        bar.advance(capture.size_bytes, failed=any(r["error"] for r in rows))
 
-    try:
-        run_all(catalog_capture, captures, EngineOptions(workers=workers, scheduler=scheduler, client=client), record,
-                lost=lambda capture, why: [{**{c: None for c in CATALOG_COLUMNS}, "path": capture.url,
-                                            "size_bytes": capture.size_bytes, "error": f"{capture.url}: {why}"}])
-    finally:
-        bar.close()
-    return [row for c in captures for row in results[c.url]]
+def _lost_capture(capture: Capture, why: str) -> list[dict[str, Any]]:
+    return [{**{c: None for c in CATALOG_COLUMNS}, "path": capture.url, "size_bytes": capture.size_bytes,
+             "error": f"{capture.url}: {why}"}]
 
 
 def rows_to_table(rows: Sequence[dict[str, Any]], columns: dict[str, str]):

@@ -128,6 +128,35 @@ def run_all(
             client.cancel(futures)
 
 
+def run_rows(
+    fn: Callable[[Any], list[dict]],
+    tasks: Sequence[Any],
+    sizes: Sequence[int],
+    options: EngineOptions,
+    *,
+    label: str,
+    progress: bool,
+    lost: Callable[[Any, str], list[dict]],
+) -> list[dict]:
+    """:func:`run_all` of a function that returns a list of row dicts per task (catalog,
+    multi-return maps): every row, in task order, with the progress bar (a task is failed when
+    one of its rows has an ``error``)."""
+    results: dict[int, list[dict]] = {}
+    index = {id(t): i for i, t in enumerate(tasks)}
+    bar = Progress(sum(sizes), len(tasks), enabled=progress, label=label)
+
+    def record(task: Any, rows: list[dict]) -> None:
+        i = index[id(task)]
+        results[i] = rows
+        bar.advance(sizes[i], failed=any(r.get("error") for r in rows))
+
+    try:
+        run_all(fn, tasks, options, record, lost=lost)
+    finally:
+        bar.close()
+    return [row for i in range(len(tasks)) for row in results[i]]
+
+
 class Progress:
     """The job's progress bar (tqdm on stderr): bytes done of the total, inputs done, rate, time left."""
 

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 
-from .engine import EngineOptions, Progress, run_all
+from .engine import EngineOptions, run_rows
 from .plan import PlanError, is_remote, local_path, plan_captures
 
 SUMMARY_COLUMNS = ("capture", "input", "sensor", "model", "return_mode", "slot", "return_label", "frames_used",
@@ -140,21 +140,9 @@ def multireturn_maps(
     captures = plan_captures(paths, glob=glob, metadata=metadata)
     tasks = [MapTask(c.url, c.name, out, c.metadata, frames, grid_deg, tuple(sorted(map_options.items())))
              for c in captures]
-    results: dict[str, list[dict[str, Any]]] = {}
-    bar = Progress(sum(c.size_bytes for c in captures), len(tasks), enabled=progress, label="multireturn")
-    sizes = {c.url: c.size_bytes for c in captures}
-
-    def record(task: MapTask, rows: list[dict[str, Any]]) -> None:
-        results[task.input] = rows
-        bar.advance(sizes[task.input], failed=any(r["error"] for r in rows))
-
-    try:
-        run_all(map_capture, tasks, EngineOptions(workers=workers, scheduler=scheduler, client=client), record,
-                lost=lambda task, why: [{**{c: None for c in SUMMARY_COLUMNS}, "capture": task.capture,
-                                         "input": task.input, "error": f"{task.input}: {why}"}])
-    finally:
-        bar.close()
-    rows = [r for t in tasks for r in results[t.input]]
+    rows = run_rows(map_capture, tasks, [c.size_bytes for c in captures],
+                    EngineOptions(workers=workers, scheduler=scheduler, client=client), label="multireturn",
+                    progress=progress, lost=_lost_map)
     summary = root / "summary.csv"
     tmp = summary.with_name(".summary.csv.tmp")
     with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -163,6 +151,11 @@ def multireturn_maps(
         writer.writerows(rows)
     os.replace(tmp, summary)
     return rows
+
+
+def _lost_map(task: MapTask, why: str) -> list[dict[str, Any]]:
+    return [{**{c: None for c in SUMMARY_COLUMNS}, "capture": task.capture, "input": task.input,
+             "error": f"{task.input}: {why}"}]
 
 
 def run_multireturn_archive(args: Any) -> int:
