@@ -14,6 +14,19 @@ class LidarpktError(Exception):
     """Base of every error lidarpkt raises on bad input or a failed operation."""
 
 
+# --- command line and files ------------------------------------------------------
+class UsageError(LidarpktError):
+    """A command-line flag has a value that cannot be used (out of range, malformed)."""
+
+
+class InputFileError(LidarpktError):
+    """An input file is missing or unreadable."""
+
+
+class OutputError(LidarpktError):
+    """An output cannot be written where asked: missing or unwritable folder, unknown suffix."""
+
+
 # --- input files and containers -------------------------------------------------
 class CaptureFormatError(LidarpktError):
     """A file is not a capture lidarpkt can read (wrong magic, unsupported link type, corrupt block)."""
@@ -59,10 +72,6 @@ class PortInUseError(RecorderError):
 
 class DiskFullError(RecorderError):
     """The output file could not be written because the disk is full; what was written stays readable."""
-
-
-class OutputError(LidarpktError):
-    """An output cannot be written: unknown format or option, missing folder, unwritable file."""
 
 
 class SerialPortError(RecorderError):

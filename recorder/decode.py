@@ -14,7 +14,8 @@
     ``near_ir``, ``flags``; per column ``column_valid [K, W]``, ``column_timestamp_ns``,
     ``azimuth_deg``, ``measurement_id``, ``status``; per frame ``frame_id [K]``, ``partial``,
     ``lost_packets``; and ``return_labels``, ``sensor_json`` (the sensor description).
-    Several sensors in one input get key prefixes ``s0_``, ``s1_`` ….
+    The first sensor's keys are bare, whatever the input holds; further sensors' keys are prefixed
+    ``s1_``, ``s2_`` …; ``sensor_prefixes`` lists the prefixes (``["", "s1_"]``).
 
 A progress bar is drawn on stderr when it is a terminal.
 """
@@ -267,7 +268,7 @@ def _to_npz(args, out: Path) -> int:
             done_before += Path(path).stat().st_size if Path(path).is_file() else 0
         progress.done(n)
         if not n:
-            raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+            raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
         print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
@@ -310,7 +311,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
         written = writer.close()
     progress.done(counts["frames"])
     if not counts["frames"]:
-        raise LidarpktError(f"no frames decoded from {', '.join(args.inputs)}")
+        raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
         print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
     return 0

@@ -63,8 +63,6 @@ class PacketSink:
             if any (needed for non-legacy profiles and for Ouster loss accounting).
         max_scan_packets: bound on one ``VelodyneScan`` (memory stays bounded if the
             azimuth never wraps).
-        log_time_ns: log time of ``/ouster/metadata``; ``None``: the first packet's receive time
-            (never 0: every log time lies inside the capture's span).
     """
 
     def __init__(self, writer: McapWriter, *, ouster_metadata=None, max_scan_packets: int = 2000,
@@ -77,13 +75,11 @@ class PacketSink:
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
-        self._metadata_due = ouster_metadata is not None
-        if self._metadata_due and log_time_ns is not None:
-            self._write_ouster_metadata(log_time_ns)
+        if ouster_metadata is not None:
+            self._write_ouster_metadata(log_time_ns or 0)
 
     # ----------------------------------------------------------------- metadata
     def _write_ouster_metadata(self, log_time_ns: int) -> None:
-        self._metadata_due = False
         md = self.ouster_metadata
         text = json.dumps(md.raw)
         self.writer.write_latched(schemas.OUSTER_METADATA, schemas.encode(
@@ -117,8 +113,6 @@ class PacketSink:
         n = len(batch)
         if n == 0:
             return
-        if self._metadata_due:
-            self._write_ouster_metadata(int(batch.timestamp_ns[0]))
         kind = streams.classify_size(batch.payload_size, self.ouster_metadata)
         key = (kind, batch.src, batch.dst, batch.payload_size)
         rep = self.streams.get(key)

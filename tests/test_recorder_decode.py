@@ -111,7 +111,7 @@ def test_mcap_topic_choice(tmp_path):
 def test_decode_errors_are_clear(tmp_path):
     pcap = external("rust-lidar-utils/velodyne_example.pcap")
     for args, message in (
-        ((pcap, "-o", tmp_path / "x.txt"), "must end in .mcap or .npz"),
+        ((pcap, "-o", tmp_path / "x.txt"), "the accepted suffixes are .mcap, .npz"),
         ((tmp_path / "missing.pcap", "-o", tmp_path / "x.npz"), "no such file"),
         ((pcap, "-o", tmp_path / "x.mcap", "--topics", "bogus"), "choose among"),
         ((external("einride-vlp16-go/packet.bin"), "-o", tmp_path / "x.npz"), "not a capture"),
@@ -149,15 +149,16 @@ def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
     assert piped.returncode == 0 and "\r" not in piped.stderr and "52 frames" in piped.stderr
 
 
-def test_npz_of_two_sensors_has_one_prefixed_stack_each(tmp_path):
+def test_npz_of_two_sensors_has_the_first_bare_and_the_second_prefixed(tmp_path):
     out = tmp_path / "two.npz"
     vlp = external("rust-lidar-utils/velodyne_example.pcap")
     r = _decode(vlp, external(OS1), "--metadata", external(OS1_JSON), "-o", out, "-q")
     assert r.returncode == 0, r.stderr
     d = np.load(out)
     n_vlp = len(list(lidarpkt.open(vlp)))
-    assert d["s0_range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
-    assert "s0_signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
+    assert d["range_mm"].shape == (n_vlp, 1, 16, 1800) and d["s1_range_mm"].shape == (1, 1, 64, 1024)
+    assert "signal" not in d and d["s1_signal"].shape == (1, 1, 64, 1024)
+    assert d["sensor_prefixes"].tolist() == ["", "s1_"] and "s0_range_mm" not in d
     assert d["s1_frame_id"].tolist() == [189]
 
 

@@ -60,18 +60,20 @@ FORMATS: dict[str, Format] = {f.name: f for f in (
 )}
 
 
-def format_from_suffix(path: str | os.PathLike[str]) -> str:
+SUFFIXES: tuple[str, ...] = tuple(s for f in FORMATS.values() for s in f.suffixes)  # .mcap, .npz first
+
+
+def format_from_suffix(path: str | os.PathLike[str], flag: str = "-o") -> str:
     """The format name chosen by ``path``'s suffix (``"x.mcap"`` → ``"mcap"``).
 
-    Raises :class:`~lidarpkt.errors.OutputError` naming the accepted suffixes.
+    Raises :class:`~lidarpkt.errors.OutputError` naming ``flag``, the path and the accepted suffixes.
     """
     suffix = Path(path).suffix.lower()
     for fmt in FORMATS.values():
         if suffix in fmt.suffixes:
             return fmt.name
-    others = ", ".join(s for f in FORMATS.values() for s in f.suffixes if f.name not in ("mcap", "npz"))
-    raise OutputError(f"-o {path}: the output must end in .mcap or .npz, or one of {others} "
-                      "(the suffix chooses the format)")
+    raise OutputError(f"{flag} {path}: unknown output type {suffix or '(no suffix)'!r}; "
+                      f"the accepted suffixes are {', '.join(SUFFIXES)}")
 
 
 def open_writer(fmt: str, out: str | os.PathLike[str], *, capture: str | os.PathLike[str] | None = None,
@@ -110,4 +112,5 @@ def open_writer(fmt: str, out: str | os.PathLike[str], *, capture: str | os.Path
     return cls(out, capture=capture, part=part, **format_options)
 
 
-__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "format_from_suffix", "open_writer"]
+__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "SUFFIXES", "format_from_suffix",
+           "open_writer"]

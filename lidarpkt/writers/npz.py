@@ -3,9 +3,11 @@
 Arrays (``K`` frames): ``range_mm [K, R, H, W]``, ``reflectivity``, and for Ouster ``signal``,
 ``near_ir``, ``flags``; per column ``column_valid [K, W]``, ``column_timestamp_ns``,
 ``azimuth_deg``, ``measurement_id``, ``status``; per frame ``frame_id [K]``, ``partial``,
-``lost_packets``; and ``return_labels``, ``sensor_json`` (the sensor description). Several
-sensors get key prefixes ``s0_``, ``s1_`` …. Frames are spooled through temporary files beside
-the output (memory stays bounded however long the capture) and streamed into the zip at close.
+``lost_packets``; and ``return_labels``, ``sensor_json`` (the sensor description). The first
+sensor's keys are bare, whatever the input holds; further sensors' keys are prefixed ``s1_``,
+``s2_`` …; ``sensor_prefixes`` lists the prefixes (``["", "s1_"]``). Frames are spooled through
+temporary files beside the output (memory stays bounded however long the capture) and streamed
+into the zip at close.
 """
 
 from __future__ import annotations
@@ -83,6 +85,11 @@ class _Spool:
             fh.close()
 
 
+def _prefix(index: int) -> str:
+    """NPZ key prefix of the ``index``-th sensor: none for the first, ``s1_``, ``s2_`` … after."""
+    return "" if index == 0 else f"s{index}_"
+
+
 class NpzWriter(BaseWriter):
     """One ``.npz`` of the capture's frames on the azimuth grid (see the module doc).
 
@@ -129,8 +136,13 @@ class NpzWriter(BaseWriter):
             try:
                 with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED if self.compress else zipfile.ZIP_STORED,
                                      allowZip64=True) as zf:
+                    # one rule whatever the input holds: the first sensor's keys are bare (range_mm ...),
+                    # the others' prefixed s1_, s2_ ...; "sensor_prefixes" lists them
                     for spool in self._spools.values():
-                        spool.write_into(zf, "" if len(self._spools) == 1 else f"s{spool.index}_")
+                        spool.write_into(zf, _prefix(spool.index))
+                    with zf.open("sensor_prefixes.npy", "w") as fh:
+                        np.lib.format.write_array(fh, np.array([_prefix(s.index) for s in self._spools.values()]),
+                                                  allow_pickle=False)
             except OSError as exc:
                 raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
             self.files.commit(tmp)
