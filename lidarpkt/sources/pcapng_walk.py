@@ -194,11 +194,8 @@ class PcapngWalk(Walk):
         """False (reported; raised for the file's first block) when a block length is impossible."""
         if 12 <= blen <= MAX_PCAPNG_BLOCK and not blen % 4:
             return True
-        msg = f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}"
-        if first:
-            raise CaptureFormatError(f"{self.path}: {msg}")
-        self.truncate(msg + f"; kept the {self.stats.records + pending} records before it")
-        return False
+        return self._damage(f"pcapng block at offset {off} (type {btype:#x}) has an impossible length {blen}",
+                            first, pending)
 
     def _check_trailer(self, mv: memoryview, rel: int, end: int, btype: int, blen: int, endian: str, off: int,
                        first: bool, pending: int) -> bool:
@@ -212,7 +209,11 @@ class PcapngWalk(Walk):
         trailer = struct.unpack_from(endian + "I", mv, rel + blen - 4)[0]
         if trailer == blen:
             return True
-        msg = f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing length {trailer} differ"
+        return self._damage(f"pcapng block at offset {off} (type {btype:#x}): leading length {blen} and trailing "
+                            f"length {trailer} differ", first, pending)
+
+    def _damage(self, msg: str, first: bool, pending: int) -> bool:
+        """A damaged block: not a capture when it is the file's first (raised), else the end of reading."""
         if first:
             raise CaptureFormatError(f"{self.path}: {msg}")
         self.truncate(msg + f"; kept the {self.stats.records + pending} records before it")
