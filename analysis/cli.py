@@ -224,10 +224,17 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP or ROS bag; several captures "
+                   "or a folder (or --workers/--scheduler): -o is a folder of maps and summary.csv "
+                   "(lidarpkt.archive.multireturn_maps)")
     from lidarpkt import cliargs
 
-    cliargs.add_output(p, (".npz",), help="the statistics and monitor flags: MAP.npz")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="one capture: the statistics and monitor flags, MAP.npz; several: a folder")
+    p.set_defaults(_output_suffixes=(".npz",))
+    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), default=None, metavar="N",
+                   help="several captures: processes of a local Dask cluster (default: the CPU count)")
+    p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
     cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder "
                         "(--plot MAP.png, the old spelling, writes MAP.png and MAP_roc.png)")
     _add_input(p)
@@ -253,6 +260,12 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
+    if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers is not None or args.scheduler:
+        # an archive: one map per capture, in parallel
+        from lidarpkt.archive.multireturn import run_multireturn_archive
+
+        return run_multireturn_archive(args)
+    args.input = args.input[0]
     from .gmm import DEFAULT_GAP_M
     from .multireturn import multireturn_map
     from .returns import available_returns, parse_return, select_returns

@@ -18,6 +18,8 @@ from .errors import LidarpktError, LidarpktWarning
 # verb -> (module implementing it, one-line help). Other verbs are added as one line each.
 VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.info", "say what streams and sensors a capture holds"),
+    "catalog": ("lidarpkt.archive.cli", "one row per capture file and sensor stream of an archive, in parallel"),
+    "export": ("lidarpkt.archive.cli", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
     "decode": ("recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
     "record": ("recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("recorder.replay", "send a capture's packets over UDP at the original pace"),

@@ -1,0 +1,122 @@
+"""The ``catalog`` and ``export`` verbs: wiring of :func:`lidarpkt.archive.catalog` and
+:func:`lidarpkt.archive.export` to the command line.
+
+``lidarpkt catalog PATHS... -o catalog.parquet [--json [FILE]] [--glob G] [--workers N | --scheduler ADDR]``
+``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap [--layout points|frames]
+[--frames-per-file N] [--segment-size S] [--metadata M.json]... [--workers N | --scheduler ADDR] [-q]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from lidarpkt.errors import LidarpktError
+
+from .export import FORMATS
+from .plan import DEFAULT_SEGMENT_BYTES
+
+
+def _add_engine(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--glob", metavar="PATTERN", help="in folders, only files whose name matches (e.g. '*.pcap')")
+    p.add_argument("--metadata", action="append", default=[], metavar="M.json",
+                   help="Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
+                        "JSON beside each capture with the same stem")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
+    p.add_argument("--scheduler", metavar="ADDR",
+                   help="run on an existing Dask cluster (tcp://HOST:8786; default $DASK_SCHEDULER_ADDRESS)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+
+def add_catalog_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``lidarpkt catalog``."""
+    p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
+    p.add_argument("-o", "--output", metavar="CATALOG.parquet", help="write the catalog as a Parquet file")
+    p.add_argument("--json", nargs="?", const="-", metavar="FILE",
+                   help="write the catalog as a JSON list of rows to FILE (stdout without a value or with -)")
+    _add_engine(p)
+
+
+def add_export_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``lidarpkt export``."""
+    p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
+                   help="output folder (local or fsspec URL); holds the outputs and _manifest.jsonl")
+    p.add_argument("--format", required=True, choices=FORMATS, help="output format")
+    p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
+                   "default) or per frame")
+    p.add_argument("--frames-per-file", type=int, metavar="N", help="LAS/LAZ: one file per N frames")
+    p.add_argument("--segment-size", metavar="S", help="captures larger than this are cut into segments run in "
+                   "parallel: bytes, or 256MB, 1GB, 512MiB (default 256MiB)")
+    _add_engine(p)
+
+
+def _check_engine(args: argparse.Namespace) -> None:
+    if args.workers is not None and args.workers < 1:
+        raise LidarpktError(f"--workers {args.workers}: give 1 or more workers")
+    if args.workers is not None and args.scheduler:
+        raise LidarpktError("--workers and --scheduler: give one (--scheduler runs on the cluster's workers)")
+
+
+def _write_atomic(path: Path, write) -> None:
+    """``write(tmp)`` then rename to ``path``: no half-written output."""
+    if not path.parent.is_dir():
+        raise LidarpktError(f"-o {path}: the folder {path.parent} does not exist; create it first")
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise LidarpktError(f"-o {path}: cannot write ({exc.strerror or exc})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def run_catalog(args: argparse.Namespace) -> int:
+    """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
+    from . import CATALOG_COLUMNS
+    from .catalog import catalog_rows, rows_to_table
+
+    if not args.output and not args.json:
+        raise LidarpktError("-o/--output: give -o CATALOG.parquet, or --json to print the catalog")
+    _check_engine(args)
+    out = Path(args.output) if args.output else None
+    if out is not None and not out.parent.is_dir():
+        raise LidarpktError(f"-o {out}: the folder {out.parent} does not exist; create it first")
+    rows = catalog_rows(args.paths, glob=args.glob, metadata=args.metadata, workers=args.workers,
+                        scheduler=args.scheduler, progress=not args.quiet)
+    if out is not None:
+        import pyarrow.parquet as pq
+
+        table = rows_to_table(rows, CATALOG_COLUMNS)
+        _write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    if args.json:
+        text = json.dumps(rows, indent=1, default=str) + "\n"
+        if args.json == "-":
+            sys.stdout.write(text)
+        else:
+            _write_atomic(Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    if not args.quiet:
+        files = len({r["path"] for r in rows})
+        bad = len({r["path"] for r in rows if r["error"]})
+        print(f"lidarpkt catalog: {len(rows)} streams in {files} files ({bad} with errors)"
+              + (f" in {out}" if out else ""), file=sys.stderr)
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    """Run the export job; exit status 1 when any input failed (the summary says which and why)."""
+    from .export import export_job
+
+    _check_engine(args)
+    report = export_job(args.paths, args.output, format=args.format, layout=args.layout,
+                        frames_per_file=args.frames_per_file, metadata=args.metadata, glob=args.glob,
+                        segment_bytes=args.segment_size or DEFAULT_SEGMENT_BYTES, workers=args.workers, scheduler=args.scheduler,
+                        progress=not args.quiet)
+    if not args.quiet or report.failed:
+        print("lidarpkt export: " + report.summary(), file=sys.stderr)
+    return 1 if report.failed else 0

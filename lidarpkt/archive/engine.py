@@ -1,0 +1,192 @@
+"""Where units run: in this process (``workers=1``, no Dask imported), on a local Dask cluster of
+processes (``workers=N``), or on an existing Dask cluster (``scheduler=`` / ``DASK_SCHEDULER_ADDRESS``
+/ a ``client=``).
+
+Dask does the scheduling, the retries and the recovery from lost workers; this module only
+submits picklable calls and hands each result back as it arrives, with a progress bar.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Sequence
+
+from lidarpkt.errors import LidarpktError
+
+DEFAULT_RETRIES = 2  # a task whose worker died is re-run by Dask anyway; this covers other transient failures
+
+
+class EngineError(LidarpktError):
+    """The engine cannot start: Dask is not installed, or the scheduler cannot be reached."""
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """How to run a job: ``client`` (a ``distributed.Client``) wins, then ``scheduler`` (or the
+    environment's ``DASK_SCHEDULER_ADDRESS``), then ``workers`` (default: the CPU count; 1 runs in
+    this process without Dask)."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+    client: Any = None
+    retries: int = DEFAULT_RETRIES
+
+    def in_process(self) -> bool:
+        return self.client is None and self._scheduler() is None and self._workers() == 1
+
+    def _scheduler(self) -> str | None:
+        """``scheduler``, else the environment's when no worker count was given (an explicit
+        ``--workers N`` runs locally whatever the environment says)."""
+        if self.scheduler:
+            return self.scheduler
+        return os.environ.get("DASK_SCHEDULER_ADDRESS") or None if self.workers is None else None
+
+    def _workers(self) -> int:
+        if self.workers is not None and self.workers < 1:
+            raise EngineError(f"--workers {self.workers}: give 1 or more workers")
+        return self.workers or os.cpu_count() or 1
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise EngineError("--workers N > 1 and --scheduler need Dask: pip install 'lidarpkt[dask]' "
+                          "(or run with --workers 1)") from None
+    return distributed
+
+
+@contextmanager
+def dask_client(options: EngineOptions) -> Iterator[Any]:
+    """The ``distributed.Client`` a job runs on; a local cluster it starts is closed on exit."""
+    if options.client is not None:
+        yield options.client
+        return
+    distributed = _import_distributed()
+    address = options._scheduler()
+    if address:
+        try:
+            client = distributed.Client(address, timeout="20s", set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise EngineError(f"--scheduler {address}: cannot reach the Dask scheduler ({exc}); "
+                              "start it with `dask scheduler` or check the address") from None
+        with client:
+            yield client
+        return
+    import logging
+
+    import dask
+
+    # one thread per worker process: the decode holds the GIL between NumPy calls; Dask's sampling
+    # profiler (a thread every 10 ms) only costs CPU on a job nobody watches on a dashboard
+    with dask.config.set({"distributed.worker.profile.enabled": False}), \
+            distributed.LocalCluster(n_workers=options._workers(), threads_per_worker=1, processes=True,
+                                     dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        with distributed.Client(cluster, set_as_default=False) as client:
+            yield client
+
+
+def run_all(
+    fn: Callable[[Any], Any],
+    tasks: Sequence[Any],
+    options: EngineOptions,
+    on_result: Callable[[Any, Any], None],
+    lost: Callable[[Any, str], Any] | None = None,
+) -> None:
+    """Run ``fn(task)`` for every task and call ``on_result(task, result)`` in this process as each
+    finishes (in completion order). Exceptions of ``fn`` (programming errors: bad input is in its
+    result) propagate after Dask's retries. A task that killed its worker every time Dask tried it
+    (a crash or the memory limit: ``KilledWorker``) becomes ``on_result(task, lost(task, why))``
+    when ``lost`` is given, so one such input does not stop the job."""
+    if not tasks:
+        return
+    if options.in_process():
+        for task in tasks:
+            on_result(task, fn(task))
+        return
+    distributed = _import_distributed()
+    with dask_client(options) as client:
+        token = uuid.uuid4().hex[:8]
+        keys = [f"lidarpkt-{getattr(fn, '__name__', 'task')}-{i}-{token}" for i in range(len(tasks))]
+        futures = client.map(fn, tasks, key=keys, retries=options.retries, pure=False)
+        by_key = dict(zip(keys, tasks))
+        try:
+            for future, result in distributed.as_completed(futures, with_results=True, raise_errors=False,
+                                                           loop=client.loop):
+                if future.status == "error":
+                    exc = future.exception()
+                    if lost is None or not isinstance(exc, distributed.KilledWorker):
+                        raise exc
+                    result = lost(by_key[future.key], "the worker process died each time it ran this unit (a "
+                                  "crash or the worker's memory limit); try a smaller --segment-size")
+                on_result(by_key[future.key], result)
+        finally:
+            client.cancel(futures)
+
+
+def run_rows(
+    fn: Callable[[Any], list[dict]],
+    tasks: Sequence[Any],
+    sizes: Sequence[int],
+    options: EngineOptions,
+    *,
+    label: str,
+    progress: bool,
+    lost: Callable[[Any, str], list[dict]],
+) -> list[dict]:
+    """:func:`run_all` of a function that returns a list of row dicts per task (catalog,
+    multi-return maps): every row, in task order, with the progress bar (a task is failed when
+    one of its rows has an ``error``)."""
+    results: dict[int, list[dict]] = {}
+    index = {id(t): i for i, t in enumerate(tasks)}
+    bar = Progress(sum(sizes), len(tasks), enabled=progress, label=label)
+
+    def record(task: Any, rows: list[dict]) -> None:
+        i = index[id(task)]
+        results[i] = rows
+        bar.advance(sizes[i], failed=any(r.get("error") for r in rows))
+
+    try:
+        run_all(fn, tasks, options, record, lost=lost)
+    finally:
+        bar.close()
+    return [row for i in range(len(tasks)) for row in results[i]]
+
+
+class Progress:
+    """The job's progress bar (tqdm on stderr): bytes done of the total, inputs done, rate, time left."""
+
+    def __init__(self, total_bytes: int, total_units: int, *, enabled: bool, label: str) -> None:
+        self.units_total = total_units
+        self.units_done = 0
+        self.failed = 0
+        self.bar = None
+        if enabled and sys.stderr.isatty():  # as decode does: no bar in logs and pipes
+            try:
+                from tqdm import tqdm
+            except ImportError:
+                return
+            self.bar = tqdm(total=total_bytes, unit="B", unit_scale=True, unit_divisor=1024, desc=label,
+                            file=sys.stderr, dynamic_ncols=True, mininterval=0.5)
+            self._postfix()
+
+    def _postfix(self) -> None:
+        text = f"{self.units_done}/{self.units_total} units"
+        if self.failed:
+            text += f", {self.failed} failed"
+        self.bar.set_postfix_str(text, refresh=False)
+
+    def advance(self, size_bytes: int, *, failed: bool = False) -> None:
+        self.units_done += 1
+        self.failed += int(failed)
+        if self.bar is not None:
+            self._postfix()
+            self.bar.update(size_bytes)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
