@@ -100,6 +100,17 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("compare-json-proc", ["compare-returns", vlp, "--json", "/proc/lidarpkt-c.json"], "--json", []),
         ("compare-plot-file", ["compare-returns", vlp, "--plot", str(tmp / "c.png")], "--plot", [tmp / "c.png"]),
         ("compare-missing-second", ["compare-returns", vlp, missing], "no such file or directory", []),
+        # catalog and export
+        ("catalog-suffix", ["catalog", vlp10, "-o", str(tmp / "c.csv")], ".parquet", [tmp / "c.csv"]),
+        ("catalog-proc", ["catalog", vlp10, "-o", "/proc/lidarpkt-c.parquet"], "/proc", []),
+        ("catalog-json-suffix", ["catalog", vlp10, "--json", str(tmp / "c.txt")], "--json", [tmp / "c.txt"]),
+        ("catalog-workers", ["catalog", vlp10, "-o", str(tmp / "c.parquet"), "--workers", "0"], "--workers 0",
+         [tmp / "c.parquet"]),
+        ("export-format", ["export", vlp10, "-o", str(tmp / "e"), "--format", "csv"], "--format", [tmp / "e"]),
+        ("export-metadata-missing", ["export", vlp10, "-o", str(tmp / "e"), "--format", "npz", "--metadata",
+                                     str(tmp / "m.json")], "--metadata", [tmp / "e"]),
+        ("export-frames-per-file", ["export", vlp10, "-o", str(tmp / "e"), "--format", "las", "--frames-per-file",
+                                    "0"], "--frames-per-file 0", [tmp / "e"]),
         # registration-impact
         ("registration-missing", ["registration-impact", missing], "no such file or directory", []),
         ("registration-json-proc", ["registration-impact", vlp, "--json", "/proc/lidarpkt-r.json"], "--json", []),

@@ -22,22 +22,24 @@ from .plan import DEFAULT_SEGMENT_BYTES
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
     p.add_argument("--glob", metavar="PATTERN", help="in folders, only files whose name matches (e.g. '*.pcap')")
-    p.add_argument("--metadata", action="append", default=[], metavar="M.json",
-                   help="Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
-                        "JSON beside each capture with the same stem")
-    p.add_argument("--workers", type=int, metavar="N",
+    from lidarpkt import cliargs
+
+    cliargs.add_metadata(p, "Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
+                            "JSON beside each capture with the same stem")
+    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
                    help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="run on an existing Dask cluster (tcp://HOST:8786; default $DASK_SCHEDULER_ADDRESS)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    cliargs.add_quiet(p, "no progress bar or summary")
 
 
 def add_catalog_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt catalog``."""
     p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
     p.add_argument("-o", "--output", metavar="CATALOG.parquet", help="write the catalog as a Parquet file")
-    p.add_argument("--json", nargs="?", const="-", metavar="FILE",
-                   help="write the catalog as a JSON list of rows to FILE (stdout without a value or with -)")
+    from lidarpkt import cliargs
+
+    cliargs.add_json(p, "the catalog as a JSON list of rows")
     _add_engine(p)
 
 
@@ -49,17 +51,21 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
-    p.add_argument("--frames-per-file", type=int, metavar="N", help="LAS/LAZ: one file per N frames")
+    from lidarpkt import cliargs
+
+    p.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+                   help="LAS/LAZ: one file per N frames")
     p.add_argument("--segment-size", metavar="S", help="captures larger than this are cut into segments run in "
                    "parallel: bytes, or 256MB, 1GB, 512MiB (default 256MiB)")
     _add_engine(p)
 
 
 def _check_engine(args: argparse.Namespace) -> None:
-    if args.workers is not None and args.workers < 1:
-        raise LidarpktError(f"--workers {args.workers}: give 1 or more workers")
     if args.workers is not None and args.scheduler:
         raise LidarpktError("--workers and --scheduler: give one (--scheduler runs on the cluster's workers)")
+    from lidarpkt import cliargs
+
+    cliargs.check_inputs([m for m in args.metadata or () if "://" not in m], "--metadata")  # URLs: read by the units
 
 
 def _write_atomic(path: Path, write) -> None:
@@ -84,10 +90,12 @@ def run_catalog(args: argparse.Namespace) -> int:
     if not args.output and not args.json:
         raise LidarpktError("-o/--output: give -o CATALOG.parquet, or --json to print the catalog")
     _check_engine(args)
-    out = Path(args.output) if args.output else None
-    if out is not None and not out.parent.is_dir():
-        raise LidarpktError(f"-o {out}: the folder {out.parent} does not exist; create it first")
-    rows = catalog_rows(args.paths, glob=args.glob, metadata=args.metadata, workers=args.workers,
+    from lidarpkt import cliargs
+
+    # checked before the work: a typo must not cost a pass over an archive
+    out = cliargs.check_output(args.output, "-o", (".parquet",)) if args.output else None
+    cliargs.check_json_output(args.json)
+    rows = catalog_rows(args.paths, glob=args.glob, metadata=args.metadata or (), workers=args.workers,
                         scheduler=args.scheduler, progress=not args.quiet)
     if out is not None:
         import pyarrow.parquet as pq
@@ -114,7 +122,7 @@ def run_export(args: argparse.Namespace) -> int:
 
     _check_engine(args)
     report = export_job(args.paths, args.output, format=args.format, layout=args.layout,
-                        frames_per_file=args.frames_per_file, metadata=args.metadata, glob=args.glob,
+                        frames_per_file=args.frames_per_file, metadata=args.metadata or (), glob=args.glob,
                         segment_bytes=args.segment_size or DEFAULT_SEGMENT_BYTES, workers=args.workers, scheduler=args.scheduler,
                         progress=not args.quiet)
     if not args.quiet or report.failed:
