@@ -28,7 +28,8 @@ from .multireturn import (
 from .gmm_map import GmmMap, fit_gmm_map, load_gmm_map
 from .raypath import RaypathAnalysis, analyze, analyze_pixel, analyze_raypath
 from .registration import RegistrationImpact, RegistrationSettings, registration_impact
-from .returns import RETURN_KINDS, ReturnStack, available_returns, resolve, sample_mask, select_returns
+from .returns import (RETURN_KINDS, ReturnStack, available_returns, resolve, sample_mask, select_returns,
+                      sensor_returns)
 from .stack import load_stack, select_frames
 
 __all__ = [
@@ -42,6 +43,6 @@ __all__ = [
     "RaypathAnalysis", "analyze", "analyze_pixel", "analyze_raypath",
     "GmmMap", "fit_gmm_map", "load_gmm_map",
     "RegistrationImpact", "RegistrationSettings", "registration_impact",
-    "RETURN_KINDS", "ReturnStack", "available_returns", "resolve", "sample_mask", "select_returns",
+    "RETURN_KINDS", "ReturnStack", "available_returns", "resolve", "sample_mask", "select_returns", "sensor_returns",
     "load_stack", "select_frames",
 ]

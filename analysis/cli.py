@@ -268,7 +268,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     args.input = args.input[0]
     from .gmm import DEFAULT_GAP_M
     from .multireturn import multireturn_map
-    from .returns import available_returns, parse_return, select_returns
+    from .returns import parse_return, sensor_returns
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
@@ -288,7 +288,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
 
         cliargs.check_output(args.gmm_map, "--gmm-map", (".npz", ".parquet"))
     stack = _load(args.input, args.metadata, args.frames, args.grid)
-    stack = select_returns(stack, available_returns(stack))  # the returns as the sensor defines them
+    stack = sensor_returns(stack)  # the returns as the sensor defines them
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
     out = Path(args.output)

@@ -178,6 +178,13 @@ def select_returns(stack: FrameStack, selections: Sequence[str | int]) -> Return
     return ReturnStack(**base, pixel_valid=pixel_valid, second_strongest=None, sources=tuple(sources))
 
 
+def sensor_returns(stack: FrameStack) -> ReturnStack:
+    """The stack with one slot per return kind the capture reports (:func:`available_returns`),
+    each selected per firing: what whole-image statistics (``multireturn``, one capture or an
+    archive of them) are computed on."""
+    return select_returns(stack, available_returns(stack))
+
+
 def resolve(stack: FrameStack, selection: str | int) -> tuple[FrameStack, int]:
     """``(stack, slot)`` for a consumer that works on one slot index: a raw slot or a kind that is
     one slot of ``stack`` comes back as that slot of ``stack`` itself (no copy); a kind combined

@@ -20,7 +20,8 @@ def test_maps_equal_the_single_capture_verb_and_the_summary_says_their_fractions
     assert res.returncode == 1 and "failed: broken.pcap" in res.stderr, res.stderr
     rows = list(csv.DictReader(open(out / "summary.csv")))
     assert [(r["capture"], r["return_label"]) for r in rows] == [
-        ("vlp16-dual.pcap", "last"), ("vlp16-dual.pcap", "strongest"), ("os1-64-dual.pcap", "strongest"),
+        ("vlp16-dual.pcap", "last"), ("vlp16-dual.pcap", "strongest"), ("vlp16-dual.pcap", "second_strongest"),
+        ("os1-64-dual.pcap", "strongest"),
         ("os1-64-dual.pcap", "second_strongest"), ("broken.pcap", "")]
     assert "broken.pcap" in rows[-1]["error"]
     for name in ("vlp16-dual", "os1-64-dual"):

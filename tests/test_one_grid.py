@@ -183,7 +183,7 @@ def test_info_imports_only_what_it_needs():
 def test_a_verbs_help_lists_the_common_flags_the_same_way():
     for verb, flags in {"decode": ("-o OUT.mcap", "--metadata M.json", "-q, --quiet"),
                         "analyze": ("--json [FILE]", "--plot DIR", "--metadata M.json", "--pixel ROW,COL", "-q, --quiet"),
-                        "multireturn": ("-o OUT.npz", "--plot DIR", "-q, --quiet"),
+                        "multireturn": ("-o OUT", "--plot DIR", "--workers N", "-q, --quiet"),
                         "compare-returns": ("--json [FILE]", "--plot DIR", "-q, --quiet"),
                         "info": ("--json [FILE]", "--metadata M.json", "-q, --quiet"),
                         "record": ("-o OUT.mcap", "--json [FILE]", "-q, --quiet"),

@@ -62,6 +62,7 @@ def map_capture(task: MapTask) -> list[dict[str, Any]]:
     import numpy as np
 
     from analysis.multireturn import multireturn_map
+    from analysis.returns import sensor_returns
     from analysis.stack import load_stack
 
     start = time.perf_counter()
@@ -72,6 +73,7 @@ def map_capture(task: MapTask) -> list[dict[str, Any]]:
             warnings.simplefilter("ignore", LidarpktWarning)
             stack = load_stack(local_path(task.input), metadata=list(task.metadata) or None, frames=task.frames,
                                resolution_deg=task.grid_deg)
+            stack = sensor_returns(stack)  # as the single-capture verb: the returns as the sensor defines them
             mr = multireturn_map(stack, **dict(task.options))
         rel = f"maps/{Path(task.capture).stem}.npz"
         out = Path(local_path(task.output)) / rel
