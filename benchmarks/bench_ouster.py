@@ -2,7 +2,7 @@
 
 The long capture is one of the one-frame external captures repeated (default 500 frames), each
 copy re-encoded with our encoder with the next frame id and timestamps moved on by one frame
-period (CRC recomputed where the firmware writes one), written with ``lidarpkt.pcapwrite``
+period (CRC recomputed where the firmware writes one), written with ``lidarpkt.writers.pcap``
 as unfragmented loopback datagrams like ouster-sdk's own recordings.
 
     python benchmarks/bench_ouster.py [--capture dual|legacy|single|ldr] [--frames 500] [--repeat 3] [--keep PATH]
@@ -40,7 +40,7 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
     from lidarpkt.ouster import decode_packets, encode_packets, load_metadata
     from lidarpkt.packet import Endpoint, Packet
     from lidarpkt.pcap import read_batches
-    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.writers.pcap import write_pcap
 
     md = load_metadata(meta)
     batch = next(b for b in read_batches(pcap) if b.payload_size == md.packet_size)

@@ -1,7 +1,7 @@
 """VLP-16 decoding speed: lidarpkt against velodyne_decoder on the same long dual-return capture.
 
 Writes a dual-return VLP-16 pcap of ``--seconds`` of sensor time (10 Hz, 1507 packets/s,
-packets from lidarpkt's encoder framed by lidarpkt.pcapwrite), then times in the same run:
+packets from lidarpkt's encoder framed by lidarpkt.writers.pcap), then times in the same run:
 
 - lidarpkt: ``lidarpkt.open(path)`` → frames, and ``frame.xyz()`` of every frame (also without XYZ);
 - velodyne_decoder 3.1.0: ``read_pcap(path, Config(model=VLP16), as_pcl_structs=True)``.
@@ -28,7 +28,7 @@ sys.path.insert(0, str(REPO))
 
 import lidarpkt  # noqa: E402
 from lidarpkt.packet import Endpoint, Packet  # noqa: E402
-from lidarpkt.pcapwrite import write_pcap  # noqa: E402
+from lidarpkt.writers.pcap import write_pcap  # noqa: E402
 from lidarpkt.velodyne import encode_data_packets  # noqa: E402
 
 PACKET_PERIOD_NS = {"strongest": 1_327_104, "dual": 663_552}  # 12 blocks of one firing pair, or 6 of two returns

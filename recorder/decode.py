@@ -3,7 +3,7 @@
 ``lidarpkt decode IN [IN …] -o OUT.mcap [--topics packets,points,images]``
     raw packets as the ROS drivers' topics (losslessly: a file decoded from a pcap gives
     back the same packets and so the same frames), organised ``PointCloud2`` per frame and
-    return slot, and optionally range/reflectivity images (see :mod:`recorder.schemas`).
+    return slot, and optionally range/reflectivity images (see :mod:`lidarpkt.writers.mcap.schemas`).
     Frame messages are logged at the host time their last packet was received (their last
     column's sensor time plus the sensor's clock offset, measured on its first packet);
     ``header.stamp`` is the sensor time of their first column.

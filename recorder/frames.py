@@ -4,7 +4,7 @@
 never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
 then goes, as chosen, to
 
-* ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`recorder.pointcloud`),
+* ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`),
   encoded in the decoding thread and written by the recorder's loop
   (:meth:`LiveFrames.write_points`: the MCAP writer is used from one thread only); log time =
   host receive time of the last packet of the batch that completed the frame;
@@ -20,7 +20,7 @@ from __future__ import annotations
 import queue
 import time
 
-from . import schemas
+from lidarpkt.writers.mcap import schemas
 
 
 class LiveFrames:
@@ -62,7 +62,7 @@ class LiveFrames:
         self.tap = FrameTap(LiveDecoder(ouster_metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
 
     def _encode_points(self, frame) -> None:  # runs in the tap's thread
-        from .pointcloud import pointcloud_messages
+        from lidarpkt.writers.mcap.pointcloud import pointcloud_messages
 
         t = self.tap.host_time_ns
         encoded = [(topic, schemas.encode(topic.msgtype, msg)) for topic, msg in pointcloud_messages(frame)]

@@ -22,9 +22,10 @@ from pathlib import Path
 
 from lidarpkt.errors import RecorderError
 
-from . import schemas
+from lidarpkt.writers.mcap import schemas
+from lidarpkt.writers.mcap.writer import McapWriter
+
 from .capture import UdpCapture
-from .mcap_writer import McapWriter
 from .sink import PacketSink, batch_from_packets
 
 

@@ -1,7 +1,7 @@
 """Raw packets into MCAP topics, losslessly, with loss accounting: shared by ``record`` and ``decode``.
 
 :class:`PacketSink` takes packet batches (one stream, one payload size, in arrival order)
-and writes them to a :class:`~recorder.mcap_writer.McapWriter`:
+and writes them to a :class:`~lidarpkt.writers.mcap.writer.McapWriter`:
 
 * VLP-16 data packets are gathered into one ``VelodyneScan`` per rotation (cut where the
   first block's azimuth wraps, or after ``max_scan_packets`` if the sensor does not turn);
@@ -26,8 +26,10 @@ from lidarpkt.packet import Endpoint, PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
 
-from . import schemas, streams
-from .mcap_writer import McapWriter
+from lidarpkt.writers.mcap import schemas
+from lidarpkt.writers.mcap.writer import McapWriter
+
+from . import streams
 
 
 

@@ -1,7 +1,7 @@
 """Header layouts of the link, IPv4/IPv6 and UDP layers and of the pcap/pcapng containers, declared once.
 
 Every layout is a NumPy dtype with the field names of the specs and RFCs; struct formats and field
-offsets are derived from it. The readers gather fields with them, and :mod:`lidarpkt.pcapwrite`
+offsets are derived from it. The readers gather fields with them, and :mod:`lidarpkt.writers.pcap`
 packs with the same layouts. Also the RFC 1071 checksum both sides use.
 """
 

@@ -8,7 +8,7 @@ Linux cooked SLL and SLL2, raw IPv4/IPv6, BSD loopback (null and loop). Network
 layers: UDP over IPv4 (fragments reassembled) and over IPv6 (extension headers skipped,
 fragments reassembled too). Every header layout is declared once below as a NumPy
 dtype in :mod:`lidarpkt.sources.layouts`; struct formats and field offsets are derived from it
-(and :mod:`lidarpkt.pcapwrite` packs with the same layouts). The pieces: :mod:`.pcap_walk` and
+(and :mod:`lidarpkt.writers.pcap` packs with the same layouts). The pieces: :mod:`.pcap_walk` and
 :mod:`.pcapng_walk` (record headers to chunks), :mod:`.datagram` and :mod:`.trains` (link/IP/UDP
 layers and fragments), :mod:`.batching` (chunks to batches); this module wires them.
 

@@ -28,7 +28,8 @@ from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 
 from ..errors import PacketFormatError
 from ..packet import Packet
-from ..pcap import (
+from ..sources.magic import PCAP_MAGIC_NS, PCAP_MAGIC_US, PCAPNG_BOM, PCAPNG_SHB
+from ..sources.layouts import (
     ETHERNET_HEADER,
     IPV4_HEADER,
     IPV6_FRAGMENT_HEADER,
@@ -50,7 +51,7 @@ from ..pcap import (
     internet_checksum,
 )
 
-# every header is packed with the layout the reader parses it with (lidarpkt.pcap)
+# every header is packed with the layout the reader parses it with (lidarpkt.sources.layouts)
 _IPV4 = header_struct(IPV4_HEADER)
 _IPV6 = header_struct(IPV6_HEADER)
 _IPV6_FRAG = header_struct(IPV6_FRAGMENT_HEADER)
@@ -84,8 +85,6 @@ _AF = {4: 2, 6: 24}  # BSD loopback address families (24 = AF_INET6 on NetBSD/Op
 SRC_MAC = bytes.fromhex("607688000000")  # the Velodyne OUI every VLP-16 capture shows
 BROADCAST_MAC = b"\xff" * 6
 DST_MAC = bytes.fromhex("020000000001")  # locally administered
-PCAP_MAGIC_US = 0xA1B2C3D4
-PCAP_MAGIC_NS = 0xA1B23C4D
 
 Record = tuple  # (timestamp_ns, frame bytes) or (timestamp_ns, frame bytes, original length)
 IPPROTO_UDP = 17
@@ -350,7 +349,7 @@ def _ts_units(ts_ns: int, iface: Interface) -> int:
 def _write_pcapng_stream(fh: BinaryIO, records: Iterable[tuple[int, int, bytes] | tuple[int, int, bytes, int]],
                          interfaces: Sequence[Interface], *, big_endian: bool, block: str) -> None:
     e = ">" if big_endian else "<"
-    fh.write(_block(e, 0x0A0D0D0A, header_struct(PCAPNG_SECTION_HEADER, e).pack(0x1A2B3C4D, 1, 0, -1)))
+    fh.write(_block(e, PCAPNG_SHB, header_struct(PCAPNG_SECTION_HEADER, e).pack(PCAPNG_BOM, 1, 0, -1)))
     for itf in interfaces:
         lt = _linktype(itf.link)
         opts = b""
