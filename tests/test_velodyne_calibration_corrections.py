@@ -1,0 +1,121 @@
+"""VLP-16 calibrations with every correction non-zero, decoded by lidarpkt and by velodyne_decoder.
+
+The stock and the shipped calibrations have zero azimuth, distance and horizontal offsets, so a
+wrong sign on any of them passes the other tests. ``tests/data/calibration/vlp16_corrected.*``
+(written by ``make_vlp16_calibrations.py`` there) sets all of them; velodyne_decoder reads the
+ROS YAML (it has no VeloView XML reader), lidarpkt reads both, and the points must agree within
+1 mm, firing by firing (the matcher of ``test_velodyne_crosscheck``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_velodyne_crosscheck import assert_same_points, synthetic_packets
+
+from lidarpkt.errors import CalibrationError
+from lidarpkt.packet import PacketBatch
+from lidarpkt.velodyne import VelodyneDecoder, frame_points, load_calibration
+
+DATA = Path(__file__).parent / "data" / "calibration"
+YAML = DATA / "vlp16_corrected.yaml"
+XML = DATA / "vlp16_corrected.xml"
+
+
+def test_both_formats_hold_the_same_non_zero_corrections():
+    a, b = load_calibration(YAML), load_calibration(XML)
+    for name in ("vert_correction_rad", "rot_correction_rad", "vert_offset_m", "horiz_offset_m", "dist_correction_m"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12, err_msg=name)
+    assert np.all(a.rot_correction_rad != 0) and np.all(a.dist_correction_m != 0)
+    assert np.all(a.horiz_offset_m != 0) and np.all(a.vert_offset_m != 0)
+
+
+
+@pytest.mark.parametrize("path", [YAML, XML], ids=["yaml", "xml"])
+def test_loaded_values_are_the_generators(path):
+    """Units: YAML radians and metres, XML degrees and centimetres, both to SI."""
+    import sys
+
+    sys.path.insert(0, str(DATA))
+    try:
+        from make_vlp16_calibrations import corrections
+    finally:
+        sys.path.remove(str(DATA))
+    rows = corrections()
+    cal = load_calibration(path)
+    np.testing.assert_allclose(cal.rot_correction_rad, np.radians([r["rot_deg"] for r in rows]), atol=1e-12)
+    np.testing.assert_allclose(cal.vert_correction_rad, np.radians([r["vert_deg"] for r in rows]), atol=1e-12)
+    np.testing.assert_allclose(cal.dist_correction_m, [r["dist_cm"] / 100 for r in rows], atol=1e-12)
+    np.testing.assert_allclose(cal.vert_offset_m, [r["vert_offset_cm"] / 100 for r in rows], atol=1e-12)
+    np.testing.assert_allclose(cal.horiz_offset_m, [r["horiz_offset_cm"] / 100 for r in rows], atol=1e-12)
+
+
+def test_one_firing_by_the_formulas():
+    """One return of laser 0 at a known azimuth, against the formulas written out by hand."""
+    cal = load_calibration(YAML)
+    az = np.full((1, 12), 9000)  # 90.00°
+    dist = np.zeros((1, 12, 32), np.int64)
+    dist[0, 0, 0] = 5000  # laser 0 of the first firing of block 0: 10.000 m
+    from lidarpkt.velodyne import encode_data_packets
+
+    payload = encode_data_packets(az, dist, np.full((1, 12, 32), 7), np.array([1000]), "strongest")
+    dec = VelodyneDecoder(calibration=YAML)
+    pts = np.concatenate([frame_points(f) for f in dec.push(PacketBatch.from_payloads(payload)) + dec.finish()])
+    assert len(pts) == 1
+    d = 10.0 + cal.dist_correction_m[0]
+    w = cal.vert_correction_rad[0]
+    a = np.radians(90.0) - cal.rot_correction_rad[0]
+    h = cal.horiz_offset_m[0]
+    expected = (d * np.cos(w) * np.cos(a) + h * np.sin(a), -d * np.cos(w) * np.sin(a) + h * np.cos(a),
+                d * np.sin(w) + cal.vert_offset_m[0])
+    np.testing.assert_allclose([pts["x"][0], pts["y"][0], pts["z"][0]], expected, atol=1e-6)
+
+
+def test_two_point_distance_correction_is_refused(tmp_path):
+    text = YAML.read_text().replace("dist_correction_x: 0.0, dist_correction_y: 0.0",
+                                    "dist_correction_x: 0.01, dist_correction_y: 0.02", 1)
+    (tmp_path / "two.yaml").write_text(text)
+    with pytest.raises(CalibrationError, match=r"lasers \[0\] set dist_correction_x and dist_correction_y"):
+        load_calibration(tmp_path / "two.yaml")
+    xml = XML.read_text().replace("<distCorrectionX_>0</", "<distCorrectionX_>1.5</", 1)
+    (tmp_path / "two.xml").write_text(xml.replace("<distCorrectionY_>0</", "<distCorrectionY_>2.5</", 1))
+    with pytest.raises(CalibrationError, match="two-point distance correction"):
+        load_calibration(tmp_path / "two.xml")
+
+
+# ------------------------------------------------------------------ against velodyne_decoder
+pytest_crosscheck = pytest.mark.crosscheck
+
+
+@pytest_crosscheck
+@pytest.mark.parametrize("mode", ["strongest", "last", "dual"])
+@pytest.mark.parametrize("ours", [YAML, XML], ids=["yaml", "xml"])
+def test_generated_packets_match(mode, ours):
+    assert assert_same_points(synthetic_packets(mode, n=120), calibration=YAML, our_calibration=ours) > 1000
+
+
+@pytest_crosscheck
+@pytest.mark.parametrize("ours", [YAML, XML], ids=["yaml", "xml"])
+def test_einride_recording_matches(ext, ours):
+    payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, 1206)[:600]
+    host = 1_525_349_000_000_000_000 + np.arange(len(payload), dtype=np.int64) * 1_327_104
+    assert assert_same_points(PacketBatch.from_payloads(payload, host), calibration=YAML, our_calibration=ours) > 50000
+
+
+@pytest_crosscheck
+def test_rust_lidar_utils_capture_matches(ext):
+    from lidarpkt.pcap import PcapReader
+
+    batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_example.pcap")).batches() if b.payload_size == 1206]
+    assert assert_same_points(PacketBatch.concatenate(batches), calibration=YAML) > 30000
+
+
+@pytest_crosscheck
+def test_veloview_capture_matches(ext):
+    from lidarpkt.pcap import PcapReader
+
+    path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])
+    assert assert_same_points(batch.select(np.arange(400)), product_id_override=0x22, calibration=YAML, our_calibration=XML) > 50000
