@@ -58,7 +58,7 @@ def copy_tree(workdir: Path) -> None:
         shutil.rmtree(workdir)
     files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, check=True,
                            capture_output=True, text=True).stdout.split()
-    files += [str(p.relative_to(ROOT)) for p in (ROOT / "lidarpkt").glob("_native*.so")]
+    files += [str(p.relative_to(ROOT)) for p in list(ROOT.glob("*.so")) + list((ROOT / "lidarpkt").glob("*.so"))]
     for rel in files:
         src = ROOT / rel
         if src.is_file():
