@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from mutation import copy_tree  # benchmarks/mutation.py: the tree and the built extension
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,18 +58,6 @@ MUTANTS = (
            "off = (fb & 0x1FFF) * 8", "off = (fb & 0x1FFF)",
            ("tests/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
 )
-
-
-def copy_tree(dest: Path) -> None:
-    """The tracked and untracked-but-not-ignored files, and the built C extension(s)."""
-    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, check=True,
-                           capture_output=True, text=True).stdout.splitlines()
-    files += [str(p.relative_to(ROOT)) for p in list(ROOT.glob("*.so")) + list((ROOT / "lidarpkt").glob("*.so"))]
-    for rel in files:
-        src = ROOT / rel
-        if src.is_file():
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dest / rel)
 
 
 def run_tests(tree: Path, tests: tuple[str, ...]) -> tuple[int, str]:
