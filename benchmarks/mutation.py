@@ -46,7 +46,7 @@ DECODE_TESTS = [
     "tests/test_ouster_crosscheck.py", "tests/test_ouster_frames.py", "tests/test_ouster_geometry.py",
     "tests/test_ouster_metadata.py", "tests/test_ouster_words.py", "tests/test_ouster_profile_tables.py",
     "tests/test_reassembly.py", "tests/test_reassembly_fast_path.py", "tests/test_pcap_formats.py",
-    "tests/test_decode_edges.py",
+    "tests/test_decode_edges.py", "tests/test_reassembly_edges.py",
 ]
 
 # mutmut's result names: killed (a test failed), survived, timeout, suspicious, no tests, skipped, ...

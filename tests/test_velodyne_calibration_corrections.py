@@ -119,3 +119,57 @@ def test_veloview_capture_matches(ext):
     path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])
     assert assert_same_points(batch.select(np.arange(400)), product_id_override=0x22, calibration=YAML, our_calibration=XML) > 50000
+
+
+# ------------------------------------------------------------------ the VeloView XML reader's edges
+def _xml(tmp_path, text, name="c.xml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_xml_distance_lsb_and_source(tmp_path):
+    cal = load_calibration(XML)
+    assert cal.distance_resolution_m == pytest.approx(0.002) and cal.source == str(XML)
+    coarse = _xml(tmp_path, XML.read_text().replace("<distLSB_>0.2</distLSB_>", "<distLSB_>0.25</distLSB_>"))
+    assert load_calibration(coarse).distance_resolution_m == pytest.approx(0.0025)
+    none = _xml(tmp_path, XML.read_text().replace("\t<distLSB_>0.2</distLSB_>\n", ""), "n.xml")
+    assert load_calibration(none).distance_resolution_m == 0.002  # the VLP-16's 2 mm when the XML says nothing
+
+
+def test_xml_ids_above_15_are_skipped_wherever_they_stand(tmp_path):
+    """VeloView writes 64 entries; an entry for id ≥ 16 before the last VLP-16 laser must not end the table."""
+    text = XML.read_text()
+    first = text.index("\t\t<item>\n")
+    extra = ("\t\t<item>\n\t\t\t<px><id_>40</id_><rotCorrection_>9</rotCorrection_>"
+             "<vertCorrection_>9</vertCorrection_></px>\n\t\t</item>\n")
+    cal = load_calibration(_xml(tmp_path, text[:first] + extra + text[first:]))
+    ref = load_calibration(XML)
+    np.testing.assert_array_equal(cal.rot_correction_rad, ref.rot_correction_rad)
+    np.testing.assert_array_equal(cal.vert_correction_rad, ref.vert_correction_rad)
+
+
+def test_xml_missing_tags_are_zero_and_bad_values_are_named(tmp_path):
+    text = XML.read_text()
+    cal = load_calibration(_xml(tmp_path, text.replace("<horizOffsetCorrection_>2.59</horizOffsetCorrection_>", "", 1)))
+    assert cal.horiz_offset_m[0] == 0.0 and cal.horiz_offset_m[2] == pytest.approx(0.0259)
+    bad = _xml(tmp_path, text.replace("<distCorrection_>-4.5</distCorrection_>", "<distCorrection_>x</distCorrection_>"), "b.xml")
+    with pytest.raises(CalibrationError, match=rf"{bad}: bad <px> entry"):
+        load_calibration(bad)
+
+
+@pytest.mark.parametrize("path", [YAML, XML], ids=["yaml", "xml"])
+def test_one_of_dist_correction_x_y_alone_is_not_a_two_point_correction(tmp_path, path):
+    """velodyne_decoder applies the two-point correction only where both are set: one alone is ignored."""
+    text = path.read_text()
+    for key_x, key_y, zero in (("dist_correction_x: 0.0", "dist_correction_y: 0.0", "0.0"),
+                               ("<distCorrectionX_>0<", "<distCorrectionY_>0<", "0")):
+        for key in (key_x, key_y):
+            if key in text:
+                one = _xml(tmp_path, text.replace(key, key.replace(zero, "0.5" if zero == "0.0" else "5"), 1),
+                           "one" + path.suffix)
+                assert load_calibration(one).source == str(one)
+    with pytest.raises(CalibrationError, match=rf"{tmp_path / 'both'}.*: lasers \[0\]"):
+        both = text.replace("dist_correction_x: 0.0, dist_correction_y: 0.0", "dist_correction_x: 0.1, dist_correction_y: 0.1", 1)
+        both = both.replace("<distCorrectionX_>0<", "<distCorrectionX_>1<", 1).replace("<distCorrectionY_>0<", "<distCorrectionY_>1<", 1)
+        load_calibration(_xml(tmp_path, both, "both" + path.suffix))
