@@ -89,7 +89,8 @@ def write_config(workdir: Path, modules: list[str], tests: list[str]) -> None:
     lines = ["[mutmut]", "source_paths=lidarpkt/", "only_mutate="]
     lines += [f"    {m}" for m in modules]
     lines += ["pytest_add_cli_args_test_selection="] + [f"    {t}" for t in tests if (workdir / t).exists()]
-    lines += ["pytest_add_cli_args=", "    -p", "    no:cacheprovider", "    -q", "also_copy=", "    tests/data/"]
+    # -x: a mutant is killed by its first failing test; running the rest only costs time
+    lines += ["pytest_add_cli_args=", "    -p", "    no:cacheprovider", "    -q", "    -x", "also_copy=", "    tests/data/"]
     (workdir / "setup.cfg").write_text("\n".join(lines) + "\n")
 
 
@@ -128,6 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/lidarpkt-mutation/lidarpkt"))
     ap.add_argument("--max-children", type=int, default=1)
     ap.add_argument("--results-only", action="store_true", help="summarise an earlier run in --workdir")
+    ap.add_argument("--only", nargs="+", default=(), metavar="GLOB",
+                    help="mutant names to run, e.g. 'lidarpkt.reassembly*' (the rest stay 'not checked')")
     args = ap.parse_args(argv)
     if args.workdir.name != "lidarpkt":
         ap.error("--workdir must end in /lidarpkt (mutmut finds the package by the folder name)")
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         # the NumPy paths are the ones mutmut can change: with the C kernels loaded they would not run
         env["LIDARPKT_NATIVE"] = "0"
         env.setdefault("LIDARPKT_EXTERNAL_FIXTURES", str(ROOT.parent / "shared" / "fixtures" / "external"))
-        subprocess.run([args.mutmut, "run", "--max-children", str(args.max_children)], cwd=args.workdir, env=env)
+        subprocess.run([args.mutmut, "run", "--max-children", str(args.max_children), *args.only], cwd=args.workdir, env=env)
     summary = results(args.mutmut, args.workdir)
     (args.workdir / "summary.json").write_text(json.dumps(summary, indent=1))
     json.dump({k: summary[k] for k in ("score", "totals", "per_module")}, sys.stdout, indent=1)
