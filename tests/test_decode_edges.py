@@ -36,10 +36,10 @@ def test_crc_check_value_and_block_boundaries():
         assert [int(x) for x in got] == [crc64_xz_bitwise(r.tobytes()) for r in rows], length
 
 
-def test_crc_of_more_rows_than_one_gather_chunk():
-    rows = np.random.default_rng(8).integers(0, 256, size=(4100, 12), dtype=np.uint8)  # chunks of 4096 rows
+def test_crc_of_more_rows_than_two_gather_chunks():
+    rows = np.random.default_rng(8).integers(0, 256, size=(8300, 12), dtype=np.uint8)  # chunks of 4096 rows
     got = crc64_xz(rows)
-    for i in (0, 4095, 4096, 4099):
+    for i in (0, 4095, 4096, 8191, 8192, 8299):
         assert int(got[i]) == crc64_xz_bitwise(rows[i].tobytes())
 
 
@@ -87,13 +87,14 @@ def test_wrong_size_lidar_packets_are_counted_and_skipped(ext):
 def test_position_packet_sentences():
     from lidarpkt.velodyne import decode_position_packets
 
-    payload = np.zeros((3, 512), np.uint8)
-    nmea = [b"$GPRMC,1*00\r\n", b"", b"$GPGGA,2*11\x00junk after the NUL"]
+    payload = np.zeros((4, 512), np.uint8)
+    nmea = [b"$GPRMC,1*00 \r\n", b"", b"$GPTXT,FIX\x00junk after the NUL\x00more", b"$GP\xc3\xa9\r\n"]
     for row, text in zip(payload, nmea):
         row[206 : 206 + len(text)] = np.frombuffer(text, np.uint8)
     pk = decode_position_packets(payload)
-    assert len(pk) == 3
-    assert pk.sentences() == ["$GPRMC,1*00", "", "$GPGGA,2*11"]
+    assert len(pk) == 4
+    # only CR LF goes (a space before it stays); each non-ASCII byte becomes U+FFFD
+    assert pk.sentences() == ["$GPRMC,1*00 ", "", "$GPTXT,FIX", "$GP\ufffd\ufffd"]
 
 
 def test_corrected_distance_of_a_vlp16_frame():

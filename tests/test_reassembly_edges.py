@@ -48,3 +48,18 @@ def test_a_late_piece_inside_the_walked_prefix_extends_it():
     # starts inside what is already contiguous (0–2960) and reaches 4000
     assert r.add("k", 500, True, PAYLOAD[500:4000], 0) is None
     assert r.add("k", 4000, False, PAYLOAD[4000:], 0) == PAYLOAD
+
+
+def test_byte_bound_keeps_the_datagram_just_added_and_is_inclusive():
+    from lidarpkt.reassembly import FRAGMENT_OVERHEAD
+
+    piece = 1000 + FRAGMENT_OVERHEAD
+    r = Reassembler(max_bytes=3 * piece)
+    r.add("a", 0, True, PAYLOAD[:1000], 0)
+    r.add("b", 0, True, PAYLOAD[:1000], 1)
+    r.add("a", 1000, True, PAYLOAD[1000:2000], 2)  # exactly max_bytes held: nothing goes
+    assert r.held_bytes == 3 * piece and r.pending_datagrams == 2 and r.stats.evicted_datagrams == 0
+    # "a" is the oldest and the one just added: the next oldest ("b") is evicted instead
+    r.add("a", 2000, True, PAYLOAD[2000:3000], 3)
+    assert r.stats.evicted_datagrams == 1 and r.pending_datagrams == 1
+    assert r.add("a", 3000, False, PAYLOAD[3000:3100], 4) == PAYLOAD[:3100]
