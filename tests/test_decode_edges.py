@@ -126,3 +126,25 @@ def test_plane_field_reads_every_field_of_every_profile():
         for f in profile.pixel_fields:
             out = np.empty(5, f.dtype)
             np.testing.assert_array_equal(plane_field(planes, f, out), P.read_bits(raw, f), err_msg=f"{profile.name} {f.name}")
+
+
+def test_firing_azimuths_per_packet_mode_and_the_general_path():
+    """firing_azimuth_cdeg with a per-packet dual flag equals the one-mode results row by row, and a
+    batch holding an invalid block azimuth (> 36000, the general integer path) gives the other
+    packets the same azimuths as the fast path."""
+    from lidarpkt.velodyne.timing import firing_azimuth_cdeg
+
+    n = 40
+    az = ((np.arange(n)[:, None] * 480 + np.arange(12)[None, :] * 40 + 35000) % 36000).astype(np.uint16)
+    single, dual = firing_azimuth_cdeg(az, False), firing_azimuth_cdeg(az, True)
+    assert single.dtype == np.uint16 and single.shape == (n, 12, 32) and int(single.max()) < 36000
+    mixed = np.arange(n) % 3 == 0
+    got = firing_azimuth_cdeg(az, mixed)
+    np.testing.assert_array_equal(got[mixed], dual[mixed])
+    np.testing.assert_array_equal(got[~mixed], single[~mixed])
+    bad = np.concatenate([az, np.full((1, 12), 40000, np.uint16)])
+    general = firing_azimuth_cdeg(bad, False)
+    np.testing.assert_array_equal(general[:n], single)
+    assert general.dtype == np.uint16 and int(general[n].max()) < 36000
+    # the invalid packet: rate 0, so every firing sits at 40000 mod 36000
+    assert np.all(general[n] == 4000)

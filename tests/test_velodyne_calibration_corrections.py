@@ -173,3 +173,51 @@ def test_one_of_dist_correction_x_y_alone_is_not_a_two_point_correction(tmp_path
         both = text.replace("dist_correction_x: 0.0, dist_correction_y: 0.0", "dist_correction_x: 0.1, dist_correction_y: 0.1", 1)
         both = both.replace("<distCorrectionX_>0<", "<distCorrectionX_>1<", 1).replace("<distCorrectionY_>0<", "<distCorrectionY_>1<", 1)
         load_calibration(_xml(tmp_path, both, "both" + path.suffix))
+
+
+# ------------------------------------------------------------------ the ROS YAML reader's edges
+def _yaml(tmp_path, lasers, head="", name="c.yaml"):
+    path = tmp_path / name
+    path.write_text(head + "lasers:\n" + "".join(f"- {{{e}}}\n" for e in lasers))
+    return path
+
+
+def test_yaml_defaults_resolution_and_errors(tmp_path):
+    from lidarpkt.velodyne import stock_calibration
+
+    assert stock_calibration().source == "stock"
+    plain = [f"laser_id: {i}, vert_correction: 0.01" for i in range(16)]
+    cal = load_calibration(_yaml(tmp_path, plain))
+    for name in ("rot_correction_rad", "vert_offset_m", "horiz_offset_m", "dist_correction_m"):
+        assert np.all(getattr(cal, name) == 0), name  # absent keys are 0
+    assert cal.distance_resolution_m == 0.002
+    fine = load_calibration(_yaml(tmp_path, plain, "distance_resolution: 0.0025\n", "f.yaml"))
+    assert fine.distance_resolution_m == 0.0025
+    bad = _yaml(tmp_path, plain, "num_lasers: 32\n", "n.yaml")
+    with pytest.raises(CalibrationError, match=rf"{bad} describes 16 lasers \(num_lasers 32\)"):
+        load_calibration(bad)
+    for ids, what in (([*range(15), 16], "laser_id 16 out of range"), ([*range(15), 3], "laser_id 3 out of range or repeated")):
+        path = _yaml(tmp_path, [f"laser_id: {i}, vert_correction: 0.0" for i in ids], name="i.yaml")
+        with pytest.raises(CalibrationError, match=rf"{path}: bad laser entry .*{what}"):
+            load_calibration(path)
+    notdict = tmp_path / "list.yaml"
+    notdict.write_text("- 1\n- 2\n")
+    with pytest.raises(CalibrationError, match=rf"{notdict}: no 'lasers' list"):
+        load_calibration(notdict)
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("lasers: [1, 2\n")
+    with pytest.raises(CalibrationError, match=rf"{broken} is neither VeloView XML nor valid ROS calibration YAML"):
+        load_calibration(broken)
+
+
+def test_frame_without_firing_azimuths_is_named():
+    from dataclasses import replace
+
+    from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets
+
+    payload = encode_data_packets(np.zeros((1, 12), np.int64), np.full((1, 12, 32), 500), np.zeros((1, 12, 32), np.int64),
+                                  np.array([1000]), "strongest")
+    dec = VelodyneDecoder(calibration=YAML)
+    (f,) = dec.push(PacketBatch.from_payloads(payload)) + dec.finish()
+    with pytest.raises(CalibrationError, match=r"VLP-16 frame without per-firing azimuths \(extra\['azimuth_cdeg'\]\)"):
+        f.sensor.geometry.xyz(replace(f, extra={}))
