@@ -77,3 +77,45 @@ def test_packet_sizes_and_dtypes(profile, h, size):
     else:
         assert "status" in col.fields and col.fields["status"][1] == 10
     assert profile.returns == (2 if "DUAL" in profile.name else 1)
+
+
+def test_to_raw_errors_name_the_unit_and_the_width():
+    from lidarpkt.errors import PacketFormatError
+
+    rng = P.BitField("RANGE", 0, 15, 3)
+    assert P._to_raw(np.array([8, 16, 0]), rng).tolist() == [1, 2, 0]
+    with pytest.raises(PacketFormatError, match=r"field RANGE: values must be multiples of 8 \(the wire unit\); got e.g. 12"):
+        P._to_raw(np.array([8, 12, 16]), rng)
+    with pytest.raises(PacketFormatError, match=r"field RANGE: value 262144 does not fit in 15 bits × 8$"):
+        P._to_raw(np.array([8, (1 << 15) * 8]), rng)
+    with pytest.raises(PacketFormatError, match=r"field FLAGS: value 2 does not fit in 1 bits$"):
+        P._to_raw(np.array([1, 2]), P.BitField("FLAGS", 15, 1))
+
+
+def test_read_bits_keeps_leading_axes_and_the_field_type():
+    data = np.random.default_rng(3).integers(0, 256, size=(2, 3, 12), dtype=np.uint8)
+    for f in P.RNG19_RFL8_SIG16_NIR16.pixel_fields:
+        got = P.read_bits(data, f)
+        assert got.shape == (2, 3) and got.dtype == f.dtype, f.name
+        want = [[(int.from_bytes(data[i, j].tobytes(), "little") >> f.start_bit) & f.mask for j in range(3)] for i in range(2)]
+        assert got.tolist() == want, f.name
+
+
+def test_selected_packet_fields_are_the_rows_of_every_field(ext):
+    from lidarpkt.ouster import decode_packets
+    from test_ouster_cases import lidar_streams
+
+    for pcap, jsons in (("ouster-sdk/crc_test.pcap", ["ouster-sdk/crc_test.json"]),
+                        ("ouster-sdk/OS-1-64_1024x10_fw20.pcap", ["ouster-sdk/OS-1-64_sensor_config_reduced.json"])):
+        md, batch = lidar_streams(pcap, jsons)[0]
+        f = decode_packets(batch.payload, md)
+        rows = np.array([3, 0, 5])
+        s = f.select(rows)
+        assert len(s) == 3 and s.profile is f.profile
+        assert (s.pixels_per_column, s.columns_per_packet) == (f.pixels_per_column, f.columns_per_packet)
+        for name in ("timestamp_ns", "measurement_id", "status", "footer", "column_frame_id", "encoder_count", "crc_ok"):
+            a, b = getattr(f, name), getattr(s, name)
+            assert (a is None and b is None) or np.array_equal(a[rows], b), name
+        for group in ("header", "pixels", "extra"):
+            a, b = getattr(f, group), getattr(s, group)
+            assert set(a) == set(b) and all(np.array_equal(a[k][rows], b[k]) for k in a), group
