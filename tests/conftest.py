@@ -1,4 +1,11 @@
-"""Shared test plumbing: where the external (third-party) captures are, and the skip when they are not."""
+"""Shared test plumbing: where the external (third-party) captures are, and the skip when they are not.
+
+In CI (environment variable ``CI`` set to a true value, as CI services do) nothing may be skipped
+for want of data or tools: a missing external-fixtures folder or capture, or a missing reference
+decoder (velodyne_decoder, ouster-sdk) or other test extra, fails the test with the reason. Only
+the skips of :data:`ENVIRONMENT_SKIPS` (what this machine cannot do, not what is missing) stay skips;
+known limits of the reference tools are ``xfail(strict=True)`` in the tests themselves.
+"""
 
 from __future__ import annotations
 
@@ -16,15 +23,76 @@ def external_root() -> Path:
     return Path(env) if env else (REPO_ROOT.parent / "shared" / "fixtures" / "external")
 
 
+def in_ci() -> bool:
+    """``CI`` is set to a true value (``true``, ``1``, ``yes``): skips for missing data are failures."""
+    return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes", "on")
+
+
+#: Skip reasons that stay skips in CI: what the machine cannot do (root, multicast on loopback,
+#: /proc) or a combination a parametrised test does not apply to, never missing data or tools.
+ENVIRONMENT_SKIPS = (
+    "needs root",
+    "cannot join a multicast group",
+    "needs /proc/self/fd",
+    "LIDARPKT_NATIVE=0",
+    "window taller than the neighbourhood",
+)
+
+
 def external(relpath: str) -> Path:
-    """Path of one external capture; skips the calling test with the reason when it is absent."""
+    """Path of one external capture; skips the calling test with the reason when it is absent
+    (fails it in CI)."""
     path = external_root() / relpath
     if not path.exists():
-        pytest.skip(
+        reason = (
             f"external fixture {relpath} not found under {external_root()} "
             "(set LIDARPKT_EXTERNAL_FIXTURES to the folder holding shared/fixtures/external)"
         )
+        if in_ci():
+            pytest.fail(f"CI: {reason}", pytrace=False)
+        pytest.skip(reason)
     return path
+
+
+def _skip_reason(report) -> str:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:
+        return str(longrepr[2])
+    return str(longrepr)
+
+
+def _fail_skip_in_ci(report) -> None:
+    """In CI, turn a skip (an importorskip of a missing reference decoder or extra, a missing
+    fixture) into a failure that says what is missing; xfails and :data:`ENVIRONMENT_SKIPS` stay."""
+    if not (in_ci() and report.skipped) or hasattr(report, "wasxfail"):
+        return
+    reason = _skip_reason(report)
+    if any(allowed in reason for allowed in ENVIRONMENT_SKIPS):
+        return
+    report.outcome = "failed"
+    report.longrepr = (
+        f"CI: this would have been skipped ({reason}); in CI every reference decoder, test extra and "
+        "external fixture must be present (pip install -e '.[test,crosscheck]', LIDARPKT_EXTERNAL_FIXTURES)"
+    )
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    _fail_skip_in_ci(report)
+    return report
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector):
+    report = yield  # a module-level importorskip skips the whole module at collection
+    _fail_skip_in_ci(report)
+    return report
+
+
+def pytest_report_header(config):
+    mode = "CI: skips for missing data or tools fail" if in_ci() else "not CI: missing data or tools skip"
+    return f"lidarpkt external fixtures: {external_root()} ({'present' if external_root().is_dir() else 'ABSENT'}); {mode}"
 
 
 @pytest.fixture

@@ -96,7 +96,10 @@ def test_analyze_return_slot_by_label_and_frame_range(canned, tmp_path, capsys):
     assert entry["temporal_cdf"]["range_m"] == (np.sort(x[x > 0]) / 1000).tolist()
     assert entry["motion_compensated"] is None
     # 3 x 3 neighbourhood of one frame: 9 samples
-    assert entry["spatial_cdf"]["F"][-1] <= 1.0 and len(entry["spatial_cdf"]["range_m"]) <= 9
+    # F(r_i) = #{returns ≤ r_i} / 9 (non-returns in the denominator)
+    r_m = np.array(entry["spatial_cdf"]["range_m"])
+    assert 1 <= len(r_m) <= 9 and np.all(np.diff(r_m) >= 0)
+    assert entry["spatial_cdf"]["F"] == [np.count_nonzero(r_m <= x) / 9 for x in r_m]
 
 
 def test_analyze_ouster_with_metadata(canned, tmp_path, capsys):

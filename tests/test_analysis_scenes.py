@@ -149,8 +149,11 @@ def test_paper_monitor_flags_the_window_and_foliage_and_is_fooled_by_the_hedge(s
     # the hedge: one surface per beam, neighbouring beams a metre apart: spatially "multi", temporally single
     assert mr.monitor_flags[(0,) + at["hedge"]] and not mr.stats.multi_return[(0,) + at["hedge"]]
     ev = mr.evaluation[0]
-    assert ev.false_positive >= 1 and ev.true_positive >= 2 and 0 < ev.precision < 1
-    assert 0.5 < ev.auc <= 1.0
+    # what the paper's monitor reaches on this scene (measured): every multi-return raypath flagged
+    # (recall 1, 411 of them), at the price of 15976 false alarms (precision 0.025), AUC 0.931
+    assert ev.true_positive == 411 and ev.false_negative == 0 and ev.recall == 1.0
+    assert ev.false_positive == pytest.approx(15976, rel=0.01) and ev.precision == pytest.approx(0.0251, abs=0.001)
+    assert ev.auc == pytest.approx(0.9312, abs=0.005)
     # row by row, the hedge's beams are each one surface: no longer flagged; window and foliage still are
     by_row = multireturn_map(stack, by_row=True)
     assert not by_row.monitor_flags[(0,) + at["hedge"]]

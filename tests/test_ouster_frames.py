@@ -233,9 +233,16 @@ def test_column_window_wrapping_through_zero():
     frames, dec = _push(wmd, batch.payload[pick])
     assert len(frames) == 1 and not frames[0].partial
     assert frames[0].column_valid.sum() == 64
-    # one packet of the window missing: partial, and a lost packet (between first and last)
+    # window order 992, 1008, 0, 16 (capture order 0, 16, 992, 1008). The packet at 0 missing: it sits
+    # between the first and the last across the wrap, so the frame is partial and one packet is lost
+    assert mids[pick].tolist() == [0, 16, 992, 1008]
+    frames, dec = _push(wmd, batch.payload[np.delete(pick, 0)])
+    assert len(frames) == 1 and frames[0].partial
+    assert frames[0].counters.lost_packets == 1 == dec.stats.lost_packets
+    assert frames[0].column_valid.sum() == 48 and not frames[0].column_valid[:16].any()
+    # the window's last packet (16) missing: partial, but nothing after it shows a packet was lost
     frames, dec = _push(wmd, batch.payload[np.delete(pick, 1)])
-    assert frames[0].partial
+    assert frames[0].partial and frames[0].counters.lost_packets == 0 and not frames[0].column_valid[16:32].any()
 
 
 def test_crc_failure_skipped_and_counted():

@@ -187,9 +187,9 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
 
 def test_a_silent_sensor_is_reported_and_the_recording_goes_on(tmp_path):
     (port,) = _free_ports(1)
-    rec = Recorder(tmp_path, [port], "-q")
+    # the fixture first: a missing capture must not leave a recorder running
     payloads = [p.payload for p in read_capture(str(external("rust-lidar-utils/velodyne_example.pcap")))]
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+    with Recorder(tmp_path, [port], "-q") as rec, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for p in payloads[:40]:
             tx.sendto(p, ("127.0.0.1", port))
         deadline = time.monotonic() + 20
@@ -198,8 +198,8 @@ def test_a_silent_sensor_is_reported_and_the_recording_goes_on(tmp_path):
             time.sleep(0.05)
         for p in payloads[40:]:
             tx.sendto(p, ("127.0.0.1", port))
-    time.sleep(0.5)
-    assert rec.stop() == 0
+        time.sleep(0.5)
+        assert rec.stop() == 0
     assert "packets again after" in rec.log.read_text()
     _, msgs = _messages(rec.out)
     assert _recorded_payloads(msgs)["/velodyne_packets"] == payloads

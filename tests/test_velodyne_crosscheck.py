@@ -20,8 +20,10 @@ from lidarpkt.velodyne.timing import SEQUENCE_NS
 pytestmark = pytest.mark.crosscheck
 
 
-def _reference_points(vd, batch: PacketBatch, *, product_id_override: int | None = None):
+def _reference_points(vd, batch: PacketBatch, *, product_id_override: int | None = None, calibration=None):
     cfg = vd.Config(model=vd.Model.VLP16)
+    if calibration is not None:  # a ROS YAML: the one calibration format velodyne_decoder reads
+        cfg.calibration = vd.Calibration.read(str(calibration))
     cfg.min_range = 0.0
     cfg.max_range = 1e4
     packets = vd.PacketVector()
@@ -44,10 +46,13 @@ def _our_points(batch: PacketBatch, **options):
     return pts, last_packet_ns, frames
 
 
-def assert_same_points(batch: PacketBatch, *, product_id_override: int | None = None) -> int:
+def assert_same_points(batch: PacketBatch, *, product_id_override: int | None = None, calibration=None,
+                       our_calibration=None) -> int:
+    """Points of lidarpkt and velodyne_decoder agree; ``calibration`` (ROS YAML) is given to both, or
+    ``our_calibration`` (e.g. the same values as VeloView XML) to lidarpkt instead."""
     vd = pytest.importorskip("velodyne_decoder")
-    ref = _reference_points(vd, batch, product_id_override=product_id_override)
-    ours, t_ref, _ = _our_points(batch)
+    ref = _reference_points(vd, batch, product_id_override=product_id_override, calibration=calibration)
+    ours, t_ref, _ = _our_points(batch, calibration=our_calibration or calibration)
     t_ours = ours["time_ns"] - t_ref
     firings = np.unique(t_ours)
     t_theirs = ref["time"].astype(np.float64) * 1e9

@@ -367,9 +367,13 @@ def test_return_mode_change_starts_a_new_frame():
     t_us = 2_000_000 + np.arange(40) * 1327
     raw = np.concatenate([_packets_at(t_us[:20], "strongest"), _packets_at(t_us[20:], "last")])
     frames, _ = decode_all([PacketBatch.from_payloads(raw, 1_700_000_000_000_000_000 + t_us * 1000)])
-    labels = [f.return_labels for f in frames]
-    assert ("strongest",) in labels and ("last",) in labels
+    assert [f.return_labels for f in frames] == [("strongest",), ("last",)]
     assert all(f.partial for f in frames)
+    # the split is exactly at the change: 20 packets × 24 firings on each side, none lost or moved
+    assert [int(f.column_valid.sum()) for f in frames] == [480, 480]
+    first, second = (f.column_timestamp_ns[f.column_valid] for f in frames)
+    assert second[0] - first[0] == 20 * 1327 * 1000  # frame 2 starts with packet 20
+    assert second[0] - first[-1] == 1327 * 1000 - 23 * 55_296  # packet 19's last firing ends frame 1
 
 
 def test_cut_angle(ext):

@@ -106,6 +106,17 @@ def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None,
     return _from_ros_yaml(text, str(p), model)
 
 
+def _refuse_two_point(x: np.ndarray, y: np.ndarray, source: str) -> None:
+    """Two-point distance correction (dist_correction_x and _y both set on a laser, the HDL-64E
+    manual's near-range interpolation) is not modelled: refuse it rather than decode it wrongly."""
+    both = np.flatnonzero((x != 0) & (y != 0))
+    if both.size:
+        raise CalibrationError(
+            f"{source}: lasers {both.tolist()} set dist_correction_x and dist_correction_y (two-point distance "
+            "correction), which lidarpkt's VLP-16 geometry does not model; set them to 0 or use velodyne_decoder"
+        )
+
+
 def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCalibration:
     from ruamel.yaml import YAML, YAMLError
 
@@ -120,10 +131,11 @@ def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCali
     count = model.lasers
     if n != count or len(lasers) != count:
         raise CalibrationError(f"{source} describes {len(lasers)} lasers (num_lasers {n}): a {model.name} has {count}")
-    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist")}
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy")}
     seen = set()
     keys = {"vert": "vert_correction", "rot": "rot_correction", "voff": "vert_offset_correction",
-            "hoff": "horiz_offset_correction", "dist": "dist_correction"}
+            "hoff": "horiz_offset_correction", "dist": "dist_correction",
+            "dx": "dist_correction_x", "dy": "dist_correction_y"}
     for entry in lasers:
         try:
             i = int(entry["laser_id"])
@@ -131,10 +143,11 @@ def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCali
                 raise ValueError(f"laser_id {i} out of range or repeated")
             seen.add(i)
             values["vert"][i] = float(entry["vert_correction"])
-            for k in ("rot", "voff", "hoff", "dist"):
+            for k in ("rot", "voff", "hoff", "dist", "dx", "dy"):
                 values[k][i] = float(entry.get(keys[k], 0.0))
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationError(f"{source}: bad laser entry {entry!r}: {exc}") from None
+    _refuse_two_point(values["dx"], values["dy"], source)
     return VelodyneCalibration(
         vert_correction_rad=values["vert"], rot_correction_rad=values["rot"], vert_offset_m=values["voff"],
         horiz_offset_m=values["hoff"], dist_correction_m=values["dist"],
@@ -152,10 +165,11 @@ def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> Velodyne
     if len(px) < count:
         raise CalibrationError(f"{source}: VeloView XML with {len(px)} <px> laser entries; a {model.name} needs {count}")
     lsb = root.findtext(".//distLSB_")
-    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist")}
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy")}
     # VeloView stores angles in degrees and lengths in centimetres
     tags = {"vert": "vertCorrection_", "rot": "rotCorrection_", "voff": "vertOffsetCorrection_",
-            "hoff": "horizOffsetCorrection_", "dist": "distCorrection_"}
+            "hoff": "horizOffsetCorrection_", "dist": "distCorrection_",
+            "dx": "distCorrectionX_", "dy": "distCorrectionY_"}
     try:
         for node in px:
             i = int(node.findtext("id_"))
@@ -165,6 +179,7 @@ def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> Velodyne
                 values[k][i] = float(node.findtext(tag) or 0.0)
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{source}: bad <px> entry: {exc}") from None
+    _refuse_two_point(values["dx"], values["dy"], source)
     return VelodyneCalibration(
         vert_correction_rad=np.radians(values["vert"]), rot_correction_rad=np.radians(values["rot"]),
         vert_offset_m=values["voff"] / 100.0, horiz_offset_m=values["hoff"] / 100.0,

@@ -5,10 +5,13 @@ raw distance r::
 
     d = r · distance_resolution + dist_correction[l]
     a = α − rot_correction[l]
-    x = d · cos ω_l · cos a,   y = −d · cos ω_l · sin a,   z = d · sin ω_l + vert_offset[l]
+    x = d · cos ω_l · cos a + h_l · sin a,   y = −d · cos ω_l · sin a + h_l · cos a,
+    z = d · sin ω_l + vert_offset[l]
 
-which is velodyne_decoder 3.1.0's model for VLP-16 calibrations (it agrees with it
-within float32 rounding, far below 1 mm).
+with h = horiz_offset_correction (the beam origin's sideways offset, the HDL-64E S3
+manual's formulas), which is velodyne_decoder 3.1.0's model for VLP-16 calibrations (it
+agrees with it within float32 rounding, far below 1 mm). The two-point distance correction
+(dist_correction_x/y) is not modelled: :func:`load_calibration` refuses it.
 """
 
 from __future__ import annotations
@@ -41,18 +44,12 @@ def _trig_tables(rot: tuple[float, ...] | None) -> tuple[np.ndarray, np.ndarray]
 class VelodyneGeometry:
     """XYZ of VLP-16 frames for one calibration (the ``Geometry`` of :class:`~lidarpkt.frame.Frame`).
 
-    Raises :class:`CalibrationError` for a calibration with horizontal offsets (a model
-    only multi-bank Velodynes use; not implemented here).
+    Raises :class:`CalibrationError` for a frame without per-firing azimuths.
     """
 
     def __init__(self, calibration: VelodyneCalibration | str | None = None) -> None:
         self.calibration = load_calibration(calibration)
         cal = self.calibration
-        if np.any(cal.horiz_offset_m != 0):
-            raise CalibrationError(
-                f"{cal.source}: horiz_offset_correction is set; lidarpkt's VLP-16 geometry does not model "
-                "horizontal beam offsets (set them to 0 or use the stock calibration)"
-            )
         order = cal.rows_to_laser  # laser id of each row
         self.row_laser = order
         omega = cal.vert_correction_rad[order]
@@ -64,6 +61,7 @@ class VelodyneGeometry:
         self._dc_xy = self._dist_correction * np.cos(omega)[:, None]
         self._dc_z = self._dist_correction * np.sin(omega)[:, None]
         self._vert_offset = cal.vert_offset_m[order][:, None]
+        self._horiz_offset = cal.horiz_offset_m[order][:, None]
         rot = cal.rot_correction_rad[order]
         self._per_row = bool(np.any(rot != 0))
         self._cos, self._neg_sin = _trig_tables(tuple(rot.tolist()) if self._per_row else None)
@@ -107,6 +105,10 @@ class VelodyneGeometry:
             dz += hit * dc_z
         np.multiply(dxy, cos_a, out=out[..., 0])
         np.multiply(dxy, neg_sin_a, out=out[..., 1])
+        if np.any(self._horiz_offset):
+            h = hit * self._horiz_offset  # the offset is perpendicular to the beam: (sin a, cos a)
+            out[..., 0] -= h * neg_sin_a
+            out[..., 1] += h * cos_a
         if np.any(self._vert_offset):
             dz += voff
             dz *= hit
