@@ -148,3 +148,29 @@ def test_firing_azimuths_per_packet_mode_and_the_general_path():
     assert general.dtype == np.uint16 and int(general[n].max()) < 36000
     # the invalid packet: rate 0, so every firing sits at 40000 mod 36000
     assert np.all(general[n] == 4000)
+
+
+def test_vlp16_packet_fields_have_their_documented_types():
+    from lidarpkt.velodyne import decode_packets, encode_data_packets
+
+    payload = encode_data_packets(np.zeros((2, 12), np.int64), np.full((2, 12, 32), 500), np.full((2, 12, 32), 3),
+                                  np.array([1000, 2327]), "strongest")
+    for copy in (True, False):
+        p = decode_packets(payload, copy=copy)
+        types = {name: getattr(p, name).dtype for name in ("flag", "azimuth_cdeg", "distance_2mm", "reflectivity",
+                                                           "timestamp_us", "return_mode", "product_id")}
+        assert types == {"flag": np.uint16, "azimuth_cdeg": np.uint16, "distance_2mm": np.uint16,
+                         "reflectivity": np.uint8, "timestamp_us": np.uint32, "return_mode": np.uint8,
+                         "product_id": np.uint8}
+        assert p.timestamp_us.tolist() == [1000, 2327]
+
+
+def test_reassembler_limits_must_be_positive():
+    from lidarpkt.reassembly import Reassembler
+
+    Reassembler(timeout_ns=1, max_datagrams=1, max_bytes=1)
+    for bad in ({"timeout_ns": 0}, {"max_datagrams": 0}, {"max_bytes": 0}):
+        with pytest.raises(ValueError, match="timeout_ns, max_datagrams and max_bytes must be positive"):
+            Reassembler(**bad)
+    r = Reassembler()
+    assert (r.timeout_ns, r.max_datagrams) == (30_000_000_000, 1024)
