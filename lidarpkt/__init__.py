@@ -7,15 +7,10 @@
 
 from __future__ import annotations
 
-import os
-from typing import TYPE_CHECKING, Any
-
 from .errors import LidarpktError
 from .frame import Frame, FrameCounters, FrameStack, SensorInfo
 from .packet import Endpoint, Packet, PacketBatch
-
-if TYPE_CHECKING:
-    from .source import FrameReader
+from .source import open_frames as open  # noqa: A001 - lidarpkt.open: typed keyword options, documented there
 
 __all__ = [
     "open",
@@ -28,31 +23,3 @@ __all__ = [
     "Endpoint",
     "LidarpktError",
 ]
-
-
-def open(  # noqa: A001 - the public name is part of the API contract
-    path: str | os.PathLike[str],
-    *,
-    metadata: str | os.PathLike[str] | list[str | os.PathLike[str]] | None = None,
-    **options: Any,
-) -> FrameReader:
-    """Frames from a capture: pcap/pcapng, an MCAP file, or a ROS bag holding raw packet topics.
-
-    Returns a :class:`~lidarpkt.source.FrameReader`: iterate it for frames; its ``stats`` say
-    what was routed where and what was skipped; ``close()`` (or ``with``) stops reading early.
-
-    Args:
-        path: the capture file (or rosbag2 directory).
-        metadata: Ouster metadata JSON path (a list of paths for several sensors); VLP-16 needs none.
-        **options: see :func:`lidarpkt.source.open_frames` (calibration, cut angle, read-ahead,
-            packet filters...).
-
-    Yields:
-        :class:`Frame` objects in the order their last packet arrived.
-
-    Raises:
-        lidarpkt.errors.LidarpktError: subclasses say what is wrong with the input.
-    """
-    from .source import open_frames
-
-    return open_frames(path, metadata=metadata, **options)

@@ -81,3 +81,8 @@ class TruncatedCaptureWarning(LidarpktWarning):
 
 class SkippedPacketWarning(LidarpktWarning):
     """Malformed packets were counted and skipped."""
+
+
+class UnsupportedFilterError(LidarpktError, TypeError):
+    """A packet filter that the reader of this container does not know, or cannot apply (a ROS bag
+    records no UDP ports or addresses)."""

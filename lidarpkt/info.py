@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .pcap import PcapReader, capture_format
+from .sources.magic import capture_format
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -172,22 +172,11 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
 
 
 def _open_reader(path: str | os.PathLike[str]):
-    """(reader, kind): a :class:`PcapReader` for pcap/pcapng, a :class:`lidarpkt.bags.BagReader`
-    for MCAP files and ROS bags. Anything else raises the pcap reader's error, which names the
-    file and shows its first bytes."""
-    if capture_format(path) is None and os.path.exists(path):
-        from .errors import UnsupportedContainerError
-        from .source import container_kind
+    """(reader, kind): the capture's packet reader (:func:`lidarpkt.sources.open_packet_source`) and its
+    container kind (``"pcap"`` for pcap/pcapng, else ``"mcap"``, ``"rosbag1"``, ``"rosbag2"``)."""
+    from .sources import container_kind, open_packet_source
 
-        try:
-            kind = container_kind(path)
-        except UnsupportedContainerError:
-            kind = None
-        if kind in ("mcap", "rosbag1", "rosbag2"):
-            from .bags import BagReader
-
-            return BagReader(path), kind
-    return PcapReader(path), "pcap"
+    return open_packet_source(path), container_kind(path)
 
 
 def _summary(stream: dict) -> str:

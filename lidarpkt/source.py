@@ -15,68 +15,27 @@ import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
+
+import numpy as np
 
 from .errors import SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from .frame import Frame
 from .packet import PacketBatch
 
-PCAP_MAGICS = {
-    b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # µs, little / big endian
-    b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d",  # ns
-    b"\x0a\x0d\x0d\x0a",  # pcapng section header block
-}
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-ROS1_MAGIC = b"#ROSBAG V2.0"
-SQLITE_MAGIC = b"SQLite format 3\x00"
+if TYPE_CHECKING:
+    from .sources.segments import Segment
+
+from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
+from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
+from .sources.protocol import PacketSource, open_packet_source
+
 _MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
 
 
-def container_kind(path: str | os.PathLike[str]) -> str:
-    """``"pcap"``, ``"mcap"``, ``"rosbag2"`` (directory or .db3) or ``"rosbag1"``, from the file's first bytes.
-
-    Raises :class:`UnsupportedContainerError` naming the file and what it starts with.
-    """
-    p = Path(path)
-    if p.is_dir():
-        if (p / "metadata.yaml").exists():
-            return "rosbag2"
-        raise UnsupportedContainerError(f"{p} is a directory without a rosbag2 metadata.yaml")
-    try:
-        with p.open("rb") as fh:
-            head = fh.read(16)
-    except FileNotFoundError:
-        raise UnsupportedContainerError(f"{p}: no such file") from None
-    except OSError as exc:
-        raise UnsupportedContainerError(f"{p}: cannot read ({exc.strerror})") from None
-    if head[:4] in PCAP_MAGICS:
-        return "pcap"
-    if head.startswith(MCAP_MAGIC):
-        return "mcap"
-    if head.startswith(ROS1_MAGIC):
-        return "rosbag1"
-    if head.startswith(SQLITE_MAGIC):
-        return "rosbag2"
-    shown = head.hex(" ") if head else "nothing (empty file)"
-    raise UnsupportedContainerError(
-        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag): it starts with {shown}"
-    )
-
-
 def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[PacketBatch]:
-    """Packet batches of any supported container, in capture order (see :class:`lidarpkt.pcap.PcapReader`)."""
-    return _open_packet_source(path, **filters).batches()
-
-
-def _open_packet_source(path: str | os.PathLike[str], **filters: Any):
-    kind = container_kind(path)
-    if kind == "pcap":
-        from .pcap import PcapReader
-
-        return PcapReader(path, **filters)
-    from .bags import BagReader
-
-    return BagReader(path, **filters)
+    """Packet batches of any supported container, in capture order (see :func:`lidarpkt.sources.open_packet_source`)."""
+    return open_packet_source(path, **filters).batches()
 
 
 @dataclass
@@ -126,11 +85,28 @@ class FrameReader:
         soft_id_check: bool = False,
         max_sensors: int = 64,
         read_ahead: bool | None = None,
-        **filters: Any,
+        segment: "Segment | None" = None,
+        ports: Iterable[int] | None = None,
+        src_addresses: Iterable[str] | None = None,
+        payload_sizes: Iterable[int] | None = None,
+        topics: Iterable[str] | None = None,
+        batch_packets: int | None = None,
     ) -> None:
         self.path = Path(path)
         self._max_sensors = int(max_sensors)
-        self.reader = _open_packet_source(path, **filters)
+        self.segment = segment
+        self._ownership = None
+        filters: dict[str, Any] = {"ports": ports, "src_addresses": src_addresses, "payload_sizes": payload_sizes,
+                                   "topics": topics, "batch_packets": batch_packets}  # None: the reader's default
+        if segment is not None:
+            from .sources.segments import SegmentOwnership
+
+            if segment.container not in ("pcap", "pcapng") and segment.count != 1:
+                raise UnsupportedContainerError(f"{self.path}: a {segment.container} file is read whole (one segment)")
+            if segment.count > 1:
+                self._ownership = SegmentOwnership(segment)
+                filters["segment"] = segment
+        self.reader: PacketSource = open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, read_ahead)
         self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
@@ -142,6 +118,7 @@ class FrameReader:
         self._include_partial = include_partial
         self._ouster_metadata = _load_ouster_metadata(metadata)
         self._warned_max_sensors = False
+        self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter = FrameReader._frames(weakref.proxy(self))
@@ -182,8 +159,9 @@ class FrameReader:
     def _frames(self) -> Iterator[Frame]:
         from . import ouster, velodyne
 
-        embedded = getattr(self.reader, "ouster_metadata", None)
+        embedded = self.reader.ouster_metadata
         batches = self._batches()
+        ownership = self._ownership
         try:
             for batch in batches:
                 if embedded and not self._ouster_metadata:
@@ -196,42 +174,80 @@ class FrameReader:
                     if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
                         self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
                     continue
-                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne))  # self: the weak proxy
+                split = getattr(self.reader, "split_ordinal", None)
+                post_end = split is not None and int(batch.index[0]) >= split
+                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne, post_end))  # self: the weak proxy
+                if ownership is not None and ownership.done(post_end):
+                    break  # a segment: nothing further belongs to it
         finally:
             batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
-        for decoder in list(self.decoders.values()):
-            yield from FrameReader._emit(self, decoder.finish())
+        for key, decoder in list(self.decoders.items()):
+            frames = decoder.finish()
+            yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
             raise UnknownSensorError(self._no_sensor_message())
 
-    def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne) -> list[Frame]:
+    def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne, post_end: bool = False) -> list[Frame]:
         if self._ouster_metadata:
             match = ouster.classify(batch, self._ouster_metadata)
             if match is not None:
                 kind, md = match
-                decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(
+                key = ("ouster", src, id(md))
+                if self._ownership is not None and self._ownership.state(key, post_end).closed:
+                    return []
+                decoder = self._decoder(key, lambda: ouster.OusterDecoder(
                     md, source=_source_name(batch), **self._ouster_options))
                 if decoder is None:
                     return self._unrouted(batch)
                 if kind == "lidar":
                     self.stats.ouster_lidar_packets += len(batch)
-                    return decoder.push(batch)
+                    self._name_by_data(key, decoder, batch)
+                    return self._push(key, decoder, batch, post_end)
                 self.stats.ouster_imu_packets += len(batch)
                 decoder.push_imu(batch)
                 return []
         kind = velodyne.classify(batch)
         if kind is not None:
-            decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(
+            key = ("velodyne", src)
+            if self._ownership is not None and self._ownership.state(key, post_end).closed:
+                return []
+            decoder = self._decoder(key, lambda: velodyne.VelodyneDecoder(
                 source=_source_name(batch), **self._velodyne_options))
             if decoder is None:
                 return self._unrouted(batch)
             if kind == "data":
                 self.stats.velodyne_data_packets += len(batch)
-                return decoder.push(batch)
+                self._name_by_data(key, decoder, batch)
+                return self._push(key, decoder, batch, post_end)
             self.stats.velodyne_position_packets += len(batch)
             decoder.push_position(batch)
             return []
         return self._unrouted(batch)
+
+    def _name_by_data(self, key: tuple, decoder, batch: PacketBatch) -> None:
+        """A sensor is named after its data stream (address:port of its first data or lidar packet), even when
+        a position or IMU packet came first and made its decoder: so every segment of a capture names it alike."""
+        if key in self._named:
+            return
+        self._named.add(key)
+        name = _source_name(batch)
+        if decoder.source != name:
+            decoder.source = name
+            if getattr(decoder, "metadata", None) is not None:  # Ouster: the SensorInfo carries the name
+                decoder.sensor = decoder.metadata.sensor_info(name)
+
+    def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
+        """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
+        own = self._ownership
+        if own is None:
+            return decoder.push(batch)
+        frames: list[Frame] = []
+        for part in own.split_first_post(key, batch) if post_end else [batch]:
+            if own.streams[key].closed:
+                break
+            got = decoder.push(part)
+            frames += own.keep(key, got, post_end, lambda f, part=part: _holds_packet(f, part, decoder))
+        return frames
 
     def _unrouted(self, batch: PacketBatch) -> list[Frame]:
         key = f"{_source_name(batch)} → {batch.dst if batch.dst is not None else '?'} ({batch.payload_size} B)"
@@ -279,17 +295,35 @@ def open_frames(
     path: str | os.PathLike[str],
     *,
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = None,
-    **options: Any,
+    calibration: Any = None,
+    cut_angle_deg: float | None = None,
+    cut_on_block: bool = False,
+    source: str | None = None,
+    include_partial: bool = True,
+    verify_crc: bool = True,
+    soft_id_check: bool = False,
+    max_sensors: int = 64,
+    read_ahead: bool | None = None,
+    segment: "Segment | None" = None,
+    ports: Iterable[int] | None = None,
+    src_addresses: Iterable[str] | None = None,
+    payload_sizes: Iterable[int] | None = None,
+    topics: Iterable[str] | None = None,
+    batch_packets: int | None = None,
 ) -> FrameReader:
     """Frames from a capture; this is ``lidarpkt.open``.
+
+    Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
+    their last packet arrived; its ``stats`` say what was routed where and what was skipped;
+    ``close()`` (or ``with``) stops reading early.
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
         metadata: Ouster metadata JSON (path or parsed dict), or a list of them for several sensors.
-            MCAP files we record carry it and need none.
+            MCAP files we record carry it and need none. VLP-16 needs none.
         calibration: VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one);
             the stock VLP-16 calibration by default.
-        cut_angle_deg: VLP-16: cut frames at this azimuth instead of at the wrap through 0°.
+        cut_angle_deg: VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.
         cut_on_block: VLP-16: cut at the block that wraps (VeloView's frames) rather than at the
             firing sequence that wraps.
         source: decode only packets from this source IP address.
@@ -302,14 +336,28 @@ def open_frames(
         read_ahead: read the packets in a background thread while decoding (pcap/pcapng only):
             ``None`` (default) when the file has at least 8 MB and the machine 2+ CPUs; ``False``
             never; ``True`` always. Same frames, order, stats, errors and warnings either way.
-        **filters: passed to the packet reader (``ports``, ``src_addresses``, ``payload_sizes``).
+        segment: yield only the frames of this :class:`~lidarpkt.sources.segments.Segment` of the
+            capture (from :func:`~lidarpkt.sources.segments.plan_segments`); the frames of all
+            segments, in order, are the whole file's. VLP-16 ``frame_id`` and
+            ``extra["packet_index"]`` then count from the segment's start.
+        ports: pcap/pcapng: keep only packets sent to these UDP destination ports.
+        src_addresses: pcap/pcapng: keep only packets from these source addresses.
+        payload_sizes: keep only packets of these UDP payload sizes (bytes).
+        topics: bags and MCAP: read only these topics (default: every topic of a known packet type).
+        batch_packets: pcap/pcapng: most packets per batch (the reader's default, 8192, when None).
 
     Raises:
         UnsupportedContainerError: the file is no container lidarpkt reads.
+        UnsupportedFilterError: a filter the container cannot apply (bags record no ports or addresses).
         UnknownSensorError: the file holds packets, but none of a supported sensor (message lists the streams).
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
     """
-    return FrameReader(path, metadata=metadata, **options)
+    return FrameReader(
+        path, metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
+        source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
+        max_sensors=max_sensors, read_ahead=read_ahead, segment=segment, ports=ports, src_addresses=src_addresses,
+        payload_sizes=payload_sizes, topics=topics, batch_packets=batch_packets,
+    )
 
 
 READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thread (a thread would not pay)
@@ -318,7 +366,7 @@ READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thre
 def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     """Read ahead in a thread? pcap/pcapng only (a bag reader's embedded metadata is looked up as its
     batches arrive); by default when the file has at least READ_AHEAD_MIN_BYTES and there are 2+ CPUs."""
-    from .pcap import PcapReader
+    from .sources.pcap_reader import PcapReader
 
     if not isinstance(reader, PcapReader) or read_ahead is False:
         return False
@@ -338,6 +386,21 @@ def _load_ouster_metadata(metadata) -> list:
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
     return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
+
+
+def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
+    """Does ``frame`` hold the (first) packet of ``batch``? VLP-16 frames list their packets' ordinals;
+    an Ouster frame holds the packets of its frame id."""
+    index = frame.extra.get("packet_index")
+    if index is not None:
+        return bool(np.isin(int(batch.index[0]), index))
+    metadata = getattr(decoder, "metadata", None)
+    if metadata is None:
+        return False
+    from .ouster import decode_packets
+
+    fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
+    return int(fields.frame_id[0]) == frame.frame_id
 
 
 def _source_name(batch: PacketBatch) -> str:

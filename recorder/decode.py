@@ -82,16 +82,10 @@ def _bytes_read(reader) -> int | None:
 
 
 def _packet_reader(path: str):
-    """The packet reader of one input (PcapReader for pcap/pcapng, BagReader otherwise)."""
-    from lidarpkt.source import container_kind
+    """The packet reader of one input (:func:`lidarpkt.sources.open_packet_source`)."""
+    from lidarpkt.sources import open_packet_source
 
-    if container_kind(path) == "pcap":
-        from lidarpkt.pcap import PcapReader
-
-        return PcapReader(path)
-    from lidarpkt.bags import BagReader
-
-    return BagReader(path)
+    return open_packet_source(path)
 
 
 def _clock_offsets(path: str, md, look_ahead: int = 64) -> dict[str, int]:

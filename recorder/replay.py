@@ -77,14 +77,14 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
 def read_capture(path: str) -> Iterator[Packet]:
     """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
     ordered by host receive time)."""
-    from lidarpkt.source import container_kind, read_batches
+    from lidarpkt.sources import open_packet_source
+    from lidarpkt.sources.pcap_reader import PcapReader
 
-    if container_kind(path) == "pcap":
-        from lidarpkt.pcap import PcapReader
-
-        yield from PcapReader(path).packets()
+    reader = open_packet_source(path)
+    if isinstance(reader, PcapReader):
+        yield from reader.packets()
         return
-    batches = list(read_batches(path))
+    batches = list(reader.batches())
     if not batches:
         return
     # a bag stores a rotation's packets in one message written after its last packet: host times,

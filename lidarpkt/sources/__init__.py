@@ -1,0 +1,27 @@
+"""The packet-source layer: from a capture file to batches of UDP payloads, and segments of a capture.
+
+=================  ===========================================================================
+``magic``          file magic, in one place: which container a file is (:func:`container_kind`)
+``protocol``       :class:`PacketSource` and :func:`open_packet_source`, used by every caller
+``pcap_reader``    :class:`PcapReader` (``lidarpkt.pcap`` is this module) and :class:`ReadStats`
+``pcap_walk``      classic pcap: blocks of the file, the walk over record headers in chunks
+``pcapng_walk``    pcapng: the walk over sections, interfaces and packet blocks in chunks
+``layouts``        link / IPv4 / IPv6 / UDP and container header dtypes, declared once
+``gathers``        header fields and payload rows gathered at many offsets (compiled or NumPy)
+``datagram``       link/IP/UDP checks of a whole chunk, and the per-record general path
+``trains``         whole IPv4 fragment trains reassembled with array operations
+``reassembly``     :class:`Reassembler`: bounded IPv4/IPv6 fragment reassembly, record by record
+``batching``       chunks to same-stream batches (filters, ordinals, grouping)
+``bags``           :class:`BagReader`: MCAP files and ROS 1 / rosbag2 bags
+``segments``       :func:`plan_segments` and the ownership rule of ``lidarpkt.open(segment=...)``
+=================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+from .magic import container_kind
+from .protocol import PacketSource, open_packet_source
+from .segments import DEFAULT_SEGMENT_BYTES, Segment, plan_segments
+
+__all__ = ["PacketSource", "open_packet_source", "container_kind", "Segment", "plan_segments",
+           "DEFAULT_SEGMENT_BYTES"]

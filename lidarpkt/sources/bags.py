@@ -1,0 +1,464 @@
+"""Raw lidar packets stored in ROS bags (rosbag2 sqlite3 or MCAP, ROS 1), read through ``rosbags``.
+
+A ROS bag stores messages, not UDP datagrams. Topics whose message type carries raw
+sensor packets are turned into :class:`~lidarpkt.packet.PacketBatch` objects, one per
+message (every packet of a ``VelodyneScan`` has the same 1206-byte size). Each packet's
+time is its own ROS stamp when the message has one (``VelodynePacket.stamp``), else the
+bag's receive time; source and destination are ``None`` (a bag does not keep them).
+
+What is extracted is decided by the message type alone, in :data:`PACKET_EXTRACTORS`:
+a function from one deserialised message to ``(payloads uint8[N, L], timestamp_ns int64[N])``.
+Adding a sensor's packet topic means adding one entry (and, if ROS does not ship the
+type, its ``.msg`` definition to :data:`MESSAGE_DEFINITIONS`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import traceback
+import warnings
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning, UnsupportedFilterError
+from ..packet import Packet, PacketBatch
+from .inflate import bound_rosbags
+from .magic import MCAP_MAGIC
+
+# Definitions of packet message types that are not in rosbags' stock type stores; used when
+# the bag does not carry its own definitions (rosbag2 sqlite3 before the v8 metadata).
+MESSAGE_DEFINITIONS: dict[str, str] = {
+    "velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data\n",
+    "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
+    # ouster-ros lidar and IMU packet topics (/ouster/lidar_packets, /ouster/imu_packets)
+    "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
+    # nebula's stamped packet; lidarpkt's recorder writes VLP-16 position packets with it
+    "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
+}
+
+# Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String), as ouster-ros names it.
+OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/metadata")
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _velodyne_scan(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    packets = msg.packets
+    if not packets:
+        return np.zeros((0, 1206), np.uint8), np.zeros(0, np.int64)
+    payload = np.stack([np.asarray(p.data, dtype=np.uint8) for p in packets])
+    times = np.array([_stamp_ns(p.stamp) for p in packets], dtype=np.int64)
+    times[times == 0] = bag_time_ns  # drivers that leave the packet stamp empty
+    return payload, times
+
+
+def _velodyne_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    t = _stamp_ns(msg.stamp) or bag_time_ns
+    return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
+
+
+def _ouster_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    # PacketMsg has no stamp: the bag's receive (log) time is the packet's host time
+    return np.asarray(msg.buf, dtype=np.uint8)[None, :], np.array([bag_time_ns], dtype=np.int64)
+
+
+def _nebula_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    t = _stamp_ns(msg.stamp) or bag_time_ns
+    return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
+
+
+# message type → extractor(message, bag receive time ns) → (payloads [N, L], times ns [N])
+PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]] = {
+    "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
+    "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
+    "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
+    "nebula_msgs/msg/NebulaPacket": _nebula_packet,
+}
+
+
+def _decompression_errors() -> tuple[type[BaseException], ...]:
+    """What the MCAP reader's chunk decompressors raise on damaged chunks (zstd; lz4 raises RuntimeError)."""
+    out: list[type[BaseException]] = [RuntimeError]
+    try:
+        from zstandard import ZstdError
+
+        out.append(ZstdError)
+    except ImportError:  # pragma: no cover - zstandard is a dependency
+        pass
+    return tuple(out)
+
+
+_DECOMPRESSION_ERRORS = _decompression_errors()
+
+
+def _normalise_type(msgtype: str) -> str:
+    # ROS 1 names types "pkg/Type"; rosbags presents them as "pkg/msg/Type"
+    parts = msgtype.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
+
+
+def _release(exc: BaseException) -> None:
+    """Clear the locals of the library frames that ``exc`` (and what it chains) keeps, then close the
+    sqlite3 connections among them. An error met while stepping a query keeps rosbags' cursor, and so
+    the ``.db3``, open; rosbags' sqlite3 storage does not close the connection it opened when the
+    tables are missing. Either file would stay open while the caller keeps our error, and after it
+    until a garbage collection (a sqlite3 connection lives in a reference cycle). Cursors go first: a
+    connection closed under a live cursor stays open for as long as the cursor."""
+    import sqlite3
+
+    connections = []
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        for frame, _ in traceback.walk_tb(exc.__traceback__):
+            if frame.f_globals is globals():
+                continue  # ours, still running
+            names = frame.f_locals
+            connections += [v for v in names.values() if isinstance(v, sqlite3.Connection)]
+            try:
+                frame.clear()
+            except RuntimeError:  # still running
+                continue
+            if isinstance(names, dict):
+                names.clear()  # before Python 3.13, the f_locals snapshot outlives frame.clear()
+        exc = exc.__cause__ or exc.__context__
+    for connection in connections:
+        connection.close()
+
+
+def _close_failed_open(reader: Any, exc: BaseException) -> None:
+    """Close what rosbags opened before its ``open()`` failed, which it leaves open: the ROS 1 reader's
+    file (first line not UTF-8), a rosbag2's MCAP storage files (bad magic, cut index), its sqlite3
+    connections, the folder of a decompressed bag."""
+    for sub in getattr(reader, "readers", ()):
+        storage = getattr(sub, "storage", None)
+        opened = [getattr(sub, "bio", None), *getattr(storage, "dbconns", ()),
+                  *(getattr(f, "bio", None) for f in getattr(storage, "readers", ()))]
+        for obj in opened:
+            if obj is not None:
+                obj.close()
+        if getattr(sub, "tmpdir", None) is not None:
+            sub.tmpdir.cleanup()
+    _release(exc)
+
+
+def _guarded(messages: Iterator, path: Path) -> Iterator:
+    """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
+    :class:`CaptureFormatError` once every message before it was delivered."""
+    it = iter(messages)
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as exc:  # rosbags / sqlite3 raise their own types
+            _release(exc)
+            raise CaptureFormatError(f"{path}: the bag is damaged after the messages already read: {exc}") from None
+        yield item
+
+
+class BagReader:
+    """Packet batches from a ROS bag holding raw packet topics.
+
+    Args:
+        path: a rosbag2 directory (with ``metadata.yaml``), its ``.db3`` or ``.mcap`` file, or a ROS 1
+            ``.bag``.
+        topics: read only these topics (default: every topic of a known packet type).
+        payload_sizes: keep only packets of these sizes.
+        **filters: anything else that is not ``None`` raises: ``ports`` and ``src_addresses``
+            cannot filter a bag, which records no UDP ports or addresses.
+
+    Raises:
+        UnsupportedFilterError: a filter this reader does not know or cannot apply.
+        CaptureFormatError: the bag cannot be opened or decoded (message says why).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, topics: Iterable[str] | None = None,
+                 payload_sizes: Iterable[int] | None = None, **filters: Any) -> None:
+        unknown = sorted(k for k, v in filters.items() if v is not None)
+        if unknown:
+            from .protocol import BAG_OPTIONS, _filter_message
+
+            raise UnsupportedFilterError(_filter_message(path, "bag", unknown, BAG_OPTIONS))
+        self.path = Path(path)
+        self.topics = None if topics is None else frozenset(topics)
+        self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
+        self.stats: dict[str, Any] = {"messages": 0, "packets": 0, "skipped_topics": {}}
+        self._ouster_metadata: str | None = None
+
+    def ouster_metadata(self) -> str | None:
+        """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``), once
+        :meth:`batches` has read past it; ``None`` if there is none."""
+        return self._ouster_metadata
+
+    def _metadata_text(self, topic: str, text: str) -> str | None:
+        """``text`` if it is a JSON object, as Ouster metadata is; else ``None`` and a warning. Callers hand
+        it to ``load_metadata``, which reads other text as the path of a file."""
+        try:
+            doc = json.loads(text)
+            reason = f"a JSON {type(doc).__name__}, not an object"
+        except (ValueError, RecursionError) as exc:  # not JSON; an int of > 4300 digits; nested too deep
+            doc, reason = None, f"not JSON: {str(exc)[:80]}"
+        if isinstance(doc, dict):
+            return text
+        warnings.warn(SkippedPacketWarning(
+            f"{self.path}: the message on {topic} is not Ouster metadata ({reason}; it starts with {text[:40]!r}); "
+            "ignored. Pass the sensor's metadata JSON (metadata=... / --metadata) to decode its packets"))
+        return None
+
+    def _wanted(self, topic: str, msgtype: str) -> bool:
+        kind = _normalise_type(msgtype)
+        if kind == "std_msgs/msg/String":
+            return topic in OUSTER_METADATA_TOPICS
+        return kind in PACKET_EXTRACTORS and (self.topics is None or topic in self.topics)
+
+    def _is_mcap_file(self) -> bool:
+        if not self.path.is_file():
+            return False
+        with self.path.open("rb") as fh:
+            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+    def _bag_paths(self) -> list[Path]:
+        p = self.path
+        if p.is_file() and p.suffix == ".db3" and (p.parent / "metadata.yaml").exists():
+            return [p.parent]  # rosbags opens a rosbag2 by its directory
+        return [p]
+
+    def _open(self):
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        extra: dict = {}
+        for name, text in MESSAGE_DEFINITIONS.items():
+            extra.update(get_types_from_msg(text, name))
+        store.register(extra)
+        reader = None
+        try:
+            reader = AnyReader(self._bag_paths(), default_typestore=store)
+            reader.open()
+            bound_rosbags(reader, self.path)  # ROS 1 chunks and rosbag2 messages inflate into a bounded size
+        except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
+            _close_failed_open(reader, exc)
+            if isinstance(exc, CaptureFormatError):
+                raise
+            raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
+        return reader
+
+    def batches(self) -> Iterator[PacketBatch]:
+        """One batch per message of a packet topic, in bag time order (MCAP files: file order);
+        ``index`` counts packets."""
+        count = 0
+        messages = self._mcap_messages() if self._is_mcap_file() else self._rosbags_messages()
+        try:
+            for topic, msgtype, bag_time_ns, msg in messages:
+                kind = _normalise_type(msgtype)
+                if kind == "std_msgs/msg/String":
+                    if self._ouster_metadata is None:
+                        self._ouster_metadata = self._metadata_text(topic, msg.data)
+                    continue
+                if bag_time_ns >= 1 << 63:  # MCAP log times are uint64; packet times are int64 ns
+                    raise CaptureFormatError(
+                        f"{self.path}: the message on {topic} has the bag time {bag_time_ns} ns, more than a time can "
+                        "hold (int64 ns, past the year 2262): the bag is damaged there")
+                try:
+                    payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+                except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # a bag's own definition of the type
+                    raise CaptureFormatError(
+                        f"{self.path}: the message on {topic} ({msgtype}) has not the fields lidarpkt reads for that "
+                        f"type ({type(exc).__name__}: {exc}); the bag's definition of {kind} differs") from None
+                self.stats["messages"] += 1
+                if payload.shape[0] == 0:
+                    continue
+                if self.payload_sizes is not None and payload.shape[1] not in self.payload_sizes:
+                    continue
+                batch = PacketBatch.from_payloads(payload, times, first_index=count)
+                count += len(batch)
+                self.stats["packets"] += len(batch)
+                yield batch
+        finally:  # now, not when an error raised here (and the frames it keeps) is dropped: the bag's file closes
+            messages.close()
+
+    def packets(self) -> Iterator[Packet]:
+        """Every packet of :meth:`batches`, one by one, in the same order (no addresses: ``src``/``dst`` None)."""
+        for batch in self.batches():
+            yield from batch.packets()
+
+    def _rosbags_messages(self) -> Iterator[tuple[str, str, int, Any]]:
+        reader = self._open()
+        try:
+            conns = []
+            for c in reader.connections:
+                if self._wanted(c.topic, c.msgtype):
+                    conns.append(c)
+                else:
+                    self.stats["skipped_topics"][c.topic] = c.msgtype
+            if not conns:
+                return  # (rosbags reads no connections as all of them)
+            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path):
+                try:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise CaptureFormatError(
+                        f"{self.path}: message on {conn.topic} ({conn.msgtype}) at {bag_time_ns} ns cannot be "
+                        f"decoded: {exc}") from None
+                yield conn.topic, conn.msgtype, int(bag_time_ns), msg
+        finally:
+            reader.close()
+
+    def _mcap_messages(self) -> Iterator[tuple[str, str, int, Any]]:
+        """Messages of a plain MCAP file (no rosbag2 metadata.yaml needed), in file order.
+
+        Read record by record, so a file whose writer was killed (no summary, a cut last
+        chunk) yields everything up to the damage and then a :class:`TruncatedCaptureWarning`.
+        """
+        from mcap.exceptions import McapError
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        extra: dict = {}
+        for name, text in MESSAGE_DEFINITIONS.items():
+            extra.update(get_types_from_msg(text, name))
+        store.register(extra)
+        known: dict[int, bool] = {}
+        n = 0
+        with self.path.open("rb") as fh:
+            it = _mcap_stream_messages(fh, self.path)
+            while True:
+                try:
+                    schema, channel, message = next(it)
+                except StopIteration:
+                    return
+                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError,
+                        *_DECOMPRESSION_ERRORS) as exc:  # OverflowError: a record length of 2**63 or more in a chunk
+                    warnings.warn(TruncatedCaptureWarning(
+                        f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
+                        "messages before the damage were read (a recording that was killed ends like this)"))
+                    return
+                wanted = known.get(channel.id)
+                if wanted is None:
+                    msgtype = schema.name if schema is not None else ""
+                    wanted = (schema is not None and channel.message_encoding == "cdr"
+                              and self._wanted(channel.topic, msgtype))
+                    if wanted and msgtype not in store.types:
+                        try:
+                            store.register(get_types_from_msg(schema.data.decode(), msgtype))
+                        except Exception as exc:
+                            raise CaptureFormatError(
+                                f"{self.path}: the schema of {msgtype} on {channel.topic} cannot be parsed: {exc}"
+                            ) from None
+                    if not wanted:
+                        self.stats["skipped_topics"][channel.topic] = msgtype
+                    known[channel.id] = wanted
+                if not wanted:
+                    continue
+                n += 1
+                try:
+                    msg = store.deserialize_cdr(message.data, schema.name)
+                except Exception as exc:
+                    raise CaptureFormatError(
+                        f"{self.path}: message on {channel.topic} ({schema.name}) at {message.log_time} ns cannot "
+                        f"be decoded: {exc}") from None
+                yield channel.topic, schema.name, int(message.log_time), msg
+
+
+class _FileRemainder:
+    """A binary file whose ``read(n)`` asks for no more than the bytes left in the file.
+
+    A damaged MCAP record length (up to 2**64 - 1) would otherwise make the mcap reader's
+    ``read(length)`` allocate that much up front (a ``MemoryError``, or gigabytes); capped, the read
+    comes back short and the reader reports the file as cut short.
+    """
+
+    def __init__(self, fh) -> None:
+        self._fh = fh
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(0, self._size - self._fh.tell())
+        return self._fh.read(left if n is None or n < 0 else min(n, left))
+
+    def __getattr__(self, name: str):
+        return getattr(self._fh, name)
+
+
+MAX_MCAP_CHUNK_BYTES = 256 << 20  # uncompressed bytes of one MCAP chunk (writers use a few MB; ours ~1 s of data)
+
+
+def _mcap_stream_messages(fh, path: Path) -> Iterator[tuple[Any, Any, Any]]:
+    """``(schema, channel, message)`` of an MCAP file in file order, as the mcap library's
+    ``NonSeekingReader.iter_messages`` gives them, but with every chunk inflated into at most the
+    size it declares, itself at most :data:`MAX_MCAP_CHUNK_BYTES`.
+
+    The library inflates a zstd chunk into whatever size the zstd frame header names and an lz4
+    chunk without a limit: a few KB could ask for gigabytes.
+
+    Raises:
+        CaptureFormatError: a chunk declares more than :data:`MAX_MCAP_CHUNK_BYTES`.
+        mcap.exceptions.McapError: a chunk inflates to another size than it declares, or a message
+            names a channel (a channel a schema) not seen before.
+    """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Chunk, Message, Schema
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    for record in StreamReader(_FileRemainder(fh), emit_chunks=True).records:
+        for rec in breakup_chunk(_inflated(record, path)) if isinstance(record, Chunk) else (record,):
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                if rec.schema_id != 0 and rec.schema_id not in schemas:
+                    raise McapError(f"no schema record found with id {rec.schema_id}")
+                channels[rec.id] = rec
+            elif isinstance(rec, Message):
+                channel = channels.get(rec.channel_id)
+                if channel is None:
+                    raise McapError(f"no channel record found with id {rec.channel_id}")
+                yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, rec
+
+
+def _inflated(chunk, path: Path):
+    """``chunk`` with its records uncompressed (compression ``""``), inflated into at most the size it
+    declares; an unknown compression is left for the mcap library to refuse."""
+    import io
+
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk
+
+    declared = chunk.uncompressed_size
+    if declared > MAX_MCAP_CHUNK_BYTES:
+        raise CaptureFormatError(
+            f"{path}: an MCAP chunk declares {declared} bytes uncompressed, more than the {MAX_MCAP_CHUNK_BYTES >> 20} MiB "
+            "lidarpkt inflates at once (recorders write chunks of a few MB): the file is damaged or hostile there")
+    if chunk.compression == "zstd":
+        import zstandard
+
+        parts, want = [], declared + 1  # one byte more than declared tells a chunk that holds more
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)) as reader:
+            while want > 0 and (part := reader.read(want)):
+                parts.append(part)
+                want -= len(part)
+        data = b"".join(parts)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=declared + 1)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        return chunk
+    if len(data) != declared:
+        raise McapError(f"an MCAP chunk inflates to {'more than ' if len(data) > declared else ''}"
+                        f"{min(len(data), declared)} bytes where it declares {declared}")
+    return Chunk(compression="", data=data, message_start_time=chunk.message_start_time,
+                 message_end_time=chunk.message_end_time, uncompressed_size=declared,
+                 uncompressed_crc=chunk.uncompressed_crc)
+

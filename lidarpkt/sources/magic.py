@@ -1,0 +1,89 @@
+"""File magic, known in one place: which container a capture is, from its first bytes (never its name).
+
+Used by the packet readers, :func:`lidarpkt.open`, ``lidarpkt info`` and the writers.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+from ..errors import UnsupportedContainerError
+
+__all__ = [
+    "PCAP_MAGIC_US", "PCAP_MAGIC_NS", "PCAP_MAGIC_MODIFIED", "PCAPNG_SHB", "PCAPNG_BOM", "PCAP_MAGIC_BYTES",
+    "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "capture_format", "format_from_magic", "is_capture", "container_kind",
+]
+
+PCAP_MAGIC_US = 0xA1B2C3D4
+PCAP_MAGIC_NS = 0xA1B23C4D
+PCAP_MAGIC_MODIFIED = 0xA1B2CD34  # Kuznetzov's patched libpcap: 24-byte record headers
+PCAPNG_SHB = 0x0A0D0D0A
+PCAPNG_BOM = 0x1A2B3C4D
+PCAP_MAGIC_BYTES = frozenset({
+    b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # µs, little / big endian
+    b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d",  # ns
+    b"\x0a\x0d\x0d\x0a",  # pcapng section header block
+})  # the first four bytes of the pcap/pcapng files lidarpkt.open takes
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ROS1_MAGIC = b"#ROSBAG V2.0"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def capture_format(path: str | os.PathLike[str]) -> str | None:
+    """``"pcap"``, ``"pcapng"`` or None, from the first four bytes of the file."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError:
+        return None
+    return format_from_magic(head)
+
+
+def format_from_magic(head: bytes) -> str | None:
+    """``"pcap"``, ``"pcapng"`` or None for a file starting with ``head``."""
+    if len(head) < 4:
+        return None
+    le, be = struct.unpack_from("<I", head)[0], struct.unpack_from(">I", head)[0]
+    if PCAPNG_SHB in (le, be):
+        return "pcapng"
+    if {le, be} & {PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED}:
+        return "pcap"
+    return None
+
+
+def is_capture(path: str | os.PathLike[str]) -> bool:
+    """True when the file starts with a pcap or pcapng magic number (never raises)."""
+    return capture_format(path) is not None
+
+
+def container_kind(path: str | os.PathLike[str]) -> str:
+    """``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"`` (directory or .db3) or ``"rosbag1"``, from the first bytes.
+
+    Raises :class:`UnsupportedContainerError` naming the file and what it starts with.
+    """
+    p = Path(path)
+    if p.is_dir():
+        if (p / "metadata.yaml").exists():
+            return "rosbag2"
+        raise UnsupportedContainerError(f"{p} is a directory without a rosbag2 metadata.yaml")
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(16)
+    except FileNotFoundError:
+        raise UnsupportedContainerError(f"{p}: no such file") from None
+    except OSError as exc:
+        raise UnsupportedContainerError(f"{p}: cannot read ({exc.strerror})") from None
+    if head[:4] in PCAP_MAGIC_BYTES:
+        return "pcap"
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if head.startswith(ROS1_MAGIC):
+        return "rosbag1"
+    if head.startswith(SQLITE_MAGIC):
+        return "rosbag2"
+    shown = head.hex(" ") if head else "nothing (empty file)"
+    raise UnsupportedContainerError(
+        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag): it starts with {shown}"
+    )
