@@ -24,6 +24,7 @@ from .frame import Frame
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
+    from .parallel import ParallelFrameReader
     from .sources.segments import Segment
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
@@ -91,7 +92,10 @@ class FrameReader:
         payload_sizes: Iterable[int] | None = None,
         topics: Iterable[str] | None = None,
         batch_packets: int | None = None,
+        workers: int = 1,
     ) -> None:
+        if workers != 1:
+            raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
         self._max_sensors = int(max_sensors)
         self.segment = segment
@@ -310,7 +314,8 @@ def open_frames(
     payload_sizes: Iterable[int] | None = None,
     topics: Iterable[str] | None = None,
     batch_packets: int | None = None,
-) -> FrameReader:
+    workers: int = 1,
+) -> "FrameReader | ParallelFrameReader":
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
@@ -345,13 +350,27 @@ def open_frames(
         payload_sizes: keep only packets of these UDP payload sizes (bytes).
         topics: bags and MCAP: read only these topics (default: every topic of a known packet type).
         batch_packets: pcap/pcapng: most packets per batch (the reader's default, 8192, when None).
+        workers: decode in this many threads (default 1): pcap/pcapng captures of at least 8 MB are cut
+            into segments decoded side by side (:mod:`lidarpkt.parallel`); the frames, their order and
+            arrays are those of ``workers=1``. Other containers, and ``segment=``, read in one thread.
 
     Raises:
         UnsupportedContainerError: the file is no container lidarpkt reads.
         UnsupportedFilterError: a filter the container cannot apply (bags record no ports or addresses).
         UnknownSensorError: the file holds packets, but none of a supported sensor (message lists the streams).
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
+        ValueError: ``workers`` below 1.
     """
+    if workers != 1:
+        from .parallel import open_parallel
+
+        reader = open_parallel(path, workers, segment, dict(
+            metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
+            source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
+            max_sensors=max_sensors, ports=ports, src_addresses=src_addresses, payload_sizes=payload_sizes,
+            topics=topics, batch_packets=batch_packets))
+        if reader is not None:
+            return reader
     return FrameReader(
         path, metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
         source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
