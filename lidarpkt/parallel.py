@@ -147,7 +147,8 @@ class ParallelFrameReader:
 
 
 class _Renumber:
-    """VLP-16 ordinals of segment readers → the whole file's; one SensorInfo object per sensor and mode."""
+    """VLP-16 ordinals of segment readers → the whole file's; one SensorInfo object per sensor and mode
+    (the first segment's, as the single-threaded reader's first frame's serves the whole capture)."""
 
     def __init__(self) -> None:
         self.packet_base = 0  # ordinal, in the whole file, of the current segment's first packet
@@ -174,8 +175,10 @@ class _Renumber:
     def _sensor(self, info):
         got = self.sensors.get(id(info))
         if got is None:
-            key = (info.vendor, str(info.source), info.model, info.return_mode, info.profile, info.rows,
-                   info.columns_per_frame, info.serial, info.init_id)
+            # not the rate: a VLP-16 decoder measures it from its first packets, and the single-threaded
+            # reader keeps the SensorInfo of the first frame for the whole capture, as this does
+            key = (info.vendor, str(info.source), info.model, info.return_mode, info.profile, info.serial,
+                   info.init_id)
             got = self.canonical.setdefault(key, info)
             self.sensors[id(info)] = got
             self._held.append(info)
