@@ -9,7 +9,7 @@ file's. Threads, not processes: the decode kernels and the large NumPy operation
 and frames then need no copy between processes (a frame of an OS-128 is ~3 MB, decoded in ~2 ms).
 
 Memory stays flat in the capture's length: at most ``workers + 1`` segments (each at most
-:data:`MAX_SEGMENT_BYTES` of packets) are decoded and held at once.
+:data:`MAX_SEGMENT_BYTES` of packets) are held at once: ``workers`` being decoded, one being yielded.
 
 MCAP files, ROS bags and captures too small to cut are read by the ordinary single-threaded reader.
 """
@@ -17,7 +17,6 @@ MCAP files, ROS bags and captures too small to cut are read by the ordinary sing
 from __future__ import annotations
 
 import os
-import struct
 import threading
 import weakref
 from collections import deque
@@ -32,9 +31,11 @@ from .frame import Frame
 
 __all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES"]
 
-MIN_SEGMENT_BYTES = 4 << 20  # smaller segments cost more in per-reader set-up than they gain
-MAX_SEGMENT_BYTES = 32 << 20  # bounds the frames held per segment (memory flat in capture length)
-_BATCH_BYTES = 2 << 20  # packets per batch chosen so that a batch holds about this much payload
+# Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
+# starts in; the one before reads on to complete its last frame) plus a reader's set-up: ~17M instructions
+# for VLP-16 dual, where 1 MB of capture costs ~27M; 8-16 MB segments keep that to 4-8 %.
+MIN_SEGMENT_BYTES = 8 << 20
+MAX_SEGMENT_BYTES = 16 << 20  # bounds the frames held per segment (VLP-16 dual: 3.4 bytes of frame per capture byte)
 _SEGMENTS_PER_WORKER = 4  # a capture gives at least this many segments per worker when it is large enough
 
 
@@ -57,8 +58,6 @@ class ParallelFrameReader:
         self.segments = segments
         self.workers = int(workers)
         self._include_partial = options.pop("include_partial", True)
-        if options.get("batch_packets") is None:
-            options["batch_packets"] = _batch_packets(path, segments[0])
         options["read_ahead"] = False  # the workers are the threads
         self._options = options
         from .source import SourceStats
@@ -122,7 +121,7 @@ class ParallelFrameReader:
         try:
             for seg in todo:
                 pending.append(self._pool.submit(self._read_segment, seg))
-                if len(pending) > self.workers:
+                if len(pending) >= self.workers:
                     break
             while pending:
                 frames, stats, split, no_sensor = pending.popleft().result()
@@ -229,17 +228,3 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
     seg_bytes = min(MAX_SEGMENT_BYTES, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
     segments = plan_segments(path, seg_bytes)
     return segments if len(segments) > 1 else []
-
-
-def _batch_packets(path, segment) -> int:
-    """Packets per batch: about _BATCH_BYTES of the capture's first record (a segment reader decodes the
-    whole first batch past its end, so batches much longer than a frame waste work)."""
-    record = 0
-    if segment.container == "pcap":
-        with open(path, "rb") as fh:
-            head = fh.read(40)
-        if len(head) == 40:
-            endian = "<" if head[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1", b"\x34\xcd\xb2\xa1") else ">"
-            record = struct.unpack_from(endian + "I", head, 32)[0]
-    record = record if 64 <= record <= 65536 else 1500
-    return int(min(8192, max(16, _BATCH_BYTES // record)))

@@ -246,7 +246,7 @@ class FrameReader:
         if own is None:
             return decoder.push(batch)
         frames: list[Frame] = []
-        for part in own.split_first_post(key, batch) if post_end else [batch]:
+        for part in _post_end_parts(batch) if post_end else [batch]:
             if own.streams[key].closed:
                 break
             got = decoder.push(part)
@@ -405,6 +405,16 @@ def _load_ouster_metadata(metadata) -> list:
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
     return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
+
+
+def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
+    """A batch past a segment's end as views of 1, 32, 64, 128... packets: the first alone (as
+    ``SegmentOwnership.split_first_post`` asks), and the reader stops pushing as soon as the segment's last
+    frame is complete instead of decoding (and copying) the rest of a batch of up to 8192 packets."""
+    n, start, step = len(batch), 0, 1
+    while start < n:
+        yield batch if (start, step) == (0, 1) and n == 1 else batch.select(slice(start, min(n, start + step)))
+        start, step = start + step, max(32, 2 * step)
 
 
 def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:

@@ -34,6 +34,7 @@ __all__ = ["BlockReader", "Walk", "PcapWalk", "MAX_RECORD_BYTES", "SEC_NS"]
 
 MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
 SEC_NS = 1_000_000_000
+POST_END_CHUNK_BYTES = 1 << 20  # reading a segment: chunks past its end (a VLP-16 frame is ~0.2 MB, an OS-128 one 1.6 MB)
 
 
 class BlockReader:
@@ -89,6 +90,8 @@ class Walk:
         lim = chunk_start + self.chunk_bytes
         if self.segment is not None and base + chunk_start < self.segment.end_offset:
             lim = min(lim, self.segment.end_offset - base)
+        elif self.segment is not None:  # past the end only the segment's last frame is read: small chunks
+            lim = min(lim, chunk_start + POST_END_CHUNK_BYTES)
         return lim
 
 
