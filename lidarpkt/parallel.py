@@ -8,8 +8,10 @@ reader counts from its own start (``frame_id``, ``extra["packet_index"]``) are r
 file's. Threads, not processes: the decode kernels and the large NumPy operations release the GIL,
 and frames then need no copy between processes (a frame of an OS-128 is ~3 MB, decoded in ~2 ms).
 
-Memory stays flat in the capture's length: at most ``workers + 1`` segments (each at most
-:data:`MAX_SEGMENT_BYTES` of packets) are held at once: ``workers`` being decoded, one being yielded.
+The frames of the first unfinished segment are yielded as they are decoded; the other workers decode
+the next segments meanwhile. Memory stays flat in the capture's length: at most ``workers`` segments
+are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and about
+:data:`MAX_SEGMENT_FRAME_BYTES` of frames.
 
 MCAP files, ROS bags and captures too small to cut are read by the ordinary single-threaded reader.
 """
@@ -17,10 +19,11 @@ MCAP files, ROS bags and captures too small to cut are read by the ordinary sing
 from __future__ import annotations
 
 import os
+import queue
 import threading
 import weakref
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import fields
 from typing import Any, Iterator
 
@@ -29,14 +32,18 @@ import numpy as np
 from .errors import UnknownSensorError
 from .frame import Frame
 
-__all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES"]
+__all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
+           "MAX_SEGMENT_FRAME_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
-# starts in; the one before reads on to complete its last frame) plus a reader's set-up: ~17M instructions
-# for VLP-16 dual, where 1 MB of capture costs ~27M; 8-16 MB segments keep that to 4-8 %.
+# starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
+# instructions for VLP-16 dual, where 1 MB of capture costs ~27M; ~20M for OS-2-128, 6M per MB). So
+# segments hold many frames, but no more than MAX_SEGMENT_FRAME_BYTES of decoded frames each.
 MIN_SEGMENT_BYTES = 8 << 20
-MAX_SEGMENT_BYTES = 16 << 20  # bounds the frames held per segment (VLP-16 dual: 3.4 bytes of frame per capture byte)
-_SEGMENTS_PER_WORKER = 4  # a capture gives at least this many segments per worker when it is large enough
+MAX_SEGMENT_BYTES = 64 << 20
+MAX_SEGMENT_FRAME_BYTES = 56 << 20
+_SEGMENTS_PER_WORKER = 2  # a capture gives at least this many segments per worker when it is large enough
+_END = object()  # marks the end of a segment's frames on its queue
 
 
 class ParallelFrameReader:
@@ -93,53 +100,70 @@ class ParallelFrameReader:
             self._pool.shutdown(wait=False, cancel_futures=True)
 
     # ------------------------------------------------------------------ work
-    def _read_segment(self, segment) -> tuple[list[Frame], Any, int | None, str | None]:
-        """One segment's frames, its stats, the ordinal of its first packet past its end, and the
-        message of an UnknownSensorError (a segment of foreign traffic is no error while another
-        segment holds a sensor)."""
+    def _read_segment(self, segment, out: queue.SimpleQueue) -> None:
+        """Put one segment's frames on ``out`` as they come, then ``(_END, stats, split_ordinal, unknown,
+        error)``: its stats, the ordinal of its first packet past its end, the message of an
+        UnknownSensorError (a segment of foreign traffic is no error while another segment holds a
+        sensor), and any other exception (raised by the consumer when it gets there)."""
         from .source import FrameReader
 
-        frames: list[Frame] = []
-        reader = FrameReader(self.path, segment=segment, include_partial=True, **self._options)
-        unknown = None
+        reader = None
+        unknown = error = None
         try:
+            reader = FrameReader(self.path, segment=segment, include_partial=True, **self._options)
             for frame in reader:
                 if self._stop.is_set():
                     break
-                frames.append(frame)
+                out.put(frame)
         except UnknownSensorError as exc:
             unknown = str(exc)
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer's thread, raised there
+            error = exc
         finally:
-            reader.close()
-        return frames, reader.stats, getattr(reader.reader, "split_ordinal", None), unknown
+            if reader is not None:
+                reader.close()
+        stats = reader.stats if reader is not None else None
+        out.put((_END, stats, getattr(getattr(reader, "reader", None), "split_ordinal", None), unknown, error))
 
     def _frames(self) -> Iterator[Frame]:
-        pending: deque[Future] = deque()
+        pending: deque[queue.SimpleQueue] = deque()
         todo = iter(self.segments)
         renumber = _Renumber()
         unknown: list[str] = []
+
+        def submit() -> None:
+            seg = next(todo, None)
+            if seg is not None:
+                q: queue.SimpleQueue = queue.SimpleQueue()
+                self._pool.submit(self._read_segment, seg, q)
+                pending.append(q)
+
         try:
-            for seg in todo:
-                pending.append(self._pool.submit(self._read_segment, seg))
-                if len(pending) >= self.workers:
-                    break
+            for _ in range(self.workers):
+                submit()
             while pending:
-                frames, stats, split, no_sensor = pending.popleft().result()
-                nxt = next(todo, None)
-                if nxt is not None:
-                    pending.append(self._pool.submit(self._read_segment, nxt))
-                _add_stats(self.stats, stats)
-                if no_sensor is not None:
-                    unknown.append(no_sensor)
-                for frame in renumber.frames(frames, split):
+                q = pending[0]
+                while True:
+                    item = q.get()
+                    if type(item) is tuple and item and item[0] is _END:
+                        break
+                    frame = renumber.frame(item)
                     if frame.partial and not self._include_partial:
                         continue
                     self.stats.frames += 1
                     yield frame
+                _, stats, split, no_sensor, error = item
+                if error is not None:
+                    raise error
+                pending.popleft()
+                submit()
+                renumber.end_segment(split)
+                if stats is not None:
+                    _add_stats(self.stats, stats)
+                if no_sensor is not None:
+                    unknown.append(no_sensor)
         finally:
             self._stop.set()
-            for fut in pending:
-                fut.cancel()
             self._pool.shutdown(wait=False, cancel_futures=True)
         if unknown and len(unknown) == len(self.segments):
             raise UnknownSensorError(unknown[0])
@@ -156,20 +180,22 @@ class _Renumber:
         self.canonical: dict[tuple, Any] = {}
         self._held: list = []  # keeps the SensorInfo objects whose id() is a key alive
 
-    def frames(self, frames: list[Frame], split_ordinal: int | None) -> Iterator[Frame]:
-        base = self.packet_base
-        for frame in frames:
-            frame.sensor = self._sensor(frame.sensor)
-            if frame.sensor.vendor == "velodyne":
-                key = str(frame.sensor.source)
-                frame.frame_id = self.next_frame_id.get(key, 0)
-                self.next_frame_id[key] = frame.frame_id + 1
-            index = frame.extra.get("packet_index")
-            if index is not None and base:
-                frame.extra["packet_index"] = np.where(index >= 0, index + base, index)
-            yield frame
+    def frame(self, frame: Frame) -> Frame:
+        """``frame`` of the current segment with the whole file's ordinals and SensorInfo (changed in place)."""
+        frame.sensor = self._sensor(frame.sensor)
+        if frame.sensor.vendor == "velodyne":
+            key = str(frame.sensor.source)
+            frame.frame_id = self.next_frame_id.get(key, 0)
+            self.next_frame_id[key] = frame.frame_id + 1
+        index = frame.extra.get("packet_index")
+        if index is not None and self.packet_base:
+            frame.extra["packet_index"] = np.where(index >= 0, index + self.packet_base, index)
+        return frame
+
+    def end_segment(self, split_ordinal: int | None) -> None:
+        """The current segment is done; the next one's packets start ``split_ordinal`` packets later."""
         if split_ordinal is not None:
-            self.packet_base = base + int(split_ordinal)
+            self.packet_base += int(split_ordinal)
 
     def _sensor(self, info):
         got = self.sensors.get(id(info))
@@ -225,6 +251,19 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
         return []
     if workers < 2 or os.path.isdir(path) or size < 2 * MIN_SEGMENT_BYTES:
         return []
-    seg_bytes = min(MAX_SEGMENT_BYTES, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
+    # frame bytes per capture byte: VLP-16 dual 3.4 (1206-byte packets), Ouster 0.9-1.2 (3 kB and more)
+    expansion = 3.5 if _first_record_bytes(path) < 2000 else 1.25
+    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int(MAX_SEGMENT_FRAME_BYTES / expansion)))
+    seg_bytes = min(most, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
     segments = plan_segments(path, seg_bytes)
     return segments if len(segments) > 1 else []
+
+
+def _first_record_bytes(path) -> int:
+    """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
+    with open(path, "rb") as fh:
+        head = fh.read(40)
+    if len(head) < 40 or head[:4] == b"\x0a\x0d\x0d\x0a":
+        return 1500
+    little = head[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1", b"\x34\xcd\xb2\xa1")
+    return int.from_bytes(head[32:36], "little" if little else "big")
