@@ -231,6 +231,33 @@ done:
     return result;
 }
 
+/* Per-function multiversioning: NumPy dispatches AVX2 at run time while this extension is built for
+ * the portable baseline; the XYZ loop gets an AVX2 clone chosen when the module loads (GCC/clang
+ * ifunc on x86-64 ELF), and the baseline stays for every other machine. No FMA in either clone
+ * ("avx2" does not enable it, and -ffp-contract=off forbids contraction): the same two roundings. */
+#if defined(__x86_64__) && defined(__ELF__) && (defined(__clang__) || (defined(__GNUC__) && __GNUC__ >= 6))
+#define MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define MULTIVERSION
+#endif
+
+/* One return slot: out[i, k] = range[i] * dir[k, i] + off[k, i], +0.0 where range[i] is 0. */
+MULTIVERSION
+static void xyz_lut_rows(const uint32_t *restrict range, const double *restrict dir, const double *restrict off,
+                         double *restrict out, Py_ssize_t hw) {
+    const double *dx = dir, *dy = dir + hw, *dz = dir + 2 * hw;
+    const double *ox = off, *oy = off + hw, *oz = off + 2 * hw;
+    for (Py_ssize_t i = 0; i < hw; i++) {
+        uint32_t v = range[i];
+        double s = (double)v;
+        /* computed for every pixel and then selected, so that the loop vectorises */
+        double x = s * dx[i] + ox[i], y = s * dy[i] + oy[i], z = s * dz[i] + oz[i];
+        out[3 * i] = v ? x : 0.0;
+        out[3 * i + 1] = v ? y : 0.0;
+        out[3 * i + 2] = v ? z : 0.0;
+    }
+}
+
 /* xyz_lut(range, direction, offset, out)
  *
  * range: uint32 [R, H*W]; direction, offset: float64 [3, H*W]; out: float64 [R, H*W, 3], all
@@ -269,27 +296,10 @@ static PyObject *xyz_lut(PyObject *self, PyObject *args) {
     {
         Py_ssize_t returns = (rb.len / 4) / hw;
         const uint32_t *range = (const uint32_t *)rb.buf;
-        const double *dx = (const double *)db.buf, *dy = dx + hw, *dz = dy + hw;
-        const double *ox = (const double *)ob.buf, *oy = ox + hw, *oz = oy + hw;
+        const double *dir = (const double *)db.buf, *off = (const double *)ob.buf;
         double *out = (double *)xb.buf;
         Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t r = 0; r < returns; r++) {
-            const uint32_t *rr = range + r * hw;
-            double *o = out + r * hw * 3;
-            for (Py_ssize_t i = 0; i < hw; i++) {
-                uint32_t v = rr[i];
-                if (v) {
-                    double s = (double)v;
-                    o[3 * i] = s * dx[i] + ox[i];
-                    o[3 * i + 1] = s * dy[i] + oy[i];
-                    o[3 * i + 2] = s * dz[i] + oz[i];
-                } else {
-                    o[3 * i] = 0.0;
-                    o[3 * i + 1] = 0.0;
-                    o[3 * i + 2] = 0.0;
-                }
-            }
-        }
+        for (Py_ssize_t r = 0; r < returns; r++) xyz_lut_rows(range + r * hw, dir, off, out + r * hw * 3, hw);
         Py_END_ALLOW_THREADS
     }
     Py_INCREF(Py_None);
