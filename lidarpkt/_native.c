@@ -1,4 +1,4 @@
-/* Compiled kernels for the three hot loops NumPy cannot vectorise well (see lidarpkt/kernels.py).
+/* Compiled kernels for the hot loops NumPy cannot vectorise well (see lidarpkt/kernels.py).
  *
  * Built as the optional top-level extension module `_lidarpkt_native` (pyproject.toml); every
  * kernel has a pure-NumPy twin in the Python code and the tests check that both give the same
@@ -312,11 +312,100 @@ done:
     return result;
 }
 
+/* velodyne_xyz(range, azimuth, cos, neg_sin, coef, has_dist, has_voff, out)
+ *
+ * range: uint32 [R, 16, W]; azimuth: uint16 [16, W] (0.01 degree, < 36000); cos, neg_sin: float64
+ * [T, 36000] with T = 1 (one table) or 16 (one per row); coef: float64 [5, 16] (k_xy, k_z, dc_xy,
+ * dc_z, vert_offset per row); out: float64 [R, 16, W, 3]; all C-contiguous. The operations and
+ * their order are those of VelodyneGeometry._points (its NumPy twin), so the bytes are the same:
+ *   hit = range > 0; dxy = range * k_xy; dz = range * k_z;
+ *   if has_dist: dxy += hit * dc_xy; dz += hit * dc_z
+ *   x = dxy * cos[a]; y = dxy * neg_sin[a]; if has_voff: dz = (dz + voff) * hit; z = dz
+ * Raises IndexError for an azimuth of 36000 or more (as NumPy's table lookup does).
+ */
+MULTIVERSION
+static void velodyne_xyz_rows(const uint32_t *restrict rng, const uint16_t *restrict az, const double *restrict cos_t,
+                              const double *restrict nsin_t, double kxy, double kz, double dcxy, double dcz,
+                              double voff, int has_dist, int has_voff, double *restrict out, Py_ssize_t w) {
+    for (Py_ssize_t i = 0; i < w; i++) {
+        uint32_t v = rng[i];
+        double hit = v > 0 ? 1.0 : 0.0, s = (double)v;
+        double dxy = s * kxy, dz = s * kz;
+        if (has_dist) {
+            dxy = dxy + hit * dcxy;
+            dz = dz + hit * dcz;
+        }
+        out[3 * i] = dxy * cos_t[az[i]];
+        out[3 * i + 1] = dxy * nsin_t[az[i]];
+        if (has_voff) dz = (dz + voff) * hit;
+        out[3 * i + 2] = dz;
+    }
+}
+
+static PyObject *velodyne_xyz(PyObject *self, PyObject *args) {
+    PyObject *objs[6];
+    int has_dist, has_voff;
+    if (!PyArg_ParseTuple(args, "OOOOOppO", &objs[0], &objs[1], &objs[2], &objs[3], &objs[4], &has_dist, &has_voff,
+                          &objs[5]))
+        return NULL;
+    static const Py_ssize_t sizes[6] = {4, 2, 8, 8, 8, 8};
+    static const char *codes[6] = {"IL", "H", "d", "d", "d", "d"};
+    Py_buffer b[6];
+    int got = 0;
+    PyObject *result = NULL;
+    for (; got < 6; got++) {
+        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got == 5 ? PyBUF_WRITABLE : 0);
+        if (get_buffer(objs[got], &b[got], flags, sizes[got], "velodyne_xyz") < 0) goto done;
+        if (!is_native(b[got].format, codes[got])) {
+            PyErr_SetString(PyExc_ValueError, "velodyne_xyz: range uint32, azimuth uint16, the rest float64");
+            got++;
+            goto done;
+        }
+    }
+    {
+        Py_ssize_t hw = b[1].len / 2, w = hw / 16, table = 36000;
+        Py_ssize_t rows_t = b[2].len / 8 / table;
+        if (hw % 16 || hw == 0 || (b[0].len / 4) % hw || b[5].len != (b[0].len / 4) * 24 || b[2].len != b[3].len ||
+            (rows_t != 1 && rows_t != 16) || b[2].len != rows_t * table * 8 || b[4].len != 5 * 16 * 8) {
+            PyErr_SetString(PyExc_ValueError, "velodyne_xyz: arrays of disagreeing sizes");
+            goto done;
+        }
+        const uint16_t *az = (const uint16_t *)b[1].buf;
+        for (Py_ssize_t i = 0; i < hw; i++) {
+            if (az[i] >= table) {
+                PyErr_Format(PyExc_IndexError, "velodyne_xyz: azimuth %d (0.01 degree) is 360 degrees or more", az[i]);
+                goto done;
+            }
+        }
+        Py_ssize_t returns = (b[0].len / 4) / hw;
+        const uint32_t *rng = (const uint32_t *)b[0].buf;
+        const double *cos_t = (const double *)b[2].buf, *nsin_t = (const double *)b[3].buf;
+        const double *coef = (const double *)b[4].buf;
+        double *out = (double *)b[5].buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t r = 0; r < returns; r++) {
+            for (Py_ssize_t h = 0; h < 16; h++) {
+                Py_ssize_t t = rows_t == 16 ? h * table : 0;
+                velodyne_xyz_rows(rng + (r * 16 + h) * w, az + h * w, cos_t + t, nsin_t + t, coef[h], coef[16 + h],
+                                  coef[32 + h], coef[48 + h], coef[64 + h], has_dist, has_voff,
+                                  out + (r * 16 + h) * w * 3, w);
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"walk_pcap", walk_pcap, METH_VARARGS, "Offsets of whole classic-pcap records; see lidarpkt/_native.c."},
     {"walk_pcapng", walk_pcapng, METH_VARARGS, "Enhanced packet blocks of a pcapng section; see lidarpkt/_native.c."},
     {"gather_rows", gather_rows, METH_VARARGS, "Rows of bytes at offsets of a buffer."},
     {"xyz_lut", xyz_lut, METH_VARARGS, "range * direction + offset, zero where range is 0."},
+    {"velodyne_xyz", velodyne_xyz, METH_VARARGS, "VLP-16 XYZ from ranges and per-firing azimuths; see _native.c."},
     {NULL, NULL, 0, NULL},
 };
 
