@@ -24,28 +24,13 @@ from lidarpkt.errors import UnknownSensorError
 from lidarpkt.source import FrameReader
 
 from conftest import REPO_ROOT, external
+from test_segments import ARRAYS, CANNED_NAMES, OUSTER_EXTERNAL, VELODYNE_EXTERNAL
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 
 CANNED = REPO_ROOT / "fixtures" / "canned"
-CANNED_NAMES = ["os1-64-dual", "os1-64-legacy", "vlp16-dual", "vlp16-last", "vlp16-strongest"]
-EXTERNAL = [
-    "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10",
-    "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10",
-    "ouster-sdk/OS-1-32-G_v2.1.1_1024x10",
-    "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10",
-    "ouster-sdk/OS-2-32-U0_v2.0.0_1024x10",
-    "ouster-sdk/crc_test",
-    "ouster-sdk/duplicate_id",
-    "rust-lidar-utils/ouster_example",
-    "ouster-sdk/OS-1-64_1024x10_fw20",
-    "veloview/vlp-16-test-90deg-1-50-frames",
-    "rust-lidar-utils/velodyne_vlp16",
-    "rust-lidar-utils/velodyne_example",
-]
-ARRAYS = ("range_mm", "reflectivity", "signal", "near_ir", "flags", "column_valid", "column_timestamp_ns",
-          "azimuth_deg", "measurement_id", "status", "encoder_count", "pixel_time_offset_ns")
-
+# the captures the segment tests cut, plus the legacy OS-1-64 capture (its metadata has another name)
+EXTERNAL = OUSTER_EXTERNAL + ["ouster-sdk/OS-1-64_1024x10_fw20"] + VELODYNE_EXTERNAL
 
 def _capture(name: str) -> tuple[Path, Path | None]:
     path = CANNED / f"{name}.pcap" if name in CANNED_NAMES else external(f"{name}.pcap")
