@@ -1,6 +1,6 @@
 """The compiled kernels, when the optional extension ``_lidarpkt_native`` was built.
 
-Four loops do not vectorise well in NumPy, and run in C when they can
+These loops do not vectorise well in NumPy, and run in C when they can
 (``lidarpkt/_native.c``):
 
 - the walk over classic-pcap record headers when record sizes are mixed, and over pcapng's
@@ -8,6 +8,8 @@ Four loops do not vectorise well in NumPy, and run in C when they can
 - gathering rows of bytes at offsets (header fields of 1-8 bytes, where NumPy's fancy index
   costs ~10-20 ns a row);
 - Ouster XYZ, ``range · direction + offset`` in one pass instead of thirteen NumPy passes;
+- VLP-16 packets into range-image columns (``velodyne.decode.column_pixels``): one pass in chunks
+  of 64 packets, row by row (1.2-1.75x NumPy's two passes, paired runs on a loaded machine);
 - VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass
   (0.26 against 0.37-0.49 ms per dual frame).
 

@@ -1,6 +1,10 @@
-"""The compiled VLP-16 XYZ kernel (``_lidarpkt_native.velodyne_xyz``) gives the bytes of its NumPy twin.
+"""The compiled VLP-16 kernels give the bytes of their NumPy twins: ``velodyne_columns`` (packets into
+range-image columns) and ``velodyne_xyz``.
 
-Real captures (VeloView's, rust-lidar-utils', the canned strongest/last/dual ones) through the stock
+Columns: every frame of real strongest, last and dual captures decoded with and without the
+extension, array for array; views and copies of the packet records, any row order, bad shapes.
+
+XYZ: real captures (VeloView's, rust-lidar-utils', the canned strongest/last/dual ones) through the stock
 calibration, and the same frames through geometries whose per-row distance corrections, vertical
 offsets and rotation corrections are all non-zero (the branches the stock calibration skips);
 bad azimuths and arrays are refused as NumPy's lookup refuses them.
@@ -99,3 +103,46 @@ def test_native_xyz_refuses_bad_input():
         NATIVE.velodyne_xyz(rng, az, g._cos, g._neg_sin, g._coef, False, False, np.empty((1, 16, 5, 3)))
     with pytest.raises(ValueError):
         NATIVE.velodyne_xyz(rng, az[:, :2], *args[2:])
+
+
+FRAME_ARRAYS = ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg",
+                "pixel_time_offset_ns")
+
+
+@pytest.mark.parametrize("name", CAPTURES + ["rust-lidar-utils/velodyne_example"])
+def test_native_columns_give_the_frames_of_numpy(name, monkeypatch):
+    native = list(lidarpkt.open(_path(name), read_ahead=False))
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "native", None)
+        twin = list(lidarpkt.open(_path(name), read_ahead=False))
+    assert len(native) == len(twin) > 0
+    for a, b in zip(native, twin):
+        for attr in FRAME_ARRAYS:
+            x, y = getattr(a, attr), getattr(b, attr)
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), (name, attr)
+        assert set(a.extra) == set(b.extra) and all(np.array_equal(a.extra[k], b.extra[k]) for k in a.extra)
+
+
+@pytest.mark.parametrize("slots", [1, 2])
+def test_native_columns_views_copies_and_row_orders(slots, monkeypatch):
+    from lidarpkt.velodyne.decode import column_pixels, decode_packets
+    from lidarpkt.velodyne.timing import firing_azimuth_cdeg
+
+    payload = np.random.default_rng(slots).integers(0, 256, (37, 1206), dtype=np.uint8)
+    raw = decode_packets(payload)
+    fa = firing_azimuth_cdeg(raw.azimuth_cdeg % 36000, slots == 2, slice(0, None, 2) if slots == 2 else slice(None))
+    for rows in (np.arange(16), np.random.default_rng(9).permutation(16)):
+        for r in (raw, raw.select(np.arange(36, -1, -1))):  # strided views of the payload, and fancy-indexed copies
+            got = column_pixels(r, fa if r is raw else fa[::-1], rows, slots)
+            with monkeypatch.context() as m:
+                m.setattr(kernels, "native", None)
+                want = column_pixels(r, fa if r is raw else fa[::-1], rows, slots)
+            assert all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(got, want))
+    w = 37 * 24 // slots
+    rng, refl, az = np.empty((slots, 16, w), np.uint32), np.empty((slots, 16, w), np.uint8), np.empty((16, w), np.uint16)
+    with pytest.raises(ValueError, match="laser"):
+        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.full(16, 16, np.int64), slots, rng, refl, az)
+    with pytest.raises(ValueError, match="shapes"):
+        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.arange(16), slots, rng[:, :, 1:].copy(), refl, az)
+    with pytest.raises(ValueError, match="slots"):
+        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.arange(16), 3, rng, refl, az)
