@@ -6,7 +6,8 @@ the frames the segment owns, in a pool of ``workers`` threads. The frames of seg
 only after those of segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment
 reader counts from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole
 file's. Threads, not processes: the decode kernels and the large NumPy operations release the GIL,
-and frames then need no copy between processes (a frame of an OS-128 is ~3 MB, decoded in ~2 ms).
+and frames then need no copy between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of
+CPU: about what pickling and unpickling it would cost).
 
 The frames of the first unfinished segment are yielded as they are decoded; the other workers decode
 the next segments meanwhile. Memory stays flat in the capture's length: at most ``workers`` segments
@@ -43,7 +44,8 @@ __all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", 
 # glibc then gives the pages back (mmap'd chunks, trimmed arena heaps) and the next frames fault them
 # in again: ~28,000 page faults and 2x the system time per 60 OS-2-128 frames. Raising the mmap and
 # trim thresholds once (glibc's mallopt, unless the MALLOC_*_ environment variables set them) keeps
-# the freed pages for the next frames: 8 faults. Memory stays bounded by the peak the frames need.
+# the freed pages for the next frames: a few hundred faults. Memory stays bounded by the peak the
+frames need.
 _MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest (HEAP_MAX_SIZE / 2 on 64-bit)
 _TRIM_THRESHOLD_BYTES = 256 << 20
 _malloc_tuned = False
