@@ -45,7 +45,7 @@ __all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", 
 # in again: ~28,000 page faults and 2x the system time per 60 OS-2-128 frames. Raising the mmap and
 # trim thresholds once (glibc's mallopt, unless the MALLOC_*_ environment variables set them) keeps
 # the freed pages for the next frames: a few hundred faults. Memory stays bounded by the peak the
-frames need.
+# frames need.
 _MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest (HEAP_MAX_SIZE / 2 on 64-bit)
 _TRIM_THRESHOLD_BYTES = 256 << 20
 _malloc_tuned = False
