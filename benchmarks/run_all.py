@@ -1,25 +1,30 @@
-"""Every throughput/memory comparison of issue 8 in one run, with the ratio table.
+"""Every throughput/memory comparison of issues 8 and 16 in one run, with the ratio table.
 
     python benchmarks/run_all.py [--repeat 3] [--ouster-frames 300] [--vlp-seconds 60]
                                  [--workdir DIR] [--memory-gb 1.5] [--memory-factor 10]
-                                 [--only ouster,velodyne,pcap,memory,analysis,record]
+                                 [--only ouster,velodyne,workers,pcap,memory,analysis,record]
 
 Each comparison runs lidarpkt and the reference tool alternately ``--repeat`` times in this
 process (captures built once, so the page cache is warm) and reports the median wall time and
 the median CPU time (``time.process_time``: less sensitive to the other processes on a shared
 machine). Ratios are reference time / lidarpkt time (> 1 = lidarpkt faster), except for the
-pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode time).
+pcap reader (lidarpkt time / ``cat`` time) and XYZ (decode+XYZ time / decode time). After the
+median ratio come the CPU-time ratio and the ratio of each paired run; a target is "met" only when
+every run meets it (issue 16).
 
 - Ouster: ``bench_ouster.build_capture`` (one real frame repeated, re-encoded with new frame
-  ids and times) for the OS-2-128 single, OS-0-32 dual and OS-1-64 legacy captures;
+  ids and times) for the OS-2-128 single (RNG19), OS-0-32 dual, OS-1-64 legacy and OS-0-128
+  low-data-rate (RNG15) captures;
   ``lidarpkt.open`` → frames (every field) vs ouster-sdk ``PcapFrameSetSource``; and the same
   with ``frame.xyz()`` of every frame; then both again with ``read_ahead=False`` (no reader
   thread; rows marked "(info)"). CPU time counts every thread of the process.
 - VLP-16: 60 s strongest and dual captures (``bench_velodyne.build``);
   ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
+- workers: ``lidarpkt.open(path, workers=2)`` vs ``workers=1`` on the same VLP-16 and Ouster captures,
+  each beside the single-threaded reference of the same run.
 - pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
 - memory: peak RSS (VmHWM) of a child process decoding an Ouster capture of ``--memory-gb``, one
-  ``--memory-factor`` times longer, and a VLP-16 dual capture of ``--memory-gb`` (generated under
+  ``--memory-factor`` times longer, and a VLP-16 dual capture of ``--memory-gb``, with workers=1 and 2 (generated under
   ``--workdir`` and deleted afterwards; needs that much free disk).
 - analysis: ``image_statistics`` of a 64 × 1024 × 30 stack (``bench_analysis.synthetic_stack``).
 - record: ``bench_record.run_one`` at 10× real time (VLP-16, OS1-64), loss counters and the
@@ -72,12 +77,28 @@ def timed(fn, *args):
 
 
 def alternate(repeat: int, *fns):
-    """Run the functions one after the other ``repeat`` times; per function (median wall, median CPU, last result)."""
+    """Run the functions one after the other ``repeat`` times; per function (median wall, median CPU, last
+    result, the wall time of every run)."""
     runs = [[] for _ in fns]
     for _ in range(repeat):
         for i, fn in enumerate(fns):
             runs[i].append(timed(fn))
-    return [(statistics.median(r[0] for r in rs), statistics.median(r[1] for r in rs), rs[-1][2]) for rs in runs]
+    return [(statistics.median(r[0] for r in rs), statistics.median(r[1] for r in rs), rs[-1][2], [r[0] for r in rs])
+            for rs in runs]
+
+
+def ratio_row(pair, target):
+    """(ratio text, target, met): ``row``'s last three arguments from a ``paired`` result."""
+    return pair[0], target, pair[1]
+
+
+def paired(num, den, at_least: float | None = None, at_most: float | None = None):
+    """Ratio ``num / den`` of two ``alternate`` results: text (median wall ratio, CPU ratio, the ratio of each
+    paired run) and whether every run meets the target (issue 16: "in every one of three runs")."""
+    each = [a / b for a, b in zip(num[3], den[3])]
+    text = f"{num[0] / den[0]:.2f} (cpu {num[1] / den[1]:.2f}; runs {'/'.join(f'{r:.2f}' for r in each)})"
+    met = all((at_least is None or r >= at_least) and (at_most is None or r <= at_most) for r in each)
+    return text, met
 
 
 def row(name, ours, ref, ratio, target, met):
@@ -90,62 +111,108 @@ def fmt(wall, cpu):
 
 
 # ------------------------------------------------------------------------------------ Ouster
-def ouster(args, work: Path) -> None:
+OUSTER_CAPTURES = (("single", "OS-2-128 single"), ("dual", "OS-0-32 dual"), ("legacy", "OS-1-64 legacy"),
+                   ("ldr", "OS-0-128 RNG15"))
+
+
+def ouster_capture(args, work: Path, name: str):
     import bench_ouster as bo
+
+    pcap, meta = (bo.EXTERNAL / p for p in bo.CAPTURES[name])
+    if not pcap.exists():
+        return None, meta
+    path = work / f"ouster_{name}_{args.ouster_frames}.pcap"
+    if not path.exists():
+        bo.build_capture(pcap, meta, args.ouster_frames, path)
+    return path, meta
+
+
+def ouster_lidarpkt(path, meta, xyz=False, read_ahead=None, workers=1):
     import lidarpkt
 
+    n = 0
+    for f in lidarpkt.open(path, metadata=meta, read_ahead=read_ahead, workers=workers):
+        if xyz:
+            f.xyz()
+        n += 1
+    return n
+
+
+def ouster_sdk(path, meta):
+    from ouster.sdk import pcap as sdk_pcap
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        src = sdk_pcap.PcapFrameSetSource(str(path), meta=[str(meta)])
+        return sum(1 for fs in src if fs[0] is not None)
+
+
+def ouster(args, work: Path) -> None:
     print(f"\nOuster, {args.ouster_frames} frames per capture (load {load()})")
-    for name, label in (("single", "OS-2-128 single"), ("dual", "OS-0-32 dual"), ("legacy", "OS-1-64 legacy")):
-        pcap, meta = (bo.EXTERNAL / p for p in bo.CAPTURES[name])
-        if not pcap.exists():
-            print(f"  {label}: external fixtures missing under {bo.EXTERNAL}")
+    for name, label in OUSTER_CAPTURES:
+        path, meta = ouster_capture(args, work, name)
+        if path is None:
+            print(f"  {label}: external fixtures missing ({meta.parent})")
             continue
-        path = work / f"ouster_{name}_{args.ouster_frames}.pcap"
-        if not path.exists():
-            bo.build_capture(pcap, meta, args.ouster_frames, path)
-
-        def ours(xyz=False, read_ahead=None):
-            n = 0
-            for f in lidarpkt.open(path, metadata=meta, read_ahead=read_ahead):
-                if xyz:
-                    f.xyz()
-                n += 1
-            return n
-
-        def sdk():
-            from ouster.sdk import pcap as sdk_pcap
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                src = sdk_pcap.PcapFrameSetSource(str(path), meta=[str(meta)])
-                return sum(1 for fs in src if fs[0] is not None)
-
-        (ow, oc, on), (sw, sc, sn), (xw, xc, _), (uw, uc, _), (vw, vc, _) = alternate(
-            args.repeat, ours, sdk, lambda: ours(True), lambda: ours(read_ahead=False), lambda: ours(True, False))
-        note = "" if on == sn else f" (frames differ: {on} vs {sn})"
-        row(f"{label}: pcap→frames vs ouster-sdk{note}", fmt(ow, oc), fmt(sw, sc), f"{sw / ow:.2f} (cpu {sc / oc:.2f})",
-            "≥ 1", sw / ow >= 1)
-        row(f"{label}: decode+XYZ / decode", fmt(xw, xc), fmt(ow, oc), f"{xw / ow:.2f} (cpu {xc / oc:.2f})", "≤ 1.5",
-            xw / ow <= 1.5)
+        ours, sdk, xyz, ours_nr, xyz_nr = alternate(
+            args.repeat, lambda: ouster_lidarpkt(path, meta), lambda: ouster_sdk(path, meta),
+            lambda: ouster_lidarpkt(path, meta, True), lambda: ouster_lidarpkt(path, meta, read_ahead=False),
+            lambda: ouster_lidarpkt(path, meta, True, False))
+        note = "" if ours[2] == sdk[2] else f" (frames differ: {ours[2]} vs {sdk[2]})"
+        row(f"{label}: pcap→frames vs ouster-sdk{note}", fmt(*ours[:2]), fmt(*sdk[:2]),
+            *ratio_row(paired(sdk, ours, at_least=1.3), "≥ 1.3"))
+        row(f"{label}: decode+XYZ / decode", fmt(*xyz[:2]), fmt(*ours[:2]), *ratio_row(paired(xyz, ours, at_most=1.3), "≤ 1.3"))
         # the same without the read-ahead thread (lidarpkt.open(..., read_ahead=False)): what the thread buys
-        row(f"{label}: no read-ahead, pcap→frames vs ouster-sdk", fmt(uw, uc), fmt(sw, sc),
-            f"{sw / uw:.2f} (cpu {sc / uc:.2f})", "(info)", sw / uw >= 1)
-        row(f"{label}: no read-ahead, decode+XYZ / decode", fmt(vw, vc), fmt(uw, uc),
-            f"{vw / uw:.2f} (cpu {vc / uc:.2f})", "(info)", vw / uw <= 1.5)
+        text, met = paired(sdk, ours_nr, at_least=1.3)
+        row(f"{label}: no read-ahead, pcap→frames vs ouster-sdk", fmt(*ours_nr[:2]), fmt(*sdk[:2]), text, "(info)", met)
+        text, met = paired(xyz_nr, ours_nr, at_most=1.3)
+        row(f"{label}: no read-ahead, decode+XYZ / decode", fmt(*xyz_nr[:2]), fmt(*ours_nr[:2]), text, "(info)", met)
 
 
 # ------------------------------------------------------------------------------------ VLP-16
+def vlp_capture(args, work: Path, mode: str) -> Path:
+    import bench_velodyne as bv
+
+    path = work / f"vlp16_{mode}_{int(args.vlp_seconds)}s.pcap"
+    if not path.exists():
+        bv.build(path, args.vlp_seconds, mode=mode)
+    return path
+
+
 def velodyne(args, work: Path) -> None:
     import bench_velodyne as bv
 
     print(f"\nVLP-16, {args.vlp_seconds:.0f} s captures, XYZ of every frame (load {load()})")
     for mode in ("strongest", "dual"):
-        path = work / f"vlp16_{mode}_{int(args.vlp_seconds)}s.pcap"
-        if not path.exists():
-            bv.build(path, args.vlp_seconds, mode=mode)
-        (ow, oc, _), (vw, vc, _) = alternate(args.repeat, lambda: bv.run_lidarpkt(path), lambda: bv.run_velodyne_decoder(path))
-        row(f"VLP-16 {mode}: pcap→frames+XYZ vs velodyne_decoder", fmt(ow, oc), fmt(vw, vc),
-            f"{vw / ow:.2f} (cpu {vc / oc:.2f})", "≥ 3", vw / ow >= 3)
+        path = vlp_capture(args, work, mode)
+        ours, ref = alternate(args.repeat, lambda: bv.run_lidarpkt(path), lambda: bv.run_velodyne_decoder(path))
+        row(f"VLP-16 {mode}: pcap→frames+XYZ vs velodyne_decoder", fmt(*ours[:2]), fmt(*ref[:2]),
+            *ratio_row(paired(ref, ours, at_least=4.0), "≥ 4"))
+
+
+# ------------------------------------------------------------------------------------ both cores
+def workers(args, work: Path) -> None:
+    """lidarpkt.open(path, workers=2) against workers=1 (read-ahead on, the default), and both beside the
+    single-threaded reference of the same run."""
+    import bench_velodyne as bv
+
+    print(f"\nboth cores: lidarpkt.open(workers=2) vs workers=1 (load {load()}; {os.cpu_count()} CPUs)")
+    for mode in ("strongest", "dual"):
+        path = vlp_capture(args, work, mode)
+        one, two, ref = alternate(args.repeat, lambda: bv.run_lidarpkt(path, workers=1),
+                                  lambda: bv.run_lidarpkt(path, workers=2), lambda: bv.run_velodyne_decoder(path))
+        row(f"VLP-16 {mode} frames+XYZ: workers=2 vs 1", fmt(*two[:2]), fmt(*one[:2]), *ratio_row(paired(one, two, at_least=1.7), "≥ 1.7"))
+        text, met = paired(ref, two, at_least=4.0)
+        row(f"VLP-16 {mode} frames+XYZ: workers=2 vs velodyne_decoder", fmt(*two[:2]), fmt(*ref[:2]), text, "(info)", met)
+    for name, label in OUSTER_CAPTURES:
+        path, meta = ouster_capture(args, work, name)
+        if path is None:
+            continue
+        one, two, ref = alternate(args.repeat, lambda: ouster_lidarpkt(path, meta),
+                                  lambda: ouster_lidarpkt(path, meta, workers=2), lambda: ouster_sdk(path, meta))
+        row(f"{label} frames: workers=2 vs 1", fmt(*two[:2]), fmt(*one[:2]), *ratio_row(paired(one, two, at_least=1.7), "≥ 1.7"))
+        text, met = paired(ref, two, at_least=1.3)
+        row(f"{label} frames: workers=2 vs ouster-sdk", fmt(*two[:2]), fmt(*ref[:2]), text, "(info)", met)
 
 
 # ------------------------------------------------------------------------------------ pcap
@@ -176,11 +243,20 @@ def pcap(args, work: Path) -> None:
 _CHILD = r"""
 import sys, lidarpkt
 n = 0
-for f in lidarpkt.open(sys.argv[1], metadata=sys.argv[2] if len(sys.argv) > 2 else None):
+meta = sys.argv[3] if len(sys.argv) > 3 else None
+for f in lidarpkt.open(sys.argv[1], metadata=meta, workers=int(sys.argv[2])):
     n += 1
 hwm = next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM'))
 print(n, hwm)
 """
+
+
+def _peak_rss(path: Path, n_workers: int, meta: Path | None = None) -> tuple[int, float, float]:
+    """(frames, peak RSS in MB, seconds) of a child process decoding ``path`` with ``n_workers``."""
+    t = time.perf_counter()
+    argv = [sys.executable, "-c", _CHILD, str(path), str(n_workers)] + ([str(meta)] if meta else [])
+    out = subprocess.run(argv, capture_output=True, text=True, cwd=REPO, check=True).stdout.split()
+    return int(out[0]), int(out[1]) / 1024, time.perf_counter() - t
 
 
 def memory(args, work: Path) -> None:
@@ -210,14 +286,10 @@ def memory(args, work: Path) -> None:
                     src.seek(24)
                     shutil.copyfileobj(src, dst, 16 << 20)
         for path in (small, big):
-            t = time.perf_counter()
-            out = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(meta)], capture_output=True, text=True,
-                                 cwd=REPO, check=True).stdout.split()
-            dt = time.perf_counter() - t
-            n, hwm_mb = int(out[0]), int(out[1]) / 1024
-            gb = path.stat().st_size / 1e9
-            row(f"peak RSS, {gb:.1f} GB Ouster capture ({n} frames, {dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "",
-                "< 400 MB", hwm_mb < 400)
+            for n_workers in (1, 2):
+                n, hwm_mb, dt = _peak_rss(path, n_workers, meta)
+                row(f"peak RSS, {path.stat().st_size / 1e9:.1f} GB Ouster capture, workers={n_workers} ({n} frames, "
+                    f"{dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "", "< 400 MB", hwm_mb < 400)
         # VLP-16: a dual-return capture of the same size (generated sensor time; no 10x copy, whose
         # repeated device times would be dropped as late packets)
         import bench_velodyne as bv
@@ -225,13 +297,10 @@ def memory(args, work: Path) -> None:
         seconds = args.memory_gb * 1e9 / (90422 * 1264 / 60)  # bytes per second of bench_velodyne's dual capture
         if not vlp.exists():
             bv.build(vlp, seconds)
-        t = time.perf_counter()
-        out = subprocess.run([sys.executable, "-c", _CHILD, str(vlp)], capture_output=True, text=True,
-                             cwd=REPO, check=True).stdout.split()
-        dt = time.perf_counter() - t
-        n, hwm_mb = int(out[0]), int(out[1]) / 1024
-        row(f"peak RSS, {vlp.stat().st_size / 1e9:.1f} GB VLP-16 dual capture ({n} frames, {dt:.0f} s)", f"{hwm_mb:.0f} MB",
-            "", "", "< 400 MB", hwm_mb < 400)
+        for n_workers in (1, 2):
+            n, hwm_mb, dt = _peak_rss(vlp, n_workers)
+            row(f"peak RSS, {vlp.stat().st_size / 1e9:.1f} GB VLP-16 dual capture, workers={n_workers} ({n} frames, "
+                f"{dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "", "< 400 MB", hwm_mb < 400)
     finally:
         if not args.keep_memory_files:
             for p in (small, big, vlp):
@@ -272,9 +341,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-memory-files", action="store_true")
     ap.add_argument("--record-seconds", type=float, default=2.0)
     ap.add_argument("--workdir", type=Path, help="keep the built captures here (default: a temporary directory)")
-    ap.add_argument("--only", default="ouster,velodyne,pcap,memory,analysis,record")
+    ap.add_argument("--only", default="ouster,velodyne,workers,pcap,memory,analysis,record")
     args = ap.parse_args(argv)
-    steps = {"ouster": ouster, "velodyne": velodyne, "pcap": pcap, "memory": memory, "analysis": analysis, "record": record}
+    steps = {"ouster": ouster, "velodyne": velodyne, "workers": workers, "pcap": pcap, "memory": memory, "analysis": analysis, "record": record}
     only = [s.strip() for s in args.only.split(",") if s.strip()]
     unknown = set(only) - set(steps)
     if unknown:

@@ -24,6 +24,7 @@ from .frame import Frame
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
+    from .parallel import ParallelFrameReader
     from .sources.segments import Segment
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
@@ -91,7 +92,10 @@ class FrameReader:
         payload_sizes: Iterable[int] | None = None,
         topics: Iterable[str] | None = None,
         batch_packets: int | None = None,
+        workers: int = 1,
     ) -> None:
+        if workers != 1:
+            raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
         self._max_sensors = int(max_sensors)
         self.segment = segment
@@ -252,7 +256,7 @@ class FrameReader:
         if own is None:
             return decoder.push(batch)
         frames: list[Frame] = []
-        for part in own.split_first_post(key, batch) if post_end else [batch]:
+        for part in _post_end_parts(batch) if post_end else [batch]:
             if own.streams[key].closed:
                 break
             got = decoder.push(part)
@@ -325,7 +329,8 @@ def open_frames(
     payload_sizes: Iterable[int] | None = None,
     topics: Iterable[str] | None = None,
     batch_packets: int | None = None,
-) -> FrameReader:
+    workers: int = 1,
+) -> "FrameReader | ParallelFrameReader":
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
@@ -360,13 +365,27 @@ def open_frames(
         payload_sizes: keep only packets of these UDP payload sizes (bytes).
         topics: bags and MCAP: read only these topics (default: every topic of a known packet type).
         batch_packets: pcap/pcapng: most packets per batch (the reader's default, 8192, when None).
+        workers: decode in this many threads (default 1): pcap/pcapng captures of at least 8 MB are cut
+            into segments decoded side by side (:mod:`lidarpkt.parallel`); the frames, their order and
+            arrays are those of ``workers=1``. Other containers, and ``segment=``, read in one thread.
 
     Raises:
         UnsupportedContainerError: the file is no container lidarpkt reads.
         UnsupportedFilterError: a filter the container cannot apply (bags record no ports or addresses).
         UnknownSensorError: the file holds packets, but none of a supported sensor (message lists the streams).
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
+        ValueError: ``workers`` below 1.
     """
+    if workers != 1:
+        from .parallel import open_parallel
+
+        reader = open_parallel(path, workers, segment, dict(
+            metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
+            source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
+            max_sensors=max_sensors, ports=ports, src_addresses=src_addresses, payload_sizes=payload_sizes,
+            topics=topics, batch_packets=batch_packets))
+        if reader is not None:
+            return reader
     return FrameReader(
         path, metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
         source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
@@ -401,6 +420,16 @@ def _load_ouster_metadata(metadata) -> list:
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
     return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
+
+
+def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
+    """A batch past a segment's end as views of 1, 32, 64, 128... packets: the first alone (as
+    ``SegmentOwnership.split_first_post`` asks), and the reader stops pushing as soon as the segment's last
+    frame is complete instead of decoding (and copying) the rest of a batch of up to 8192 packets."""
+    n, start, step = len(batch), 0, 1
+    while start < n:
+        yield batch if (start, step) == (0, 1) and n == 1 else batch.select(slice(start, min(n, start + step)))
+        start, step = start + step, max(32, 2 * step)
 
 
 def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:

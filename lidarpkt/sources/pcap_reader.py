@@ -228,7 +228,8 @@ class PcapReader:
         except OSError as exc:  # removed or made unreadable since the reader was made
             raise CaptureFormatError(f"{self.path}: cannot read: {exc.strerror or exc}") from None
         with fh:
-            blocks = BlockReader(fh, os.fstat(fh.fileno()).st_size, READ_BLOCK_BYTES)
+            blocks = BlockReader(fh, os.fstat(fh.fileno()).st_size, READ_BLOCK_BYTES,
+                                 self.segment.end_offset if self.segment is not None else None)
             self._begin()
             base = 0
             self._walk.chunk_bytes = MAX_CHUNK_BYTES

@@ -34,21 +34,26 @@ __all__ = ["BlockReader", "Walk", "PcapWalk", "MAX_RECORD_BYTES", "SEC_NS"]
 
 MAX_RECORD_BYTES = 1 << 18  # largest caplen accepted (libpcap's MAXIMUM_SNAPLEN, 262144)
 SEC_NS = 1_000_000_000
+POST_END_CHUNK_BYTES = 1 << 20  # reading a segment: chunks past its end (a VLP-16 frame is ~0.2 MB, an OS-128 one 1.6 MB)
+POST_END_READ_BYTES = 2 * POST_END_CHUNK_BYTES + MAX_RECORD_BYTES  # and file blocks: a whole chunk fits
 
 
 class BlockReader:
     """Reads a file in blocks into one reused buffer (no mmap: a file truncated while it is read
     must give a short read, not a SIGBUS; memory stays bounded by the block size)."""
 
-    def __init__(self, fh, size: int, block_bytes: int) -> None:
+    def __init__(self, fh, size: int, block_bytes: int, segment_end: int | None = None) -> None:
         self.fh = fh
         self.size = size
         self.block_bytes = block_bytes
+        self.segment_end = segment_end  # reading a segment: blocks reach at most POST_END_READ_BYTES past its end
         self._buf: np.ndarray | None = None
 
     def read(self, offset: int) -> np.ndarray:
         """The file's bytes from ``offset``: up to ``block_bytes`` of them (fewer at the end)."""
         want = max(0, min(self.block_bytes, self.size - offset))
+        if self.segment_end is not None:  # past a segment's end only its last frame is read
+            want = min(want, max(0, self.segment_end - offset) + POST_END_READ_BYTES)
         if self._buf is None or self._buf.shape[0] < want:
             self._buf = np.empty(max(want, 1), np.uint8)
         view = memoryview(self._buf)[:want]
@@ -89,6 +94,8 @@ class Walk:
         lim = chunk_start + self.chunk_bytes
         if self.segment is not None and base + chunk_start < self.segment.end_offset:
             lim = min(lim, self.segment.end_offset - base)
+        elif self.segment is not None:  # past the end only the segment's last frame is read: small chunks
+            lim = min(lim, chunk_start + POST_END_CHUNK_BYTES)
         return lim
 
 

@@ -20,6 +20,7 @@ import functools
 
 import numpy as np
 
+from .. import kernels
 from ..errors import CalibrationError
 from .calibration import VelodyneCalibration, load_calibration
 
@@ -66,6 +67,11 @@ class VelodyneGeometry:
         self._per_row = bool(np.any(rot != 0))
         self._cos, self._neg_sin = _trig_tables(tuple(rot.tolist()) if self._per_row else None)
         self._rows = np.arange(16)[:, None]
+        # the compiled kernel's per-row coefficients (k_xy, k_z, dc_xy, dc_z, vert_offset) and switches
+        self._coef = np.ascontiguousarray(np.stack([self._k_xy[:, 0], self._k_z[:, 0], self._dc_xy[:, 0],
+                                                    self._dc_z[:, 0], self._vert_offset[:, 0]]), np.float64)
+        self._has_dist = bool(np.any(self._dist_correction))
+        self._has_voff = bool(np.any(self._vert_offset))
 
     def distance_m(self, frame) -> np.ndarray:
         """``float64[R, 16, W]`` corrected distance, metres (0 stays 0)."""
@@ -82,6 +88,13 @@ class VelodyneGeometry:
         except KeyError:
             raise CalibrationError("VLP-16 frame without per-firing azimuths (extra['azimuth_cdeg'])") from None
         rng = frame.range_mm
+        native = kernels.native
+        if native is not None and rng.ndim == 3 and rng.shape[1] == 16 and np.shape(az_cdeg) == rng.shape[1:]:
+            # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]
+            out = np.empty(rng.shape + (3,), dtype=np.float64)
+            native.velodyne_xyz(np.ascontiguousarray(rng, np.uint32), np.ascontiguousarray(az_cdeg, np.uint16),
+                                self._cos, self._neg_sin, self._coef, self._has_dist, self._has_voff, out)
+            return out
         idx = np.asarray(az_cdeg, dtype=np.intp)
         if self._per_row:
             cos_a, neg_sin_a = self._cos[self._rows, idx], self._neg_sin[self._rows, idx]  # [16, W]

@@ -1,0 +1,301 @@
+"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes frame-aligned segments of a capture in N threads.
+
+A pcap/pcapng capture is cut into record-aligned segments (:func:`lidarpkt.sources.segments.plan_segments`);
+each segment is read by its own :class:`~lidarpkt.source.FrameReader` (``segment=``), which yields exactly
+the frames the segment owns, in a pool of ``workers`` threads. The frames of segment k are handed out
+only after those of segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment
+reader counts from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole
+file's. Threads, not processes: the decode kernels and the large NumPy operations release the GIL,
+and frames then need no copy between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of
+CPU: about what pickling and unpickling it would cost).
+
+The frames of the first unfinished segment are yielded as they are decoded; the other workers decode
+the next segments meanwhile. Memory stays flat in the capture's length: at most ``workers`` segments
+are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and about
+:data:`MAX_SEGMENT_FRAME_BYTES` of frames.
+
+MCAP files, ROS bags and captures too small to cut are read by the ordinary single-threaded reader.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+import weakref
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import fields
+from typing import Any, Iterator
+
+import numpy as np
+
+from .errors import UnknownSensorError
+from .frame import Frame
+
+__all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
+           "MAX_SEGMENT_FRAME_BYTES"]
+
+# Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
+# starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
+# instructions for VLP-16 dual, where 1 MB of capture costs ~27M; ~20M for OS-2-128, 6M per MB). So
+# segments hold many frames, but no more than MAX_SEGMENT_FRAME_BYTES of decoded frames each.
+# Frames made in a worker thread come from that thread's glibc arena and are freed by the consumer;
+# glibc then gives the pages back (mmap'd chunks, trimmed arena heaps) and the next frames fault them
+# in again: ~28,000 page faults and 2x the system time per 60 OS-2-128 frames. Raising the mmap and
+# trim thresholds once (glibc's mallopt, unless the MALLOC_*_ environment variables set them) keeps
+# the freed pages for the next frames: a few hundred faults. Memory stays bounded by the peak the
+# frames need.
+_MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest (HEAP_MAX_SIZE / 2 on 64-bit)
+_TRIM_THRESHOLD_BYTES = 256 << 20
+_malloc_tuned = False
+
+MIN_SEGMENT_BYTES = 8 << 20
+MAX_SEGMENT_BYTES = 64 << 20
+MAX_SEGMENT_FRAME_BYTES = 56 << 20
+_SEGMENTS_PER_WORKER = 2  # a capture gives at least this many segments per worker when it is large enough
+_END = object()  # marks the end of a segment's frames on its queue
+
+
+class ParallelFrameReader:
+    """Iterator of :class:`~lidarpkt.frame.Frame` decoded by ``workers`` threads over segments of a capture.
+
+    Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
+    same order, with the same arrays, ``frame_id`` and ``extra``. ``stats`` sums the segment readers'
+    :class:`~lidarpkt.source.SourceStats` (its packet counters include the packets each segment reader
+    read past its end to complete its last frame; ``stats.frames`` is exact). ``close()`` (or ``with``)
+    stops the threads after the segments they are decoding. Warnings of the segment readers are
+    emitted from the worker threads.
+
+    Raises (while iterating): what ``lidarpkt.open`` raises, at the point of the stream where the
+    single-threaded reader would (the frames of the segments before it are yielded first).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], segments: list, workers: int, options: dict[str, Any]) -> None:
+        self.path = path
+        self.segments = segments
+        self.workers = int(workers)
+        self._include_partial = options.pop("include_partial", True)
+        options["read_ahead"] = False  # the workers are the threads
+        _keep_freed_memory()
+        self._options = options
+        from .source import SourceStats
+
+        self.stats = SourceStats()
+        self._stop = threading.Event()
+        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
+        # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the threads)
+        self._iter = ParallelFrameReader._frames(weakref.proxy(self))
+
+    def __iter__(self) -> "ParallelFrameReader":
+        return self
+
+    def __next__(self) -> Frame:
+        return next(self._iter)
+
+    def close(self) -> None:
+        """Stop: pending segments are cancelled, running ones stop at their next frame. Idempotent."""
+        self._stop.set()
+        self._iter.close()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> "ParallelFrameReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        stop = getattr(self, "_stop", None)
+        if stop is not None:
+            stop.set()
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+    # ------------------------------------------------------------------ work
+    def _read_segment(self, segment, out: queue.SimpleQueue) -> None:
+        """Put one segment's frames on ``out`` as they come, then ``(_END, stats, split_ordinal, unknown,
+        error)``: its stats, the ordinal of its first packet past its end, the message of an
+        UnknownSensorError (a segment of foreign traffic is no error while another segment holds a
+        sensor), and any other exception (raised by the consumer when it gets there)."""
+        from .source import FrameReader
+
+        reader = None
+        unknown = error = None
+        try:
+            reader = FrameReader(self.path, segment=segment, include_partial=True, **self._options)
+            for frame in reader:
+                if self._stop.is_set():
+                    break
+                out.put(frame)
+        except UnknownSensorError as exc:
+            unknown = str(exc)
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer's thread, raised there
+            error = exc
+        finally:
+            if reader is not None:
+                reader.close()
+        stats = reader.stats if reader is not None else None
+        out.put((_END, stats, getattr(getattr(reader, "reader", None), "split_ordinal", None), unknown, error))
+
+    def _frames(self) -> Iterator[Frame]:
+        pending: deque[queue.SimpleQueue] = deque()
+        todo = iter(self.segments)
+        renumber = _Renumber()
+        unknown: list[str] = []
+
+        def submit() -> None:
+            seg = next(todo, None)
+            if seg is not None:
+                q: queue.SimpleQueue = queue.SimpleQueue()
+                self._pool.submit(self._read_segment, seg, q)
+                pending.append(q)
+
+        try:
+            for _ in range(self.workers):
+                submit()
+            while pending:
+                q = pending[0]
+                while True:
+                    item = q.get()
+                    if type(item) is tuple and item and item[0] is _END:
+                        break
+                    frame = renumber.frame(item)
+                    if frame.partial and not self._include_partial:
+                        continue
+                    self.stats.frames += 1
+                    yield frame
+                _, stats, split, no_sensor, error = item
+                if error is not None:
+                    raise error
+                pending.popleft()
+                submit()
+                renumber.end_segment(split)
+                if stats is not None:
+                    _add_stats(self.stats, stats)
+                if no_sensor is not None:
+                    unknown.append(no_sensor)
+        finally:
+            self._stop.set()
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        if unknown and len(unknown) == len(self.segments):
+            raise UnknownSensorError(unknown[0])
+
+
+class _Renumber:
+    """VLP-16 ordinals of segment readers → the whole file's; one SensorInfo object per sensor and mode
+    (the first segment's, as the single-threaded reader's first frame's serves the whole capture)."""
+
+    def __init__(self) -> None:
+        self.packet_base = 0  # ordinal, in the whole file, of the current segment's first packet
+        self.next_frame_id: dict[str, int] = {}  # per VLP-16 stream: frame_id of its next frame
+        self.sensors: dict[int, Any] = {}  # id(segment's SensorInfo) → the first equal one
+        self.canonical: dict[tuple, Any] = {}
+        self._held: list = []  # keeps the SensorInfo objects whose id() is a key alive
+
+    def frame(self, frame: Frame) -> Frame:
+        """``frame`` of the current segment with the whole file's ordinals and SensorInfo (changed in place)."""
+        frame.sensor = self._sensor(frame.sensor)
+        if frame.sensor.vendor == "velodyne":
+            key = str(frame.sensor.source)
+            frame.frame_id = self.next_frame_id.get(key, 0)
+            self.next_frame_id[key] = frame.frame_id + 1
+        index = frame.extra.get("packet_index")
+        if index is not None and self.packet_base:
+            frame.extra["packet_index"] = np.where(index >= 0, index + self.packet_base, index)
+        return frame
+
+    def end_segment(self, split_ordinal: int | None) -> None:
+        """The current segment is done; the next one's packets start ``split_ordinal`` packets later."""
+        if split_ordinal is not None:
+            self.packet_base += int(split_ordinal)
+
+    def _sensor(self, info):
+        got = self.sensors.get(id(info))
+        if got is None:
+            # not the rate: a VLP-16 decoder measures it from its first packets, and the single-threaded
+            # reader keeps the SensorInfo of the first frame for the whole capture, as this does
+            key = (info.vendor, str(info.source), info.model, info.return_mode, info.profile, info.serial,
+                   info.init_id)
+            got = self.canonical.setdefault(key, info)
+            self.sensors[id(info)] = got
+            self._held.append(info)
+        return got
+
+
+def _add_stats(total, part) -> None:
+    for f in fields(total):
+        a, b = getattr(total, f.name), getattr(part, f.name)
+        if isinstance(a, dict):
+            for k, v in b.items():
+                a[k] = a.get(k, 0) + v
+        elif f.name != "frames":
+            setattr(total, f.name, a + b)
+
+
+def open_parallel(path: str | os.PathLike[str], workers: int, segment, options: dict[str, Any]
+                  ) -> "ParallelFrameReader | None":
+    """``lidarpkt.open(path, workers=N, **options)`` when N > 1; ``None`` when the capture is read in one
+    thread (a segment was asked for, no pcap/pcapng, or too small to cut).
+
+    Raises:
+        ValueError: ``workers`` is not a positive integer.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer (got {workers!r})")
+    if workers == 1 or segment is not None:
+        return None
+    segments = plan(path, workers)
+    if not segments:
+        return None
+    from .source import _load_ouster_metadata
+
+    options["metadata"] = _load_ouster_metadata(options.get("metadata")) or None  # parsed once, not per segment
+    return ParallelFrameReader(path, segments, workers, options)
+
+
+def plan(path: str | os.PathLike[str], workers: int) -> list:
+    """The segments ``workers`` threads decode; one segment when the capture is no pcap/pcapng or too small."""
+    from .sources.segments import plan_segments
+
+    try:
+        size = os.path.getsize(path)
+    except OSError:
+        return []
+    if workers < 2 or os.path.isdir(path) or size < 2 * MIN_SEGMENT_BYTES:
+        return []
+    # frame bytes per capture byte: VLP-16 dual 3.4 (1206-byte packets), Ouster 0.9-1.2 (3 kB and more)
+    expansion = 3.5 if _first_record_bytes(path) < 2000 else 1.25
+    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int(MAX_SEGMENT_FRAME_BYTES / expansion)))
+    seg_bytes = min(most, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
+    segments = plan_segments(path, seg_bytes)
+    return segments if len(segments) > 1 else []
+
+
+def _first_record_bytes(path) -> int:
+    """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
+    with open(path, "rb") as fh:
+        head = fh.read(40)
+    if len(head) < 40 or head[:4] == b"\x0a\x0d\x0d\x0a":
+        return 1500
+    little = head[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1", b"\x34\xcd\xb2\xa1")
+    return int.from_bytes(head[32:36], "little" if little else "big")
+
+
+def _keep_freed_memory() -> None:
+    """glibc only, once per process: freed frame memory is kept for the next frames (see above)."""
+    global _malloc_tuned
+    if _malloc_tuned:
+        return
+    _malloc_tuned = True
+    if any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
+        return  # the user chose
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc (musl, macOS, Windows): nothing to tune
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    mallopt(m_mmap_threshold, _MMAP_THRESHOLD_BYTES)
+    mallopt(m_trim_threshold, _TRIM_THRESHOLD_BYTES)

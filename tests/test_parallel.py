@@ -1,0 +1,153 @@
+"""lidarpkt.open(path, workers=2): the frames, order, arrays, ids and extras of workers=1.
+
+Every external capture and canned fixture is decoded whole in one thread and by two threads over
+small segments (the segment floor lowered so that these small files are cut into many segments,
+boundaries mid-frame and beside position/IMU packets and fragment trains); a generated 10 s VLP-16
+capture and a 12-frame OS-0-32 capture go through the default plan. Plus: closing early stops the
+threads, bad ``workers`` values are refused, containers that cannot be cut are read in one thread.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lidarpkt
+from lidarpkt import parallel
+from lidarpkt.errors import UnknownSensorError
+from lidarpkt.source import FrameReader
+
+from conftest import REPO_ROOT, external
+from test_segments import ARRAYS, CANNED_NAMES, OUSTER_EXTERNAL, VELODYNE_EXTERNAL
+
+sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
+
+CANNED = REPO_ROOT / "fixtures" / "canned"
+# the captures the segment tests cut, plus the legacy OS-1-64 capture (its metadata has another name)
+EXTERNAL = OUSTER_EXTERNAL + ["ouster-sdk/OS-1-64_1024x10_fw20"] + VELODYNE_EXTERNAL
+
+def _capture(name: str) -> tuple[Path, Path | None]:
+    path = CANNED / f"{name}.pcap" if name in CANNED_NAMES else external(f"{name}.pcap")
+    md = path.with_suffix(".json")
+    if name.endswith("OS-1-64_1024x10_fw20"):
+        md = path.with_name("OS-1-64_sensor_config_reduced.json")
+    return path, (md if md.exists() else None)
+
+
+def _frames(path, md, **options) -> list:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # damaged test captures warn alike in one thread and in two
+        return list(lidarpkt.open(path, metadata=md, **options))
+
+
+def _assert_same(one: list, two: list, where: str) -> None:
+    assert len(one) == len(two) > 0, (where, len(one), len(two))
+    for i, (a, b) in enumerate(zip(one, two)):
+        at = f"{where} frame {i}"
+        assert a.frame_id == b.frame_id, (at, a.frame_id, b.frame_id)
+        for name in ARRAYS:
+            x, y = getattr(a, name), getattr(b, name)
+            assert (x is None) == (y is None), (at, name)
+            if x is not None:
+                assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), (at, name)
+        assert (a.partial, a.counters, a.return_labels, a.timestamp_ns) == \
+               (b.partial, b.counters, b.return_labels, b.timestamp_ns), at
+        assert (str(a.sensor.source), a.sensor.model, a.sensor.return_mode) == \
+               (str(b.sensor.source), b.sensor.model, b.sensor.return_mode), at
+        assert str(a.sensor.describe()) == str(b.sensor.describe()), at
+        assert set(a.extra) == set(b.extra), at
+        for k in a.extra:
+            assert np.array_equal(a.extra[k], b.extra[k]), (at, k)
+    # one SensorInfo object per sensor and mode, as the single-threaded reader gives
+    assert len({id(f.sensor) for f in one}) == len({id(f.sensor) for f in two}), where
+
+
+@pytest.fixture
+def small_segments(monkeypatch):
+    """Cut even the small test captures: segments of ~40 kB (a few VLP-16 frames or part of an Ouster frame; 4 kB at the least)."""
+    monkeypatch.setattr(parallel, "MIN_SEGMENT_BYTES", 4_000)
+    monkeypatch.setattr(parallel, "MAX_SEGMENT_BYTES", 40_000)
+
+
+@pytest.mark.parametrize("name", CANNED_NAMES + EXTERNAL)
+def test_two_workers_give_the_frames_of_one(name, small_segments):
+    path, md = _capture(name)
+    reader = lidarpkt.open(path, metadata=md, workers=2)
+    if path.stat().st_size > 20_000:  # duplicate_id holds two datagrams: nothing to cut
+        assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 2
+    reader.close()
+    one = _frames(path, md, read_ahead=False)
+    two = _frames(path, md, workers=2)
+    _assert_same(one, two, path.name)
+
+
+@pytest.mark.parametrize("name", ["vlp16-strongest", "os1-64-dual"])
+def test_options_pass_through(name, small_segments):
+    path, md = _capture(name)
+    opts = {"include_partial": False, "batch_packets": 7}
+    one = _frames(path, md, **opts)
+    two = _frames(path, md, workers=3, **opts)
+    _assert_same(one, two, path.name)
+    assert not any(f.partial for f in two)
+
+
+def test_default_plan_on_a_generated_vlp16_capture(tmp_path):
+    import bench_velodyne
+
+    path = tmp_path / "vlp16_10s.pcap"
+    bench_velodyne.build(path, 10.0, mode="dual")
+    reader = lidarpkt.open(path, workers=2)
+    assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 2
+    two = list(reader)
+    one = _frames(path, None)
+    _assert_same(one, two, path.name)
+    assert reader.stats.frames == len(two)
+    assert reader.stats.velodyne_data_packets >= sum(int((f.extra["packet_index"] >= 0).any()) for f in one)
+
+
+def test_close_early_stops_the_threads(small_segments):
+    path, md = _capture("veloview/vlp-16-test-90deg-1-50-frames")
+    before = threading.active_count()
+    reader = lidarpkt.open(path, metadata=md, workers=2)
+    first = next(reader)
+    assert first.frame_id == 0
+    reader.close()
+    reader.close()  # idempotent
+    deadline = time.monotonic() + 10
+    while threading.active_count() > before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert threading.active_count() == before
+    with pytest.raises(StopIteration):
+        next(reader)
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, "2"])
+def test_bad_workers_are_refused(workers):
+    with pytest.raises(ValueError, match="workers"):
+        lidarpkt.open(CANNED / "vlp16-strongest.pcap", workers=workers)
+    with pytest.raises(ValueError, match="workers"):
+        FrameReader(CANNED / "vlp16-strongest.pcap", workers=2)
+
+
+def test_small_capture_and_segment_option_read_in_one_thread():
+    path = CANNED / "vlp16-strongest.pcap"
+    assert isinstance(lidarpkt.open(path, workers=2), FrameReader)  # below the segment floor
+    seg = lidarpkt.sources.segments.plan_segments(path, 1 << 30)[0]
+    assert isinstance(lidarpkt.open(path, workers=2, segment=seg), FrameReader)
+
+
+def test_no_sensor_in_any_segment_raises(tmp_path, small_segments):
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.pcapwrite import write_pcap
+
+    path = tmp_path / "other.pcap"
+    src, dst = Endpoint("10.0.0.1", 5000), Endpoint("10.0.0.2", 53)
+    write_pcap(path, (Packet(i * 1000, src, dst, b"\x00" * 900) for i in range(200)))  # no lidar packet
+    with pytest.raises(UnknownSensorError, match="no VLP-16 or Ouster stream"):
+        list(lidarpkt.open(path, workers=2))
