@@ -85,7 +85,7 @@ def _write_json(doc: dict, path: str) -> None:
         raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
 
 
-def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None):
+def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None, workers: int = 1):
     from .stack import load_stack, parse_frame_range
 
     from lidarpkt import cliargs
@@ -95,7 +95,7 @@ def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float
     if grid is not None and grid <= 0:
         raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
     rng = parse_frame_range(frames) if frames else None
-    return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid)
+    return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid, workers=workers)
 
 
 def _check_pixel(stack, row: int, col: int, slot: int) -> None:
@@ -148,6 +148,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
     from lidarpkt import cliargs
 
+    cliargs.add_workers(p)
     cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
                                              "repeatable")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
@@ -178,7 +179,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     selection = parse_return(args.slot)
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
     stack, slot = resolve(stack, selection)
     for r, c in pixels:
         _check_pixel(stack, r, c, slot)
@@ -344,6 +345,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input2", metavar="IN2", nargs="?", help="a capture of the same scene in another return mode")
     from lidarpkt import cliargs
 
+    cliargs.add_workers(p)
     cliargs.add_json(p, "the comparison as one JSON document")
     cliargs.add_plot(p)
     _add_input(p)
@@ -388,7 +390,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         raise AnalysisError(f"--plot {args.plot}: compare-returns writes several figures; give a folder")
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    a = _load(args.input, args.metadata, args.frames, args.grid)
+    a = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
     for r, c in pixels:  # before any heavy work
         _check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
@@ -417,7 +419,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
                                               f"returns, per raypath — {src_a}", "fraction of frames", a, vmax=1.0),
                          "two_returns.png"))
     else:
-        b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid)
+        b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid, args.workers)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
         sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)

@@ -28,6 +28,7 @@ def load_stack(
     frames: tuple[int | None, int | None] | None = None,
     include_partial: bool = False,
     resolution_deg: float | None = None,
+    workers: int = 1,
 ) -> FrameStack:
     """Decode a capture (pcap/pcapng, MCAP, ROS bag) with :func:`lidarpkt.open` and stack its frames.
 
@@ -40,6 +41,7 @@ def load_stack(
             capture with no complete frame falls back to its partial frames, with a
             :class:`~lidarpkt.errors.LidarpktWarning`.
         resolution_deg: azimuth grid of the stack (VLP-16); default :func:`default_grid_deg`.
+        workers: decoding threads (``lidarpkt.open(..., workers=)``); the frames are the same.
 
     Raises:
         AnalysisError: no frame left after the selection.
@@ -49,7 +51,9 @@ def load_stack(
 
     if isinstance(metadata, (list, tuple)):
         metadata = [str(m) for m in metadata] or None
-    kwargs = {} if metadata is None else {"metadata": metadata if isinstance(metadata, list) else str(metadata)}
+    kwargs: dict = {"workers": workers}
+    if metadata is not None:
+        kwargs["metadata"] = metadata if isinstance(metadata, list) else str(metadata)
     complete: list = []
     partial: list = []
     a, b = frames if frames is not None else (None, None)

@@ -40,15 +40,6 @@ __all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", 
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
 # instructions for VLP-16 dual, where 1 MB of capture costs ~27M; ~20M for OS-2-128, 6M per MB). So
 # segments hold many frames, but no more than MAX_SEGMENT_FRAME_BYTES of decoded frames each.
-# Frames made in a worker thread come from that thread's glibc arena and are freed by the consumer;
-# glibc then gives the pages back (mmap'd chunks, trimmed arena heaps) and the next frames fault them
-# in again: ~28,000 page faults and 2x the system time per 60 OS-2-128 frames. Raising the mmap and
-# trim thresholds once (glibc's mallopt, unless the MALLOC_*_ environment variables set them) keeps
-# the freed pages for the next frames: a few hundred faults. Memory stays bounded by the peak the
-# frames need.
-_MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest (HEAP_MAX_SIZE / 2 on 64-bit)
-_TRIM_THRESHOLD_BYTES = 256 << 20
-_malloc_tuned = False
 
 MIN_SEGMENT_BYTES = 8 << 20
 MAX_SEGMENT_BYTES = 64 << 20
@@ -77,7 +68,6 @@ class ParallelFrameReader:
         self.workers = int(workers)
         self._include_partial = options.pop("include_partial", True)
         options["read_ahead"] = False  # the workers are the threads
-        _keep_freed_memory()
         self._options = options
         from .source import SourceStats
 
@@ -238,10 +228,12 @@ def open_parallel(path: str | os.PathLike[str], workers: int, segment, options: 
     thread (a segment was asked for, no pcap/pcapng, or too small to cut).
 
     Raises:
-        ValueError: ``workers`` is not a positive integer.
+        lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer (got {workers!r})")
+        from .errors import UsageError
+
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
     if workers == 1 or segment is not None:
         return None
     segments = plan(path, workers)
@@ -273,29 +265,13 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
 
 def _first_record_bytes(path) -> int:
     """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
+    from .sources.magic import PCAP_MAGIC_MODIFIED, PCAP_MAGIC_NS, PCAP_MAGIC_US
+
     with open(path, "rb") as fh:
         head = fh.read(40)
-    if len(head) < 40 or head[:4] == b"\x0a\x0d\x0d\x0a":
+    if len(head) < 40:
         return 1500
-    little = head[:4] in (b"\xd4\xc3\xb2\xa1", b"\x4d\x3c\xb2\xa1", b"\x34\xcd\xb2\xa1")
-    return int.from_bytes(head[32:36], "little" if little else "big")
-
-
-def _keep_freed_memory() -> None:
-    """glibc only, once per process: freed frame memory is kept for the next frames (see above)."""
-    global _malloc_tuned
-    if _malloc_tuned:
-        return
-    _malloc_tuned = True
-    if any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")):
-        return  # the user chose
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc (musl, macOS, Windows): nothing to tune
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3
-    mallopt(m_mmap_threshold, _MMAP_THRESHOLD_BYTES)
-    mallopt(m_trim_threshold, _TRIM_THRESHOLD_BYTES)
+    for order in ("little", "big"):
+        if int.from_bytes(head[:4], order) in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
+            return int.from_bytes(head[32:36], order)
+    return 1500  # pcapng, damage

@@ -374,7 +374,7 @@ def open_frames(
         UnsupportedFilterError: a filter the container cannot apply (bags record no ports or addresses).
         UnknownSensorError: the file holds packets, but none of a supported sensor (message lists the streams).
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
-        ValueError: ``workers`` below 1.
+        UsageError: ``workers`` is not a whole number >= 1.
     """
     if workers != 1:
         from .parallel import open_parallel

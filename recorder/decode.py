@@ -57,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
                         help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
+    cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
 
 
@@ -137,7 +138,7 @@ def _open_frames(path: str, args) -> object:
     options = {}
     if args.calibration:
         options["calibration"] = args.calibration
-    return lidarpkt.open(path, metadata=args.metadata, **options)
+    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
 
 
 def run(args: argparse.Namespace) -> int:

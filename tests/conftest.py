@@ -32,6 +32,7 @@ def in_ci() -> bool:
 #: /proc) or a combination a parametrised test does not apply to, never missing data or tools.
 ENVIRONMENT_SKIPS = (
     "needs root",
+    "needs root to be absent",
     "cannot join a multicast group",
     "needs /proc/self/fd",
     "LIDARPKT_NATIVE=0",

@@ -174,7 +174,7 @@ def test_an_unreadable_input_is_named(tmp_path, capsys):
     src.write_bytes(external(VLP10).read_bytes())
     src.chmod(0)
     if os.access(src, os.R_OK):
-        pytest.skip("running as root: chmod 000 does not stop reads here (the /proc cases cover unwritable paths)")
+        pytest.skip("needs root to be absent: as root chmod 000 does not stop reads (the /proc cases cover unwritable paths)")
     status = main(["decode", str(src), "-o", str(tmp_path / "x.npz")])
     _check("unreadable", status, capsys.readouterr().err, f"{src}: not readable", [tmp_path / "x.npz"])
 

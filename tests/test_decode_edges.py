@@ -114,20 +114,6 @@ def test_corrected_distance_of_a_vlp16_frame():
     assert np.count_nonzero(d) == np.count_nonzero(dist)
 
 
-def test_plane_field_reads_every_field_of_every_profile():
-    """plane_field (word planes → one field) against read_bits on the same pixels' bytes."""
-    from lidarpkt.ouster import profiles as P
-    from lidarpkt.ouster.frames import plane_field
-
-    rng = np.random.default_rng(11)
-    for profile in P.PROFILES.values():
-        raw = rng.integers(0, 256, size=(5, profile.pixel_bytes), dtype=np.uint8)
-        planes = np.ascontiguousarray(raw.view("<u4").T)  # [words, pixels]
-        for f in profile.pixel_fields:
-            out = np.empty(5, f.dtype)
-            np.testing.assert_array_equal(plane_field(planes, f, out), P.read_bits(raw, f), err_msg=f"{profile.name} {f.name}")
-
-
 def test_firing_azimuths_per_packet_mode_and_the_general_path():
     """firing_azimuth_cdeg with a per-packet dual flag equals the one-mode results row by row, and a
     batch holding an invalid block azimuth (> 36000, the general integer path) gives the other

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarpkt.errors import MetadataError
+from lidarpkt.errors import MetadataError, PacketFormatError
 from lidarpkt.ouster import profiles as P
 
 
@@ -29,13 +29,13 @@ def test_reserved_bits_split_at_32_bit_words():
 def test_cover_check_accepts_an_exact_cover_and_names_the_bad_bits():
     ok = (P.BitField("A", 0, 3), P.BitField("B", 3, 5))
     P._check_cover(ok, 8, "t")
-    with pytest.raises(AssertionError, match=r"t: bits \[7\] not covered exactly once"):
+    with pytest.raises(PacketFormatError, match=r"t: bits \[7\] not covered exactly once"):
         P._check_cover((P.BitField("A", 0, 7),), 8, "t")
-    with pytest.raises(AssertionError, match=r"bits \[2\] not covered exactly once"):
+    with pytest.raises(PacketFormatError, match=r"bits \[2\] not covered exactly once"):
         P._check_cover((P.BitField("A", 0, 3), P.BitField("B", 2, 1), P.BitField("C", 3, 5)), 8, "t")
-    with pytest.raises(AssertionError, match="field B outside the record"):
+    with pytest.raises(PacketFormatError, match="field B outside the record"):
         P._check_cover((P.BitField("A", 0, 4), P.BitField("B", 4, 5)), 8, "t")
-    with pytest.raises(AssertionError, match="field Z outside the record"):
+    with pytest.raises(PacketFormatError, match="field Z outside the record"):
         P._check_cover((P.BitField("A", 0, 8), P.BitField("Z", 8, 0)), 8, "t")
 
 

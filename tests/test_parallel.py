@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
+from lidarpkt.errors import UsageError
 from lidarpkt import parallel
 from lidarpkt.errors import UnknownSensorError
 from lidarpkt.source import FrameReader
@@ -129,7 +130,7 @@ def test_close_early_stops_the_threads(small_segments):
 
 @pytest.mark.parametrize("workers", [0, -1, 1.5, "2"])
 def test_bad_workers_are_refused(workers):
-    with pytest.raises(ValueError, match="workers"):
+    with pytest.raises(UsageError, match="workers"):  # a lidarpkt.errors exception, as every public error
         lidarpkt.open(CANNED / "vlp16-strongest.pcap", workers=workers)
     with pytest.raises(ValueError, match="workers"):
         FrameReader(CANNED / "vlp16-strongest.pcap", workers=2)
@@ -151,3 +152,23 @@ def test_no_sensor_in_any_segment_raises(tmp_path, small_segments):
     write_pcap(path, (Packet(i * 1000, src, dst, b"\x00" * 900) for i in range(200)))  # no lidar packet
     with pytest.raises(UnknownSensorError, match="no VLP-16 or Ouster stream"):
         list(lidarpkt.open(path, workers=2))
+
+
+def test_decode_and_analyze_take_workers(tmp_path, small_segments):
+    """The CLI verbs that decode pass --workers to lidarpkt.open: the same NPZ and the same report."""
+    from lidarpkt.cli import main
+
+    path = str(external("veloview/vlp-16-test-90deg-1-50-frames.pcap"))
+    assert isinstance(lidarpkt.open(path, workers=2), parallel.ParallelFrameReader)  # cut into segments
+    for n in (1, 2):
+        assert main(["decode", path, "-o", str(tmp_path / f"w{n}.npz"), "--workers", str(n), "-q"]) == 0
+    with np.load(tmp_path / "w1.npz") as one, np.load(tmp_path / "w2.npz") as two:
+        assert one.files == two.files
+        for k in one.files:
+            np.testing.assert_array_equal(one[k], two[k], err_msg=k)
+    reports = []
+    for n in (1, 2):
+        out = tmp_path / f"a{n}.json"
+        assert main(["analyze", path, "--pixel", "7,100", "--workers", str(n), "--json", str(out), "-q"]) == 0
+        reports.append(out.read_text())
+    assert reports[0] == reports[1]

@@ -2,8 +2,7 @@
 
 Its output equals the general reassembler's, so a broken fast path (a fragment offset read in
 bytes instead of 8-byte units, say) falls back record by record with identical packets: only
-the count of datagrams it rebuilt shows it. ``_vec_reassembled`` is PcapReader's own counter
-(wip/sources adds a public ReadStats one; switch to it when merged).
+the count of datagrams it rebuilt shows it: ``ReadStats.reassembled_vectorised``.
 """
 
 from __future__ import annotations
@@ -23,14 +22,14 @@ def test_clean_fragment_trains_take_the_vectorised_path(ext, pcap, fragments):
     for _ in reader.batches():
         pass
     assert reader.stats.fragments == fragments and reader.stats.reassembled == 2
-    assert reader._vec_reassembled == 2  # both: none fell back to the general path
+    assert reader.stats.reassembled_vectorised == 2  # both: none fell back to the general path
 
 
 def test_a_reused_ip_id_goes_through_the_general_path(ext):
     """duplicate_id.pcap: a stale fragment shares the IP ID, so the train is not clean."""
     reader = PcapReader(ext("ouster-sdk/duplicate_id.pcap"))
     assert sum(len(b) for b in reader.batches()) == 1
-    assert reader.stats.reassembled == 1 and reader._vec_reassembled == 0
+    assert reader.stats.reassembled == 1 and reader.stats.reassembled_vectorised == 0
 
 
 def test_written_fragments_take_the_vectorised_path(ext, tmp_path):
@@ -43,4 +42,4 @@ def test_written_fragments_take_the_vectorised_path(ext, tmp_path):
     reader = PcapReader(path)
     got = [bytes(row) for b in reader.batches() for row in b.payload]
     assert got == [p.payload for p in packets]
-    assert reader.stats.reassembled == len(packets) == reader._vec_reassembled
+    assert reader.stats.reassembled == len(packets) == reader.stats.reassembled_vectorised
