@@ -48,7 +48,7 @@ class LiveFrames:
         if points:
             consumers.append(self._encode_points)
         if ws is not None:
-            from lidarpkt.view.cli import start_server
+            from lidarpkt.view.server import start_server
 
             self.view = start_server(ws, verb="record")
             view = self.view

@@ -66,7 +66,7 @@ def load_ouster_metadata(args: argparse.Namespace) -> list:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt import cliargs
-    from lidarpkt.view.cli import add_ws_argument
+    from lidarpkt.view.server import add_ws_argument
 
     add_receive_arguments(parser)
     stop = parser.add_mutually_exclusive_group()

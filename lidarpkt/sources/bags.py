@@ -24,8 +24,9 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning, UnsupportedFilterError
+from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from ..packet import Packet, PacketBatch
+from .filters import check_filters
 from .inflate import bound_rosbags
 from .magic import MCAP_MAGIC
 
@@ -181,11 +182,7 @@ class BagReader:
 
     def __init__(self, path: str | os.PathLike[str], *, topics: Iterable[str] | None = None,
                  payload_sizes: Iterable[int] | None = None, **filters: Any) -> None:
-        unknown = sorted(k for k, v in filters.items() if v is not None)
-        if unknown:
-            from .protocol import BAG_OPTIONS, _filter_message
-
-            raise UnsupportedFilterError(_filter_message(path, "bag", unknown, BAG_OPTIONS))
+        check_filters(path, "bag", filters)
         self.path = Path(path)
         self.topics = None if topics is None else frozenset(topics)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)

@@ -6,17 +6,11 @@ from __future__ import annotations
 import os
 from typing import Any, Iterator, Protocol, runtime_checkable
 
-from ..errors import UnsupportedFilterError
 from ..packet import Packet, PacketBatch
+from .filters import BAG_OPTIONS, PCAP_OPTIONS, check_filters
 from .magic import container_kind
 
 __all__ = ["PacketSource", "open_packet_source", "PCAP_OPTIONS", "BAG_OPTIONS"]
-
-# keyword options each reader takes (filters first); None always means "no filter"
-PCAP_OPTIONS = frozenset({"ports", "src_addresses", "payload_sizes", "batch_packets", "reassembly_timeout_ns",
-                          "max_pending_datagrams", "max_pending_bytes", "segment"})
-BAG_OPTIONS = frozenset({"topics", "payload_sizes"})
-
 
 @runtime_checkable
 class PacketSource(Protocol):
@@ -55,11 +49,7 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
         CaptureFormatError: the file's header is unusable.
     """
     kind = container_kind(path)
-    given = {k for k, v in options.items() if v is not None}
-    allowed = PCAP_OPTIONS if kind == "pcap" else BAG_OPTIONS
-    unknown = sorted(given - allowed)
-    if unknown:
-        raise UnsupportedFilterError(_filter_message(path, kind, unknown, allowed))
+    check_filters(path, kind, options)
     options = {k: v for k, v in options.items() if v is not None}
     if kind == "pcap":
         from .pcap_reader import PcapReader
@@ -68,11 +58,3 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
     from .bags import BagReader
 
     return BagReader(path, **options)
-
-
-def _filter_message(path, kind: str, unknown: list[str], allowed: frozenset[str]) -> str:
-    names = ", ".join(f"{n}=" for n in unknown)
-    if kind != "pcap" and set(unknown) <= {"ports", "src_addresses"}:
-        return (f"{path}: {names} cannot filter a {kind} file: it records no UDP ports or addresses; "
-                "choose packets by topics=... or payload_sizes=...")
-    return f"{path}: unknown packet filter {names}; a {kind} reader takes {', '.join(sorted(allowed))}"

@@ -20,6 +20,8 @@ import time
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from recorder.record import add_receive_arguments
 
+    from .server import add_ws_argument
+
     parser.add_argument("source", nargs="?", metavar="SOURCE",
                         help="capture to show (pcap/pcapng, MCAP, ROS bag); without it, a live sensor")
     add_ws_argument(parser)
@@ -30,25 +32,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt import cliargs
 
     cliargs.add_quiet(parser, "no status lines")
-
-
-def add_ws_argument(parser: argparse.ArgumentParser) -> None:
-    """``--ws HOST:PORT``, shared with ``record --view``."""
-    parser.add_argument("--ws", default="127.0.0.1:8765", metavar="HOST:PORT",
-                        help="address of the Foxglove WebSocket server (127.0.0.1:8765; port 0 = any free port)")
-
-
-def start_server(ws: str, *, verb: str = "view"):
-    """A :class:`~lidarpkt.view.server.ViewServer` on ``--ws``; says where to connect (even with
-    ``--quiet``: scripts wait for that line)."""
-    from .server import ViewServer, parse_ws
-
-    host, port = parse_ws(ws)
-    server = ViewServer(host, port)
-    shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::", "::1") else host
-    print(f"lidarpkt {verb}: serving ws://{host}:{server.port} (Foxglove: Open connection → "
-          f"ws://{shown}:{server.port})", file=sys.stderr, flush=True)
-    return server
 
 
 class _Stop:
@@ -98,6 +81,7 @@ def _deadline(args) -> float:
 
 
 def _view_capture(args, stop: threading.Event) -> int:
+    from .server import start_server
     from .sources import play_capture
 
     deadline = _deadline(args)
@@ -152,6 +136,7 @@ def _view_live(args, stop: threading.Event) -> int:
     from recorder.record import load_ouster_metadata
     from recorder.sink import batch_from_packets
 
+    from .server import start_server
     from .sources import LiveDecoder
     from .tap import FrameDropper, FrameTap
 
