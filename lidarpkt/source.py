@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator
 import numpy as np
 
 from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
+from .decoder import Decoder
 from .frame import Frame
 from .packet import PacketBatch
 
@@ -114,7 +115,7 @@ class FrameReader:
         self.read_ahead = _want_read_ahead(self.reader, read_ahead)
         self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
-        self.decoders: dict[tuple, Any] = {}
+        self.decoders: dict[tuple, Decoder] = {}  # (vendor, source, ...) -> its decoder
         self._velodyne_options = {"calibration": calibration, "cut_angle_deg": cut_angle_deg,
                                   "cut_on_block": cut_on_block}
         self._ouster_options = {"verify_crc": verify_crc, "soft_id_check": soft_id_check}
