@@ -89,8 +89,10 @@ class VelodyneGeometry:
             raise CalibrationError("VLP-16 frame without per-firing azimuths (extra['azimuth_cdeg'])") from None
         rng = frame.range_mm
         native = kernels.native
-        if native is not None and rng.ndim == 3 and rng.shape[1] == 16 and np.shape(az_cdeg) == rng.shape[1:]:
-            # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]
+        # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]; the
+        # kernel has no horizontal-offset term, so a calibration with one takes the NumPy path
+        if (native is not None and rng.ndim == 3 and rng.shape[1] == 16 and np.shape(az_cdeg) == rng.shape[1:]
+                and not np.any(self._horiz_offset)):
             out = np.empty(rng.shape + (3,), dtype=np.float64)
             native.velodyne_xyz(np.ascontiguousarray(rng, np.uint32), np.ascontiguousarray(az_cdeg, np.uint16),
                                 self._cos, self._neg_sin, self._coef, self._has_dist, self._has_voff, out)
