@@ -6,7 +6,7 @@ Times ``lidarpkt --help``, ``lidarpkt --version`` and ``lidarpkt info`` on a 100
 (``rust-lidar-utils/velodyne_vlp16.pcap``: 84 data + 16 position packets) as whole processes
 (``python -m lidarpkt``), the median wall and CPU (children's user + system) time of ``--repeat``
 runs each. CPU time is the steadier figure on a shared machine. What each imports is checked by
-``tests/test_one_grid.py``; ``python -X importtime -m lidarpkt ...`` shows where the time goes.
+``tests/cli/test_one_grid.py``; ``python -X importtime -m lidarpkt ...`` shows where the time goes.
 """
 
 from __future__ import annotations

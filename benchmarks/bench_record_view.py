@@ -16,7 +16,7 @@ CPU (all threads, % of one core, from /proc while the replay ran and 1 s after).
   of 12608 B, encoded with lidarpkt.ouster.encode_packets.
 
 The numbers depend on the machine and what else runs on it; nothing is asserted here (the
-zero-loss property is asserted by tests/test_view_record.py).
+zero-loss property is asserted by tests/view/test_view_record.py).
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ class Mutant:
     what: str
 
 
-VELODYNE_CAL_TESTS = ("tests/test_velodyne_calibration_corrections.py",)
+VELODYNE_CAL_TESTS = ("tests/velodyne/test_velodyne_calibration_corrections.py",)
 MUTANTS = (
     Mutant("rot_sign", "lidarpkt/velodyne/geometry.py",
            "np.cos(az[None, :] - r), -np.sin(az[None, :] - r)", "np.cos(az[None, :] + r), -np.sin(az[None, :] + r)",
@@ -50,13 +50,13 @@ MUTANTS = (
            VELODYNE_CAL_TESTS, "sign of the VLP-16 horiz_offset_correction (x)"),
     Mutant("range2_shift", "lidarpkt/ouster/profiles.py",
            'BitField("RANGE2", 32, 15, 3)', 'BitField("RANGE2", 32, 15, 2)',
-           ("tests/test_ouster_words.py",), "up-shift of RANGE2 in FUSA_RNG15_RFL8_NIR8_DUAL"),
+           ("tests/ouster/test_ouster_words.py",), "up-shift of RANGE2 in FUSA_RNG15_RFL8_NIR8_DUAL"),
     Mutant("plot_reflectivity_reversed", "analysis/plots.py",
            'ax2.plot(t.range_m, ra.reflectivity, "o"', 'ax2.plot(t.range_m, ra.reflectivity[::-1], "o"',
-           ("tests/test_analysis_plot_data.py",), "reflectivity points of the temporal-CDF figure reversed"),
+           ("tests/analysis/test_analysis_plot_data.py",), "reflectivity points of the temporal-CDF figure reversed"),
     Mutant("fragment_offset_units", "lidarpkt/pcap.py",
            "off = (fb & 0x1FFF) * 8", "off = (fb & 0x1FFF)",
-           ("tests/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
+           ("tests/sources/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
 )
 
 

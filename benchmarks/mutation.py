@@ -40,13 +40,13 @@ DECODE_MODULES = [
 ]
 # the tests that exercise them (the others reach the decoders only through these paths)
 DECODE_TESTS = [
-    "tests/test_velodyne_calibration.py", "tests/test_velodyne_calibration_corrections.py",
-    "tests/test_velodyne_crosscheck.py", "tests/test_velodyne_frames.py", "tests/test_velodyne_packet.py",
-    "tests/test_velodyne_properties.py", "tests/test_velodyne_nebula.py", "tests/test_ouster_decode.py",
-    "tests/test_ouster_crosscheck.py", "tests/test_ouster_frames.py", "tests/test_ouster_geometry.py",
-    "tests/test_ouster_metadata.py", "tests/test_ouster_words.py", "tests/test_ouster_profile_tables.py",
-    "tests/test_reassembly.py", "tests/test_reassembly_fast_path.py", "tests/test_pcap_formats.py",
-    "tests/test_decode_edges.py", "tests/test_reassembly_edges.py",
+    "tests/velodyne/test_velodyne_calibration.py", "tests/velodyne/test_velodyne_calibration_corrections.py",
+    "tests/velodyne/test_velodyne_crosscheck.py", "tests/velodyne/test_velodyne_frames.py", "tests/velodyne/test_velodyne_packet.py",
+    "tests/velodyne/test_velodyne_properties.py", "tests/velodyne/test_velodyne_nebula.py", "tests/ouster/test_ouster_decode.py",
+    "tests/ouster/test_ouster_crosscheck.py", "tests/ouster/test_ouster_frames.py", "tests/ouster/test_ouster_geometry.py",
+    "tests/ouster/test_ouster_metadata.py", "tests/ouster/test_ouster_words.py", "tests/ouster/test_ouster_profile_tables.py",
+    "tests/sources/test_reassembly.py", "tests/sources/test_reassembly_fast_path.py", "tests/sources/test_pcap_formats.py",
+    "tests/test_decode_edges.py", "tests/sources/test_reassembly_edges.py",
 ]
 
 # mutmut's result names: killed (a test failed), survived, timeout, suspicious, no tests, skipped, ...

@@ -151,7 +151,7 @@ def stamp_ns(message) -> int:
 
 class LidarpktProcess:
     """A ``lidarpkt`` verb in a subprocess, waited on until its stderr shows ``ready``; as a context
-    manager it kills the process if the test left it running (the model: tests/test_replay_record.py)."""
+    manager it kills the process if the test left it running (the model: tests/recorder/test_replay_record.py)."""
 
     def __init__(self, log_path, *args: str, ready: str | None = None, timeout: float = 60.0) -> None:
         import subprocess

@@ -23,7 +23,7 @@ from lidarpkt.packet import PacketBatch
 from lidarpkt.reassembly import FRAGMENT_OVERHEAD, Reassembler
 from reference_tools import velodyne_scan_mcap
 
-DATA = Path(__file__).parent / "data" / "fuzz"
+DATA = Path(__file__).resolve().parents[1] / "data" / "fuzz"
 
 
 # --------------------------------------------------------------------------- Ouster metadata
@@ -700,7 +700,7 @@ def test_mcap_chunk_that_inflates_past_its_declared_size_is_not_inflated(tmp_pat
     path = tmp_path / "bomb.mcap"
     _mcap_with_second_chunk_replaced(path, compression, bomb, declared=1000)
     res = subprocess.run([sys.executable, "-c", _READ_AND_REPORT_PEAK, str(path)], capture_output=True, text=True,
-                         timeout=120, cwd=Path(__file__).resolve().parents[1])
+                         timeout=120, cwd=Path(__file__).resolve().parents[2])
     assert res.returncode == 0, res.stderr[-2000:]
     n, outcome, peak_mb = res.stdout.split()
     assert 0 < int(n) < 30 and outcome == "TruncatedCaptureWarning"

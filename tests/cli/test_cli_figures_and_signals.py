@@ -18,7 +18,7 @@ import pytest
 
 from conftest import external
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
 
 

@@ -22,7 +22,7 @@ from lidarpkt.sources.inflate import MAX_INFLATED_BYTES, inflate_bounded
 
 from conftest import REPO_ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _payloads(n: int = 60):

@@ -23,7 +23,7 @@ from conftest import external
 
 mcap_reader = pytest.importorskip("mcap.reader")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _free_ports(n: int) -> list[int]:

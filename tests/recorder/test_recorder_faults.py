@@ -2,7 +2,7 @@
 can take (every datagram sent is either recorded or reported lost, exactly), and a sensor that stops
 and restarts with its clock reset (recording goes on, the restart is reported, nothing is called lost).
 
-SIGKILL and disk full are in tests/test_replay_record.py and tests/test_recorder_record.py.
+SIGKILL and disk full are in tests/recorder/test_replay_record.py and tests/recorder/test_recorder_record.py.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from lidarpkt.errors import CalibrationError
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import VelodyneDecoder, frame_points, load_calibration
 
-DATA = Path(__file__).parent / "data" / "calibration"
+DATA = Path(__file__).resolve().parents[1] / "data" / "calibration"
 YAML = DATA / "vlp16_corrected.yaml"
 XML = DATA / "vlp16_corrected.xml"
 

@@ -3,10 +3,10 @@ ones, impossible field values, random text. Only ``lidarpkt.errors`` exceptions 
 ``LidarpktWarning``s may come out, every good packet around a bad one is still decoded (compared
 with the decode of the clean input), and memory stays bounded.
 
-What other files already cover (not repeated here): tests/test_pcap_fuzz.py (mutated, junk-filled
+What other files already cover (not repeated here): tests/sources/test_pcap_fuzz.py (mutated, junk-filled
 pcap/pcapng captures never raise anything else; vector vs record-by-record reassembly),
-tests/test_reassembly.py (reassembler properties), tests/test_ouster_frames.py (damaged real Ouster
-packets never crash), tests/test_velodyne_properties.py and tests/test_ouster_decode.py (byte round
+tests/sources/test_reassembly.py (reassembler properties), tests/ouster/test_ouster_frames.py (damaged real Ouster
+packets never crash), tests/velodyne/test_velodyne_properties.py and tests/ouster/test_ouster_decode.py (byte round
 trips of any bytes).
 """
 

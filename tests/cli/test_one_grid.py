@@ -26,7 +26,7 @@ from conftest import external
 from lidarpkt.errors import DroppedPacketsWarning
 from lidarpkt.frame import FrameStack, default_grid_deg, destagger, restagger
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
 VLP10 = "rust-lidar-utils/velodyne_example.pcap"
 PIXELS = ((7, 449), (7, 624), (0, 10), (15, 899))

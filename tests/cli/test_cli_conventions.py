@@ -19,7 +19,7 @@ from lidarpkt.cli import VERBS, main
 
 from conftest import external
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
 VLP10 = "rust-lidar-utils/velodyne_example.pcap"
 OS0 = "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap"
