@@ -4,7 +4,9 @@
 never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
 then goes, as chosen, to
 
-* ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`),
+* ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`)
+  in each sensor's frame (``--frame-id``), and its mount on ``--base-frame`` on ``/tf_static``
+  (:class:`lidarpkt.writers.mcap.frames.SensorFrames`, as ``decode`` writes them),
   encoded in the decoding thread and written by the recorder's loop
   (:meth:`LiveFrames.write_points`: the MCAP writer is used from one thread only); log time =
   host receive time of the last packet of the batch that completed the frame;
@@ -31,14 +33,20 @@ class LiveFrames:
         points: encode PointCloud2 messages for the MCAP.
         ws: ``--ws HOST:PORT`` of the view server, ``None`` for no view.
         queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
+        sensors: the frame ids and mounts (:class:`~lidarpkt.writers.mcap.frames.SensorFrames`);
+            default: the vendors' frame ids, no ``/tf_static``.
 
     Raises:
         lidarpkt.view.server.ViewError: the view server cannot start.
     """
 
-    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20) -> None:
+    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20,
+                 sensors=None) -> None:
         from lidarpkt.view.sources import LiveDecoder
         from lidarpkt.view.tap import FrameDropper, FrameTap
+        from lidarpkt.writers.mcap.frames import SensorFrames
+
+        self.sensors = sensors or SensorFrames()
 
         self.view = self.dropper = None
         self._last_status = time.monotonic()
@@ -65,9 +73,15 @@ class LiveFrames:
         from lidarpkt.writers.mcap.pointcloud import pointcloud_messages
 
         t = self.tap.host_time_ns
-        encoded = [(topic, schemas.encode(topic.msgtype, msg)) for topic, msg in pointcloud_messages(frame)]
+        if self.sensors.is_new(frame.sensor):  # its mount first, once (latched: every file of a rotation has it)
+            tf = self.sensors.transform(frame.sensor, t)
+            if tf is not None:
+                self._points.put((schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf), t, True))
+        name = self.sensors.frame_id(frame.sensor)
+        encoded = [(topic, schemas.encode(topic.msgtype, msg))
+                   for topic, msg in pointcloud_messages(frame, frame_id=name)]
         for topic, data in encoded:
-            self._points.put((topic, data, t))
+            self._points.put((topic, data, t, False))
         self.points_frames += 1
 
     def offer(self, batches: list) -> None:
@@ -78,10 +92,13 @@ class LiveFrames:
         """Write the point clouds encoded so far (call from the thread that owns ``writer``)."""
         while True:
             try:
-                topic, data, t = self._points.get_nowait()
+                topic, data, t, latched = self._points.get_nowait()
             except queue.Empty:
                 return
-            writer.write(topic, data, t)
+            if latched:
+                writer.write_latched(topic, data, t)
+            else:
+                writer.write(topic, data, t)
 
     def tick(self, lost_packets: int) -> None:
         """Publish the view's status once a second (call often); ``lost_packets`` = the recorder's count."""

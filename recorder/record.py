@@ -85,6 +85,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view", action="store_true",
                         help="serve a Foxglove live view while recording (see --ws); it never costs a packet")
     add_ws_argument(parser)
+    from .decode import add_frame_arguments
+
+    add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
     cliargs.add_json(parser, "also write the summary as JSON")
     parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),
                         help="old spelling of --json FILE (kept for scripts)")
@@ -111,6 +114,16 @@ def run(args: argparse.Namespace) -> int:
     cliargs.check_json_output(args.json)
     if args.gps:
         cliargs.check_inputs([args.gps], "--gps")
+    sensors = None
+    if args.frame_id or args.base_frame or args.mount:
+        if not args.points:
+            raise RecorderError("--frame-id/--base-frame/--mount: they name the frames of the point clouds; "
+                                "add --points")
+        from lidarpkt.writers.mcap.frames import SensorFrames
+
+        from .decode import frame_options
+
+        sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
     mds = load_ouster_metadata(args)
     stop = _StopFlag()
     previous = {}
@@ -130,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
         if args.points or args.view:  # before the file: a view that cannot serve leaves no empty recording
             from .frames import LiveFrames
 
-            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None)
+            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None, sensors=sensors)
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
                             rotate_seconds=args.rotate_time)

@@ -10,11 +10,19 @@ known limits of the reference tools are ``xfail(strict=True)`` in the tests them
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+# the test folders mirror the packages, and some modules share helpers across them (test_ouster_cases,
+# test_replay_record): every folder is importable whichever tests are selected (module names are unique)
+for _folder in sorted(p for p in Path(__file__).resolve().parent.iterdir()
+                      if p.is_dir() and p.name not in ("data", "__pycache__")):
+    if str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 
 def external_root() -> Path:

@@ -63,6 +63,10 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
          "--gps /dev/ttyNOPE: no such file or directory", [tmp / "g.mcap"]),
         ("record-suffix", ["record", "--port", "2368", "-o", str(tmp / "r.bag")], ".mcap", [tmp / "r.bag"]),
         ("record-proc", ["record", "--port", "2368", "-o", "/proc/lidarpkt-r.mcap"], "/proc", []),
+        ("record-base-frame-without-points", ["record", "--port", "2368", "--base-frame", "base_link", "-o",
+                                              str(tmp / "b.mcap")], "add --points", [tmp / "b.mcap"]),
+        ("record-mount-without-base", ["record", "--port", "2368", "--points", "--mount", "1,0,0,0,0,0", "-o",
+                                       str(tmp / "m.mcap")], "--mount", [tmp / "m.mcap"]),
         # replay
         ("replay-missing", ["replay", missing, "--to", "127.0.0.1:2368"], "no such file or directory", []),
         ("replay-port-range", ["replay", vlp10, "--to", "127.0.0.1:80000"], "--to 127.0.0.1:80000", []),

@@ -98,6 +98,25 @@ def test_record_points_vlp16_dual(tmp_path):
     check_points(messages, frames, ["/velodyne_points", "/velodyne_points2"])
 
 
+def test_record_points_in_the_frame_and_mount_asked_for(tmp_path):
+    """record --points --frame-id/--base-frame/--mount: the clouds carry the frame id and /tf_static
+    mounts it on the base frame (the same options and messages as decode's MCAP)."""
+    capture = CANNED / "vlp16-dual.pcap"
+    frames = list(lidarpkt.open(capture))
+    summary, messages, _ = record_replay(tmp_path, capture, "--points", "--frame-id", "lidar_top",
+                                         "--base-frame", "base_link", "--mount", "1.5,0,2,0,0,90", replay_args=[])
+    assert summary["lost_total"] == 0 and summary["points_frames_written"] == len(frames)
+    check_points(messages, frames, ["/velodyne_points", "/velodyne_points2"])
+    clouds = [m for t, _, m in messages if t in ("/velodyne_points", "/velodyne_points2")]
+    assert {c.header.frame_id for c in clouds} == {"lidar_top"}
+    (tf,) = [m for t, _, m in messages if t == "/tf_static"]
+    (mount,) = tf.transforms
+    assert (mount.header.frame_id, mount.child_frame_id) == ("base_link", "lidar_top")
+    v, q = mount.transform.translation, mount.transform.rotation
+    assert (v.x, v.y, v.z) == (1.5, 0.0, 2.0)
+    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)  # yaw 90°
+
+
 def test_record_points_ouster_with_metadata_from_the_sensor(tmp_path):
     capture = external("ouster-sdk/OS-1-64_1024x10_fw20.pcap")
     metadata = external("ouster-sdk/OS-1-64_sensor_config_reduced.json")
