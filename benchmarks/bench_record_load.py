@@ -56,10 +56,12 @@ def vlp16_payloads(n: int) -> tuple[list[bytes], list[str]]:
     return out, []
 
 
-def ouster_dual_128_payloads(n: int) -> tuple[list[bytes], list[str]]:
+def ouster_payloads(n: int, meta: Path, low: int = 0) -> list[bytes]:
+    """``n`` packets of a continuous synthetic stream of the sensor ``meta`` describes: measurement
+    ids round the frame, 97.656 µs per column, frame ids counting up (in the packet header, or per
+    column for LEGACY), random pixel values from ``low``. Shared by bench_record_view."""
     from lidarpkt.ouster import empty_fields, encode_packets, load_metadata
 
-    meta = EXTERNAL / "ouster-sdk/empty_pcap.json"
     md = load_metadata(meta)
     per = md.columns_per_frame // md.columns_per_packet
     f = empty_fields(md, n)
@@ -68,12 +70,20 @@ def ouster_dual_128_payloads(n: int) -> tuple[list[bytes], list[str]]:
     f.measurement_id[:] = mid
     f.timestamp_ns[:] = 10**9 + np.arange(mid.size).reshape(mid.shape) * 97_656
     f.status[:] = 1
-    f.header["frame_id"][:] = (np.arange(n) // per) % 65536
+    frame_ids = (np.arange(n) // per) % 65536
+    if "frame_id" in f.header:
+        f.header["frame_id"][:] = frame_ids
+    else:
+        f.column_frame_id[:] = frame_ids[:, None]
     for bf in md.profile.pixel_fields:
         if bf.name in f.pixels:
-            f.pixels[bf.name][:] = rng.integers(0, 1 << min(bf.width, 12), f.pixels[bf.name].shape) << bf.upshift
-    rows = encode_packets(f, md)
-    return [r.tobytes() for r in rows], ["--metadata", str(meta)]
+            f.pixels[bf.name][:] = rng.integers(low, 1 << min(bf.width, 12), f.pixels[bf.name].shape) << bf.upshift
+    return [r.tobytes() for r in encode_packets(f, md)]
+
+
+def ouster_dual_128_payloads(n: int) -> tuple[list[bytes], list[str]]:
+    meta = EXTERNAL / "ouster-sdk/empty_pcap.json"
+    return ouster_payloads(n, meta), ["--metadata", str(meta)]
 
 
 SENSORS = {"vlp16": vlp16_payloads, "os-128-dual": ouster_dual_128_payloads}

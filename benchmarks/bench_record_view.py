@@ -30,7 +30,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -53,25 +52,15 @@ def vlp16_dual(seconds_of_sensor_time: float, tmp: Path) -> tuple[list[Packet], 
 
 
 def os1_64_legacy(seconds_of_sensor_time: float, tmp: Path) -> tuple[list[Packet], list[str]]:
-    from lidarpkt.ouster import empty_fields, encode_packets, load_metadata
+    from bench_record_load import ouster_payloads
+    from lidarpkt.ouster import load_metadata
 
     md = load_metadata(OUSTER_METADATA)
     per_frame = md.columns_per_frame // md.columns_per_packet
-    n = int(seconds_of_sensor_time * 10 * per_frame)
-    f = empty_fields(md, n)
-    rng = np.random.default_rng(0)
-    mid = np.arange(n * md.columns_per_packet).reshape(n, md.columns_per_packet) % md.columns_per_frame
-    f.measurement_id[:] = mid
-    f.timestamp_ns[:] = 10**9 + np.arange(mid.size).reshape(mid.shape) * 97_656
-    f.status[:] = 1
-    f.column_frame_id[:] = ((np.arange(n) // per_frame) % 65536)[:, None]  # LEGACY: a frame id per column
-    for bf in md.profile.pixel_fields:
-        if bf.name in f.pixels:
-            f.pixels[bf.name][:] = rng.integers(1, 1 << min(bf.width, 12), f.pixels[bf.name].shape) << bf.upshift
-    rows = encode_packets(f, md)
+    payloads = ouster_payloads(int(seconds_of_sensor_time * 10 * per_frame), OUSTER_METADATA, low=1)
     period_ns = 100_000_000 // per_frame
     t0 = time.time_ns()
-    return [Packet(t0 + i * period_ns, None, None, r.tobytes()) for i, r in enumerate(rows)], \
+    return [Packet(t0 + i * period_ns, None, None, p) for i, p in enumerate(payloads)], \
         ["--metadata", str(OUSTER_METADATA)]
 
 
