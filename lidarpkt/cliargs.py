@@ -219,7 +219,7 @@ def check_folder(path: str | os.PathLike[str], flag: str = "--plot") -> Path:
     """
     out = Path(path)
     if out.exists() and not out.is_dir():
-        raise OutputError(f"{flag} {out}: is a file, not a folder; {flag} takes a folder for the figures")
+        raise OutputError(f"{flag} {out}: is a file, not a folder; {flag} takes a folder (give a new name or an existing folder)")
     if out.is_dir():
         _writable_folder(out, flag, out)
         return out

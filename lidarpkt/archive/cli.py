@@ -118,9 +118,13 @@ def run_catalog(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     """Run the export job; exit status 1 when any input failed (the summary says which and why)."""
+    from lidarpkt import cliargs
+
     from .export import export_job
 
     _check_engine(args)
+    if "://" not in args.output:  # a local OUTDIR is checked (and made) before the work, removed on an error
+        cliargs.check_folder(args.output, "-o")
     report = export_job(args.paths, args.output, format=args.format, layout=args.layout,
                         frames_per_file=args.frames_per_file, metadata=args.metadata or (), glob=args.glob,
                         segment_bytes=args.segment_size or DEFAULT_SEGMENT_BYTES, workers=args.workers, scheduler=args.scheduler,

@@ -170,8 +170,10 @@ def run_multireturn_archive(args: Any) -> int:
     if args.plot:
         raise PlanError(f"--plot {args.plot}: figures are drawn for one capture (-o MAP.npz); "
                         "the folder form writes maps and summary.csv only")
-    if args.workers is not None and args.workers < 1:
-        raise PlanError(f"--workers {args.workers}: give 1 or more workers")
+    if "://" not in args.output:  # a local OUTDIR is checked (and made) before the work, removed on an error
+        from lidarpkt import cliargs
+
+        cliargs.check_folder(args.output, "-o")
     options: dict[str, Any] = {"neighbourhood": args.neighbourhood, "monitor_frame": args.monitor_frame,
                                "threshold_m": args.threshold, "method": "row" if args.monitor_by_row else args.method}
     if args.gap is not None:

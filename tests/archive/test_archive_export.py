@@ -158,7 +158,7 @@ def test_export_cli_output_is_a_file(archive, tmp_path):
     f = tmp_path / "afile"
     f.write_text("x")
     res = lidarpkt_cli("export", str(archive), "-o", str(f), "--format", "npz", "--workers", "1")
-    assert res.returncode == 2 and res.stderr.startswith(f"lidarpkt: error: -o {f}: a file has this name")
+    assert res.returncode == 2 and res.stderr.startswith(f"lidarpkt: error: -o {f}: is a file, not a folder")
 
 
 def test_segmented_export_equals_whole_file_export_row_for_row(archive, tmp_path):
