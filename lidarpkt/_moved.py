@@ -1,10 +1,9 @@
-"""Old import paths of modules that moved, kept working without a file at the old path.
+"""Old import paths of modules that moved (issue 18), kept working for scripts outside the repository.
 
-The writers moved to :mod:`lidarpkt.writers` (issue 18). A re-export file left at each old path
-would stop git from seeing the moves as renames (a merge pairs a deleted path with an added
-one), so edits made elsewhere to the old files would conflict instead of following them. This
-finder instead resolves each old module name to the new module object itself (one module, not a
-copy: classes and module state are shared), on first import.
+The writers moved to :mod:`lidarpkt.writers`. Rather than a re-export file at each old path (a
+second module object, whose private names and module state would differ from the new one's), this
+finder resolves each old module name to the new module object itself, on first import: classes,
+module state and monkeypatching are shared. Code inside the repository imports the new paths.
 """
 
 from __future__ import annotations
