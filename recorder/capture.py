@@ -36,6 +36,8 @@ SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)
 
 MAX_DATAGRAM = 65535
+READ_BATCH = 1024  # datagrams read from one socket before the thread looks at the stop flag again
+FINAL_READ_S = 1.0  # on stop, how long the kernel's backlog is read at most
 _ANC_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4) + socket.CMSG_SPACE(12)
 
 Item = tuple[int, Endpoint, Endpoint, bytes]  # (host receive time ns, src, dst, payload)
@@ -181,8 +183,12 @@ class UdpCapture:
             while not self._stop.is_set():
                 for key, _ in sel.select(timeout=0.1):
                     self._read_all(key.fileobj, key.data)
-            for sock, port in self._sockets:  # what the kernel already holds is not lost on a clean stop
-                self._read_all(sock, port)
+            # what the kernel already holds is not lost on a clean stop; a sender that never pauses
+            # cannot keep the recorder from stopping: the final read ends after FINAL_READ_S
+            deadline = time.monotonic() + FINAL_READ_S
+            for sock, port in self._sockets:
+                while self._read_all(sock, port) and time.monotonic() < deadline:
+                    pass
             self._final_kernel_drops()
         except BaseException as exc:  # surfaced to the consumer by drain()
             self.error = exc
@@ -211,16 +217,18 @@ class UdpCapture:
             if inode in drops:
                 self.stats.kernel_drops[port] = max(self.stats.kernel_drops[port], drops[inode])
 
-    def _read_all(self, sock: socket.socket, port: int) -> None:
-        """Read every datagram waiting on ``sock`` and queue it (or count it as overflow)."""
+    def _read_all(self, sock: socket.socket, port: int) -> bool:
+        """Read the datagrams waiting on ``sock``, at most READ_BATCH of them, and queue them (or count
+        them as overflow). Returns True if more may be waiting: the bound lets the thread see a stop
+        request under a flood."""
         stats = self.stats
         local = self.multicast or self.bind_address
         put = self._queue.put
-        while True:
+        for _ in range(READ_BATCH):
             try:
                 data, anc, _flags, addr = sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
             except (BlockingIOError, InterruptedError):
-                return
+                return False
             now = 0
             dst_addr = local
             for level, kind, value in anc:
@@ -241,6 +249,7 @@ class UdpCapture:
                 continue
             self._bytes_in += n
             put((now, Endpoint(addr[0], addr[1]), Endpoint(dst_addr, port), data))
+        return True
 
     def drain(self, timeout: float = 0.1, max_items: int = 4096) -> list[Item]:
         """Datagrams received so far, oldest first (waits up to ``timeout`` s for the first).

@@ -85,6 +85,27 @@ def test_queue_overflow_is_counted_not_blocking():
     assert len(got) == 10 and cap.stats.queue_overflow == 40
 
 
+def test_one_read_is_bounded_so_a_flood_cannot_keep_the_thread_from_stopping():
+    """A sender that never pauses (another program, a replay at --max) kept the receive thread in
+    its read loop, deaf to stop(): one read takes at most READ_BATCH datagrams, then the thread
+    looks at the stop flag again; the backlog is still all read, in order."""
+    from recorder.capture import READ_BATCH
+
+    port = _free_port()
+    n = READ_BATCH + 10
+    with UdpCapture([port], bind="127.0.0.1") as cap:  # not started: the reads are driven here
+        (sock, _), = cap._sockets
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for i in range(n):
+                tx.sendto(i.to_bytes(4, "little"), ("127.0.0.1", port))
+        time.sleep(0.2)
+        assert cap._read_all(sock, port) is True  # more may be waiting
+        assert len(cap.drain(timeout=0.0, max_items=n)) == READ_BATCH
+        assert cap._read_all(sock, port) is False  # the rest, then the socket is empty
+        rest = cap.drain(timeout=0.0, max_items=n)
+        assert [int.from_bytes(it[3], "little") for it in rest] == list(range(READ_BATCH, n))
+
+
 def test_kernel_drops_are_reported_through_so_rxq_ovfl():
     port = _free_port()
     payload = bytes(1206)

@@ -5,6 +5,7 @@ in order, with nothing reported lost. Also SIGKILL mid-run and the replay pacing
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 from dataclasses import replace
@@ -54,7 +55,9 @@ class Recorder:
                "--report", str(self.report), *extra]
         for p in ports:
             cmd += ["--port", str(p)]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self.log.open("w"), cwd=REPO)
+        # faulthandler: if it ever fails to stop, SIGABRT makes it print every thread's stack to the log
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self.log.open("w"), cwd=REPO,
+                                     env=dict(os.environ, PYTHONFAULTHANDLER="1"))
         deadline = time.monotonic() + 30
         while "listening on" not in self.log.read_text():
             if self.proc.poll() is not None or time.monotonic() > deadline:
@@ -64,7 +67,17 @@ class Recorder:
 
     def stop(self, sig=signal.SIGTERM) -> int:
         self.proc.send_signal(sig)
-        return self.proc.wait(timeout=60)
+        try:
+            return self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.send_signal(signal.SIGABRT)  # the stacks of where it hangs, for the failure message
+            try:
+                self.proc.wait(timeout=10)
+            finally:
+                if self.proc.poll() is None:
+                    self.proc.kill()
+            raise AssertionError(f"record did not stop within 60 s of {signal.Signals(sig).name}; its log, "
+                                 f"with the stacks of its threads:\n{self.log.read_text()}") from None
 
     def __enter__(self) -> "Recorder":
         return self
