@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from ..packet import Packet, PacketBatch
 from .filters import check_filters
-from .inflate import bound_rosbags
+from .inflate import bound_rosbags, bounded, inflate_rosbag2_files
 from .magic import MCAP_MAGIC
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
@@ -155,7 +155,8 @@ def _guarded(messages: Iterator, path: Path) -> Iterator:
     it = iter(messages)
     while True:
         try:
-            item = next(it)
+            with bounded(path):  # around each step only: the caller's code between steps is not bounded
+                item = next(it)
         except StopIteration:
             return
         except Exception as exc:  # rosbags / sqlite3 raise their own types
@@ -239,7 +240,9 @@ class BagReader:
         reader = None
         try:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
-            reader.open()
+            with bounded(self.path):  # opening scans the chunks of a rosbag2's MCAP storage
+                inflate_rosbag2_files(reader, self.path)
+                reader.open()
             bound_rosbags(reader, self.path)  # ROS 1 chunks and rosbag2 messages inflate into a bounded size
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
             _close_failed_open(reader, exc)

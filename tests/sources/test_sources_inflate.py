@@ -212,3 +212,150 @@ def test_chunk_larger_than_declared_or_than_the_limit(tmp_path):
     path.write_bytes(bytes(raw))
     with pytest.raises(CaptureFormatError, match="MiB"):
         list(BagReader(path).batches())
+
+
+# ----------------------------------------------------------------- rosbag2 MCAP storage, rosbag2 compressed files
+def _scan_mcap_rosbag2(folder: Path, n: int = 90):
+    """A rosbag2 folder whose MCAP storage (official mcap_ros2 writer, zstd chunks of ~30 KB) holds ``n``
+    one-packet VelodyneScan messages; returns (folder, MCAP chunk records as (offset, length), payloads)."""
+    from reference_tools import velodyne_scan_mcap
+    from test_fuzz_regressions import _mcap_storage_rosbag2
+
+    payload, host = _payloads(n)
+    raw = velodyne_scan_mcap(list(payload), list(host), chunk_size=30_000)
+    _mcap_storage_rosbag2(folder, raw)
+    return folder, list(_mcap_chunks(raw)), payload
+
+
+def _mcap_chunks(raw: bytes):
+    pos = 8
+    while pos + 9 <= len(raw) - 8:  # records: opcode, u64 length, body
+        length = int.from_bytes(raw[pos + 1 : pos + 9], "little")
+        if raw[pos] == 0x06:
+            yield pos, length
+        pos += 9 + length
+
+
+def _bomb_in_place(storage: Path, at: int, compression: str, size: int) -> int:
+    """Put a ``size``-byte zero bomb in place of the compressed records of the chunk at ``at``, padded to
+    their length with a zstd skippable frame (every offset of the file, and so its index, stays right);
+    returns the size the chunk declares."""
+    raw = bytearray(storage.read_bytes())
+    body = at + 9
+    name_len = int.from_bytes(raw[body + 28 : body + 32], "little")
+    assert raw[body + 32 : body + 32 + name_len] == compression.encode()
+    records_at = body + 40 + name_len
+    n = int.from_bytes(raw[records_at - 8 : records_at], "little")
+    bomb = _zero_bomb(compression, size)
+    assert len(bomb) + 8 <= n, (len(bomb), n)
+    raw[records_at : records_at + n] = bomb + b"\x50\x2a\x4d\x18" + struct.pack("<I", n - len(bomb) - 8) + bytes(
+        n - len(bomb) - 8)
+    storage.write_bytes(bytes(raw))
+    return int.from_bytes(raw[body + 16 : body + 24], "little")
+
+
+def test_rosbag2_mcap_storage_reads_as_before_and_leaves_rosbags_table_alone(tmp_path):
+    """The bounded chunk inflater is only handed out while lidarpkt calls into rosbags: between two
+    batches, and after, ``DECOMPRESSORS`` gives rosbags' own functions (a user's rosbags reads unchanged)."""
+    from rosbags.rosbag2 import storage_mcap
+
+    folder, chunks, payload = _scan_mcap_rosbag2(tmp_path / "bag")
+    assert len(chunks) >= 3
+    stock = {k: storage_mcap.DECOMPRESSORS[k] for k in ("", "lz4", "zstd")}
+    got = []
+    for batch in BagReader(folder).batches():
+        got.append(batch.payload)
+        assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
+    np.testing.assert_array_equal(np.concatenate(got), payload)
+    assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
+    small = _zero_bomb("zstd", 2 << 20)
+    assert storage_mcap.DECOMPRESSORS["zstd"](small, 1000) == bytes(2 << 20)  # stock: the frame's size, not 1000
+
+
+def test_rosbag2_mcap_storage_chunk_bomb_is_not_inflated(tmp_path):
+    """rosbags inflates a zstd chunk of a rosbag2's MCAP storage into the size its zstd frame header names
+    (512 MB here), whatever the chunk declares; now into at most what the chunk declares: the packets of
+    the chunks before it, then a CaptureFormatError, and a small peak."""
+    folder, chunks, _ = _scan_mcap_rosbag2(tmp_path / "bag")
+    declared = _bomb_in_place(folder / "b_0.mcap", chunks[1][0], "zstd", 512 << 20)
+    assert declared < 40_000
+    n, outcome, peak_mb = _peak(folder)
+    assert 0 < n < 90 and outcome == "CaptureFormatError"
+    assert peak_mb < 300, f"peak RSS {peak_mb} MB reading a chunk that declares {declared} bytes"
+
+
+def test_rosbag2_mcap_storage_without_summary_is_bounded_while_opening(tmp_path):
+    """Without a summary rosbags' open() scans every chunk for the schemas: a 512 MB lz4 bomb (2 MB) there
+    is refused while opening."""
+    folder, chunks, _ = _scan_mcap_rosbag2(tmp_path / "bag")
+    storage = folder / "b_0.mcap"
+    raw = bytearray(storage.read_bytes())
+    raw[-37 + 9 : -37 + 17] = bytes(8)  # the footer's summary_start: no summary
+    at, length = chunks[1]
+    bomb = _zero_bomb("lz4", 512 << 20)
+    fields = raw[at + 9 : at + 33] + bytes(4) + struct.pack("<I", 3) + b"lz4" + struct.pack("<Q", len(bomb)) + bomb
+    storage.write_bytes(bytes(raw[:at] + bytes([0x06]) + struct.pack("<Q", len(fields)) + fields + raw[at + 9 + length:]))
+    n, outcome, peak_mb = _peak(folder)
+    assert n == 0 and outcome == "CaptureFormatError"
+    assert peak_mb < 300, f"peak RSS {peak_mb} MB"
+
+
+def _rosbag2_file_compressed(path: Path) -> None:
+    from rosbags.rosbag2 import Writer
+
+    store = _store(ros1=False)
+    payload, host = _payloads()
+    w = Writer(path)
+    w.set_compression(Writer.CompressionMode.FILE, Writer.CompressionFormat.ZSTD)
+    with w:
+        conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
+        for t, msg in _scans(store, payload, host):
+            w.write(conn, t, store.serialize_cdr(msg, "velodyne_msgs/msg/VelodyneScan"))
+
+
+_READ_FILE_BOMB = r"""
+import os, sys
+import lidarpkt.sources.inflate as inflate
+from lidarpkt.bags import BagReader
+from lidarpkt.errors import CaptureFormatError
+inflate.MAX_INFLATED_BYTES = int(sys.argv[2])  # the floor of the file limit, small so the test writes little
+inflate._DISK_MARGIN_BYTES = int(sys.argv[3])
+try:
+    list(BagReader(sys.argv[1]).batches())
+    print("ok")
+except CaptureFormatError as exc:
+    print(exc)
+"""
+
+
+def test_file_compressed_rosbag2_reads_as_before_and_leaves_no_temporary_files(tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    _rosbag2_file_compressed(tmp_path / "bag")
+    assert [p.name for p in (tmp_path / "bag").glob("*.zstd")] == ["bag.db3.zstd"]
+    payload, host = _payloads()
+    res = subprocess.run([sys.executable, "-c", _READ_FILE_BOMB, str(tmp_path / "bag"), str(1 << 30), "0"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert res.stdout.strip() == "ok", res.stderr[-2000:]
+    batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag").batches()))
+    np.testing.assert_array_equal(batch.payload, payload)
+    np.testing.assert_array_equal(batch.timestamp_ns, host)
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
+@pytest.mark.parametrize("margin, said", [(0, "more than 8388608 bytes"), (1 << 60, "free in")])
+def test_file_compressed_rosbag2_bomb_is_not_inflated_on_disk(tmp_path, monkeypatch, margin, said):
+    """rosbags inflates a compressed rosbag2 file into a temporary folder whatever its size: a 16 KB file
+    of 512 MB of zeros took 512 MB of disk. Now lidarpkt inflates it, in a stream, into at most 64 times
+    its size (at least MAX_INFLATED_BYTES, 8 MiB in this child), and never past the free disk space;
+    the half-inflated file is removed."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    _rosbag2_file_compressed(tmp_path / "bag")
+    (tmp_path / "bag" / "bag.db3.zstd").write_bytes(_zero_bomb("zstd", 512 << 20))
+    res = subprocess.run([sys.executable, "-c", _READ_FILE_BOMB, str(tmp_path / "bag"), str(8 << 20), str(margin)],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    out = res.stdout.strip()
+    assert out.startswith(f"{tmp_path / 'bag'}: the compressed file bag.db3.zstd inflates to") and said in out, (
+        out, res.stderr[-2000:])
+    assert list((tmp_path / "tmp").iterdir()) == []
