@@ -25,13 +25,15 @@ import threading
 import weakref
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+import dataclasses
 from dataclasses import fields
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from .errors import UnknownSensorError
 from .frame import Frame
+from .options import OpenOptions, load_ouster_metadata
 
 __all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
            "MAX_SEGMENT_FRAME_BYTES"]
@@ -62,16 +64,20 @@ class ParallelFrameReader:
     single-threaded reader would (the frames of the segments before it are yielded first).
     """
 
-    def __init__(self, path: str | os.PathLike[str], segments: list, workers: int, options: dict[str, Any]) -> None:
+    def __init__(self, path: str | os.PathLike[str], segments: list, options: OpenOptions,
+                 open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
+        """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
+        of ``options.segment`` (a :class:`~lidarpkt.source.FrameReader`); ``stats`` is an empty
+        :class:`~lidarpkt.source.SourceStats` that sums theirs."""
         self.path = path
         self.segments = segments
-        self.workers = int(workers)
-        self._include_partial = options.pop("include_partial", True)
-        options["read_ahead"] = False  # the workers are the threads
-        self._options = options
-        from .source import SourceStats
-
-        self.stats = SourceStats()
+        self.workers = int(options.workers)
+        self._include_partial = options.include_partial
+        # the workers are the threads; the metadata is parsed once, not per segment
+        self._options = dataclasses.replace(options, workers=1, include_partial=True, read_ahead=False,
+                                            metadata=load_ouster_metadata(options.metadata) or None)
+        self._open_segment = open_segment
+        self.stats = stats
         self._stop = threading.Event()
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
         # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the threads)
@@ -107,12 +113,10 @@ class ParallelFrameReader:
         error)``: its stats, the ordinal of its first packet past its end, the message of an
         UnknownSensorError (a segment of foreign traffic is no error while another segment holds a
         sensor), and any other exception (raised by the consumer when it gets there)."""
-        from .source import FrameReader
-
         reader = None
         unknown = error = None
         try:
-            reader = FrameReader(self.path, segment=segment, include_partial=True, **self._options)
+            reader = self._open_segment(self.path, dataclasses.replace(self._options, segment=segment))
             for frame in reader:
                 if self._stop.is_set():
                     break
@@ -222,27 +226,27 @@ def _add_stats(total, part) -> None:
             setattr(total, f.name, a + b)
 
 
-def open_parallel(path: str | os.PathLike[str], workers: int, segment, options: dict[str, Any]
+def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
+                  open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any
                   ) -> "ParallelFrameReader | None":
-    """``lidarpkt.open(path, workers=N, **options)`` when N > 1; ``None`` when the capture is read in one
-    thread (a segment was asked for, no pcap/pcapng, or too small to cut).
+    """``lidarpkt.open(path, **options)`` when ``options.workers`` > 1; ``None`` when the capture is read in one
+    thread (a segment was asked for, no pcap/pcapng, or too small to cut). ``open_segment`` and ``stats``:
+    see :class:`ParallelFrameReader` (this module does not import :mod:`lidarpkt.source`, which calls it).
 
     Raises:
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
+    workers = options.workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         from .errors import UsageError
 
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
-    if workers == 1 or segment is not None:
+    if workers == 1 or options.segment is not None:
         return None
     segments = plan(path, workers)
     if not segments:
         return None
-    from .source import _load_ouster_metadata
-
-    options["metadata"] = _load_ouster_metadata(options.get("metadata")) or None  # parsed once, not per segment
-    return ParallelFrameReader(path, segments, workers, options)
+    return ParallelFrameReader(path, segments, options, open_segment, stats)
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:

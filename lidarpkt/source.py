@@ -10,23 +10,24 @@ counted, not decoded.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
 from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from .decoder import Decoder
 from .frame import Frame
+from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
     from .parallel import ParallelFrameReader
-    from .sources.segments import Segment
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
@@ -73,36 +74,26 @@ class FrameReader:
     the reader) stops the thread.
     """
 
-    def __init__(
-        self,
-        path: str | os.PathLike[str],
-        *,
-        metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = None,
-        calibration: Any = None,
-        cut_angle_deg: float | None = None,
-        cut_on_block: bool = False,
-        source: str | None = None,
-        include_partial: bool = True,
-        verify_crc: bool = True,
-        soft_id_check: bool = False,
-        max_sensors: int = 64,
-        read_ahead: bool | None = None,
-        segment: "Segment | None" = None,
-        ports: Iterable[int] | None = None,
-        src_addresses: Iterable[str] | None = None,
-        payload_sizes: Iterable[int] | None = None,
-        topics: Iterable[str] | None = None,
-        batch_packets: int | None = None,
-        workers: int = 1,
-    ) -> None:
-        if workers != 1:
+    @with_options
+    def __init__(self, path: str | os.PathLike[str], **options: Any) -> None:
+        """Open ``path`` (as :func:`open_frames`); reading starts on the first ``next()``.
+
+        Args:
+            path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
+            {options}
+
+        Raises:
+            ValueError: ``workers`` is not 1 (``lidarpkt.open(path, workers=N)`` decodes in N threads).
+            And what :func:`open_frames` raises on opening.
+        """
+        opts = OpenOptions.from_keywords("FrameReader", options)
+        if opts.workers != 1:
             raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
-        self._max_sensors = int(max_sensors)
-        self.segment = segment
+        self._max_sensors = int(opts.max_sensors)
+        self.segment = segment = opts.segment
         self._ownership = None
-        filters: dict[str, Any] = {"ports": ports, "src_addresses": src_addresses, "payload_sizes": payload_sizes,
-                                   "topics": topics, "batch_packets": batch_packets}  # None: the reader's default
+        filters = opts.filters()  # None: the reader's default
         if segment is not None:
             from .sources.segments import SegmentOwnership
 
@@ -112,16 +103,16 @@ class FrameReader:
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
         self.reader: PacketSource = open_packet_source(path, **filters)
-        self.read_ahead = _want_read_ahead(self.reader, read_ahead)
+        self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
         self.decoders: dict[tuple, Decoder] = {}  # (vendor, source, ...) -> its decoder
-        self._velodyne_options = {"calibration": calibration, "cut_angle_deg": cut_angle_deg,
-                                  "cut_on_block": cut_on_block}
-        self._ouster_options = {"verify_crc": verify_crc, "soft_id_check": soft_id_check}
-        self._source_filter = source
-        self._include_partial = include_partial
-        self._ouster_metadata = _load_ouster_metadata(metadata)
+        self._velodyne_options = {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
+                                  "cut_on_block": opts.cut_on_block}
+        self._ouster_options = {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}
+        self._source_filter = opts.source
+        self._include_partial = opts.include_partial
+        self._ouster_metadata = load_ouster_metadata(opts.metadata)
         self._warned_max_sensors = False
         self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
@@ -171,7 +162,7 @@ class FrameReader:
             for batch in batches:
                 if embedded and not self._ouster_metadata:
                     # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
-                    self._ouster_metadata = _load_ouster_metadata(embedded())
+                    self._ouster_metadata = load_ouster_metadata(embedded())
                 self.stats.batches += 1
                 self.stats.packets += len(batch)
                 src = batch.src.address if batch.src is not None else None
@@ -311,27 +302,8 @@ class FrameReader:
         return f"{self.path}: no VLP-16 or Ouster stream found among {streams}.{hint}"
 
 
-def open_frames(
-    path: str | os.PathLike[str],
-    *,
-    metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = None,
-    calibration: Any = None,
-    cut_angle_deg: float | None = None,
-    cut_on_block: bool = False,
-    source: str | None = None,
-    include_partial: bool = True,
-    verify_crc: bool = True,
-    soft_id_check: bool = False,
-    max_sensors: int = 64,
-    read_ahead: bool | None = None,
-    segment: "Segment | None" = None,
-    ports: Iterable[int] | None = None,
-    src_addresses: Iterable[str] | None = None,
-    payload_sizes: Iterable[int] | None = None,
-    topics: Iterable[str] | None = None,
-    batch_packets: int | None = None,
-    workers: int = 1,
-) -> "FrameReader | ParallelFrameReader":
+@with_options
+def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | ParallelFrameReader":
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
@@ -340,35 +312,7 @@ def open_frames(
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
-        metadata: Ouster metadata JSON (path or parsed dict), or a list of them for several sensors.
-            MCAP files we record carry it and need none. VLP-16 needs none.
-        calibration: VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one);
-            the stock VLP-16 calibration by default.
-        cut_angle_deg: VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.
-        cut_on_block: VLP-16: cut at the block that wraps (VeloView's frames) rather than at the
-            firing sequence that wraps.
-        source: decode only packets from this source IP address.
-        include_partial: yield the partial frames at the ends of the capture (default True).
-        verify_crc: Ouster: check the CRC-64 of packets whose firmware writes one (default True).
-        soft_id_check: Ouster: accept packets whose init_id differs from the metadata's (a
-            changed init_id still ends the frame).
-        max_sensors: most sensors (one decoder each) decoded from one capture (64); packets of
-            further sources are counted as unrouted, with a SkippedPacketWarning.
-        read_ahead: read the packets in a background thread while decoding (pcap/pcapng only):
-            ``None`` (default) when the file has at least 8 MB and the machine 2+ CPUs; ``False``
-            never; ``True`` always. Same frames, order, stats, errors and warnings either way.
-        segment: yield only the frames of this :class:`~lidarpkt.sources.segments.Segment` of the
-            capture (from :func:`~lidarpkt.sources.segments.plan_segments`); the frames of all
-            segments, in order, are the whole file's. VLP-16 ``frame_id`` and
-            ``extra["packet_index"]`` then count from the segment's start.
-        ports: pcap/pcapng: keep only packets sent to these UDP destination ports.
-        src_addresses: pcap/pcapng: keep only packets from these source addresses.
-        payload_sizes: keep only packets of these UDP payload sizes (bytes).
-        topics: bags and MCAP: read only these topics (default: every topic of a known packet type).
-        batch_packets: pcap/pcapng: most packets per batch (the reader's default, 8192, when None).
-        workers: decode in this many threads (default 1): pcap/pcapng captures of at least 8 MB are cut
-            into segments decoded side by side (:mod:`lidarpkt.parallel`); the frames, their order and
-            arrays are those of ``workers=1``. Other containers, and ``segment=``, read in one thread.
+        {options}
 
     Raises:
         UnsupportedContainerError: the file is no container lidarpkt reads.
@@ -377,22 +321,19 @@ def open_frames(
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
         UsageError: ``workers`` is not a whole number >= 1.
     """
-    if workers != 1:
+    opts = OpenOptions.from_keywords("open_frames", options)
+    if opts.workers != 1:
         from .parallel import open_parallel
 
-        reader = open_parallel(path, workers, segment, dict(
-            metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
-            source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
-            max_sensors=max_sensors, ports=ports, src_addresses=src_addresses, payload_sizes=payload_sizes,
-            topics=topics, batch_packets=batch_packets))
+        reader = open_parallel(path, opts, _segment_reader, SourceStats())
         if reader is not None:
             return reader
-    return FrameReader(
-        path, metadata=metadata, calibration=calibration, cut_angle_deg=cut_angle_deg, cut_on_block=cut_on_block,
-        source=source, include_partial=include_partial, verify_crc=verify_crc, soft_id_check=soft_id_check,
-        max_sensors=max_sensors, read_ahead=read_ahead, segment=segment, ports=ports, src_addresses=src_addresses,
-        payload_sizes=payload_sizes, topics=topics, batch_packets=batch_packets,
-    )
+    return FrameReader(path, **dataclasses.replace(opts, workers=1).keywords())  # one thread after all
+
+
+def _segment_reader(path: str | os.PathLike[str], options: OpenOptions) -> FrameReader:
+    """The reader of one segment for :mod:`lidarpkt.parallel` (which does not import this module)."""
+    return FrameReader(path, **options.keywords())
 
 
 READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thread (a thread would not pay)
@@ -412,15 +353,6 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     except OSError:
         return False
     return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
-
-
-def _load_ouster_metadata(metadata) -> list:
-    if metadata is None:
-        return []
-    from .ouster import load_metadata
-
-    items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
-    return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
 
 
 def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:

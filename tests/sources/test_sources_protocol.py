@@ -155,8 +155,11 @@ def test_open_packet_source_passes_reader_options():
 
 
 def test_open_takes_typed_keyword_options_with_the_readers_defaults():
+    import dataclasses
     import inspect
+    import pydoc
 
+    from lidarpkt.options import OpenOptions
     from lidarpkt.source import FrameReader, open_frames
 
     assert lidarpkt.open is open_frames
@@ -164,12 +167,17 @@ def test_open_takes_typed_keyword_options_with_the_readers_defaults():
     params = list(sig.parameters.values())[1:]
     assert params and all(p.kind is p.KEYWORD_ONLY and p.annotation is not p.empty for p in params)
     assert not any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
-    # one set of options, one set of defaults: lidarpkt.open and the FrameReader it makes agree
-    reader_params = dict(list(inspect.signature(FrameReader.__init__).parameters.items())[2:])
-    assert {n: p.default for n, p in reader_params.items()} == {p.name: p.default for p in params}
-    doc = lidarpkt.open.__doc__
-    assert all(f"{p.name}:" in doc for p in params)  # every option documented
-    with pytest.raises(TypeError):
-        lidarpkt.open(CANNED / "vlp16-strongest.pcap", cut_angle=90)  # a misspelt option is refused at once
+    # one declaration of the options (OpenOptions): lidarpkt.open and FrameReader show exactly its fields
+    declared = [(f.name, f.default, f.type) for f in dataclasses.fields(OpenOptions)]
+    assert [(p.name, p.default, p.annotation) for p in params] == declared
+    reader_params = list(inspect.signature(FrameReader).parameters.values())[1:]
+    assert [(p.name, p.default, p.annotation) for p in reader_params] == declared
+    for shown in (pydoc.render_doc(lidarpkt.open), pydoc.render_doc(FrameReader)):
+        assert all(f"{p.name}: " in shown for p in params)  # every option listed in help(), with its text
+        assert "{options}" not in shown and OpenOptions.__dataclass_fields__["cut_on_block"].metadata["doc"][:40] in \
+            " ".join(shown.split())
+    for make in (lidarpkt.open, FrameReader):
+        with pytest.raises(TypeError, match="unexpected keyword argument 'cut_angle'"):
+            make(CANNED / "vlp16-strongest.pcap", cut_angle=90)  # a misspelt option is refused at once
     frames = list(lidarpkt.open(CANNED / "vlp16-strongest.pcap", ports=[2368], batch_packets=64, read_ahead=False))
     assert frames and sum(f.counters.lost_packets for f in frames) == 0

@@ -1,0 +1,134 @@
+"""The keyword options of ``lidarpkt.open`` and :class:`~lidarpkt.source.FrameReader`, declared once.
+
+:class:`OpenOptions` is the one list of the options: their names, types, defaults and documentation.
+``lidarpkt.open`` (:func:`~lidarpkt.source.open_frames`), ``FrameReader`` and the threads over
+segments (:mod:`lidarpkt.parallel`) take them from here: their signatures (``help()``,
+``inspect.signature``) and the *Args* of their docstrings are made from its fields
+(:func:`with_options`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import os
+import textwrap
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Iterable, TypeVar
+
+if TYPE_CHECKING:
+    from .sources.segments import Segment
+
+__all__ = ["OpenOptions", "with_options", "load_ouster_metadata"]
+
+
+def _option(default: Any, doc: str) -> Any:
+    return field(default=default, metadata={"doc": doc})
+
+
+@dataclass(frozen=True)
+class OpenOptions:
+    """The keyword options of ``lidarpkt.open`` and ``FrameReader`` (each field's ``metadata["doc"]`` says
+    what it does). Made from keywords by :meth:`from_keywords`; ``dataclasses.replace`` changes some."""
+
+    metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = _option(
+        None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
+        "we record carry it and need none. VLP-16 needs none.")
+    calibration: Any = _option(
+        None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one); the stock VLP-16 "
+        "calibration by default.")
+    cut_angle_deg: float | None = _option(
+        None, "VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
+    cut_on_block: bool = _option(
+        False, "VLP-16: cut at the block that wraps (VeloView's frames) rather than at the firing sequence "
+        "that wraps.")
+    source: str | None = _option(None, "decode only packets from this source IP address.")
+    include_partial: bool = _option(True, "yield the partial frames at the ends of the capture (default True).")
+    verify_crc: bool = _option(
+        True, "Ouster: check the CRC-64 of packets whose firmware writes one (default True).")
+    soft_id_check: bool = _option(
+        False, "Ouster: accept packets whose init_id differs from the metadata's (a changed init_id still "
+        "ends the frame).")
+    max_sensors: int = _option(
+        64, "most sensors (one decoder each) decoded from one capture (64); packets of further sources are "
+        "counted as unrouted, with a SkippedPacketWarning.")
+    read_ahead: bool | None = _option(
+        None, "read the packets in a background thread while decoding (pcap/pcapng only): ``None`` (default) "
+        "when the file has at least 8 MB and the machine 2+ CPUs; ``False`` never; ``True`` always. Same "
+        "frames, order, stats, errors and warnings either way.")
+    segment: Segment | None = _option(
+        None, "yield only the frames of this :class:`~lidarpkt.sources.segments.Segment` of the capture "
+        "(from :func:`~lidarpkt.sources.segments.plan_segments`); the frames of all segments, in order, are "
+        "the whole file's. VLP-16 ``frame_id`` and ``extra[\"packet_index\"]`` then count from the "
+        "segment's start.")
+    ports: Iterable[int] | None = _option(None, "pcap/pcapng: keep only packets sent to these UDP destination ports.")
+    src_addresses: Iterable[str] | None = _option(
+        None, "pcap/pcapng: keep only packets from these source addresses.")
+    payload_sizes: Iterable[int] | None = _option(None, "keep only packets of these UDP payload sizes (bytes).")
+    topics: Iterable[str] | None = _option(
+        None, "bags and MCAP: read only these topics (default: every topic of a known packet type).")
+    batch_packets: int | None = _option(
+        None, "pcap/pcapng: most packets per batch (the reader's default, 8192, when None).")
+    workers: int = _option(
+        1, "decode in this many threads (default 1): pcap/pcapng captures of at least 8 MB are cut into "
+        "segments decoded side by side (:mod:`lidarpkt.parallel`); the frames, their order and arrays are "
+        "those of ``workers=1``. Other containers, and ``segment=``, read in one thread.")
+
+    @classmethod
+    def from_keywords(cls, caller: str, options: dict[str, Any]) -> "OpenOptions":
+        """The options named in ``options``, the others at their defaults.
+
+        Raises:
+            TypeError: a name that is no option (as Python says for a misspelt keyword of ``caller``).
+        """
+        unknown = sorted(set(options) - _NAMES)
+        if unknown:
+            raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r}")
+        return cls(**options)
+
+    def keywords(self) -> dict[str, Any]:
+        """The options as keyword arguments (every field, by name)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def filters(self) -> dict[str, Any]:
+        """The options the packet reader takes (``None``: the reader's default)."""
+        return {"ports": self.ports, "src_addresses": self.src_addresses, "payload_sizes": self.payload_sizes,
+                "topics": self.topics, "batch_packets": self.batch_packets}
+
+
+_NAMES = frozenset(f.name for f in dataclasses.fields(OpenOptions))
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def with_options(func: _F) -> _F:
+    """Give ``func(<first parameters>, **options)`` the signature of its first parameters followed by every
+    field of :class:`OpenOptions` as a keyword-only parameter (annotation and default), and put the
+    fields' documentation where its docstring says ``{options}``."""
+    own = [p for p in inspect.signature(func).parameters.values() if p.kind is not p.VAR_KEYWORD]
+    hints = {f.name: f.type for f in dataclasses.fields(OpenOptions)}
+    params = [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default, annotation=hints[f.name])
+              for f in dataclasses.fields(OpenOptions)]
+    func.__signature__ = inspect.signature(func).replace(parameters=own + params)  # type: ignore[attr-defined]
+    doc = func.__doc__  # None under python -OO
+    if doc and "{options}" in doc:
+        line = next(x for x in doc.splitlines() if "{options}" in x)
+        indent = line[: len(line) - len(line.lstrip())]
+        lines = [textwrap.fill(f"{f.name}: {f.metadata['doc']}", 108, initial_indent=indent,
+                               subsequent_indent=indent + "    ") for f in dataclasses.fields(OpenOptions)]
+        func.__doc__ = doc.replace(indent + "{options}", "\n".join(lines))
+    return func
+
+
+def load_ouster_metadata(metadata: Any) -> list:
+    """The ``metadata`` option as a list of loaded Ouster metadata (``[]`` for ``None``); loaded ones pass through.
+
+    Raises:
+        lidarpkt.errors.MetadataError: a file or JSON text that is no Ouster metadata.
+    """
+    if metadata is None:
+        return []
+    from .ouster import load_metadata
+
+    items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
+    return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]
