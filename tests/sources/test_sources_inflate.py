@@ -67,13 +67,14 @@ def _ros1_bag(path: Path, compression: str) -> None:
             w.write(conn, t, store.serialize_ros1(msg, "velodyne_msgs/msg/VelodyneScan"))
 
 
-def _rosbag2_message_compressed(path: Path) -> None:
+def _rosbag2_compressed(path: Path, mode: str = "MESSAGE") -> None:
+    """A rosbag2 (sqlite3) of the 60 packets, zstd-compressed by message or (``mode="FILE"``) by file."""
     from rosbags.rosbag2 import Writer
 
     store = _store(ros1=False)
     payload, host = _payloads()
     w = Writer(path)
-    w.set_compression(Writer.CompressionMode.MESSAGE, Writer.CompressionFormat.ZSTD)
+    w.set_compression(getattr(Writer.CompressionMode, mode), Writer.CompressionFormat.ZSTD)
     with w:
         conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
         for t, msg in _scans(store, payload, host):
@@ -169,7 +170,7 @@ def test_compressed_ros1_bags_read_as_before(tmp_path, compression):
 
 def test_message_compressed_rosbag2_reads_as_before(tmp_path):
     payload, host = _payloads()
-    _rosbag2_message_compressed(tmp_path / "bag")
+    _rosbag2_compressed(tmp_path / "bag")
     batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag").batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
@@ -188,7 +189,7 @@ def test_ros1_chunk_bomb_is_not_inflated(tmp_path, compression, size_mb):
 
 
 def test_rosbag2_message_bomb_is_not_inflated(tmp_path):
-    _rosbag2_message_compressed(tmp_path / "bag")
+    _rosbag2_compressed(tmp_path / "bag")
     bomb = _zero_bomb("zstd", 512 << 20)
     with sqlite3.connect(tmp_path / "bag" / "bag.db3") as db:
         db.execute("UPDATE messages SET data = ? WHERE id = 3", (bomb,))
@@ -300,19 +301,6 @@ def test_rosbag2_mcap_storage_without_summary_is_bounded_while_opening(tmp_path)
     assert peak_mb < 300, f"peak RSS {peak_mb} MB"
 
 
-def _rosbag2_file_compressed(path: Path) -> None:
-    from rosbags.rosbag2 import Writer
-
-    store = _store(ros1=False)
-    payload, host = _payloads()
-    w = Writer(path)
-    w.set_compression(Writer.CompressionMode.FILE, Writer.CompressionFormat.ZSTD)
-    with w:
-        conn = w.add_connection("/velodyne_packets", "velodyne_msgs/msg/VelodyneScan", typestore=store)
-        for t, msg in _scans(store, payload, host):
-            w.write(conn, t, store.serialize_cdr(msg, "velodyne_msgs/msg/VelodyneScan"))
-
-
 _READ_FILE_BOMB = r"""
 import os, sys
 import lidarpkt.sources.inflate as inflate
@@ -331,7 +319,7 @@ except CaptureFormatError as exc:
 def test_file_compressed_rosbag2_reads_as_before_and_leaves_no_temporary_files(tmp_path, monkeypatch):
     monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
-    _rosbag2_file_compressed(tmp_path / "bag")
+    _rosbag2_compressed(tmp_path / "bag", "FILE")
     assert [p.name for p in (tmp_path / "bag").glob("*.zstd")] == ["bag.db3.zstd"]
     payload, host = _payloads()
     res = subprocess.run([sys.executable, "-c", _READ_FILE_BOMB, str(tmp_path / "bag"), str(1 << 30), "0"],
@@ -351,7 +339,7 @@ def test_file_compressed_rosbag2_bomb_is_not_inflated_on_disk(tmp_path, monkeypa
     the half-inflated file is removed."""
     monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
-    _rosbag2_file_compressed(tmp_path / "bag")
+    _rosbag2_compressed(tmp_path / "bag", "FILE")
     (tmp_path / "bag" / "bag.db3.zstd").write_bytes(_zero_bomb("zstd", 512 << 20))
     res = subprocess.run([sys.executable, "-c", _READ_FILE_BOMB, str(tmp_path / "bag"), str(8 << 20), str(margin)],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
