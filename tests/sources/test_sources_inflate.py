@@ -347,3 +347,24 @@ def test_file_compressed_rosbag2_bomb_is_not_inflated_on_disk(tmp_path, monkeypa
     assert out.startswith(f"{tmp_path / 'bag'}: the compressed file bag.db3.zstd inflates to") and said in out, (
         out, res.stderr[-2000:])
     assert list((tmp_path / "tmp").iterdir()) == []
+
+
+def test_file_compressed_rosbag2_with_mcap_storage_inflates_the_file_then_bounds_its_chunks(tmp_path):
+    """Both bounds at once: the MCAP storage file is zstd-compressed as a whole (lidarpkt inflates it to
+    disk) and one of its chunks is a 512 MB zero bomb (inflated into at most what it declares)."""
+    import zstandard
+
+    folder, chunks, payload = _scan_mcap_rosbag2(tmp_path / "bag")
+    plain = PacketBatch.concatenate(list(BagReader(folder).batches())).payload
+    np.testing.assert_array_equal(plain, payload)
+    _bomb_in_place(folder / "b_0.mcap", chunks[1][0], "zstd", 512 << 20)
+    storage = folder / "b_0.mcap"
+    (folder / "b_0.mcap.zstd").write_bytes(zstandard.ZstdCompressor().compress(storage.read_bytes()))
+    storage.unlink()
+    meta = folder / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("compression_format: ''\n  compression_mode: ''",
+                                             "compression_format: zstd\n  compression_mode: file")
+                    .replace("- b_0.mcap\n", "- b_0.mcap.zstd\n"))
+    n, outcome, peak_mb = _peak(folder)
+    assert 0 < n < 90 and outcome == "CaptureFormatError"
+    assert peak_mb < 300, f"peak RSS {peak_mb} MB"
