@@ -161,6 +161,8 @@ def _guarded(messages: Iterator, path: Path) -> Iterator:
             return
         except Exception as exc:  # rosbags / sqlite3 raise their own types
             _release(exc)
+            if isinstance(exc, CaptureFormatError):  # ours (a bounded inflater's), naming the file already
+                raise CaptureFormatError(str(exc)) from None
             raise CaptureFormatError(f"{path}: the bag is damaged after the messages already read: {exc}") from None
         yield item
 
