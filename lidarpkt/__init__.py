@@ -4,8 +4,8 @@
 >>> for frame in lidarpkt.open("capture.pcap"):            # doctest: +SKIP
 ...     print(frame.frame_id, frame.range_mm.shape, frame.xyz().shape)
 
-``lidarpkt.open`` is :func:`lidarpkt.source.open_frames` (its typed keyword options are documented
-there). The names below are imported on first use, so that ``lidarpkt --help`` and ``--version``
+``lidarpkt.open`` is :func:`lidarpkt.source.open_frames`; its typed keyword options are declared once,
+in :class:`lidarpkt.options.OpenOptions`, and listed by ``help(lidarpkt.open)``. The names below are imported on first use, so that ``lidarpkt --help`` and ``--version``
 start without NumPy.
 """
 

@@ -172,3 +172,15 @@ def test_decode_and_analyze_take_workers(tmp_path, small_segments):
         assert main(["analyze", path, "--pixel", "7,100", "--workers", str(n), "--json", str(out), "-q"]) == 0
         reports.append(out.read_text())
     assert reports[0] == reports[1]
+
+
+def test_parallel_does_not_import_source():
+    """No import circle: the threads over segments get their reader factory from lidarpkt.source, which
+    imports lidarpkt.parallel, never the other way round (checked in a fresh interpreter)."""
+    import subprocess
+
+    code = ("import sys, lidarpkt.parallel; "
+            "print(sorted(m for m in sys.modules if m in ('lidarpkt.source', 'lidarpkt.options')))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["['lidarpkt.options']"]

@@ -8,6 +8,8 @@ import sqlite3
 import struct
 import subprocess
 import sys
+import threading
+import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -263,10 +265,29 @@ def test_rosbag2_mcap_storage_reads_as_before_and_leaves_rosbags_table_alone(tmp
     folder, chunks, payload = _scan_mcap_rosbag2(tmp_path / "bag")
     assert len(chunks) >= 3
     stock = {k: storage_mcap.DECOMPRESSORS[k] for k in ("", "lz4", "zstd")}
+    seen_by_other_thread: list[bool] = []
+    reading = threading.Event()
+
+    def other_thread() -> None:  # a user's rosbags use beside lidarpkt's reading, in another thread
+        while not reading.is_set():
+            time.sleep(0)
+        while reading.is_set():
+            seen_by_other_thread.append(all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items()))
+
+    watcher = threading.Thread(target=other_thread)
+    watcher.start()
     got = []
-    for batch in BagReader(folder).batches():
-        got.append(batch.payload)
-        assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
+    try:
+        reading.set()
+        for _ in range(20):
+            for batch in BagReader(folder).batches():
+                got.append(batch.payload)
+                assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
+    finally:
+        reading.clear()
+        watcher.join(timeout=60)
+    assert seen_by_other_thread and all(seen_by_other_thread)
+    got = got[: len(got) // 20]
     np.testing.assert_array_equal(np.concatenate(got), payload)
     assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
     small = _zero_bomb("zstd", 2 << 20)
