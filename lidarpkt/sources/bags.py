@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from ..packet import Packet, PacketBatch
 from .filters import check_filters
-from .inflate import bound_rosbags, bounded, inflate_rosbag2_files
+from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
 from .magic import MCAP_MAGIC
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
@@ -149,14 +149,15 @@ def _close_failed_open(reader: Any, exc: BaseException) -> None:
     _release(exc)
 
 
-def _guarded(messages: Iterator, path: Path) -> Iterator:
+def _guarded(messages: Iterator, path: Path, scoped: bool = False) -> Iterator:
     """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
-    :class:`CaptureFormatError` once every message before it was delivered."""
+    :class:`CaptureFormatError` once every message before it was delivered. ``scoped``: each step inflates
+    a rosbag2's MCAP chunks boundedly (:func:`~lidarpkt.sources.inflate.next_bounded`)."""
     it = iter(messages)
     while True:
         try:
-            with bounded(path):  # around each step only: the caller's code between steps is not bounded
-                item = next(it)
+            # bounded around each step only: the caller's code between steps sees rosbags' own inflaters
+            item = next_bounded(it, path) if scoped else next(it)
         except StopIteration:
             return
         except Exception as exc:  # rosbags / sqlite3 raise their own types
@@ -303,7 +304,8 @@ class BagReader:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
             if not conns:
                 return  # (rosbags reads no connections as all of them)
-            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path):
+            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path,
+                                                      needs_scope(reader)):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as exc:
