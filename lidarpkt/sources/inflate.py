@@ -241,7 +241,8 @@ def _inflate_file(src: Path, dst: Path, bag: Path) -> None:
     free = shutil.disk_usage(dst.parent).free - _DISK_MARGIN_BYTES
     written, done = 0, False
     try:
-        with src.open("rb") as fin, dst.open("wb") as fout, zstandard.ZstdDecompressor().stream_reader(fin) as zin:
+        with src.open("rb") as fin, dst.open("wb") as fout, zstandard.ZstdDecompressor().stream_reader(
+                fin, read_across_frames=True) as zin:  # as rosbags' copy_stream: every frame
             while block := zin.read(1 << 20):
                 written += len(block)
                 if written > min(limit, free):
