@@ -41,12 +41,19 @@ import numpy as np
 __all__ = ["second_strongest_mark", "signal_order_undecided"]
 
 
-def _slots(range_mm: np.ndarray, reflectivity: np.ndarray) -> tuple[np.ndarray, ...]:
-    r = np.asarray(range_mm).astype(np.int64)
-    f = np.asarray(reflectivity).astype(np.int64)
+def _pairs(range_mm: np.ndarray, reflectivity: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+    """(``both`` bool[N] over the flattened firings, its indices, (r0, r1, f0, f1) int64 there).
+
+    Only firings with two different returns are widened to int64: in a dual frame most firings
+    hold one return twice, and widening whole frames costs more than the comparison."""
+    r = np.asarray(range_mm)
+    f = np.asarray(reflectivity)
     if r.shape != f.shape or r.ndim < 1 or r.shape[0] != 2:
         raise ValueError(f"need range_mm and reflectivity of the same shape [2, ...], got {r.shape} and {f.shape}")
-    return r[0], r[1], f[0], f[1]
+    flat_r, flat_f = r.reshape(2, -1), f.reshape(2, -1)
+    both = (flat_r[0] != flat_r[1]) & (flat_r[0] > 0) & (flat_r[1] > 0)
+    idx = np.flatnonzero(both)
+    return both, idx, tuple(a[k].take(idx).astype(np.int64) for a in (flat_r, flat_f) for k in (0, 1))
 
 
 def second_strongest_mark(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.ndarray:
@@ -62,9 +69,10 @@ def second_strongest_mark(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.
     exact for every VLP-16 range (< 131.1 m) and reflectivity byte.
     Raises ValueError when the shapes are not ``[2, ...]`` and equal.
     """
-    r0, r1, f0, f1 = _slots(range_mm, reflectivity)
-    both = (r0 > 0) & (r1 > 0) & (r0 != r1)
-    return both & (f0 * r1 * r1 > f1 * r0 * r0)
+    both, idx, (r0, r1, f0, f1) = _pairs(range_mm, reflectivity)
+    out = np.zeros(both.size, bool)
+    out[idx] = f0 * r1 * r1 > f1 * r0 * r0
+    return out.reshape(np.shape(range_mm)[1:])
 
 
 def signal_order_undecided(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.ndarray:
@@ -76,11 +84,10 @@ def signal_order_undecided(range_mm: np.ndarray, reflectivity: np.ndarray) -> np
     was the stronger, and :func:`second_strongest_mark` is right whenever the range model holds.
     Same arguments and errors as :func:`second_strongest_mark`.
     """
-    r0, r1, f0, f1 = _slots(range_mm, reflectivity)
-    both = (r0 > 0) & (r1 > 0) & (r0 != r1)
+    both, idx, (r0, r1, f0, f1) = _pairs(range_mm, reflectivity)
     # In half-units to stay in integers: interval of 2b ± 1, open-ended above for 255.
     lo0, hi0 = (2 * f0 - 1) * r1 * r1, (2 * f0 + 1) * r1 * r1
     lo1, hi1 = (2 * f1 - 1) * r0 * r0, (2 * f1 + 1) * r0 * r0
-    sat0, sat1 = f0 >= 255, f1 >= 255
-    overlap = ((lo0 <= hi1) | sat1) & ((lo1 <= hi0) | sat0)
-    return both & overlap
+    out = np.zeros(both.size, bool)
+    out[idx] = ((lo0 <= hi1) | (f1 >= 255)) & ((lo1 <= hi0) | (f0 >= 255))
+    return out.reshape(np.shape(range_mm)[1:])
