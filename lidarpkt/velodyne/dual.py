@@ -21,10 +21,12 @@ what the sensor puts in slot 1 unless the last return was the strongest). Where 
 one return, both slots hold it and nothing is marked; a firing with an empty slot (range 0,
 whose reflectivity byte means nothing) is not marked either: slot 1 is read as sent.
 
-Other tools: VeloView flags the return with the higher intensity byte ``DUAL_INTENSITY_HIGH``
-and nebula labels it ``*_STRONGEST``; both compare the bytes alone (no range term), so they call
-a far return of higher reflectivity the stronger. On the nebula VLP-16 dual bag the range term
-changes 193 of their 339 "last return stronger" pairs (tests/velodyne/test_velodyne_dual.py).
+Other tools: velodyne_decoder labels block 2k+1 "strongest" whatever it holds (no mark; our
+``frame_points`` keeps its labels). VeloView flags the return with the higher intensity byte
+``DUAL_INTENSITY_HIGH`` and nebula labels it ``*_STRONGEST`` (ties: the nearer); both compare the
+bytes alone, with no range term, so they call a far return of higher reflectivity the stronger.
+On the nebula VLP-16 dual bag the range term keeps 146 of the 339 pairs the bytes call "last
+return stronger" (42 of the 89 in nebula's own decoded cloud; tests/velodyne/test_velodyne_dual.py).
 
 What the mark cannot know on a real sensor: the reflectivity byte is quantised (two returns
 whose signals differ by less than about half a reflectivity unit cannot be ordered from the

@@ -88,3 +88,38 @@ def test_real_dual_capture_marks_under_the_old_and_the_new_rule(ext):
     # return was the strongest), 339 are pairs, of which the range term keeps 146. So 494 marks
     # change, all from "second strongest" to "strongest"; 91 pairs cannot be ordered from the bytes.
     assert (two, old, old_on_pairs, new, undecided) == (708, 640, 339, 146, 91)
+
+
+def test_nebula_return_types_compare_the_bytes_and_the_mark_keeps_a_subset(ext):
+    """nebula's decoded cloud of the bag's 4th message labels each return of a two-return firing by
+    comparing the two intensity bytes (ties: the nearer is the strongest). The PCD's codes, read off
+    its output: 9 the last return is the stronger, 4 it is the weaker; 10 and 5 the same for the
+    nearer return; 6 one return. The mark agrees with nebula's "last is strongest" on a subset only."""
+    from test_velodyne_nebula import read_pcd
+
+    neb = read_pcd(ext("nebula/vlp16/1673400472138016708.pcd"))
+    f = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), calibration=ext("nebula/VLP16.yaml")))[3]
+    r, fl, mark = f.range_mm.astype(np.int64), f.reflectivity.astype(np.int64), f.extra["second_strongest"]
+    pair = (r[0] > 0) & (r[1] > 0) & (r[0] != r[1])
+    where = {}
+    for s, row, col in zip(*np.nonzero(r)):
+        where.setdefault((15 - int(row), int(r[s, row, col]), int(fl[s, row, col])), (int(s), int(row), int(col)))
+    dist_mm = np.rint(neb["distance"].astype(np.float64) * 1000).astype(int)
+    nebula_last_strongest, ours_too, checked = set(), set(), 0
+    for k in range(len(neb)):
+        s, row, col = where[(int(neb["channel"][k]), int(dist_mm[k]), int(neb["intensity"][k]))]
+        code = int(neb["return_type"][k])
+        if not pair[row, col] or code == 6:
+            continue
+        checked += 1
+        last_higher = fl[0, row, col] > fl[1, row, col]
+        assert code == ((9 if last_higher else 4) if s == 0 else (5 if last_higher else 10))
+        if last_higher:
+            nebula_last_strongest.add((row, col))
+            ours_too |= {(row, col)} if mark[row, col] else set()
+        else:
+            assert not mark[row, col]  # never "last strongest" where nebula's bytes say it is not
+    # 336 nebula points on two-return firings, every one labelled by the byte comparison; of the 89
+    # firings where nebula calls the last return the strongest, the range term keeps 42
+    assert checked == 336
+    assert (len(nebula_last_strongest), len(ours_too)) == (89, 42)
