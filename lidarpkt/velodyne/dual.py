@@ -11,7 +11,7 @@ range and the *calibrated reflectivity*, which the sensor derives from that sign
 correcting it for range. This module inverts that correction with the documented range model
 of an extended diffuse target (the lidar equation): signal ∝ reflectivity / range². Comparing
 reflectivities alone (the rule before this module) ignores the range term and marks a far
-return of higher reflectivity as the stronger, which it usually is not.
+return of higher reflectivity as the stronger, which at the larger range it need not be.
 
 Rule (:func:`second_strongest_mark`): slot 1 is marked *second strongest* where the two slots'
 ranges differ and the last return's estimated signal is strictly higher:
