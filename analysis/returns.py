@@ -4,7 +4,8 @@ A capture's *slots* are what is on the wire; a *return kind* is what a study com
 
 * VLP-16 dual (slots ``("last", "strongest")``): slot 0 is the last return; slot 1 is the
   strongest, except where the last return was also the strongest, where it holds the second
-  strongest (the decoder marks those pixels in ``frame.extra["second_strongest"]``). So per
+  strongest (the decoder marks those pixels in ``frame.extra["second_strongest"]``, inferring
+  from the signal estimated as reflectivity / range², see :mod:`lidarpkt.velodyne.dual`). So per
   firing: ``last`` = slot 0; ``strongest`` = slot 0 where marked, else slot 1;
   ``second_strongest`` = slot 1 where marked, no return where the sensor saw one return (both
   slots equal), and **no sample** elsewhere (the sensor did not report the second strongest).
@@ -28,6 +29,7 @@ import numpy as np
 
 from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import FrameStack
+from lidarpkt.velodyne.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).
 RETURN_KINDS = ("strongest", "last", "second_strongest")
@@ -87,13 +89,13 @@ def second_strongest_marks(stack: FrameStack) -> np.ndarray:
     """``bool[K, H, W]``: the VLP-16 dual firings whose slot 1 holds the second strongest return.
 
     The decoder's mark when the stack carries it (:func:`analysis.stack.load_stack` does);
-    for a stack built by hand, the decoder's rule applied to its slots (slot 1 differs from
-    slot 0 and slot 0, the last return, has the strictly higher reflectivity)."""
+    for a stack built by hand, the decoder's rule applied to its slots
+    (:func:`lidarpkt.velodyne.dual.second_strongest_mark`: the last return's signal, estimated as
+    reflectivity / range², is strictly the higher)."""
     marks = getattr(stack, "second_strongest", None)
     if marks is not None:
         return marks
-    r0, r1 = stack.range_mm[:, 0], stack.range_mm[:, 1]
-    return (r1 != r0) & (stack.reflectivity[:, 0] > stack.reflectivity[:, 1])
+    return second_strongest_mark(np.moveaxis(stack.range_mm, 1, 0), np.moveaxis(stack.reflectivity, 1, 0))
 
 
 def _kind(stack: FrameStack, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int | None]:

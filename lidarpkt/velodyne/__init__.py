@@ -11,7 +11,7 @@ Modules: ``models`` (the model table: lasers, product ids, firing timing, per mo
 (the inverse), ``timing`` (firing times, per-firing azimuth, rotation rate), ``clock`` (the hour of
 a packet stamp, the day of an NMEA time), ``stream`` (size classifier; loss, rotation and
 whole-rotation rules shared by the decoder and the recorder), ``frames`` (:class:`VelodyneDecoder`:
-frames, absolute time, losses), ``detect`` (VLP-16 or not), ``calibration`` (stock, ROS YAML,
+frames, absolute time, losses), ``dual`` (which dual-return firings hold the second strongest), ``detect`` (VLP-16 or not), ``calibration`` (stock, ROS YAML,
 VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_decoder's layout),
 ``nmea`` ($GPRMC/$GPGGA).
 """

@@ -8,10 +8,11 @@ columns 2k, 2k+1). Rows: row 0 = the highest laser (+15°, laser 15), row 15 = l
 Dual mode (``return_labels = ("last", "strongest")``): slot 0 holds block 2k (the last
 return), slot 1 block 2k+1: the strongest return, or — when the strongest return was also
 the last — the second strongest. Such pixels are marked in ``frame.extra["second_strongest"]``
-(``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has
-the strictly higher reflectivity, i.e. the last return was the strongest. Equal
-reflectivities are ambiguous and are not marked. Where the sensor saw one return both
-slots hold it, as the sensor sends it.
+(``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has the
+strictly higher signal at the detector, estimated from the packet as reflectivity / range²
+(:func:`lidarpkt.velodyne.dual.second_strongest_mark`, which documents the model, the tie rule
+and what the mark cannot know). Where the sensor saw one return both slots hold it, as the
+sensor sends it.
 
 ``frame.extra`` keys: ``azimuth_cdeg`` (``uint16[16, W]``, the azimuth of each firing in
 0.01°, interpolated as velodyne_decoder does; used by the XYZ), ``packet_index``
@@ -62,6 +63,7 @@ from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .clock import SensorClock, fix_time_ns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets
+from .dual import second_strongest_mark
 from .geometry import VelodyneGeometry
 from .nmea import parse_sentence_rows
 from .calibration import load_calibration
@@ -468,9 +470,7 @@ class VelodyneDecoder:
         toff = np.where(cols.valid[None, :], (self.model.firing_ns * self._row_laser.astype(np.int64))[:, None], 0)
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
-            r0, r1 = cols.range_mm[0], cols.range_mm[1]
-            f0, f1 = cols.reflectivity[0], cols.reflectivity[1]
-            extra["second_strongest"] = (r1 != r0) & (f0 > f1)
+            extra["second_strongest"] = second_strongest_mark(cols.range_mm, cols.reflectivity)
         frame = Frame(
             sensor=self.sensor_info(mode), frame_id=self._frame_id, range_mm=cols.range_mm,
             reflectivity=cols.reflectivity, return_labels=LABELS[mode], column_valid=cols.valid,

@@ -77,22 +77,21 @@ def test_analyze_json_has_the_issue_schema_and_the_truth(canned, tmp_path, capsy
 
 def test_analyze_return_slot_by_label_and_frame_range(canned, tmp_path, capsys):
     pcap, truth = canned("vlp16-dual")
-    r, c = truth["raypaths"]["foliage"]["pixel"][0]
+    r, c = truth["raypaths"]["window"]["pixel"][0]
     out = tmp_path / "a.json"
-    code, _, err = run(["analyze", str(pcap), "--pixel", f"{r},{c}", "--return", "strongest", "--frames", "1:4",
+    code, _, err = run(["analyze", str(pcap), "--pixel", f"{r},{c}", "--return", "strongest", "--frames", "2:5",
                         "--gmm", "em", "--neighbourhood", "3", "--json", str(out)], capsys)
     assert code == 0, err
     doc = json.loads(out.read_text())
     entry = doc["pixels"][0]
     # the strongest return of each firing, read from both slots: no single slot holds it
     assert doc["frames"] == 3 and entry["slot"] is None and entry["label"] == "strongest"
-    # slot 0 (the last) where the decoder marks slot 1 as the second strongest (the last return had
-    # the higher reflectivity), else slot 1
-    rng = np.array(truth["raypaths"]["foliage"]["samples"]["range_mm"])[1:4]
-    refl = np.array(truth["raypaths"]["foliage"]["samples"]["reflectivity"])[1:4]
-    marked = (rng[:, 1] != rng[:, 0]) & (refl[:, 0] > refl[:, 1])
-    assert marked.any()  # this raypath shows the difference from raw slot 1
-    x = np.where(marked, rng[:, 0], rng[:, 1])
+    # what the strongest-mode capture of the same firings reports (slot 0 where the decoder marks slot 1
+    # as the second strongest, else slot 1), which raw slot 1 is not in these frames
+    _, strongest_truth = canned("vlp16-strongest")
+    x = np.array(strongest_truth["raypaths"]["window"]["samples"]["range_mm"])[2:5, 0]
+    raw1 = np.array(truth["raypaths"]["window"]["samples"]["range_mm"])[2:5, 1]
+    assert (raw1 != x).any()  # frame 4: the last return was the strongest, slot 1 the second
     assert entry["temporal_cdf"]["range_m"] == (np.sort(x[x > 0]) / 1000).tolist()
     assert entry["motion_compensated"] is None
     # 3 x 3 neighbourhood of one frame: 9 samples

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import fixtures
+from lidarpkt.velodyne.dual import second_strongest_mark
 
 REPO = Path(__file__).resolve().parents[2]
 FRAMES = 4
@@ -48,8 +49,8 @@ def test_demo_table_counts_the_ground_truth_returns(demo):
         rng, refl = np.array(on_wire["range_mm"]), np.array(on_wire["reflectivity"])
         if truth["return_labels"] == ["last", "strongest"]:
             # VLP-16 dual, returns per firing: slot 1 holds the second strongest where the decoder
-            # marks it (the last return has the higher reflectivity), else the strongest
-            marked = (rng[:, 1] != rng[:, 0]) & (refl[:, 0] > refl[:, 1])
+            # marks it (the last return has the higher signal, reflectivity / range²), else the strongest
+            marked = second_strongest_mark(rng.T, refl.T)
             sample = {"last": np.ones(FRAMES, bool), "strongest": np.ones(FRAMES, bool),
                       "second_strongest": marked | (rng[:, 1] == rng[:, 0])}[row["slot"]]
             samples = {"last": rng[:, 0], "strongest": np.where(marked, rng[:, 0], rng[:, 1]),

@@ -341,11 +341,17 @@ def test_dual_slots_and_second_strongest_marks():
     az = np.repeat(np.arange(6) * 80, 2)[None, :] + np.arange(n)[:, None] * 480
     dist = np.zeros((n, 12, 32), np.int64)
     refl = np.zeros((n, 12, 32), np.int64)
-    # pair 0, sequence 0: laser 0 one return (both blocks equal); laser 1: last 3000 strongest 1000;
-    # laser 2: the last was the strongest (refl 90) and block 1 holds the second strongest (refl 20)
+    # pair 0, sequence 0 (distances in 2 mm units; the signal is estimated as reflectivity / range²):
+    # laser 0 one return (both blocks equal); laser 1: last 6 m refl 10, strongest 2 m refl 80;
+    # laser 2: the last was the strongest (200/6² > 20/2²): block 1 holds the second strongest;
+    # laser 3: the last has the higher reflectivity (90 > 20) but the weaker signal (90/6² < 20/2²):
+    # block 1 is the strongest (the rule before issue 17 marked it); laser 4: equal signals
+    # (90/6² = 10/2²): the tie is not marked
     dist[:, 0, 0], dist[:, 1, 0], refl[:, 0, 0], refl[:, 1, 0] = 500, 500, 40, 40
     dist[:, 0, 1], dist[:, 1, 1], refl[:, 0, 1], refl[:, 1, 1] = 3000, 1000, 10, 80
-    dist[:, 0, 2], dist[:, 1, 2], refl[:, 0, 2], refl[:, 1, 2] = 3000, 1000, 90, 20
+    dist[:, 0, 2], dist[:, 1, 2], refl[:, 0, 2], refl[:, 1, 2] = 3000, 1000, 200, 20
+    dist[:, 0, 3], dist[:, 1, 3], refl[:, 0, 3], refl[:, 1, 3] = 3000, 1000, 90, 20
+    dist[:, 0, 4], dist[:, 1, 4], refl[:, 0, 4], refl[:, 1, 4] = 3000, 1000, 90, 10
     t_us = 1_000_000 + np.arange(n) * 664
     batch = PacketBatch.from_payloads(encode_data_packets(az % 36000, dist, refl, t_us, "dual"),
                                       1_700_000_000_000_000_000 + t_us * 1000)
@@ -359,6 +365,7 @@ def test_dual_slots_and_second_strongest_marks():
     ss = f.extra["second_strongest"]
     assert ss.shape == (16, 12 * n)
     assert not ss[r0, 0] and not ss[r1, 0] and ss[r2, 0]
+    assert not ss[row_of_laser(3), 0] and not ss[row_of_laser(4), 0]
     assert int(ss.sum()) == n * 1  # only laser 2 of the first firing sequence of each packet
     np.testing.assert_array_equal(np.diff(f.column_timestamp_ns[:12]), 55_296)
 
