@@ -116,25 +116,32 @@ def test_npz_arrays_concatenate_to_the_whole_file(captures, tmp_path):
                 np.testing.assert_array_equal(joined, want[name], err_msg=f"{w.name}:{name}")
 
 
-def test_count_pass_counts_what_each_segment_unit_decodes(captures):
-    """The ordinals a segment starts at are the sums of the earlier segments' frames and packets."""
+@pytest.mark.parametrize("index", [0, 2])  # VLP-16 dual; the VeloView capture (position packets)
+def test_count_pass_gives_each_segment_the_whole_file_ordinals(captures, index):
+    """Each segment read on its own from its counted start gives the whole file's frames: frame id,
+    packet_index, sensor rate, one for one."""
     import warnings
 
     import lidarpkt
+    from lidarpkt.archive.ordinals import Renumber
     from lidarpkt.sources.segments import plan_segments
 
-    path = captures[0]
+    path = captures[index]
     segments = plan_segments(path, 150_000)
     counts = [count_segment(CountTask(f"s{i}", str(path), s)) for i, s in enumerate(segments)]
     assert all(c.error is None for c in counts) and len(counts) > 2
     starts = start_ordinals(counts[:-1])
+    assert starts[-1].packet_index == sum(c.packets for c in counts[:-1]) > 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        whole = [(f.frame_id, int(f.extra["packet_index"][f.column_valid][0])) for f in lidarpkt.open(path)]
-    firsts = [s.frame_id[0][1] for s in starts[1:] if s.frame_id]
-    assert firsts == sorted(firsts) and set(firsts) <= {fid for fid, _ in whole}
+        whole = [(f.frame_id, f.extra["packet_index"].tolist(), f.sensor.frequency_hz) for f in lidarpkt.open(path)]
+        joined = []
+        for seg, start in zip(segments, starts):
+            renumber = Renumber(start)
+            joined += [(f.frame_id, f.extra["packet_index"].tolist(), f.sensor.frequency_hz)
+                       for f in map(renumber.frame, lidarpkt.open(path, segment=seg))]
+    assert joined == whole and whole[-1][0] == len(whole) - 1
     assert sum(n for c in counts for _, n in c.frames) == len(whole)
-    assert sum(c.packets for c in counts[:-1]) == starts[-1].packet_index > 0
 
 
 def test_a_damaged_earlier_segment_fails_the_later_ones_with_its_reason():
