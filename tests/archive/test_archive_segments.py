@@ -114,6 +114,7 @@ def test_npz_arrays_concatenate_to_the_whole_file(captures, tmp_path):
                          "lost_packets"):
                 joined = np.concatenate([g[name] for g in got if name in g])
                 np.testing.assert_array_equal(joined, want[name], err_msg=f"{w.name}:{name}")
+            assert all(str(g["sensor_json"]) == str(want["sensor_json"]) for g in got), w.name  # the rate too
 
 
 @pytest.mark.parametrize("index", [0, 2])  # VLP-16 dual; the VeloView capture (position packets)
@@ -142,6 +143,19 @@ def test_count_pass_gives_each_segment_the_whole_file_ordinals(captures, index):
                        for f in map(renumber.frame, lidarpkt.open(path, segment=seg))]
     assert joined == whole and whole[-1][0] == len(whole) - 1
     assert sum(n for c in counts for _, n in c.frames) == len(whole)
+
+
+@pytest.mark.slow
+def test_segmented_job_on_two_worker_processes_equals_in_process(captures, tmp_path):
+    """workers=2: the count pass and the units on one LocalCluster of 2 processes, same files."""
+    pytest.importorskip("distributed")
+    from archive_cases import assert_same_outputs
+
+    pick = captures[:2] + captures[3:4]
+    one = export(pick, tmp_path / "one", format="parquet", workers=1, segment_bytes=CUT).to_pylist()
+    two = export(pick, tmp_path / "two", format="parquet", workers=2, segment_bytes=CUT).to_pylist()
+    assert [r["status"] for r in two] == ["done"] * len(one) and len(one) > 6
+    assert_same_outputs(tmp_path / "one", tmp_path / "two")
 
 
 def test_a_damaged_earlier_segment_fails_the_later_ones_with_its_reason():
