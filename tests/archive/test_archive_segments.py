@@ -165,3 +165,18 @@ def test_a_damaged_earlier_segment_fails_the_later_ones_with_its_reason():
                              SegmentCount("a#seg0002", (("x", 1),), 5)])
     assert starts[1].frame_id == (("x", 3),) and starts[1].packet_index == 10
     assert starts[2] == starts[3] and "a: bad" in starts[2] and "a#seg0001" in starts[2]
+
+
+def test_laz_frames_per_file_groups_by_whole_file_frame_id(captures, tmp_path):
+    """With --frames-per-file 2, each segment's file holds frames of one group (ids 2k, 2k+1 of the
+    whole file) and is named by the group's first id; the files together hold the whole file's points."""
+    laspy = pytest.importorskip("laspy")
+    pick = captures[:1] + captures[3:4]
+    whole, cut, rows = _both(pick, tmp_path, "laz", frames_per_file=2)
+    for rel, path in output_files(cut).items():
+        ids = np.unique(np.asarray(laspy.read(path)["frame_id"]))
+        first = int(rel.rsplit("_", 1)[1].split(".")[0])
+        assert set(ids // 2) == {first // 2} and first % 2 == 0, rel
+    want = np.concatenate([np.asarray(laspy.read(p)["frame_id"]) for p in output_files(whole).values()])
+    got = np.concatenate([np.asarray(laspy.read(p)["frame_id"]) for p in output_files(cut).values()])
+    np.testing.assert_array_equal(np.sort(got), np.sort(want))
