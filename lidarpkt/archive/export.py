@@ -158,14 +158,20 @@ def export_job(
             manifest.append(row)
             report.rows.append(row)
         todo.sort(key=lambda t: -t.size_bytes)  # the largest first: the job ends sooner
-        bar = Progress(sum(t.size_bytes for t in todo), len(todo), enabled=progress, label=f"export {format}")
-        record = _Recorder(manifest, report, bar, mtimes, job)
+        bar = None
         try:
             with _one_client(engine, todo) as engine:  # one cluster for both passes
-                todo = _with_ordinals(todo, tasks, engine, record)
+                todo, unknown = _with_ordinals(todo, tasks, engine, progress=progress)
+                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), enabled=progress,
+                               label=f"export {format}")
+                record = _Recorder(manifest, report, bar, mtimes, job)
+                for task in unknown:
+                    record(task, UnitResult(key=task.key, input=task.input, part=task.part, error=task.ordinals,
+                                            size_bytes=task.size_bytes))
                 run_all(run_unit, todo, engine, record, lost=_lost_unit)
         finally:
-            bar.close()
+            if bar is not None:
+                bar.close()
             manifest.flush()
             if not is_remote(out):
                 try:
@@ -187,34 +193,40 @@ def _one_client(engine: EngineOptions, todo: list[UnitTask]) -> Iterator[EngineO
         yield replace(engine, client=client)
 
 
-def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOptions,
-                   record: "_Recorder") -> list[UnitTask]:
-    """The tasks, each segment after a capture's first with its whole-file ordinals (counted in the
-    segments before it: :mod:`.ordinals`); a segment whose ordinals cannot be known is recorded as
-    failed (an earlier segment is damaged: the whole-file reader stops there too) and not run."""
+def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOptions, *,
+                   progress: bool = False) -> tuple[list[UnitTask], list[UnitTask]]:
+    """(tasks to run, tasks that cannot run): each segment after a capture's first gets its whole-file
+    ordinals, counted in the segments before it (:mod:`.ordinals`); a segment whose ordinals cannot
+    be known (an earlier segment is damaged: the whole-file reader stops there too) is returned
+    apart, with the reason in its ``ordinals``."""
     need: dict[str, int] = {}  # capture → the last segment that must be counted
     for t in todo:
         if t.segment is not None and t.segment.index > 0:
             need[t.input] = max(need.get(t.input, 0), t.segment.index - 1)
     if not need:
-        return todo
+        return todo, []
     counts: dict[tuple[str, int], SegmentCount] = {}
     jobs = [CountTask(t.key, t.input, t.segment) for t in tasks
             if t.segment is not None and t.segment.index <= need.get(t.input, -1)]
-    run_all(count_segment, jobs, engine,
-            lambda job, got: counts.__setitem__((job.input, job.segment.index), got),
-            lost=lambda job, why: SegmentCount(job.key, error=f"{job.input}: counting its frames: {why}"))
-    out = []
+    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), enabled=progress, label="count frames")
+
+    def got(job: CountTask, count: SegmentCount) -> None:
+        counts[(job.input, job.segment.index)] = count
+        bar.advance(job.segment.size_bytes, failed=count.error is not None)
+
+    try:
+        run_all(count_segment, jobs, engine, got,
+                lost=lambda job, why: SegmentCount(job.key, error=f"{job.input}: counting its frames: {why}"))
+    finally:
+        bar.close()
+    ready, unknown = [], []
     for t in todo:
         if t.segment is None or t.segment.index == 0:
-            out.append(t)
+            ready.append(t)
             continue
         start = start_ordinals([counts[(t.input, i)] for i in range(t.segment.index)])[-1]
-        if isinstance(start, str):
-            record(t, UnitResult(key=t.key, input=t.input, part=t.part, error=start, size_bytes=t.size_bytes))
-        else:
-            out.append(replace(t, ordinals=start))
-    return out
+        (unknown if isinstance(start, str) else ready).append(replace(t, ordinals=start))
+    return ready, unknown
 
 
 def _not_done(manifest: Manifest, tasks: list[UnitTask], mtimes: dict[str, int], job: str,

@@ -46,7 +46,8 @@ class UnitTask:
         part: the segment's name (``seg0003``), None for the whole file.
         size_bytes: bytes this unit reads (for progress), the capture's size when whole.
         ordinals: a segment's :class:`~lidarpkt.archive.ordinals.Ordinals` (where its VLP-16
-            ``frame_id`` and ``packet_index`` start in the whole file); None: from 0.
+            ``frame_id`` and ``packet_index`` start in the whole file); None: from 0. (A task the
+            job holds back carries here, instead, why its ordinals are unknown; it is not run.)
     """
 
     key: str

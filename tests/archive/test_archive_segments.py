@@ -180,3 +180,20 @@ def test_laz_frames_per_file_groups_by_whole_file_frame_id(captures, tmp_path):
     want = np.concatenate([np.asarray(laspy.read(p)["frame_id"]) for p in output_files(whole).values()])
     got = np.concatenate([np.asarray(laspy.read(p)["frame_id"]) for p in output_files(cut).values()])
     np.testing.assert_array_equal(np.sort(got), np.sort(want))
+
+
+def test_segments_whose_start_cannot_be_counted_are_set_apart_with_the_reason(captures, tmp_path):
+    """The capture is damaged after planning (here: emptied): segment 0 still runs (it needs no
+    count) and every later one is held back with the count's error, naming the file."""
+    from lidarpkt.archive.engine import EngineOptions
+    from lidarpkt.archive.export import _with_ordinals, plan_units, writer_options
+
+    path = tmp_path / "drive.pcap"
+    shutil.copy(captures[0], path)
+    tasks, _, failed = plan_units([path], str(tmp_path / "out"), "npz", writer_options("npz"), segment_bytes=150_000)
+    assert not failed and len(tasks) > 2
+    path.write_bytes(b"")
+    ready, unknown = _with_ordinals(tasks, tasks, EngineOptions(workers=1))
+    assert [t.segment.index for t in ready] == [0]
+    assert [t.segment.index for t in unknown] == list(range(1, len(tasks)))
+    assert all(isinstance(t.ordinals, str) and str(path) in t.ordinals for t in unknown)
