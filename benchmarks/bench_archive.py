@@ -71,6 +71,18 @@ def timed_export(paths: list[Path], out: Path, fmt: str, **options) -> tuple[flo
     return wall, rows
 
 
+def count_pass_cpu(large: Path, segment_bytes: int) -> float:
+    """CPU seconds of the count pass a segmented export runs before its units (all segments but the last)."""
+    from lidarpkt.archive.ordinals import CountTask, count_segment
+    from lidarpkt.sources.segments import plan_segments
+
+    segments = plan_segments(large, segment_bytes)
+    t0 = time.process_time()
+    for seg in segments[:-1]:
+        count_segment(CountTask(f"seg{seg.index}", str(large), seg))
+    return time.process_time() - t0
+
+
 def dask_overhead(n_tasks: int = 2000) -> dict:
     """Seconds per task of a no-op on a LocalCluster of 2 processes, and the cluster's start-up."""
     import distributed
@@ -119,8 +131,13 @@ def main() -> int:
         wall, rows = timed_export([large], out, args.format, workers=workers, segment_bytes=segment)
         figures[f"large_{workers}w_s"] = wall
         print(f"large capture, {len(rows)} segments, {workers} worker(s): {wall:7.2f} s  {large_mb / wall:7.1f} MB/s")
+        figures[f"large_{workers}w_unit_cpu_s"] = sum(r["cpu_seconds"] for r in rows)
     figures["large_speedup"] = figures["large_1w_s"] / figures["large_2w_s"]
     print(f"large capture speedup 2 vs 1 worker: {figures['large_speedup']:.2f}x")
+    count_cpu = count_pass_cpu(large, segment)
+    figures["large_count_pass_cpu_s"] = count_cpu
+    print(f"large capture count pass (whole-file VLP-16 ordinals of the segments): {count_cpu:.2f} CPU s = "
+          f"{count_cpu / figures['large_1w_unit_cpu_s'] * 100:.0f}% of the units' {figures['large_1w_unit_cpu_s']:.2f} CPU s")
     over = dask_overhead()
     figures.update(over)
     print(f"Dask: LocalCluster(2) start-up {over['cluster_startup_s']:.2f} s, {over['per_task_s'] * 1e3:.2f} ms per task "

@@ -104,7 +104,8 @@ def manifest_table(rows: Sequence[dict[str, Any]]):
 
 
 def to_dask(paths: Sequence[str | os.PathLike[str]], *, layout: str = "points", **options: Any):
-    """A ``dask.dataframe`` of the captures' points, each partition decoded lazily; see :mod:`.lazy`."""
+    """A ``dask.dataframe`` of the captures' points (``layout="points"``) or frames (``layout="frames"``),
+    each partition (a capture or segment) decoded lazily; see :mod:`.lazy`."""
     from .lazy import to_dask as _to_dask
 
     return _to_dask(paths, layout=layout, **options)

@@ -43,7 +43,7 @@ def _mode(details: dict[str, Any]) -> str | None:
     return mode if isinstance(mode, str) else "/".join(mode)
 
 
-def _count_frames(path: str, metadata: Sequence[str]) -> tuple[dict[str, dict[str, Any]], str | None]:
+def _count_frames(path: str, metadata: Sequence[Any]) -> tuple[dict[str, dict[str, Any]], str | None]:
     """Frames, partial frames, lost and skipped packets and model per source, and the decode error."""
     import lidarpkt
 
@@ -103,7 +103,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         except (LidarpktError, OSError) as exc:
             msg = str(exc) if isinstance(exc, LidarpktError) else f"{capture.url}: cannot read ({exc.strerror or exc})"
             return [{**base, "error": msg}]
-        per_source, error = _count_frames(path, capture.metadata)
+        per_source, error = _count_frames(path, md)  # the loaded metadata: a remote JSON is no local path
     finally:
         if scratch:
             import shutil

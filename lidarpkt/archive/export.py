@@ -10,22 +10,25 @@ from __future__ import annotations
 
 import os
 import shutil
-from dataclasses import dataclass, field
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 from lidarpkt.errors import LidarpktError
 
-from .engine import EngineOptions, Progress, run_all
+from .engine import EngineOptions, Progress, dask_client, run_all
+from .ordinals import CountTask, SegmentCount, count_segment, start_ordinals
 from .manifest import Manifest, OutdirLock, job_fingerprint, make_row
 from .plan import DEFAULT_SEGMENT_BYTES, PlanError, is_remote, local_path, plan_captures, plan_segments
 from .unit import STAGING, UnitResult, UnitTask, run_unit
 
 FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap")
-# one file per frame named by frame id: a VLP-16 segment counts rotations from where it starts
-# reading, so two segments would name different frames alike; and MCAP is decode's whole-file
-# output (raw packets included): these formats run whole files
-WHOLE_FILE_FORMATS = ("ply", "pcd", "mcap")
+# MCAP is ``lidarpkt decode IN -o OUT.mcap``'s output: one recording of the capture (raw packets,
+# clouds, log times, one summary and index), which a reader opens as one file; segments would
+# split one recording into several, so it runs whole files. Every other format runs segments
+# (PLY/PCD: one file per frame, named by the whole-file frame id a segment knows: .ordinals).
+WHOLE_FILE_FORMATS = ("mcap",)
 
 
 @dataclass
@@ -155,12 +158,20 @@ def export_job(
             manifest.append(row)
             report.rows.append(row)
         todo.sort(key=lambda t: -t.size_bytes)  # the largest first: the job ends sooner
-        bar = Progress(sum(t.size_bytes for t in todo), len(todo), enabled=progress, label=f"export {format}")
-        record = _Recorder(manifest, report, bar, mtimes, job)
+        bar = None
         try:
-            run_all(run_unit, todo, engine, record, lost=_lost_unit)
+            with _one_client(engine, todo) as engine:  # one cluster for both passes
+                todo, unknown = _with_ordinals(todo, tasks, engine, progress=progress)
+                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), enabled=progress,
+                               label=f"export {format}")
+                record = _Recorder(manifest, report, bar, mtimes, job)
+                for task in unknown:
+                    record(task, UnitResult(key=task.key, input=task.input, part=task.part, error=task.ordinals,
+                                            size_bytes=task.size_bytes))
+                run_all(run_unit, todo, engine, record, lost=_lost_unit)
         finally:
-            bar.close()
+            if bar is not None:
+                bar.close()
             manifest.flush()
             if not is_remote(out):
                 try:
@@ -170,6 +181,52 @@ def export_job(
     order = {t.key: i for i, t in enumerate(tasks)}
     report.rows.sort(key=lambda r: order.get(r["key"], -1))
     return report
+
+
+@contextmanager
+def _one_client(engine: EngineOptions, todo: list[UnitTask]) -> Iterator[EngineOptions]:
+    """``engine``, with the Dask client it starts shared by the count pass and the units."""
+    if engine.in_process() or engine.client is not None or not todo:
+        yield engine
+        return
+    with dask_client(engine) as client:
+        yield replace(engine, client=client)
+
+
+def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOptions, *,
+                   progress: bool = False) -> tuple[list[UnitTask], list[UnitTask]]:
+    """(tasks to run, tasks that cannot run): each segment after a capture's first gets its whole-file
+    ordinals, counted in the segments before it (:mod:`.ordinals`); a segment whose ordinals cannot
+    be known (an earlier segment is damaged: the whole-file reader stops there too) is returned
+    apart, with the reason in its ``ordinals``."""
+    need: dict[str, int] = {}  # capture → the last segment that must be counted
+    for t in todo:
+        if t.segment is not None and t.segment.index > 0:
+            need[t.input] = max(need.get(t.input, 0), t.segment.index - 1)
+    if not need:
+        return todo, []
+    counts: dict[tuple[str, int], SegmentCount] = {}
+    jobs = [CountTask(t.key, t.input, t.segment) for t in tasks
+            if t.segment is not None and t.segment.index <= need.get(t.input, -1)]
+    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), enabled=progress, label="count frames")
+
+    def got(job: CountTask, count: SegmentCount) -> None:
+        counts[(job.input, job.segment.index)] = count
+        bar.advance(job.segment.size_bytes, failed=count.error is not None)
+
+    try:
+        run_all(count_segment, jobs, engine, got,
+                lost=lambda job, why: SegmentCount(job.key, error=f"{job.input}: counting its frames: {why}"))
+    finally:
+        bar.close()
+    ready, unknown = [], []
+    for t in todo:
+        if t.segment is None or t.segment.index == 0:
+            ready.append(t)
+            continue
+        start = start_ordinals([counts[(t.input, i)] for i in range(t.segment.index)])[-1]
+        (unknown if isinstance(start, str) else ready).append(replace(t, ordinals=start))
+    return ready, unknown
 
 
 def _not_done(manifest: Manifest, tasks: list[UnitTask], mtimes: dict[str, int], job: str,

@@ -1,10 +1,14 @@
-"""``to_dask(paths)``: the points of an archive as a ``dask.dataframe`` decoded lazily, one
-partition per capture (or segment of a large one), built with ``dask.dataframe.from_map``.
+"""``to_dask(paths)``: the points (or frames) of an archive as a ``dask.dataframe`` decoded
+lazily, one partition per capture or segment of a large one, built with ``dask.dataframe.from_delayed``.
 
-The columns are the Parquet points layout's (:func:`lidarpkt.writers.parquet.points_schema`)
-plus ``capture``, with ``sensor``, ``return_label`` and ``capture`` as plain strings so that
-partitions of different captures concatenate without category juggling. A partition is what
-``lidarpkt export --format parquet`` writes for that unit, row for row.
+``layout="points"``: the columns of the Parquet points layout
+(:func:`lidarpkt.writers.parquet.points_schema`) plus ``capture``, with ``sensor``,
+``return_label`` and ``capture`` as plain strings so that partitions of different captures
+concatenate without category juggling. ``layout="frames"``: the frames layout's columns
+(:func:`~lidarpkt.writers.parquet.frames_schema`: one row per frame, range images as lists)
+plus ``capture``. A partition is what ``lidarpkt export --format parquet`` writes for that unit,
+row for row. The segments of a capture start from the whole file's VLP-16 ordinals: their count
+pass (:mod:`.ordinals`) is part of the graph, so nothing is decoded before ``compute``.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ class _Part:
     capture: str
     metadata: tuple[str, ...]
     segment: Any = None
+    layout: str = "points"
 
 
 def points_arrow_schema():
@@ -59,8 +64,38 @@ def _frame_table(frame: Any, capture: str, schema):
     return pa.Table.from_arrays(arrays, schema=schema)
 
 
-def decode_partition(part: _Part):
-    """The points of one capture or segment as a pandas DataFrame (a ``from_map`` partition).
+def frames_arrow_schema():
+    """The schema of :func:`to_dask`'s ``layout="frames"`` partitions (as a pyarrow schema)."""
+    import pyarrow as pa
+
+    from lidarpkt.writers.parquet import frames_schema
+
+    return pa.schema([pa.field("capture", pa.string()), *frames_schema()])
+
+
+class _FramesRows:
+    """Stands in for a frames-layout ParquetWriter: its row builder needs only ``schema``, and
+    using it makes a partition's rows the very rows the export writes."""
+
+    def __init__(self) -> None:
+        from lidarpkt.writers.parquet import frames_schema
+
+        self.schema = frames_schema()
+
+    def table(self, frame: Any, capture: str):
+        import pyarrow as pa
+
+        from lidarpkt.writers.parquet import ParquetWriter
+
+        batch = ParquetWriter._frame_batch(self, frame)
+        return pa.Table.from_batches([batch]).add_column(0, "capture", pa.array([capture], pa.string()))
+
+
+def decode_partition(part: _Part, start: Any = None):
+    """The points (or frames) of one capture or segment as a pandas DataFrame (a partition).
+
+    Args:
+        start: a segment's :class:`~.ordinals.Ordinals` (or the error that made them unknown).
 
     Raises:
         lidarpkt.errors.LidarpktError: the capture cannot be decoded (Dask reports it on compute).
@@ -69,16 +104,24 @@ def decode_partition(part: _Part):
 
     import lidarpkt
 
+    from .ordinals import Renumber
     from .plan import local_path
 
-    schema = points_arrow_schema()
+    if isinstance(start, str):
+        raise PlanError(start)
+    frames_rows = _FramesRows() if part.layout == "frames" else None
+    schema = points_arrow_schema() if frames_rows is None else frames_arrow_schema()
+    renumber = Renumber(start) if part.segment is not None else None
     tables = []
     options = {} if part.segment is None else {"segment": part.segment}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LidarpktWarning)  # counted by the readers; export's manifest lists them
         with lidarpkt.open(local_path(part.input), metadata=list(part.metadata) or None, **options) as reader:
             for frame in reader:
-                tables.append(_frame_table(frame, part.capture, schema))
+                if renumber is not None:
+                    frame = renumber.frame(frame)
+                tables.append(_frame_table(frame, part.capture, schema) if frames_rows is None
+                              else frames_rows.table(frame, part.capture))
     table = pa.concat_tables(tables) if tables else schema.empty_table()
     return _to_pandas(table)
 
@@ -92,31 +135,40 @@ def _to_pandas(table):
 
 def to_dask(paths: Sequence[str | os.PathLike[str]], *, layout: str = "points", glob: str | None = None,
             metadata: Sequence[str | os.PathLike[str]] = (), segment_bytes: int | str = DEFAULT_SEGMENT_BYTES):
-    """A lazy ``dask.dataframe.DataFrame`` of every return in the captures under ``paths``.
+    """A lazy ``dask.dataframe.DataFrame`` of every return (``layout="points"``) or every frame
+    (``layout="frames"``) in the captures under ``paths``; see the module doc for the columns.
 
     Args:
         paths: files or folders of captures (local paths or ``file://``; remote URLs: export first).
-        layout: ``"points"`` (one row per return); the frames layout is read with
-            ``dask.dataframe.read_parquet`` from an ``export --layout frames`` folder instead.
+        layout: ``"points"`` or ``"frames"``.
         glob, metadata, segment_bytes: as for :func:`lidarpkt.archive.export`.
 
     Raises:
         PlanError: an unknown layout, bad paths, a remote URL; EngineError: Dask is not installed.
     """
-    if layout != "points":
-        raise PlanError(f"layout={layout!r}: to_dask gives the points layout; for frames, export with "
-                        "--format parquet --layout frames and read it with dask.dataframe.read_parquet")
+    if layout not in ("points", "frames"):
+        raise PlanError(f"layout={layout!r}: choose points or frames")
     from .engine import EngineError
 
     try:
+        import dask
         import dask.dataframe as dd
     except ImportError:
         raise EngineError("to_dask needs Dask: pip install 'lidarpkt[dask]'") from None
+    from .ordinals import CountTask, count_segment, start_ordinals
+
     parts = []
     for cap in plan_captures(paths, glob=glob, metadata=metadata):
         if "://" in cap.url and not cap.url.startswith("file://"):
             raise PlanError(f"{cap.url}: to_dask reads local captures; export remote ones to Parquet first")
-        for seg in plan_segments(cap, parse_size(segment_bytes)):
-            parts.append(_Part(cap.url, cap.name, cap.metadata, seg))
-    meta = _to_pandas(points_arrow_schema().empty_table())
-    return dd.from_map(decode_partition, parts, meta=meta, enforce_metadata=True)
+        segments = plan_segments(cap, parse_size(segment_bytes))
+        counts = [dask.delayed(count_segment, pure=True)(CountTask(f"{cap.name}#{i}", cap.url, s))
+                  for i, s in enumerate(segments[:-1]) if s is not None]
+        starts = dask.delayed(start_ordinals, pure=True)(counts) if counts else None
+        for i, seg in enumerate(segments):
+            start = starts[i] if starts is not None and i > 0 else None
+            parts.append(dask.delayed(decode_partition, pure=True)(_Part(cap.url, cap.name, cap.metadata, seg, layout),
+                                                                   start))
+    schema = points_arrow_schema() if layout == "points" else frames_arrow_schema()
+    meta = _to_pandas(schema.empty_table())
+    return dd.from_delayed(parts, meta=meta, verify_meta=True)

@@ -34,8 +34,10 @@ class ExportBusyError(LidarpktError):
 
 
 def job_fingerprint(fmt: str, options: Iterable[tuple[str, Any]]) -> str:
-    """What makes outputs differ besides the input: the format and the writer options."""
-    return json.dumps({"format": fmt, **{k: v for k, v in options}}, sort_keys=True, default=str)
+    """What makes outputs differ besides the input: the format and the writer options (and, since
+    segments write whole-file VLP-16 frame ids, ``ordinals``: outputs of earlier jobs are redone)."""
+    return json.dumps({"format": fmt, "ordinals": "whole-file", **{k: v for k, v in options}}, sort_keys=True,
+                      default=str)
 
 
 def make_row(task: UnitTask, result: UnitResult, *, capture_mtime_ns: int, job: str) -> dict[str, Any]:

@@ -45,6 +45,9 @@ class UnitTask:
         segment: a :class:`lidarpkt.sources.segments.Segment`, or None for the whole file.
         part: the segment's name (``seg0003``), None for the whole file.
         size_bytes: bytes this unit reads (for progress), the capture's size when whole.
+        ordinals: a segment's :class:`~lidarpkt.archive.ordinals.Ordinals` (where its VLP-16
+            ``frame_id`` and ``packet_index`` start in the whole file); None: from 0. (A task the
+            job holds back carries here, instead, why its ordinals are unknown; it is not run.)
     """
 
     key: str
@@ -57,6 +60,7 @@ class UnitTask:
     segment: Any = None
     part: str | None = None
     size_bytes: int = 0
+    ordinals: Any = None
 
 
 @dataclass(frozen=True)
@@ -197,10 +201,13 @@ def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], co
     return [target]
 
 
-def _write_frames(writer: Any, reader: Any, counts: _Counts) -> None:
+def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
+    from .ordinals import Renumber
+
+    renumber = Renumber(task.ordinals) if task.segment is not None else None
     with reader:
         for frame in reader:
-            writer.write(frame)
+            writer.write(frame if renumber is None else renumber.frame(frame))
             counts.frames += 1
             counts.lost += frame.counters.lost_packets
             counts.malformed += frame.counters.malformed_packets
@@ -251,7 +258,7 @@ def run_unit(task: UnitTask) -> UnitResult:
                 else:
                     reader = _open_frames(local, task, scratch)
                     writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
-                    _write_frames(writer, reader, counts)
+                    _write_frames(writer, reader, counts, task)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)
                 counts.frames = 0

@@ -35,6 +35,27 @@ def test_to_dask_equals_the_parquet_export(tmp_path):
         assert got.column(name).cast(want.schema.field(name).type).equals(want.column(name)), name
 
 
-def test_to_dask_frames_layout_is_refused_with_what_to_do(tmp_path):
-    with pytest.raises(PlanError, match="read_parquet"):
-        to_dask([tmp_path], layout="frames")
+def test_to_dask_frames_layout_on_a_local_cluster_equals_the_exported_frames(tmp_path):
+    """Segments (whole-file VLP-16 frame ids from the count pass in the graph) decoded on a real
+    LocalCluster(n_workers=2) give the rows of a whole-file ``export --layout frames``."""
+    distributed = pytest.importorskip("distributed")
+    archive = build_archive(tmp_path / "archive")
+    pick = [archive / "vlp16-dual.pcap", archive / "os1-64-dual.pcap"]
+    export(pick, tmp_path / "out", format="parquet", layout="frames", workers=1)
+    want = ds.dataset(tmp_path / "out", format="parquet", partitioning="hive").to_table()
+    ddf = to_dask(pick, layout="frames", segment_bytes="300kB")
+    assert ddf.npartitions > 4  # segments, nothing decoded yet
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl, \
+            distributed.Client(cl) as client:
+        got = pa.Table.from_pandas(client.compute(ddf).result(), preserve_index=False)
+    want = want.set_column(want.column_names.index("capture"), "capture", want.column("capture").cast(pa.string()))
+    key = [(k, "ascending") for k in ("capture", "sensor", "frame_id")]
+    got, want = got.sort_by(key), want.select(got.column_names).sort_by(key)
+    assert got.num_rows == want.num_rows > 0
+    for name in got.column_names:
+        assert got.column(name).to_pylist() == want.column(name).to_pylist(), name
+
+
+def test_to_dask_unknown_layout_is_refused(tmp_path):
+    with pytest.raises(PlanError, match="points or frames"):
+        to_dask([tmp_path], layout="voxels")
