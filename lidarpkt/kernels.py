@@ -1,7 +1,8 @@
 """The compiled kernels, when the optional extension ``_lidarpkt_native`` was built.
 
 These loops do not vectorise well in NumPy, and run in C when they can
-(``lidarpkt/_native.c``):
+(``lidarpkt/native/*.c``, one file per concern: ``walk.c`` the packet walk, ``xyz.c``,
+``velodyne.c``, ``ouster.c``; ``module.c`` the method table):
 
 - the walk over classic-pcap record headers when record sizes are mixed, and over pcapng's
   enhanced packet blocks (each record's offset depends on the one before it);
