@@ -35,6 +35,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .. import kernels
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
@@ -75,11 +76,15 @@ class OusterDecoderStats:
 
 
 class _Builder:
-    """One frame being filled: raw pixel words are scattered by measurement id into word planes
-    (``planes[k, row, column]`` = 32-bit word k of the pixel), fields are extracted once, when
-    the frame is released, each by one contiguous shift/mask pass over its plane.
+    """One frame being filled.
 
-    The planes are not zeroed up front: columns that never arrived are zeroed at release.
+    With the compiled kernels, each packet's pixels are scattered straight into the frame's field
+    arrays at their (row, column) place (``ouster_scatter``, no transposed copy). The NumPy twin
+    scatters the raw pixel words by measurement id into word planes (``planes[k, row, column]`` =
+    32-bit word k of the pixel) and extracts the fields once, when the frame is released, each by
+    one contiguous shift/mask pass over its plane.
+
+    Neither is zeroed up front: columns that never arrived are zeroed at release.
     """
 
     def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
@@ -87,10 +92,15 @@ class _Builder:
         h, w = md.pixels_per_column, md.columns_per_frame
         self.key = key
         self.frame_id = frame_id
-        # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
-        self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
-            (md.profile.pixel_bytes // 4, h, w), np.uint32)
-        decoder._spare_planes = None
+        self.native = kernels.native
+        self.planes = self.outputs = None
+        if self.native is not None:
+            self.outputs, self.targets = _new_fields(md.profile, h, w)
+        else:
+            # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
+            self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
+                (md.profile.pixel_bytes // 4, h, w), np.uint32)
+            decoder._spare_planes = None
         self.timestamp_ns = np.zeros(w, np.int64)
         self.measurement_id = np.zeros(w, np.uint16)
         self.status = np.zeros(w, np.uint32)
@@ -99,13 +109,28 @@ class _Builder:
         self.counters = FrameCounters()
         self.last_mid0 = -1
 
-    def add(self, f: OusterPacketFields, words: np.ndarray) -> None:
-        """Columns of packets ``f`` with their pixel words ``<u4[n, C, H, pixel_bytes // 4]``."""
+    def add(self, f: OusterPacketFields, payload: np.ndarray, md: OusterMetadata) -> None:
+        """Columns of packets ``f`` with their payloads ``uint8[n, packet_size]``."""
         mids = f.measurement_id
         n, c = mids.shape
         flat = mids.ravel().astype(np.intp)
         if flat.size == 0:  # every packet was a duplicate
             return
+        if self.outputs is not None:
+            self.native.ouster_scatter(payload, *_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
+                                       mids.astype(np.int64), _scatter_steps(md.profile), self.targets)
+        else:
+            self._add_words(packet_view(payload, md.profile, md.pixels_per_column, c)["columns"]["pixels"], flat)
+        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
+        self.measurement_id[flat] = mids.ravel()
+        self.status[flat] = f.status.ravel()
+        if self.encoder_count is not None:
+            self.encoder_count[flat] = f.encoder_count.ravel()
+        self.received[flat] = True
+
+    def _add_words(self, words: np.ndarray, flat: np.ndarray) -> None:
+        """The NumPy twin of ``ouster_scatter``: pixel words ``<u4[n, C, H, words]`` into the planes."""
+        n, c = words.shape[:2]
         m0 = int(flat[0])
         planes = self.planes
         src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
@@ -120,17 +145,16 @@ class _Builder:
                 planes[:, :, m0 + i * c : m0 + j * c].reshape(nw, h, j - i, c)[...] = src[:, :, i:j]
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
-        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
-        self.measurement_id[flat] = mids.ravel()
-        self.status[flat] = f.status.ravel()
-        if self.encoder_count is not None:
-            self.encoder_count[flat] = f.encoder_count.ravel()
-        self.received[flat] = True
 
     def fields(self, profile) -> dict[str, np.ndarray]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
+        if self.outputs is not None:
+            if not self.received.all():
+                for target in self.targets:
+                    target[:, ~self.received] = 0
+            return self.outputs
         planes = self.planes
         if not self.received.all():
             planes[:, :, ~self.received] = 0
@@ -169,6 +193,37 @@ def _field_plan(profile) -> tuple:
         f = profile.field(name) if name in names else None
         plan.append((attr, (_step(f),) if f is not None else (), f.dtype if f is not None else None))
     return tuple(plan)
+
+
+def _new_fields(profile, h: int, w: int) -> tuple[dict[str, np.ndarray | None], list[np.ndarray]]:
+    """Fresh (unzeroed) field arrays of a frame, by attribute as :meth:`_Builder.fields` returns them,
+    and their ``[H, W]`` planes in the order of :func:`_scatter_steps`."""
+    out: dict[str, np.ndarray | None] = {}
+    targets: list[np.ndarray] = []
+    for attr, per_slot, dtype in _field_plan(profile):
+        if not per_slot:
+            out[attr] = None
+        elif attr in ("near_ir", "window"):
+            out[attr] = np.empty((h, w), dtype)
+            targets.append(out[attr])
+        else:
+            out[attr] = np.empty((len(per_slot), h, w), dtype)
+            targets.extend(out[attr])
+    return out, targets
+
+
+@lru_cache(maxsize=None)
+def _scatter_steps(profile) -> np.ndarray:
+    """``int64[F, 4]``: the extraction steps of :func:`_field_plan`, flattened in the order of :func:`_new_fields`."""
+    return np.array([step for _, per_slot, _ in _field_plan(profile) for step in per_slot], np.int64).reshape(-1, 4)
+
+
+@lru_cache(maxsize=None)
+def _layout(profile, h: int, c: int) -> tuple[int, int, int, int]:
+    """Bytes of the packet layout: (first column, one column, pixels within a column, one pixel)."""
+    packet = profile.packet_dtype(h, c)
+    column = packet["columns"].base
+    return packet.fields["columns"][1], column.itemsize, column.fields["pixels"][1], profile.pixel_bytes
 
 
 def _step(f) -> tuple[int, int, int, int]:
@@ -257,7 +312,7 @@ class OusterDecoder:
             return []
         f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
                            header_fields=("frame_id", "init_id", "prod_sn"))
-        words = packet_view(batch.payload, md.profile, md.pixels_per_column, md.columns_per_packet)["columns"]["pixels"]
+        payload = batch.payload if batch.payload.strides[1] == 1 else np.ascontiguousarray(batch.payload)
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
             bad = ~f.crc_ok
@@ -278,7 +333,7 @@ class OusterDecoder:
         if skipped:
             self._count_skipped(skipped)
             f = f.select(keep)
-            words = words[keep]
+            payload = payload[keep]
         if len(f) == 0:
             return []
 
@@ -300,19 +355,19 @@ class OusterDecoder:
                 self._current = _Builder(self, key, key[1])
                 self._current.counters = self._current.counters.add(self._pending_counters)
                 self._pending_counters = FrameCounters()
-            self._add(f.select(slice(s, e)), words[s:e])
+            self._add(f.select(slice(s, e)), payload[s:e])
             if self._current.received[self._window].all():
                 out.append(self._release())
         return out
 
-    def _add(self, f: OusterPacketFields, words: np.ndarray) -> None:
+    def _add(self, f: OusterPacketFields, payload: np.ndarray) -> None:
         b = self._current
         mid0 = f.measurement_id[:, 0].astype(np.intp)
         if int(mid0[0]) > b.last_mid0 and (mid0[1:] > mid0[:-1]).all() and not b.received[mid0].any():
             # the common case: packets in order, none seen before (no sort, no unique)
             b.last_mid0 = int(mid0[-1])
             self.stats.accepted += len(f)
-            b.add(f, words)
+            b.add(f, payload, self.metadata)
             return
         order = np.concatenate([[b.last_mid0], mid0])
         b.counters.out_of_order_packets += int((np.diff(order) < 0).sum())
@@ -326,9 +381,9 @@ class OusterDecoder:
             b.counters.duplicate_packets += dup
             self.stats.duplicates += dup
             f = f.select(fresh)
-            words = words[fresh]
+            payload = payload[fresh]
         self.stats.accepted += len(f)
-        b.add(f, words)
+        b.add(f, payload, self.metadata)
 
     def _count_skipped(self, n: int) -> None:
         target = self._current.counters if self._current is not None else self._pending_counters
@@ -365,7 +420,8 @@ class OusterDecoder:
         else:
             status_ok = (b.status & 1).astype(bool)
         px = b.fields(md.profile)
-        self._spare_planes, b.planes = b.planes, None
+        if b.planes is not None:
+            self._spare_planes, b.planes = b.planes, None
         extra = {"window": px["window"]} if px["window"] is not None else {}
         return Frame(
             sensor=self.sensor,
