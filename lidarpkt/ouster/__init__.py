@@ -18,15 +18,33 @@ packet/loss/frame counter the recorder runs live).
 
 from __future__ import annotations
 
-from .crc import crc64_xz
-from .decode import OusterPacketFields, decode_packets
-from .detect import classify, describe_stream
-from .encode import empty_fields, encode_frame, encode_packets, frame_fields
-from .frames import OusterDecoder, OusterDecoderStats
-from .geometry import OusterGeometry
-from .imu import decode_imu, encode_imu
-from .metadata import OusterMetadata, load_metadata
-from .profiles import PROFILES, BitField, Profile, get_profile
+import importlib
+from typing import Any
+
+# public name -> its module; imported on first use, so that a verb imports only the modules it
+# needs (``lidarpkt info`` reads ``detect`` and not the frame assembly, the encoder or XYZ)
+_LAZY: dict[str, str] = {
+    "crc64_xz": "crc",
+    "OusterPacketFields": "decode",
+    "decode_packets": "decode",
+    "classify": "detect",
+    "describe_stream": "detect",
+    "empty_fields": "encode",
+    "encode_frame": "encode",
+    "encode_packets": "encode",
+    "frame_fields": "encode",
+    "OusterDecoder": "frames",
+    "OusterDecoderStats": "frames",
+    "OusterGeometry": "geometry",
+    "decode_imu": "imu",
+    "encode_imu": "imu",
+    "OusterMetadata": "metadata",
+    "load_metadata": "metadata",
+    "PROFILES": "profiles",
+    "BitField": "profiles",
+    "Profile": "profiles",
+    "get_profile": "profiles",
+}
 
 __all__ = [
     "BitField",
@@ -50,3 +68,21 @@ __all__ = [
     "get_profile",
     "load_metadata",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:  # a submodule not imported yet (``lidarpkt.ouster.frames``)
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

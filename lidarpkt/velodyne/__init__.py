@@ -18,16 +18,38 @@ VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_deco
 
 from __future__ import annotations
 
-from .calibration import VelodyneCalibration, load_calibration, stock_calibration
-from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
-from .detect import classify, describe_stream
-from .encode import encode_data_packets, encode_frames, encode_position_packets
-from .frames import DecoderStats, VelodyneDecoder
-from .geometry import VelodyneGeometry
-from .models import MODELS, VLP16, VelodyneModel, model_for_product
-from .nmea import NMEAFix, parse_nmea
-from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
-from .points import POINT_DTYPE, frame_points
+import importlib
+from typing import Any
+
+# public name -> its module; imported on first use, so that a verb imports only the modules it
+# needs (``lidarpkt info`` reads ``detect`` and not the frame assembly, the encoder or XYZ)
+_LAZY: dict[str, str] = {
+    "VelodyneCalibration": "calibration",
+    "load_calibration": "calibration",
+    "stock_calibration": "calibration",
+    "DataPackets": "decode",
+    "PositionPackets": "decode",
+    "decode_packets": "decode",
+    "decode_position_packets": "decode",
+    "classify": "detect",
+    "describe_stream": "detect",
+    "encode_data_packets": "encode",
+    "encode_frames": "encode",
+    "encode_position_packets": "encode",
+    "DecoderStats": "frames",
+    "VelodyneDecoder": "frames",
+    "VelodyneGeometry": "geometry",
+    "MODELS": "models",
+    "VLP16": "models",
+    "VelodyneModel": "models",
+    "model_for_product": "models",
+    "NMEAFix": "nmea",
+    "parse_nmea": "nmea",
+    "DATA_PACKET_SIZE": "packet",
+    "POSITION_PACKET_SIZE": "packet",
+    "POINT_DTYPE": "points",
+    "frame_points": "points",
+}
 
 __all__ = [
     "DATA_PACKET_SIZE",
@@ -56,3 +78,21 @@ __all__ = [
     "MODELS",
     "model_for_product",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:  # a submodule not imported yet (``lidarpkt.velodyne.frames``)
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
