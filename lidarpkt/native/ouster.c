@@ -17,35 +17,75 @@ static inline uint32_t load_le32(const unsigned char *p) {
     return v;
 }
 
-/* One field of one packet: dst[row * w + mids[j]] = ((word >> off) & mask) << upshift for the
- * C columns j (src: word k of pixel 0 of column 0; columns `cstride` bytes apart, pixels
- * `pstride`). Cast to the field's type before the up-shift, as the NumPy twin does. */
-#define SCATTER_FIELD(NAME, TYPE)                                                                                 \
-    static void NAME(const unsigned char *restrict src, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t h,      \
-                     Py_ssize_t c, const int64_t *restrict mids, int consecutive, Py_ssize_t w, unsigned off,      \
-                     uint32_t mask, unsigned upshift, TYPE *restrict dst) {                                        \
-        for (Py_ssize_t row = 0; row < h; row++) {                                                                \
-            const unsigned char *s = src + row * pstride;                                                         \
-            TYPE *d = dst + row * w;                                                                              \
-            if (consecutive) {                                                                                    \
-                d += mids[0];                                                                                     \
-                for (Py_ssize_t j = 0; j < c; j++)                                                                \
-                    d[j] = (TYPE)((TYPE)((load_le32(s + j * cstride) >> off) & mask) << upshift);                 \
-            } else {                                                                                              \
-                for (Py_ssize_t j = 0; j < c; j++)                                                                \
-                    d[mids[j]] = (TYPE)((TYPE)((load_le32(s + j * cstride) >> off) & mask) << upshift);           \
+/* How a field is read from its pixel word, chosen once per call (fewer instructions per pixel than
+ * the general shift-mask-shift): BYTES = a whole little-endian 1/2/4-byte load at a byte offset
+ * (byte-aligned fields that fill their type, no up-shift); MASK = the word & mask; SHIFT = the general
+ * ((word >> off) & mask) << upshift, cast to the field's type before the up-shift as NumPy does. */
+enum { KIND_BYTES, KIND_MASK, KIND_SHIFT };
+
+static inline uint32_t load_le16(const unsigned char *p) {
+    uint16_t v;
+    memcpy(&v, p, 2);
+#if !PY_LITTLE_ENDIAN
+    v = (uint16_t)((v >> 8) | (v << 8));
+#endif
+    return v;
+}
+
+#define PIXEL_U8(s) ((uint32_t)(s)[0])
+#define PIXEL_U16(s) load_le16(s)
+#define PIXEL_U32(s) load_le32(s)
+
+/* One row of one field of one packet: dst[mids[j]] (or dst[j] when `consecutive`, dst already at
+ * mids[0]) for the C columns j, src at the field's bytes in column 0, columns `cstride` apart.
+ * Always inlined into calls with C = 16 (every Ouster firmware's columns per packet), so that the
+ * compiler unrolls the columns, and into one with C at run time. */
+#define SCATTER_ROW(NAME, TYPE)                                                                                   \
+    static inline __attribute__((always_inline)) void NAME(                                                      \
+        const unsigned char *restrict s, Py_ssize_t cstride, Py_ssize_t c, const int64_t *restrict mids,          \
+        int consecutive, int kind, unsigned off, uint32_t mask, unsigned upshift, TYPE *restrict d) {            \
+        if (consecutive && kind == KIND_BYTES) {                                                                  \
+            for (Py_ssize_t j = 0; j < c; j++) d[j] = (TYPE)(sizeof(TYPE) == 1 ? PIXEL_U8(s + j * cstride)       \
+                                                     : sizeof(TYPE) == 2 ? PIXEL_U16(s + j * cstride)             \
+                                                                         : PIXEL_U32(s + j * cstride));           \
+        } else if (consecutive && kind == KIND_MASK) {                                                            \
+            for (Py_ssize_t j = 0; j < c; j++) d[j] = (TYPE)(load_le32(s + j * cstride) & mask);                 \
+        } else if (consecutive) {                                                                                 \
+            for (Py_ssize_t j = 0; j < c; j++)                                                                    \
+                d[j] = (TYPE)((TYPE)((load_le32(s + j * cstride) >> off) & mask) << upshift);                     \
+        } else { /* columns out of order within the packet: rare, so one loop for every kind */               \
+            for (Py_ssize_t j = 0; j < c; j++) {                                                                  \
+                const unsigned char *p = s + j * cstride;                                                         \
+                d[mids[j]] = kind == KIND_BYTES ? (TYPE)(sizeof(TYPE) == 1   ? PIXEL_U8(p)                        \
+                                                         : sizeof(TYPE) == 2 ? PIXEL_U16(p)                       \
+                                                                             : PIXEL_U32(p))                      \
+                             : kind == KIND_MASK ? (TYPE)(load_le32(p) & mask)                                    \
+                                                 : (TYPE)((TYPE)((load_le32(p) >> off) & mask) << upshift);       \
             }                                                                                                     \
         }                                                                                                         \
+    }                                                                                                             \
+    static void NAME##_packet(const unsigned char *restrict src, Py_ssize_t cstride, Py_ssize_t pstride,         \
+                              Py_ssize_t h, Py_ssize_t c, const int64_t *restrict mids, int consecutive,          \
+                              Py_ssize_t w, int kind, unsigned off, uint32_t mask, unsigned upshift,              \
+                              TYPE *restrict dst) {                                                               \
+        TYPE *d = dst + (consecutive ? mids[0] : 0);                                                              \
+        if (c == 16)                                                                                              \
+            for (Py_ssize_t row = 0; row < h; row++)                                                              \
+                NAME(src + row * pstride, cstride, 16, mids, consecutive, kind, off, mask, upshift, d + row * w); \
+        else                                                                                                      \
+            for (Py_ssize_t row = 0; row < h; row++)                                                              \
+                NAME(src + row * pstride, cstride, c, mids, consecutive, kind, off, mask, upshift, d + row * w);  \
     }
 
-SCATTER_FIELD(scatter_u8, uint8_t)
-SCATTER_FIELD(scatter_u16, uint16_t)
-SCATTER_FIELD(scatter_u32, uint32_t)
+SCATTER_ROW(scatter_u8, uint8_t)
+SCATTER_ROW(scatter_u16, uint16_t)
+SCATTER_ROW(scatter_u32, uint32_t)
 
 #define MAX_FIELDS 16
 
 typedef struct {
-    Py_ssize_t word, itemsize;
+    Py_ssize_t at, itemsize; /* byte of the pixel the field is read from (its word's, or its own for BYTES) */
+    int kind;
     unsigned off, upshift;
     uint32_t mask;
     void *out;
@@ -74,8 +114,16 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
             return -1;
         }
         *w = v->shape[1];
-        plans[i] = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
-                                v->buf};
+        field_plan *p = &plans[i];
+        *p = (field_plan){4 * s[0], v->itemsize, KIND_SHIFT, (unsigned)s[1], (unsigned)s[3],
+                          s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu, v->buf};
+        int fills = s[2] == 0 || s[2] == (int64_t)(0xFFFFFFFFu >> (32 - 8 * v->itemsize));
+        if (PY_LITTLE_ENDIAN && s[1] % 8 == 0 && s[1] + 8 * v->itemsize <= 32 && fills && s[3] == 0) {
+            p->kind = KIND_BYTES;
+            p->at += s[1] / 8;
+        } else if (s[1] == 0 && s[3] == 0 && v->itemsize == 4) {
+            p->kind = KIND_MASK;
+        }
     }
     return 0;
 }
@@ -136,16 +184,16 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
             const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
             for (Py_ssize_t i = 0; i < nf; i++) {
                 const field_plan *f = &plans[i];
-                const unsigned char *src = col0 + 4 * f->word;
+                const unsigned char *src = col0 + f->at;
                 if (f->itemsize == 1)
-                    scatter_u8(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->off, f->mask, f->upshift,
-                               (uint8_t *)f->out);
+                    scatter_u8_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
+                                      f->mask, f->upshift, (uint8_t *)f->out);
                 else if (f->itemsize == 2)
-                    scatter_u16(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->off, f->mask, f->upshift,
-                                (uint16_t *)f->out);
+                    scatter_u16_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
+                                       f->mask, f->upshift, (uint16_t *)f->out);
                 else
-                    scatter_u32(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->off, f->mask, f->upshift,
-                                (uint32_t *)f->out);
+                    scatter_u32_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
+                                       f->mask, f->upshift, (uint32_t *)f->out);
             }
         }
         Py_END_ALLOW_THREADS
