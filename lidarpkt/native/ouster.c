@@ -17,75 +17,101 @@ static inline uint32_t load_le32(const unsigned char *p) {
     return v;
 }
 
-/* How a field is read from its pixel word, chosen once per call (fewer instructions per pixel than
- * the general shift-mask-shift): BYTES = a whole little-endian 1/2/4-byte load at a byte offset
- * (byte-aligned fields that fill their type, no up-shift); MASK = the word & mask; SHIFT = the general
- * ((word >> off) & mask) << upshift, cast to the field's type before the up-shift as NumPy does. */
-enum { KIND_BYTES, KIND_MASK, KIND_SHIFT };
+/* A packet in blocks of BLOCK_ROWS rows, in two steps: the pixels' words are copied into a small
+ * row-major scratch (words[k][row][column], in L1), then each field is extracted from its word's
+ * contiguous rows, with SSE2 (in the x86-64 baseline). Reading each field straight from the
+ * column-major pixels cannot be vectorised (every load is a column apart): that took more
+ * instructions than NumPy's transposing copy and field passes. */
+#define MAX_WORDS 4    /* 16-byte pixels (RNG19 dual) */
+#define MAX_COLUMNS 64 /* columns per packet: 16 on every firmware so far */
+#define BLOCK_ROWS 16
 
-static inline uint32_t load_le16(const unsigned char *p) {
-    uint16_t v;
-    memcpy(&v, p, 2);
-#if !PY_LITTLE_ENDIAN
-    v = (uint16_t)((v >> 8) | (v << 8));
-#endif
-    return v;
+typedef uint32_t scratch_t[MAX_WORDS][BLOCK_ROWS][MAX_COLUMNS];
+
+static inline __attribute__((always_inline)) void gather(const unsigned char *restrict s, Py_ssize_t cstride,
+                                                         Py_ssize_t pstride, Py_ssize_t rows, Py_ssize_t c,
+                                                         Py_ssize_t nwords, scratch_t words) {
+    for (Py_ssize_t r = 0; r < rows; r++)
+        for (Py_ssize_t j = 0; j < c; j++)
+#pragma GCC unroll 4
+            for (Py_ssize_t k = 0; k < nwords; k++) words[k][r][j] = load_le32(s + r * pstride + j * cstride + 4 * k);
 }
 
-#define PIXEL_U8(s) ((uint32_t)(s)[0])
-#define PIXEL_U16(s) load_le16(s)
-#define PIXEL_U32(s) load_le32(s)
+/* gather with the sizes of every current firmware as constants (16 columns, 1-4 words), so that the
+ * compiler unrolls it into plain loads and stores. */
+static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t rows,
+                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+    if (c != 16) gather(s, cstride, pstride, rows, c, nwords, words);
+    else if (nwords == 3) gather(s, cstride, pstride, rows, 16, 3, words);
+    else if (nwords == 1) gather(s, cstride, pstride, rows, 16, 1, words);
+    else if (nwords == 2) gather(s, cstride, pstride, rows, 16, 2, words);
+    else gather(s, cstride, pstride, rows, 16, nwords, words);
+}
 
-/* One row of one field of one packet: dst[mids[j]] (or dst[j] when `consecutive`, dst already at
- * mids[0]) for the C columns j, src at the field's bytes in column 0, columns `cstride` apart.
- * Always inlined into calls with C = 16 (every Ouster firmware's columns per packet), so that the
- * compiler unrolls the columns, and into one with C at run time. */
-#define SCATTER_ROW(NAME, TYPE)                                                                                   \
-    static inline __attribute__((always_inline)) void NAME(                                                      \
-        const unsigned char *restrict s, Py_ssize_t cstride, Py_ssize_t c, const int64_t *restrict mids,          \
-        int consecutive, int kind, unsigned off, uint32_t mask, unsigned upshift, TYPE *restrict d) {            \
-        if (consecutive && kind == KIND_BYTES) {                                                                  \
-            for (Py_ssize_t j = 0; j < c; j++) d[j] = (TYPE)(sizeof(TYPE) == 1 ? PIXEL_U8(s + j * cstride)       \
-                                                     : sizeof(TYPE) == 2 ? PIXEL_U16(s + j * cstride)             \
-                                                                         : PIXEL_U32(s + j * cstride));           \
-        } else if (consecutive && kind == KIND_MASK) {                                                            \
-            for (Py_ssize_t j = 0; j < c; j++) d[j] = (TYPE)(load_le32(s + j * cstride) & mask);                 \
-        } else if (consecutive) {                                                                                 \
-            for (Py_ssize_t j = 0; j < c; j++)                                                                    \
-                d[j] = (TYPE)((TYPE)((load_le32(s + j * cstride) >> off) & mask) << upshift);                     \
-        } else { /* columns out of order within the packet: rare, so one loop for every kind */               \
-            for (Py_ssize_t j = 0; j < c; j++) {                                                                  \
-                const unsigned char *p = s + j * cstride;                                                         \
-                d[mids[j]] = kind == KIND_BYTES ? (TYPE)(sizeof(TYPE) == 1   ? PIXEL_U8(p)                        \
-                                                         : sizeof(TYPE) == 2 ? PIXEL_U16(p)                       \
-                                                                             : PIXEL_U32(p))                      \
-                             : kind == KIND_MASK ? (TYPE)(load_le32(p) & mask)                                    \
-                                                 : (TYPE)((TYPE)((load_le32(p) >> off) & mask) << upshift);       \
-            }                                                                                                     \
-        }                                                                                                         \
-    }                                                                                                             \
-    static void NAME##_packet(const unsigned char *restrict src, Py_ssize_t cstride, Py_ssize_t pstride,         \
-                              Py_ssize_t h, Py_ssize_t c, const int64_t *restrict mids, int consecutive,          \
-                              Py_ssize_t w, int kind, unsigned off, uint32_t mask, unsigned upshift,              \
-                              TYPE *restrict dst) {                                                               \
-        TYPE *d = dst + (consecutive ? mids[0] : 0);                                                              \
-        if (c == 16)                                                                                              \
-            for (Py_ssize_t row = 0; row < h; row++)                                                              \
-                NAME(src + row * pstride, cstride, 16, mids, consecutive, kind, off, mask, upshift, d + row * w); \
-        else                                                                                                      \
-            for (Py_ssize_t row = 0; row < h; row++)                                                              \
-                NAME(src + row * pstride, cstride, c, mids, consecutive, kind, off, mask, upshift, d + row * w);  \
+/* d[j] = ((word[j] >> off) & mask) << upshift in 32 bits, then narrowed to the field's type: the same
+ * bits as the NumPy twin's narrowing before the up-shift (a left shift only moves bits up). */
+#define VALUE(TYPE, x) ((TYPE)((((x) >> off) & mask) << upshift))
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+/* Four vectors of 32-bit words -> 16 values of 8, 16 or 32 bits. The values are cut to their width
+ * before the packs (16 bits: sign-extended from bit 15, so that the signed saturating pack gives
+ * back those 16 bits), so the packs never saturate. */
+static inline __attribute__((always_inline)) void extract16(const uint32_t *restrict word, int bytes, __m128i sr,
+                                                            __m128i m, __m128i sl, void *restrict d) {
+    __m128i v[4];
+    for (int i = 0; i < 4; i++)
+        v[i] = _mm_sll_epi32(_mm_and_si128(_mm_srl_epi32(_mm_loadu_si128((const __m128i *)(word + 4 * i)), sr), m), sl);
+    if (bytes == 4) {
+        for (int i = 0; i < 4; i++) _mm_storeu_si128((__m128i *)d + i, v[i]);
+    } else if (bytes == 2) {
+        for (int i = 0; i < 4; i++) v[i] = _mm_srai_epi32(_mm_slli_epi32(v[i], 16), 16);
+        _mm_storeu_si128((__m128i *)d, _mm_packs_epi32(v[0], v[1]));
+        _mm_storeu_si128((__m128i *)d + 1, _mm_packs_epi32(v[2], v[3]));
+    } else {
+        const __m128i byte = _mm_set1_epi32(0xFF);
+        for (int i = 0; i < 4; i++) v[i] = _mm_and_si128(v[i], byte);
+        _mm_storeu_si128((__m128i *)d, _mm_packus_epi16(_mm_packs_epi32(v[0], v[1]), _mm_packs_epi32(v[2], v[3])));
+    }
+}
+#endif
+
+/* One field of a block of rows: out[row * w + mids[j]] for rows [0, rows) of the scratch. */
+#define EXTRACT(NAME, TYPE)                                                                                       \
+    static void NAME(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, Py_ssize_t c,              \
+                     const int64_t *restrict mids, int consecutive, unsigned off, uint32_t mask,               \
+                     unsigned upshift, TYPE *restrict out, Py_ssize_t w) {                                       \
+        if (!consecutive) { /* columns out of order within the packet: rare */                                  \
+            for (Py_ssize_t r = 0; r < rows; r++)                                                               \
+                for (Py_ssize_t j = 0; j < c; j++) out[r * w + mids[j]] = VALUE(TYPE, word[r][j]);              \
+            return;                                                                                             \
+        }                                                                                                       \
+        out += mids[0];                                                                                         \
+        EXTRACT16(TYPE)                                                                                         \
+        for (Py_ssize_t r = 0; r < rows; r++)                                                                   \
+            for (Py_ssize_t j = 0; j < c; j++) out[r * w + j] = VALUE(TYPE, word[r][j]);                        \
     }
 
-SCATTER_ROW(scatter_u8, uint8_t)
-SCATTER_ROW(scatter_u16, uint16_t)
-SCATTER_ROW(scatter_u32, uint32_t)
+#if defined(__SSE2__)
+#define EXTRACT16(TYPE)                                                                                           \
+    if (c == 16) {                                                                                                \
+        const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift);                  \
+        const __m128i m = _mm_set1_epi32((int)mask);                                                            \
+        for (Py_ssize_t r = 0; r < rows; r++) extract16(word[r], sizeof(TYPE), sr, m, sl, out + r * w);         \
+        return;                                                                                                 \
+    }
+#else
+#define EXTRACT16(TYPE)
+#endif
+
+EXTRACT(extract_u8, uint8_t)
+EXTRACT(extract_u16, uint16_t)
+EXTRACT(extract_u32, uint32_t)
 
 #define MAX_FIELDS 16
 
 typedef struct {
-    Py_ssize_t at, itemsize; /* byte of the pixel the field is read from (its word's, or its own for BYTES) */
-    int kind;
+    Py_ssize_t word, itemsize;
     unsigned off, upshift;
     uint32_t mask;
     void *out;
@@ -114,16 +140,8 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
             return -1;
         }
         *w = v->shape[1];
-        field_plan *p = &plans[i];
-        *p = (field_plan){4 * s[0], v->itemsize, KIND_SHIFT, (unsigned)s[1], (unsigned)s[3],
-                          s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu, v->buf};
-        int fills = s[2] == 0 || s[2] == (int64_t)(0xFFFFFFFFu >> (32 - 8 * v->itemsize));
-        if (PY_LITTLE_ENDIAN && s[1] % 8 == 0 && s[1] + 8 * v->itemsize <= 32 && fills && s[3] == 0) {
-            p->kind = KIND_BYTES;
-            p->at += s[1] / 8;
-        } else if (s[1] == 0 && s[3] == 0 && v->itemsize == 4) {
-            p->kind = KIND_MASK;
-        }
+        plans[i] = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
+                                v->buf};
     }
     return 0;
 }
@@ -156,7 +174,7 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
     if (get_buffer(s_obj, &sb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "ouster_scatter steps") < 0) goto done;
     have = 3;
     Py_ssize_t n = pb.ndim == 2 ? pb.shape[0] : -1, c = mb.ndim == 2 ? mb.shape[1] : -1, w = 0;
-    if (n < 0 || c < 1 || pb.strides[1] != 1 || mb.ndim != 2 || mb.shape[0] != n || !is_native(mb.format, INTEGER_CODES) ||
+    if (n < 0 || c < 1 || c > MAX_COLUMNS || pixel_bytes > 4 * MAX_WORDS || pb.strides[1] != 1 || mb.ndim != 2 || mb.shape[0] != n || !is_native(mb.format, INTEGER_CODES) ||
         !is_native(sb.format, INTEGER_CODES) || sb.ndim != 2 || sb.shape[1] != 4 || h < 1 || pixel_bytes < 4 ||
         columns_at < 0 || pixels_at < 0 || column_bytes < pixels_at + h * pixel_bytes ||
         columns_at + c * column_bytes > pb.shape[1]) {
@@ -175,25 +193,29 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
     }
     {
         const unsigned char *base = (const unsigned char *)pb.buf;
-        Py_ssize_t nf = got;
+        Py_ssize_t nf = got, nwords = pixel_bytes / 4;
         Py_BEGIN_ALLOW_THREADS
+        scratch_t words;
         for (Py_ssize_t p = 0; p < n; p++) {
             const int64_t *m = mids + p * c;
             int consecutive = m[c - 1] - m[0] == c - 1;
             for (Py_ssize_t j = 1; consecutive && j < c; j++) consecutive = m[j] == m[j - 1] + 1;
             const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
-            for (Py_ssize_t i = 0; i < nf; i++) {
-                const field_plan *f = &plans[i];
-                const unsigned char *src = col0 + f->at;
-                if (f->itemsize == 1)
-                    scatter_u8_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
-                                      f->mask, f->upshift, (uint8_t *)f->out);
-                else if (f->itemsize == 2)
-                    scatter_u16_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
-                                       f->mask, f->upshift, (uint16_t *)f->out);
-                else
-                    scatter_u32_packet(src, column_bytes, pixel_bytes, h, c, m, consecutive, w, f->kind, f->off,
-                                       f->mask, f->upshift, (uint32_t *)f->out);
+            for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
+                Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
+                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, rows, c, nwords, words);
+                for (Py_ssize_t i = 0; i < nf; i++) {
+                    const field_plan *f = &plans[i];
+                    if (f->itemsize == 1)
+                        extract_u8(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                   (uint8_t *)f->out + row * w, w);
+                    else if (f->itemsize == 2)
+                        extract_u16(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                    (uint16_t *)f->out + row * w, w);
+                    else
+                        extract_u32(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                    (uint32_t *)f->out + row * w, w);
+                }
             }
         }
         Py_END_ALLOW_THREADS
