@@ -66,7 +66,9 @@ def callgrind_ir(name: str, path: str, repeat: int) -> int:
         out = Path(tmp) / "cg.out"
         cmd = ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable, __file__, "--one", name,
                "--path", path, "--repeat", str(repeat)]
-        subprocess.run(cmd, check=True, capture_output=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+        # one BLAS thread: OpenBLAS's idle threads spin, and their instructions vary from run to run
+        env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1")
+        subprocess.run(cmd, check=True, capture_output=True, env=env)
         return int(re.search(r"^summary: (\d+)", out.read_text(), re.M).group(1))
 
 
