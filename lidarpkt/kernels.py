@@ -16,7 +16,7 @@ These loops do not vectorise well in NumPy, and run in C when they can
 - Ouster frame assembly (``ouster_scatter``, ``native/ouster.c``): each packet's pixels straight
   into the frame's ``[H, W]`` field arrays at their (row, column) place, in blocks of 16 rows copied
   to an L1 scratch and then extracted field by field with SSE2; no word planes, no transposing copy
-  (1.4 M instructions per OS-2-128 frame against 3.8 M for NumPy's copy and six field passes;
+  (2.7 M instructions per OS-2-128 frame against 3.8 M for NumPy's copy and six field passes;
   callgrind, ``benchmarks/bench_ouster_scatter.py``). Reading each field straight from the
   column-major packets, as tried before, took more instructions than NumPy (every load a column apart).
 

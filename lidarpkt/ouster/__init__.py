@@ -18,11 +18,9 @@ packet/loss/frame counter the recorder runs live).
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from .._lazy import lazy_names
 
-# public name -> its module; imported on first use, so that a verb imports only the modules it
-# needs (``lidarpkt info`` reads ``detect`` and not the frame assembly, the encoder or XYZ)
+# public name -> its module, imported on first use (lidarpkt/_lazy.py)
 _LAZY: dict[str, str] = {
     "crc64_xz": "crc",
     "OusterPacketFields": "decode",
@@ -70,19 +68,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:  # a submodule not imported yet (``lidarpkt.ouster.frames``)
-        try:
-            return importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)
