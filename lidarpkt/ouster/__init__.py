@@ -5,7 +5,8 @@ RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8 and FUSA_RNG15_RFL8_NIR8_DUAL; LEGA
 
 Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
 layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
-:mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`), :mod:`.geometry`
+:mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`; :mod:`.fieldplan` where
+a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
 packet/loss/frame counter the recorder runs live).

@@ -31,7 +31,6 @@ from __future__ import annotations
 import warnings
 from collections import deque
 from dataclasses import dataclass, fields as dc_fields
-from functools import lru_cache
 
 import numpy as np
 
@@ -42,14 +41,10 @@ from ..packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
 from .imu import decode_imu
 from .metadata import OusterMetadata
+from .fieldplan import extract, field_plan, new_fields, packet_layout, scatter_steps
 from .profiles import LEGACY_STATUS_VALID
 
 _BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
-
-_SLOT_FIELDS = (
-    ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
-    ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"),
-)
 
 
 @dataclass
@@ -95,7 +90,7 @@ class _Builder:
         self.native = kernels.native
         self.planes = self.outputs = None
         if self.native is not None:
-            self.outputs, self.targets = _new_fields(md.profile, h, w)
+            self.outputs, self.targets = new_fields(md.profile, h, w)
         else:
             # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
             self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
@@ -117,8 +112,8 @@ class _Builder:
         if flat.size == 0:  # every packet was a duplicate
             return
         if self.outputs is not None:
-            self.native.ouster_scatter(payload, *_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
-                                       mids.astype(np.int64), _scatter_steps(md.profile), self.targets)
+            self.native.ouster_scatter(payload, *packet_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
+                                       mids.astype(np.int64), scatter_steps(md.profile), self.targets)
         else:
             self._add_words(packet_view(payload, md.profile, md.pixels_per_column, c)["columns"]["pixels"], flat)
         self.timestamp_ns[flat] = f.timestamp_ns.ravel()
@@ -160,92 +155,17 @@ class _Builder:
             planes[:, :, ~self.received] = 0
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
-        for attr, per_slot, dtype in _field_plan(profile):
+        for attr, per_slot, dtype in field_plan(profile):
             if not per_slot:
                 out[attr] = None
             elif attr in ("near_ir", "window"):
-                out[attr] = _extract(planes, per_slot[0], np.empty(shape, dtype))
+                out[attr] = extract(planes, per_slot[0], np.empty(shape, dtype))
             else:
                 arr = np.empty((len(per_slot),) + shape, dtype)
                 for r, step in enumerate(per_slot):
-                    _extract(planes, step, arr[r])
+                    extract(planes, step, arr[r])
                 out[attr] = arr
         return out
-
-
-@lru_cache(maxsize=None)
-def _field_plan(profile) -> tuple:
-    """Per frame attribute: (attr, one extraction step per return slot, dtype); no steps = absent.
-
-    A step is (word index, bit offset in the word, mask or 0 when the cast already drops the bits
-    above the field, up-shift): see :func:`_extract`.
-    """
-    names = set(profile.field_names)
-    slots = _SLOT_FIELDS[: profile.returns]
-    plan = []
-    for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
-        if slots[0][i] not in names:
-            plan.append((attr, (), None))
-            continue
-        fs = [profile.field(sl[i]) for sl in slots]
-        plan.append((attr, tuple(_step(f) for f in fs), fs[0].dtype))
-    for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
-        f = profile.field(name) if name in names else None
-        plan.append((attr, (_step(f),) if f is not None else (), f.dtype if f is not None else None))
-    return tuple(plan)
-
-
-def _new_fields(profile, h: int, w: int) -> tuple[dict[str, np.ndarray | None], list[np.ndarray]]:
-    """Fresh (unzeroed) field arrays of a frame, by attribute as :meth:`_Builder.fields` returns them,
-    and their ``[H, W]`` planes in the order of :func:`_scatter_steps`."""
-    out: dict[str, np.ndarray | None] = {}
-    targets: list[np.ndarray] = []
-    for attr, per_slot, dtype in _field_plan(profile):
-        if not per_slot:
-            out[attr] = None
-        elif attr in ("near_ir", "window"):
-            out[attr] = np.empty((h, w), dtype)
-            targets.append(out[attr])
-        else:
-            out[attr] = np.empty((len(per_slot), h, w), dtype)
-            targets.extend(out[attr])
-    return out, targets
-
-
-@lru_cache(maxsize=None)
-def _scatter_steps(profile) -> np.ndarray:
-    """``int64[F, 4]``: the extraction steps of :func:`_field_plan`, flattened in the order of :func:`_new_fields`."""
-    return np.array([step for _, per_slot, _ in _field_plan(profile) for step in per_slot], np.int64).reshape(-1, 4)
-
-
-@lru_cache(maxsize=None)
-def _layout(profile, h: int, c: int) -> tuple[int, int, int, int]:
-    """Bytes of the packet layout: (first column, one column, pixels within a column, one pixel)."""
-    packet = profile.packet_dtype(h, c)
-    column = packet["columns"].base
-    return packet.fields["columns"][1], column.itemsize, column.fields["pixels"][1], profile.pixel_bytes
-
-
-def _step(f) -> tuple[int, int, int, int]:
-    k, off = divmod(f.start_bit, 32)
-    masked = f.width < min(32 - off, 8 * f.dtype.itemsize)
-    return k, off, f.mask if masked else 0, f.upshift
-
-
-def _extract(planes: np.ndarray, step: tuple[int, int, int, int], out: np.ndarray) -> np.ndarray:
-    k, off, mask, upshift = step
-    w = planes[k]
-    if off:
-        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
-        if mask:
-            np.bitwise_and(out, out.dtype.type(mask), out=out)
-    elif mask:
-        np.bitwise_and(w, np.uint32(mask), out=out, casting="unsafe")
-    else:
-        np.copyto(out, w, casting="unsafe")
-    if upshift:
-        np.left_shift(out, out.dtype.type(upshift), out=out)
-    return out
 
 
 class OusterDecoder:

@@ -16,7 +16,8 @@ import pytest
 
 from lidarpkt import kernels
 from lidarpkt.ouster.decode import packet_view, read_pixel_field
-from lidarpkt.ouster.frames import OusterDecoder, _layout, _new_fields, _scatter_steps
+from lidarpkt.ouster.fieldplan import new_fields, packet_layout, scatter_steps
+from lidarpkt.ouster.frames import OusterDecoder
 from lidarpkt.ouster.profiles import PROFILES
 from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
 
@@ -87,10 +88,10 @@ def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
     size = profile.packet_dtype(h, c).itemsize
     payload = rng.integers(0, 256, (n, size + 3), dtype=np.uint8)[:, 3:]  # rows apart by more than a packet
     mids = np.stack([rng.permutation(w)[:c] for _ in range(n - 1)] + [np.arange(c) + 2 * c])  # scattered, then consecutive
-    outputs, targets = _new_fields(profile, h, w)
+    outputs, targets = new_fields(profile, h, w)
     for t in targets:
         t.fill(0xA5)
-    NATIVE.ouster_scatter(payload, *_layout(profile, h, c), h, mids.astype(np.int64), _scatter_steps(profile), targets)
+    NATIVE.ouster_scatter(payload, *packet_layout(profile, h, c), h, mids.astype(np.int64), scatter_steps(profile), targets)
     words = packet_view(payload, profile, h, c)["columns"]["pixels"]  # <u4[n, C, H, k]
     slots = (("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"), ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"))
     names = set(profile.field_names)
@@ -115,9 +116,9 @@ def test_ouster_scatter_refuses_what_does_not_fit_and_writes_nothing():
     profile = PROFILES["RNG19_RFL8_SIG16_NIR16"]
     h, c, w = 16, 16, 64
     payload = np.random.default_rng(0).integers(0, 256, (2, profile.packet_dtype(h, c).itemsize), dtype=np.uint8)
-    layout, steps = _layout(profile, h, c), _scatter_steps(profile)
+    layout, steps = packet_layout(profile, h, c), scatter_steps(profile)
     mids = np.arange(2 * c, dtype=np.int64).reshape(2, c)
-    _, targets = _new_fields(profile, h, w)
+    _, targets = new_fields(profile, h, w)
     for t in targets:
         t.fill(0)
     bad_mids = mids.copy()
