@@ -2,7 +2,7 @@
 
     python benchmarks/run_all.py [--repeat 3] [--ouster-frames 300] [--vlp-seconds 60]
                                  [--workdir DIR] [--memory-gb 1.5] [--memory-factor 10]
-                                 [--only ouster,velodyne,workers,pcap,memory,analysis,record]
+                                 [--only ouster,velodyne,workers,pcap,memory,analysis,record,start]
 
 Each comparison runs lidarpkt and the reference tool alternately ``--repeat`` times in this
 process (captures built once, so the page cache is warm) and reports the median wall time and
@@ -29,6 +29,8 @@ every run meets it (issue 16).
 - analysis: ``image_statistics`` of a 64 × 1024 × 30 stack (``bench_analysis.synthetic_stack``).
 - record: ``bench_record.run_one`` at 10× real time (VLP-16, OS1-64), loss counters and the
   recorder's CPU use.
+- start: ``lidarpkt --help``, ``--version`` and ``info`` on a 100-packet capture as whole processes
+  (``bench_cli_start.time_command``), each at most 0.3 s wall (issue 16); the CPU time beside it.
 
 The work directory keeps the built captures between runs (``--workdir``); by default a
 temporary directory is used and removed.
@@ -331,6 +333,17 @@ def record(args, work: Path) -> None:
             f"lost {lost}", "0 lost", lost == 0 and not r["kernel_drops"] and not r["queue_overflow"])
 
 
+def start(args, work: Path) -> None:
+    import bench_cli_start as bc
+
+    capture = bc._external("rust-lidar-utils/velodyne_vlp16.pcap")
+    print(f"\nCLI start, whole processes (load {load()})")
+    for argv in (["--help"], ["--version"], ["info", str(capture)]):
+        wall, cpu = bc.time_command(argv, max(3, args.repeat))
+        name = "lidarpkt " + (argv[0] if argv[0] != "info" else f"info {capture.name}")
+        row(name, f"{wall:.3f} s (cpu {cpu:.3f} s)", "", f"{wall:.3f} s", f"<= {bc.TARGET_S} s", wall <= bc.TARGET_S)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3)
@@ -341,9 +354,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep-memory-files", action="store_true")
     ap.add_argument("--record-seconds", type=float, default=2.0)
     ap.add_argument("--workdir", type=Path, help="keep the built captures here (default: a temporary directory)")
-    ap.add_argument("--only", default="ouster,velodyne,workers,pcap,memory,analysis,record")
+    ap.add_argument("--only", default="ouster,velodyne,workers,pcap,memory,analysis,record,start")
     args = ap.parse_args(argv)
-    steps = {"ouster": ouster, "velodyne": velodyne, "workers": workers, "pcap": pcap, "memory": memory, "analysis": analysis, "record": record}
+    steps = {"ouster": ouster, "velodyne": velodyne, "workers": workers, "pcap": pcap, "memory": memory, "analysis": analysis, "record": record,
+             "start": start}
     only = [s.strip() for s in args.only.split(",") if s.strip()]
     unknown = set(only) - set(steps)
     if unknown:

@@ -9,7 +9,6 @@ module state and monkeypatching are shared. Code inside the repository imports t
 from __future__ import annotations
 
 import importlib
-import importlib.abc
 import importlib.util
 import sys
 
@@ -21,8 +20,12 @@ MOVED: dict[str, str] = {
 }
 
 
-class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Finds an old module name in :data:`MOVED` and loads it as the module at its new name."""
+class _MovedModuleFinder:
+    """Finds an old module name in :data:`MOVED` and loads it as the module at its new name.
+
+    A meta path finder and loader by protocol (``find_spec``, ``create_module``, ``exec_module``):
+    not a subclass of ``importlib.abc``'s, whose import (importlib.resources, tempfile...) every
+    command's start-up would pay."""
 
     def find_spec(self, fullname, path=None, target=None):  # noqa: D102 - importlib protocol
         if fullname not in MOVED:

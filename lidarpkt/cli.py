@@ -54,7 +54,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
         description="Decode, record and analyse Velodyne VLP-16 and Ouster OS1 lidar packets.",
     )
     # says which implementation runs: the compiled kernels, or why not (their NumPy twins are slower)
-    parser.add_argument("--version", action="version", version=f"lidarpkt {_version()}, {_kernels()}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     for name, (_, help_text) in VERBS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -63,6 +63,19 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
             adder = getattr(module, f"add_{name.replace('-', '_')}_arguments", None) or module.add_arguments
             adder(p)
     return parser
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: the version string is made only when asked for (importlib.metadata costs
+    ~10-50 ms of start-up that every other command would pay)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest, nargs=0, default=default,
+                         help=help or "show the version and which kernels run, and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser._print_message(f"lidarpkt {_version()}, {_kernels()}\n", sys.stdout)
+        parser.exit()
 
 
 def _version() -> str:

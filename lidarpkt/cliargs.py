@@ -27,7 +27,6 @@ import argparse
 import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -180,6 +179,8 @@ _created: list[tuple[Path, bool]] = []  # outputs this run created (path, is_fol
 def _writable_folder(folder: Path, flag: str, path: Path) -> None:
     if not folder.is_dir():
         raise OutputError(f"{flag} {path}: the folder {folder} does not exist; create it first or choose another path")
+    import tempfile  # here, not at the top: every command's start-up would pay for it
+
     try:  # the real test: root ignores permission bits, /proc and read-only mounts do not
         fd, probe = tempfile.mkstemp(prefix=".lidarpkt-probe-", dir=folder)
         os.close(fd)

@@ -52,11 +52,13 @@ def _iso(ns: int) -> str:
 
 
 def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> dict | None:
-    from . import ouster, velodyne
+    # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
+    from .ouster.detect import describe_stream as ouster_stream
+    from .velodyne.detect import describe_stream as velodyne_stream
 
-    found = velodyne.describe_stream(batch)
+    found = velodyne_stream(batch)
     if found is None:
-        found = ouster.describe_stream(batch, metadata) if metadata else ouster.describe_stream(batch)
+        found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
     return found
 
 

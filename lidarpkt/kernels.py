@@ -1,7 +1,8 @@
 """The compiled kernels, when the optional extension ``_lidarpkt_native`` was built.
 
 These loops do not vectorise well in NumPy, and run in C when they can
-(``lidarpkt/_native.c``):
+(``lidarpkt/native/*.c``, one file per concern: ``walk.c`` the packet walk, ``xyz.c``,
+``velodyne.c``, ``ouster.c``; ``module.c`` the method table):
 
 - the walk over classic-pcap record headers when record sizes are mixed, and over pcapng's
   enhanced packet blocks (each record's offset depends on the one before it);
@@ -12,15 +13,15 @@ These loops do not vectorise well in NumPy, and run in C when they can
   of 64 packets, row by row (1.2-1.75x NumPy's two passes, paired runs on a loaded machine);
 - VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass
   (0.26 against 0.37-0.49 ms per dual frame).
+- Ouster frame assembly (``ouster_scatter``, ``native/ouster.c``): each packet's pixels straight
+  into the frame's ``[H, W]`` field arrays at their (row, column) place, in blocks of 16 rows copied
+  to an L1 scratch and then extracted field by field with SSE2; no word planes, no transposing copy
+  (2.7 M instructions per OS-2-128 frame against 3.8 M for NumPy's copy and six field passes;
+  callgrind, ``benchmarks/bench_ouster_scatter.py``). Reading each field straight from the
+  column-major packets, as tried before, took more instructions than NumPy (every load a column apart).
 
 The two XYZ loops have an AVX2 clone beside the baseline one (``target_clones``: the loader picks
 it on a machine that has AVX2, as NumPy's own dispatch does), with no FMA, so the bytes are the same.
-
-The Ouster transposition (column-major packets into row-major word planes) stays in NumPy: in
-C it was tried per packet in three loop orders, with SSE2 4x4 transposes, and fused with the field
-extraction; none beat NumPy's blocked strided copy (alone: 0.16 ms per OS-2-128 frame against
-0.17-0.46; in the pipeline the fused kernel took 0.55-0.72 ms where NumPy's copy and field passes
-take 0.47). See benchmarks/README.md.
 
 Each has a pure-NumPy twin in the module that calls it, used when the extension is absent (a
 machine without a C compiler at install time) or disabled with ``LIDARPKT_NATIVE=0``; the

@@ -5,7 +5,8 @@ RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8 and FUSA_RNG15_RFL8_NIR8_DUAL; LEGA
 
 Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
 layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
-:mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`), :mod:`.geometry`
+:mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`; :mod:`.fieldplan` where
+a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
 packet/loss/frame counter the recorder runs live).
@@ -18,15 +19,31 @@ packet/loss/frame counter the recorder runs live).
 
 from __future__ import annotations
 
-from .crc import crc64_xz
-from .decode import OusterPacketFields, decode_packets
-from .detect import classify, describe_stream
-from .encode import empty_fields, encode_frame, encode_packets, frame_fields
-from .frames import OusterDecoder, OusterDecoderStats
-from .geometry import OusterGeometry
-from .imu import decode_imu, encode_imu
-from .metadata import OusterMetadata, load_metadata
-from .profiles import PROFILES, BitField, Profile, get_profile
+from .._lazy import lazy_names
+
+# public name -> its module, imported on first use (lidarpkt/_lazy.py)
+_LAZY: dict[str, str] = {
+    "crc64_xz": "crc",
+    "OusterPacketFields": "decode",
+    "decode_packets": "decode",
+    "classify": "detect",
+    "describe_stream": "detect",
+    "empty_fields": "encode",
+    "encode_frame": "encode",
+    "encode_packets": "encode",
+    "frame_fields": "encode",
+    "OusterDecoder": "frames",
+    "OusterDecoderStats": "frames",
+    "OusterGeometry": "geometry",
+    "decode_imu": "imu",
+    "encode_imu": "imu",
+    "OusterMetadata": "metadata",
+    "load_metadata": "metadata",
+    "PROFILES": "profiles",
+    "BitField": "profiles",
+    "Profile": "profiles",
+    "get_profile": "profiles",
+}
 
 __all__ = [
     "BitField",
@@ -50,3 +67,6 @@ __all__ = [
     "get_profile",
     "load_metadata",
 ]
+
+
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

@@ -31,24 +31,20 @@ from __future__ import annotations
 import warnings
 from collections import deque
 from dataclasses import dataclass, fields as dc_fields
-from functools import lru_cache
 
 import numpy as np
 
+from .. import kernels
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
 from .imu import decode_imu
 from .metadata import OusterMetadata
+from .fieldplan import extract, field_plan, new_fields, packet_layout, scatter_steps
 from .profiles import LEGACY_STATUS_VALID
 
 _BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
-
-_SLOT_FIELDS = (
-    ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
-    ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"),
-)
 
 
 @dataclass
@@ -75,11 +71,15 @@ class OusterDecoderStats:
 
 
 class _Builder:
-    """One frame being filled: raw pixel words are scattered by measurement id into word planes
-    (``planes[k, row, column]`` = 32-bit word k of the pixel), fields are extracted once, when
-    the frame is released, each by one contiguous shift/mask pass over its plane.
+    """One frame being filled.
 
-    The planes are not zeroed up front: columns that never arrived are zeroed at release.
+    With the compiled kernels, each packet's pixels are scattered straight into the frame's field
+    arrays at their (row, column) place (``ouster_scatter``, no transposed copy). The NumPy twin
+    scatters the raw pixel words by measurement id into word planes (``planes[k, row, column]`` =
+    32-bit word k of the pixel) and extracts the fields once, when the frame is released, each by
+    one contiguous shift/mask pass over its plane.
+
+    Neither is zeroed up front: columns that never arrived are zeroed at release.
     """
 
     def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
@@ -87,10 +87,15 @@ class _Builder:
         h, w = md.pixels_per_column, md.columns_per_frame
         self.key = key
         self.frame_id = frame_id
-        # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
-        self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
-            (md.profile.pixel_bytes // 4, h, w), np.uint32)
-        decoder._spare_planes = None
+        self.native = kernels.native
+        self.planes = self.outputs = None
+        if self.native is not None:
+            self.outputs, self.targets = new_fields(md.profile, h, w)
+        else:
+            # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
+            self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
+                (md.profile.pixel_bytes // 4, h, w), np.uint32)
+            decoder._spare_planes = None
         self.timestamp_ns = np.zeros(w, np.int64)
         self.measurement_id = np.zeros(w, np.uint16)
         self.status = np.zeros(w, np.uint32)
@@ -99,13 +104,28 @@ class _Builder:
         self.counters = FrameCounters()
         self.last_mid0 = -1
 
-    def add(self, f: OusterPacketFields, words: np.ndarray) -> None:
-        """Columns of packets ``f`` with their pixel words ``<u4[n, C, H, pixel_bytes // 4]``."""
+    def add(self, f: OusterPacketFields, payload: np.ndarray, md: OusterMetadata) -> None:
+        """Columns of packets ``f`` with their payloads ``uint8[n, packet_size]``."""
         mids = f.measurement_id
         n, c = mids.shape
         flat = mids.ravel().astype(np.intp)
         if flat.size == 0:  # every packet was a duplicate
             return
+        if self.outputs is not None:
+            self.native.ouster_scatter(payload, *packet_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
+                                       mids.astype(np.int64), scatter_steps(md.profile), self.targets)
+        else:
+            self._add_words(packet_view(payload, md.profile, md.pixels_per_column, c)["columns"]["pixels"], flat)
+        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
+        self.measurement_id[flat] = mids.ravel()
+        self.status[flat] = f.status.ravel()
+        if self.encoder_count is not None:
+            self.encoder_count[flat] = f.encoder_count.ravel()
+        self.received[flat] = True
+
+    def _add_words(self, words: np.ndarray, flat: np.ndarray) -> None:
+        """The NumPy twin of ``ouster_scatter``: pixel words ``<u4[n, C, H, words]`` into the planes."""
+        n, c = words.shape[:2]
         m0 = int(flat[0])
         planes = self.planes
         src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
@@ -120,77 +140,32 @@ class _Builder:
                 planes[:, :, m0 + i * c : m0 + j * c].reshape(nw, h, j - i, c)[...] = src[:, :, i:j]
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
-        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
-        self.measurement_id[flat] = mids.ravel()
-        self.status[flat] = f.status.ravel()
-        if self.encoder_count is not None:
-            self.encoder_count[flat] = f.encoder_count.ravel()
-        self.received[flat] = True
 
     def fields(self, profile) -> dict[str, np.ndarray]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
+        if self.outputs is not None:
+            if not self.received.all():
+                for target in self.targets:
+                    target[:, ~self.received] = 0
+            return self.outputs
         planes = self.planes
         if not self.received.all():
             planes[:, :, ~self.received] = 0
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
-        for attr, per_slot, dtype in _field_plan(profile):
+        for attr, per_slot, dtype in field_plan(profile):
             if not per_slot:
                 out[attr] = None
             elif attr in ("near_ir", "window"):
-                out[attr] = _extract(planes, per_slot[0], np.empty(shape, dtype))
+                out[attr] = extract(planes, per_slot[0], np.empty(shape, dtype))
             else:
                 arr = np.empty((len(per_slot),) + shape, dtype)
                 for r, step in enumerate(per_slot):
-                    _extract(planes, step, arr[r])
+                    extract(planes, step, arr[r])
                 out[attr] = arr
         return out
-
-
-@lru_cache(maxsize=None)
-def _field_plan(profile) -> tuple:
-    """Per frame attribute: (attr, one extraction step per return slot, dtype); no steps = absent.
-
-    A step is (word index, bit offset in the word, mask or 0 when the cast already drops the bits
-    above the field, up-shift): see :func:`_extract`.
-    """
-    names = set(profile.field_names)
-    slots = _SLOT_FIELDS[: profile.returns]
-    plan = []
-    for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
-        if slots[0][i] not in names:
-            plan.append((attr, (), None))
-            continue
-        fs = [profile.field(sl[i]) for sl in slots]
-        plan.append((attr, tuple(_step(f) for f in fs), fs[0].dtype))
-    for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
-        f = profile.field(name) if name in names else None
-        plan.append((attr, (_step(f),) if f is not None else (), f.dtype if f is not None else None))
-    return tuple(plan)
-
-
-def _step(f) -> tuple[int, int, int, int]:
-    k, off = divmod(f.start_bit, 32)
-    masked = f.width < min(32 - off, 8 * f.dtype.itemsize)
-    return k, off, f.mask if masked else 0, f.upshift
-
-
-def _extract(planes: np.ndarray, step: tuple[int, int, int, int], out: np.ndarray) -> np.ndarray:
-    k, off, mask, upshift = step
-    w = planes[k]
-    if off:
-        np.right_shift(w, np.uint32(off), out=out, casting="unsafe")
-        if mask:
-            np.bitwise_and(out, out.dtype.type(mask), out=out)
-    elif mask:
-        np.bitwise_and(w, np.uint32(mask), out=out, casting="unsafe")
-    else:
-        np.copyto(out, w, casting="unsafe")
-    if upshift:
-        np.left_shift(out, out.dtype.type(upshift), out=out)
-    return out
 
 
 class OusterDecoder:
@@ -257,7 +232,7 @@ class OusterDecoder:
             return []
         f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
                            header_fields=("frame_id", "init_id", "prod_sn"))
-        words = packet_view(batch.payload, md.profile, md.pixels_per_column, md.columns_per_packet)["columns"]["pixels"]
+        payload = batch.payload if batch.payload.strides[1] == 1 else np.ascontiguousarray(batch.payload)
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
             bad = ~f.crc_ok
@@ -278,7 +253,7 @@ class OusterDecoder:
         if skipped:
             self._count_skipped(skipped)
             f = f.select(keep)
-            words = words[keep]
+            payload = payload[keep]
         if len(f) == 0:
             return []
 
@@ -300,19 +275,19 @@ class OusterDecoder:
                 self._current = _Builder(self, key, key[1])
                 self._current.counters = self._current.counters.add(self._pending_counters)
                 self._pending_counters = FrameCounters()
-            self._add(f.select(slice(s, e)), words[s:e])
+            self._add(f.select(slice(s, e)), payload[s:e])
             if self._current.received[self._window].all():
                 out.append(self._release())
         return out
 
-    def _add(self, f: OusterPacketFields, words: np.ndarray) -> None:
+    def _add(self, f: OusterPacketFields, payload: np.ndarray) -> None:
         b = self._current
         mid0 = f.measurement_id[:, 0].astype(np.intp)
         if int(mid0[0]) > b.last_mid0 and (mid0[1:] > mid0[:-1]).all() and not b.received[mid0].any():
             # the common case: packets in order, none seen before (no sort, no unique)
             b.last_mid0 = int(mid0[-1])
             self.stats.accepted += len(f)
-            b.add(f, words)
+            b.add(f, payload, self.metadata)
             return
         order = np.concatenate([[b.last_mid0], mid0])
         b.counters.out_of_order_packets += int((np.diff(order) < 0).sum())
@@ -326,9 +301,9 @@ class OusterDecoder:
             b.counters.duplicate_packets += dup
             self.stats.duplicates += dup
             f = f.select(fresh)
-            words = words[fresh]
+            payload = payload[fresh]
         self.stats.accepted += len(f)
-        b.add(f, words)
+        b.add(f, payload, self.metadata)
 
     def _count_skipped(self, n: int) -> None:
         target = self._current.counters if self._current is not None else self._pending_counters
@@ -365,7 +340,8 @@ class OusterDecoder:
         else:
             status_ok = (b.status & 1).astype(bool)
         px = b.fields(md.profile)
-        self._spare_planes, b.planes = b.planes, None
+        if b.planes is not None:
+            self._spare_planes, b.planes = b.planes, None
         extra = {"window": px["window"]} if px["window"] is not None else {}
         return Frame(
             sensor=self.sensor,

@@ -18,16 +18,36 @@ VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_deco
 
 from __future__ import annotations
 
-from .calibration import VelodyneCalibration, load_calibration, stock_calibration
-from .decode import DataPackets, PositionPackets, decode_packets, decode_position_packets
-from .detect import classify, describe_stream
-from .encode import encode_data_packets, encode_frames, encode_position_packets
-from .frames import DecoderStats, VelodyneDecoder
-from .geometry import VelodyneGeometry
-from .models import MODELS, VLP16, VelodyneModel, model_for_product
-from .nmea import NMEAFix, parse_nmea
-from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE
-from .points import POINT_DTYPE, frame_points
+from .._lazy import lazy_names
+
+# public name -> its module, imported on first use (lidarpkt/_lazy.py)
+_LAZY: dict[str, str] = {
+    "VelodyneCalibration": "calibration",
+    "load_calibration": "calibration",
+    "stock_calibration": "calibration",
+    "DataPackets": "decode",
+    "PositionPackets": "decode",
+    "decode_packets": "decode",
+    "decode_position_packets": "decode",
+    "classify": "detect",
+    "describe_stream": "detect",
+    "encode_data_packets": "encode",
+    "encode_frames": "encode",
+    "encode_position_packets": "encode",
+    "DecoderStats": "frames",
+    "VelodyneDecoder": "frames",
+    "VelodyneGeometry": "geometry",
+    "MODELS": "models",
+    "VLP16": "models",
+    "VelodyneModel": "models",
+    "model_for_product": "models",
+    "NMEAFix": "nmea",
+    "parse_nmea": "nmea",
+    "DATA_PACKET_SIZE": "packet",
+    "POSITION_PACKET_SIZE": "packet",
+    "POINT_DTYPE": "points",
+    "frame_points": "points",
+}
 
 __all__ = [
     "DATA_PACKET_SIZE",
@@ -56,3 +76,6 @@ __all__ = [
     "MODELS",
     "model_for_product",
 ]
+
+
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

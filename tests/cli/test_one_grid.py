@@ -180,6 +180,40 @@ def test_info_imports_only_what_it_needs():
     assert "lidarpkt.sources.pcap_reader" in names and "numpy" in names
 
 
+# what ``info`` must not import (issue 16: the CLI starts at once): the frame assembly, encoders, XYZ
+# and calibration of both sensor packages, the version lookup (``--version`` only) and importlib.abc
+# and tempfile (pulled in by importlib.resources: ~10-40 ms each on this machine)
+NOT_FOR_INFO = ("lidarpkt.ouster.frames", "lidarpkt.ouster.encode", "lidarpkt.ouster.geometry", "lidarpkt.frame",
+                "lidarpkt.velodyne.frames", "lidarpkt.velodyne.encode", "lidarpkt.velodyne.geometry",
+                "lidarpkt.velodyne.calibration", "lidarpkt.velodyne.points", "lidarpkt.source", "importlib.metadata",
+                "importlib.abc", "tempfile")
+
+
+@pytest.mark.parametrize("argv", [(VLP10,), ("rust-lidar-utils/velodyne_vlp16.pcap",),
+                                  ("ouster-sdk/OS-2-32-U0_v2.0.0_1024x10.pcap", "--metadata",
+                                   "ouster-sdk/OS-2-32-U0_v2.0.0_1024x10.json")])
+def test_info_imports_only_the_detect_modules_of_the_sensor_packages(argv):
+    names = _imported("info", *[str(external(a)) if "/" in a else a for a in argv])
+    assert "lidarpkt.velodyne.detect" in names and "lidarpkt.ouster.detect" in names  # it did describe the streams
+    assert not set(NOT_FOR_INFO) & names, sorted(set(NOT_FOR_INFO) & names)
+
+
+def test_the_sensor_packages_still_give_every_public_name_and_submodule():
+    import lidarpkt.ouster as ouster
+    import lidarpkt.velodyne as velodyne
+
+    for package in (ouster, velodyne):
+        for name in package.__all__:
+            assert getattr(package, name) is not None, (package.__name__, name)
+        assert set(package.__all__) <= set(dir(package))
+        with pytest.raises(AttributeError):
+            package.no_such_name  # noqa: B018
+    assert ouster.frames.OusterDecoder is ouster.OusterDecoder and velodyne.geometry.VelodyneGeometry
+    star: dict = {}
+    exec("from lidarpkt.velodyne import *", star)  # the star import follows __all__
+    assert set(velodyne.__all__) <= set(star)
+
+
 def test_a_verbs_help_lists_the_common_flags_the_same_way():
     for verb, flags in {"decode": ("-o OUT.mcap", "--metadata M.json", "-q, --quiet"),
                         "analyze": ("--json [FILE]", "--plot DIR", "--metadata M.json", "--pixel ROW,COL", "-q, --quiet"),

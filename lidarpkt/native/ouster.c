@@ -1,0 +1,232 @@
+/* Ouster: the pixels of lidar packets scattered straight into a frame's [H, W] field arrays.
+ *
+ * A packet holds C columns, each of H pixels of `pixel_bytes` (column-major on the wire); a frame's
+ * field arrays are row-major [H, W]. The NumPy twin (lidarpkt/ouster/frames.py) transposes the
+ * pixel words into word planes [words, H, W] and then extracts each field from its plane; this
+ * kernel does both in one pass, so no plane is written or read again.
+ */
+#include "common.h"
+
+/* The pixel word at p (little-endian on the wire). */
+static inline uint32_t load_le32(const unsigned char *p) {
+    uint32_t v;
+    memcpy(&v, p, 4);
+#if !PY_LITTLE_ENDIAN
+    v = bswap32(v);
+#endif
+    return v;
+}
+
+/* A packet in blocks of BLOCK_ROWS rows, in two steps: the pixels' words are copied into a small
+ * row-major scratch (words[k][row][column], in L1), then each field is extracted from its word's
+ * contiguous rows, with SSE2 (in the x86-64 baseline). Reading each field straight from the
+ * column-major pixels cannot be vectorised (every load is a column apart): that took more
+ * instructions than NumPy's transposing copy and field passes. */
+#define MAX_WORDS 4    /* 16-byte pixels (RNG19 dual) */
+#define MAX_COLUMNS 64 /* columns per packet: 16 on every firmware so far */
+#define BLOCK_ROWS 16
+
+typedef uint32_t scratch_t[MAX_WORDS][BLOCK_ROWS][MAX_COLUMNS];
+
+static inline __attribute__((always_inline)) void gather(const unsigned char *restrict s, Py_ssize_t cstride,
+                                                         Py_ssize_t pstride, Py_ssize_t rows, Py_ssize_t c,
+                                                         Py_ssize_t nwords, scratch_t words) {
+    for (Py_ssize_t r = 0; r < rows; r++)
+        for (Py_ssize_t j = 0; j < c; j++)
+#pragma GCC unroll 4
+            for (Py_ssize_t k = 0; k < nwords; k++) words[k][r][j] = load_le32(s + r * pstride + j * cstride + 4 * k);
+}
+
+/* gather with the sizes of every current firmware as constants (16 columns, 1-4 words), so that the
+ * compiler unrolls it into plain loads and stores. */
+static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t rows,
+                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+    if (c != 16) gather(s, cstride, pstride, rows, c, nwords, words);
+    else if (nwords == 3) gather(s, cstride, pstride, rows, 16, 3, words);
+    else if (nwords == 1) gather(s, cstride, pstride, rows, 16, 1, words);
+    else if (nwords == 2) gather(s, cstride, pstride, rows, 16, 2, words);
+    else gather(s, cstride, pstride, rows, 16, nwords, words);
+}
+
+/* d[j] = ((word[j] >> off) & mask) << upshift in 32 bits, then narrowed to the field's type: the same
+ * bits as the NumPy twin's narrowing before the up-shift (a left shift only moves bits up). */
+#define VALUE(TYPE, x) ((TYPE)((((x) >> off) & mask) << upshift))
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+/* Four vectors of 32-bit words -> 16 values of 8, 16 or 32 bits. The values are cut to their width
+ * before the packs (16 bits: sign-extended from bit 15, so that the signed saturating pack gives
+ * back those 16 bits), so the packs never saturate. */
+static inline __attribute__((always_inline)) void extract16(const uint32_t *restrict word, int bytes, __m128i sr,
+                                                            __m128i m, __m128i sl, void *restrict d) {
+    __m128i v[4];
+    for (int i = 0; i < 4; i++)
+        v[i] = _mm_sll_epi32(_mm_and_si128(_mm_srl_epi32(_mm_loadu_si128((const __m128i *)(word + 4 * i)), sr), m), sl);
+    if (bytes == 4) {
+        for (int i = 0; i < 4; i++) _mm_storeu_si128((__m128i *)d + i, v[i]);
+    } else if (bytes == 2) {
+        for (int i = 0; i < 4; i++) v[i] = _mm_srai_epi32(_mm_slli_epi32(v[i], 16), 16);
+        _mm_storeu_si128((__m128i *)d, _mm_packs_epi32(v[0], v[1]));
+        _mm_storeu_si128((__m128i *)d + 1, _mm_packs_epi32(v[2], v[3]));
+    } else {
+        const __m128i byte = _mm_set1_epi32(0xFF);
+        for (int i = 0; i < 4; i++) v[i] = _mm_and_si128(v[i], byte);
+        _mm_storeu_si128((__m128i *)d, _mm_packus_epi16(_mm_packs_epi32(v[0], v[1]), _mm_packs_epi32(v[2], v[3])));
+    }
+}
+#endif
+
+/* One field of a block of rows: out[row * w + mids[j]] for rows [0, rows) of the scratch. */
+#define EXTRACT(NAME, TYPE)                                                                                       \
+    static void NAME(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, Py_ssize_t c,              \
+                     const int64_t *restrict mids, int consecutive, unsigned off, uint32_t mask,               \
+                     unsigned upshift, TYPE *restrict out, Py_ssize_t w) {                                       \
+        if (!consecutive) { /* columns out of order within the packet: rare */                                  \
+            for (Py_ssize_t r = 0; r < rows; r++)                                                               \
+                for (Py_ssize_t j = 0; j < c; j++) out[r * w + mids[j]] = VALUE(TYPE, word[r][j]);              \
+            return;                                                                                             \
+        }                                                                                                       \
+        out += mids[0];                                                                                         \
+        EXTRACT16(TYPE)                                                                                         \
+        for (Py_ssize_t r = 0; r < rows; r++)                                                                   \
+            for (Py_ssize_t j = 0; j < c; j++) out[r * w + j] = VALUE(TYPE, word[r][j]);                        \
+    }
+
+#if defined(__SSE2__)
+#define EXTRACT16(TYPE)                                                                                           \
+    if (c == 16) {                                                                                                \
+        const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift);                  \
+        const __m128i m = _mm_set1_epi32((int)mask);                                                            \
+        for (Py_ssize_t r = 0; r < rows; r++) extract16(word[r], sizeof(TYPE), sr, m, sl, out + r * w);         \
+        return;                                                                                                 \
+    }
+#else
+#define EXTRACT16(TYPE)
+#endif
+
+EXTRACT(extract_u8, uint8_t)
+EXTRACT(extract_u16, uint16_t)
+EXTRACT(extract_u32, uint32_t)
+
+#define MAX_FIELDS 16
+
+typedef struct {
+    Py_ssize_t word, itemsize;
+    unsigned off, upshift;
+    uint32_t mask;
+    void *out;
+} field_plan;
+
+/* Checks the outputs (F writable C-contiguous unsigned [h, w] arrays of 1, 2 or 4 bytes) and the
+ * steps (int64 [F, 4]: word, bit offset, mask or 0 for none, up-shift) into plans; 0 or -1. */
+static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, Py_ssize_t h, Py_ssize_t pixel_bytes,
+                       Py_buffer *views, int *got, Py_ssize_t *w, field_plan *plans) {
+    Py_ssize_t f = PySequence_Fast_GET_SIZE(outs);
+    if (f != nsteps || f > MAX_FIELDS) {
+        PyErr_SetString(PyExc_ValueError, "ouster_scatter: one output per step (at most 16)");
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < f; i++) {
+        Py_buffer *v = &views[i];
+        if (PyObject_GetBuffer(PySequence_Fast_GET_ITEM(outs, i), v, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            return -1;
+        (*got)++;
+        const int64_t *s = steps + 4 * i;
+        if (v->ndim != 2 || v->shape[0] != h || (i > 0 && v->shape[1] != *w) || !is_native(v->format, "BHIL") ||
+            (v->itemsize != 1 && v->itemsize != 2 && v->itemsize != 4) || s[0] < 0 || 4 * s[0] + 4 > pixel_bytes ||
+            s[1] < 0 || s[1] > 31 || s[2] < 0 || s[2] > 0xFFFFFFFFLL || s[3] < 0 || s[3] >= 8 * v->itemsize) {
+            PyErr_SetString(PyExc_ValueError, "ouster_scatter: outputs must be unsigned [H, W] arrays of 1, 2 or 4 "
+                                              "bytes and steps (word, offset, mask, up-shift) fit the pixel");
+            return -1;
+        }
+        *w = v->shape[1];
+        plans[i] = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
+                                v->buf};
+    }
+    return 0;
+}
+
+/* ouster_scatter(payload, columns_at, column_bytes, pixels_at, pixel_bytes, h, mids, steps, outs)
+ *
+ * payload: uint8 [N, L] (each row contiguous, rows any stride apart: packets in a capture file);
+ * column c of packet p starts at byte columns_at + c * column_bytes of its row, its H pixels at
+ * pixels_at in the column, pixel_bytes each; mids: int64 [N, C] the frame column of each packet
+ * column (each < W); steps: int64 [F, 4]; outs: F arrays [H, W] (see plan_fields). Packets are
+ * written in order, so a column received twice keeps the last one's pixels, as in the NumPy twin.
+ * Raises ValueError for arguments that do not fit together (nothing is written then).
+ */
+PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
+    PyObject *p_obj, *m_obj, *s_obj, *o_obj;
+    Py_ssize_t columns_at, column_bytes, pixels_at, pixel_bytes, h;
+    if (!PyArg_ParseTuple(args, "OnnnnnOOO", &p_obj, &columns_at, &column_bytes, &pixels_at, &pixel_bytes, &h, &m_obj,
+                          &s_obj, &o_obj))
+        return NULL;
+    PyObject *outs = PySequence_Fast(o_obj, "ouster_scatter: outs must be a sequence of arrays");
+    if (outs == NULL) return NULL;
+    Py_buffer pb, mb, sb, views[MAX_FIELDS];
+    field_plan plans[MAX_FIELDS];
+    int have = 0, got = 0;
+    PyObject *result = NULL;
+    if (get_buffer(p_obj, &pb, PyBUF_STRIDES | PyBUF_FORMAT, 1, "ouster_scatter payload") < 0) goto done;
+    have = 1;
+    if (get_buffer(m_obj, &mb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "ouster_scatter mids") < 0) goto done;
+    have = 2;
+    if (get_buffer(s_obj, &sb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT, 8, "ouster_scatter steps") < 0) goto done;
+    have = 3;
+    Py_ssize_t n = pb.ndim == 2 ? pb.shape[0] : -1, c = mb.ndim == 2 ? mb.shape[1] : -1, w = 0;
+    if (n < 0 || c < 1 || c > MAX_COLUMNS || pixel_bytes > 4 * MAX_WORDS || pb.strides[1] != 1 || mb.ndim != 2 || mb.shape[0] != n || !is_native(mb.format, INTEGER_CODES) ||
+        !is_native(sb.format, INTEGER_CODES) || sb.ndim != 2 || sb.shape[1] != 4 || h < 1 || pixel_bytes < 4 ||
+        columns_at < 0 || pixels_at < 0 || column_bytes < pixels_at + h * pixel_bytes ||
+        columns_at + c * column_bytes > pb.shape[1]) {
+        PyErr_SetString(PyExc_ValueError, "ouster_scatter: payload uint8 [N, L] and mids int64 [N, C] of a packet "
+                                          "layout that fits L");
+        goto done;
+    }
+    if (plan_fields(outs, (const int64_t *)sb.buf, sb.shape[0], h, pixel_bytes, views, &got, &w, plans) < 0) goto done;
+    const int64_t *mids = (const int64_t *)mb.buf;
+    for (Py_ssize_t i = 0; i < n * c; i++) {
+        if (mids[i] < 0 || mids[i] >= w) {
+            PyErr_Format(PyExc_ValueError, "ouster_scatter: measurement id %lld outside the frame's %zd columns",
+                         (long long)mids[i], w);
+            goto done;
+        }
+    }
+    {
+        const unsigned char *base = (const unsigned char *)pb.buf;
+        Py_ssize_t nf = got, nwords = pixel_bytes / 4;
+        Py_BEGIN_ALLOW_THREADS
+        scratch_t words;
+        for (Py_ssize_t p = 0; p < n; p++) {
+            const int64_t *m = mids + p * c;
+            int consecutive = m[c - 1] - m[0] == c - 1;
+            for (Py_ssize_t j = 1; consecutive && j < c; j++) consecutive = m[j] == m[j - 1] + 1;
+            const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
+            for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
+                Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
+                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, rows, c, nwords, words);
+                for (Py_ssize_t i = 0; i < nf; i++) {
+                    const field_plan *f = &plans[i];
+                    if (f->itemsize == 1)
+                        extract_u8(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                   (uint8_t *)f->out + row * w, w);
+                    else if (f->itemsize == 2)
+                        extract_u16(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                    (uint16_t *)f->out + row * w, w);
+                    else
+                        extract_u32(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
+                                    (uint32_t *)f->out + row * w, w);
+                }
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&views[i]);
+    if (have >= 3) PyBuffer_Release(&sb);
+    if (have >= 2) PyBuffer_Release(&mb);
+    if (have >= 1) PyBuffer_Release(&pb);
+    Py_DECREF(outs);
+    return result;
+}
