@@ -235,7 +235,7 @@ def pcap(args, work: Path) -> None:
                    key=lambda p: -p.stat().st_size)
     for path in files:
         bp.run_cat(path)  # warm the page cache
-        (lw, lc, _), (cw, cc, _) = alternate(args.repeat, lambda: bp.run_batches(path), lambda: bp.run_cat(path))
+        (lw, lc, *_), (cw, cc, *_) = alternate(args.repeat, lambda: bp.run_batches(path), lambda: bp.run_cat(path))
         mb = path.stat().st_size / 1e6
         row(f"read_batches {path.name} ({mb:.0f} MB)", f"{lw:.3f}s {mb / lw:.0f} MB/s", f"cat {cw:.3f}s {mb / cw:.0f} MB/s",
             f"{lw / cw:.2f}x cat", "≤ 5x", lw / cw <= 5)
@@ -316,7 +316,7 @@ def analysis(args, work: Path) -> None:
 
     print(f"\nanalysis (load {load()})")
     stack = ba.synthetic_stack(30, 1, 64, 1024)
-    ((w, c, _),) = alternate(args.repeat, lambda: image_statistics(stack))
+    ((w, c, *_),) = alternate(args.repeat, lambda: image_statistics(stack))
     row("image_statistics 64x1024x30", fmt(w, c), "", "", "< 2 s", w < 2)
 
 
