@@ -79,9 +79,11 @@ def timed(fn, *args):
 
 
 def alternate(repeat: int, *fns):
-    """Run the functions one after the other ``repeat`` times; per function (median wall, median CPU, last
-    result, the wall time of every run)."""
+    """Run each function once untimed, then the functions one after the other ``repeat`` times; per
+    function (median wall, median CPU, last result, the wall time of every run)."""
     runs = [[] for _ in fns]
+    for fn in fns:  # one untimed round: the first call pays imports, page faults and caches for both sides
+        fn()
     for _ in range(repeat):
         for i, fn in enumerate(fns):
             runs[i].append(timed(fn))
