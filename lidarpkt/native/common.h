@@ -29,6 +29,12 @@ static inline int get_buffer(PyObject *obj, Py_buffer *view, int flags, Py_ssize
     return 0;
 }
 
+/* The epilogue of a kernel that took `got` buffers: release them, return `result` (NULL on error). */
+static inline PyObject *release_buffers(Py_buffer *b, int got, PyObject *result) {
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
 /* A buffer format of one native-order item whose code is in `codes` ("q", "=q", "<q" on a
  * little-endian machine...); the callers check the item size. */
 static inline int is_native(const char *format, const char *codes) {

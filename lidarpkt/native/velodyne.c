@@ -82,11 +82,9 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
         }
         Py_END_ALLOW_THREADS
     }
-    Py_INCREF(Py_None);
-    result = Py_None;
+    result = Py_NewRef(Py_None);
 done:
-    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
-    return result;
+    return release_buffers(b, got, result);
 }
 
 /* velodyne_columns(distance, reflectivity, firing_azimuth, lasers, slots, range_out, refl_out, az_out)
@@ -183,9 +181,7 @@ PyObject *lp_velodyne_columns(PyObject *self, PyObject *args) {
         }
         Py_END_ALLOW_THREADS
     }
-    Py_INCREF(Py_None);
-    result = Py_None;
+    result = Py_NewRef(Py_None);
 done:
-    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
-    return result;
+    return release_buffers(b, got, result);
 }
