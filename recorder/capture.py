@@ -86,6 +86,11 @@ class UdpCapture:
         self.queue_bytes = queue_bytes
         self.stats = CaptureStats(rcvbuf_requested=rcvbuf_bytes)
         self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
+        # drain() waits on this, not on SimpleQueue.get(timeout): CPython's SimpleQueue.get waits
+        # until the next put when a signal handler runs past its deadline (the timeout goes negative,
+        # which means "forever"), and a recorder told to stop by SIGTERM as the packets stop never
+        # returned. Event.wait (threading's lock) treats a passed deadline as a timeout.
+        self._queued = threading.Event()
         self._bytes_in = 0  # written by the receive thread only
         self._bytes_out = 0  # written by the consumer only
         self._stop = threading.Event()
@@ -183,15 +188,18 @@ class UdpCapture:
             while not self._stop.is_set():
                 for key, _ in sel.select(timeout=0.1):
                     self._read_all(key.fileobj, key.data)
+                    self._queued.set()
             # what the kernel already holds is not lost on a clean stop; a sender that never pauses
             # cannot keep the recorder from stopping: the final read ends after FINAL_READ_S
             deadline = time.monotonic() + FINAL_READ_S
             for sock, port in self._sockets:
                 while self._read_all(sock, port) and time.monotonic() < deadline:
                     pass
+            self._queued.set()
             self._final_kernel_drops()
         except BaseException as exc:  # surfaced to the consumer by drain()
             self.error = exc
+            self._queued.set()
         finally:
             sel.close()
 
@@ -257,8 +265,10 @@ class UdpCapture:
         Raises :class:`RecorderError` if the receive thread failed.
         """
         items: list[Item] = []
+        if self._queue.empty() and timeout > 0:
+            self._queued.wait(timeout)
+        self._queued.clear()  # before taking: a datagram queued from here on sets it again
         try:
-            items.append(self._queue.get(timeout=timeout))
             while len(items) < max_items:
                 items.append(self._queue.get_nowait())
         except queue.Empty:

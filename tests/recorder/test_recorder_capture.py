@@ -85,6 +85,34 @@ def test_queue_overflow_is_counted_not_blocking():
     assert len(got) == 10 and cap.stats.queue_overflow == 40
 
 
+def test_a_signal_handler_outliving_the_wait_does_not_make_drain_wait_for_the_next_datagram():
+    """CPython's SimpleQueue.get(timeout) waits for the next put when a signal handler runs past its
+    deadline: `lidarpkt record`, told to stop by SIGTERM just as the packets stopped, never returned
+    (seen twice in CI, its stack in drain). A handler that outlives drain's timeout must give an
+    empty drain, not the datagram sent seconds later."""
+    import signal
+    import threading
+
+    port = _free_port()
+
+    def slow_handler(_signum, _frame) -> None:
+        time.sleep(0.2)  # as a process descheduled on a loaded machine while handling SIGTERM
+
+    previous = signal.signal(signal.SIGUSR1, slow_handler)
+    main = threading.main_thread().ident
+    with UdpCapture([port], bind="127.0.0.1") as cap, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        cap.start()
+        late = threading.Timer(5.0, lambda: tx.sendto(b"late", ("127.0.0.1", port)))
+        try:
+            threading.Timer(0.01, lambda: signal.pthread_kill(main, signal.SIGUSR1)).start()
+            late.start()
+            got = cap.drain(timeout=0.05)
+        finally:
+            late.cancel()
+            signal.signal(signal.SIGUSR1, previous)
+        assert got == []
+
+
 def test_one_read_is_bounded_so_a_flood_cannot_keep_the_thread_from_stopping():
     """A sender that never pauses (another program, a replay at --max) kept the receive thread in
     its read loop, deaf to stop(): one read takes at most READ_BATCH datagrams, then the thread
