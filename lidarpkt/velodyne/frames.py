@@ -455,7 +455,7 @@ class VelodyneDecoder:
             cal = self.calibration
             rows = self._row_laser
             freq = self._frequency_hz
-            info = self._sensors[mode] = SensorInfo(
+            info = SensorInfo(
                 vendor="velodyne", model=self.model.name, rows=self.model.lasers,
                 columns_per_frame=self.model.columns_per_rotation(freq),
                 return_mode=mode, return_labels=LABELS[mode],
@@ -463,6 +463,8 @@ class VelodyneDecoder:
                 frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry,
                 product_id=self._product_id, source=self.source, profile=mode,
             )
+            if self._mode is not None:  # kept once packets have told the rate and product id
+                self._sensors[mode] = info
         return info
 
     def _make_frame(self, cols: _Columns, partial: bool, counters: FrameCounters) -> Frame:

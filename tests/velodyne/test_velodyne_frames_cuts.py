@@ -366,3 +366,28 @@ def test_bad_options_are_named():
         VelodyneDecoder(bogus=1)
     with pytest.raises(CalibrationError, match=r"a calibration of 32 lasers for a VLP-16, which has 16; pass the sensor's own"):
         VelodyneDecoder(calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))
+
+
+def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():
+    """sensor_info() before the first packet knew no rate nor product id; it was cached, and every
+    frame after it carried frequency_hz None, product_id None and 1808 columns per frame."""
+    import lidarpkt
+    from conftest import external
+    from lidarpkt.velodyne.frames import VelodyneDecoder
+
+    path = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
+    reference = next(iter(lidarpkt.open(path))).sensor
+    early = VelodyneDecoder()
+    before = early.sensor_info()
+    assert before.frequency_hz is None and before.product_id is None
+    frames = []
+    from lidarpkt.pcap import read_batches
+
+    for batch in read_batches(path):
+        frames += early.push(batch)
+        if frames:
+            break
+    got = frames[0].sensor
+    assert (got.frequency_hz, got.product_id, got.columns_per_frame) == \
+        (reference.frequency_hz, reference.product_id, reference.columns_per_frame)
+    assert got.frequency_hz is not None and got.product_id is not None
