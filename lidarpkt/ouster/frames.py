@@ -224,7 +224,7 @@ class OusterDecoder:
             self.stats.size_mismatch += n
             self._count_skipped(n)
             warnings.warn(
-                f"Ouster {self.source or ''}: skipped {n} packets of {batch.payload_size} B; the metadata "
+                f"Ouster {self.source or 'stream'}: skipped {n} packets of {batch.payload_size} B; the metadata "
                 f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B",
                 SkippedPacketWarning,
                 stacklevel=2,
@@ -376,7 +376,8 @@ class OusterDecoder:
             md = self.metadata
             raise SensorMismatchError(
                 f"Ouster {self.source or 'stream'}: none of {st.packets} lidar packets matches the metadata "
-                f"{md.path or ''} ({md.profile.name}, {md.packet_size} B, init_id {md.init_id}, serial {md.serial}): "
+                f"{md.path or 'given'} ({md.profile.name}, {md.packet_size} B, init_id {md.init_id}, "
+                f"serial {md.serial}): "
                 f"{st.size_mismatch} of the wrong size, {st.id_mismatch} with another init_id/serial. "
                 "Pass this sensor's metadata JSON."
             )

@@ -10,6 +10,8 @@ NumPy twin (``kernels.native`` set to ``None``).
 from __future__ import annotations
 
 import copy
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -219,7 +221,16 @@ def test_messages_name_the_source_and_the_metadata():
     assert md.path.endswith("OS-0-32-U1_v2.2.0_1024x10.json")
     assert text.endswith("3 of the wrong size, 0 with another init_id/serial. Pass this sensor's metadata JSON.")
     dec = OusterDecoder(md)
-    with pytest.warns(SkippedPacketWarning):
+    with pytest.warns(SkippedPacketWarning, match=r"^Ouster stream: skipped 3 packets of 12608 B; "):
         dec.push(junk)
     with pytest.raises(SensorMismatchError, match=r"^Ouster stream: none of 3 lidar packets"):
+        dec.finish()
+    # metadata given as a dict (or read from a bag) has no path: no gap is left in the message
+    md_dict = load_metadata(json.loads(Path(md.path).read_text()))
+    assert not md_dict.path
+    dec = OusterDecoder(md_dict)
+    with pytest.warns(SkippedPacketWarning):
+        dec.push(junk)
+    with pytest.raises(SensorMismatchError,
+                       match=r"^Ouster stream: none of 3 lidar packets matches the metadata given \("):
         dec.finish()
