@@ -66,9 +66,19 @@ class SensorClock:
         self.last_ns: int | None = None  # sensor time of the last packet seen
         self.gps_anchor: tuple[int, int] | None = None  # (host ns, sensor ns) of a position packet with a fix
 
-    def anchor(self, host_ns: int, timestamp_us: int, utc_ns: int) -> None:
-        """A position packet stamped ``timestamp_us``, captured at ``host_ns``, carried a fix at ``utc_ns``."""
-        self.gps_anchor = (int(host_ns), int(in_nearest_hour_ns(timestamp_us, utc_ns)))
+    def anchor(self, host_ns: int, timestamp_us: int, utc_ns: int) -> bool:
+        """A position packet stamped ``timestamp_us``, captured at ``host_ns``, carried a fix at ``utc_ns``.
+
+        Returns False, and keeps the clock, when packets are already placed and the fix would move
+        their hour (a capture replayed or recorded long after its GPS fixes): a stream's times never
+        jump back or forward by hours mid-stream, which would make every later packet "late"."""
+        sensor_ns = int(in_nearest_hour_ns(timestamp_us, utc_ns))
+        if self.last_ns is not None and host_ns:
+            current = host_ns if self.gps_anchor is None else self.gps_anchor[1] + (host_ns - self.gps_anchor[0])
+            if sensor_ns != int(in_nearest_hour_ns(timestamp_us, current)):  # another hour or day
+                return False
+        self.gps_anchor = (int(host_ns), sensor_ns)
+        return True
 
     def absolute_ns(self, timestamp_us: np.ndarray, host_ns: np.ndarray) -> np.ndarray:
         """``int64[N]`` ns since the epoch of packets stamped ``timestamp_us`` (µs past the hour) and

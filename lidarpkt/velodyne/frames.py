@@ -95,6 +95,7 @@ class DecoderStats:
     position_malformed: int = 0
     nmea_errors: int = 0
     gps_fixes: int = 0
+    gps_fixes_ignored: int = 0  # fixes that would have moved the hour of packets already placed
     frames: int = 0
 
     @property
@@ -224,8 +225,8 @@ class VelodyneDecoder:
         fix = fixes[int(inverse[last])]
         host = int(batch.timestamp_ns[i])
         utc = fix_time_ns(fix, host)  # $GPGGA has no date: the capture clock's, to the nearest midnight
-        if utc is not None:
-            self.clock.anchor(host, int(pos.timestamp_us[i]), utc)
+        if utc is not None and not self.clock.anchor(host, int(pos.timestamp_us[i]), utc):
+            self.stats.gps_fixes_ignored += 1
 
     def push_auxiliary(self, batch: PacketBatch) -> None:
         """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_position`."""

@@ -391,3 +391,31 @@ def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():
     assert (got.frequency_hz, got.product_id, got.columns_per_frame) == \
         (reference.frequency_hz, reference.product_id, reference.columns_per_frame)
     assert got.frequency_hz is not None and got.product_id is not None
+
+
+def test_a_gps_fix_from_another_day_does_not_move_packets_already_placed():
+    """A capture replayed (or recorded) long after its GPS fixes: the data packets are placed by the
+    host clock, then a position packet says another day. Re-anchoring on it made every later packet
+    hours or days older than the ones before, so all were dropped as late. The fix is counted as
+    ignored and the stream goes on; a fix that agrees still anchors."""
+    t_us = T0_US + 5000
+    old_day = dt.datetime(2019, 6, 1, 10, 0, 0, tzinfo=dt.timezone.utc)
+    fix = _nmea(f"GPRMC,{old_day:%H%M%S},A,4807.038,N,01131.000,E,022.4,084.4,{old_day:%d%m%y},003.1,W")
+    position = PacketBatch.from_payloads(encode_position_packets(np.array([t_us]), 2, [fix]),
+                                         np.array([HOUR0_NS + t_us * 1000]))
+    dec = VelodyneDecoder()
+    frames = dec.push(packets(np.arange(0, 40)))
+    dec.push_position(position)
+    frames += dec.push(packets(np.arange(40, 2 * TURN_COLUMNS // 24 + 40))) + dec.finish()
+    st = dec.stats
+    assert (st.gps_fixes, st.gps_fixes_ignored, st.late_packets) == (1, 1, 0)
+    assert st.decoded_packets == 2 * TURN_COLUMNS // 24 + 40
+    times = np.concatenate([f.column_timestamp_ns[f.column_valid] for f in frames])
+    assert np.all(np.diff(times) > 0) and abs(int(times[0]) - (HOUR0_NS + T0_US * 1000)) < 10**9
+    # before any data packet the same fix anchors (nothing is placed yet): times on 2019-06-01
+    fresh = VelodyneDecoder()
+    fresh.push_position(position)
+    (first, *_) = fresh.push(packets(np.arange(0, TURN_COLUMNS // 24 + 10))) + fresh.finish()
+    assert fresh.stats.gps_fixes_ignored == 0
+    day = dt.datetime.fromtimestamp(int(first.column_timestamp_ns[0]) // 10**9, dt.timezone.utc).date()
+    assert day == old_day.date()
