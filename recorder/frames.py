@@ -76,12 +76,13 @@ class LiveFrames:
         if self.sensors.is_new(frame.sensor):  # its mount first, once (latched: every file of a rotation has it)
             tf = self.sensors.transform(frame.sensor, t)
             if tf is not None:
-                self._points.put((schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf), t, True))
+                self._points.put((schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf), t,
+                                  self.sensors.frame_id(frame.sensor)))  # latched per sensor frame
         name = self.sensors.frame_id(frame.sensor)
         encoded = [(topic, schemas.encode(topic.msgtype, msg))
                    for topic, msg in pointcloud_messages(frame, frame_id=name)]
         for topic, data in encoded:
-            self._points.put((topic, data, t, False))
+            self._points.put((topic, data, t, None))
         self.points_frames += 1
 
     def offer(self, batches: list) -> None:
@@ -92,11 +93,11 @@ class LiveFrames:
         """Write the point clouds encoded so far (call from the thread that owns ``writer``)."""
         while True:
             try:
-                topic, data, t, latched = self._points.get_nowait()
+                topic, data, t, latch_key = self._points.get_nowait()
             except queue.Empty:
                 return
-            if latched:
-                writer.write_latched(topic, data, t)
+            if latch_key is not None:
+                writer.write_latched(topic, data, t, key=latch_key)
             else:
                 writer.write(topic, data, t)
 

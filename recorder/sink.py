@@ -94,7 +94,8 @@ class PacketSink:
     def _write_ouster_metadata(self, md, log_time_ns: int) -> None:
         text = json.dumps(md.raw)
         self.writer.write_latched(schemas.OUSTER_METADATA, schemas.encode(
-            schemas.STRING, schemas.typestore().types[schemas.STRING](data=text)), log_time_ns)
+            schemas.STRING, schemas.typestore().types[schemas.STRING](data=text)), log_time_ns,
+            key=f"{md.serial}:{md.lidar_port}")
         info = md.sensor_info().describe()
         self.writer.add_metadata("lidarpkt.sensor", {
             "vendor": "ouster", "model": str(info["model"]), "profile": md.profile.name,

@@ -276,6 +276,25 @@ def test_rotation_by_size_gives_complete_files_each_with_the_metadata(tmp_path):
     assert total == 200
 
 
+def test_rotated_files_start_with_every_sensors_latched_messages(tmp_path):
+    """Two sensors' /ouster/metadata and /tf_static: every rotated file starts with both of each
+    (keyed by sensor); a later message of the same key replaces the earlier one."""
+    clock = _Clock()
+    w = McapWriter(tmp_path / "rot.mcap", chunk_seconds=0.2, rotate_bytes=20_000, clock=clock)
+    string = schemas.typestore().types[schemas.STRING]
+    for key, text in (("A", '{"sensor": "A"}'), ("B", '{"sensor": "B"}'), ("A", '{"sensor": "A2"}')):
+        w.write_latched(schemas.OUSTER_METADATA, schemas.encode(schemas.STRING, string(data=text)), 1, key=key)
+    for i in range(200):
+        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
+        clock.t += 0.05
+    w.close()
+    assert len(w.files) >= 3
+    for f in w.files[1:]:
+        _, _, msgs = _official(f)
+        head = [m.data for t, _, m in msgs if t == "/ouster/metadata"]
+        assert head == ['{"sensor": "B"}', '{"sensor": "A2"}'] or head == ['{"sensor": "A2"}', '{"sensor": "B"}']
+
+
 def test_disk_full_is_a_clear_error_and_the_file_stays_readable(tmp_path):
     mnt = tmp_path / "small"
     mnt.mkdir()

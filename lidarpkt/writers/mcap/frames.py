@@ -164,7 +164,8 @@ class FrameTopics:
             tf = self.sensors.transform(frame.sensor, log_time_ns if tf_time_ns is None else tf_time_ns)
             if tf is not None:
                 self.mcap.write_latched(schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf),
-                                        log_time_ns if tf_time_ns is None else tf_time_ns)
+                                        log_time_ns if tf_time_ns is None else tf_time_ns,
+                                        key=self.sensors.frame_id(frame.sensor))
         name = self.sensors.frame_id(frame.sensor)
         messages: list = []
         if "points" in self.groups:

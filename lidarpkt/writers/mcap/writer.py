@@ -76,7 +76,7 @@ class McapWriter:
         self.messages_written = 0
         self._bytes_closed_files = 0
         self._metadata: list[tuple[str, dict[str, str]]] = []
-        self._latched: dict[str, tuple[Topic, bytes, int]] = {}
+        self._latched: dict[tuple[str, str], tuple[Topic, bytes, int]] = {}  # (topic, key): latest
         self._file = None
         self._writer = None
         self._closed = False
@@ -173,9 +173,12 @@ class McapWriter:
         """Encode a rosbags message object of ``topic.msgtype`` and write it."""
         self.write(topic, schemas.encode(topic.msgtype, message), log_time_ns)
 
-    def write_latched(self, topic: Topic, data: bytes, log_time_ns: int) -> None:
-        """Write a message that every rotated file must start with (``/ouster/metadata``)."""
-        self._latched[topic.name] = (topic, data, log_time_ns)
+    def write_latched(self, topic: Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
+        """Write a message that every rotated file must start with (``/ouster/metadata``, ``/tf_static``).
+
+        ``key`` names what the message is about (a sensor, a frame id): the latest message of each
+        (topic, key) starts every later file, so that with several sensors each one's is kept."""
+        self._latched[(topic.name, key)] = (topic, data, log_time_ns)
         self.write(topic, data, log_time_ns)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
