@@ -108,3 +108,10 @@ def pytest_report_header(config):
 def ext():
     """``ext("ouster-sdk/crc_test.pcap")`` → Path, or skip when the external fixtures are absent."""
     return external
+
+def under_mutmut() -> bool:
+    """mutmut 3 wraps every function in a trampoline, one frame more between the caller and the
+    warning: a stacklevel check cannot hold there (benchmarks/mutation.py)."""
+    import os
+
+    return "MUTANT_UNDER_TEST" in os.environ

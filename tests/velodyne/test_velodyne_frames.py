@@ -417,10 +417,9 @@ def test_calibration_through_lidarpkt_open(ext):
 
 
 def _nmea(body: str) -> str:
-    chk = 0
-    for ch in body.encode():
-        chk ^= ch
-    return f"${body}*{chk:02X}"
+    from lidarpkt.velodyne.nmea import checksum
+
+    return f"${body}*{checksum(body):02X}"
 
 
 def test_gpgga_fix_and_bad_sentences_in_position_packets():
