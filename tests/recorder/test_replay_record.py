@@ -38,6 +38,18 @@ def _free_ports(n: int) -> list[int]:
             s.close()
 
 
+def _receivers(ports: list[int], timeout_s: float | None = None) -> list[socket.socket]:
+    """UDP sockets bound on 127.0.0.1 to ``ports``, with a 4 MiB receive buffer (the caller closes them)."""
+    socks = []
+    for port in ports:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        s.bind(("127.0.0.1", port))
+        s.settimeout(timeout_s)
+        socks.append(s)
+    return socks
+
+
 class Recorder:
     """``lidarpkt record`` in a subprocess, waited on until it listens.
 
@@ -338,12 +350,7 @@ def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_re
 
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
     lidar, other = _free_ports(2)
-    socks = []
-    for p in (lidar, other):
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-        s.bind(("127.0.0.1", p))
-        socks.append(s)
+    socks = _receivers([lidar, other])
     try:
         packets = list(read_capture(str(pcap)))
         blind = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7502: other, 7503: other})
@@ -365,13 +372,7 @@ def test_replay_of_an_mcap_uses_the_metadata_recorded_in_it(tmp_path):
     assert subprocess.run([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "--metadata", str(meta), "-o",
                            str(mcap), "--topics", "packets", "-q"], cwd=REPO, timeout=120).returncode == 0
     lidar, other = _free_ports(2)
-    socks = []
-    for p in (lidar, other):
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-        s.bind(("127.0.0.1", p))
-        s.settimeout(5)
-        socks.append(s)
+    socks = _receivers([lidar, other], timeout_s=5)
     try:
         r = subprocess.run([sys.executable, "-m", "lidarpkt", "replay", str(mcap), "--to", f"127.0.0.1:{lidar}",
                             "--max", "--port-map", f"7503:{other}"], cwd=REPO, timeout=120, capture_output=True,
