@@ -35,7 +35,7 @@ from .errors import UnknownSensorError
 from .frame import Frame
 from .options import OpenOptions, load_ouster_metadata
 
-__all__ = ["ParallelFrameReader", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
+__all__ = ["ParallelFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
            "MAX_SEGMENT_FRAME_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
@@ -134,7 +134,7 @@ class ParallelFrameReader:
     def _frames(self) -> Iterator[Frame]:
         pending: deque[queue.SimpleQueue] = deque()
         todo = iter(self.segments)
-        renumber = _Renumber()
+        renumber = Renumber()
         unknown: list[str] = []
 
         def submit() -> None:
@@ -175,19 +175,30 @@ class ParallelFrameReader:
             raise UnknownSensorError(unknown[0])
 
 
-class _Renumber:
-    """VLP-16 ordinals of segment readers → the whole file's; one SensorInfo object per sensor and mode
-    (the first segment's, as the single-threaded reader's first frame's serves the whole capture)."""
+class Renumber:
+    """A segment reader's frames with the whole file's VLP-16 ordinals (``frame_id``,
+    ``extra["packet_index"]``) and one SensorInfo object per sensor and mode (changed in place).
 
-    def __init__(self) -> None:
-        self.packet_base = 0  # ordinal, in the whole file, of the current segment's first packet
-        self.next_frame_id: dict[str, int] = {}  # per VLP-16 stream: frame_id of its next frame
-        self.sensors: dict[int, Any] = {}  # id(segment's SensorInfo) → the first equal one
+    ``lidarpkt.open(workers=N)`` reads the segments in order and starts from nothing: each segment
+    carries the counts on (:meth:`end_segment`), and the first SensorInfo of a sensor, as the
+    single-threaded reader's first frame's, serves the whole capture. An archive unit reads one
+    segment alone and is given where it starts: ``frame_ids`` (per VLP-16 source, the whole file's
+    id of the segment's first frame), ``packet_base`` (ordinal of its first packet) and ``rates``
+    (per source, the whole file's ``(frequency_hz, columns_per_frame)``: a segment's decoder measures
+    the rate from its own first packets).
+    """
+
+    def __init__(self, frame_ids: dict[str, int] | None = None, packet_base: int = 0,
+                 rates: dict[str, tuple] | None = None) -> None:
+        self.packet_base = int(packet_base)  # ordinal, in the whole file, of the current segment's first packet
+        self.next_frame_id: dict[str, int] = dict(frame_ids or {})  # per VLP-16 stream: frame_id of its next frame
+        self.rates = dict(rates or {})
+        self.sensors: dict[int, Any] = {}  # id(segment's SensorInfo) → the whole file's
         self.canonical: dict[tuple, Any] = {}
         self._held: list = []  # keeps the SensorInfo objects whose id() is a key alive
 
     def frame(self, frame: Frame) -> Frame:
-        """``frame`` of the current segment with the whole file's ordinals and SensorInfo (changed in place)."""
+        """``frame`` of the current segment with the whole file's ordinals and SensorInfo."""
         frame.sensor = self._sensor(frame.sensor)
         if frame.sensor.vendor == "velodyne":
             key = str(frame.sensor.source)
@@ -206,11 +217,15 @@ class _Renumber:
     def _sensor(self, info):
         got = self.sensors.get(id(info))
         if got is None:
-            # not the rate: a VLP-16 decoder measures it from its first packets, and the single-threaded
-            # reader keeps the SensorInfo of the first frame for the whole capture, as this does
+            rate = self.rates.get(str(info.source))
+            if rate is not None and tuple(rate) != (info.frequency_hz, info.columns_per_frame):
+                info_whole = dataclasses.replace(info, frequency_hz=rate[0], columns_per_frame=rate[1])
+            else:
+                info_whole = info
+            # not the rate in the key: the first SensorInfo of a sensor and mode is the whole file's
             key = (info.vendor, str(info.source), info.model, info.return_mode, info.profile, info.serial,
                    info.init_id)
-            got = self.canonical.setdefault(key, info)
+            got = self.canonical.setdefault(key, info_whole)
             self.sensors[id(info)] = got
             self._held.append(info)
         return got

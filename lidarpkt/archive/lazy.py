@@ -104,14 +104,14 @@ def decode_partition(part: _Part, start: Any = None):
 
     import lidarpkt
 
-    from .ordinals import Renumber
+    from .ordinals import renumber_from
     from .plan import local_path
 
     if isinstance(start, str):
         raise PlanError(start)
     frames_rows = _FramesRows() if part.layout == "frames" else None
     schema = points_arrow_schema() if frames_rows is None else frames_arrow_schema()
-    renumber = Renumber(start) if part.segment is not None else None
+    renumber = renumber_from(start) if part.segment is not None else None
     tables = []
     options = {} if part.segment is None else {"segment": part.segment}
     with warnings.catch_warnings():

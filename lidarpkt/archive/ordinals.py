@@ -21,7 +21,7 @@ export costs several times that: XYZ, encoding, compression).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -125,31 +125,11 @@ def start_ordinals(counts: Sequence[SegmentCount]) -> list[Ordinals | str]:
     return out
 
 
-class Renumber:
-    """A segment unit's frames with the whole file's VLP-16 ordinals (changed in place)."""
+def renumber_from(start: Ordinals | None) -> Any:
+    """The :class:`lidarpkt.parallel.Renumber` that gives a segment unit's frames the whole file's
+    VLP-16 ordinals and rate, from where the segment starts (``start``)."""
+    from lidarpkt.parallel import Renumber
 
-    def __init__(self, start: Ordinals | None) -> None:
-        self.start = start or Ordinals()
-        self.next_id = dict(self.start.frame_id)
-        self.rates = {source: (hz, width) for source, hz, width in self.start.rates}
-        self.sensors: dict[int, tuple[Any, Any]] = {}  # id(segment's SensorInfo) → (it, the whole file's)
-
-    def _sensor(self, info: Any) -> Any:
-        got = self.sensors.get(id(info))
-        if got is None:
-            rate = self.rates.get(str(info.source))
-            same = rate is None or rate == (info.frequency_hz, info.columns_per_frame)
-            whole = info if same else replace(info, frequency_hz=rate[0], columns_per_frame=rate[1])
-            got = self.sensors[id(info)] = (info, whole)  # holds ``info``: its id() stays its own
-        return got[1]
-
-    def frame(self, frame: Any) -> Any:
-        if frame.sensor.vendor == "velodyne":
-            frame.sensor = self._sensor(frame.sensor)
-            source = str(frame.sensor.source)
-            frame.frame_id = self.next_id.get(source, 0)
-            self.next_id[source] = frame.frame_id + 1
-        index = frame.extra.get("packet_index")
-        if index is not None and self.start.packet_index:
-            frame.extra["packet_index"] = np.where(index >= 0, index + self.start.packet_index, index)
-        return frame
+    start = start or Ordinals()
+    return Renumber(dict(start.frame_id), start.packet_index,
+                    {source: (hz, width) for source, hz, width in start.rates})

@@ -202,9 +202,9 @@ def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], co
 
 
 def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
-    from .ordinals import Renumber
+    from .ordinals import renumber_from
 
-    renumber = Renumber(task.ordinals) if task.segment is not None else None
+    renumber = renumber_from(task.ordinals) if task.segment is not None else None
     with reader:
         for frame in reader:
             writer.write(frame if renumber is None else renumber.frame(frame))

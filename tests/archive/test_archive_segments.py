@@ -124,7 +124,7 @@ def test_count_pass_gives_each_segment_the_whole_file_ordinals(captures, index):
     import warnings
 
     import lidarpkt
-    from lidarpkt.archive.ordinals import Renumber
+    from lidarpkt.archive.ordinals import renumber_from
     from lidarpkt.sources.segments import plan_segments
 
     path = captures[index]
@@ -138,7 +138,7 @@ def test_count_pass_gives_each_segment_the_whole_file_ordinals(captures, index):
         whole = [(f.frame_id, f.extra["packet_index"].tolist(), f.sensor.frequency_hz) for f in lidarpkt.open(path)]
         joined = []
         for seg, start in zip(segments, starts):
-            renumber = Renumber(start)
+            renumber = renumber_from(start)
             joined += [(f.frame_id, f.extra["packet_index"].tolist(), f.sensor.frequency_hz)
                        for f in map(renumber.frame, lidarpkt.open(path, segment=seg))]
     assert joined == whole and whole[-1][0] == len(whole) - 1
