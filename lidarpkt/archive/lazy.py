@@ -74,8 +74,8 @@ def frames_arrow_schema():
 
 
 class _FramesRows:
-    """Stands in for a frames-layout ParquetWriter: its row builder needs only ``schema``, and
-    using it makes a partition's rows the very rows the export writes."""
+    """A partition's frames-layout rows, built by the writer's own ``frame_record_batch``: the
+    very rows the export writes."""
 
     def __init__(self) -> None:
         from lidarpkt.writers.parquet import frames_schema
@@ -85,9 +85,9 @@ class _FramesRows:
     def table(self, frame: Any, capture: str):
         import pyarrow as pa
 
-        from lidarpkt.writers.parquet import ParquetWriter
+        from lidarpkt.writers.parquet import frame_record_batch
 
-        batch = ParquetWriter._frame_batch(self, frame)
+        batch = frame_record_batch(frame, self.schema)
         return pa.Table.from_batches([batch]).add_column(0, "capture", pa.array([capture], pa.string()))
 
 

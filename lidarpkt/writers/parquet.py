@@ -206,7 +206,7 @@ class ParquetWriter(BaseWriter):
             self.points_written += batch.num_rows
             limit = self.row_group_rows
         else:
-            batch = self._frame_batch(frame)
+            batch = frame_record_batch(frame, self.schema)
             self._pending_size += max(int(batch.nbytes), 1)
             limit = ROW_GROUP_BYTES
         self._pending.append(batch)
@@ -239,34 +239,6 @@ class ParquetWriter(BaseWriter):
                 arrays.append(pa.array(cols[fld.name], fld.type))
             else:
                 arrays.append(pa.nulls(n, fld.type))
-        return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
-
-    def _frame_batch(self, frame):
-        import pyarrow as pa
-
-        r, h, w = frame.shape
-        row: dict[str, Any] = {
-            "sensor": sensor_name(frame.sensor), "frame_id": frame.frame_id,
-            "frame_timestamp_ns": frame.timestamp_ns, "partial": bool(frame.partial),
-            "return_labels": list(frame.return_labels), "returns": r, "rows": h, "columns": w,
-            "sensor_json": json.dumps(frame.sensor.describe(), default=str),
-            "metadata_json": json.dumps(frame.sensor.metadata, default=str) if frame.sensor.metadata else None,
-            "calibration_json": _calibration_json(frame.sensor),
-        }
-        row.update({f.name: getattr(frame.counters, f.name) for f in fields(frame.counters)})
-        for name, typ in {**PIXEL_ARRAYS, **IMAGE_ARRAYS, **COLUMN_ARRAYS}.items():
-            arr = _checked(frame, name, typ)
-            row[name] = None if arr is None else arr.reshape(-1)
-        row["extra"] = [{"name": k, "dtype": np.lib.format.dtype_to_descr(v.dtype), "shape": list(v.shape),
-                         "data": np.ascontiguousarray(v).tobytes()} for k, v in frame.extra.items()]
-        arrays = []
-        for fld in self.schema:
-            value = row[fld.name]
-            if isinstance(value, np.ndarray):
-                arrays.append(pa.LargeListArray.from_arrays(pa.array([0, value.size], pa.int64()),
-                                                            pa.array(value, fld.type.value_type)))
-            else:
-                arrays.append(pa.array([value], fld.type))
         return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
 
     def _finish(self) -> None:
@@ -356,3 +328,34 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
             counters = FrameCounters(**{f.name: row[f.name] for f in fields(FrameCounters)})
             yield Frame(sensor=sensor, frame_id=row["frame_id"], return_labels=tuple(row["return_labels"]),
                         partial=row["partial"], counters=counters, extra=extra, **kwargs)
+
+
+def frame_record_batch(frame, schema):
+    """One frame as the one-row ``pyarrow.RecordBatch`` of the frames layout (``schema``:
+    :func:`frames_schema`): what the writer writes, and what ``archive.to_dask`` yields."""
+    import pyarrow as pa
+
+    r, h, w = frame.shape
+    row: dict[str, Any] = {
+        "sensor": sensor_name(frame.sensor), "frame_id": frame.frame_id,
+        "frame_timestamp_ns": frame.timestamp_ns, "partial": bool(frame.partial),
+        "return_labels": list(frame.return_labels), "returns": r, "rows": h, "columns": w,
+        "sensor_json": json.dumps(frame.sensor.describe(), default=str),
+        "metadata_json": json.dumps(frame.sensor.metadata, default=str) if frame.sensor.metadata else None,
+        "calibration_json": _calibration_json(frame.sensor),
+    }
+    row.update({f.name: getattr(frame.counters, f.name) for f in fields(frame.counters)})
+    for name, typ in {**PIXEL_ARRAYS, **IMAGE_ARRAYS, **COLUMN_ARRAYS}.items():
+        arr = _checked(frame, name, typ)
+        row[name] = None if arr is None else arr.reshape(-1)
+    row["extra"] = [{"name": k, "dtype": np.lib.format.dtype_to_descr(v.dtype), "shape": list(v.shape),
+                     "data": np.ascontiguousarray(v).tobytes()} for k, v in frame.extra.items()]
+    arrays = []
+    for fld in schema:
+        value = row[fld.name]
+        if isinstance(value, np.ndarray):
+            arrays.append(pa.LargeListArray.from_arrays(pa.array([0, value.size], pa.int64()),
+                                                        pa.array(value, fld.type.value_type)))
+        else:
+            arrays.append(pa.array([value], fld.type))
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
