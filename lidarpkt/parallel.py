@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .errors import UnknownSensorError
+from .errors import CaptureFormatError, UnknownSensorError
 from .frame import Frame
 from .options import OpenOptions, load_ouster_metadata
 
@@ -110,9 +110,10 @@ class ParallelFrameReader:
     # ------------------------------------------------------------------ work
     def _read_segment(self, segment, out: queue.SimpleQueue) -> None:
         """Put one segment's frames on ``out`` as they come, then ``(_END, stats, split_ordinal, unknown,
-        error)``: its stats, the ordinal of its first packet past its end, the message of an
-        UnknownSensorError (a segment of foreign traffic is no error while another segment holds a
-        sensor), and any other exception (raised by the consumer when it gets there)."""
+        error, split_offset, truncated)``: its stats, the ordinal of its first packet past its end, the
+        message of an UnknownSensorError (a segment of foreign traffic is no error while another segment
+        holds a sensor), any other exception (raised by the consumer when it gets there), where its walk
+        crossed its end (see :meth:`_check_cut`) and whether it stopped at damage."""
         reader = None
         unknown = error = None
         try:
@@ -129,26 +130,30 @@ class ParallelFrameReader:
             if reader is not None:
                 reader.close()
         stats = reader.stats if reader is not None else None
-        out.put((_END, stats, getattr(getattr(reader, "reader", None), "split_ordinal", None), unknown, error))
+        pcap = getattr(reader, "reader", None)
+        read_stats = getattr(pcap, "stats", None)
+        out.put((_END, stats, getattr(pcap, "split_ordinal", None), unknown, error, getattr(pcap, "split_offset", None),
+                 bool(getattr(read_stats, "truncated", False))))
 
     def _frames(self) -> Iterator[Frame]:
-        pending: deque[queue.SimpleQueue] = deque()
+        pending: deque[tuple[Any, queue.SimpleQueue]] = deque()
         todo = iter(self.segments)
         renumber = Renumber()
         unknown: list[str] = []
+        segments_read = 0
 
         def submit() -> None:
             seg = next(todo, None)
             if seg is not None:
                 q: queue.SimpleQueue = queue.SimpleQueue()
                 self._pool.submit(self._read_segment, seg, q)
-                pending.append(q)
+                pending.append((seg, q))
 
         try:
             for _ in range(self.workers):
                 submit()
             while pending:
-                q = pending[0]
+                seg, q = pending[0]
                 while True:
                     item = q.get()
                     if type(item) is tuple and item and item[0] is _END:
@@ -158,21 +163,41 @@ class ParallelFrameReader:
                         continue
                     self.stats.frames += 1
                     yield frame
-                _, stats, split, no_sensor, error = item
+                _, stats, split, no_sensor, error, split_offset, truncated = item
                 if error is not None:
                     raise error
                 pending.popleft()
-                submit()
+                segments_read += 1
                 renumber.end_segment(split)
                 if stats is not None:
                     _add_stats(self.stats, stats)
                 if no_sensor is not None:
                     unknown.append(no_sensor)
+                if not self._check_cut(seg, split_offset, truncated):
+                    break  # the whole-file reader stops at the same damage: no later segment counts
+                submit()
         finally:
             self._stop.set()
             self._pool.shutdown(wait=False, cancel_futures=True)
-        if unknown and len(unknown) == len(self.segments):
+        if unknown and len(unknown) == segments_read:
             raise UnknownSensorError(unknown[0])
+
+
+    def _check_cut(self, segment, split_offset: int | None, truncated: bool) -> bool:
+        """Whether the segments after ``segment`` continue the capture: False when its reader stopped at
+        damage before its end (the single-threaded reader stops there too).
+
+        Raises:
+            CaptureFormatError: its walk crossed its end elsewhere than at the start of a record (the
+                cut, found by re-synchronising on record headers, is no record boundary).
+        """
+        if segment.index == segment.count - 1 or split_offset is None:
+            return segment.index == segment.count - 1 or not truncated
+        if split_offset != segment.end_offset:
+            raise CaptureFormatError(
+                f"{self.path}: workers={self.workers} cut the capture at byte {segment.end_offset}, which the records "
+                f"walked from byte {segment.start_offset} do not start at; read it with workers=1")
+        return True
 
 
 class Renumber:
@@ -278,7 +303,7 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
     expansion = 3.5 if _first_record_bytes(path) < 2000 else 1.25
     most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int(MAX_SEGMENT_FRAME_BYTES / expansion)))
     seg_bytes = min(most, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
-    segments = plan_segments(path, seg_bytes)
+    segments = plan_segments(path, seg_bytes, walk=False)  # each cut is checked by the segment before it
     return segments if len(segments) > 1 else []
 
 

@@ -133,7 +133,9 @@ class PcapReader:
         reassembly_timeout_ns, max_pending_datagrams, max_pending_bytes: bounds of the
             fragment reassembler (see :class:`lidarpkt.sources.reassembly.Reassembler`).
         segment: read only from this segment's first record, with chunks ending at its end
-            (``split_ordinal`` is then the ordinal of the first packet after it); see
+            (``split_ordinal`` is then the ordinal of the first packet after it, and ``split_offset``
+            the file offset of the first record at or after it: the end itself when the end is
+            a record boundary of the walk from the segment's start); see
             :mod:`lidarpkt.sources.segments`. ``lidarpkt.open(path, segment=...)`` uses it.
 
     Raises:
@@ -161,6 +163,7 @@ class PcapReader:
         self.path = os.fspath(path)
         self.segment = segment
         self.split_ordinal: int | None = None  # segment reading: ordinal of the first packet at/after its end
+        self.split_offset: int | None = None  # segment reading: file offset of the first record at/after its end
         self.ports = None if ports is None else frozenset(int(p) for p in ports)
         self.src_addresses = None if src_addresses is None else frozenset(canonical_address(a) for a in src_addresses)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
@@ -237,6 +240,7 @@ class PcapReader:
             for buf, chunk in self._walk.chunks(blocks):
                 if split is not None and self.split_ordinal is None and self._walk.chunk_at >= split:
                     self.split_ordinal = base  # chunks never straddle the segment's end (see Walk.split_limit)
+                    self.split_offset = self._walk.chunk_at  # the end itself when the cut is a record boundary
                 produced = self._decoder.decode(buf, chunk, base)
                 if produced:
                     base = max(int(b.index[-1]) for b in produced) + 1
@@ -278,7 +282,7 @@ class PcapReader:
             interfaces=old.interfaces,
         )
         old.__dict__.update(fresh.__dict__)  # in place: callers may hold a reference to stats
-        self.split_ordinal = None
+        self.split_ordinal = self.split_offset = None
         self._decoder = ChunkDecoder(self.path, self.stats, self.ports, self.src_addresses, self.payload_sizes,
                                      self._reassembly_args)
 

@@ -69,8 +69,17 @@ class Segment:
         return self.end_offset - self.start_offset
 
 
-def plan_segments(path: str | os.PathLike[str], segment_bytes: int = DEFAULT_SEGMENT_BYTES) -> list[Segment]:
+def plan_segments(path: str | os.PathLike[str], segment_bytes: int = DEFAULT_SEGMENT_BYTES, *,
+                  walk: bool = True) -> list[Segment]:
     """Record-aligned segments of about ``segment_bytes`` each (at least one; the last may be shorter).
+
+    ``walk=False`` (classic pcap only; pcapng always walks): each cut is found by re-synchronising on
+    the record headers in a window after its nominal offset (:func:`_pcap_sync`) instead of walking
+    every record header from the start, which reads the whole file once more. Such a plan is only
+    as sure as the re-synchronisation, and a damaged record before a cut does not end the plan
+    there: the reader of the segment before each cut must check that its walk meets the cut
+    (``PcapReader.split_offset``) and that it did not stop at damage, as ``lidarpkt.open(path,
+    workers=N)`` does.
 
     Raises:
         UnsupportedContainerError: the file is no capture lidarpkt reads.
@@ -90,7 +99,7 @@ def plan_segments(path: str | os.PathLike[str], segment_bytes: int = DEFAULT_SEG
         cuts = _pcapng_cuts(p, int(segment_bytes))
         container = "pcapng"
     else:
-        cuts = [(o, ()) for o in _pcap_cuts(p, int(segment_bytes))]
+        cuts = [(o, ()) for o in (_pcap_cuts if walk else _pcap_sync_cuts)(p, int(segment_bytes))]
         container = "pcap"
     size = _size(p)
     starts = [(0, ())] + [c for c in cuts if 0 < c[0] < size]
@@ -106,20 +115,37 @@ def _size(p: Path) -> int:
 
 
 # ---------------------------------------------------------------- classic pcap
+@dataclass(frozen=True)
+class _PcapHeader:
+    endian: str
+    hdr: int  # record header bytes
+    max_cap: int  # the largest captured length a record may have
+    network: int  # link type
+    frac_limit: int  # time stamp fractions are below this (10**6 µs, 10**9 ns)
+
+
+def _pcap_header(p: Path, fh) -> _PcapHeader | None:
+    head = fh.read(_PCAP_GLOBAL)
+    if len(head) < _PCAP_GLOBAL:
+        return None
+    magic = struct.unpack("<I", head[:4])[0]
+    endian = "<" if magic in _PCAP_MAGICS else ">"
+    magic = struct.unpack(endian + "I", head[:4])[0]
+    if magic not in _PCAP_MAGICS:
+        raise CaptureFormatError(f"{p}: not a pcap capture (magic {head[:4].hex(' ')})")
+    hdr = 16 + (8 if magic == 0xA1B2CD34 else 0)
+    snaplen, network = struct.unpack(endian + "II", head[16:24])
+    return _PcapHeader(endian, hdr, min(max(snaplen, _MAX_RECORD), _READ - hdr), network & 0xFFFF,
+                       10**9 // _PCAP_MAGICS[magic])
+
+
 def _pcap_cuts(p: Path, segment_bytes: int) -> list[int]:
     """Offsets of the records that start the 2nd, 3rd... segment."""
     with open(p, "rb", buffering=0) as fh:
-        head = fh.read(_PCAP_GLOBAL)
-        if len(head) < _PCAP_GLOBAL:
+        ph = _pcap_header(p, fh)
+        if ph is None:
             return []
-        magic = struct.unpack("<I", head[:4])[0]
-        endian = "<" if magic in _PCAP_MAGICS else ">"
-        magic = struct.unpack(endian + "I", head[:4])[0]
-        if magic not in _PCAP_MAGICS:
-            raise CaptureFormatError(f"{p}: not a pcap capture (magic {head[:4].hex(' ')})")
-        hdr = 16 + (8 if magic == 0xA1B2CD34 else 0)
-        snaplen, network = struct.unpack(endian + "II", head[16:24])
-        max_cap = min(max(snaplen, _MAX_RECORD), _READ - hdr)
+        endian, hdr, max_cap = ph.endian, ph.hdr, ph.max_cap
         size = os.fstat(fh.fileno()).st_size
         cuts: list[int] = []
         off = _PCAP_GLOBAL
@@ -128,7 +154,7 @@ def _pcap_cuts(p: Path, segment_bytes: int) -> list[int]:
             nxt = _pcap_skip(fh, off, min(target, size), endian, hdr, max_cap)
             if nxt is None or nxt >= size:
                 break
-            nxt = _past_fragments(fh, nxt, size, endian, hdr, max_cap, network & 0xFFFF)
+            nxt = _past_fragments(fh, nxt, size, endian, hdr, max_cap, ph.network)
             if nxt is None or nxt >= size:
                 break
             cuts.append(nxt)
@@ -165,6 +191,83 @@ def _pcap_skip(fh, off: int, limit: int, endian: str, hdr: int, max_cap: int) ->
         if rel == 0:
             return None
         off += rel
+
+
+SYNC_WINDOW = 1 << 18  # a re-synchronised cut is followed by an unbroken chain of record headers this long
+_SYNC_MIN_RECORDS = 16  # and of at least this many records (or by one reaching the end of the file exactly)
+_SYNC_MIN_CAP = 28  # no UDP datagram is captured in fewer bytes (raw IPv4: 20 + 8); zeroed payload bytes are no header
+_SYNC_MAX_GAP_S = 3600  # time stamps of consecutive records in the chain differ by less than this
+
+
+def _pcap_sync_cuts(p: Path, segment_bytes: int) -> list[int]:
+    """Offsets that start the 2nd, 3rd... segment, each found by :func:`_pcap_sync` at its nominal offset."""
+    with open(p, "rb", buffering=0) as fh:
+        ph = _pcap_header(p, fh)
+        if ph is None:
+            return []
+        size = os.fstat(fh.fileno()).st_size
+        window = min(SYNC_WINDOW, max(segment_bytes // 2, 1))
+        cuts: list[int] = []
+        target = _PCAP_GLOBAL + segment_bytes
+        while target < size:
+            at = _pcap_sync(fh, target, ph, window, size)
+            if at is not None:
+                at = _past_fragments(fh, at, size, ph.endian, ph.hdr, ph.max_cap, ph.network)
+            if at is None or at >= size:
+                break
+            cuts.append(at)
+            target = at + segment_bytes
+        return cuts
+
+
+def _pcap_sync(fh, target: int, ph: _PcapHeader, window: int, size: int) -> int | None:
+    """The first offset at or after ``target`` where record headers chain unbroken through ``window``
+    bytes and :data:`_SYNC_MIN_RECORDS` records, or to the end of the file exactly, each plausible: a
+    captured length of at least :data:`_SYNC_MIN_CAP`, at most the original length and ``max_cap``,
+    a time stamp fraction in range, a time stamp within :data:`_SYNC_MAX_GAP_S` of the record
+    before and, on Ethernet, an EtherType that is a type; ``None`` when there is no such chain
+    (damage, data that is no run of records). A payload that is itself a run of such records
+    ending where its datagram ends (a capture file sent over UDP) can still pass: the reader of the
+    segment before the cut catches that (``PcapReader.split_offset``)."""
+    want = 2 * window + (1 << 16)
+    most = 2 * window + (_SYNC_MIN_RECORDS + 1) * (ph.max_cap + ph.hdr)
+    while True:
+        fh.seek(target)
+        raw = fh.read(want)
+        at_eof = target + len(raw) >= size
+        start, ran_off = _sync_in(raw, ph, window, at_eof)
+        if start is not None:
+            return target + start
+        if not ran_off or at_eof or want >= most:
+            return None
+        want = min(4 * want, most)  # the first chain that may be the one runs past what was read
+
+
+def _sync_in(raw: bytes, ph: _PcapHeader, window: int, at_eof: bool) -> tuple[int | None, bool]:
+    """(offset in ``raw`` of the first chain :func:`_pcap_sync` accepts or None, whether a chain ran off
+    the end of ``raw`` before it could be accepted or refused)."""
+    n = len(raw) - ph.hdr + 1  # offsets where a whole record header fits
+    if n <= 0:
+        return None, not at_eof
+    u32 = np.dtype(ph.endian + "u4")
+    # every byte offset read as a record header (unaligned strided views of the window)
+    ts_sec, frac, cap, orig = (np.ndarray((n,), u32, raw, k, (1,)) for k in (0, 4, 8, 12))
+    plausible = (cap >= _SYNC_MIN_CAP) & (cap <= orig) & (cap <= ph.max_cap) & (frac < ph.frac_limit) & \
+        (orig <= (1 << 18))
+    # Ethernet: the EtherType field holds a type (>= 0x0600), never a length or zeros
+    ether = ph.hdr + 12 if ph.network == 1 else None
+    for start in np.flatnonzero(plausible).tolist():
+        at, prev_ts, count = start, int(ts_sec[start]), 0
+        while at < n and plausible[at] and abs(int(ts_sec[at]) - prev_ts) < _SYNC_MAX_GAP_S and \
+                (ether is None or at + ether >= len(raw) or raw[at + ether] >= 6):
+            prev_ts = int(ts_sec[at])
+            at += ph.hdr + int(cap[at])
+            count += 1
+            if (at >= start + window and count >= _SYNC_MIN_RECORDS) or (at_eof and at == len(raw)):
+                return start, False
+        if at >= n and not (at_eof and at > len(raw)):
+            return None, True
+    return None, False
 
 
 def _past_fragments(fh, off: int, size: int, endian: str, hdr: int, max_cap: int, linktype: int) -> int | None:

@@ -184,3 +184,30 @@ def test_parallel_does_not_import_source():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
     assert res.returncode == 0, res.stderr[-2000:]
     assert res.stdout.split() == ["['lidarpkt.options']"]
+
+
+def test_damage_mid_file_stops_two_workers_where_it_stops_one(tmp_path, small_segments):
+    """The cuts of workers=N are found near their offsets, not by walking the records from the start, so
+    later segments are decoded past a damaged record. Their frames are not yielded: the reader of the
+    segment that holds the damage stops there, as the single-threaded reader does, with its warning."""
+    import struct
+
+    from lidarpkt.errors import TruncatedCaptureWarning
+
+    data = bytearray(external("veloview/vlp-16-test-90deg-1-50-frames.pcap").read_bytes())
+    off = 24
+    while off < len(data) * 0.6:
+        off += 16 + struct.unpack_from("<I", data, off + 8)[0]
+    struct.pack_into("<I", data, off + 8, 0x7FFF0000)  # a captured length no record has
+    path = tmp_path / "damaged.pcap"
+    path.write_bytes(bytes(data))
+    reader = lidarpkt.open(path, workers=2)
+    assert isinstance(reader, parallel.ParallelFrameReader)
+    assert any(s.start_offset > off for s in reader.segments)  # segments after the damage were planned
+    for workers in (1, 2):
+        with pytest.warns(TruncatedCaptureWarning, match=f"offset {off}"):
+            got = list(lidarpkt.open(path, workers=workers))
+        if workers == 1:
+            one = got
+    _assert_same(one, got, "damaged")
+    assert 10 < len(one) < 45

@@ -214,3 +214,56 @@ def test_plan_rejects_a_bad_size_and_a_non_capture(tmp_path):
     junk.write_bytes(b"not a capture at all")
     with pytest.raises(lidarpkt.LidarpktError):
         plan_segments(junk, 1000)
+
+
+@pytest.mark.parametrize("name", CANNED_NAMES + OUSTER_EXTERNAL + VELODYNE_EXTERNAL)
+@pytest.mark.parametrize("segment_bytes", [9_000, 40_000, 131_071])
+def test_resynchronised_cuts_are_the_walked_cuts(name, segment_bytes):
+    """walk=False finds each cut by re-synchronising on the record headers after its nominal offset, and
+    lands on exactly the record the walk from the start finds (fragment trains skipped alike)."""
+    path, _ = _capture(name)
+    walked = plan_segments(path, segment_bytes)
+    synced = plan_segments(path, segment_bytes, walk=False)
+    assert synced == walked
+    if path.stat().st_size > 3 * segment_bytes and path.suffix == ".pcap":
+        assert len(synced) >= 3
+
+
+def _nested_capture(path: Path, ethertype: int) -> None:
+    """UDP datagrams whose payloads are runs of 23 plausible 44-byte pcap records that end exactly where
+    the payload does (a capture carried inside a capture), with ``ethertype`` in each inner record."""
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.pcapwrite import write_pcap
+
+    inner = struct.pack("<IIII", 1_700_000_000, 5, 28, 28) + bytes(12) + struct.pack(">H", ethertype) + bytes(14)
+    src, dst = Endpoint("10.0.0.1", 5000), Endpoint("10.0.0.2", 2368)
+    write_pcap(path, (Packet(1_700_000_000_000_000_000 + i * 1000, src, dst, inner * 23) for i in range(400)))
+
+
+def test_resynchronising_skips_payload_bytes_that_look_like_headers(tmp_path):
+    """Payloads full of plausible record headers whose records hold no Ethernet frame do not fool the
+    re-synchronisation: the cut falls on the real record, as the walk from the start finds it."""
+    path = tmp_path / "nested.pcap"
+    _nested_capture(path, 0x0000)
+    for segment_bytes in (10_001, 33_333):
+        assert plan_segments(path, segment_bytes, walk=False) == plan_segments(path, segment_bytes)
+
+
+def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monkeypatch):
+    """A capture carried inside a capture, Ethernet types and all, can pass for records: the cut then
+    falls inside a datagram. The reader of the segment before it walks on past its end, sees that, and
+    lidarpkt.open(workers=2) raises a CaptureFormatError naming workers=1 before yielding any frame
+    of the segment after the cut."""
+    from lidarpkt import parallel
+    from lidarpkt.errors import CaptureFormatError
+
+    path = tmp_path / "nested.pcap"
+    _nested_capture(path, 0x0800)
+    walked, synced = plan_segments(path, 40_000), plan_segments(path, 40_000, walk=False)
+    assert walked != synced  # fooled: the first cut is inside a datagram
+    monkeypatch.setattr(parallel, "plan", lambda p, workers: synced)
+    reader = lidarpkt.open(path, workers=2)
+    with pytest.raises(CaptureFormatError, match=rf"cut the capture at byte {synced[0].end_offset}.*workers=1"):
+        list(reader)
+
+
