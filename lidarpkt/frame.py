@@ -11,14 +11,15 @@ from typing import Any, Iterable, Protocol
 
 import numpy as np
 
-from .errors import AnalysisError, CalibrationError
+from .errors import AnalysisError, CalibrationError, UsageError
 
 
 class Geometry(Protocol):
     """Turns a frame's ranges into points; each vendor module provides one."""
 
-    def xyz(self, frame: "Frame") -> np.ndarray:
-        """Points of ``frame`` as float64 ``[R, H, W, 3]`` metres, zeros where there is no return."""
+    def xyz(self, frame: "Frame", dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
+        """Points of ``frame`` as ``[R, H, W, 3]`` metres of ``dtype`` (float64 or float32), zeros where
+        there is no return."""
         ...
 
 
@@ -176,16 +177,29 @@ class Frame:
         return int(np.count_nonzero(self.range_mm))
 
     # ---------------------------------------------------------------- geometry
-    def xyz(self) -> np.ndarray:
-        """Points as float64 ``[R, H, W, 3]`` metres in the reference tools' frame, zeros where
-        there is no return. Raises :class:`~lidarpkt.errors.CalibrationError` if the sensor has
-        no calibration."""
+    def xyz(self, dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
+        """Points as ``[R, H, W, 3]`` metres in the reference tools' frame, zeros where there is no
+        return.
+
+        ``dtype``: float64 (the default), or float32 for half the memory: Ouster, ouster-sdk's
+        ``XYZLutFloat`` values (float32 table, products and sums); VLP-16, the float64 points rounded.
+
+        Raises:
+            CalibrationError: the sensor has no calibration.
+            UsageError: ``dtype`` is neither float64 nor float32.
+        """
+        try:
+            dtype = np.dtype(dtype)
+        except TypeError:
+            dtype = None
+        if dtype not in (np.float64, np.float32):
+            raise UsageError("xyz(dtype=...): not float64 or float32; give numpy.float64 or numpy.float32")
         if self.sensor.geometry is None:
             raise CalibrationError(
                 f"no calibration for {self.sensor.model} from {self.sensor.source}: "
                 "pass the sensor's metadata/calibration file to compute points"
             )
-        return self.sensor.geometry.xyz(self)
+        return self.sensor.geometry.xyz(self, dtype)
 
     def on_grid(self, resolution_deg: float | None = None) -> "Frame":
         """This frame on a fixed azimuth grid, so that pixel (i, j) is the same raypath in every frame.

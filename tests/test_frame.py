@@ -6,6 +6,8 @@ import pytest
 from lidarpkt.errors import AnalysisError
 from lidarpkt.frame import Frame, FrameStack, SensorInfo
 
+from conftest import REPO_ROOT
+
 
 def make_sensor(vendor="velodyne", grid=0.2, shift=None, rows=2):
     return SensorInfo(
@@ -71,3 +73,17 @@ def test_stack_skips_partial_frames_and_checks_shapes():
     assert stack.range_mm.shape == (2, 1, 2, 4)
     with pytest.raises(AnalysisError):
         FrameStack.from_frames([frames[0]])
+
+
+def test_xyz_dtype_float32_and_a_bad_dtype():
+    """xyz(numpy.float32) gives float32 points (VLP-16: the float64 ones rounded); any other dtype is a
+    UsageError naming the two it takes."""
+    import lidarpkt
+    from lidarpkt.errors import UsageError
+
+    frame = next(iter(lidarpkt.open(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap")))
+    p64, p32 = frame.xyz(), frame.xyz(np.float32)
+    assert p32.dtype == np.float32 and np.array_equal(p32, p64.astype(np.float32))
+    for bad in (np.float16, np.int32, "no such type"):
+        with pytest.raises(UsageError, match="float64 or float32"):
+            frame.xyz(bad)

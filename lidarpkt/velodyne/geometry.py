@@ -78,11 +78,16 @@ class VelodyneGeometry:
         rng = frame.range_mm
         return np.where(rng > 0, rng * self._metres_per_mm + self._dist_correction, 0.0)
 
-    def xyz(self, frame) -> np.ndarray:
-        """``float64[R, 16, W, 3]`` metres; zeros where the range is 0 (no return or no sample).
+    def xyz(self, frame, dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
+        """``[R, 16, W, 3]`` metres of ``dtype`` (float32: the float64 points rounded); zeros where the
+        range is 0 (no return or no sample).
 
         Uses ``frame.extra["azimuth_cdeg"]`` (``uint16[16, W]``, per-firing azimuth).
         """
+        out = self._xyz64(frame)
+        return out if np.dtype(dtype) == np.float64 else out.astype(dtype)
+
+    def _xyz64(self, frame) -> np.ndarray:
         try:
             az_cdeg = frame.extra["azimuth_cdeg"]
         except KeyError:

@@ -48,6 +48,7 @@ def test_frames_identical_to_ouster_sdk(pcap, meta):
     ours, _ = decode_frames(pcap, [meta])
     assert [f.frame_id for f in ours] == [s.frame_id for s in theirs]
     lut = core.XYZLut(info, use_extrinsics=False)
+    lut32 = core.XYZLutFloat(info, use_extrinsics=False)
     for mine, sdk in zip(ours, theirs):
         assert set(sdk.fields) <= set(FIELD_MAP), f"SDK field without a counterpart: {set(sdk.fields) - set(FIELD_MAP)}"
         for name in sdk.fields:
@@ -71,6 +72,11 @@ def test_frames_identical_to_ouster_sdk(pcap, meta):
             got = mine.xyz()[slot]
             assert got.shape == want.shape
             assert np.max(np.abs(got - want)) < 1e-6, f"{name} XYZ off by {np.max(np.abs(got - want))} m"
+            # float32: XYZLutFloat's values, bit for bit
+            want32, got32 = lut32(sdk.field(name)), mine.xyz(np.float32)[slot]
+            assert got32.dtype == want32.dtype == np.float32 and got32.shape == want32.shape
+            differ = np.count_nonzero(got32.view(np.uint32) != want32.view(np.uint32))
+            assert differ == 0, f"{name} float32 XYZ: {differ} coordinates differ from XYZLutFloat"
 
 
 @pytest.mark.parametrize("meta", sorted({j for _, jsons, _ in CAPTURES for j in jsons}))

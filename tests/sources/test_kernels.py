@@ -779,15 +779,19 @@ OUSTER_SOURCES = _ouster_sources()
 
 
 def _assert_xyz_identical(frame, label):
-    native = frame.xyz()
-    with _impl(None):
-        ref = frame.xyz()
-    assert native.shape == ref.shape == frame.range_mm.shape + (3,) and native.dtype == ref.dtype == np.float64
-    same = native.view(np.uint64) == ref.view(np.uint64)
-    assert same.all(), f"{label}: {np.count_nonzero(~same)} coordinates differ in their bits"
-    empty = frame.range_mm == 0
-    assert not native.view(np.uint64)[empty].any(), f"{label}: a pixel without a return is not +0.0"
-    return native
+    """The compiled and the NumPy XYZ give the same bits, in float64 and in float32; returns the float64 points."""
+    for dtype, word in ((np.float64, np.uint64), (np.float32, np.uint32)):
+        native = frame.xyz(dtype)
+        with _impl(None):
+            ref = frame.xyz(dtype)
+        assert native.shape == ref.shape == frame.range_mm.shape + (3,) and native.dtype == ref.dtype == dtype
+        same = native.view(word) == ref.view(word)
+        assert same.all(), f"{label} {dtype.__name__}: {np.count_nonzero(~same)} coordinates differ in their bits"
+        empty = frame.range_mm == 0
+        assert not native.view(word)[empty].any(), f"{label}: a pixel without a return is not +0.0"
+        if dtype == np.float64:
+            points = native
+    return points
 
 
 @needs_native
@@ -858,8 +862,17 @@ def test_xyz_lut_direct_and_its_size_checks():
         with pytest.raises(ValueError, match="of agreeing sizes"):
             NATIVE.xyz_lut(*args)
             pytest.fail(what)
-    with pytest.raises(ValueError, match="expected items of 8 bytes"):
+    with pytest.raises(ValueError, match="all float64 or all float32"):
         NATIVE.xyz_lut(rng_mm, direction.astype(np.float32), offset, out)
+    with pytest.raises(ValueError, match="all float64 or all float32"):
+        NATIVE.xyz_lut(rng_mm, direction.astype(np.float16), offset.astype(np.float16), out.astype(np.float16))
+    # float32: products and sums in float32 (ouster-sdk's XYZLutFloat), zero where no return
+    d32, o32 = direction.astype(np.float32), offset.astype(np.float32)
+    out32 = np.full((2, hw, 3), np.nan, np.float32)
+    assert NATIVE.xyz_lut(rng_mm, d32, o32, out32) is None
+    want32 = rng_mm[..., None].astype(np.float32) * d32.T + o32.T
+    want32[rng_mm == 0] = 0.0
+    assert want32.dtype == np.float32 and np.array_equal(out32.view(np.uint32), want32.view(np.uint32))
     with pytest.raises(ValueError, match="expected items of 4 bytes"):
         NATIVE.xyz_lut(rng_mm.astype(np.uint16), direction, offset, out)
     with pytest.raises(ValueError, match="range must be uint32"):  # 4-byte items, but floats
