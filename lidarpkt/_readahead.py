@@ -38,17 +38,24 @@ def warn(message: Warning, stacklevel: int = 1) -> None:
 
 
 class ReadAhead:
-    """Iterator over the batches of ``make_batches()`` (called in the thread), read ahead."""
+    """Iterator over the items of ``make_batches()`` (called in the thread), read ahead.
 
-    def __init__(self, make_batches: Callable[[], Iterator], *, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
+    ``nbytes(item)`` is what an item counts against ``max_bytes`` (packet batches: their payload);
+    ``name`` names the thread. Read-aheads nest: one run by another's thread re-emits its warnings
+    through :func:`warn`, so they travel on to the outermost caller.
+    """
+
+    def __init__(self, make_batches: Callable[[], Iterator], *, max_bytes: int = DEFAULT_MAX_BYTES,
+                 nbytes: Callable[[object], int] | None = None, name: str = THREAD_NAME) -> None:
         self._make = make_batches
+        self._nbytes = nbytes or _nbytes
         self._max_bytes = max(1, int(max_bytes))
         self._cond = threading.Condition()
         self._items: deque = deque()  # (kind, value, nbytes): kind "batch" | "warning" | "error" | "end"
         self._bytes = 0
         self._stop = False
         self._done = False
-        self._thread = threading.Thread(target=self._run, name=THREAD_NAME, daemon=True)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     # ------------------------------------------------------------------ reader thread
@@ -69,7 +76,7 @@ class ReadAhead:
         try:
             it = self._make()
             for batch in it:
-                if not self._put("batch", batch, _nbytes(batch)):
+                if not self._put("batch", batch, self._nbytes(batch)):
                     return
             self._put("end", None)
         except BaseException as exc:  # handed to the caller, raised there
@@ -102,7 +109,7 @@ class ReadAhead:
             if kind == "batch":
                 return value
             if kind == "warning":
-                warnings.warn(value, stacklevel=2)  # attributed to lidarpkt.source
+                warn(value, stacklevel=2)  # attributed to the caller of next(); on to an outer read-ahead
                 continue
             self._done = True
             self._thread.join()

@@ -70,9 +70,10 @@ class OpenOptions:
     batch_packets: int | None = _option(
         None, "pcap/pcapng: most packets per batch (the reader's default, 8192, when None).")
     workers: int = _option(
-        1, "decode in this many threads (default 1): pcap/pcapng captures of at least 8 MB are cut into "
-        "segments decoded side by side (:mod:`lidarpkt.parallel`); the frames, their order and arrays are "
-        "those of ``workers=1``. Other containers, and ``segment=``, read in one thread.")
+        1, "threads that decode (default 1): 2 decodes the frames in a thread of their own beside the "
+        "read-ahead, ahead of the caller (any container); 3 or more cut pcap/pcapng captures of at least "
+        "16 MB into segments decoded side by side (:mod:`lidarpkt.parallel`). The frames, their order and "
+        "arrays are those of ``workers=1``. ``segment=`` reads in one thread.")
 
     @classmethod
     def from_keywords(cls, caller: str, options: dict[str, Any]) -> "OpenOptions":

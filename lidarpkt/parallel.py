@@ -1,20 +1,30 @@
-"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes frame-aligned segments of a capture in N threads.
+"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes in N threads beside the caller's.
 
-A pcap/pcapng capture is cut into record-aligned segments (:func:`lidarpkt.sources.segments.plan_segments`);
-each segment is read by its own :class:`~lidarpkt.source.FrameReader` (``segment=``), which yields exactly
-the frames the segment owns, in a pool of ``workers`` threads. The frames of segment k are handed out
-only after those of segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment
-reader counts from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole
-file's. Threads, not processes: the decode kernels and the large NumPy operations release the GIL,
-and frames then need no copy between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of
-CPU: about what pickling and unpickling it would cost).
+Two designs, chosen by N:
 
-The frames of the first unfinished segment are yielded as they are decoded; the other workers decode
-the next segments meanwhile. Memory stays flat in the capture's length: at most ``workers`` segments
-are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and about
-:data:`MAX_SEGMENT_FRAME_BYTES` of frames.
-
-MCAP files, ROS bags and captures too small to cut are read by the ordinary single-threaded reader.
+- **workers=2, a pipeline** (:class:`PipelinedFrameReader`, any container): one thread reads the
+  packets (the read-ahead of ``workers=1``) and a second decodes them into frames, up to
+  :data:`DECODE_AHEAD_BYTES` of frames ahead of the caller, whose own work on each frame (XYZ, a
+  writer, an analysis) then overlaps the decoding of the next ones. The frames are those of the
+  single-threaded reader itself (same object code, same order), and its warnings reach the caller's
+  thread at the point of the stream where they arose. On 2 cores this beats cutting the capture:
+  nothing is read or decoded twice, no reader is set up per segment, and frames are used while they
+  are still in the cache (measured in benchmarks/README.md).
+- **workers >= 3, segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least
+  2 x :data:`MIN_SEGMENT_BYTES`): the capture is cut into record-aligned segments
+  (:func:`lidarpkt.sources.segments.plan_segments`, cuts found by re-synchronising on record headers
+  near each cut, so that planning reads almost nothing); each segment is read by its own
+  :class:`~lidarpkt.source.FrameReader` (``segment=``), which yields exactly the frames the segment
+  owns, in a pool of ``workers`` threads. The frames of segment k are handed out only after those of
+  segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader counts
+  from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole file's.
+  The reader of each segment checks the cut after it (its walk of the records must meet it) and
+  stops the capture where damage stops the single-threaded reader. Threads, not processes: the
+  decode kernels and the large NumPy operations release the GIL, and frames then need no copy
+  between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of CPU: about what pickling
+  and unpickling it would cost). Memory stays flat in the capture's length: at most ``workers``
+  segments are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and
+  about :data:`MAX_SEGMENT_FRAME_BYTES` of frames. Captures that cannot be cut take the pipeline.
 """
 
 from __future__ import annotations
@@ -35,8 +45,8 @@ from .errors import CaptureFormatError, UnknownSensorError
 from .frame import Frame
 from .options import OpenOptions, load_ouster_metadata
 
-__all__ = ["ParallelFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES",
-           "MAX_SEGMENT_FRAME_BYTES"]
+__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
+           "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
@@ -48,6 +58,54 @@ MAX_SEGMENT_BYTES = 64 << 20
 MAX_SEGMENT_FRAME_BYTES = 56 << 20
 _SEGMENTS_PER_WORKER = 2  # a capture gives at least this many segments per worker when it is large enough
 _END = object()  # marks the end of a segment's frames on its queue
+DECODE_AHEAD_BYTES = 16 << 20  # frames decoded ahead of the caller (~10 OS-128 frames, ~70 VLP-16 dual ones)
+DECODE_THREAD_NAME = "lidarpkt-decode"
+
+
+class PipelinedFrameReader:
+    """Iterator of :class:`~lidarpkt.frame.Frame`: a single-threaded reader's frames, decoded in a thread
+    of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
+
+    ``reader`` is that :class:`~lidarpkt.source.FrameReader` (its packets read ahead as ``workers=1``
+    reads them); ``stats`` is its :class:`~lidarpkt.source.SourceStats`, complete once the iteration
+    has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
+    single-threaded reader raises, after the frames before it.
+    """
+
+    def __init__(self, reader: Any, max_bytes: int = DECODE_AHEAD_BYTES) -> None:
+        from ._readahead import ReadAhead
+
+        self.reader = reader
+        self.stats = reader.stats
+        self.workers = 2
+        self._ahead = ReadAhead(lambda: reader, max_bytes=max_bytes, nbytes=_frame_nbytes, name=DECODE_THREAD_NAME)
+
+    def __iter__(self) -> "PipelinedFrameReader":
+        return self
+
+    def __next__(self) -> Frame:
+        return next(self._ahead)
+
+    def close(self) -> None:
+        """Stop decoding (the thread finishes the frame in hand and closes the reader). Idempotent."""
+        self._ahead.close()
+
+    def __enter__(self) -> "PipelinedFrameReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        ahead = getattr(self, "_ahead", None)
+        if ahead is not None:
+            ahead.close(timeout=0)
+
+
+def _frame_nbytes(frame: Frame) -> int:
+    """Bytes of a frame's arrays (what it counts against :data:`DECODE_AHEAD_BYTES`)."""
+    total = sum(v.nbytes for v in vars(frame).values() if isinstance(v, np.ndarray))
+    return total + sum(v.nbytes for v in frame.extra.values() if isinstance(v, np.ndarray))
 
 
 class ParallelFrameReader:
@@ -268,10 +326,11 @@ def _add_stats(total, part) -> None:
 
 def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
                   open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any
-                  ) -> "ParallelFrameReader | None":
-    """``lidarpkt.open(path, **options)`` when ``options.workers`` > 1; ``None`` when the capture is read in one
-    thread (a segment was asked for, no pcap/pcapng, or too small to cut). ``open_segment`` and ``stats``:
-    see :class:`ParallelFrameReader` (this module does not import :mod:`lidarpkt.source`, which calls it).
+                  ) -> "ParallelFrameReader | PipelinedFrameReader | None":
+    """``lidarpkt.open(path, **options)`` when ``options.workers`` > 1: segments for 3 workers or more on a
+    capture that can be cut, the pipeline otherwise; ``None`` when a segment was asked for (it is read in
+    one thread). ``open_segment`` and ``stats``: see :class:`ParallelFrameReader` (this module does not
+    import :mod:`lidarpkt.source`, which calls it).
 
     Raises:
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
@@ -283,10 +342,10 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
     if workers == 1 or options.segment is not None:
         return None
-    segments = plan(path, workers)
-    if not segments:
-        return None
-    return ParallelFrameReader(path, segments, options, open_segment, stats)
+    segments = plan(path, workers) if workers >= 3 else []
+    if segments:
+        return ParallelFrameReader(path, segments, options, open_segment, stats)
+    return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 import numpy as np
 
 from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
+from ._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from .decoder import Decoder
 from .frame import Frame
 from .options import OpenOptions, load_ouster_metadata, with_options
@@ -191,7 +191,7 @@ class FrameReader:
 
         summary = dropped_summary(self)
         if summary:
-            warnings.warn(DroppedPacketsWarning(summary), stacklevel=3)
+            warn(DroppedPacketsWarning(summary), stacklevel=3)
 
     def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne, post_end: bool = False) -> list[Frame]:
         if self._ouster_metadata:
@@ -273,7 +273,7 @@ class FrameReader:
             if len(self.decoders) >= self._max_sensors:
                 if not self._warned_max_sensors:
                     self._warned_max_sensors = True
-                    warnings.warn(SkippedPacketWarning(
+                    warn(SkippedPacketWarning(
                         f"{self.path}: more than {self._max_sensors} sensors (source addresses) in one capture; the "
                         "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
                         "source=..., or raise max_sensors=...)"), stacklevel=4)

@@ -28,13 +28,13 @@ Conventions (those of ouster-sdk's scan batcher):
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from dataclasses import dataclass, fields as dc_fields
 
 import numpy as np
 
 from .. import kernels
+from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
@@ -146,13 +146,10 @@ class _Builder:
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
         if self.outputs is not None:
-            if not self.received.all():
-                for target in self.targets:
-                    target[:, ~self.received] = 0
+            _zero_missing(self.targets, self.received)
             return self.outputs
         planes = self.planes
-        if not self.received.all():
-            planes[:, :, ~self.received] = 0
+        _zero_missing([planes], self.received)
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
         for attr, per_slot, dtype in field_plan(profile):
@@ -166,6 +163,17 @@ class _Builder:
                     extract(planes, step, arr[r])
                 out[attr] = arr
         return out
+
+
+def _zero_missing(arrays, received: np.ndarray) -> None:
+    """Zero the columns (last axis) of ``arrays`` where ``received`` is False, run by run of columns: slices,
+    not a boolean index (which cost 0.3 ms per OS-128 frame with missing columns, as at segment ends)."""
+    if received.all():
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], (~received).view(np.int8), [0]))))
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist()):
+        for arr in arrays:
+            arr[..., a:b] = 0
 
 
 class OusterDecoder:
@@ -223,12 +231,9 @@ class OusterDecoder:
         if batch.payload_size != md.packet_size:
             self.stats.size_mismatch += n
             self._count_skipped(n)
-            warnings.warn(
+            warn(SkippedPacketWarning(
                 f"Ouster {self.source or 'stream'}: skipped {n} packets of {batch.payload_size} B; the metadata "
-                f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B",
-                SkippedPacketWarning,
-                stacklevel=2,
-            )
+                f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B"), stacklevel=2)
             return []
         f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
                            header_fields=("frame_id", "init_id", "prod_sn"))

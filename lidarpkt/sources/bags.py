@@ -18,13 +18,13 @@ import json
 import os
 import struct
 import traceback
-import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
 from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
+from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from ..packet import Packet, PacketBatch
 from .filters import check_filters
 from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
@@ -208,7 +208,7 @@ class BagReader:
             doc, reason = None, f"not JSON: {str(exc)[:80]}"
         if isinstance(doc, dict):
             return text
-        warnings.warn(SkippedPacketWarning(
+        warn(SkippedPacketWarning(
             f"{self.path}: the message on {topic} is not Ouster metadata ({reason}; it starts with {text[:40]!r}); "
             "ignored. Pass the sensor's metadata JSON (metadata=... / --metadata) to decode its packets"))
         return None
@@ -341,7 +341,7 @@ class BagReader:
                     return
                 except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError,
                         *_DECOMPRESSION_ERRORS) as exc:  # OverflowError: a record length of 2**63 or more in a chunk
-                    warnings.warn(TruncatedCaptureWarning(
+                    warn(TruncatedCaptureWarning(
                         f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
                         "messages before the damage were read (a recording that was killed ends like this)"))
                     return

@@ -53,12 +53,12 @@ interpolation): ``azimuth_deg`` per column reproduces its points within 1e-4 m.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import CalibrationError, SkippedPacketWarning
+from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .clock import SensorClock, fix_time_ns
@@ -242,7 +242,7 @@ class VelodyneDecoder:
         if batch.payload_size != DATA_PACKET_SIZE:
             self.stats.malformed_size += n
             self._pending_counters.malformed_packets += n
-            warnings.warn(SkippedPacketWarning(
+            warn(SkippedPacketWarning(
                 f"{self.source or self.model.name}: skipped {n} packets of {batch.payload_size} B (a "
                 f"{self.model.name} data packet has {DATA_PACKET_SIZE} B)"), stacklevel=2)
             return []
@@ -255,7 +255,7 @@ class VelodyneDecoder:
             self.stats.malformed_flag += bad_flag
             self.stats.unknown_return_mode += bad_mode
             self._pending_counters.malformed_packets += bad_flag + bad_mode
-            warnings.warn(SkippedPacketWarning(
+            warn(SkippedPacketWarning(
                 f"{self.source or self.model.name}: skipped {bad_flag} packets with a bad block flag or azimuth and "
                 f"{bad_mode} with an unknown return mode"), stacklevel=2)
             keep = ok & known

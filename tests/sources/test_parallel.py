@@ -1,10 +1,11 @@
-"""lidarpkt.open(path, workers=2): the frames, order, arrays, ids and extras of workers=1.
+"""lidarpkt.open(path, workers=N): the frames, order, arrays, ids and extras of workers=1.
 
-Every external capture and canned fixture is decoded whole in one thread and by two threads over
-small segments (the segment floor lowered so that these small files are cut into many segments,
-boundaries mid-frame and beside position/IMU packets and fragment trains); a generated 10 s VLP-16
-capture and a 12-frame OS-0-32 capture go through the default plan. Plus: closing early stops the
-threads, bad ``workers`` values are refused, containers that cannot be cut are read in one thread.
+Every external capture and canned fixture is decoded whole in one thread, by the pipeline of
+workers=2 (a decode thread beside the read-ahead), and by three threads over small segments (the
+segment floor lowered so that these small files are cut into many segments, boundaries mid-frame
+and beside position/IMU packets and fragment trains); a generated 10 s VLP-16 capture goes through
+the default plan. Plus: closing early stops the threads, warnings reach the caller's thread, bad
+``workers`` values are refused, MCAP files and bags take the pipeline.
 """
 
 from __future__ import annotations
@@ -77,15 +78,18 @@ def small_segments(monkeypatch):
 
 
 @pytest.mark.parametrize("name", CANNED_NAMES + EXTERNAL)
-def test_two_workers_give_the_frames_of_one(name, small_segments):
+def test_two_and_three_workers_give_the_frames_of_one(name, small_segments):
     path, md = _capture(name)
     reader = lidarpkt.open(path, metadata=md, workers=2)
+    assert isinstance(reader, parallel.PipelinedFrameReader)
+    reader.close()
+    reader = lidarpkt.open(path, metadata=md, workers=3)
     if path.stat().st_size > 20_000:  # duplicate_id holds two datagrams: nothing to cut
         assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 2
     reader.close()
     one = _frames(path, md, read_ahead=False)
-    two = _frames(path, md, workers=2)
-    _assert_same(one, two, path.name)
+    _assert_same(one, _frames(path, md, workers=2), f"{path.name} pipeline")
+    _assert_same(one, _frames(path, md, workers=3), f"{path.name} segments")
 
 
 @pytest.mark.parametrize("name", ["vlp16-strongest", "os1-64-dual"])
@@ -103,7 +107,7 @@ def test_default_plan_on_a_generated_vlp16_capture(tmp_path):
 
     path = tmp_path / "vlp16_10s.pcap"
     bench_velodyne.build(path, 10.0, mode="dual")
-    reader = lidarpkt.open(path, workers=2)
+    reader = lidarpkt.open(path, workers=3)
     assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 2
     two = list(reader)
     one = _frames(path, None)
@@ -112,10 +116,11 @@ def test_default_plan_on_a_generated_vlp16_capture(tmp_path):
     assert reader.stats.velodyne_data_packets >= sum(int((f.extra["packet_index"] >= 0).any()) for f in one)
 
 
-def test_close_early_stops_the_threads(small_segments):
+@pytest.mark.parametrize("workers", [2, 3])
+def test_close_early_stops_the_threads(workers, small_segments):
     path, md = _capture("veloview/vlp-16-test-90deg-1-50-frames")
     before = threading.active_count()
-    reader = lidarpkt.open(path, metadata=md, workers=2)
+    reader = lidarpkt.open(path, metadata=md, workers=workers, read_ahead=True)
     first = next(reader)
     assert first.frame_id == 0
     reader.close()
@@ -136,11 +141,54 @@ def test_bad_workers_are_refused(workers):
         FrameReader(CANNED / "vlp16-strongest.pcap", workers=2)
 
 
-def test_small_capture_and_segment_option_read_in_one_thread():
+def test_small_capture_and_segment_option():
+    """A capture too small to cut takes the pipeline even with 3 workers; a segment is read in one thread."""
     path = CANNED / "vlp16-strongest.pcap"
-    assert isinstance(lidarpkt.open(path, workers=2), FrameReader)  # below the segment floor
+    assert isinstance(lidarpkt.open(path, workers=3), parallel.PipelinedFrameReader)  # below the segment floor
     seg = lidarpkt.sources.segments.plan_segments(path, 1 << 30)[0]
     assert isinstance(lidarpkt.open(path, workers=2, segment=seg), FrameReader)
+
+
+@pytest.mark.parametrize("kind", ["rosbag2", "mcap"])
+def test_the_pipeline_reads_every_container(kind, tmp_path):
+    """MCAP files and bags cannot be cut, but the pipeline decodes them in a thread all the same."""
+    from lidarpkt.cli import main
+
+    if kind == "rosbag2":
+        path = external("nebula/vlp16/1673400471837873222")
+    else:  # an MCAP recording of the canned OS1-64 capture, its packets and metadata
+        path = tmp_path / "os1.mcap"
+        assert main(["decode", str(CANNED / "os1-64-dual.pcap"), "--metadata", str(CANNED / "os1-64-dual.json"),
+                     "-o", str(path), "-q"]) == 0
+    reader = lidarpkt.open(path, workers=2)
+    assert isinstance(reader, parallel.PipelinedFrameReader)
+    _assert_same(_frames(path, None), list(reader), kind)
+
+
+def test_the_pipeline_warns_in_the_callers_thread(tmp_path):
+    """Warnings of the decode thread (a skipped packet) and of the read-ahead thread inside it (a truncated
+    capture) reach the caller's thread, once each, with the single-threaded reader's words, after the
+    frames before them."""
+    data = bytearray(external("veloview/vlp-16-test-90deg-1-50-frames.pcap").read_bytes())
+    path = tmp_path / "cut.pcap"
+    path.write_bytes(bytes(data[: len(data) - 700]))  # ends inside a record
+
+    def run(workers):
+        seen = []  # (category, message, the thread that showed it)
+        with warnings.catch_warnings():  # restores showwarning too
+            warnings.simplefilter("always")
+            warnings.showwarning = lambda message, *a, **k: seen.append(
+                (type(message), str(message), threading.current_thread().name))
+            frames = list(lidarpkt.open(path, workers=workers, read_ahead=True))
+        return frames, seen
+
+    one, seen_one = run(1)
+    two, seen_two = run(2)
+    _assert_same(one, two, "truncated")
+    assert seen_two == seen_one
+    kinds = {k.__name__ for k, _, _ in seen_two}
+    assert "TruncatedCaptureWarning" in kinds
+    assert {name for _, _, name in seen_two} == {threading.current_thread().name}
 
 
 def test_no_sensor_in_any_segment_raises(tmp_path, small_segments):
@@ -159,15 +207,16 @@ def test_decode_and_analyze_take_workers(tmp_path, small_segments):
     from lidarpkt.cli import main
 
     path = str(external("veloview/vlp-16-test-90deg-1-50-frames.pcap"))
-    assert isinstance(lidarpkt.open(path, workers=2), parallel.ParallelFrameReader)  # cut into segments
-    for n in (1, 2):
+    assert isinstance(lidarpkt.open(path, workers=3), parallel.ParallelFrameReader)  # cut into segments
+    for n in (1, 2, 3):
         assert main(["decode", path, "-o", str(tmp_path / f"w{n}.npz"), "--workers", str(n), "-q"]) == 0
-    with np.load(tmp_path / "w1.npz") as one, np.load(tmp_path / "w2.npz") as two:
-        assert one.files == two.files
-        for k in one.files:
-            np.testing.assert_array_equal(one[k], two[k], err_msg=k)
+    for n in (2, 3):
+        with np.load(tmp_path / "w1.npz") as one, np.load(tmp_path / f"w{n}.npz") as two:
+            assert one.files == two.files
+            for k in one.files:
+                np.testing.assert_array_equal(one[k], two[k], err_msg=k)
     reports = []
-    for n in (1, 2):
+    for n in (1, 3):
         out = tmp_path / f"a{n}.json"
         assert main(["analyze", path, "--pixel", "7,100", "--workers", str(n), "--json", str(out), "-q"]) == 0
         reports.append(out.read_text())
@@ -186,7 +235,7 @@ def test_parallel_does_not_import_source():
     assert res.stdout.split() == ["['lidarpkt.options']"]
 
 
-def test_damage_mid_file_stops_two_workers_where_it_stops_one(tmp_path, small_segments):
+def test_damage_mid_file_stops_three_workers_where_it_stops_one(tmp_path, small_segments):
     """The cuts of workers=N are found near their offsets, not by walking the records from the start, so
     later segments are decoded past a damaged record. Their frames are not yielded: the reader of the
     segment that holds the damage stops there, as the single-threaded reader does, with its warning."""
@@ -201,10 +250,10 @@ def test_damage_mid_file_stops_two_workers_where_it_stops_one(tmp_path, small_se
     struct.pack_into("<I", data, off + 8, 0x7FFF0000)  # a captured length no record has
     path = tmp_path / "damaged.pcap"
     path.write_bytes(bytes(data))
-    reader = lidarpkt.open(path, workers=2)
+    reader = lidarpkt.open(path, workers=3)
     assert isinstance(reader, parallel.ParallelFrameReader)
     assert any(s.start_offset > off for s in reader.segments)  # segments after the damage were planned
-    for workers in (1, 2):
+    for workers in (1, 3):
         with pytest.warns(TruncatedCaptureWarning, match=f"offset {off}"):
             got = list(lidarpkt.open(path, workers=workers))
         if workers == 1:

@@ -252,7 +252,7 @@ def test_resynchronising_skips_payload_bytes_that_look_like_headers(tmp_path):
 def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monkeypatch):
     """A capture carried inside a capture, Ethernet types and all, can pass for records: the cut then
     falls inside a datagram. The reader of the segment before it walks on past its end, sees that, and
-    lidarpkt.open(workers=2) raises a CaptureFormatError naming workers=1 before yielding any frame
+    lidarpkt.open(workers=3) raises a CaptureFormatError naming workers=1 before yielding any frame
     of the segment after the cut."""
     from lidarpkt import parallel
     from lidarpkt.errors import CaptureFormatError
@@ -262,7 +262,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
     walked, synced = plan_segments(path, 40_000), plan_segments(path, 40_000, walk=False)
     assert walked != synced  # fooled: the first cut is inside a datagram
     monkeypatch.setattr(parallel, "plan", lambda p, workers: synced)
-    reader = lidarpkt.open(path, workers=2)
+    reader = lidarpkt.open(path, workers=3)
     with pytest.raises(CaptureFormatError, match=rf"cut the capture at byte {synced[0].end_offset}.*workers=1"):
         list(reader)
 
