@@ -70,9 +70,9 @@ def build(path: Path, seconds: float, seed: int = 0, mode: str = "dual") -> int:
     return n
 
 
-def run_lidarpkt(path: Path, xyz: bool = True, workers: int = 1) -> tuple[int, int]:
+def run_lidarpkt(path: Path, xyz: bool = True, workers: int = 1, read_ahead: bool | None = None) -> tuple[int, int]:
     frames = points = 0
-    for f in lidarpkt.open(path, workers=workers):
+    for f in lidarpkt.open(path, workers=workers, read_ahead=read_ahead):
         if xyz:
             f.xyz()
         frames += 1

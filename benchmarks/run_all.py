@@ -16,15 +16,18 @@ every run meets it (issue 16).
   ids and times) for the OS-2-128 single (RNG19), OS-0-32 dual, OS-1-64 legacy and OS-0-128
   low-data-rate (RNG15) captures;
   ``lidarpkt.open`` → frames (every field) vs ouster-sdk ``PcapFrameSetSource``; and the same
-  with ``frame.xyz()`` of every frame; then both again with ``read_ahead=False`` (no reader
-  thread; rows marked "(info)"). CPU time counts every thread of the process.
+  with ``frame.xyz(numpy.float32)`` of every frame (ouster-sdk's ``XYZLutFloat`` values; the
+  issue's ≤ 1.3 target) and ``frame.xyz()`` (float64, "(info)"); then frames and float32 XYZ again
+  with ``read_ahead=False`` (no reader thread; "(info)"). CPU time counts every thread of the process.
 - VLP-16: 60 s strongest and dual captures (``bench_velodyne.build``);
   ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
-- workers: ``lidarpkt.open(path, workers=2)`` vs ``workers=1`` on the same VLP-16 and Ouster captures,
-  each beside the single-threaded reference of the same run.
+- workers: ``lidarpkt.open(path, workers=2)`` (the pipeline: a decode thread beside the read-ahead)
+  vs ``workers=1`` in one thread (``read_ahead=False``: one core; the ≥ 1.7 target), and for
+  information vs the default ``workers=1`` (which reads ahead on a second core) and vs the
+  single-threaded reference of the same run; VLP-16 frames + XYZ, Ouster frames and frames + float32 XYZ.
 - pcap: ``PcapReader.batches()`` vs ``cat FILE > /dev/null`` on the largest captures.
 - memory: peak RSS (VmHWM) of a child process decoding an Ouster capture of ``--memory-gb``, one
-  ``--memory-factor`` times longer, and a VLP-16 dual capture of ``--memory-gb``, with workers=1 and 2 (generated under
+  ``--memory-factor`` times longer, and a VLP-16 dual capture of ``--memory-gb``, with workers=1, 2 and 3 (generated under
   ``--workdir`` and deleted afterwards; needs that much free disk).
 - analysis: ``image_statistics`` of a 64 × 1024 × 30 stack (``bench_analysis.synthetic_stack``).
 - record: ``bench_record.run_one`` at 10× real time (VLP-16, OS1-64), loss counters and the
@@ -131,13 +134,14 @@ def ouster_capture(args, work: Path, name: str):
     return path, meta
 
 
-def ouster_lidarpkt(path, meta, xyz=False, read_ahead=None, workers=1):
+def ouster_lidarpkt(path, meta, xyz=None, read_ahead=None, workers=1):
+    """Frames of the capture; ``xyz``: None, or the dtype of the points computed for every frame."""
     import lidarpkt
 
     n = 0
     for f in lidarpkt.open(path, metadata=meta, read_ahead=read_ahead, workers=workers):
-        if xyz:
-            f.xyz()
+        if xyz is not None:
+            f.xyz(xyz)
         n += 1
     return n
 
@@ -158,19 +162,23 @@ def ouster(args, work: Path) -> None:
         if path is None:
             print(f"  {label}: external fixtures missing ({meta.parent})")
             continue
-        ours, sdk, xyz, ours_nr, xyz_nr = alternate(
+        ours, sdk, xyz32, xyz64, ours_nr, xyz32_nr = alternate(
             args.repeat, lambda: ouster_lidarpkt(path, meta), lambda: ouster_sdk(path, meta),
-            lambda: ouster_lidarpkt(path, meta, True), lambda: ouster_lidarpkt(path, meta, read_ahead=False),
-            lambda: ouster_lidarpkt(path, meta, True, False))
+            lambda: ouster_lidarpkt(path, meta, np.float32), lambda: ouster_lidarpkt(path, meta, np.float64),
+            lambda: ouster_lidarpkt(path, meta, read_ahead=False), lambda: ouster_lidarpkt(path, meta, np.float32, False))
         note = "" if ours[2] == sdk[2] else f" (frames differ: {ours[2]} vs {sdk[2]})"
         row(f"{label}: pcap→frames vs ouster-sdk{note}", fmt(*ours[:2]), fmt(*sdk[:2]),
             *ratio_row(paired(sdk, ours, at_least=1.3), "≥ 1.3"))
-        row(f"{label}: decode+XYZ / decode", fmt(*xyz[:2]), fmt(*ours[:2]), *ratio_row(paired(xyz, ours, at_most=1.3), "≤ 1.3"))
+        # XYZ in float32 (ouster-sdk's XYZLutFloat, bit for bit) and, for information, float64 (its XYZLut)
+        row(f"{label}: decode+XYZ float32 / decode", fmt(*xyz32[:2]), fmt(*ours[:2]),
+            *ratio_row(paired(xyz32, ours, at_most=1.3), "≤ 1.3"))
+        text, met = paired(xyz64, ours, at_most=1.3)
+        row(f"{label}: decode+XYZ float64 / decode", fmt(*xyz64[:2]), fmt(*ours[:2]), text, "(info)", met)
         # the same without the read-ahead thread (lidarpkt.open(..., read_ahead=False)): what the thread buys
         text, met = paired(sdk, ours_nr, at_least=1.3)
         row(f"{label}: no read-ahead, pcap→frames vs ouster-sdk", fmt(*ours_nr[:2]), fmt(*sdk[:2]), text, "(info)", met)
-        text, met = paired(xyz_nr, ours_nr, at_most=1.3)
-        row(f"{label}: no read-ahead, decode+XYZ / decode", fmt(*xyz_nr[:2]), fmt(*ours_nr[:2]), text, "(info)", met)
+        text, met = paired(xyz32_nr, ours_nr, at_most=1.3)
+        row(f"{label}: no read-ahead, decode+XYZ float32 / decode", fmt(*xyz32_nr[:2]), fmt(*ours_nr[:2]), text, "(info)", met)
 
 
 # ------------------------------------------------------------------------------------ VLP-16
@@ -196,27 +204,37 @@ def velodyne(args, work: Path) -> None:
 
 # ------------------------------------------------------------------------------------ both cores
 def workers(args, work: Path) -> None:
-    """lidarpkt.open(path, workers=2) against workers=1 (read-ahead on, the default), and both beside the
-    single-threaded reference of the same run."""
+    """lidarpkt.open(path, workers=2) against workers=1 in one thread (read_ahead=False: one core), and, for
+    information, against the default workers=1 (which reads ahead on a second core) and beside the
+    single-threaded reference of the same run. VLP-16: frames, XYZ and a count of returns per frame;
+    Ouster: frames, and frames with float32 XYZ."""
     import bench_velodyne as bv
 
     print(f"\nboth cores: lidarpkt.open(workers=2) vs workers=1 (load {load()}; {os.cpu_count()} CPUs)")
+
+    def rows(label, one, default, two, ref, ref_name, ref_target):
+        row(f"{label}: workers=2 vs 1 thread", fmt(*two[:2]), fmt(*one[:2]), *ratio_row(paired(one, two, at_least=1.7), "≥ 1.7"))
+        text, met = paired(default, two, at_least=1.7)
+        row(f"{label}: workers=2 vs default workers=1", fmt(*two[:2]), fmt(*default[:2]), text, "(info)", met)
+        text, met = paired(ref, two, at_least=ref_target)
+        row(f"{label}: workers=2 vs {ref_name}", fmt(*two[:2]), fmt(*ref[:2]), text, "(info)", met)
+
     for mode in ("strongest", "dual"):
         path = vlp_capture(args, work, mode)
-        one, two, ref = alternate(args.repeat, lambda: bv.run_lidarpkt(path, workers=1),
-                                  lambda: bv.run_lidarpkt(path, workers=2), lambda: bv.run_velodyne_decoder(path))
-        row(f"VLP-16 {mode} frames+XYZ: workers=2 vs 1", fmt(*two[:2]), fmt(*one[:2]), *ratio_row(paired(one, two, at_least=1.7), "≥ 1.7"))
-        text, met = paired(ref, two, at_least=4.0)
-        row(f"VLP-16 {mode} frames+XYZ: workers=2 vs velodyne_decoder", fmt(*two[:2]), fmt(*ref[:2]), text, "(info)", met)
+        one, default, two, ref = alternate(
+            args.repeat, lambda: bv.run_lidarpkt(path, read_ahead=False), lambda: bv.run_lidarpkt(path),
+            lambda: bv.run_lidarpkt(path, workers=2), lambda: bv.run_velodyne_decoder(path))
+        rows(f"VLP-16 {mode} frames+XYZ", one, default, two, ref, "velodyne_decoder", 4.0)
     for name, label in OUSTER_CAPTURES:
         path, meta = ouster_capture(args, work, name)
         if path is None:
             continue
-        one, two, ref = alternate(args.repeat, lambda: ouster_lidarpkt(path, meta),
-                                  lambda: ouster_lidarpkt(path, meta, workers=2), lambda: ouster_sdk(path, meta))
-        row(f"{label} frames: workers=2 vs 1", fmt(*two[:2]), fmt(*one[:2]), *ratio_row(paired(one, two, at_least=1.7), "≥ 1.7"))
-        text, met = paired(ref, two, at_least=1.3)
-        row(f"{label} frames: workers=2 vs ouster-sdk", fmt(*two[:2]), fmt(*ref[:2]), text, "(info)", met)
+        for xyz, what in ((None, "frames"), (np.float32, "frames+XYZ32")):
+            one, default, two, ref = alternate(
+                args.repeat, lambda: ouster_lidarpkt(path, meta, xyz, read_ahead=False),
+                lambda: ouster_lidarpkt(path, meta, xyz), lambda: ouster_lidarpkt(path, meta, xyz, workers=2),
+                lambda: ouster_sdk(path, meta))
+            rows(f"{label} {what}", one, default, two, ref, "ouster-sdk (frames)", 1.3)
 
 
 # ------------------------------------------------------------------------------------ pcap
@@ -290,7 +308,7 @@ def memory(args, work: Path) -> None:
                     src.seek(24)
                     shutil.copyfileobj(src, dst, 16 << 20)
         for path in (small, big):
-            for n_workers in (1, 2):
+            for n_workers in (1, 2, 3):
                 n, hwm_mb, dt = _peak_rss(path, n_workers, meta)
                 row(f"peak RSS, {path.stat().st_size / 1e9:.1f} GB Ouster capture, workers={n_workers} ({n} frames, "
                     f"{dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "", "< 400 MB", hwm_mb < 400)
@@ -301,7 +319,7 @@ def memory(args, work: Path) -> None:
         seconds = args.memory_gb * 1e9 / (90422 * 1264 / 60)  # bytes per second of bench_velodyne's dual capture
         if not vlp.exists():
             bv.build(vlp, seconds)
-        for n_workers in (1, 2):
+        for n_workers in (1, 2, 3):
             n, hwm_mb, dt = _peak_rss(vlp, n_workers)
             row(f"peak RSS, {vlp.stat().st_size / 1e9:.1f} GB VLP-16 dual capture, workers={n_workers} ({n} frames, "
                 f"{dt:.0f} s)", f"{hwm_mb:.0f} MB", "", "", "< 400 MB", hwm_mb < 400)

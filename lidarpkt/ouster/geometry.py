@@ -12,6 +12,8 @@ For column c of W (staggered: column = measurement id) and row u:
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from functools import cached_property
 
 import numpy as np
@@ -26,8 +28,21 @@ class OusterGeometry:
         self.metadata = metadata
 
     @cached_property
+    def _tables(self) -> "_Tables":
+        """The tables of this calibration, shared by every geometry of the same one (:func:`_shared_tables`):
+        each ``lidarpkt.open`` of a sensor's captures would otherwise spend ~15 ms on an OS-128's."""
+        md = self.metadata
+        key = (md.columns_per_frame, md.pixels_per_column,
+               *(np.asarray(a, np.float64).tobytes() for a in (md.beam_to_lidar_transform, md.lidar_to_sensor_transform,
+                                                                md.beam_azimuth_deg, md.beam_altitude_deg)))
+        return _shared_tables(key, lambda: _Tables(self._make_lut))
+
+    @property
     def lut(self) -> tuple[np.ndarray, np.ndarray]:
-        """(direction, offset), each ``float64[H, W, 3]``: metres per mm of range, and metres."""
+        """(direction, offset), each ``float64[H, W, 3]`` (read-only): metres per mm of range, and metres."""
+        return self._tables.lut
+
+    def _make_lut(self) -> tuple[np.ndarray, np.ndarray]:
         md = self.metadata
         w, h = md.columns_per_frame, md.pixels_per_column
         b2l = np.asarray(md.beam_to_lidar_transform, np.float64)
@@ -57,17 +72,13 @@ class OusterGeometry:
         offset = offset @ rot.T + l2s[:3, 3]
         return direction * 0.001, offset * 0.001
 
-    @cached_property
+    @property
     def _planes(self) -> tuple[np.ndarray, np.ndarray]:
-        """The lookup table as planes: direction and offset, each ``float64[3, H, W]`` (contiguous)."""
-        direction, offset = self.lut
-        return np.ascontiguousarray(direction.transpose(2, 0, 1)), np.ascontiguousarray(offset.transpose(2, 0, 1))
+        return self._tables.planes
 
-    @cached_property
+    @property
     def _planes32(self) -> tuple[np.ndarray, np.ndarray]:
-        """:attr:`_planes` rounded to float32: the table of ouster-sdk's ``XYZLutFloat``."""
-        direction, offset = self._planes
-        return direction.astype(np.float32), offset.astype(np.float32)
+        return self._tables.planes32
 
     def xyz(self, frame, dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
         """Points of ``frame`` as ``[R, H, W, 3]`` metres of ``dtype``; zeros where ``range_mm`` is 0.
@@ -107,3 +118,47 @@ class OusterGeometry:
 
 
 _BLOCK_PIXELS = 65536  # pixels per block of rows in xyz (512 KB float64 temporaries; smaller blocks measured slower in the pipeline: per-call overhead)
+
+
+class _Tables:
+    """One calibration's lookup tables, each made when first asked for (read-only arrays)."""
+
+    def __init__(self, make_lut) -> None:
+        self._make_lut = make_lut
+
+    @cached_property
+    def lut(self) -> tuple[np.ndarray, np.ndarray]:
+        return _read_only(self._make_lut())
+
+    @cached_property
+    def planes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lookup table as planes: direction and offset, each ``float64[3, H, W]`` (contiguous)."""
+        return _read_only(tuple(np.ascontiguousarray(t.transpose(2, 0, 1)) for t in self.lut))
+
+    @cached_property
+    def planes32(self) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`planes` rounded to float32: the table of ouster-sdk's ``XYZLutFloat``."""
+        return _read_only(tuple(t.astype(np.float32) for t in self.planes))
+
+
+def _read_only(tables: tuple) -> tuple:
+    for t in tables:
+        t.setflags(write=False)
+    return tables
+
+
+_TABLES: "OrderedDict[tuple, _Tables]" = OrderedDict()
+_TABLES_KEPT = 8  # calibrations whose tables are kept (an OS-128 x 2048's are about 40 MB)
+_TABLES_LOCK = threading.Lock()
+
+
+def _shared_tables(key: tuple, make) -> _Tables:
+    """The tables of the calibration ``key``, made by ``make()`` the first time (the most recent few kept)."""
+    with _TABLES_LOCK:
+        tables = _TABLES.get(key)
+        if tables is None:
+            tables = _TABLES[key] = make()
+            while len(_TABLES) > _TABLES_KEPT:
+                _TABLES.popitem(last=False)
+        _TABLES.move_to_end(key)
+        return tables

@@ -72,3 +72,22 @@ def test_frame_stack_of_ouster_frames():
     assert stack.range_mm.shape == (2, 2, 32, 1024)
     assert np.array_equal(stack.range_mm[0], stack.range_mm[1])
     assert stack.frame_id.tolist() == [1453, 1454]
+
+
+def test_lookup_tables_are_shared_by_opens_of_one_calibration():
+    """Each lidarpkt.open makes a new geometry; the tables of one calibration are made once, read-only,
+    and a calibration that differs in one beam angle gets its own."""
+    import dataclasses
+
+    import lidarpkt
+    from lidarpkt.ouster.geometry import OusterGeometry
+
+    pcap, meta = external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap"), external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json")
+    a, b = (next(iter(lidarpkt.open(pcap, metadata=meta))).sensor.geometry for _ in range(2))
+    assert a is not b and a.lut[0] is b.lut[0] and a._planes32[1] is b._planes32[1]
+    assert not a.lut[0].flags.writeable and not a._planes[0].flags.writeable
+    md = a.metadata
+    altitude = np.array(md.beam_altitude_deg, np.float64)
+    altitude[3] += 0.01
+    other = OusterGeometry(dataclasses.replace(md, beam_altitude_deg=altitude))
+    assert other.lut[0] is not a.lut[0] and not np.array_equal(other.lut[0], a.lut[0])
