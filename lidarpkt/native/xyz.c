@@ -4,25 +4,37 @@
 /* One return slot: out[i, k] = range[i] * dir[k, i] + off[k, i], +0.0 where range[i] is 0, in the
  * precision of T (float64: ouster-sdk's XYZLut; float32: its XYZLutFloat, whose table is the float64
  * one rounded to float32 and whose products and sums are float32). */
-#define XYZ_LUT_ROWS(NAME, T)                                                                                     \
+/* uint32 -> float64 / float32, exactly as the C conversion rounds, from signed 32-bit conversions (x86
+ * has no vector conversion of unsigned integers before AVX-512, and with (T)v gcc leaves the loop
+ * scalar): float64, v - 2^31 converted and 2^31 added back, both exact; float32, the high and low 16
+ * bits converted exactly and summed with one rounding. */
+static inline double u32_to_f64(uint32_t v) { return (double)(int32_t)(v ^ 0x80000000u) + 2147483648.0; }
+static inline float u32_to_f32(uint32_t v) { return (float)(int32_t)(v >> 16) * 65536.0f + (float)(int32_t)(v & 0xFFFFu); }
+
+/* The loop has no branch, so that gcc vectorises it: a pixel without a return is zeroed by AND-ing the
+ * bits of its coordinates with an all-zeros mask (+0.0 exactly), as the NumPy twin does. */
+#define XYZ_LUT_ROWS(NAME, T, BITS, TO_T)                                                                         \
     MULTIVERSION                                                                                                  \
     static void NAME(const uint32_t *restrict range, const T *restrict dir, const T *restrict off,                \
-                     T *restrict out, Py_ssize_t hw) {                                                            \
+                     BITS *restrict out, Py_ssize_t hw) {                                                         \
         const T *dx = dir, *dy = dir + hw, *dz = dir + 2 * hw;                                                    \
         const T *ox = off, *oy = off + hw, *oz = off + 2 * hw;                                                    \
         for (Py_ssize_t i = 0; i < hw; i++) {                                                                     \
             uint32_t v = range[i];                                                                                \
-            T s = (T)v;                                                                                           \
-            /* computed for every pixel and then selected, so that the loop vectorises */                        \
+            T s = TO_T(v);                                                                                        \
             T x = s * dx[i] + ox[i], y = s * dy[i] + oy[i], z = s * dz[i] + oz[i];                                \
-            out[3 * i] = v ? x : (T)0;                                                                            \
-            out[3 * i + 1] = v ? y : (T)0;                                                                        \
-            out[3 * i + 2] = v ? z : (T)0;                                                                        \
+            BITS keep = (BITS)0 - (BITS)(v != 0), bx, by, bz;                                                     \
+            memcpy(&bx, &x, sizeof x);                                                                            \
+            memcpy(&by, &y, sizeof y);                                                                            \
+            memcpy(&bz, &z, sizeof z);                                                                            \
+            out[3 * i] = bx & keep;                                                                               \
+            out[3 * i + 1] = by & keep;                                                                           \
+            out[3 * i + 2] = bz & keep;                                                                           \
         }                                                                                                         \
     }
 
-XYZ_LUT_ROWS(xyz_lut_rows_f64, double)
-XYZ_LUT_ROWS(xyz_lut_rows_f32, float)
+XYZ_LUT_ROWS(xyz_lut_rows_f64, double, uint64_t, u32_to_f64)
+XYZ_LUT_ROWS(xyz_lut_rows_f32, float, uint32_t, u32_to_f32)
 
 /* xyz_lut(range, direction, offset, out)
  *
@@ -61,10 +73,10 @@ PyObject *lp_xyz_lut(PyObject *self, PyObject *args) {
     for (Py_ssize_t r = 0; r < returns; r++) {
         if (item == 8)
             xyz_lut_rows_f64(range + r * hw, (const double *)db->buf, (const double *)ob->buf,
-                             (double *)xb->buf + r * hw * 3, hw);
+                             (uint64_t *)xb->buf + r * hw * 3, hw);
         else
             xyz_lut_rows_f32(range + r * hw, (const float *)db->buf, (const float *)ob->buf,
-                             (float *)xb->buf + r * hw * 3, hw);
+                             (uint32_t *)xb->buf + r * hw * 3, hw);
     }
     Py_END_ALLOW_THREADS
     Py_INCREF(Py_None);
