@@ -21,11 +21,10 @@ PCAP_MAGIC_NS = 0xA1B23C4D
 PCAP_MAGIC_MODIFIED = 0xA1B2CD34  # Kuznetzov's patched libpcap: 24-byte record headers
 PCAPNG_SHB = 0x0A0D0D0A
 PCAPNG_BOM = 0x1A2B3C4D
-PCAP_MAGIC_BYTES = frozenset({
-    b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4",  # µs, little / big endian
-    b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d",  # ns
-    b"\x0a\x0d\x0d\x0a",  # pcapng section header block
-})  # the first four bytes of the pcap/pcapng files lidarpkt.open takes
+PCAP_MAGIC_BYTES = frozenset(
+    [m.to_bytes(4, order) for m in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED) for order in ("little", "big")]
+    + [PCAPNG_SHB.to_bytes(4, "little")]
+)  # the first four bytes of the pcap/pcapng files lidarpkt.open takes (the pcap reader's magics, both byte orders)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"

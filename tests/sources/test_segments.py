@@ -267,3 +267,44 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
         list(reader)
 
 
+
+
+def _modified_pcap(path: Path, packets) -> None:
+    """``packets`` as a pcap of the modified format (magic a1b2cd34): 24-byte record headers."""
+    from lidarpkt.pcapwrite import frames_for
+
+    out = bytearray(struct.pack("<IHHiIII", 0xA1B2CD34, 2, 4, 0, 0, 65535, 1))
+    for p in packets:
+        (frame,) = frames_for(p)
+        sec, ns = divmod(p.timestamp_ns, 10**9)
+        out += struct.pack("<IIII", sec, ns // 1000, len(frame), len(frame)) + struct.pack("<IHBB", 2, 0x0800, 0, 0) + frame
+    path.write_bytes(bytes(out))
+
+
+@pytest.mark.parametrize("variant", ["ns", "big-endian", "big-endian ns", "raw", "null", "modified"])
+def test_resynchronised_cuts_in_every_pcap_variant(tmp_path, variant):
+    """Nanosecond and big-endian files, raw-IP and loopback link types, and the 24-byte records of the
+    modified format: the re-synchronised cuts are the walked ones."""
+    from lidarpkt.pcapwrite import write_pcap
+
+    packets = list(read_packets(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap"))[:300]
+    path = tmp_path / "v.pcap"
+    if variant == "modified":
+        _modified_pcap(path, packets)
+    else:
+        write_pcap(path, packets, nanosecond="ns" in variant, big_endian="big-endian" in variant,
+                   link={"raw": "raw", "null": "null"}.get(variant, "ethernet"))
+    for segment_bytes in (20_011, 50_000):
+        walked = plan_segments(path, segment_bytes)
+        assert len(walked) >= 4
+        assert plan_segments(path, segment_bytes, walk=False) == walked
+
+
+def test_open_takes_every_pcap_magic_the_reader_takes(tmp_path):
+    """lidarpkt.open recognises the modified format (24-byte records) as the pcap reader does: the same frames."""
+    path = tmp_path / "kuz.pcap"
+    _modified_pcap(path, read_packets(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap"))
+    got, want = _frames(path, None), _frames(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap", None)
+    assert len(got) == len(want) > 0
+    for a, b in zip(got, want):
+        _assert_same_frame(a, b, "modified")
