@@ -25,27 +25,71 @@ static inline uint32_t load_le32(const unsigned char *p) {
 #define MAX_WORDS 4    /* 16-byte pixels (RNG19 dual) */
 #define MAX_COLUMNS 64 /* columns per packet: 16 on every firmware so far */
 #define BLOCK_ROWS 16
+#define GROUP 4 /* packets per pass over the rows: 64 columns, a cache line of 8-bit fields */
 
 typedef uint32_t scratch_t[MAX_WORDS][BLOCK_ROWS][MAX_COLUMNS];
 
+/* The scalar copy: rows [r0, rows) of the block, any C. */
 static inline __attribute__((always_inline)) void gather(const unsigned char *restrict s, Py_ssize_t cstride,
-                                                         Py_ssize_t pstride, Py_ssize_t rows, Py_ssize_t c,
-                                                         Py_ssize_t nwords, scratch_t words) {
-    for (Py_ssize_t r = 0; r < rows; r++)
+                                                         Py_ssize_t pstride, Py_ssize_t r0, Py_ssize_t rows,
+                                                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+    for (Py_ssize_t r = r0; r < rows; r++)
         for (Py_ssize_t j = 0; j < c; j++)
 #pragma GCC unroll 4
             for (Py_ssize_t k = 0; k < nwords; k++) words[k][r][j] = load_le32(s + r * pstride + j * cstride + 4 * k);
 }
 
-/* gather with the sizes of every current firmware as constants (16 columns, 1-4 words), so that the
- * compiler unrolls it into plain loads and stores. */
-static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t rows,
-                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
-    if (c != 16) gather(s, cstride, pstride, rows, c, nwords, words);
-    else if (nwords == 3) gather(s, cstride, pstride, rows, 16, 3, words);
-    else if (nwords == 1) gather(s, cstride, pstride, rows, 16, 1, words);
-    else if (nwords == 2) gather(s, cstride, pstride, rows, 16, 2, words);
-    else gather(s, cstride, pstride, rows, 16, nwords, words);
+#if defined(__SSE2__) && PY_LITTLE_ENDIAN
+#include <emmintrin.h>
+#define VECTOR_GATHER 1
+
+/* The vector copy of rows [0, rows) of 16 columns: one 16-byte load per column reads `4 / nwp`
+ * consecutive pixels of nwp words (nwp = 1, 2 or 4; 3-word pixels are read as 4, the 4th word,
+ * from the next pixel, is dropped), and a 4x4 transpose of 4 columns' loads gives 4 columns of
+ * each (row, word). The caller checks that every 16 bytes read are inside the packet, and that
+ * rows is a multiple of 4 / nwp. */
+static inline __attribute__((always_inline)) void gather16(const unsigned char *restrict s, Py_ssize_t cstride,
+                                                           Py_ssize_t pstride, Py_ssize_t rows, int nwp,
+                                                           Py_ssize_t nwords, scratch_t words) {
+    const int per = 4 / nwp; /* pixels per load */
+    for (Py_ssize_t r = 0; r < rows; r += per) {
+        const unsigned char *q = s + r * pstride;
+        for (int g = 0; g < 16; g += 4) {
+            __m128i a = _mm_loadu_si128((const __m128i *)(q + g * cstride));
+            __m128i b = _mm_loadu_si128((const __m128i *)(q + (g + 1) * cstride));
+            __m128i c = _mm_loadu_si128((const __m128i *)(q + (g + 2) * cstride));
+            __m128i d = _mm_loadu_si128((const __m128i *)(q + (g + 3) * cstride));
+            __m128i ab0 = _mm_unpacklo_epi32(a, b), cd0 = _mm_unpacklo_epi32(c, d);
+            __m128i ab1 = _mm_unpackhi_epi32(a, b), cd1 = _mm_unpackhi_epi32(c, d);
+            __m128i t[4] = {_mm_unpacklo_epi64(ab0, cd0), _mm_unpackhi_epi64(ab0, cd0), _mm_unpacklo_epi64(ab1, cd1),
+                            _mm_unpackhi_epi64(ab1, cd1)};
+            /* t[i] = word i % nwp of pixel r + i / nwp, in columns g..g+3 */
+            for (int i = 0; i < 4; i++)
+                if (i % nwp < nwords) _mm_storeu_si128((__m128i *)&words[i % nwp][r + i / nwp][g], t[i]);
+        }
+    }
+}
+#endif
+
+/* Rows [0, rows) of a block into the scratch; the first `fast` rows (0 unless c == 16, a multiple
+ * of the pixels per vector load, and in bounds) with gather16, the others with the scalar copy,
+ * with the sizes of every current firmware as constants so that the compiler unrolls it. */
+static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t fast,
+                         Py_ssize_t rows, Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+#ifdef VECTOR_GATHER
+    if (fast > 0) {
+        if (nwords == 3) gather16(s, cstride, pstride, fast, 4, 3, words);
+        else if (nwords == 1) gather16(s, cstride, pstride, fast, 1, 1, words);
+        else if (nwords == 2) gather16(s, cstride, pstride, fast, 2, 2, words);
+        else gather16(s, cstride, pstride, fast, 4, 4, words);
+    }
+#endif
+    if (fast == rows) return;
+    if (c != 16) gather(s, cstride, pstride, fast, rows, c, nwords, words);
+    else if (nwords == 3) gather(s, cstride, pstride, fast, rows, 16, 3, words);
+    else if (nwords == 1) gather(s, cstride, pstride, fast, rows, 16, 1, words);
+    else if (nwords == 2) gather(s, cstride, pstride, fast, rows, 16, 2, words);
+    else gather(s, cstride, pstride, fast, rows, 16, nwords, words);
 }
 
 /* d[j] = ((word[j] >> off) & mask) << upshift in 32 bits, then narrowed to the field's type: the same
@@ -193,28 +237,49 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
     }
     {
         const unsigned char *base = (const unsigned char *)pb.buf;
-        Py_ssize_t nf = got, nwords = pixel_bytes / 4;
+        Py_ssize_t nf = got, nwords = pixel_bytes / 4, fast_h = 0;
+#ifdef VECTOR_GATHER
+        /* the rows that gather16 reads: the last load of the last column ends inside the row */
+        Py_ssize_t per = nwords == 3 ? 1 : 4 / nwords, room = pb.shape[1] - 16 - (columns_at + 15 * column_bytes + pixels_at);
+        if (c == 16 && pixel_bytes % 4 == 0 && room >= 0) {
+            fast_h = room / (per * pixel_bytes) + 1;
+            fast_h = per * (fast_h < h / per ? fast_h : h / per);
+        }
+#endif
         Py_BEGIN_ALLOW_THREADS
         scratch_t words;
-        for (Py_ssize_t p = 0; p < n; p++) {
-            const int64_t *m = mids + p * c;
-            int consecutive = m[c - 1] - m[0] == c - 1;
-            for (Py_ssize_t j = 1; consecutive && j < c; j++) consecutive = m[j] == m[j - 1] + 1;
-            const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
+        /* A block of rows of GROUP packets in turn, then the next block: the rows of GROUP * 16 columns
+         * are written while their cache lines are in L1 (one packet's rows are 16 or 32 bytes of a
+         * line for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
+        for (Py_ssize_t p0 = 0; p0 < n; p0 += GROUP) {
+            Py_ssize_t p1 = p0 + GROUP < n ? p0 + GROUP : n;
+            int consecutive[GROUP];
+            for (Py_ssize_t p = p0; p < p1; p++) {
+                const int64_t *m = mids + p * c;
+                int k = m[c - 1] - m[0] == c - 1;
+                for (Py_ssize_t j = 1; k && j < c; j++) k = m[j] == m[j - 1] + 1;
+                consecutive[p - p0] = k;
+            }
             for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
                 Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
-                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, rows, c, nwords, words);
-                for (Py_ssize_t i = 0; i < nf; i++) {
-                    const field_plan *f = &plans[i];
-                    if (f->itemsize == 1)
-                        extract_u8(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
-                                   (uint8_t *)f->out + row * w, w);
-                    else if (f->itemsize == 2)
-                        extract_u16(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
-                                    (uint16_t *)f->out + row * w, w);
-                    else
-                        extract_u32(words[f->word], rows, c, m, consecutive, f->off, f->mask, f->upshift,
-                                    (uint32_t *)f->out + row * w, w);
+                Py_ssize_t fast = fast_h - row < 0 ? 0 : fast_h - row < rows ? fast_h - row : rows;
+                for (Py_ssize_t p = p0; p < p1; p++) {
+                    const int64_t *m = mids + p * c;
+                    const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
+                    gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, c, nwords, words);
+                    for (Py_ssize_t i = 0; i < nf; i++) {
+                        const field_plan *f = &plans[i];
+                        int cons = consecutive[p - p0];
+                        if (f->itemsize == 1)
+                            extract_u8(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                       (uint8_t *)f->out + row * w, w);
+                        else if (f->itemsize == 2)
+                            extract_u16(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                        (uint16_t *)f->out + row * w, w);
+                        else
+                            extract_u32(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                        (uint32_t *)f->out + row * w, w);
+                    }
                 }
             }
         }
