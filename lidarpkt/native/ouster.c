@@ -52,13 +52,14 @@ static inline __attribute__((always_inline)) void gather16(const unsigned char *
                                                            Py_ssize_t pstride, Py_ssize_t rows, int nwp,
                                                            Py_ssize_t nwords, scratch_t words) {
     const int per = 4 / nwp; /* pixels per load */
+    const Py_ssize_t cstride3 = 3 * cstride;
     for (Py_ssize_t r = 0; r < rows; r += per) {
         const unsigned char *q = s + r * pstride;
-        for (int g = 0; g < 16; g += 4) {
-            __m128i a = _mm_loadu_si128((const __m128i *)(q + g * cstride));
-            __m128i b = _mm_loadu_si128((const __m128i *)(q + (g + 1) * cstride));
-            __m128i c = _mm_loadu_si128((const __m128i *)(q + (g + 2) * cstride));
-            __m128i d = _mm_loadu_si128((const __m128i *)(q + (g + 3) * cstride));
+        for (int g = 0; g < 16; g += 4, q += 4 * cstride) { /* few address registers: no spills */
+            __m128i a = _mm_loadu_si128((const __m128i *)q);
+            __m128i b = _mm_loadu_si128((const __m128i *)(q + cstride));
+            __m128i c = _mm_loadu_si128((const __m128i *)(q + 2 * cstride));
+            __m128i d = _mm_loadu_si128((const __m128i *)(q + cstride3));
             __m128i ab0 = _mm_unpacklo_epi32(a, b), cd0 = _mm_unpacklo_epi32(c, d);
             __m128i ab1 = _mm_unpackhi_epi32(a, b), cd1 = _mm_unpackhi_epi32(c, d);
             __m128i t[4] = {_mm_unpacklo_epi64(ab0, cd0), _mm_unpackhi_epi64(ab0, cd0), _mm_unpacklo_epi64(ab1, cd1),
@@ -96,31 +97,7 @@ static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t 
  * bits as the NumPy twin's narrowing before the up-shift (a left shift only moves bits up). */
 #define VALUE(TYPE, x) ((TYPE)((((x) >> off) & mask) << upshift))
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
-/* Four vectors of 32-bit words -> 16 values of 8, 16 or 32 bits. The values are cut to their width
- * before the packs (16 bits: sign-extended from bit 15, so that the signed saturating pack gives
- * back those 16 bits), so the packs never saturate. */
-static inline __attribute__((always_inline)) void extract16(const uint32_t *restrict word, int bytes, __m128i sr,
-                                                            __m128i m, __m128i sl, void *restrict d) {
-    __m128i v[4];
-    for (int i = 0; i < 4; i++)
-        v[i] = _mm_sll_epi32(_mm_and_si128(_mm_srl_epi32(_mm_loadu_si128((const __m128i *)(word + 4 * i)), sr), m), sl);
-    if (bytes == 4) {
-        for (int i = 0; i < 4; i++) _mm_storeu_si128((__m128i *)d + i, v[i]);
-    } else if (bytes == 2) {
-        for (int i = 0; i < 4; i++) v[i] = _mm_srai_epi32(_mm_slli_epi32(v[i], 16), 16);
-        _mm_storeu_si128((__m128i *)d, _mm_packs_epi32(v[0], v[1]));
-        _mm_storeu_si128((__m128i *)d + 1, _mm_packs_epi32(v[2], v[3]));
-    } else {
-        const __m128i byte = _mm_set1_epi32(0xFF);
-        for (int i = 0; i < 4; i++) v[i] = _mm_and_si128(v[i], byte);
-        _mm_storeu_si128((__m128i *)d, _mm_packus_epi16(_mm_packs_epi32(v[0], v[1]), _mm_packs_epi32(v[2], v[3])));
-    }
-}
-#endif
-
-/* One field of a block of rows: out[row * w + mids[j]] for rows [0, rows) of the scratch. */
+/* One field of a block of rows, scalar: out[row * w + mids[j]] for rows [0, rows) of the scratch. */
 #define EXTRACT(NAME, TYPE)                                                                                       \
     static void NAME(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, Py_ssize_t c,              \
                      const int64_t *restrict mids, int consecutive, unsigned off, uint32_t mask,               \
@@ -131,26 +108,90 @@ static inline __attribute__((always_inline)) void extract16(const uint32_t *rest
             return;                                                                                             \
         }                                                                                                       \
         out += mids[0];                                                                                         \
-        EXTRACT16(TYPE)                                                                                         \
         for (Py_ssize_t r = 0; r < rows; r++)                                                                   \
             for (Py_ssize_t j = 0; j < c; j++) out[r * w + j] = VALUE(TYPE, word[r][j]);                        \
     }
 
-#if defined(__SSE2__)
-#define EXTRACT16(TYPE)                                                                                           \
-    if (c == 16) {                                                                                                \
-        const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift);                  \
-        const __m128i m = _mm_set1_epi32((int)mask);                                                            \
-        for (Py_ssize_t r = 0; r < rows; r++) extract16(word[r], sizeof(TYPE), sr, m, sl, out + r * w);         \
-        return;                                                                                                 \
-    }
-#else
-#define EXTRACT16(TYPE)
-#endif
-
 EXTRACT(extract_u8, uint8_t)
 EXTRACT(extract_u16, uint16_t)
 EXTRACT(extract_u32, uint32_t)
+
+#if defined(__SSE2__)
+/* The vector extraction of 16 consecutive columns does only the operations a field needs, chosen
+ * once per call (vector_kind): */
+enum {
+    SRL = 1,  /* x >> off */
+    SRA = 2,  /* x >> 16 arithmetic: a 16-bit field at the top, already sign-extended for the pack */
+    AND = 4,  /* & mask, the mask cut to the type's width (so the packs never saturate) */
+    SHL = 8,  /* << upshift */
+    SEXT = 16 /* 16-bit values of 0x8000 or more sign-extended from bit 15, so that the signed
+                 saturating pack gives back those 16 bits */
+};
+
+/* The kind of a field and its mask cut to the type: the value before narrowing is then < 2^(8 bytes). */
+static int vector_kind(Py_ssize_t bytes, unsigned off, uint32_t mask, unsigned upshift, uint32_t *cut) {
+    uint32_t present = 0xFFFFFFFFu >> off, type = bytes == 4 ? 0xFFFFFFFFu : (0xFFFFFFFFu >> (32 - 8 * bytes)) >> upshift;
+    uint32_t m = mask & type;
+    int kind = (off ? SRL : 0) | ((m & present) != present ? AND : 0) | (upshift ? SHL : 0);
+    *cut = m;
+    if (bytes == 2 && (uint64_t)(m & present) << upshift > 0x7FFF) {
+        if (kind == SRL && off == 16) kind = SRA;
+        else kind |= SEXT;
+    }
+    return kind;
+}
+
+/* Rows [0, rows) of one field, columns 16 in a row, from the scratch to out[row * w]. */
+static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*restrict word)[MAX_COLUMNS],
+                                                               Py_ssize_t rows, int bytes, int kind, __m128i sr,
+                                                               __m128i m, __m128i sl, unsigned char *restrict out,
+                                                               Py_ssize_t w) {
+    for (Py_ssize_t r = 0; r < rows; r++) {
+        __m128i v[4];
+        for (int i = 0; i < 4; i++) {
+            __m128i x = _mm_loadu_si128((const __m128i *)(word[r] + 4 * i));
+            if (kind & SRL) x = _mm_srl_epi32(x, sr);
+            if (kind & SRA) x = _mm_srai_epi32(x, 16);
+            if (kind & AND) x = _mm_and_si128(x, m);
+            if (kind & SHL) x = _mm_sll_epi32(x, sl);
+            if (kind & SEXT) x = _mm_srai_epi32(_mm_slli_epi32(x, 16), 16);
+            v[i] = x;
+        }
+        __m128i *d = (__m128i *)(out + r * w * bytes);
+        if (bytes == 4) {
+            for (int i = 0; i < 4; i++) _mm_storeu_si128(d + i, v[i]);
+        } else if (bytes == 2) {
+            _mm_storeu_si128(d, _mm_packs_epi32(v[0], v[1]));
+            _mm_storeu_si128(d + 1, _mm_packs_epi32(v[2], v[3]));
+        } else {
+            _mm_storeu_si128(d, _mm_packus_epi16(_mm_packs_epi32(v[0], v[1]), _mm_packs_epi32(v[2], v[3])));
+        }
+    }
+}
+
+/* extract_rows with the kind and width as constants, so that each variant has only its operations. */
+static void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, int bytes, int kind,
+                           unsigned off, uint32_t mask, unsigned upshift, unsigned char *restrict out, Py_ssize_t w) {
+    const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift), m = _mm_set1_epi32((int)mask);
+#define KIND(B, K)                                                                                                    \
+    case (B) * 32 + (K):                                                                                              \
+        extract_rows(word, rows, B, K, sr, m, sl, out, w);                                                           \
+        return;
+#define KINDS(B)                                                                                                      \
+    KIND(B, 0) KIND(B, SRL) KIND(B, AND) KIND(B, SRL | AND) KIND(B, SHL) KIND(B, SRL | SHL) KIND(B, AND | SHL)        \
+    KIND(B, SRL | AND | SHL)
+    switch (bytes * 32 + kind) {
+        KINDS(1)
+        KINDS(4)
+        KINDS(2)
+        KIND(2, SRA)
+        KIND(2, SEXT) KIND(2, SRL | SEXT) KIND(2, AND | SEXT) KIND(2, SRL | AND | SEXT) KIND(2, SHL | SEXT)
+        KIND(2, SRL | SHL | SEXT) KIND(2, AND | SHL | SEXT) KIND(2, SRL | AND | SHL | SEXT)
+    }
+#undef KINDS
+#undef KIND
+}
+#endif
 
 #define MAX_FIELDS 16
 
@@ -159,6 +200,10 @@ typedef struct {
     unsigned off, upshift;
     uint32_t mask;
     void *out;
+#if defined(__SSE2__)
+    int kind;     /* see vector_kind */
+    uint32_t cut; /* the mask cut to the type */
+#endif
 } field_plan;
 
 /* Checks the outputs (F writable C-contiguous unsigned [h, w] arrays of 1, 2 or 4 bytes) and the
@@ -184,8 +229,11 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
             return -1;
         }
         *w = v->shape[1];
-        plans[i] = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
-                                v->buf};
+        field_plan *f = &plans[i];
+        *f = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu, v->buf};
+#if defined(__SSE2__)
+        f->kind = vector_kind(f->itemsize, f->off, f->mask, f->upshift, &f->cut);
+#endif
     }
     return 0;
 }
@@ -270,6 +318,13 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
                     for (Py_ssize_t i = 0; i < nf; i++) {
                         const field_plan *f = &plans[i];
                         int cons = consecutive[p - p0];
+#if defined(__SSE2__)
+                        if (c == 16 && cons) {
+                            extract16_rows(words[f->word], rows, (int)f->itemsize, f->kind, f->off, f->cut, f->upshift,
+                                           (unsigned char *)f->out + (row * w + m[0]) * f->itemsize, w);
+                            continue;
+                        }
+#endif
                         if (f->itemsize == 1)
                             extract_u8(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
                                        (uint8_t *)f->out + row * w, w);
