@@ -75,7 +75,7 @@ static inline __attribute__((always_inline)) void gather16(const unsigned char *
 /* Rows [0, rows) of a block into the scratch; the first `fast` rows (0 unless c == 16, a multiple
  * of the pixels per vector load, and in bounds) with gather16, the others with the scalar copy,
  * with the sizes of every current firmware as constants so that the compiler unrolls it. */
-static void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t fast,
+static inline __attribute__((always_inline)) void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t fast,
                          Py_ssize_t rows, Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
 #ifdef VECTOR_GATHER
     if (fast > 0) {
@@ -170,7 +170,7 @@ static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*
 }
 
 /* extract_rows with the kind and width as constants, so that each variant has only its operations. */
-static void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, int bytes, int kind,
+static inline __attribute__((always_inline)) void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, int bytes, int kind,
                            unsigned off, uint32_t mask, unsigned upshift, unsigned char *restrict out, Py_ssize_t w) {
     const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift), m = _mm_set1_epi32((int)mask);
 #define KIND(B, K)                                                                                                    \
@@ -238,6 +238,58 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
     return 0;
 }
 
+/* The packets into the fields (arguments checked); MULTIVERSION: its AVX2 clone has the same
+ * operations, VEX-encoded (three operands: fewer register copies). */
+MULTIVERSION
+static void scatter_packets(const unsigned char *base, Py_ssize_t stride, Py_ssize_t n, Py_ssize_t c, Py_ssize_t h,
+                            Py_ssize_t w, Py_ssize_t at, Py_ssize_t column_bytes, Py_ssize_t pixel_bytes,
+                            Py_ssize_t fast_h, const int64_t *mids, const field_plan *plans, Py_ssize_t nf) {
+    Py_ssize_t nwords = pixel_bytes / 4;
+    scratch_t words;
+    /* A block of rows of GROUP packets in turn, then the next block: the rows of GROUP * 16 columns
+     * are written while their cache lines are in L1 (one packet's rows are 16 or 32 bytes of a
+     * line for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
+    for (Py_ssize_t p0 = 0; p0 < n; p0 += GROUP) {
+        Py_ssize_t p1 = p0 + GROUP < n ? p0 + GROUP : n;
+        int consecutive[GROUP];
+        for (Py_ssize_t p = p0; p < p1; p++) {
+            const int64_t *m = mids + p * c;
+            int k = m[c - 1] - m[0] == c - 1;
+            for (Py_ssize_t j = 1; k && j < c; j++) k = m[j] == m[j - 1] + 1;
+            consecutive[p - p0] = k;
+        }
+        for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
+            Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
+            Py_ssize_t fast = fast_h - row < 0 ? 0 : fast_h - row < rows ? fast_h - row : rows;
+            for (Py_ssize_t p = p0; p < p1; p++) {
+                const int64_t *m = mids + p * c;
+                const unsigned char *col0 = base + p * stride + at;
+                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, c, nwords, words);
+                for (Py_ssize_t i = 0; i < nf; i++) {
+                    const field_plan *f = &plans[i];
+                    int cons = consecutive[p - p0];
+#if defined(__SSE2__)
+                    if (c == 16 && cons) {
+                        extract16_rows(words[f->word], rows, (int)f->itemsize, f->kind, f->off, f->cut, f->upshift,
+                                       (unsigned char *)f->out + (row * w + m[0]) * f->itemsize, w);
+                        continue;
+                    }
+#endif
+                    if (f->itemsize == 1)
+                        extract_u8(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                   (uint8_t *)f->out + row * w, w);
+                    else if (f->itemsize == 2)
+                        extract_u16(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                    (uint16_t *)f->out + row * w, w);
+                    else
+                        extract_u32(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
+                                    (uint32_t *)f->out + row * w, w);
+                }
+            }
+        }
+    }
+}
+
 /* ouster_scatter(payload, columns_at, column_bytes, pixels_at, pixel_bytes, h, mids, steps, outs)
  *
  * payload: uint8 [N, L] (each row contiguous, rows any stride apart: packets in a capture file);
@@ -295,49 +347,8 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
         }
 #endif
         Py_BEGIN_ALLOW_THREADS
-        scratch_t words;
-        /* A block of rows of GROUP packets in turn, then the next block: the rows of GROUP * 16 columns
-         * are written while their cache lines are in L1 (one packet's rows are 16 or 32 bytes of a
-         * line for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
-        for (Py_ssize_t p0 = 0; p0 < n; p0 += GROUP) {
-            Py_ssize_t p1 = p0 + GROUP < n ? p0 + GROUP : n;
-            int consecutive[GROUP];
-            for (Py_ssize_t p = p0; p < p1; p++) {
-                const int64_t *m = mids + p * c;
-                int k = m[c - 1] - m[0] == c - 1;
-                for (Py_ssize_t j = 1; k && j < c; j++) k = m[j] == m[j - 1] + 1;
-                consecutive[p - p0] = k;
-            }
-            for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
-                Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
-                Py_ssize_t fast = fast_h - row < 0 ? 0 : fast_h - row < rows ? fast_h - row : rows;
-                for (Py_ssize_t p = p0; p < p1; p++) {
-                    const int64_t *m = mids + p * c;
-                    const unsigned char *col0 = base + p * pb.strides[0] + columns_at + pixels_at;
-                    gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, c, nwords, words);
-                    for (Py_ssize_t i = 0; i < nf; i++) {
-                        const field_plan *f = &plans[i];
-                        int cons = consecutive[p - p0];
-#if defined(__SSE2__)
-                        if (c == 16 && cons) {
-                            extract16_rows(words[f->word], rows, (int)f->itemsize, f->kind, f->off, f->cut, f->upshift,
-                                           (unsigned char *)f->out + (row * w + m[0]) * f->itemsize, w);
-                            continue;
-                        }
-#endif
-                        if (f->itemsize == 1)
-                            extract_u8(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
-                                       (uint8_t *)f->out + row * w, w);
-                        else if (f->itemsize == 2)
-                            extract_u16(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
-                                        (uint16_t *)f->out + row * w, w);
-                        else
-                            extract_u32(words[f->word], rows, c, m, cons, f->off, f->mask, f->upshift,
-                                        (uint32_t *)f->out + row * w, w);
-                    }
-                }
-            }
-        }
+        scatter_packets(base, pb.strides[0], n, c, h, w, columns_at + pixels_at, column_bytes, pixel_bytes, fast_h,
+                        mids, plans, nf);
         Py_END_ALLOW_THREADS
     }
     Py_INCREF(Py_None);
