@@ -79,20 +79,17 @@ def test_native_scatter_on_shuffled_duplicated_and_lost_packets(pcap, jsons, mon
         assert_same_frames(got, want, pcap)
 
 
-@pytest.mark.parametrize("name", sorted(PROFILES))
-@pytest.mark.parametrize("h,c", [(16, 16), (64, 8), (128, 16)])
-def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
-    profile = PROFILES[name]
-    rng = np.random.default_rng([h, c, len(name)])
-    n, w = 5, 8 * c
+def _check_scatter(profile, payload, h, c, mids, w):
+    """ouster_scatter of ``payload`` (rows of at least the packet's columns) against ``read_pixel_field``."""
+    n = len(payload)
     size = profile.packet_dtype(h, c).itemsize
-    payload = rng.integers(0, 256, (n, size + 3), dtype=np.uint8)[:, 3:]  # rows apart by more than a packet
-    mids = np.stack([rng.permutation(w)[:c] for _ in range(n - 1)] + [np.arange(c) + 2 * c])  # scattered, then consecutive
+    full = np.zeros((n, size), np.uint8)  # the packets whole and contiguous, for packet_view
+    full[:, : payload.shape[1]] = payload
     outputs, targets = new_fields(profile, h, w)
     for t in targets:
         t.fill(0xA5)
     NATIVE.ouster_scatter(payload, *packet_layout(profile, h, c), h, mids.astype(np.int64), scatter_steps(profile), targets)
-    words = packet_view(payload, profile, h, c)["columns"]["pixels"]  # <u4[n, C, H, k]
+    words = packet_view(full, profile, h, c)["columns"]["pixels"]  # <u4[n, C, H, k]
     slots = (("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"), ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"))
     names = set(profile.field_names)
     checked = 0
@@ -110,6 +107,70 @@ def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
             assert np.array_equal(outputs[attr], want), attr
             checked += 1
     assert checked == len(targets)
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+@pytest.mark.parametrize("h,c", [(16, 16), (64, 8), (128, 16)])
+def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
+    profile = PROFILES[name]
+    rng = np.random.default_rng([h, c, len(name)])
+    n, w = 5, 8 * c
+    size = profile.packet_dtype(h, c).itemsize
+    payload = rng.integers(0, 256, (n, size + 3), dtype=np.uint8)[:, 3:]  # rows apart by more than a packet
+    mids = np.stack([rng.permutation(w)[:c] for _ in range(n - 1)] + [np.arange(c) + 2 * c])  # scattered, then consecutive
+    _check_scatter(profile, payload, h, c, mids, w)
+
+
+def _packets_ending_at_a_guard_page(rows: np.ndarray) -> np.ndarray:
+    """A copy of ``rows`` whose last byte is the last of a mapping followed by a page that faults when read."""
+    import ctypes
+    import mmap
+
+    size = rows.nbytes
+    pages = -(-size // mmap.PAGESIZE) + 1
+    buf = mmap.mmap(-1, pages * mmap.PAGESIZE)
+    arr = np.frombuffer(buf, np.uint8)
+    guard = arr[(pages - 1) * mmap.PAGESIZE :]
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+    assert libc.mprotect(guard.ctypes.data, mmap.PAGESIZE, 0) == 0  # PROT_NONE
+    out = arr[(pages - 1) * mmap.PAGESIZE - size : (pages - 1) * mmap.PAGESIZE].reshape(rows.shape)
+    out[...] = rows
+    return out
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "uname") or __import__("os").uname().sysname != "Linux", reason="mprotect via ctypes")
+@pytest.mark.parametrize("name", sorted(PROFILES))
+@pytest.mark.parametrize("h", [1, 2, 3, 5, 7, 13, 17, 30, 33])
+def test_ouster_scatter_reads_nothing_past_the_last_column(name, h):
+    """Packets cut right after their last column (no footer), the last one ending at a page that faults: the
+    16-byte loads of the vector path must stop before the end (H not a multiple of the rows per load or block)."""
+    profile = PROFILES[name]
+    c = 16
+    rng = np.random.default_rng([h, len(name), 7])
+    columns_at, column_bytes, _, _ = packet_layout(profile, h, c)
+    end = columns_at + c * column_bytes
+    n, w = 9, 16 * 12
+    rows = rng.integers(0, 256, (n, end), dtype=np.uint8)
+    payload = _packets_ending_at_a_guard_page(rows)
+    mids = np.arange(n * c).reshape(n, c)
+    _check_scatter(profile, payload, h, c, mids, w)
+    strided = _packets_ending_at_a_guard_page(np.pad(rows, ((0, 0), (0, 5))))[:, :end]  # rows farther apart than L
+    _check_scatter(profile, strided, h, c, mids[::-1].copy(), w)  # packets in reverse order, each consecutive
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_ouster_scatter_keeps_the_last_packet_of_a_column_received_twice(name):
+    """Columns repeated within and across groups of packets, packets out of order, one packet's columns reversed:
+    the last packet written wins, as in the NumPy twin."""
+    profile = PROFILES[name]
+    h, c, w = 20, 16, 96
+    rng = np.random.default_rng(len(name))
+    size = profile.packet_dtype(h, c).itemsize
+    mids = np.array([[*range(16, 32)], [*range(16, 32)], [*range(0, 16)], [*range(31, 15, -1)], [*range(80, 96)],
+                     [*range(0, 16)], [*range(17, 33)], [*range(16, 32)], [*range(48, 64)]])
+    payload = rng.integers(0, 256, (len(mids), size), dtype=np.uint8)
+    _check_scatter(profile, payload, h, c, mids, w)
 
 
 def test_ouster_scatter_refuses_what_does_not_fit_and_writes_nothing():
