@@ -16,7 +16,7 @@ import pytest
 
 from lidarpkt import kernels
 from lidarpkt.ouster.decode import packet_view, read_pixel_field
-from lidarpkt.ouster.fieldplan import new_fields, packet_layout, scatter_steps
+from lidarpkt.ouster.fieldplan import extract, new_fields, packet_layout, scatter_steps
 from lidarpkt.ouster.frames import OusterDecoder
 from lidarpkt.ouster.profiles import PROFILES
 from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
@@ -171,6 +171,26 @@ def test_ouster_scatter_keeps_the_last_packet_of_a_column_received_twice(name):
                      [*range(0, 16)], [*range(17, 33)], [*range(16, 32)], [*range(48, 64)]])
     payload = rng.integers(0, 256, (len(mids), size), dtype=np.uint8)
     _check_scatter(profile, payload, h, c, mids, w)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32])
+def test_ouster_scatter_applies_any_step_as_the_twin_does(dtype):
+    """Steps beyond those of today's profiles (every combination of shift, mask and up-shift the kernel
+    specialises, 16-bit values with the top bit set) against the twin's ``extract`` on word planes."""
+    rng = np.random.default_rng(np.dtype(dtype).itemsize)
+    h, c, n = 12, 16, 4
+    payload = rng.integers(0, 256, (n, c * h * 4), dtype=np.uint8)
+    mids = np.arange(n * c, dtype=np.int64).reshape(n, c)
+    planes = payload.view("<u4").reshape(n, c, h).transpose(2, 0, 1).reshape(1, h, n * c)
+    bits = 8 * np.dtype(dtype).itemsize
+    steps = [(0, off, mask, up) for off in (0, 1, 15, 16, 17, 24, 31) for mask in (0, 1, 0x7F, 0xFF, 0x7FFF, 0xFFFF, 0xFFFFF)
+             for up in sorted({0, 1, 4, bits - 1}) if mask < 1 << bits]  # the twin's masks fit the type
+    for i in range(0, len(steps), 16):
+        chunk = np.array(steps[i : i + 16], np.int64)
+        targets = [np.zeros((h, n * c), dtype) for _ in chunk]
+        NATIVE.ouster_scatter(payload, 0, h * 4, 0, 4, h, mids, chunk, targets)
+        for step, got in zip(chunk.tolist(), targets):
+            assert np.array_equal(got, extract(planes, tuple(step), np.empty((h, n * c), dtype))), step
 
 
 def test_ouster_scatter_refuses_what_does_not_fit_and_writes_nothing():
