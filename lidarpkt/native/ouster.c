@@ -4,6 +4,14 @@
  * field arrays are row-major [H, W]. The NumPy twin (lidarpkt/ouster/frames.py) transposes the
  * pixel words into word planes [words, H, W] and then extracts each field from its plane; this
  * kernel does both in one pass, so no plane is written or read again.
+ *
+ * Packets go GROUP at a time, in blocks of BLOCK_ROWS rows: for each packet of the group, the block's
+ * pixel words are transposed into an L1 scratch (16 columns: 16-byte loads and 4x4 transposes in
+ * SSE2 registers, gather16; otherwise, and near the end of a packet row, scalar copies), then each
+ * field is extracted from its word's scratch rows, 16 columns at a time with SSE2 and only the
+ * operations the field needs (vector_kind, chosen once per call), or by scalar code when C != 16 or
+ * the packet's columns are not consecutive. The loop (scatter_packets) has an AVX2 clone
+ * (MULTIVERSION): the same SSE2 operations, VEX-encoded; the baseline build stays SSE2.
  */
 #include "common.h"
 
@@ -17,15 +25,14 @@ static inline uint32_t load_le32(const unsigned char *p) {
     return v;
 }
 
-/* A packet in blocks of BLOCK_ROWS rows, in two steps: the pixels' words are copied into a small
- * row-major scratch (words[k][row][column], in L1), then each field is extracted from its word's
- * contiguous rows, with SSE2 (in the x86-64 baseline). Reading each field straight from the
- * column-major pixels cannot be vectorised (every load is a column apart): that took more
- * instructions than NumPy's transposing copy and field passes. */
+/* Two steps per block: the pixels' words are copied into a small row-major scratch
+ * (words[k][row][column]), then each field is extracted from its word's contiguous rows. Reading each
+ * field straight from the column-major pixels cannot be vectorised (every load is a column apart):
+ * that took more instructions than NumPy's transposing copy and field passes. */
 #define MAX_WORDS 4    /* 16-byte pixels (RNG19 dual) */
 #define MAX_COLUMNS 64 /* columns per packet: 16 on every firmware so far */
-#define BLOCK_ROWS 8 /* 16 took more time (the scratch of 16 rows and the rows written compete in L1) */
-#define GROUP 4 /* packets per pass over the rows: 64 columns, a cache line of 8-bit fields */
+#define BLOCK_ROWS 8 /* a multiple of 4 (gather16); 16 took 10-25% more CPU time on RNG19, dual, LEGACY */
+#define GROUP 4       /* packets per block of rows: 64 columns, a cache line of an 8-bit field's row */
 
 typedef uint32_t scratch_t[MAX_WORDS][BLOCK_ROWS][MAX_COLUMNS];
 
@@ -75,8 +82,9 @@ static inline __attribute__((always_inline)) void gather16(const unsigned char *
 /* Rows [0, rows) of a block into the scratch; the first `fast` rows (0 unless c == 16, a multiple
  * of the pixels per vector load, and in bounds) with gather16, the others with the scalar copy,
  * with the sizes of every current firmware as constants so that the compiler unrolls it. */
-static inline __attribute__((always_inline)) void gather_block(const unsigned char *s, Py_ssize_t cstride, Py_ssize_t pstride, Py_ssize_t fast,
-                         Py_ssize_t rows, Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+static inline __attribute__((always_inline)) void gather_block(const unsigned char *s, Py_ssize_t cstride,
+                                                               Py_ssize_t pstride, Py_ssize_t fast, Py_ssize_t rows,
+                                                               Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
 #ifdef VECTOR_GATHER
     if (fast > 0) {
         if (nwords == 3) gather16(s, cstride, pstride, fast, 4, 3, words);
@@ -130,7 +138,8 @@ enum {
 
 /* The kind of a field and its mask cut to the type: the value before narrowing is then < 2^(8 bytes). */
 static int vector_kind(Py_ssize_t bytes, unsigned off, uint32_t mask, unsigned upshift, uint32_t *cut) {
-    uint32_t present = 0xFFFFFFFFu >> off, type = bytes == 4 ? 0xFFFFFFFFu : (0xFFFFFFFFu >> (32 - 8 * bytes)) >> upshift;
+    uint32_t present = 0xFFFFFFFFu >> off;
+    uint32_t type = bytes == 4 ? 0xFFFFFFFFu : (0xFFFFFFFFu >> (32 - 8 * bytes)) >> upshift;
     uint32_t m = mask & type;
     int kind = (off ? SRL : 0) | ((m & present) != present ? AND : 0) | (upshift ? SHL : 0);
     *cut = m;
@@ -170,8 +179,10 @@ static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*
 }
 
 /* extract_rows with the kind and width as constants, so that each variant has only its operations. */
-static inline __attribute__((always_inline)) void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS], Py_ssize_t rows, int bytes, int kind,
-                           unsigned off, uint32_t mask, unsigned upshift, unsigned char *restrict out, Py_ssize_t w) {
+static inline __attribute__((always_inline)) void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS],
+                                                                 Py_ssize_t rows, int bytes, int kind, unsigned off,
+                                                                 uint32_t mask, unsigned upshift,
+                                                                 unsigned char *restrict out, Py_ssize_t w) {
     const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift), m = _mm_set1_epi32((int)mask);
 #define KIND(B, K)                                                                                                    \
     case (B) * 32 + (K):                                                                                              \
@@ -230,7 +241,8 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
         }
         *w = v->shape[1];
         field_plan *f = &plans[i];
-        *f = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu, v->buf};
+        *f = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
+                          v->buf};
 #if defined(__SSE2__)
         f->kind = vector_kind(f->itemsize, f->off, f->mask, f->upshift, &f->cut);
 #endif
@@ -238,8 +250,8 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
     return 0;
 }
 
-/* The packets into the fields (arguments checked); MULTIVERSION: its AVX2 clone has the same
- * operations, VEX-encoded (three operands: fewer register copies). */
+/* The packets into the fields (arguments checked). MULTIVERSION: the AVX2 clone's three-operand VEX
+ * encoding needs fewer register copies (about 15% fewer instructions). */
 MULTIVERSION
 static void scatter_packets(const unsigned char *base, Py_ssize_t stride, Py_ssize_t n, Py_ssize_t c, Py_ssize_t h,
                             Py_ssize_t w, Py_ssize_t at, Py_ssize_t column_bytes, Py_ssize_t pixel_bytes,
@@ -247,8 +259,8 @@ static void scatter_packets(const unsigned char *base, Py_ssize_t stride, Py_ssi
     Py_ssize_t nwords = pixel_bytes / 4;
     scratch_t words;
     /* A block of rows of GROUP packets in turn, then the next block: the rows of GROUP * 16 columns
-     * are written while their cache lines are in L1 (one packet's rows are 16 or 32 bytes of a
-     * line for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
+     * are written while their cache lines are in L1 (one packet's row is 16 or 32 bytes of a line
+     * for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
     for (Py_ssize_t p0 = 0; p0 < n; p0 += GROUP) {
         Py_ssize_t p1 = p0 + GROUP < n ? p0 + GROUP : n;
         int consecutive[GROUP];
@@ -339,8 +351,10 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
         const unsigned char *base = (const unsigned char *)pb.buf;
         Py_ssize_t nf = got, nwords = pixel_bytes / 4, fast_h = 0;
 #ifdef VECTOR_GATHER
-        /* the rows that gather16 reads: the last load of the last column ends inside the row */
-        Py_ssize_t per = nwords == 3 ? 1 : 4 / nwords, room = pb.shape[1] - 16 - (columns_at + 15 * column_bytes + pixels_at);
+        /* fast_h: the leading rows that gather16 reads, in loads of `per` pixels; the last load of the
+         * last column must end inside the packet row (L bytes), else those rows take the scalar copy */
+        Py_ssize_t per = nwords == 3 ? 1 : 4 / nwords;
+        Py_ssize_t room = pb.shape[1] - 16 - (columns_at + 15 * column_bytes + pixels_at);
         if (c == 16 && pixel_bytes % 4 == 0 && room >= 0) {
             fast_h = room / (per * pixel_bytes) + 1;
             fast_h = per * (fast_h < h / per ? fast_h : h / per);
