@@ -241,8 +241,8 @@ static int plan_fields(PyObject *outs, const int64_t *steps, Py_ssize_t nsteps, 
         }
         *w = v->shape[1];
         field_plan *f = &plans[i];
-        *f = (field_plan){s[0], v->itemsize, (unsigned)s[1], (unsigned)s[3], s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu,
-                          v->buf};
+        *f = (field_plan){.word = s[0], .itemsize = v->itemsize, .off = (unsigned)s[1], .upshift = (unsigned)s[3],
+                          .mask = s[2] ? (uint32_t)s[2] : 0xFFFFFFFFu, .out = v->buf};
 #if defined(__SSE2__)
         f->kind = vector_kind(f->itemsize, f->off, f->mask, f->upshift, &f->cut);
 #endif
@@ -349,8 +349,9 @@ PyObject *lp_ouster_scatter(PyObject *self, PyObject *args) {
     }
     {
         const unsigned char *base = (const unsigned char *)pb.buf;
-        Py_ssize_t nf = got, nwords = pixel_bytes / 4, fast_h = 0;
+        Py_ssize_t nf = got, fast_h = 0;
 #ifdef VECTOR_GATHER
+        Py_ssize_t nwords = pixel_bytes / 4;
         /* fast_h: the leading rows that gather16 reads, in loads of `per` pixels; the last load of the
          * last column must end inside the packet row (L bytes), else those rows take the scalar copy */
         Py_ssize_t per = nwords == 3 ? 1 : 4 / nwords;
