@@ -5,13 +5,16 @@
  * pixel words into word planes [words, H, W] and then extracts each field from its plane; this
  * kernel does both in one pass, so no plane is written or read again.
  *
- * Packets go GROUP at a time, in blocks of BLOCK_ROWS rows: for each packet of the group, the block's
- * pixel words are transposed into an L1 scratch (16 columns: 16-byte loads and 4x4 transposes in
- * SSE2 registers, gather16; otherwise, and near the end of a packet row, scalar copies), then each
- * field is extracted from its word's scratch rows, 16 columns at a time with SSE2 and only the
- * operations the field needs (vector_kind, chosen once per call), or by scalar code when C != 16 or
- * the packet's columns are not consecutive. The loop (scatter_packets) has an AVX2 clone
- * (MULTIVERSION): the same SSE2 operations, VEX-encoded; the baseline build stays SSE2.
+ * Packets go GROUP at a time, in blocks of BLOCK_ROWS rows. The block's pixel words are transposed
+ * into an L1 scratch (16 columns: 16-byte loads and 4x4 transposes in SSE2 registers, gather16;
+ * otherwise, and where such a load would end past the packet row, scalar copies); then each field
+ * is extracted from its word's scratch rows, 16 columns at a time with SSE2 and only the operations
+ * the field needs (vector_kind, chosen once per call). When the group's packets sit side by side in
+ * the frame (16 consecutive columns each, the next packet's right after: the common case), the
+ * whole group shares the scratch and each field takes one pass over its 64 columns; otherwise each
+ * packet goes alone, by scalar code when C != 16 or its columns are not consecutive. The loop
+ * (scatter_packets) has an AVX2 clone (MULTIVERSION): the same SSE2 operations, VEX-encoded; the
+ * baseline build stays SSE2.
  */
 #include "common.h"
 
@@ -32,32 +35,35 @@ static inline uint32_t load_le32(const unsigned char *p) {
 #define MAX_WORDS 4    /* 16-byte pixels (RNG19 dual) */
 #define MAX_COLUMNS 64 /* columns per packet: 16 on every firmware so far */
 #define BLOCK_ROWS 8 /* a multiple of 4 (gather16); 16 took 10-25% more CPU time on RNG19, dual, LEGACY */
-#define GROUP 4       /* packets per block of rows: 64 columns, a cache line of an 8-bit field's row */
+#define GROUP 4       /* packets per block of rows: 64 columns (GROUP * 16 <= MAX_COLUMNS: the scratch holds
+                         a group side by side), a cache line of an 8-bit field's row */
 
 typedef uint32_t scratch_t[MAX_WORDS][BLOCK_ROWS][MAX_COLUMNS];
 
-/* The scalar copy: rows [r0, rows) of the block, any C. */
+/* The scalar copy: rows [r0, rows) of the block, any C, into scratch columns j0... */
 static inline __attribute__((always_inline)) void gather(const unsigned char *restrict s, Py_ssize_t cstride,
                                                          Py_ssize_t pstride, Py_ssize_t r0, Py_ssize_t rows,
-                                                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+                                                         Py_ssize_t c, Py_ssize_t nwords, scratch_t words,
+                                                         Py_ssize_t j0) {
     for (Py_ssize_t r = r0; r < rows; r++)
         for (Py_ssize_t j = 0; j < c; j++)
 #pragma GCC unroll 4
-            for (Py_ssize_t k = 0; k < nwords; k++) words[k][r][j] = load_le32(s + r * pstride + j * cstride + 4 * k);
+            for (Py_ssize_t k = 0; k < nwords; k++)
+                words[k][r][j0 + j] = load_le32(s + r * pstride + j * cstride + 4 * k);
 }
 
 #if defined(__SSE2__) && PY_LITTLE_ENDIAN
 #include <emmintrin.h>
 #define VECTOR_GATHER 1
 
-/* The vector copy of rows [0, rows) of 16 columns: one 16-byte load per column reads `4 / nwp`
- * consecutive pixels of nwp words (nwp = 1, 2 or 4; 3-word pixels are read as 4, the 4th word,
- * from the next pixel, is dropped), and a 4x4 transpose of 4 columns' loads gives 4 columns of
+/* The vector copy of rows [0, rows) of 16 columns into scratch columns j0...: one 16-byte load per
+ * column reads `4 / nwp` consecutive pixels of nwp words (nwp = 1, 2 or 4; 3-word pixels are read as
+ * 4, the 4th word, from the next pixel, is dropped), and a 4x4 transpose of 4 columns' loads gives 4 columns of
  * each (row, word). The caller checks that every 16 bytes read are inside the packet, and that
  * rows is a multiple of 4 / nwp. */
 static inline __attribute__((always_inline)) void gather16(const unsigned char *restrict s, Py_ssize_t cstride,
                                                            Py_ssize_t pstride, Py_ssize_t rows, int nwp,
-                                                           Py_ssize_t nwords, scratch_t words) {
+                                                           Py_ssize_t nwords, scratch_t words, Py_ssize_t j0) {
     const int per = 4 / nwp; /* pixels per load */
     const Py_ssize_t cstride3 = 3 * cstride;
     for (Py_ssize_t r = 0; r < rows; r += per) {
@@ -73,7 +79,7 @@ static inline __attribute__((always_inline)) void gather16(const unsigned char *
                             _mm_unpackhi_epi64(ab1, cd1)};
             /* t[i] = word i % nwp of pixel r + i / nwp, in columns g..g+3 */
             for (int i = 0; i < 4; i++)
-                if (i % nwp < nwords) _mm_storeu_si128((__m128i *)&words[i % nwp][r + i / nwp][g], t[i]);
+                if (i % nwp < nwords) _mm_storeu_si128((__m128i *)&words[i % nwp][r + i / nwp][j0 + g], t[i]);
         }
     }
 }
@@ -84,21 +90,22 @@ static inline __attribute__((always_inline)) void gather16(const unsigned char *
  * with the sizes of every current firmware as constants so that the compiler unrolls it. */
 static inline __attribute__((always_inline)) void gather_block(const unsigned char *s, Py_ssize_t cstride,
                                                                Py_ssize_t pstride, Py_ssize_t fast, Py_ssize_t rows,
-                                                               Py_ssize_t c, Py_ssize_t nwords, scratch_t words) {
+                                                               Py_ssize_t c, Py_ssize_t nwords, scratch_t words,
+                                                               Py_ssize_t j0) {
 #ifdef VECTOR_GATHER
     if (fast > 0) {
-        if (nwords == 3) gather16(s, cstride, pstride, fast, 4, 3, words);
-        else if (nwords == 1) gather16(s, cstride, pstride, fast, 1, 1, words);
-        else if (nwords == 2) gather16(s, cstride, pstride, fast, 2, 2, words);
-        else gather16(s, cstride, pstride, fast, 4, 4, words);
+        if (nwords == 3) gather16(s, cstride, pstride, fast, 4, 3, words, j0);
+        else if (nwords == 1) gather16(s, cstride, pstride, fast, 1, 1, words, j0);
+        else if (nwords == 2) gather16(s, cstride, pstride, fast, 2, 2, words, j0);
+        else gather16(s, cstride, pstride, fast, 4, 4, words, j0);
     }
 #endif
     if (fast == rows) return;
-    if (c != 16) gather(s, cstride, pstride, fast, rows, c, nwords, words);
-    else if (nwords == 3) gather(s, cstride, pstride, fast, rows, 16, 3, words);
-    else if (nwords == 1) gather(s, cstride, pstride, fast, rows, 16, 1, words);
-    else if (nwords == 2) gather(s, cstride, pstride, fast, rows, 16, 2, words);
-    else gather(s, cstride, pstride, fast, rows, 16, nwords, words);
+    if (c != 16) gather(s, cstride, pstride, fast, rows, c, nwords, words, j0);
+    else if (nwords == 3) gather(s, cstride, pstride, fast, rows, 16, 3, words, j0);
+    else if (nwords == 1) gather(s, cstride, pstride, fast, rows, 16, 1, words, j0);
+    else if (nwords == 2) gather(s, cstride, pstride, fast, rows, 16, 2, words, j0);
+    else gather(s, cstride, pstride, fast, rows, 16, nwords, words, j0);
 }
 
 /* d[j] = ((word[j] >> off) & mask) << upshift in 32 bits, then narrowed to the field's type: the same
@@ -150,15 +157,16 @@ static int vector_kind(Py_ssize_t bytes, unsigned off, uint32_t mask, unsigned u
     return kind;
 }
 
-/* Rows [0, rows) of one field, columns 16 in a row, from the scratch to out[row * w]. */
+/* Rows [0, rows) of one field, columns [0, ncols) (a multiple of 16), from the scratch to out[row * w]. */
 static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*restrict word)[MAX_COLUMNS],
-                                                               Py_ssize_t rows, int bytes, int kind, __m128i sr,
-                                                               __m128i m, __m128i sl, unsigned char *restrict out,
-                                                               Py_ssize_t w) {
-    for (Py_ssize_t r = 0; r < rows; r++) {
+                                                               Py_ssize_t rows, Py_ssize_t ncols, int bytes, int kind,
+                                                               __m128i sr, __m128i m, __m128i sl,
+                                                               unsigned char *restrict out, Py_ssize_t w) {
+    for (Py_ssize_t r = 0; r < rows; r++)
+    for (Py_ssize_t j = 0; j < ncols; j += 16) {
         __m128i v[4];
         for (int i = 0; i < 4; i++) {
-            __m128i x = _mm_loadu_si128((const __m128i *)(word[r] + 4 * i));
+            __m128i x = _mm_loadu_si128((const __m128i *)(word[r] + j + 4 * i));
             if (kind & SRL) x = _mm_srl_epi32(x, sr);
             if (kind & SRA) x = _mm_srai_epi32(x, 16);
             if (kind & AND) x = _mm_and_si128(x, m);
@@ -166,7 +174,7 @@ static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*
             if (kind & SEXT) x = _mm_srai_epi32(_mm_slli_epi32(x, 16), 16);
             v[i] = x;
         }
-        __m128i *d = (__m128i *)(out + r * w * bytes);
+        __m128i *d = (__m128i *)(out + (r * w + j) * bytes);
         if (bytes == 4) {
             for (int i = 0; i < 4; i++) _mm_storeu_si128(d + i, v[i]);
         } else if (bytes == 2) {
@@ -180,13 +188,17 @@ static inline __attribute__((always_inline)) void extract_rows(const uint32_t (*
 
 /* extract_rows with the kind and width as constants, so that each variant has only its operations. */
 static inline __attribute__((always_inline)) void extract16_rows(const uint32_t (*restrict word)[MAX_COLUMNS],
-                                                                 Py_ssize_t rows, int bytes, int kind, unsigned off,
+                                                                 Py_ssize_t rows, Py_ssize_t ncols, int bytes,
+                                                                 int kind, unsigned off,
                                                                  uint32_t mask, unsigned upshift,
                                                                  unsigned char *restrict out, Py_ssize_t w) {
     const __m128i sr = _mm_cvtsi32_si128((int)off), sl = _mm_cvtsi32_si128((int)upshift), m = _mm_set1_epi32((int)mask);
 #define KIND(B, K)                                                                                                    \
     case (B) * 32 + (K):                                                                                              \
-        extract_rows(word, rows, B, K, sr, m, sl, out, w);                                                           \
+        if (ncols == 16 * GROUP) /* a whole group, the common case: the constant unrolls the columns */       \
+            extract_rows(word, rows, 16 * GROUP, B, K, sr, m, sl, out, w);                                           \
+        else                                                                                                          \
+            extract_rows(word, rows, ncols, B, K, sr, m, sl, out, w);                                                \
         return;
 #define KINDS(B)                                                                                                      \
     KIND(B, 0) KIND(B, SRL) KIND(B, AND) KIND(B, SRL | AND) KIND(B, SHL) KIND(B, SRL | SHL) KIND(B, AND | SHL)        \
@@ -263,26 +275,40 @@ static void scatter_packets(const unsigned char *base, Py_ssize_t stride, Py_ssi
      * for 8- and 16-bit fields), and each pixel still gets the last packet's value. */
     for (Py_ssize_t p0 = 0; p0 < n; p0 += GROUP) {
         Py_ssize_t p1 = p0 + GROUP < n ? p0 + GROUP : n;
-        int consecutive[GROUP];
+        int consecutive[GROUP], run = c == 16;
         for (Py_ssize_t p = p0; p < p1; p++) {
             const int64_t *m = mids + p * c;
             int k = m[c - 1] - m[0] == c - 1;
             for (Py_ssize_t j = 1; k && j < c; j++) k = m[j] == m[j - 1] + 1;
             consecutive[p - p0] = k;
+            run = run && k && m[0] == mids[p0 * c] + 16 * (p - p0);
         }
         for (Py_ssize_t row = 0; row < h; row += BLOCK_ROWS) {
             Py_ssize_t rows = h - row < BLOCK_ROWS ? h - row : BLOCK_ROWS;
             Py_ssize_t fast = fast_h - row < 0 ? 0 : fast_h - row < rows ? fast_h - row : rows;
+#if defined(__SSE2__)
+            if (run) { /* the group's 16 * (p1 - p0) columns side by side in the frame: one pass per field */
+                for (Py_ssize_t p = p0; p < p1; p++)
+                    gather_block(base + p * stride + at + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, 16,
+                                 nwords, words, 16 * (p - p0));
+                for (Py_ssize_t i = 0; i < nf; i++) {
+                    const field_plan *f = &plans[i];
+                    extract16_rows(words[f->word], rows, 16 * (p1 - p0), (int)f->itemsize, f->kind, f->off, f->cut,
+                                   f->upshift, (unsigned char *)f->out + (row * w + mids[p0 * c]) * f->itemsize, w);
+                }
+                continue;
+            }
+#endif
             for (Py_ssize_t p = p0; p < p1; p++) {
                 const int64_t *m = mids + p * c;
                 const unsigned char *col0 = base + p * stride + at;
-                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, c, nwords, words);
+                gather_block(col0 + row * pixel_bytes, column_bytes, pixel_bytes, fast, rows, c, nwords, words, 0);
                 for (Py_ssize_t i = 0; i < nf; i++) {
                     const field_plan *f = &plans[i];
                     int cons = consecutive[p - p0];
 #if defined(__SSE2__)
                     if (c == 16 && cons) {
-                        extract16_rows(words[f->word], rows, (int)f->itemsize, f->kind, f->off, f->cut, f->upshift,
+                        extract16_rows(words[f->word], rows, 16, (int)f->itemsize, f->kind, f->off, f->cut, f->upshift,
                                        (unsigned char *)f->out + (row * w + m[0]) * f->itemsize, w);
                         continue;
                     }

@@ -161,14 +161,15 @@ def test_ouster_scatter_reads_nothing_past_the_last_column(name, h):
 
 @pytest.mark.parametrize("name", sorted(PROFILES))
 def test_ouster_scatter_keeps_the_last_packet_of_a_column_received_twice(name):
-    """Columns repeated within and across groups of packets, packets out of order, one packet's columns reversed:
-    the last packet written wins, as in the NumPy twin."""
+    """Columns repeated within and across groups of 4 packets, packets out of order, one packet's columns
+    reversed, groups of side-by-side packets (written field by field across the group) with and without a
+    gap: the last packet written wins, as in the NumPy twin."""
     profile = PROFILES[name]
     h, c, w = 20, 16, 96
     rng = np.random.default_rng(len(name))
     size = profile.packet_dtype(h, c).itemsize
-    mids = np.array([[*range(16, 32)], [*range(16, 32)], [*range(0, 16)], [*range(31, 15, -1)], [*range(80, 96)],
-                     [*range(0, 16)], [*range(17, 33)], [*range(16, 32)], [*range(48, 64)]])
+    starts = [16, 16, 0, None, 80, 0, 17, 16, 0, 16, 32, 48, 32, 48, 64, 80, 0, 16, 48, 64, 48]
+    mids = np.array([range(s, s + c) if s is not None else range(31, 15, -1) for s in starts])
     payload = rng.integers(0, 256, (len(mids), size), dtype=np.uint8)
     _check_scatter(profile, payload, h, c, mids, w)
 
