@@ -58,9 +58,9 @@ static inline __attribute__((always_inline)) void gather(const unsigned char *re
 
 /* The vector copy of rows [0, rows) of 16 columns into scratch columns j0...: one 16-byte load per
  * column reads `4 / nwp` consecutive pixels of nwp words (nwp = 1, 2 or 4; 3-word pixels are read as
- * 4, the 4th word, from the next pixel, is dropped), and a 4x4 transpose of 4 columns' loads gives 4 columns of
- * each (row, word). The caller checks that every 16 bytes read are inside the packet, and that
- * rows is a multiple of 4 / nwp. */
+ * 4, the 4th word, from the next pixel, is dropped), and a 4x4 transpose of 4 columns' loads gives
+ * 4 columns of each (row, word). The caller checks that every 16 bytes read are inside the packet
+ * row, and that rows is a multiple of 4 / nwp. */
 static inline __attribute__((always_inline)) void gather16(const unsigned char *restrict s, Py_ssize_t cstride,
                                                            Py_ssize_t pstride, Py_ssize_t rows, int nwp,
                                                            Py_ssize_t nwords, scratch_t words, Py_ssize_t j0) {
