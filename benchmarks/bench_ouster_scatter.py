@@ -29,6 +29,7 @@ sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 CAPTURES = {
     "OS-2-128 RNG19": ("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"),
+    "OS-0-32 RNG19 dual": ("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"),
     "OS-1-64 legacy": ("ouster-sdk/OS-1-64_1024x10_fw20.pcap", "ouster-sdk/OS-1-64_sensor_config_reduced.json"),
     "OS-0-128 RNG15": ("ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json"),
 }

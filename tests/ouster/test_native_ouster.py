@@ -16,7 +16,7 @@ import pytest
 
 from lidarpkt import kernels
 from lidarpkt.ouster.decode import packet_view, read_pixel_field
-from lidarpkt.ouster.fieldplan import new_fields, packet_layout, scatter_steps
+from lidarpkt.ouster.fieldplan import extract, new_fields, packet_layout, scatter_steps
 from lidarpkt.ouster.frames import OusterDecoder
 from lidarpkt.ouster.profiles import PROFILES
 from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
@@ -79,20 +79,17 @@ def test_native_scatter_on_shuffled_duplicated_and_lost_packets(pcap, jsons, mon
         assert_same_frames(got, want, pcap)
 
 
-@pytest.mark.parametrize("name", sorted(PROFILES))
-@pytest.mark.parametrize("h,c", [(16, 16), (64, 8), (128, 16)])
-def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
-    profile = PROFILES[name]
-    rng = np.random.default_rng([h, c, len(name)])
-    n, w = 5, 8 * c
+def _check_scatter(profile, payload, h, c, mids, w):
+    """ouster_scatter of ``payload`` (rows of at least the packet's columns) against ``read_pixel_field``."""
+    n = len(payload)
     size = profile.packet_dtype(h, c).itemsize
-    payload = rng.integers(0, 256, (n, size + 3), dtype=np.uint8)[:, 3:]  # rows apart by more than a packet
-    mids = np.stack([rng.permutation(w)[:c] for _ in range(n - 1)] + [np.arange(c) + 2 * c])  # scattered, then consecutive
+    full = np.zeros((n, size), np.uint8)  # the packets whole and contiguous, for packet_view
+    full[:, : payload.shape[1]] = payload
     outputs, targets = new_fields(profile, h, w)
     for t in targets:
         t.fill(0xA5)
     NATIVE.ouster_scatter(payload, *packet_layout(profile, h, c), h, mids.astype(np.int64), scatter_steps(profile), targets)
-    words = packet_view(payload, profile, h, c)["columns"]["pixels"]  # <u4[n, C, H, k]
+    words = packet_view(full, profile, h, c)["columns"]["pixels"]  # <u4[n, C, H, k]
     slots = (("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"), ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"))
     names = set(profile.field_names)
     checked = 0
@@ -110,6 +107,91 @@ def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
             assert np.array_equal(outputs[attr], want), attr
             checked += 1
     assert checked == len(targets)
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+@pytest.mark.parametrize("h,c", [(16, 16), (64, 8), (128, 16)])
+def test_ouster_scatter_matches_the_packet_decoder_on_random_bytes(name, h, c):
+    profile = PROFILES[name]
+    rng = np.random.default_rng([h, c, len(name)])
+    n, w = 5, 8 * c
+    size = profile.packet_dtype(h, c).itemsize
+    payload = rng.integers(0, 256, (n, size + 3), dtype=np.uint8)[:, 3:]  # rows apart by more than a packet
+    mids = np.stack([rng.permutation(w)[:c] for _ in range(n - 1)] + [np.arange(c) + 2 * c])  # scattered, then consecutive
+    _check_scatter(profile, payload, h, c, mids, w)
+
+
+def _packets_ending_at_a_guard_page(rows: np.ndarray) -> np.ndarray:
+    """A copy of ``rows`` whose last byte is the last of a mapping followed by a page that faults when read."""
+    import ctypes
+    import mmap
+
+    size = rows.nbytes
+    pages = -(-size // mmap.PAGESIZE) + 1
+    buf = mmap.mmap(-1, pages * mmap.PAGESIZE)
+    arr = np.frombuffer(buf, np.uint8)
+    guard = arr[(pages - 1) * mmap.PAGESIZE :]
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mprotect.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
+    assert libc.mprotect(guard.ctypes.data, mmap.PAGESIZE, 0) == 0  # PROT_NONE
+    out = arr[(pages - 1) * mmap.PAGESIZE - size : (pages - 1) * mmap.PAGESIZE].reshape(rows.shape)
+    out[...] = rows
+    return out
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "uname") or __import__("os").uname().sysname != "Linux", reason="mprotect via ctypes")
+@pytest.mark.parametrize("name", sorted(PROFILES))
+@pytest.mark.parametrize("h", [1, 2, 3, 5, 7, 13, 17, 30, 33])
+def test_ouster_scatter_reads_nothing_past_the_last_column(name, h):
+    """Packets cut right after their last column (no footer), the last one ending at a page that faults: the
+    16-byte loads of the vector path must stop before the end (H not a multiple of the rows per load or block)."""
+    profile = PROFILES[name]
+    c = 16
+    rng = np.random.default_rng([h, len(name), 7])
+    columns_at, column_bytes, _, _ = packet_layout(profile, h, c)
+    end = columns_at + c * column_bytes
+    n, w = 9, 16 * 12
+    rows = rng.integers(0, 256, (n, end), dtype=np.uint8)
+    payload = _packets_ending_at_a_guard_page(rows)
+    mids = np.arange(n * c).reshape(n, c)
+    _check_scatter(profile, payload, h, c, mids, w)
+    strided = _packets_ending_at_a_guard_page(np.pad(rows, ((0, 0), (0, 5))))[:, :end]  # rows farther apart than L
+    _check_scatter(profile, strided, h, c, mids[::-1].copy(), w)  # packets in reverse order, each consecutive
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_ouster_scatter_keeps_the_last_packet_of_a_column_received_twice(name):
+    """Columns repeated within and across groups of 4 packets, packets out of order, one packet's columns
+    reversed, groups of side-by-side packets (written field by field across the group) with and without a
+    gap: the last packet written wins, as in the NumPy twin."""
+    profile = PROFILES[name]
+    h, c, w = 20, 16, 96
+    rng = np.random.default_rng(len(name))
+    size = profile.packet_dtype(h, c).itemsize
+    starts = [16, 16, 0, None, 80, 0, 17, 16, 0, 16, 32, 48, 32, 48, 64, 80, 0, 16, 48, 64, 48]
+    mids = np.array([range(s, s + c) if s is not None else range(31, 15, -1) for s in starts])
+    payload = rng.integers(0, 256, (len(mids), size), dtype=np.uint8)
+    _check_scatter(profile, payload, h, c, mids, w)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32])
+def test_ouster_scatter_applies_any_step_as_the_twin_does(dtype):
+    """Steps beyond those of today's profiles (every combination of shift, mask and up-shift the kernel
+    specialises, 16-bit values with the top bit set) against the twin's ``extract`` on word planes."""
+    rng = np.random.default_rng(np.dtype(dtype).itemsize)
+    h, c, n = 12, 16, 4
+    payload = rng.integers(0, 256, (n, c * h * 4), dtype=np.uint8)
+    mids = np.arange(n * c, dtype=np.int64).reshape(n, c)
+    planes = payload.view("<u4").reshape(n, c, h).transpose(2, 0, 1).reshape(1, h, n * c)
+    bits = 8 * np.dtype(dtype).itemsize
+    steps = [(0, off, mask, up) for off in (0, 1, 15, 16, 17, 24, 31) for mask in (0, 1, 0x7F, 0xFF, 0x7FFF, 0xFFFF, 0xFFFFF)
+             for up in sorted({0, 1, 4, bits - 1}) if mask < 1 << bits]  # the twin's masks fit the type
+    for i in range(0, len(steps), 16):
+        chunk = np.array(steps[i : i + 16], np.int64)
+        targets = [np.zeros((h, n * c), dtype) for _ in chunk]
+        NATIVE.ouster_scatter(payload, 0, h * 4, 0, 4, h, mids, chunk, targets)
+        for step, got in zip(chunk.tolist(), targets):
+            assert np.array_equal(got, extract(planes, tuple(step), np.empty((h, n * c), dtype))), step
 
 
 def test_ouster_scatter_refuses_what_does_not_fit_and_writes_nothing():
