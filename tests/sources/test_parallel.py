@@ -260,3 +260,13 @@ def test_damage_mid_file_stops_three_workers_where_it_stops_one(tmp_path, small_
             one = got
     _assert_same(one, got, "damaged")
     assert 10 < len(one) < 45
+
+
+def test_bench_stages_times_each_stage_of_the_pipeline():
+    """benchmarks/bench_stages.py (what bounds workers=2) reads every frame and times each stage alone."""
+    import bench_stages
+
+    path, md = _capture("os1-64-dual")
+    s = bench_stages.stages(path, str(md), "xyz32", repeat=1)
+    assert s["frames"] == len(_frames(path, md))
+    assert s["read"] > 0 and s["work"] > 0 and s["one thread"] > s["work"]
