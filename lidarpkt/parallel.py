@@ -240,7 +240,6 @@ class ParallelFrameReader:
         if unknown and len(unknown) == segments_read:
             raise UnknownSensorError(unknown[0])
 
-
     def _check_cut(self, segment, split_offset: int | None, truncated: bool) -> bool:
         """Whether the segments after ``segment`` continue the capture: False when its reader stopped at
         damage before its end (the single-threaded reader stops there too).
