@@ -7,7 +7,7 @@ Every array with a trailing W axis is per column; ``[R, H, W]`` arrays are per p
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Iterable, Protocol
+from typing import Any, Iterable, Iterator, Protocol, Self
 
 import numpy as np
 
@@ -347,6 +347,28 @@ def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
     w = image.shape[-1]
     src = (np.arange(w)[None, :] + shift[:, None]) % w
     return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
+
+
+class FrameIterator:
+    """What every frame reader of :func:`lidarpkt.open` shares: iterate it for :class:`Frame` objects;
+    ``close()`` it (or use ``with``) to stop early. A subclass sets ``_iter``, its frames, and ``close()``."""
+
+    _iter: Iterator[Frame]
+
+    def __iter__(self) -> Self:
+        return self
+
+    def __next__(self) -> Frame:
+        return next(self._iter)
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 @dataclass(eq=False)

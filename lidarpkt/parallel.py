@@ -42,7 +42,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from .errors import CaptureFormatError, UnknownSensorError
-from .frame import Frame
+from .frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
@@ -62,7 +62,7 @@ DECODE_AHEAD_BYTES = 16 << 20  # frames decoded ahead of the caller (~10 OS-128 
 DECODE_THREAD_NAME = "lidarpkt-decode"
 
 
-class PipelinedFrameReader:
+class PipelinedFrameReader(FrameIterator):
     """Iterator of :class:`~lidarpkt.frame.Frame`: a single-threaded reader's frames, decoded in a thread
     of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
 
@@ -78,23 +78,12 @@ class PipelinedFrameReader:
         self.reader = reader
         self.stats = reader.stats
         self.workers = 2
-        self._ahead = ReadAhead(lambda: reader, max_bytes=max_bytes, nbytes=_frame_nbytes, name=DECODE_THREAD_NAME)
-
-    def __iter__(self) -> "PipelinedFrameReader":
-        return self
-
-    def __next__(self) -> Frame:
-        return next(self._ahead)
+        self._ahead = self._iter = ReadAhead(lambda: reader, max_bytes=max_bytes, nbytes=_frame_nbytes,
+                                             name=DECODE_THREAD_NAME)
 
     def close(self) -> None:
         """Stop decoding (the thread finishes the frame in hand and closes the reader). Idempotent."""
         self._ahead.close()
-
-    def __enter__(self) -> "PipelinedFrameReader":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __del__(self) -> None:
         ahead = getattr(self, "_ahead", None)
@@ -108,7 +97,7 @@ def _frame_nbytes(frame: Frame) -> int:
     return total + sum(v.nbytes for v in frame.extra.values() if isinstance(v, np.ndarray))
 
 
-class ParallelFrameReader:
+class ParallelFrameReader(FrameIterator):
     """Iterator of :class:`~lidarpkt.frame.Frame` decoded by ``workers`` threads over segments of a capture.
 
     Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
@@ -141,23 +130,11 @@ class ParallelFrameReader:
         # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the threads)
         self._iter = ParallelFrameReader._frames(weakref.proxy(self))
 
-    def __iter__(self) -> "ParallelFrameReader":
-        return self
-
-    def __next__(self) -> Frame:
-        return next(self._iter)
-
     def close(self) -> None:
         """Stop: pending segments are cancelled, running ones stop at their next frame. Idempotent."""
         self._stop.set()
         self._iter.close()
         self._pool.shutdown(wait=True, cancel_futures=True)
-
-    def __enter__(self) -> "ParallelFrameReader":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __del__(self) -> None:
         stop = getattr(self, "_stop", None)

@@ -22,7 +22,7 @@ import numpy as np
 from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from ._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from .decoder import Decoder
-from .frame import Frame
+from .frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
 
@@ -57,7 +57,7 @@ class SourceStats:
     frames: int = 0
 
 
-class FrameReader:
+class FrameReader(FrameIterator):
     """Iterator of :class:`Frame` over one capture; ``stats``, ``decoders`` and ``reader`` show what happened.
 
     Made by :func:`open_frames` (``lidarpkt.open``). Frames come out when their last packet has
@@ -119,24 +119,12 @@ class FrameReader:
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter = FrameReader._frames(weakref.proxy(self))
 
-    def __iter__(self) -> "FrameReader":
-        return self
-
-    def __next__(self) -> Frame:
-        return next(self._iter)
-
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
         self._iter.close()
         ra, self._read_ahead = self._read_ahead, None
         if ra is not None:
             ra.close()
-
-    def __enter__(self) -> "FrameReader":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __del__(self) -> None:
         ra = getattr(self, "_read_ahead", None)
