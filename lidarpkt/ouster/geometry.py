@@ -148,7 +148,7 @@ def _read_only(tables: tuple) -> tuple:
 
 
 _TABLES: "OrderedDict[tuple, _Tables]" = OrderedDict()
-_TABLES_KEPT = 8  # calibrations whose tables are kept (an OS-128 x 2048's are about 40 MB)
+_TABLES_KEPT = 4  # calibrations whose tables are kept (an OS-128 x 2048 sensor's are 32 MB, x 1024 16 MB)
 _TABLES_LOCK = threading.Lock()
 
 
