@@ -147,7 +147,8 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
     parser.add_argument("--workers", type=positive_int_type("--workers"), default=1, metavar="N",
-                        help="decode with N workers (default 1)")
+                        help="decode in N threads (default 1): 2 decodes beside the reading, ahead of the "
+                             "output; 3 or more cut a pcap/pcapng capture into segments")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:
