@@ -26,13 +26,11 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
-CAPTURES = {
-    "OS-2-128 RNG19": ("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"),
-    "OS-0-32 RNG19 dual": ("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"),
-    "OS-1-64 legacy": ("ouster-sdk/OS-1-64_1024x10_fw20.pcap", "ouster-sdk/OS-1-64_sensor_config_reduced.json"),
-    "OS-0-128 RNG15": ("ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_ouster import CAPTURES as _BY_PROFILE, EXTERNAL  # noqa: E402  (the captures run_all.py uses)
+
+_LABELS = {"single": "OS-2-128 RNG19", "dual": "OS-0-32 RNG19 dual", "legacy": "OS-1-64 legacy", "ldr": "OS-0-128 RNG15"}
+CAPTURES = {_LABELS[key]: files for key, files in _BY_PROFILE.items()}
 
 
 def lidar_batch(pcap: str, meta: str):
@@ -95,7 +93,7 @@ def main() -> None:
             continue
         md, batch = lidar_batch(*files)
         cpu = {"numpy": [], "native": []}
-        for _ in range(args.repeat // 5):  # paired rounds, alternating
+        for _ in range(max(1, args.repeat // 5)):  # paired rounds, alternating
             for p in cpu:
                 t = time.process_time()
                 frames = assemble(md, batch, 5, p == "native")
