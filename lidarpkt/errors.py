@@ -27,6 +27,10 @@ class OutputError(LidarpktError):
     """An output cannot be written where asked: missing or unwritable folder, unknown suffix."""
 
 
+class DiskFullError(OutputError):
+    """The output file could not be written because the disk is full; what was written stays readable."""
+
+
 # --- input files and containers -------------------------------------------------
 class CaptureFormatError(LidarpktError):
     """A file is not a capture lidarpkt can read (wrong magic, unsupported link type, corrupt block)."""
@@ -57,6 +61,11 @@ class CalibrationError(LidarpktError):
     """A calibration file (ROS YAML, VeloView XML) is malformed or not for this sensor."""
 
 
+class SensorConnectionError(LidarpktError):
+    """A sensor did not answer over the network (its HTTP API), or answered with something that is not
+    what a sensor serves."""
+
+
 class NMEAError(LidarpktError):
     """An NMEA sentence is malformed or its checksum does not match."""
 
@@ -68,10 +77,6 @@ class RecorderError(LidarpktError):
 
 class PortInUseError(RecorderError):
     """The UDP port to listen on is already bound by another process."""
-
-
-class DiskFullError(RecorderError):
-    """The output file could not be written because the disk is full; what was written stays readable."""
 
 
 class SerialPortError(RecorderError):

@@ -20,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-from lidarpkt.errors import RecorderError
+from lidarpkt.errors import LidarpktError, RecorderError
 
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
@@ -50,7 +50,7 @@ def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
 def load_ouster_metadata(args: argparse.Namespace) -> list:
     """The Ouster metadata of ``--metadata`` (each) and of ``--sensor`` (fetched over HTTP).
 
-    Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`RecorderError` (a sensor
+    Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`~lidarpkt.errors.SensorConnectionError` (a sensor
     that does not answer; the message names the host and the URL tried).
     """
     from lidarpkt.ouster.metadata import load_metadata
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         if writer is not None:
             try:
                 writer.close()
-            except RecorderError:
+            except LidarpktError:
                 pass  # the error that stopped the loop is the one reported
 
 
