@@ -1,7 +1,7 @@
 """``lidarpkt record``: capture a live sensor (and a serial GPS) to MCAP without losing a packet.
 
 The receive thread (:mod:`recorder.capture`) reads the sockets; this loop drains its queue,
-writes the packets through :class:`recorder.sink.PacketSink`, counts loss, prints a status
+writes the packets through :class:`lidarpkt.writers.mcap.packets.PacketSink`, counts loss, prints a status
 line each second and a summary at the end. It stops on Ctrl-C, SIGTERM, ``--duration`` or
 ``--frames`` and closes the file with its summary and index. Killed outright, it leaves a
 file readable up to its last complete chunk (``--chunk-seconds``, 0.5 s by default).
@@ -26,7 +26,7 @@ from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 
 from .capture import UdpCapture
-from .sink import PacketSink, batch_from_packets
+from lidarpkt.writers.mcap.packets import PacketSink, batch_from_packets
 
 
 def add_receive_arguments(parser: argparse.ArgumentParser) -> None:

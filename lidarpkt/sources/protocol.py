@@ -58,3 +58,15 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
     from .bags import BagReader
 
     return BagReader(path, **options)
+
+
+def embedded_ouster_metadata(path: str | os.PathLike[str], look_ahead: int = 64) -> str | None:
+    """The Ouster metadata JSON text recorded in an MCAP file or bag (``/ouster/metadata``), looked for
+    among its first ``look_ahead`` batches; ``None`` for pcaps and files without it."""
+    if container_kind(path) == "pcap":
+        return None
+    reader = open_packet_source(path)
+    for k, _ in enumerate(reader.batches()):
+        if reader.ouster_metadata() or k >= look_ahead:
+            break
+    return reader.ouster_metadata()

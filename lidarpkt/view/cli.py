@@ -134,7 +134,7 @@ def _view_capture(args, stop: threading.Event) -> int:
 def _view_live(args, stop: threading.Event) -> int:
     from lidarpkt.recorder.capture import UdpCapture
     from lidarpkt.recorder.record import load_ouster_metadata
-    from lidarpkt.recorder.sink import batch_from_packets
+    from lidarpkt.writers.mcap.packets import batch_from_packets
 
     from .server import start_server
     from .sources import LiveDecoder

@@ -11,7 +11,7 @@ import pytest
 from lidarpkt.errors import PortInUseError
 from lidarpkt.ouster.metadata import load_metadata
 from lidarpkt.sources.pcap_reader import read_batches, read_packets
-from lidarpkt.recorder import streams
+from lidarpkt import streams
 from lidarpkt.recorder.capture import UdpCapture
 from conftest import external
 
@@ -249,7 +249,7 @@ def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
     """velodyne_vlp32.pcap is an HDL-32E (SOURCES.md: packets every 552-553 µs)."""
     from lidarpkt.packet import PacketBatch
     from lidarpkt.writers.mcap.writer import McapWriter
-    from lidarpkt.recorder.sink import PacketSink
+    from lidarpkt.writers.mcap.packets import PacketSink
 
     payload = _velodyne_payloads("rust-lidar-utils/velodyne_vlp32.pcap")
     vlp_timing = streams.VelodyneLoss()

@@ -15,7 +15,7 @@ import threading
 
 import pytest
 
-from lidarpkt.errors import SensorConnectionError
+from lidarpkt.errors import SensorConnectionError, UsageError
 from lidarpkt.ouster.sensor_http import MetadataHttpServer, fetch_metadata, fetch_metadata_text, parse_sensor
 from test_view_capture import CANNED
 from test_view_live import free_udp_ports
@@ -98,7 +98,7 @@ def test_parse_sensor(text, expected):
 
 @pytest.mark.parametrize("text", ["host:0", "host:x", ":80", "host:70000"])
 def test_parse_sensor_rejects(text):
-    with pytest.raises(SensorConnectionError, match="--sensor"):
+    with pytest.raises(UsageError, match="--sensor"):
         parse_sensor(text)
 
 
