@@ -70,12 +70,16 @@ class NMEAError(LidarpktError):
     """An NMEA sentence is malformed or its checksum does not match."""
 
 
-# --- recording ---------------------------------------------------------------------
+# --- live sources and recording ---------------------------------------------------
+class ReceiveError(LidarpktError):
+    """Live UDP reception failed: a socket could not be opened, joined or read."""
+
+
 class RecorderError(LidarpktError):
-    """Live capture or recording failed."""
+    """Recording (or replaying) failed, or its flags do not go together."""
 
 
-class PortInUseError(RecorderError):
+class PortInUseError(ReceiveError):
     """The UDP port to listen on is already bound by another process."""
 
 

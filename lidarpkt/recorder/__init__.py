@@ -1,7 +1,8 @@
-"""lidarpkt recorder: live UDP capture, replay and serial GPS.
+"""lidarpkt recorder: recording live sensors, replay and serial GPS.
 
-Modules: :mod:`lidarpkt.recorder.capture` (receive thread), :mod:`lidarpkt.recorder.gps` (serial NMEA), and the verbs
+Modules: :mod:`lidarpkt.recorder.gps` (serial NMEA), and the verbs
 :mod:`lidarpkt.recorder.record`, :mod:`lidarpkt.recorder.replay`, :mod:`lidarpkt.recorder.decode`.
 The MCAP writer, its schemas, point clouds and the packets → topics sink live in
-:mod:`lidarpkt.writers.mcap`; stream kinds and loss accounting in :mod:`lidarpkt.streams`.
+:mod:`lidarpkt.writers.mcap`; stream kinds and loss accounting in :mod:`lidarpkt.streams`; the live UDP packet source in
+:mod:`lidarpkt.sources.udp`.
 """

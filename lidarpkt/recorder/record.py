@@ -1,6 +1,6 @@
 """``lidarpkt record``: capture a live sensor (and a serial GPS) to MCAP without losing a packet.
 
-The receive thread (:mod:`recorder.capture`) reads the sockets; this loop drains its queue,
+The live packet source (:mod:`lidarpkt.sources.udp`) reads the sockets in its thread; this loop polls it,
 writes the packets through :class:`lidarpkt.writers.mcap.packets.PacketSink`, counts loss, prints a status
 line each second and a summary at the end. It stops on Ctrl-C, SIGTERM, ``--duration`` or
 ``--frames`` and closes the file with its summary and index. Killed outright, it leaves a
@@ -25,8 +25,8 @@ from lidarpkt.errors import LidarpktError, RecorderError
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 
-from .capture import UdpCapture
-from lidarpkt.writers.mcap.packets import PacketSink, batch_from_packets
+from lidarpkt.sources.udp import UdpSource
+from lidarpkt.writers.mcap.packets import PacketSink
 
 
 def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     capture = gps = writer = frames = None
     try:
         ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
-        capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
+        capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
         if args.gps:  # opened before the file, so that a wrong port leaves no empty recording
             from .gps import GpsReader
@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
                 pass  # the error that stopped the loop is the one reported
 
 
-def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag, frames=None) -> int:
+def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag, frames=None) -> int:
     start = time.monotonic()
     last_status = start
     last_packets = 0
@@ -180,9 +180,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     last_rx: float | None = None  # when a datagram last arrived
     silent = False
     while reason is None:
-        items = capture.drain(timeout=0.05)
+        batches = capture.poll(timeout=0.05)
         now = time.monotonic()
-        if items:
+        if batches:
             if silent:
                 _notice(f"packets again after {now - last_rx:.1f} s of silence")
                 silent = False
@@ -190,7 +190,6 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         elif last_rx is not None and not silent and now - last_rx > 1.0:
             silent = True  # the sensor stopped, restarted or was unplugged: keep recording
             _notice(f"no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); still listening")
-        batches = batch_from_packets(items)
         for batch in batches:
             sink.push(batch)
         if frames is not None:  # after the packets are written; never waits (see recorder.frames)
@@ -223,10 +222,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     # stop receiving, then write whatever was already received
     capture.stop()
     while True:
-        items = capture.drain(timeout=0.0, max_items=65536)
-        if not items:
+        batches = capture.poll(timeout=0.0, max_items=65536)
+        if not batches:
             break
-        batches = batch_from_packets(items)
         for batch in batches:
             sink.push(batch)
         if frames is not None:
@@ -266,12 +264,12 @@ def _write_gps(writer: McapWriter, gps) -> None:
         writer.write_message(schemas.NMEA, msg, host_ns)
 
 
-def _lost(capture: UdpCapture, sink: PacketSink) -> str:
+def _lost(capture: UdpSource, sink: PacketSink) -> str:
     s = capture.stats
     return f"{sink.lost} (gaps) + {s.kernel_dropped} (kernel) + {s.queue_overflow} (queue)"
 
 
-def _lost_total(capture: UdpCapture, sink: PacketSink) -> int:
+def _lost_total(capture: UdpSource, sink: PacketSink) -> int:
     s = capture.stats
     return max(sink.lost, s.kernel_dropped + s.queue_overflow)
 

@@ -132,9 +132,8 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 
 def _view_live(args, stop: threading.Event) -> int:
-    from lidarpkt.recorder.capture import UdpCapture
     from lidarpkt.recorder.record import load_ouster_metadata
-    from lidarpkt.writers.mcap.packets import batch_from_packets
+    from lidarpkt.sources.udp import UdpSource
 
     from .server import start_server
     from .sources import LiveDecoder
@@ -142,7 +141,7 @@ def _view_live(args, stop: threading.Event) -> int:
 
     mds = load_ouster_metadata(args)
     ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
-    capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
+    capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                          rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
     server = tap = dropper = None
     try:
@@ -160,13 +159,13 @@ def _view_live(args, stop: threading.Event) -> int:
         deadline = _deadline(args)
         last_status = time.monotonic()
         while not stop.is_set() and time.monotonic() < deadline:
-            tap.offer(batch_from_packets(capture.drain(timeout=0.05)))
+            tap.offer(capture.poll(timeout=0.05))
             if time.monotonic() - last_status >= 1.0:
                 last_status = time.monotonic()
                 _status_line(server.publish_status(), args.quiet)
         capture.stop()
-        while items := capture.drain(timeout=0.0, max_items=65536):
-            tap.offer(batch_from_packets(items))
+        while batches := capture.poll(timeout=0.0, max_items=65536):
+            tap.offer(batches)
     finally:
         capture.close()
         if tap is not None:

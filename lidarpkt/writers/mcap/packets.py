@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lidarpkt import streams
-from lidarpkt.packet import Endpoint, PacketBatch
+from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
 from lidarpkt.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
@@ -238,20 +238,6 @@ class PacketSink:
                        f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations"
                        + (f", {c.interruptions} interruptions" if c.interruptions else ""))
         return out
-
-
-def batch_from_packets(items: list[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
-    """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
-    each in arrival order (streams in order of first appearance)."""
-    groups: dict[tuple, list] = {}
-    for t, src, dst, payload in items:
-        groups.setdefault((src, dst, len(payload)), []).append((t, payload))
-    out = []
-    for (src, dst, size), rows in groups.items():
-        times = np.fromiter((t for t, _ in rows), np.int64, len(rows))
-        arr = np.frombuffer(b"".join(p for _, p in rows), np.uint8).reshape(len(rows), size)
-        out.append(PacketBatch(src, dst, times, arr, np.zeros(len(rows), np.int64)))
-    return out
 
 
 def metadata_for(batch: PacketBatch, ouster_metadata: Sequence[Any]):
