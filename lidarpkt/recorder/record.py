@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -92,18 +90,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cliargs.add_quiet(parser, "no status line and no summary")
 
 
-class _StopFlag:
-    """Set by SIGINT/SIGTERM: the loop then finishes the file cleanly."""
-
-    def __init__(self) -> None:
-        self.reason: str | None = None
-
-    def __call__(self, signum, _frame) -> None:
-        if self.reason is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt  # a second Ctrl-C: stop now (the file is still closed with its index)
-        self.reason = signal.Signals(signum).name
-
-
 def run(args: argparse.Namespace) -> int:
     from lidarpkt import cliargs
 
@@ -123,11 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
         sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
     mds = load_ouster_metadata(args)
-    stop = _StopFlag()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, stop)
+    # a second Ctrl-C: stop now (the file still gets its index)
+    stop = cliargs.StopSignals(second_interrupt_raises=True).install()
     capture = gps = writer = frames = None
     try:
         ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
@@ -155,8 +138,7 @@ def run(args: argparse.Namespace) -> int:
         capture.start()
         return _loop(args, capture, writer, sink, gps, stop, frames)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        stop.restore()
         if gps is not None:
             gps.close()
         if capture is not None:
@@ -170,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
                 pass  # the error that stopped the loop is the one reported
 
 
-def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag, frames=None) -> int:
+def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, stop, frames=None) -> int:
     start = time.monotonic()
     last_status = start
     last_packets = 0

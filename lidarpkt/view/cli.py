@@ -11,7 +11,6 @@ flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multi
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
@@ -34,24 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cliargs.add_quiet(parser, "no status lines")
 
 
-class _Stop:
-    """SIGINT/SIGTERM set it; the loops finish cleanly."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.previous = {}
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.previous[sig] = signal.signal(sig, self)
-
-    def __call__(self, signum, _frame) -> None:
-        self.event.set()
-
-    def restore(self) -> None:
-        for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
-
-
 def run(args: argparse.Namespace) -> int:
     from lidarpkt import cliargs
     from lidarpkt.errors import LidarpktError
@@ -67,13 +48,10 @@ def run(args: argparse.Namespace) -> int:
     parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
         raise LidarpktError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time)")
-    stop = _Stop()
-    try:
+    with cliargs.StopSignals() as stop:
         if args.source is not None:
             return _view_capture(args, stop.event)
         return _view_live(args, stop.event)
-    finally:
-        stop.restore()
 
 
 def _deadline(args) -> float:
