@@ -17,11 +17,13 @@ unrouted: the caller counts it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from .decoder import Decoder
-from .frame import Frame
 from .packet import PacketBatch
+
+if TYPE_CHECKING:  # the router is imported by `info` too, which must not load the frame assembly
+    from .decoder import Decoder
+    from .frame import Frame
 
 MAX_SENSORS = 64  # the default limit of sensors decoded from one source, files and live alike
 

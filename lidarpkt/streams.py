@@ -41,6 +41,12 @@ class StreamKind(str, Enum):
     def __format__(self, spec: str) -> str:
         return format(self.value, spec)
 
+    @classmethod
+    def of(cls, vendor: str, kind: str) -> "StreamKind":
+        """The kind of a vendor's stream by the vendor's own name of it (``("velodyne", "data")``, the
+        :class:`lidarpkt.router.Match` fields); :attr:`OTHER` for a pair this table does not name."""
+        return _KINDS.get((vendor, kind), cls.OTHER)
+
     @property
     def vendor(self) -> str | None:
         """``"velodyne"``, ``"ouster"``, or None for :attr:`OTHER`."""
