@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .sources.magic import capture_format
+from .sources.magic import find_captures
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -274,22 +274,12 @@ def format_capture(doc: dict) -> str:
 
 
 def _expand(paths: Sequence[str]) -> list[str]:
-    """The files to describe: a directory (other than a rosbag2 folder) stands for every
-    pcap/pcapng/MCAP/ROS bag file under it, in name order."""
+    """The files to describe: a directory (other than a rosbag2 folder) stands for every capture under it
+    (:func:`lidarpkt.sources.magic.find_captures`, as the archive jobs find them), in name order."""
     out: list[str] = []
     for path in paths:
         if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
-            found = []
-            for root, dirs, files in os.walk(path):
-                dirs.sort()
-                if "metadata.yaml" in files:  # a rosbag2 folder inside: one capture
-                    found.append(root)
-                    dirs[:] = []
-                    continue
-                for name in sorted(files):
-                    full = os.path.join(root, name)
-                    if capture_format(full) is not None or name.endswith((".mcap", ".bag")):
-                        found.append(full)
+            found = find_captures(path)
             out.extend(found if found else [path])  # an empty folder still gets its error
         else:
             out.append(path)

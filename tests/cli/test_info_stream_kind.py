@@ -4,6 +4,8 @@ text (``"VLP-16 data"``)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from lidarpkt.info import describe_capture
 from lidarpkt.ouster import load_metadata
 from lidarpkt.streams import StreamKind
@@ -29,3 +31,20 @@ def test_ouster_streams_need_the_metadata_to_be_routed():
     # without metadata the module still recognises Ouster packets (a guess), but lidarpkt.open routes none
     without = describe_capture(pcap)
     assert {(k, v) for _, k, v in _kinds(without)} == {("other", "ouster")}
+
+
+def test_info_and_archive_jobs_find_the_same_captures(tmp_path):
+    """One discovery: a folder stands for the same captures in ``info`` and in an archive job (a rosbag2
+    folder is one capture; a capture is known by its suffix or its first bytes; other files are left out)."""
+    from conftest import external_root
+    from lidarpkt.archive.plan import expand_paths
+    from lidarpkt.info import _expand
+
+    root = external_root()
+    (tmp_path / "notes.txt").write_text("not a capture")
+    (tmp_path / "renamed.dat").write_bytes(external("veloview/vlp-16-test-90deg-1-50-frames.pcap").read_bytes()[:4096])
+    for folder in (root, tmp_path):
+        found = _expand([str(folder)])
+        assert found == [url for url, _, _ in expand_paths([str(folder)])]
+    assert _expand([str(tmp_path)]) == [str(tmp_path / "renamed.dat")]  # by its pcap magic
+    assert any(Path(p, "metadata.yaml").is_file() for p in _expand([str(root)]))  # a rosbag2 folder, whole
