@@ -15,7 +15,7 @@ import os
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, NamedTuple
 
 import numpy as np
 
@@ -45,6 +45,21 @@ def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[Packe
     return open_packet_source(path, **filters).batches()
 
 
+class UnroutedStream(NamedTuple):
+    """A stream :func:`open_frames` did not decode, as :attr:`SourceStats.unrouted_streams` keys it;
+    ``str()`` gives ``"src → dst (size B)"``."""
+
+    src: str
+    dst: str
+    payload_size: int | None  # None: the streams beyond the listed ones, summed
+
+    def __str__(self) -> str:
+        return self.src if self.payload_size is None else f"{self.src} → {self.dst} ({self.payload_size} B)"
+
+
+OTHER_STREAMS = UnroutedStream("(other streams)", "", None)
+
+
 @dataclass
 class SourceStats:
     """What :func:`open_frames` saw: packets routed to each kind of decoder and streams it could not use."""
@@ -56,7 +71,7 @@ class SourceStats:
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
     unrouted_packets: int = 0
-    unrouted_streams: dict[str, int] = field(default_factory=dict)  # "src → dst (size B)" → packets
+    unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
     other_sensor_packets: dict[str, int] = field(default_factory=dict)  # "vendor kind" → packets, other vendors
     filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
     frames: int = 0
@@ -229,11 +244,11 @@ class FrameReader(FrameIterator):
         return frames
 
     def _unrouted(self, batch: PacketBatch) -> list[Frame]:
-        key = f"{_source_name(batch)} → {batch.dst if batch.dst is not None else '?'} ({batch.payload_size} B)"
+        key = UnroutedStream(_source_name(batch), str(batch.dst) if batch.dst is not None else "?", batch.payload_size)
         self.stats.unrouted_packets += len(batch)
         streams = self.stats.unrouted_streams
         if key not in streams and len(streams) >= _MAX_LISTED_STREAMS:  # a capture of random traffic
-            key = "(other streams)"
+            key = OTHER_STREAMS
         streams[key] = streams.get(key, 0) + len(batch)
         return []
 
