@@ -31,7 +31,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -93,6 +93,7 @@ class UdpSource:
         self.bind_address = bind or (multicast if multicast else "0.0.0.0")
         self.interface = interface
         self.queue_bytes = queue_bytes
+        self.path = f"udp://{self.bind_address}:{','.join(map(str, self.ports))}"  # its name, as a file's path
         self.stats = CaptureStats(rcvbuf_requested=rcvbuf_bytes)
         self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
         # drain() waits on this, not on SimpleQueue.get(timeout): CPython's SimpleQueue.get waits
@@ -335,7 +336,7 @@ class UdpSource:
         self.close()
 
 
-def batch_from_packets(items: list[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
+def batch_from_packets(items: Sequence[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
     """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
     each in arrival order (streams in order of first appearance)."""
     groups: dict[tuple, list] = {}
