@@ -131,8 +131,9 @@ class FrameReader(FrameIterator):
             "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
+        proxy = weakref.proxy(self)  # not a bound method: the router must not keep the reader alive (a cycle)
         self.router = Router(RouteOptions(load_ouster_metadata(opts.metadata), self._decoder_options),
-                             max_sensors=opts.max_sensors, on_limit=self._too_many_sensors)
+                             max_sensors=opts.max_sensors, on_limit=lambda: FrameReader._too_many_sensors(proxy))
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter = FrameReader._frames(weakref.proxy(self))
@@ -259,7 +260,7 @@ class FrameReader(FrameIterator):
         warn(SkippedPacketWarning(
             f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
             "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
-            "source=..., or raise max_sensors=...)"), stacklevel=6)
+            "source=..., or raise max_sensors=...)"), stacklevel=7)
 
     def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
         for frame in frames:
