@@ -2,8 +2,9 @@
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
-describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`):
-VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
+describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`,
+:func:`lidarpkt.hesai.describe_stream`): VLP-16 data (return mode, product id) or position (PPS
+status, NMEA time of the first), Hesai Pandar data (model, protocol, return mode, motor speed),
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
 records. ``--json`` prints the same as one JSON document (one capture object, or
@@ -53,10 +54,13 @@ def _iso(ns: int) -> str:
 
 def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> dict | None:
     # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
+    from .hesai.detect import describe_stream as hesai_stream
     from .ouster.detect import describe_stream as ouster_stream
     from .velodyne.detect import describe_stream as velodyne_stream
 
     found = velodyne_stream(batch)
+    if found is None:
+        found = hesai_stream(batch)  # sizes no VLP-16 or Ouster profile sends, checked by their bytes
     if found is None:
         found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
     return found
@@ -187,6 +191,8 @@ def _summary(stream: dict) -> str:
     if kind == "unknown":
         return "unknown" + (f" (description failed: {stream['describe_error']})" if "describe_error" in stream else "")
     bits = [kind]
+    if "protocol" in d:  # Hesai
+        bits.append(f"protocol {d['protocol']}")
     if "return_mode" in d:
         mode = d["return_mode"]
         bits.append(mode if isinstance(mode, str) else "/".join(mode))

@@ -35,10 +35,11 @@ class OpenOptions:
         None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
         "we record carry it and need none. VLP-16 needs none.")
     calibration: Any = _option(
-        None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one); the stock VLP-16 "
-        "calibration by default.")
+        None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one; the stock VLP-16 "
+        "calibration by default), or a Hesai Pandar angle-correction CSV (a ``.csv`` path or a loaded "
+        "``HesaiCalibration``; without one Hesai frames have no XYZ).")
     cut_angle_deg: float | None = _option(
-        None, "VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
+        None, "VLP-16 and Hesai: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
     cut_on_block: bool = _option(
         False, "VLP-16: cut at the block that wraps (VeloView's frames) rather than at the firing sequence "
         "that wraps.")

@@ -3,7 +3,7 @@
 ``lidarpkt.open(path)`` is :func:`open_frames`. The container (pcap, pcapng, MCAP,
 rosbag2, ROS 1 bag) is recognised by its first bytes, not its name. Every batch of
 packets is routed by what it is (VLP-16 data or position packets; Ouster lidar or IMU
-packets of a sensor whose metadata was given) and by its source, so that several
+packets of a sensor whose metadata was given; Hesai Pandar packets, model told by the packets) and by its source, so that several
 sensors in one file each get their own decoder. Streams that are none of these are
 counted, not decoded.
 """
@@ -51,6 +51,7 @@ class SourceStats:
     velodyne_position_packets: int = 0
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
+    hesai_packets: int = 0
     unrouted_packets: int = 0
     unrouted_streams: dict[str, int] = field(default_factory=dict)  # "src → dst (size B)" → packets
     filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
@@ -107,8 +108,13 @@ class FrameReader(FrameIterator):
         self._read_ahead = None  # the running ReadAhead, if any
         self.stats = SourceStats()
         self.decoders: dict[tuple, Decoder] = {}  # (vendor, source, ...) -> its decoder
-        self._velodyne_options = {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                                  "cut_on_block": opts.cut_on_block}
+        from .hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
+
+        hesai_cal = is_hesai_calibration(opts.calibration)
+        self._velodyne_options = {"calibration": None if hesai_cal else opts.calibration,
+                                  "cut_angle_deg": opts.cut_angle_deg, "cut_on_block": opts.cut_on_block}
+        self._hesai_options = {"calibration": opts.calibration if hesai_cal else None,
+                               "cut_angle_deg": opts.cut_angle_deg}
         self._ouster_options = {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
@@ -172,7 +178,7 @@ class FrameReader(FrameIterator):
             raise UnknownSensorError(self._no_sensor_message())
         from .dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
 
-        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets):
+        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets or self.stats.hesai_packets):
             wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
             if wrong:  # Ouster lidar packets without (fitting) metadata: say so, not "no frames"
                 raise UnknownSensorError(wrong)
@@ -216,7 +222,24 @@ class FrameReader(FrameIterator):
             self.stats.velodyne_position_packets += len(batch)
             decoder.push_position(batch)
             return []
-        return self._unrouted(batch)
+        return self._route_hesai(batch, src, post_end)
+
+    def _route_hesai(self, batch: PacketBatch, src: str | None, post_end: bool) -> list[Frame]:
+        from . import hesai
+
+        model = hesai.classify(batch)
+        if model is None:
+            return self._unrouted(batch)
+        key = ("hesai", src, model.name)
+        if self._ownership is not None and self._ownership.state(key, post_end).closed:
+            return []
+        decoder = self._decoder(key, lambda: hesai.HesaiDecoder(
+            model=model, source=_source_name(batch), **self._hesai_options))
+        if decoder is None:
+            return self._unrouted(batch)
+        self.stats.hesai_packets += len(batch)
+        self._name_by_data(key, decoder, batch)
+        return self._push(key, decoder, batch, post_end)
 
     def _name_by_data(self, key: tuple, decoder, batch: PacketBatch) -> None:
         """A sensor is named after its data stream (address:port of its first data or lidar packet), even when
@@ -287,7 +310,7 @@ class FrameReader(FrameIterator):
         if wrong:
             return wrong
         hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
-        return f"{self.path}: no VLP-16 or Ouster stream found among {streams}.{hint}"
+        return f"{self.path}: no VLP-16, Ouster or Hesai Pandar stream found among {streams}.{hint}"
 
 
 @with_options

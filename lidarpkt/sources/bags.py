@@ -39,6 +39,9 @@ MESSAGE_DEFINITIONS: dict[str, str] = {
     "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
     # nebula's stamped packet; lidarpkt's recorder writes VLP-16 position packets with it
     "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
+    # nebula's Hesai scan: fixed 1500-byte buffers, each packet's length in `size`
+    "pandar_msgs/msg/PandarPacket": "builtin_interfaces/Time stamp\nuint8[1500] data\nuint32 size\n",
+    "pandar_msgs/msg/PandarScan": "std_msgs/Header header\npandar_msgs/PandarPacket[] packets\n",
 }
 
 # Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String), as ouster-ros names it.
@@ -74,12 +77,29 @@ def _nebula_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
 
 
+def _pandar_scan(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    packets = msg.packets
+    if not packets:
+        return np.zeros((0, 0), np.uint8), np.zeros(0, np.int64)
+    sizes = {int(p.size) for p in packets}
+    if len(sizes) != 1:  # one sensor sends one size; a batch holds one size
+        raise ValueError(f"packets of {len(sizes)} sizes ({sorted(sizes)[:4]}) in one PandarScan")
+    size = sizes.pop()
+    if not 0 < size <= 1500:
+        raise ValueError(f"packet size {size} outside the 1500-byte buffer")
+    payload = np.stack([np.asarray(p.data, dtype=np.uint8)[:size] for p in packets])
+    times = np.array([_stamp_ns(p.stamp) for p in packets], dtype=np.int64)
+    times[times == 0] = bag_time_ns
+    return payload, times
+
+
 # message type → extractor(message, bag receive time ns) → (payloads [N, L], times ns [N])
 PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]] = {
     "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
     "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
     "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
     "nebula_msgs/msg/NebulaPacket": _nebula_packet,
+    "pandar_msgs/msg/PandarScan": _pandar_scan,
 }
 
 
