@@ -83,25 +83,46 @@ def nebula_filtered_points(frame, min_m: float, max_m: float) -> np.ndarray:
 
 
 def best_match(ext, folder, bag, pcd, name, lo, hi):
+    """nebula's cloud, our frames, and (nebula's share in ours, our share in nebula's, the frame, its points,
+    the points of every frame) for the frame that matches best (chosen on a sample of 500 of nebula's points)."""
     model = model_named(name)
     lo, hi = max(lo, model.min_range_m), min(hi, model.max_range_m)
     ref = read_pcd_xyz(ext(f"nebula/hesai/{folder}/{pcd}.pcd"))
     frames = list(lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}"), calibration=ext(f"nebula/hesai/{name}.csv")))
-    scores = []
-    for f in frames:
-        ours = nebula_filtered_points(f, lo, hi)
-        if len(ours) == 0:
-            continue
-        scores.append((float(within(ref, ours, 1e-3).mean()), float(within(ours, ref, 1e-3).mean()), f, len(ours)))
-    return ref, frames, max(scores, key=lambda s: min(s[0], s[1]))
+    points = [nebula_filtered_points(f, lo, hi) for f in frames]
+    sample = ref[:: max(1, len(ref) // 500)]
+    k = int(np.argmax([within(sample, p, 1e-3).mean() if len(p) else 0.0 for p in points]))
+    ours = points[k]
+    return ref, frames, (float(within(ref, ours, 1e-3).mean()), float(within(ours, ref, 1e-3).mean()), frames[k],
+                         len(ours), points)
+
+
+# The QT64 and QT128 differ by where a scan ends, not by a point. nebula cuts each channel where *its*
+# azimuth (block azimuth + the channel's offset, ``ScanCutter`` over ``get_corrected_azimuths``) passes
+# the cut angle; lidarpkt cuts a frame between two firings (columns), so that a frame is a range image.
+# The QT's channels have azimuth offsets of up to ±10.1° (PandarQT128.csv; ±8.7° PandarQT64.csv, against
+# 0.08° on the XT32), so up to 1.7 % of a scan's points change scan: every point that differs lies within
+# the largest offset of the cut angle, and nebula's scan is inside our frame and its neighbours.
+CUT_BY_CHANNEL = {"qt64", "qt128"}
 
 
 @pytest.mark.parametrize("folder, bag, pcd, name, lo, hi, labels", BAGS, ids=[b[0] for b in BAGS])
 def test_one_frame_equals_nebulas_cloud(ext, folder, bag, pcd, name, lo, hi, labels):
-    ref, frames, (neb_in_ours, ours_in_neb, frame, n_ours) = best_match(ext, folder, bag, pcd, name, lo, hi)
-    assert neb_in_ours >= 0.99, f"{name}: {neb_in_ours:.4f} of nebula's {len(ref)} points have one of ours within 1 mm"
-    assert ours_in_neb >= 0.99, f"{name}: {ours_in_neb:.4f} of our {n_ours} points have one of nebula's within 1 mm"
+    ref, frames, (neb_in_ours, ours_in_neb, frame, n_ours, points) = best_match(ext, folder, bag, pcd, name, lo, hi)
+    need = 0.98 if folder in CUT_BY_CHANNEL else 0.99
+    assert neb_in_ours >= need, f"{name}: {neb_in_ours:.4f} of nebula's {len(ref)} points have one of ours within 1 mm"
+    assert ours_in_neb >= need, f"{name}: {ours_in_neb:.4f} of our {n_ours} points have one of nebula's within 1 mm"
     assert not frame.partial
     for f in frames:
         assert f.sensor.vendor == "hesai" and f.sensor.model == name
         assert f.return_labels == labels and f.shape[0] == 2
+    if folder in CUT_BY_CHANNEL:
+        assert neb_in_ours < 0.99  # else this exception is stale: drop it
+        max_offset = float(np.abs(frame.sensor.beam_azimuth_deg).max())
+        model = model_named(name)
+        ours = nebula_filtered_points(frame, max(lo, model.min_range_m), min(hi, model.max_range_m))
+        for a, b in ((ref, ours), (ours, ref)):
+            miss = a[~within(a, b, 1e-3)]
+            az = np.degrees(np.arctan2(miss[:, 0], miss[:, 1]))
+            assert np.all(np.abs(az) <= max_offset + 0.5), f"{name}: a differing point at azimuth {np.abs(az).max():.2f}°"
+        assert within(ref, np.concatenate(points), 1e-3).mean() >= 0.999
