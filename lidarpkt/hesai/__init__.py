@@ -26,7 +26,6 @@ _LAZY: dict[str, str] = {
     "describe_stream": "detect",
     "detect_model": "detect",
     "encode_packets": "encode",
-    "encode_frames": "encode",
     "DecoderStats": "frames",
     "HesaiDecoder": "frames",
     "HesaiGeometry": "geometry",

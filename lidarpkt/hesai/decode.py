@@ -42,6 +42,7 @@ class HesaiPackets:
     Attributes:
         azimuth_cdeg: ``uint16[N, B]`` block azimuth, 0.01°.
         distance: ``uint16[N, B, C]`` in ``dis_unit_mm``; reflectivity: ``uint8[N, B, C]``.
+        confidence: ``uint8[N, B, C]``, the 4-byte units' last byte (reserved on most models), else ``None``.
         dis_unit_mm: ``uint8[N]`` millimetres per distance unit.
         return_mode: ``uint8[N]`` the tail's return-mode byte; motor_speed_rpm: ``uint16[N]``.
         timestamp_ns: ``int64[N]`` packet time, ns since the epoch (UTC second + µs of the tail).
@@ -55,6 +56,7 @@ class HesaiPackets:
     azimuth_cdeg: np.ndarray
     distance: np.ndarray
     reflectivity: np.ndarray
+    confidence: np.ndarray | None
     dis_unit_mm: np.ndarray
     return_mode: np.ndarray
     motor_speed_rpm: np.ndarray
@@ -111,7 +113,8 @@ def decode_packets(payload: np.ndarray, model: HesaiModel) -> HesaiPackets:
     ts = seconds * 1_000_000_000 + tail["timestamp_us"].astype(np.int64) * 1000
     names = tail.dtype.names
     return HesaiPackets(
-        azimuth_cdeg=az, distance=units["distance"], reflectivity=units["reflectivity"], dis_unit_mm=unit_mm,
+        azimuth_cdeg=az, distance=units["distance"], reflectivity=units["reflectivity"],
+        confidence=units["confidence"] if "confidence" in units.dtype.names else None, dis_unit_mm=unit_mm,
         return_mode=mode, motor_speed_rpm=tail["motor_speed"], timestamp_ns=ts, timestamp_us=tail["timestamp_us"],
         utc=utc, factory_information=tail["factory_information"],
         udp_sequence=tail["udp_sequence"] if "udp_sequence" in names else None,
