@@ -33,7 +33,8 @@ class OpenOptions:
 
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = _option(
         None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
-        "we record carry it and need none. VLP-16 needs none.")
+        "we record carry it and need none. VLP-16 needs none. A Hesai angle-correction ``.csv`` here serves as "
+        "``calibration``.")
     calibration: Any = _option(
         None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one; the stock VLP-16 "
         "calibration by default), or a Hesai Pandar angle-correction CSV (a ``.csv`` path or a loaded "

@@ -111,14 +111,15 @@ class FrameReader(FrameIterator):
         from .hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
 
         hesai_cal = is_hesai_calibration(opts.calibration)
+        metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
         self._velodyne_options = {"calibration": None if hesai_cal else opts.calibration,
                                   "cut_angle_deg": opts.cut_angle_deg, "cut_on_block": opts.cut_on_block}
-        self._hesai_options = {"calibration": opts.calibration if hesai_cal else None,
+        self._hesai_options = {"calibration": opts.calibration if hesai_cal else hesai_md,
                                "cut_angle_deg": opts.cut_angle_deg}
         self._ouster_options = {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
-        self._ouster_metadata = load_ouster_metadata(opts.metadata)
+        self._ouster_metadata = load_ouster_metadata(metadata)
         self._warned_max_sensors = False
         self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
@@ -389,6 +390,19 @@ def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
 
     fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
     return int(fields.frame_id[0]) == frame.frame_id
+
+
+def _split_hesai(metadata: Any) -> tuple[Any, Any]:
+    """(the Ouster metadata, the Hesai calibration) of the ``metadata`` option: an archive job's
+    ``--metadata`` may name a Pandar's angle-correction CSV, its sensor description as the JSON is an Ouster's."""
+    from .hesai.calibration import is_hesai_calibration
+
+    items = metadata if isinstance(metadata, (list, tuple)) else [metadata] if metadata is not None else []
+    hesai = [m for m in items if is_hesai_calibration(m)]
+    if not hesai:
+        return metadata, None
+    rest = [m for m in items if not is_hesai_calibration(m)]
+    return rest or None, hesai[0]
 
 
 def _source_name(batch: PacketBatch) -> str:

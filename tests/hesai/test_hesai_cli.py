@@ -1,0 +1,84 @@
+"""The Pandar bags through the real CLI and lidarpkt.open: ``info`` names model, protocol and return mode;
+``export --format parquet`` holds one row per return of ``lidarpkt.open``; the source counts what it routed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import lidarpkt
+
+# folder, bag, model, protocol, the return mode the tail byte names (0x39 Last+Strongest, 0x3B First+Last,
+# 0x3C First+Strongest: bytes 1052+10 etc., read by hand), packets in the bag
+BAGS = [
+    ("40p", "1673400149412331409", "Pandar40P", "none (no version field)", "last_strongest", 1439),
+    ("64", "1673403880599376836", "Pandar64", "none (no version field)", "last_strongest", 2400),
+    ("qt64", "1673401195788312575", "PandarQT64", "3.1", "first_last", 1200),
+    ("qt128", "1730273789074637152", "PandarQT128", "3.2", "last_strongest", 1800),
+    ("xt16", "1732848127890747768", "PandarXT16", "6.1", "last_strongest", 1626),
+    ("xt32", "1673400677802009732", "PandarXT32", "6.1", "last_strongest", 2000),
+    ("xt32m", "1660893203042895158", "PandarXT32M", "6.1", "first_strongest", 1815),
+]
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "lidarpkt", *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def info_docs():
+    from conftest import external
+
+    paths = [str(external(f"nebula/hesai/{b[0]}/{b[1]}")) for b in BAGS]
+    res = _cli("info", *paths, "--json")
+    assert res.returncode == 0, res.stderr
+    text = _cli("info", *paths)
+    assert text.returncode == 0, text.stderr
+    return json.loads(res.stdout)["captures"], text.stdout
+
+
+@pytest.mark.parametrize("i", range(len(BAGS)), ids=[b[0] for b in BAGS])
+def test_info_names_model_protocol_and_return_mode(ext, info_docs, i):
+    folder, bag, model, protocol, mode, packets = BAGS[i]
+    docs, text = info_docs
+    (stream,) = docs[i]["streams"]
+    d = stream["details"]
+    assert stream["kind"] == f"Hesai {model} data" and stream["packets"] == packets
+    assert (d["model"], d["protocol"], d["return_mode"]) == (model, protocol, mode)
+    assert d["malformed_packets"] == 0 and d["motor_speed_rpm"] in (599, 600)
+    assert f"Hesai {model} data, protocol {protocol}, {mode}, 10.0 Hz" in text
+
+
+def test_export_parquet_holds_one_row_per_return(ext, tmp_path):
+    import pyarrow.parquet as pq
+
+    bag, csv = ext("nebula/hesai/xt32/1673400677802009732"), ext("nebula/hesai/PandarXT32.csv")
+    res = _cli("export", str(bag), "-o", str(tmp_path), "--format", "parquet", "--workers", "1", "--metadata", str(csv))
+    assert res.returncode == 0, res.stderr
+    (out,) = tmp_path.glob("**/*.parquet")
+    table = pq.read_table(out).to_pandas()
+    frames = list(lidarpkt.open(bag, calibration=csv))
+    assert len(table) == sum(int(np.count_nonzero(f.range_mm)) for f in frames) > 400_000
+    f = frames[3]
+    rows = table[table.frame_id == f.frame_id].sort_values(["return_slot", "row", "column"])
+    slot, row, col = np.nonzero(f.range_mm)
+    assert np.array_equal(rows["range_m"].to_numpy(), f.range_mm[slot, row, col] / 1000.0)
+    assert np.allclose(rows[["x", "y", "z"]].to_numpy(), f.xyz()[slot, row, col], atol=1e-6)
+    assert set(rows["return_label"]) == {"last", "strongest"}
+
+
+def test_open_counts_hesai_packets_and_says_what_a_csv_is_for(ext):
+    bag, csv = ext("nebula/hesai/xt16/1732848127890747768"), ext("nebula/hesai/PandarXT16.csv")
+    with lidarpkt.open(bag, metadata=[csv]) as reader:  # an archive job's --metadata: the CSV is the calibration
+        frames = list(reader)
+    assert reader.stats.hesai_packets == 1626 and reader.stats.unrouted_packets == 0
+    assert frames[1].sensor.geometry is not None and frames[1].sensor.beam_altitude_deg[0] == 15.0
+    assert frames[1].sensor.return_mode == "last_strongest" and frames[1].sensor.frequency_hz == pytest.approx(10.0, abs=0.02)
+    without = list(lidarpkt.open(bag))
+    assert np.isnan(without[1].sensor.beam_altitude_deg).all()
+    with pytest.raises(lidarpkt.errors.CalibrationError, match="calibration"):
+        without[1].xyz()
