@@ -252,18 +252,27 @@ class HesaiDecoder:
         groups = model.blocks // nret
         c = model.channels
         rows = self._row_channel
-        # [N, B, C] → [N, G, R, C] → [R, C(rows), N·G]
-        dist = raw.distance.reshape(n, groups, nret, c)
-        rng = dist.astype(np.uint32) * raw.dis_unit_mm.astype(np.uint32)[:, None, None, None]
-        rng = rng.transpose(2, 3, 0, 1)[:, rows].reshape(nret, c, n * groups)
-        refl = raw.reflectivity.reshape(n, groups, nret, c).transpose(2, 3, 0, 1)[:, rows].reshape(nret, c, n * groups)
+        # [N, B, C] → [N, G, R, C(rows)] (gathered along the contiguous axis) → one strided copy to [R, C, N·G]
+        dist = raw.distance.reshape(n, groups, nret, c)[..., rows]
+        rng = np.empty((nret, c, n * groups), np.uint32)
+        rng.reshape(nret, c, n, groups)[...] = dist.transpose(2, 3, 0, 1)
+        unit = raw.dis_unit_mm
+        if np.all(unit == unit[0]):
+            rng *= np.uint32(unit[0])
+        else:  # the header's unit changed within the batch
+            rng.reshape(nret, c, n, groups)[...] *= unit.astype(np.uint32)[None, None, :, None]
+        refl = np.empty((nret, c, n * groups), np.uint8)
+        refl.reshape(nret, c, n, groups)[...] = raw.reflectivity.reshape(n, groups, nret, c)[..., rows].transpose(2, 3, 0, 1)
         az = raw.azimuth_cdeg[:, ::nret].reshape(-1)
         offsets = firing_offsets_ns(model, nret, raw.mode_flag)  # [N|1, G, C]
         offsets = np.broadcast_to(offsets, (n, groups, c))
         first = offsets.min(axis=2)  # [N, G]
         ts = (raw.timestamp_ns[:, None] + first).reshape(-1)
-        toff = (offsets - first[:, :, None]).transpose(2, 0, 1)[rows].reshape(c, n * groups)
-        return {"range_mm": np.ascontiguousarray(rng), "reflectivity": np.ascontiguousarray(refl),
+        if offsets.shape[0] == 1 or not np.any(offsets != offsets[:1]):  # one table for every packet
+            toff = np.tile((offsets[0] - first[0][:, None]).T[rows], (1, n))
+        else:
+            toff = (offsets - first[:, :, None]).transpose(2, 0, 1)[rows].reshape(c, n * groups)
+        return {"range_mm": rng, "reflectivity": refl,
                 "azimuth_cdeg": az.astype(np.float64), "timestamp_ns": ts, "time_offset_ns": toff,
                 "packet_index": np.repeat(index.astype(np.int64), groups),
                 "rpm": np.repeat(raw.motor_speed_rpm, groups)}

@@ -34,10 +34,12 @@ class HesaiGeometry:
     def xyz(self, frame, dtype=np.float64) -> np.ndarray:
         """``[R, H, W, 3]`` metres of ``dtype``, zeros where there is no return."""
         theta = np.radians(frame.azimuth_deg[None, :] + self._az_offset_deg[:, None])  # [H, W]
-        r_m = frame.range_mm.astype(np.float64) * 1e-3  # [R, H, W]
-        horiz = r_m * self._cos_el[None, :, None]
+        unit = np.empty((3,) + theta.shape, np.float64)  # the direction of each pixel's beam
+        np.multiply(self._cos_el[:, None], np.sin(theta), out=unit[0])
+        np.multiply(self._cos_el[:, None], np.cos(theta), out=unit[1])
+        unit[2] = self._sin_el[:, None]
+        r_m = frame.range_mm * 1e-3  # [R, H, W] float64
         out = np.empty(frame.range_mm.shape + (3,), dtype)
-        out[..., 0] = horiz * np.sin(theta)[None]
-        out[..., 1] = horiz * np.cos(theta)[None]
-        out[..., 2] = r_m * self._sin_el[None, :, None]
+        for k in range(3):  # one pass per coordinate (a trailing axis of 3 in a broadcast is slower)
+            np.multiply(r_m, unit[k], out=out[..., k], casting="same_kind")
         return out
