@@ -30,9 +30,15 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
-from lidarpkt.hesai import HesaiDecoder, decode_packets, detect_model, encode_packets, load_calibration  # noqa: E402
-from lidarpkt.packet import PacketBatch  # noqa: E402
-from lidarpkt.sources.bags import BagReader  # noqa: E402
+from lidarpkt.hesai import (
+    HesaiDecoder,
+    decode_packets,
+    detect_model,
+    encode_packets,
+    load_calibration,
+)
+from lidarpkt.packet import PacketBatch
+from lidarpkt.sources.bags import BagReader
 
 FOLDERS = {"40p": "Pandar40P", "64": "Pandar64", "qt64": "PandarQT64", "qt128": "PandarQT128", "xt16": "PandarXT16",
            "xt32": "PandarXT32", "xt32m": "PandarXT32M"}
@@ -98,7 +104,10 @@ def best_of(fn, repeat: int):
 def hydra4_vs_lidarpkt(repeat: int) -> None:
     try:
         from hydra4 import Hydra
-        from hydra4.msgs import pandar_msgs__msg__PandarPacket, pandar_msgs__msg__PandarScan
+        from hydra4.msgs import (
+            pandar_msgs__msg__PandarPacket,
+            pandar_msgs__msg__PandarScan,
+        )
     except ImportError:
         print("hydra4 not installed: no comparison (pip install lidarpkt[crosscheck])")
         return
@@ -139,8 +148,8 @@ def main() -> int:
         batch = bag_packets(folder)
         payload, host = stream(batch, args.rotations)
         cal = load_calibration(EXTERNAL / "nebula/hesai" / f"{name}.csv")
-        t, (frames, points) = best_of(lambda: run_lidarpkt(payload, host, cal), args.repeat)
-        t0, _ = best_of(lambda: run_lidarpkt(payload, host, cal, xyz=False), args.repeat)
+        t, (frames, points) = best_of(lambda p=payload, h=host, c=cal: run_lidarpkt(p, h, c), args.repeat)
+        t0, _ = best_of(lambda p=payload, h=host, c=cal: run_lidarpkt(p, h, c, xyz=False), args.repeat)
         print(f"{name:12s} {len(payload):8d} {frames:7d} {t:8.3f} {frames / t:9.1f} {points / t / 1e6:10.2f} "
               f"{len(payload) / t:10.0f} {points / t0 / 1e6:17.2f}")
     hydra4_vs_lidarpkt(args.repeat)

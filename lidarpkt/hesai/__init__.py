@@ -35,6 +35,23 @@ _LAZY: dict[str, str] = {
     "model_named": "models",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = [
+    "MODELS",
+    "RETURN_MODES",
+    "DecoderStats",
+    "HesaiCalibration",
+    "HesaiDecoder",
+    "HesaiGeometry",
+    "HesaiModel",
+    "HesaiPackets",
+    "classify",
+    "decode_packets",
+    "describe_stream",
+    "detect_model",
+    "encode_packets",
+    "load_calibration",
+    "model_named",
+    "parse_calibration",
+]
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

@@ -62,7 +62,7 @@ def parse_calibration(text: str, source: str = "calibration") -> HesaiCalibratio
     return HesaiCalibration(arr[:, 0].copy(), arr[:, 1].copy(), source)
 
 
-def load_calibration(calibration: "HesaiCalibration | str | os.PathLike[str]") -> HesaiCalibration:
+def load_calibration(calibration: HesaiCalibration | str | os.PathLike[str]) -> HesaiCalibration:
     """A loaded calibration passes through; a path is read as an angle-correction CSV.
 
     Raises :class:`~lidarpkt.errors.CalibrationError` for a file that cannot be read or parsed.

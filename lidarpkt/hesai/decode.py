@@ -10,6 +10,7 @@ counts the others).
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -71,9 +72,9 @@ class HesaiPackets:
     def __len__(self) -> int:
         return int(self.return_mode.shape[0])
 
-    def select(self, which) -> "HesaiPackets":
+    def select(self, which) -> HesaiPackets:
         """The packets at ``which`` (mask, indices or slice)."""
-        out = {}
+        out: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
             out[f.name] = None if v is None else v[which]
@@ -97,7 +98,7 @@ def decode_packets(payload: np.ndarray, model: HesaiModel) -> HesaiPackets:
     else:
         unit_mm = p["header"]["dis_unit"]
     ok = np.all(az < 36000, axis=1) & (unit_mm > 0)
-    if "header" in p.dtype.names:
+    if model.header != "none":
         hdr = p["header"]
         ok &= (hdr["sop"] == SOP) & (hdr["laser_num"] == model.channels) & (hdr["block_num"] == model.blocks)
     else:
@@ -111,10 +112,10 @@ def decode_packets(payload: np.ndarray, model: HesaiModel) -> HesaiPackets:
     ok &= tail["timestamp_us"] < 1_000_000
     seconds = utc_seconds(utc, model.year_offset)
     ts = seconds * 1_000_000_000 + tail["timestamp_us"].astype(np.int64) * 1000
-    names = tail.dtype.names
+    names = tail.dtype.names or ()
     return HesaiPackets(
         azimuth_cdeg=az, distance=units["distance"], reflectivity=units["reflectivity"],
-        confidence=units["confidence"] if "confidence" in units.dtype.names else None, dis_unit_mm=unit_mm,
+        confidence=units["confidence"] if "confidence" in (units.dtype.names or ()) else None, dis_unit_mm=unit_mm,
         return_mode=mode, motor_speed_rpm=tail["motor_speed"], timestamp_ns=ts, timestamp_us=tail["timestamp_us"],
         utc=utc, factory_information=tail["factory_information"],
         udp_sequence=tail["udp_sequence"] if "udp_sequence" in names else None,

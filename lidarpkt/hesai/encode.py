@@ -66,7 +66,7 @@ def encode_packets(model: HesaiModel, *, azimuth_cdeg: np.ndarray, distance: np.
     if model.dis_unit_mm is not None and dis_unit_mm != model.dis_unit_mm:
         raise PacketFormatError(f"the {model.name}'s distance unit is {model.dis_unit_mm} mm")
     p = np.zeros(n, model.layout)
-    names = model.layout.names
+    names = model.layout.names or ()
     if "header" in names:
         h = p["header"]
         h["sop"] = SOP
@@ -80,16 +80,17 @@ def encode_packets(model: HesaiModel, *, azimuth_cdeg: np.ndarray, distance: np.
     blocks["azimuth"] = az
     blocks["units"]["distance"] = distance
     blocks["units"]["reflectivity"] = reflectivity
-    if confidence is not None and "confidence" in blocks["units"].dtype.names:
+    if confidence is not None and "confidence" in (blocks["units"].dtype.names or ()):
         blocks["units"]["confidence"] = confidence
     t = p["tail"]
+    tail_names = t.dtype.names or ()
     t["return_mode"] = modes
     t["motor_speed"] = motor_speed_rpm
     t["utc"], t["timestamp_us"] = utc_fields(timestamp_ns, model.year_offset)
     t["factory_information"] = factory_information
-    if udp_sequence is not None and "udp_sequence" in t.dtype.names:
+    if udp_sequence is not None and "udp_sequence" in tail_names:
         t["udp_sequence"] = udp_sequence
-    if mode_flag is not None and "mode_flag" in t.dtype.names:
+    if mode_flag is not None and "mode_flag" in tail_names:
         t["mode_flag"] = mode_flag
     out = np.zeros((n, size), np.uint8)
     out[:, : model.layout.itemsize] = p.view(np.uint8).reshape(n, model.layout.itemsize)

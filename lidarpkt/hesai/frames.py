@@ -34,6 +34,7 @@ every column; :meth:`Frame.on_grid` shows the gap as invalid bins).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,7 +173,7 @@ class HesaiDecoder:
         change = np.flatnonzero(np.diff(raw.return_mode.astype(np.int16))) + 1
         gaps = np.flatnonzero(np.diff(raw.timestamp_ns) > self.max_gap_ns) + 1
         bounds = sorted({0, *change.tolist(), *gaps.tolist(), len(raw)})
-        for a, b in zip(bounds[:-1], bounds[1:]):
+        for a, b in itertools.pairwise(bounds):
             mode = int(raw.return_mode[a])
             first_ts = int(raw.timestamp_ns[a])
             if self._mode is not None and mode != self._mode:
@@ -340,7 +341,7 @@ class HesaiDecoder:
         cal = self.calibration
         hz = self._rpm / 60.0 if self._rpm else None
         nan = np.full(model.channels, np.nan)
-        columns = int(round(360.0 / (model.grid_resolution_deg * (hz or 10.0) / 10.0)))
+        columns = round(360.0 / (model.grid_resolution_deg * (hz or 10.0) / 10.0))
         info = SensorInfo(
             vendor="hesai", model=model.name, rows=model.channels, columns_per_frame=columns,
             return_mode=RETURN_MODE_NAMES[code], return_labels=model.labels(code),

@@ -5,6 +5,7 @@ PandarScan. Each gives counted skips (the decoder's stats, ``lidarpkt.dropped``)
 from __future__ import annotations
 
 import glob
+import types
 import warnings
 
 import numpy as np
@@ -100,15 +101,13 @@ def test_duplicates_and_late_packets_are_dropped_and_counted(ext):
     assert dec.stats.decoded_packets == 150 and _accounted(dec, len(again) + 100)
     counts = {"late": 10, "duplicate": 5}
 
-    class Reader:  # what lidarpkt.dropped reads: decoders and their stats
-        decoders = {"x": dec}
-
-    assert {k: v for k, v in dropped_counts(Reader).items() if k in counts} == counts
+    reader = types.SimpleNamespace(decoders={"x": dec})  # what lidarpkt.dropped reads: decoders and their stats
+    assert {k: v for k, v in dropped_counts(reader).items() if k in counts} == counts
 
 
 def _write_bag(path, scans):
     from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     types = {}
@@ -134,9 +133,9 @@ def test_damaged_packets_in_a_bag_are_reported_by_lidarpkt_dropped(ext, tmp_path
     payload = batch.payload.copy()
     payload[::50, 0] = 0  # 10 packets without their start bytes
     _write_bag(tmp_path / "bag", [(payload, [1080] * len(payload), batch.timestamp_ns)])
-    with pytest.warns(lidarpkt.errors.DroppedPacketsWarning, match="10 skipped as malformed"):
-        with lidarpkt.open(tmp_path / "bag") as reader:
-            frames = list(reader)
+    with pytest.warns(lidarpkt.errors.DroppedPacketsWarning, match="10 skipped as malformed"), \
+            lidarpkt.open(tmp_path / "bag") as reader:
+        frames = list(reader)
     assert frames and reader.stats.hesai_packets == 500
     assert dropped_counts(reader)["malformed"] == 10
 

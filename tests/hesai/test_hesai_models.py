@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import CalibrationError
-from lidarpkt.hesai import HesaiDecoder, encode_packets, load_calibration, model_named, parse_calibration
+from lidarpkt.hesai import (
+    HesaiDecoder,
+    encode_packets,
+    load_calibration,
+    model_named,
+    parse_calibration,
+)
 from lidarpkt.hesai.models import MODELS
 from lidarpkt.hesai.timing import QT64_CHANNEL_NS, firing_offsets_ns
 from lidarpkt.packet import PacketBatch

@@ -13,7 +13,6 @@ import datetime as dt
 import numpy as np
 import pytest
 
-import lidarpkt
 from lidarpkt.errors import PacketFormatError
 from lidarpkt.hesai import HesaiDecoder, decode_packets, detect_model, encode_packets
 from lidarpkt.hesai.models import MODELS, RETURN_MODES, model_named
