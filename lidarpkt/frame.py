@@ -267,6 +267,11 @@ def _grid_positions(azimuth_deg: np.ndarray, timestamp_ns: np.ndarray, res: floa
     measured = np.mod(azimuth_deg, 360.0)
     if measured.size < 8:
         return measured / res + 1e-9
+    steps = measured / res
+    if np.all(np.abs(steps - np.rint(steps)) < 1e-6):
+        # a sensor that reports its firings on the grid itself (Hesai XT and QT: 0.18° and 0.4° steps): each
+        # firing is its bin; a line fitted through their times (µs jitter) would only move some across an edge
+        return np.rint(steps) + 1e-9
     turns = np.concatenate([[0], np.cumsum(np.diff(measured) < -180.0)])  # unwrap through 0°
     unwrapped = measured + 360.0 * turns
     t = (timestamp_ns - timestamp_ns[0]).astype(np.float64)

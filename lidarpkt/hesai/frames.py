@@ -341,13 +341,15 @@ class HesaiDecoder:
         cal = self.calibration
         hz = self._rpm / 60.0 if self._rpm else None
         nan = np.full(model.channels, np.nan)
-        columns = round(360.0 / (model.grid_resolution_deg * (hz or 10.0) / 10.0))
+        nominal_hz = max(5, 5 * round(hz / 5)) if hz else 10  # the rates the sensors offer: 5, 10, 20 Hz
+        grid = model.grid_resolution_deg * nominal_hz / 10.0  # firings spread with the rate; divides 360°
+        columns = round(360.0 / grid)
         info = SensorInfo(
             vendor="hesai", model=model.name, rows=model.channels, columns_per_frame=columns,
             return_mode=RETURN_MODE_NAMES[code], return_labels=model.labels(code),
             beam_altitude_deg=cal.elevation_deg[rows] if cal is not None else nan,
             beam_azimuth_deg=cal.azimuth_offset_deg[rows] if cal is not None else nan,
-            frequency_hz=hz, grid_resolution_deg=model.grid_resolution_deg * (hz or 10.0) / 10.0,
+            frequency_hz=hz, grid_resolution_deg=grid,
             geometry=self.geometry, source=self.source,
             profile="{}.{}".format(*model.protocol) if model.protocol else None,
         )
