@@ -91,7 +91,7 @@ def test_open_counts_hesai_packets_and_says_what_a_csv_is_for(ext):
 def test_whole_frames_fill_the_default_grid(ext, folder, bag, model, columns):
     """The XT and QT send their firings on the grid (0.18°, 0.4°, 0.6° steps): every column is its own
     bin. The Pandar64's azimuths wander by up to ±0.04° about 0.2° steps (and a rotation holds 1799 or 1800
-    firings): a few share a bin, fewer than 1 %."""
+    firings): a few share a bin, fewer than 2 %."""
     from lidarpkt.frame import FrameStack
 
     frames = [f for f in lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}")) if not f.partial]
@@ -99,6 +99,6 @@ def test_whole_frames_fill_the_default_grid(ext, folder, bag, model, columns):
     assert stack.range_mm.shape[1:] == (2, frames[0].shape[1], columns)
     collisions = [f.on_grid().counters.grid_collisions for f in frames]
     if folder == "64":
-        assert max(collisions) < 0.01 * columns and stack.column_valid.mean() > 0.99
+        assert max(collisions) < 0.02 * columns and stack.column_valid.mean() > 0.98
     else:
         assert stack.column_valid.all() and collisions == [0] * len(frames)
