@@ -114,3 +114,15 @@ def test_xyz_is_nebulas_frame():
     x, y, z = f.xyz()[0, 0, 0]
     el = np.radians(15)
     assert (x, y, z) == pytest.approx((10 * np.cos(el), 0.0, 10 * np.sin(el)), abs=1e-9)  # az 90°: +x
+
+
+def test_the_decoder_is_a_decoder_and_names_its_sensor():
+    from lidarpkt.decoder import Decoder
+    from lidarpkt.errors import UnknownSensorError
+
+    assert isinstance(HesaiDecoder(), Decoder)
+    with pytest.raises(UnknownSensorError, match="no packet yet"):
+        HesaiDecoder().sensor_info()
+    info = HesaiDecoder(model="XT32M").sensor_info("first_last_strongest")
+    assert (info.vendor, info.model, info.return_labels, info.rows) == ("hesai", "PandarXT32M",
+                                                                        ("first", "last", "strongest"), 32)
