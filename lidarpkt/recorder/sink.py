@@ -148,6 +148,8 @@ class PacketSink:
                 tracker = self._trackers[key] = streams.OusterLoss(md)
             tracker.update(batch.payload)
             rep.count = tracker.count
+        elif kind == streams.HESAI_DATA and self._hesai_counted(key, rep, batch):
+            pass  # kept on /lidarpkt/other_packets (nebula's packet message), read back by lidarpkt.open
         else:  # no layout to find gaps in: counted only
             rep.count.packets += n
         if kind == streams.OUSTER_LIDAR:
@@ -164,6 +166,20 @@ class PacketSink:
             for t, row in zip(host.tolist(), batch.payload):
                 write(topic, schemas.encode_stamped_packet(row.tobytes(), t), t)
         rep.messages += n
+
+    def _hesai_counted(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> bool:
+        """Count a Pandar stream's losses and rotations; False (counted as packets only) if its bytes are no Pandar's."""
+        from lidarpkt.errors import PacketFormatError
+
+        tracker = self._trackers.get(key)
+        if tracker is None:
+            tracker = self._trackers[key] = streams.HesaiLoss()
+        try:
+            tracker.update(batch.payload)
+        except PacketFormatError:
+            return False
+        rep.count = tracker.count
+        return True
 
     def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
         if key not in self._described:
@@ -226,7 +242,7 @@ class PacketSink:
     def frames(self) -> int:
         """Rotations completed, over the lidar streams (the largest of them)."""
         return max((r.count.frames for r in self.streams.values()
-                    if r.kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR)), default=0)
+                    if r.kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR, streams.HESAI_DATA)), default=0)
 
     def report_lines(self) -> list[str]:
         """One line per stream for the end-of-run summary."""

@@ -9,6 +9,8 @@ that the recorder and the decoder cannot disagree about packet periods and rotat
 * VLP-16: the device timestamp (µs past the hour) of consecutive data packets advances by exactly
   one packet period (1327.104 µs single return, 663.552 µs dual: manual, "Timing"); a gap of k
   periods means k − 1 packets lost. A rotation ends where the first block's azimuth wraps.
+* Hesai Pandar (sizes only these models send; the content is checked by the counter): the UDP
+  sequence number, else the packet time (:mod:`lidarpkt.hesai.stream`).
 * Ouster: the (frame id, measurement id) of each packet's first column gives its place in the
   stream; a jump of k packets means k − 1 lost. A rotation ends where the frame id changes.
 
@@ -19,6 +21,7 @@ A step back (or a repeat) is counted as out of order, never as loss. A jump of m
 from __future__ import annotations
 
 from lidarpkt.decoder import INTERRUPTION_S, StreamCounts
+from lidarpkt.hesai import stream as hesai_stream
 from lidarpkt.ouster import stream as ouster_stream
 from lidarpkt.velodyne import stream as velodyne_stream
 
@@ -26,6 +29,7 @@ VELODYNE_DATA = "velodyne_data"
 VELODYNE_POSITION = "velodyne_position"
 OUSTER_LIDAR = "ouster_lidar"
 OUSTER_IMU = "ouster_imu"
+HESAI_DATA = "hesai_data"
 OTHER = "other"
 
 _KINDS = {("velodyne", "data"): VELODYNE_DATA, ("velodyne", "position"): VELODYNE_POSITION,
@@ -42,7 +46,9 @@ def classify_size(size: int, ouster_metadata=None) -> str:
     if kind is not None:
         return _KINDS["velodyne", kind]
     kind = ouster_stream.stream_kind(size, ouster_metadata)
-    return OTHER if kind is None else _KINDS["ouster", kind]
+    if kind is not None:
+        return _KINDS["ouster", kind]
+    return HESAI_DATA if hesai_stream.stream_kind(size) else OTHER
 
 
 #: The counts of one stream (the vendor counters' own).
@@ -51,6 +57,8 @@ LossCount = StreamCounts
 VelodyneLoss = velodyne_stream.PacketCounter
 #: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.ouster.stream.PacketCounter`.
 OusterLoss = ouster_stream.PacketCounter
+#: Loss and rotation counting of one Hesai Pandar stream: :class:`lidarpkt.hesai.stream.PacketCounter`.
+HesaiLoss = hesai_stream.PacketCounter
 
-__all__ = ["VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "OTHER", "INTERRUPTION_S",
-           "classify_size", "LossCount", "VelodyneLoss", "OusterLoss"]
+__all__ = ["VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "HESAI_DATA", "OTHER",
+           "INTERRUPTION_S", "classify_size", "LossCount", "VelodyneLoss", "OusterLoss", "HesaiLoss"]
