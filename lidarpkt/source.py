@@ -314,7 +314,7 @@ class FrameReader(FrameIterator):
         if wrong:
             return wrong
         hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
-        return f"{self.path}: no VLP-16, Ouster or Hesai Pandar stream found among {streams}.{hint}"
+        return f"{self.path}: no VLP-16 or Ouster stream (nor a Hesai Pandar one) found among {streams}.{hint}"
 
 
 @with_options

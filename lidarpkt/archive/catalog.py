@@ -29,6 +29,8 @@ CATALOG_COLUMNS: dict[str, str] = {
 def _vendor(kind: str) -> str | None:
     if kind.startswith("Ouster"):
         return "ouster"
+    if kind.startswith("Hesai"):
+        return "hesai"
     if kind == "unknown":
         return None
     return "velodyne"
@@ -119,10 +121,11 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         source = s["src"] or "unknown source"
         # a decoder is per source address (its frames name the port of its first packet, which may be
         # the IMU's): the frames go to the first lidar stream of that address
-        decoded = _take(per_source, source) if s["kind"] in ("VLP-16 data", "Ouster lidar") else None
+        decoded = (_take(per_source, source) if s["kind"] in ("VLP-16 data", "Ouster lidar") or s["kind"].startswith("Hesai")
+                   else None)
         row = dict(base)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
-                   vendor=_vendor(s["kind"]), model=(decoded or {}).get("model") or details.get("product_name"),
+                   vendor=_vendor(s["kind"]), model=(decoded or {}).get("model") or details.get("product_name") or details.get("model"),
                    mode=_mode(details), payload_size=s["payload_size"], start_ns=s["first_timestamp_ns"],
                    end_ns=s["last_timestamp_ns"], packets=s["packets"])
         if decoded is not None:

@@ -350,8 +350,8 @@ class HesaiDecoder:
             beam_altitude_deg=cal.elevation_deg[rows] if cal is not None else nan,
             beam_azimuth_deg=cal.azimuth_offset_deg[rows] if cal is not None else nan,
             frequency_hz=hz, grid_resolution_deg=grid,
-            geometry=self.geometry, source=self.source,
-            profile="{}.{}".format(*model.protocol) if model.protocol else None,
+            geometry=self.geometry, source=self.source, profile=RETURN_MODE_NAMES[code],
+            metadata={"protocol": "{}.{}".format(*model.protocol) if model.protocol else None},
         )
         if self._mode is not None:
             self._sensors[code] = info

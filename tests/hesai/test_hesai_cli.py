@@ -102,3 +102,16 @@ def test_whole_frames_fill_the_default_grid(ext, folder, bag, model, columns):
         assert max(collisions) < 0.02 * columns and stack.column_valid.mean() > 0.98
     else:
         assert stack.column_valid.all() and collisions == [0] * len(frames)
+
+
+def test_catalog_names_vendor_model_mode_and_counts_frames(ext):
+    from lidarpkt.archive import catalog
+
+    rows = catalog([ext("nebula/hesai")], workers=1).to_pylist()
+    by_model = {r["model"]: r for r in rows}
+    assert set(by_model) == {b[2] for b in BAGS}
+    for _, _, model, _, mode, packets in BAGS:
+        r = by_model[model]
+        assert (r["vendor"], r["mode"], r["packets"], r["error"]) == ("hesai", mode, packets, None)
+        assert r["frames"] - r["partial_frames"] >= 1
+    assert by_model["PandarXT32M"]["lost_packets"] == 852  # its UDP sequence skips 414 + 45 + 396 - 3

@@ -36,7 +36,7 @@ def test_hydra4_points_are_our_last_returns(ext):
     for i in range(n):
         packet = pandar_msgs__msg__PandarPacket(stamp=None, data=batch.payload[i], size=1080)
         for k, block in enumerate(theirs(packet)):
-            for x, y, z, intensity, ring, azimuth, _ in block.points:
+            for x, y, z, intensity, ring, _, _ in block.points:
                 col, row = i * 4 + k, row_of[ring]
                 assert np.allclose(xyz[0, row, col], (x, y, z), atol=1e-6), (i, k, ring)
                 assert refl[0, row, col] == intensity

@@ -43,7 +43,7 @@ def test_damaged_bytes_are_counted_never_a_crash(ext, folder):
     batch = _bag_batch(ext, folder)
     model = detect_model(batch.payload)
     rng = np.random.default_rng(FOLDERS.index(folder))
-    for trial in range(6):
+    for _ in range(6):
         payload = batch.payload.copy()
         hit = rng.random(len(payload)) < 0.2
         rows = np.flatnonzero(hit)
