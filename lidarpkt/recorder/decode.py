@@ -45,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
+    parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML), or a Hesai "
+                        "Pandar's angle-correction CSV")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG",

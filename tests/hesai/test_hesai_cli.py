@@ -115,3 +115,19 @@ def test_catalog_names_vendor_model_mode_and_counts_frames(ext):
         assert (r["vendor"], r["mode"], r["packets"], r["error"]) == ("hesai", mode, packets, None)
         assert r["frames"] - r["partial_frames"] >= 1
     assert by_model["PandarXT32M"]["lost_packets"] == 852  # its UDP sequence skips 414 + 45 + 396 - 3
+
+
+def test_decode_to_mcap_keeps_the_packets_and_names_nebulas_topic(ext, tmp_path):
+    from mcap.reader import make_reader
+
+    bag, csv = ext("nebula/hesai/xt32/1673400677802009732"), ext("nebula/hesai/PandarXT32.csv")
+    out = tmp_path / "out.mcap"
+    res = _cli("decode", str(bag), "-o", str(out), "--calibration", str(csv))
+    assert res.returncode == 0, res.stderr
+    with open(out, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+    assert counts == {"/lidarpkt/other_packets": 2000, "/pandar_points": 5, "/pandar_points2": 5}
+    again, frames = list(lidarpkt.open(out, calibration=csv)), list(lidarpkt.open(bag, calibration=csv))
+    assert [f.sensor.model for f in again] == ["PandarXT32"] * 5
+    assert all(np.array_equal(a.range_mm, b.range_mm) for a, b in zip(again, frames))

@@ -28,6 +28,7 @@ topic                             type                                   content
 ``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1);
                                                                          NaN x/y/z where no return
 ``/ouster/points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        organised frame, destaggered
+``/pandar_points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        Hesai frame (nebula's topic name)
 ``<prefix>/range_image`` (``2``)  ``sensor_msgs/msg/Image``              ``32FC1`` range in metres
 ``<prefix>/reflectivity_image``   ``sensor_msgs/msg/Image``              ``mono8`` reflectivity
 ``/gps/nmea_sentence``            ``nmea_msgs/msg/Sentence``             one verified NMEA sentence
@@ -116,13 +117,13 @@ TF_STATIC = Topic("/tf_static", TF_MESSAGE, QOS_LATCHED)
 
 def points_topic(vendor: str, slot: int) -> Topic:
     """PointCloud2 topic of return slot ``slot`` (0 or 1) of a ``vendor`` frame."""
-    base = "/velodyne_points" if vendor == "velodyne" else "/ouster/points"
+    base = {"velodyne": "/velodyne_points", "hesai": "/pandar_points"}.get(vendor, "/ouster/points")
     return Topic(base + ("" if slot == 0 else str(slot + 1)), POINTCLOUD2)
 
 
 def image_topic(vendor: str, field: str, slot: int) -> Topic:
     """Image topic of one field (``range``, ``reflectivity``) and return slot."""
-    prefix = "/velodyne" if vendor == "velodyne" else "/ouster"
+    prefix = {"velodyne": "/velodyne", "hesai": "/pandar"}.get(vendor, "/ouster")
     return Topic(f"{prefix}/{field}_image" + ("" if slot == 0 else str(slot + 1)), IMAGE)
 
 
