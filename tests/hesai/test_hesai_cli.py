@@ -131,3 +131,21 @@ def test_decode_to_mcap_keeps_the_packets_and_names_nebulas_topic(ext, tmp_path)
     again, frames = list(lidarpkt.open(out, calibration=csv)), list(lidarpkt.open(bag, calibration=csv))
     assert [f.sensor.model for f in again] == ["PandarXT32"] * 5
     assert all(np.array_equal(a.range_mm, b.range_mm) for a, b in zip(again, frames))
+
+
+def test_the_analysis_splits_last_strongest_into_three_returns(ext):
+    """Last+Strongest: slot 1 holds the strongest, or the second strongest where the last return is the
+    strongest (the decoder's mark); the analysis selects each kind per firing as for the VLP-16's dual mode."""
+    from lidarpkt.analysis.returns import available_returns, select_returns
+    from lidarpkt.analysis.stack import stack_frames
+
+    frames = [f for f in lidarpkt.open(ext("nebula/hesai/xt32/1673400677802009732")) if not f.partial]
+    stack = stack_frames(frames, None)
+    assert available_returns(stack) == ("last", "strongest", "second_strongest")
+    sel = select_returns(stack, ["last", "strongest", "second_strongest"])
+    marks = np.stack([f.on_grid().extra["second_strongest"] for f in frames])
+    r0, r1 = stack.range_mm[:, 0], stack.range_mm[:, 1]
+    assert np.array_equal(sel.range_mm[:, 1], np.where(marks, r0, r1))  # strongest: the last where it is marked
+    assert np.array_equal(sel.range_mm[:, 2], np.where(marks, r1, 0))
+    two = (r1 > 0) & (r0 != r1)  # firings with two echoes (most have one, sent in both blocks)
+    assert 0.02 < marks[two].mean() < 0.98 and not marks[~two].any()  # both cases occur in the real scene
