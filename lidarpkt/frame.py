@@ -34,7 +34,7 @@ class SensorInfo:
     Ouster legacy packet size) and from the Ouster metadata JSON otherwise.
 
     Attributes:
-        vendor: ``"velodyne"`` or ``"ouster"``.
+        vendor: ``"velodyne"``, ``"ouster"`` or ``"hesai"``.
         model: e.g. ``"VLP-16"``, ``"OS-1-64"``.
         rows: H, beams per column.
         columns_per_frame: W of a full frame. Ouster: exact (512/1024/2048). VLP-16:
@@ -115,7 +115,7 @@ class Frame:
 
     Attributes:
         sensor: the :class:`SensorInfo` of the sensor that sent it.
-        frame_id: Ouster: the frame id of its packets. VLP-16: rotation counter from the
+        frame_id: Ouster: the frame id of its packets. VLP-16 and Hesai: rotation counter from the
             start of the input (0 = the first, possibly partial, rotation).
         range_mm: ``uint32[R, H, W]`` range in millimetres (exact sensor units converted);
             0 = the sensor fired and reported no return.
