@@ -75,7 +75,7 @@ class DecoderStats:
         return self.malformed_size + self.malformed_fields
 
 
-_COLUMN_KEYS = ("range_mm", "reflectivity", "azimuth_cdeg", "timestamp_ns", "time_offset_ns", "packet_index", "rpm")
+_COLUMN_KEYS = ("range_mm", "reflectivity", "azimuth_cdeg", "timestamp_ns", "time_key", "packet_index", "rpm")
 
 
 class HesaiDecoder:
@@ -118,6 +118,7 @@ class HesaiDecoder:
         self._period_ns: float | None = None
         self._rpm: int | None = None
         self._sensors: dict[int, SensorInfo] = {}
+        self._time_table = np.zeros((0, 0), np.int64)  # [H, 2·G] firing offsets of the current mode (see _columns)
         self._frame_id = 0
         if self.model is not None:
             self._set_model(self.model)
@@ -265,16 +266,16 @@ class HesaiDecoder:
         refl = np.empty((nret, c, n * groups), np.uint8)
         refl.reshape(nret, c, n, groups)[...] = raw.reflectivity.reshape(n, groups, nret, c)[..., rows].transpose(2, 3, 0, 1)
         az = raw.azimuth_cdeg[:, ::nret].reshape(-1)
-        offsets = firing_offsets_ns(model, nret, raw.mode_flag)  # [N|1, G, C]
-        offsets = np.broadcast_to(offsets, (n, groups, c))
-        first = offsets.min(axis=2)  # [N, G]
-        ts = (raw.timestamp_ns[:, None] + first).reshape(-1)
-        if offsets.shape[0] == 1 or not np.any(offsets != offsets[:1]):  # one table for every packet
-            toff = np.tile((offsets[0] - first[0][:, None]).T[rows], (1, n))
-        else:
-            toff = (offsets - first[:, :, None]).transpose(2, 0, 1)[rows].reshape(c, n * groups)
+        # firing times: one table per firing group and loop (the QT128's mode_flag; 0 elsewhere), [2, G, C];
+        # a column keeps its row of the table (2·G at most), the frame gathers its [H, W] from it
+        table = np.broadcast_to(firing_offsets_ns(model, nret, np.array([0, 1], np.uint8)), (2, groups, c))
+        first = table.min(axis=2)  # [2, G]
+        self._time_table = (table - first[:, :, None]).reshape(2 * groups, c)[:, rows].T  # [H, 2·G]
+        loop = np.zeros(n, np.int64) if raw.mode_flag is None else (raw.mode_flag & 1).astype(np.int64)
+        key = loop[:, None] * groups + np.arange(groups)[None, :]  # [N, G]
+        ts = (raw.timestamp_ns[:, None] + first.reshape(-1)[key]).reshape(-1)
         return {"range_mm": rng, "reflectivity": refl,
-                "azimuth_cdeg": az.astype(np.float64), "timestamp_ns": ts, "time_offset_ns": toff,
+                "azimuth_cdeg": az.astype(np.float64), "timestamp_ns": ts, "time_key": key.reshape(-1),
                 "packet_index": np.repeat(index.astype(np.int64), groups),
                 "rpm": np.repeat(raw.motor_speed_rpm, groups)}
 
@@ -369,7 +370,7 @@ class HesaiDecoder:
             sensor=self.sensor_info(mode), frame_id=self._frame_id, range_mm=rng, reflectivity=refl,
             return_labels=self.model.labels(mode), column_valid=np.ones(w, bool),
             column_timestamp_ns=cols["timestamp_ns"], azimuth_deg=cols["azimuth_cdeg"] / 100.0,
-            pixel_time_offset_ns=np.ascontiguousarray(cols["time_offset_ns"]), partial=partial, counters=counters,
+            pixel_time_offset_ns=np.take(self._time_table, cols["time_key"], axis=1), partial=partial, counters=counters,
             extra=extra,
         )
         self._frame_id += 1
