@@ -35,7 +35,7 @@ from .errors import InputFileError, OutputError, UsageError
 __all__ = [
     "add_output", "add_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
     "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
-    "discard_outputs", "error_line", "show_progress", "Progress",
+    "discard_outputs", "error_line", "show_progress", "Progress", "StopSignals",
 ]
 
 JSON_STDOUT = "-"
@@ -324,3 +324,53 @@ class Progress:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class StopSignals:
+    """SIGINT and SIGTERM ask a long-running verb (``record``, ``view``) to stop: it finishes cleanly
+    (closes its files with their index, says its summary) instead of dying mid-write.
+
+    ``with StopSignals() as stop:`` (or :meth:`install` … :meth:`restore`) installs the handlers (in the main thread only: elsewhere signals
+    cannot be handled) and puts the previous ones back at the end. ``stop.event`` is set and
+    ``stop.reason`` names the signal on the first one; with ``second_interrupt_raises``, a second
+    Ctrl-C raises :class:`KeyboardInterrupt` (stop now)."""
+
+    def __init__(self, *, second_interrupt_raises: bool = False) -> None:
+        import threading
+
+        self.event = threading.Event()
+        self.reason: str | None = None
+        self.second_interrupt_raises = second_interrupt_raises
+        self._previous: dict = {}
+
+    def __call__(self, signum, _frame) -> None:
+        import signal
+
+        if self.reason is not None and self.second_interrupt_raises and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.reason = signal.Signals(signum).name
+        self.event.set()
+
+    def install(self) -> "StopSignals":
+        """Handle SIGINT and SIGTERM from now on (main thread only); returns self."""
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self)
+        return self
+
+    def restore(self) -> None:
+        """Put the previous handlers back. Idempotent."""
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def __enter__(self) -> "StopSignals":
+        return self.install()
+
+    def __exit__(self, *exc) -> None:
+        self.restore()

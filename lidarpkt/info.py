@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .sources.magic import capture_format
+from .sources.magic import find_captures
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -51,15 +51,27 @@ def _iso(ns: int) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
 
 
-def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> dict | None:
+def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None, str | None]:
+    """(the vendor module's description of the stream, the vendor whose module described it)."""
     # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
     from .ouster.detect import describe_stream as ouster_stream
     from .velodyne.detect import describe_stream as velodyne_stream
 
     found = velodyne_stream(batch)
-    if found is None:
-        found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
-    return found
+    if found is not None:
+        return found, "velodyne"
+    found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
+    return found, None if found is None else "ouster"
+
+
+def _stream_kind(batch: PacketBatch, metadata: Sequence[Any]) -> str:
+    """What ``lidarpkt.open``'s router makes of the stream (:class:`lidarpkt.streams.StreamKind`): a
+    stream of frames (``velodyne_data``, ``ouster_lidar``), an auxiliary one, or ``other``."""
+    from .router import RouteOptions, Router
+    from .streams import StreamKind
+
+    match = Router(RouteOptions(metadata)).classify(batch)
+    return str(StreamKind.OTHER if match is None else StreamKind.of(match.vendor, match.kind))
 
 
 def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ()) -> dict:
@@ -76,8 +88,10 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         "reassembled", "orphaned_fragments", "duplicate_fragments", "malformed",
         "malformed_reasons", "truncated", "first_time", "last_time", "duration_s", "streams": [...]}``;
         each stream: ``src``, ``dst``, ``dst_port``, ``payload_size``, ``packets``, first/last time
-        (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` and ``details`` (the sensor
-        module's description, or None when unknown).
+        (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` (for people: ``"VLP-16 data"``),
+        ``stream_kind`` (for programs: a :class:`lidarpkt.streams.StreamKind` value, what ``lidarpkt.open``
+        routes it as), ``vendor`` (the sensor module that described it, None when none did) and ``details``
+        (the sensor module's description, or None when unknown).
 
     Raises:
         lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
@@ -108,10 +122,11 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         batch = PacketBatch.concatenate(s.kept)
         s.kept = []
         try:
-            details = _describe(batch, metadata)
+            details, vendor = _describe(batch, metadata)
+            stream_kind = _stream_kind(batch, metadata)
             error = None
         except Exception as exc:  # a description must never stop info: say what failed
-            details, error = None, f"{type(exc).__name__}: {exc}"
+            details, vendor, stream_kind, error = None, None, "other", f"{type(exc).__name__}: {exc}"
         entry = {
             "src": str(s.src) if s.src else None,
             "dst": str(s.dst) if s.dst else None,
@@ -124,6 +139,8 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
             "last_timestamp_ns": s.last_ns,
             "duration_s": (s.last_ns - s.first_ns) / 1e9,
             "kind": (details or {}).get("kind", "unknown"),
+            "stream_kind": stream_kind,
+            "vendor": vendor,
             "details": details,
         }
         if s.kept_packets < s.packets:
@@ -257,22 +274,12 @@ def format_capture(doc: dict) -> str:
 
 
 def _expand(paths: Sequence[str]) -> list[str]:
-    """The files to describe: a directory (other than a rosbag2 folder) stands for every
-    pcap/pcapng/MCAP/ROS bag file under it, in name order."""
+    """The files to describe: a directory (other than a rosbag2 folder) stands for every capture under it
+    (:func:`lidarpkt.sources.magic.find_captures`, as the archive jobs find them), in name order."""
     out: list[str] = []
     for path in paths:
         if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
-            found = []
-            for root, dirs, files in os.walk(path):
-                dirs.sort()
-                if "metadata.yaml" in files:  # a rosbag2 folder inside: one capture
-                    found.append(root)
-                    dirs[:] = []
-                    continue
-                for name in sorted(files):
-                    full = os.path.join(root, name)
-                    if capture_format(full) is not None or name.endswith((".mcap", ".bag")):
-                        found.append(full)
+            found = find_captures(path)
             out.extend(found if found else [path])  # an empty folder still gets its error
         else:
             out.append(path)

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 from lidarpkt.errors import LidarpktError
+from lidarpkt.writers.base import write_atomic
 
 from .export import FORMATS
 from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
@@ -68,20 +68,6 @@ def _check_engine(args: argparse.Namespace) -> None:
     cliargs.check_inputs([m for m in args.metadata or () if "://" not in m], "--metadata")  # URLs: read by the units
 
 
-def _write_atomic(path: Path, write) -> None:
-    """``write(tmp)`` then rename to ``path``: no half-written output."""
-    if not path.parent.is_dir():
-        raise LidarpktError(f"-o {path}: the folder {path.parent} does not exist; create it first")
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise LidarpktError(f"-o {path}: cannot write ({exc.strerror or exc})") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def run_catalog(args: argparse.Namespace) -> int:
     """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
     from . import CATALOG_COLUMNS
@@ -101,13 +87,13 @@ def run_catalog(args: argparse.Namespace) -> int:
         import pyarrow.parquet as pq
 
         table = rows_to_table(rows, CATALOG_COLUMNS)
-        _write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+        write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
     if args.json:
         text = json.dumps(rows, indent=1, default=str) + "\n"
         if args.json == "-":
             sys.stdout.write(text)
         else:
-            _write_atomic(Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+            write_atomic(Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8"))
     if not args.quiet:
         files = len({r["path"] for r in rows})
         bad = len({r["path"] for r in rows if r["error"]})

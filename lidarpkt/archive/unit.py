@@ -28,6 +28,7 @@ from lidarpkt.errors import LidarpktError, LidarpktWarning, OutputError
 from .plan import is_remote, local_path
 
 STAGING = ".staging"  # under a local OUTDIR: the unfinished units' files (hidden from Parquet readers)
+DECODE_TOPICS = ("packets", "points")  # an MCAP unit writes what `lidarpkt decode IN -o OUT.mcap` writes
 
 
 @dataclass(frozen=True)
@@ -171,34 +172,14 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
     return tuple(sorted(rels))
 
 
-def _open_frames(path: str, task: UnitTask, scratch: list[str]) -> Any:
-    """The FrameReader of the task's capture (of its segment, when it has one)."""
+def _open_frames(path: str, task: UnitTask, metadata: list[str]) -> Any:
+    """The FrameReader of the task's capture (of its segment, when it has one); ``metadata``: local paths."""
     import lidarpkt
 
     options: dict[str, Any] = {}
     if task.segment is not None:
         options["segment"] = task.segment
-    metadata = [_fetch_input(m, scratch) for m in task.metadata]
     return lidarpkt.open(path, metadata=metadata or None, **options)
-
-
-def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], counts: _Counts) -> list[Path]:
-    """``lidarpkt decode IN -o OUT.mcap`` (recorder.decode.decode_captures, imported here: lidarpkt
-    itself does not depend on the recorder); frames counted from the MCAP's statistics (the first
-    return slot's cloud topics); points are not counted for MCAP."""
-    from mcap.reader import make_reader
-
-    from lidarpkt.recorder.decode import decode_captures
-
-    metadata = [_fetch_input(m, scratch) for m in task.metadata]
-    decode_captures([path], target, quiet=True, **({"metadata": metadata} if metadata else {}),
-                    **dict(task.options))
-    with open(target, "rb") as fh:
-        summary = make_reader(fh).get_summary()
-    if summary is not None and summary.statistics is not None:
-        counts.frames = sum(n for cid, n in summary.statistics.channel_message_counts.items()
-                            if summary.channels[cid].topic.endswith("points"))
-    return [target]
 
 
 def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
@@ -253,12 +234,14 @@ def run_unit(task: UnitTask) -> UnitResult:
             try:
                 local = _fetch_input(task.input, scratch)
                 target = writer_target(task.format, stage, task.capture, options)
-                if task.format == "mcap":  # today's decode output: raw packets, clouds, log times in the capture
-                    outputs = _publish(_decode_mcap(local, target, task, scratch, counts), stage, task)
+                metadata = [_fetch_input(m, scratch) for m in task.metadata]
+                reader = _open_frames(local, task, metadata)
+                if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
+                    options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
                 else:
-                    reader = _open_frames(local, task, scratch)
-                    writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
-                    _write_frames(writer, reader, counts, task)
+                    options = {"capture": task.capture, **options}
+                writer = open_writer(task.format, target, part=task.part, **options)
+                _write_frames(writer, reader, counts, task)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)
                 counts.frames = 0

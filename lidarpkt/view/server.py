@@ -192,21 +192,21 @@ class ViewServer:
             return self._sensor(frame).name
 
     # ---------------------------------------------------------------- publishing
-    def publish(self, frame, xyz: np.ndarray | None = None) -> None:
+    def publish(self, frame, points: np.ndarray | None = None) -> None:
         """Publish one frame: point clouds, images and transform of its sensor.
 
-        ``xyz`` is ``frame.xyz()`` if already computed. Raises
+        ``points`` is ``frame.points()`` if already computed. Raises
         :class:`lidarpkt.errors.CalibrationError` when the sensor has no geometry.
         """
         with self._lock:
             sensor = self._sensor(frame)
         if not sensor.frames and self.first_frame_wait_s > 0:
             self._wait_for_sensor_subscription(sensor, self.first_frame_wait_s)
-        if xyz is None:
-            xyz = frame.xyz()
+        if points is None:
+            points = frame.points()
         sensor.transform.log(messages.transform(frame, sensor.name))
         for slot in range(frame.shape[0]):
-            sensor.points[slot].log(messages.point_cloud(frame, slot, sensor.name, xyz))
+            sensor.points[slot].log(messages.point_cloud(frame, slot, sensor.name, points))
             rng, refl = messages.images(frame, slot, sensor.name)
             sensor.range_images[slot].log(rng)
             sensor.reflectivity_images[slot].log(refl)
