@@ -168,3 +168,47 @@ def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: 
         refl[:, row] = f[:, :, laser]
         az_px[row] = a[:, laser]
     return rng, refl, az_px
+
+
+def flags_ok(raw: DataPackets, model) -> np.ndarray:
+    """``bool[N]``: each block carries its bank's flag (``model``'s single-mode layout: 0xEEFF, 0xDDFF, ...;
+    in the VLS-128's dual mode blocks 8–11 are unused and not checked) and an azimuth ≤ 36000."""
+    from .layout import packet_layout
+
+    single = packet_layout(model, "strongest").flag
+    dual = packet_layout(model, "dual").flag
+    is_dual = (raw.return_mode == 0x39)[:, None]
+    expected = np.where(is_dual, dual[None, :], single[None, :])
+    good = ((raw.flag == expected) | (expected == 0)) & ((raw.azimuth_cdeg <= 36000) | (expected == 0))
+    return np.all(good, axis=1)
+
+
+def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: np.ndarray,
+                  unit_mm: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels of a batch as range-image columns, for any model's :class:`~.layout.PacketLayout`:
+    ``range_mm`` ``uint32[slots, L, W]`` (the wire's distance × ``unit_mm``), ``reflectivity``
+    ``uint8[slots, L, W]`` and per-firing ``azimuth`` ``uint16[L, W]``, W = N · columns per packet; row r
+    is laser ``row_laser[r]``. ``rate_cdeg_s``: ``float32[N]`` rotation rate of each packet (0.01°/s).
+
+    The azimuth of a firing is velodyne_decoder's: lround(block azimuth + rate · dt) mod 36000 in float32.
+    """
+    from .timing import round_azimuth_cdeg
+
+    n = len(raw)
+    src = layout.source[:, row_laser, :]  # [S, L, C] channel index of each pixel, rows in elevation order
+    s, lasers, c = src.shape
+    dist = np.ascontiguousarray(raw.distance_2mm).reshape(n, -1)
+    refl = np.ascontiguousarray(raw.reflectivity).reshape(n, -1)
+    rng = np.empty((s, lasers, n, c), np.uint32)
+    rng[...] = dist[:, src].transpose(1, 2, 0, 3)
+    rng *= np.uint32(unit_mm)
+    f = np.empty((s, lasers, n, c), np.uint8)
+    f[...] = refl[:, src].transpose(1, 2, 0, 3)
+    src0 = src[0]
+    block = layout.azimuth_block.reshape(-1)[src0]  # [L, C]
+    dt = layout.dt_s32.reshape(-1)[src0]
+    az = raw.azimuth_cdeg[:, block]  # [n, L, C]
+    value = np.asarray(rate_cdeg_s, np.float32)[:, None, None] * dt[None]
+    az_px = round_azimuth_cdeg(value, az)
+    return (rng.reshape(s, lasers, n * c), f.reshape(s, lasers, n * c),
+            np.ascontiguousarray(az_px.transpose(1, 0, 2)).reshape(lasers, n * c))
