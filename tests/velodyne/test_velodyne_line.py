@@ -1,0 +1,182 @@
+"""Every spinning Velodyne against velodyne_decoder 3.1.0: the real HDL-32E, VLP-32C and VLS-128
+captures, copies of them with every return redrawn, and hand-built packets of the models with no
+capture here (Puck Hi-Res, Puck LITE, VLP-32A/B, Alpha Prime, HDL-64E S2/S3, the dual modes of all).
+
+The measure (issue 24): at least 99.5 % of velodyne_decoder's points have one of lidarpkt's within
+1 mm, and the other way round; the two clouds have the same number of points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import lidarpkt
+from lidarpkt.errors import CalibrationError, UnknownSensorError
+from lidarpkt.packet import PacketBatch
+from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets, frame_points
+from lidarpkt.velodyne.layout import packet_layout
+from lidarpkt.velodyne.models import MODELS, model_named
+
+pytestmark = pytest.mark.crosscheck
+
+REAL = {
+    "HDL-32E": "rust-lidar-utils/velodyne_vlp32.pcap",
+    "VLP-32C": "nebula/vlp32/1713492677464078412",
+    "VLS-128": "nebula/vls128/1614315746471294674",
+}
+VD_MODEL = {"VLP-16": "VLP16", "Puck LITE": "PuckLite", "Puck Hi-Res": "PuckHiRes", "HDL-32E": "HDL32E",
+            "VLP-32C": "VLP32C", "VLP-32A": "VLP32A", "VLP-32B": "VLP32B", "VLS-128": "VLS128",
+            "Alpha Prime": "AlphaPrime", "HDL-64E S2": "HDL64E_S2", "HDL-64E S3": "HDL64E_S3"}
+HDL64_CAL = {"HDL-64E S2": "nebula/HDL64e_s2.yaml", "HDL-64E S3": "nebula/HDL64e_s3.yaml"}
+
+
+def data_packets(path) -> PacketBatch:
+    from lidarpkt.sources import open_packet_source
+
+    return PacketBatch.concatenate([b for b in open_packet_source(path).batches() if b.payload_size == 1206])
+
+
+def reference_points(batch: PacketBatch, model: str | None = None, calibration=None) -> np.ndarray:
+    vd = pytest.importorskip("velodyne_decoder")
+    cfg = vd.Config()
+    if model is not None:
+        cfg.model = getattr(vd.Model, VD_MODEL[model])
+    if calibration is not None:
+        cfg.calibration = vd.Calibration.read(str(calibration))
+    cfg.min_range, cfg.max_range = 0.0, 1e4
+    packets = vd.PacketVector()
+    for t, row in zip(batch.timestamp_ns.tolist(), batch.payload):
+        packets.append(vd.VelodynePacket(t / 1e9, row.tobytes()))
+    _, points = vd.ScanDecoder(cfg).decode(packets, True)
+    return points
+
+
+def our_points(batch: PacketBatch, **options) -> tuple[np.ndarray, list]:
+    dec = VelodyneDecoder(**options)
+    frames = dec.push(batch) + dec.finish()
+    return np.concatenate([frame_points(f) for f in frames]), frames
+
+
+def assert_clouds_agree(ref: np.ndarray, ours: np.ndarray, share: float = 0.995) -> None:
+    from scipy.spatial import cKDTree
+
+    a = np.stack([ref["x"], ref["y"], ref["z"]], 1).astype(np.float64)
+    b = np.stack([ours["x"], ours["y"], ours["z"]], 1)
+    assert len(a) == len(b) and len(a) > 0
+    d_ab, _ = cKDTree(b).query(a)
+    d_ba, _ = cKDTree(a).query(b)
+    assert np.mean(d_ab <= 1e-3) >= share, np.median(d_ab)
+    assert np.mean(d_ba <= 1e-3) >= share, np.median(d_ba)
+
+
+# ------------------------------------------------------------------ real captures
+@pytest.mark.parametrize("model", sorted(REAL))
+def test_real_capture_matches_velodyne_decoder(ext, model):
+    batch = data_packets(ext(REAL[model]))
+    ours, frames = our_points(batch)
+    assert {f.sensor.model for f in frames} == {model}
+    assert frames[0].sensor.rows == model_named(model).lasers
+    assert_clouds_agree(reference_points(batch), ours)
+
+
+@pytest.mark.parametrize("model", sorted(REAL))
+def test_real_capture_with_every_return_redrawn_matches_velodyne_decoder(ext, model):
+    """Distances and reflectivities drawn anew (flags, azimuths, times and factory bytes kept)."""
+    batch = data_packets(ext(REAL[model]))
+    rng = np.random.default_rng(24)
+    payload = batch.payload.copy()
+    channels = payload[:, :1200].reshape(-1, 12, 100)[:, :, 4:].reshape(-1, 12, 32, 3)
+    dist = rng.integers(0, 30_000, channels.shape[:3]).astype("<u2")
+    dist[rng.random(dist.shape) < 0.2] = 0  # no return
+    channels[..., :2] = dist[..., None].view(np.uint8)
+    channels[..., 2] = rng.integers(0, 256, channels.shape[:3])
+    redrawn = PacketBatch.from_payloads(payload, batch.timestamp_ns)
+    ours, _ = our_points(redrawn)
+    assert_clouds_agree(reference_points(redrawn), ours)
+
+
+@pytest.mark.parametrize("model", sorted(REAL))
+def test_info_names_the_model_of_each_real_capture(ext, model):
+    from lidarpkt.velodyne.detect import describe_stream
+
+    desc = describe_stream(data_packets(ext(REAL[model])))
+    assert desc["kind"] == f"{model} data" and desc["model"] == model
+
+
+# ------------------------------------------------------------------ hand-built packets
+def hand_built(model_name: str, mode: str, n: int = 60, seed: int = 0) -> PacketBatch:
+    """``n`` packets of ``model_name`` in ``mode`` turning at 10 Hz: block azimuths from the firing time of
+    each block's column, random distances (a fifth empty), in dual mode a third of the firings with one
+    return (both blocks equal)."""
+    model = model_named(model_name)
+    lay = packet_layout(model, mode)
+    rng = np.random.default_rng(seed)
+    period_us = model.packet_period_us(mode)
+    t_us = 1_000_000 + np.rint(np.arange(n) * period_us).astype(np.int64)
+    ref_ns = lay.firing_ns[lay.azimuth_block[:, 0], 0] - lay.dt_s32[lay.azimuth_block[:, 0], 0] * 1e9
+    t_block = t_us[:, None] * 1e-6 + ref_ns[None, :] * 1e-9
+    azimuth = np.rint(t_block * 10 * 36000 + 12_345).astype(np.int64) % 36000
+    dist = rng.integers(200, 20_000, (n, 12, 32))
+    dist[rng.random(dist.shape) < 0.2] = 0
+    if mode == "dual":
+        src = lay.source  # [2, lasers, columns] channel of each slot
+        one = rng.random(src.shape[1:]) < 0.33
+        flat = dist.reshape(n, -1)
+        flat[:, src[0][one]] = flat[:, src[1][one]]
+    refl = rng.integers(0, 256, (n, 12, 32))
+    flags = np.where(lay.flag == 0, 0xEEFF, lay.flag)
+    if model.dual_layout != "upper_lower":  # the LITE and the Alpha Prime say VLP-16 and VLS-128
+        product, mode_byte = (model.product_ids or {"Puck LITE": (0x22,), "Alpha Prime": (0xA1,)}[model.name])[0], mode
+    else:  # HDL-64E: a status byte pair where the others carry mode and product
+        product, mode_byte = 0x00, 0x48
+    payload = encode_data_packets(azimuth, dist, refl, t_us % 3_600_000_000, mode_byte, product,
+                                  flag=np.broadcast_to(flags, (n, 12)))
+    return PacketBatch.from_payloads(payload, 1_700_000_000_000_000_000 + t_us * 1000)
+
+
+@pytest.mark.parametrize("model", [m.name for m in MODELS])
+@pytest.mark.parametrize("mode", ["strongest", "last", "dual"])
+def test_hand_built_packets_of_every_model_and_mode_match_velodyne_decoder(ext, model, mode):
+    if model.startswith("HDL-64E") and mode == "last":
+        pytest.skip("the HDL-64E says its single-return mode only in its status cycle: strongest and dual cover it")
+    # velodyne_decoder measures a VLS-128's rate from the packet before: its first packet turns at 0 (1 in 300)
+    batch = hand_built(model, mode, n=300 if model in ("VLS-128", "Alpha Prime") else 60)
+    cal = ext(HDL64_CAL[model]) if model in HDL64_CAL else None
+    ours, frames = our_points(batch, model=model, calibration=cal)
+    assert {f.sensor.model for f in frames} == {model}
+    assert {f.sensor.return_mode for f in frames} == {"strongest" if model.startswith("HDL-64E") and mode != "dual"
+                                                     else mode}
+    ref = reference_points(batch, model, cal)
+    assert_clouds_agree(ref, ours, share=0.995 if model in ("VLS-128", "Alpha Prime") else 1.0)
+
+
+def test_the_model_comes_from_the_factory_byte_without_an_option():
+    for name in ("Puck Hi-Res", "HDL-32E", "VLP-32C", "VLS-128"):
+        _, frames = our_points(hand_built(name, "strongest"))
+        assert frames[0].sensor.model == name
+
+
+# ------------------------------------------------------------------ errors
+def test_a_vlp32a_or_b_byte_says_which_option_picks_one():
+    batch = hand_built("VLP-32A", "strongest")
+    with pytest.raises(UnknownSensorError, match=r"0x23 is a VLP-32A or a VLP-32B.*velodyne_model='VLP-32A'"):
+        VelodyneDecoder().push(batch)
+
+
+def test_a_bad_model_byte_is_one_clear_error():
+    batch = hand_built("VLP-32C", "strongest")
+    payload = batch.payload.copy()
+    payload[:, 1205] = 0x77
+    with pytest.raises(UnknownSensorError, match=r"factory byte 0x77 names no model lidarpkt decodes"):
+        VelodyneDecoder().push(PacketBatch.from_payloads(payload, batch.timestamp_ns))
+
+
+def test_a_calibration_for_another_model_is_refused(ext):
+    batch = hand_built("VLP-32C", "strongest")
+    with pytest.raises(CalibrationError, match=r"not a VLP-32C's .*looks like a HDL-32E calibration"):
+        VelodyneDecoder(calibration=ext("nebula/HDL32.yaml")).push(batch)
+    with pytest.raises(CalibrationError, match=r"describes 128 lasers .*a VLP-32C has 32"):
+        VelodyneDecoder(calibration=ext("nebula/VLS128.yaml")).push(batch)
+    with pytest.raises(CalibrationError, match="no stock calibration"):
+        VelodyneDecoder(model="HDL-64E S3").push(hand_built("HDL-64E S3", "strongest"))
