@@ -37,6 +37,9 @@ class OpenOptions:
     calibration: Any = _option(
         None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one); the stock VLP-16 "
         "calibration by default.")
+    velodyne_model: str | None = _option(
+        None, "Velodyne: the model (\"VLP-32A\", \"HDL-64E S3\", \"Puck LITE\", ...) when its packets cannot say it; "
+        "by default read from their factory byte (the HDL-64E from its block layout).")
     cut_angle_deg: float | None = _option(
         None, "VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
     cut_on_block: bool = _option(
@@ -104,6 +107,7 @@ class OpenKeywords(TypedDict, total=False):
 
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None
     calibration: Any
+    velodyne_model: str | None
     cut_angle_deg: float | None
     cut_on_block: bool
     source: str | None

@@ -180,3 +180,30 @@ def test_a_calibration_for_another_model_is_refused(ext):
         VelodyneDecoder(calibration=ext("nebula/VLS128.yaml")).push(batch)
     with pytest.raises(CalibrationError, match="no stock calibration"):
         VelodyneDecoder(model="HDL-64E S3").push(hand_built("HDL-64E S3", "strongest"))
+
+
+# ------------------------------------------------------------------ downstream
+def test_info_cli_names_each_real_captures_model(ext):
+    import subprocess
+    import sys
+
+    for model, rel in REAL.items():
+        out = subprocess.run([sys.executable, "-m", "lidarpkt", "info", str(ext(rel))], capture_output=True,
+                             text=True, timeout=60, check=True).stdout
+        assert f"{model} data" in out, out
+
+
+def test_parquet_export_of_the_vlp32c_bag_holds_one_row_per_return(ext, tmp_path):
+    import subprocess
+    import sys
+
+    pq = pytest.importorskip("pyarrow.parquet")
+    path = ext(REAL["VLP-32C"])
+    subprocess.run([sys.executable, "-m", "lidarpkt", "export", "-q", "-o", str(tmp_path / "out"), "--format",
+                    "parquet", "--workers", "1", str(path)], capture_output=True, timeout=120, check=True)
+    table = pq.read_table(next((tmp_path / "out").rglob("*.parquet")))
+    frames = list(lidarpkt.open(path))
+    returns = sum(int(np.count_nonzero(f.range_mm)) for f in frames)
+    assert table.num_rows == returns > 100_000
+    ranges = np.sort(np.concatenate([f.range_mm[f.range_mm > 0] for f in frames]) / 1000.0)
+    np.testing.assert_allclose(np.sort(table.column("range_m").to_numpy()), ranges, atol=1e-6)
