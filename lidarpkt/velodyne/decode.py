@@ -197,6 +197,19 @@ def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: 
     n = len(raw)
     src = layout.source[:, row_laser, :]  # [S, L, C] channel index of each pixel, rows in elevation order
     s, lasers, c = src.shape
+    src0 = src[0]
+    block = layout.azimuth_block.reshape(-1)[src0]  # [L, C]
+    dt = layout.dt_s32.reshape(-1)[src0]
+    native = kernels.native
+    if native is not None and hasattr(native, "velodyne_layout_columns"):
+        rng = np.empty((s, lasers, n * c), np.uint32)
+        f = np.empty((s, lasers, n * c), np.uint8)
+        az_px = np.empty((lasers, n * c), np.uint16)
+        native.velodyne_layout_columns(raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg,
+                                       np.ascontiguousarray(src, np.int64), np.ascontiguousarray(block, np.int64),
+                                       np.ascontiguousarray(dt, np.float32),
+                                       np.ascontiguousarray(rate_cdeg_s, np.float32), unit_mm, rng, f, az_px)
+        return rng, f, az_px
     dist = np.ascontiguousarray(raw.distance_2mm).reshape(n, -1)
     refl = np.ascontiguousarray(raw.reflectivity).reshape(n, -1)
     rng = np.empty((s, lasers, n, c), np.uint32)
@@ -204,9 +217,6 @@ def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: 
     rng *= np.uint32(unit_mm)
     f = np.empty((s, lasers, n, c), np.uint8)
     f[...] = refl[:, src].transpose(1, 2, 0, 3)
-    src0 = src[0]
-    block = layout.azimuth_block.reshape(-1)[src0]  # [L, C]
-    dt = layout.dt_s32.reshape(-1)[src0]
     az = raw.azimuth_cdeg[:, block]  # [n, L, C]
     value = np.asarray(rate_cdeg_s, np.float32)[:, None, None] * dt[None]
     az_px = round_azimuth_cdeg(value, az)

@@ -85,6 +85,7 @@ class VelodyneGeometry:
         # the compiled kernel's per-row coefficients (k_xy, k_z, dc_xy, dc_z, vert_offset) and switches
         self._coef = np.ascontiguousarray(np.stack([self._k_xy[:, 0], self._k_z[:, 0], self._dc_xy[:, 0],
                                                     self._dc_z[:, 0], self._vert_offset[:, 0]]), np.float64)
+        self._coef_rot = np.ascontiguousarray(np.concatenate([self._coef, np.cos(self._rot).T, np.sin(self._rot).T]))
         self._has_dist = bool(np.any(self._dist_correction))
         self._has_voff = bool(np.any(self._vert_offset))
 
@@ -111,12 +112,14 @@ class VelodyneGeometry:
         native = kernels.native
         # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]; the
         # kernel has no horizontal-offset term, so a calibration with one takes the NumPy path
-        if (native is not None and rng.ndim == 3 and rng.shape[1] == 16 and np.shape(az_cdeg) == rng.shape[1:]
-                and not np.any(self._horiz_offset) and (self._cos.ndim == 2 or not self._per_row)
-                and not self._two_point):
+        if (native is not None and rng.ndim == 3 and rng.shape[1] == len(self.row_laser)
+                and np.shape(az_cdeg) == rng.shape[1:] and not np.any(self._horiz_offset) and not self._two_point):
             out = np.empty(rng.shape + (3,), dtype=np.float64)
+            coef = self._coef
+            if self._per_row and self._cos.ndim == 1:  # one table, each row's correction combined per pixel
+                coef = self._coef_rot
             native.velodyne_xyz(np.ascontiguousarray(rng, np.uint32), np.ascontiguousarray(az_cdeg, np.uint16),
-                                self._cos, self._neg_sin, self._coef, self._has_dist, self._has_voff, out)
+                                self._cos, self._neg_sin, coef, self._has_dist, self._has_voff, out)
             return out
         idx = np.asarray(az_cdeg, dtype=np.intp)
         if self._cos.ndim == 2:

@@ -207,3 +207,26 @@ def test_parquet_export_of_the_vlp32c_bag_holds_one_row_per_return(ext, tmp_path
     assert table.num_rows == returns > 100_000
     ranges = np.sort(np.concatenate([f.range_mm[f.range_mm > 0] for f in frames]) / 1000.0)
     np.testing.assert_allclose(np.sort(table.column("range_m").to_numpy()), ranges, atol=1e-6)
+
+
+# ------------------------------------------------------------------ the compiled kernels and their NumPy twins
+@pytest.mark.parametrize("model, mode", [("VLS-128", "strongest"), ("VLS-128", "dual"), ("VLP-32C", "dual"),
+                                         ("HDL-32E", "strongest"), ("HDL-64E S3", "dual")])
+def test_compiled_columns_and_xyz_give_the_numpy_twins_bytes(ext, monkeypatch, model, mode):
+    from lidarpkt import kernels
+
+    if kernels.native is None:
+        pytest.skip("the C extension is not built (LIDARPKT_NATIVE=0 or no compiler)")
+    batch = hand_built(model, mode, n=40, seed=3)
+    cal = ext(HDL64_CAL[model]) if model in HDL64_CAL else None
+    _, native = our_points(batch, model=model, calibration=cal)
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "native", None)
+        _, twin = our_points(batch, model=model, calibration=cal)
+        twin_xyz = [f.xyz() for f in twin]
+    assert len(native) == len(twin)
+    for a, b, xyz in zip(native, twin, twin_xyz):
+        np.testing.assert_array_equal(a.range_mm, b.range_mm)
+        np.testing.assert_array_equal(a.reflectivity, b.reflectivity)
+        np.testing.assert_array_equal(a.extra["azimuth_cdeg"], b.extra["azimuth_cdeg"])
+        np.testing.assert_array_equal(a.xyz(), xyz)
