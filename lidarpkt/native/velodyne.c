@@ -257,27 +257,45 @@ PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
         uint32_t *rng_out = (uint32_t *)b[7].buf;
         uint8_t *refl_out = (uint8_t *)b[8].buf;
         uint16_t *az_out = (uint16_t *)b[9].buf;
+        /* byte offsets inside a packet's records of every pixel's distance and reflectivity, and of each
+         * firing's block azimuth: the inner loops add them to a packet's base */
+        Py_ssize_t npx = s * l * c;
+        Py_ssize_t *off = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(2 * npx + l * c));
+        if (off == NULL) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        for (Py_ssize_t i = 0; i < npx; i++) {
+            Py_ssize_t blk = src[i] >> 5, ch = src[i] & 31;
+            off[i] = blk * ds[1] + ch * ds[2];
+            off[npx + i] = blk * rs[1] + ch * rs[2];
+        }
+        for (Py_ssize_t i = 0; i < l * c; i++) off[2 * npx + i] = azb[i] * as[1];
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t p0 = 0; p0 < n; p0 += 64) {
             Py_ssize_t p1 = p0 + 64 < n ? p0 + 64 : n;
             for (Py_ssize_t row = 0; row < s * l; row++) {
-                const int64_t *sr = src + row * c;
+                const Py_ssize_t *od = off + row * c, *orf = off + npx + row * c;
                 uint32_t *ro = rng_out + row * w;
                 uint8_t *fo = refl_out + row * w;
                 for (Py_ssize_t p = p0; p < p1; p++) {
+                    const char *dp = dist + p * ds[0], *rp = refl + p * rs[0];
                     for (Py_ssize_t k = 0; k < c; k++) {
-                        Py_ssize_t blk = sr[k] >> 5, ch = sr[k] & 31;
-                        ro[p * c + k] = unit * (uint32_t)load_u16(dist + p * ds[0] + blk * ds[1] + ch * ds[2]);
-                        fo[p * c + k] = (uint8_t)refl[p * rs[0] + blk * rs[1] + ch * rs[2]];
+                        ro[p * c + k] = unit * (uint32_t)load_u16(dp + od[k]);
+                        fo[p * c + k] = (uint8_t)rp[orf[k]];
                     }
                 }
             }
             for (Py_ssize_t row = 0; row < l; row++) {
+                const Py_ssize_t *oa = off + 2 * npx + row * c;
+                const float *dtr = dt + row * c;
                 uint16_t *ao = az_out + row * w;
                 for (Py_ssize_t p = p0; p < p1; p++) {
+                    const char *ap = azp + p * as[0];
+                    float rp_ = rate[p];
                     for (Py_ssize_t k = 0; k < c; k++) {
-                        float v = rate[p] * dt[row * c + k];
-                        v += (float)load_u16(azp + p * as[0] + azb[row * c + k] * as[1]);
+                        float v = rp_ * dtr[k];
+                        v += (float)load_u16(ap + oa[k]);
                         v += 36000.0f;
                         v += 0.5f;
                         ao[p * c + k] = (uint16_t)((int32_t)v % 36000);
@@ -286,6 +304,7 @@ PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
             }
         }
         Py_END_ALLOW_THREADS
+        PyMem_Free(off);
     }
     result = Py_NewRef(Py_None);
 done:
