@@ -67,6 +67,7 @@ from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_n
 from .layout import packet_layout
 from .dual import second_strongest_mark
 from .geometry import VelodyneGeometry
+from .hdl64e import StatusCycle
 from .nmea import parse_sentence_rows
 from .calibration import load_calibration
 from .models import VLP16, VelodyneModel, model_named
@@ -75,6 +76,8 @@ from .stream import packets_lost, rotation_is_whole, wrapped
 from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
+#: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
+MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
 
@@ -171,6 +174,7 @@ class VelodyneDecoder:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
         self._calibration_arg = calibration
         self._model_given = model is not None
+        self._model_arg_named = model is not None
         if model is None and calibration is not None:  # its model is known once packets name it
             self._calibration_arg = None
             self._set_model(VLP16)
@@ -202,11 +206,50 @@ class VelodyneDecoder:
     def _set_model(self, model: VelodyneModel) -> None:
         """Take ``model`` and its calibration (the one given, else the packets' own for the HDL-64E, else stock)."""
         self.model = model
+        if not model.default_calibration and self._calibration_arg is None:
+            self.geometry = None  # read from the packets' status cycle (lidarpkt.velodyne.hdl64e)
+            self.calibration = None
+            self._row_laser = np.arange(model.lasers)
+            self._status = StatusCycle()
+            self._held: list[PacketBatch] = []
+            self._held_packets = 0
+            self._sensors = {}
+            return
         cal = load_calibration(self._calibration_arg, model)
         self.geometry = VelodyneGeometry(cal, model)
         self.calibration = self.geometry.calibration
         self._row_laser = self.geometry.row_laser
         self._sensors = {}
+
+    def _await_calibration(self, batch: PacketBatch, raw: DataPackets) -> list[Frame]:
+        """Hold the packets of an HDL-64E until its status cycle brought its calibration, then decode them.
+
+        Raises :class:`CalibrationError` when :data:`MAX_HELD_PACKETS` passed without one (a cycle takes
+        about 4200 packets: the calibration does not come, or comes corrupt)."""
+        cal = self._status.push(raw.return_mode, raw.product_id)  # status type and value bytes
+        if cal is None:
+            self._held.append(batch)
+            self._held_packets += len(batch)
+            if self._held_packets > MAX_HELD_PACKETS:
+                self._held = []
+                raise CalibrationError(
+                    f"{self.source or self.model.name}: no calibration in the status bytes of {self._held_packets} "
+                    f"{self.model.name} packets ({self._status.bad_blocks} blocks with a bad checksum); pass the "
+                    "unit's calibration (calibration=, --calibration)")
+            return []
+        if self._status.s3 != (self.model.name == "HDL-64E S3") and not self._model_arg_named:
+            from .models import HDL64E_S2, HDL64E_S3
+
+            self.model = HDL64E_S3 if self._status.s3 else HDL64E_S2
+        self.geometry = VelodyneGeometry(cal, self.model)
+        self.calibration = cal
+        self._row_laser = self.geometry.row_laser
+        self._sensors = {}
+        held, self._held, self._held_packets = self._held, [], 0
+        frames: list[Frame] = []
+        for b in held + [batch]:
+            frames += self._push_data(b)
+        return frames
 
     def _resolve_model(self, raw: DataPackets, batch_times_us: np.ndarray) -> None:
         """On the first data packets: the model they name (when none was given), the VLS-128's firmware timing."""
@@ -278,9 +321,14 @@ class VelodyneDecoder:
                 f"{self.source or self.model.name}: skipped {n} packets of {batch.payload_size} B (a "
                 f"{self.model.name} data packet has {DATA_PACKET_SIZE} B)"), stacklevel=2)
             return []
+        return self._push_data(batch)
+
+    def _push_data(self, batch: PacketBatch) -> list[Frame]:
         raw = decode_packets(batch.payload, copy=False)
         if not self._model_given or not self._timing_set or self.model.product_ids:
             self._resolve_model(raw, raw.timestamp_us)
+        if self.geometry is None:  # an HDL-64E whose calibration its status cycle has not yet brought
+            return self._await_calibration(batch, raw)
         if not self.model.product_ids and self.model.dual_layout == "upper_lower":
             raw = hdl64e_modes(raw)
         ok = raw.flag_ok if self.model.blocks_per_column == 1 else flags_ok(raw, self.model)
@@ -496,7 +544,15 @@ class VelodyneDecoder:
         """The last frame, if any columns are pending (partial unless it reaches the cut angle).
 
         The decoder can be reused afterwards.
+
+        Raises :class:`CalibrationError` when HDL-64E packets are still held because their status cycle
+        never brought a calibration.
         """
+        if self.geometry is None and getattr(self, "_held_packets", 0):
+            n, self._held, self._held_packets = self._held_packets, [], 0
+            raise CalibrationError(
+                f"{self.source or self.model.name}: the status bytes of the {n} {self.model.name} packets held no "
+                "whole calibration; pass the unit's calibration (calibration=, --calibration)")
         frames = self._flush(end="cut")
         self._last_key = None
         self._last_az_cdeg = None

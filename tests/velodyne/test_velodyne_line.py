@@ -178,8 +178,10 @@ def test_a_calibration_for_another_model_is_refused(ext):
         VelodyneDecoder(calibration=ext("nebula/HDL32.yaml")).push(batch)
     with pytest.raises(CalibrationError, match=r"describes 128 lasers .*a VLP-32C has 32"):
         VelodyneDecoder(calibration=ext("nebula/VLS128.yaml")).push(batch)
-    with pytest.raises(CalibrationError, match="no stock calibration"):
-        VelodyneDecoder(model="HDL-64E S3").push(hand_built("HDL-64E S3", "strongest"))
+    dec = VelodyneDecoder(model="HDL-64E S3")
+    assert dec.push(hand_built("HDL-64E S3", "strongest")) == []  # held for the status cycle's calibration
+    with pytest.raises(CalibrationError, match="held no whole calibration; pass the unit's calibration"):
+        dec.finish()
 
 
 # ------------------------------------------------------------------ downstream
@@ -230,3 +232,46 @@ def test_compiled_columns_and_xyz_give_the_numpy_twins_bytes(ext, monkeypatch, m
         np.testing.assert_array_equal(a.reflectivity, b.reflectivity)
         np.testing.assert_array_equal(a.extra["azimuth_cdeg"], b.extra["azimuth_cdeg"])
         np.testing.assert_array_equal(a.xyz(), xyz)
+
+
+# ------------------------------------------------------------------ HDL-64E status cycle
+@pytest.mark.parametrize("model", ["HDL-64E S2", "HDL-64E S3"])
+@pytest.mark.parametrize("mode", ["strongest", "dual"])
+def test_hdl64e_calibration_from_its_status_cycle(ext, tmp_path, model, mode):
+    """Packets whose status bytes cycle through a parameter block made from a real calibration (nebula's
+    YAML, rounded to the block's units): velodyne_decoder's ``hdl64e`` reads the same calibration from
+    them, and both decode the packets to the same points; lidarpkt without any calibration given."""
+    vd = pytest.importorskip("velodyne_decoder")
+    from lidarpkt.velodyne.calibration import load_calibration
+    from lidarpkt.velodyne.hdl64e import encode_unit_parameters, status_bytes
+
+    s3 = model.endswith("S3")
+    block = encode_unit_parameters(load_calibration(ext(HDL64_CAL[model]), model_named(model)), s3=s3)
+    batch = hand_built(model, mode, n=9000, seed=5)  # a cycle: 1820 bytes, 7 in 16 packets: 4160 packets
+    types, values = status_bytes(block, len(batch), s3=s3, offset=700)
+    payload = batch.payload.copy()
+    payload[:, 1204], payload[:, 1205] = types, values
+    records = payload[:-200, :1200].reshape(-1, 12, 100)[:, :, 4:].reshape(-1, 12, 32, 3)
+    records[..., :2] = 0  # returns in the last 200 packets only: a cloud the comparison reads in seconds
+    batch = PacketBatch.from_payloads(payload, batch.timestamp_ns)
+    status = vd.hdl64e.read_status_info(bytes(row) for row in payload)
+    assert status["Model"] == ("S3" if s3 else "S2")
+    ours, frames = our_points(batch)  # no model, no calibration: the layout and the status cycle say both
+    assert {f.sensor.model for f in frames} == {model}
+    cal = frames[0].sensor.geometry.calibration
+    theirs = np.array([[c["Vertical Correction"], c["Rotational Correction"], c["Far Distance Correction"],
+                        c["Distance Correction X"], c["Vertical Offset Correction"], c["Focal Slope"]]
+                       for c in status["Calibration"]])
+    np.testing.assert_allclose(np.degrees(cal.vert_correction_rad), theirs[:, 0], atol=1e-9)
+    np.testing.assert_allclose(np.degrees(cal.rot_correction_rad), theirs[:, 1], atol=1e-9)
+    np.testing.assert_allclose(cal.dist_correction_m, theirs[:, 2], atol=1e-9)
+    np.testing.assert_allclose(cal.dist_correction_x_m, theirs[:, 3], atol=1e-9)
+    np.testing.assert_allclose(cal.vert_offset_m, theirs[:, 4], atol=1e-9)
+    np.testing.assert_allclose(cal.focal_slope, theirs[:, 5], atol=1e-9)
+    import yaml
+
+    doc = vd.hdl64e.status_info_to_calib_dict(status)
+    doc.pop("status")
+    path = tmp_path / "cycle.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    assert_clouds_agree(reference_points(batch, model, path), ours)
