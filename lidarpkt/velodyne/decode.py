@@ -121,6 +121,48 @@ def decode_packets(payload: np.ndarray, *, copy: bool = True) -> DataPackets:
     )
 
 
+@dataclass(eq=False)
+class Hdl32eInertial:
+    """The inertial words of N HDL-32E position packets, three sensors each (HDL-32E manual, "Positioning Packet").
+
+    Attributes:
+        gyro_deg_s: ``float64[N, 3]`` rotation rate of each sensor's gyroscope, °/s.
+        temperature_c: ``float64[N, 3]`` each sensor's temperature, °C.
+        accel_g: ``float64[N, 3, 2]`` each sensor's X and Y acceleration, g.
+        tag: ``uint8[N, 3, 4]`` the high 4 bits of each word (gyro, temperature, accel X, accel Y): 0, 1, 2, 3
+            in the real capture, the word's place.
+    """
+
+    gyro_deg_s: np.ndarray
+    temperature_c: np.ndarray
+    accel_g: np.ndarray
+    tag: np.ndarray
+
+
+def hdl32e_inertial(payload: np.ndarray) -> Hdl32eInertial:
+    """The gyro, temperature and accelerometer readings of ``uint8[N, 512]`` HDL-32E position payloads.
+
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 512]``.
+    """
+    from .packet import (HDL32E_ACCEL_G, HDL32E_GYRO_DEG_S, HDL32E_INERTIAL_DTYPE, HDL32E_INERTIAL_OFFSET,
+                         HDL32E_TEMPERATURE_C, HDL32E_TEMPERATURE_OFFSET_C)
+
+    pos = as_position_packets(payload)  # checks the size
+    raw = np.asarray(payload, np.uint8)
+    words = np.ascontiguousarray(raw[:, HDL32E_INERTIAL_OFFSET:HDL32E_INERTIAL_OFFSET + HDL32E_INERTIAL_DTYPE.itemsize])
+    sensors = words.view(HDL32E_INERTIAL_DTYPE)[:, 0]["sensors"]  # [N, 3]
+    u = np.stack([sensors[k] for k in ("gyro", "temperature", "accel_x", "accel_y")], axis=-1).astype(np.int32)
+    value = u & 0x0FFF
+    value = np.where(value >= 0x800, value - 0x1000, value)  # 12-bit two's complement
+    del pos
+    return Hdl32eInertial(
+        gyro_deg_s=value[..., 0] * HDL32E_GYRO_DEG_S,
+        temperature_c=value[..., 1] * HDL32E_TEMPERATURE_C + HDL32E_TEMPERATURE_OFFSET_C,
+        accel_g=value[..., 2:4] * HDL32E_ACCEL_G,
+        tag=(u >> 12).astype(np.uint8),
+    )
+
+
 def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     """Every field of ``uint8[N, 512]`` VLP-16 position payloads (see :class:`PositionPackets`).
 

@@ -275,3 +275,29 @@ def test_hdl64e_calibration_from_its_status_cycle(ext, tmp_path, model, mode):
     path = tmp_path / "cycle.yaml"
     path.write_text(yaml.safe_dump(doc))
     assert_clouds_agree(reference_points(batch, model, path), ours)
+
+
+# ------------------------------------------------------------------ position packets
+def test_hdl32e_position_packets_give_gyro_temperature_and_acceleration(ext):
+    from lidarpkt.sources.pcap_reader import read_batches
+    from lidarpkt.velodyne import encode_position_packets, hdl32e_inertial
+
+    pos = next(b for b in read_batches(ext(REAL["HDL-32E"])) if b.payload_size == 512)
+    imu = hdl32e_inertial(pos.payload)
+    assert imu.gyro_deg_s.shape == imu.temperature_c.shape == (9, 3) and imu.accel_g.shape == (9, 3, 2)
+    # a unit at rest indoors: two of its 2-axis accelerometers see about 1 g, its sensors 30-45 °C
+    g = np.linalg.norm(imu.accel_g, axis=-1).mean(axis=0)
+    assert np.all(np.abs(g[:2] - 1.0) < 0.05)
+    assert np.all((imu.temperature_c > 30) & (imu.temperature_c < 45))
+    assert np.all(imu.tag == np.arange(4))
+    # hand-built words: -1 count, +2047 counts and the tag bits around them
+    head = np.zeros((1, 198), np.uint8)
+    words = np.array([[0xFFFF, 0x17FF, 0x2001, 0x3800] * 3], "<u2")
+    head[0, 14:38] = words.view(np.uint8)
+    imu = hdl32e_inertial(encode_position_packets(0, 0, "", unused_head=head))
+    np.testing.assert_allclose(imu.gyro_deg_s, [[-0.09766] * 3])
+    np.testing.assert_allclose(imu.temperature_c, [[2047 * 0.1453 + 25] * 3])
+    np.testing.assert_allclose(imu.accel_g, [[[0.001221, -2048 * 0.001221]] * 3])
+    # a VLP-16's position packet has zeros there
+    vlp = next(b for b in read_batches(ext("rust-lidar-utils/velodyne_vlp16.pcap")) if b.payload_size == 512)
+    assert np.all(hdl32e_inertial(vlp.payload).gyro_deg_s == 0)
