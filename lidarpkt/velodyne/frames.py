@@ -69,7 +69,7 @@ from .dual import second_strongest_mark
 from .geometry import VelodyneGeometry
 from .hdl64e import StatusCycle
 from .nmea import parse_sentence_rows
-from .calibration import load_calibration
+from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from .stream import packets_lost, rotation_is_whole, wrapped
@@ -173,6 +173,11 @@ class VelodyneDecoder:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
         self._calibration_arg = calibration
+        self.geometry: VelodyneGeometry | None = None
+        self.calibration: VelodyneCalibration | None = None
+        self._sensors: dict[str, SensorInfo] = {}
+        self._held: list[PacketBatch] = []
+        self._held_packets = 0
         self._model_given = model is not None
         self._model_arg_named = model is not None
         if model is None and calibration is not None:  # its model is known once packets name it
@@ -211,7 +216,7 @@ class VelodyneDecoder:
             self.calibration = None
             self._row_laser = np.arange(model.lasers)
             self._status = StatusCycle()
-            self._held: list[PacketBatch] = []
+            self._held = []
             self._held_packets = 0
             self._sensors = {}
             return
@@ -266,7 +271,8 @@ class VelodyneDecoder:
             seq = vls128_sequence_ns(raw, self.model)
             if seq is not None:
                 self.model = self.model.with_sequence_ns(seq)
-                self.geometry.model = self.model
+                if self.geometry is not None:
+                    self.geometry.model = self.model
                 self._sensors = {}
             self._timing_set = True
 
@@ -341,7 +347,7 @@ class VelodyneDecoder:
             self._pending_counters.malformed_packets += bad_flag + bad_mode
             warn(SkippedPacketWarning(
                 f"{self.source or self.model.name}: skipped {bad_flag} packets with a bad block flag or azimuth and "
-                f"{bad_mode} with an unknown return mode"), stacklevel=2)
+                f"{bad_mode} with an unknown return mode"), stacklevel=3)
             keep = ok & known
             raw = raw.select(keep)
             times = batch.timestamp_ns[keep]
@@ -548,7 +554,7 @@ class VelodyneDecoder:
         Raises :class:`CalibrationError` when HDL-64E packets are still held because their status cycle
         never brought a calibration.
         """
-        if self.geometry is None and getattr(self, "_held_packets", 0):
+        if self.geometry is None and self._held_packets:
             n, self._held, self._held_packets = self._held_packets, [], 0
             raise CalibrationError(
                 f"{self.source or self.model.name}: the status bytes of the {n} {self.model.name} packets held no "
@@ -573,11 +579,14 @@ class VelodyneDecoder:
                 vendor="velodyne", model=self.model.name, rows=self.model.lasers,
                 columns_per_frame=self.model.columns_per_rotation(freq),
                 return_mode=mode, return_labels=LABELS[mode],
-                beam_altitude_deg=cal.elevation_deg[rows], beam_azimuth_deg=np.degrees(cal.rot_correction_rad[rows]),
+                # an HDL-64E before its status cycle brought the calibration: no angles yet
+                beam_altitude_deg=cal.elevation_deg[rows] if cal is not None else np.zeros(self.model.lasers),
+                beam_azimuth_deg=(np.degrees(np.asarray(cal.rot_correction_rad)[rows]) if cal is not None
+                                  else np.zeros(self.model.lasers)),
                 frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry,
                 product_id=self._product_id, source=self.source, profile=mode,
             )
-            if self._mode is not None:  # kept once packets have told the rate and product id
+            if self._mode is not None and cal is not None:  # kept once packets have told the rate and product id
                 self._sensors[mode] = info
         return info
 

@@ -132,13 +132,16 @@ def encode_unit_parameters(calibration: VelodyneCalibration, *, s3: bool = True,
     laser records and the checksum; ``date``: the calibration date and humidity in the last record's
     unused 7 bytes."""
     c = calibration
+    vert, rot, dist = np.asarray(c.vert_correction_rad), np.asarray(c.rot_correction_rad), np.asarray(c.dist_correction_m)
+    dx, dy = np.asarray(c.dist_correction_x_m), np.asarray(c.dist_correction_y_m)
+    voff, hoff = np.asarray(c.vert_offset_m), np.asarray(c.horiz_offset_m)
+    fd, fs = np.asarray(c.focal_distance_m), np.asarray(c.focal_slope)
+    imin, imax = np.asarray(c.min_intensity), np.asarray(c.max_intensity)
     records = []
     for i in range(64):
-        values = (i, round(np.degrees(c.vert_correction_rad[i]) * 100), round(np.degrees(c.rot_correction_rad[i]) * 100),
-                  round(c.dist_correction_m[i] * 1000), round(c.dist_correction_x_m[i] * 1000),
-                  round(c.dist_correction_y_m[i] * 1000), round(c.vert_offset_m[i] * 1000),
-                  round(c.horiz_offset_m[i] * 1000), round(c.focal_distance_m[i] * 1000),
-                  round(c.focal_slope[i] * 10), int(c.min_intensity[i]), int(c.max_intensity[i]))
+        values = (i, round(np.degrees(vert[i]) * 100), round(np.degrees(rot[i]) * 100), round(dist[i] * 1000),
+                  round(dx[i] * 1000), round(dy[i] * 1000), round(voff[i] * 1000), round(hoff[i] * 1000),
+                  round(fd[i] * 1000), round(fs[i] * 10), int(imin[i]), int(imax[i]))
         records.append(LASER_FIELDS.pack(*values) + (date if i == 63 else bytes(LASER_RECORD_SIZE - 21)))
     head = TOKEN + bytes(noise)
     body = b"".join(records)

@@ -80,8 +80,8 @@ class VelodyneModel:
     product_ids: tuple[int, ...]
     lasers: int
     elevation_deg: tuple[float, ...]
-    sequence_ns: int
-    firing_ns: int
+    sequence_ns: float
+    firing_ns: float
     blocks_per_packet: int
     sequences_per_block: int
     beam_origin_forward_m: float

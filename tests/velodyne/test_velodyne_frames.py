@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.errors import SkippedPacketWarning, UnknownSensorError
+from lidarpkt.errors import SkippedPacketWarning
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne.detect import data_kind
 from lidarpkt.velodyne import (
