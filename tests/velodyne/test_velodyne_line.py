@@ -64,8 +64,11 @@ def assert_clouds_agree(ref: np.ndarray, ours: np.ndarray, share: float = 0.995)
     a = np.stack([ref["x"], ref["y"], ref["z"]], 1).astype(np.float64)
     b = np.stack([ours["x"], ours["y"], ours["z"]], 1)
     assert len(a) == len(b) and len(a) > 0
-    d_ab, _ = cKDTree(b).query(a)
-    d_ba, _ = cKDTree(a).query(b)
+    # at most 150 000 points asked each way (the VLS-128 capture has 766 000): the share stays within
+    # ±0.05 % of the whole cloud's at 3 sigma
+    pick = np.random.default_rng(0).permutation(len(a))[:150_000]
+    d_ab, _ = cKDTree(b).query(a[pick])
+    d_ba, _ = cKDTree(a).query(b[pick])
     assert np.mean(d_ab <= 1e-3) >= share, np.median(d_ab)
     assert np.mean(d_ba <= 1e-3) >= share, np.median(d_ba)
 
