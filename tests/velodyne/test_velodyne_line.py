@@ -373,3 +373,26 @@ def test_encoded_frames_are_the_packets_again(ext, model, mode):
     if mode == "dual" and model in ("VLS-128", "Alpha Prime"):
         original[:, 800:1200] = again[:, 800:1200] = 0
     np.testing.assert_array_equal(again, original)
+
+
+def test_cli_says_in_one_line_which_option_picks_a_vlp32a_or_b(tmp_path):
+    import subprocess
+    import sys
+
+    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.writers.pcap import write_pcap
+
+    batch = hand_built("VLP-32A", "strongest", n=300)
+    src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
+    pcap = tmp_path / "vlp32ab.pcap"
+    write_pcap(pcap, (Packet(int(t), src, dst, row.tobytes()) for t, row in zip(batch.timestamp_ns, batch.payload)),
+               udp_checksum=False)
+    run = [sys.executable, "-m", "lidarpkt", "decode", str(pcap), "-o", str(tmp_path / "out.npz"), "-q"]
+    bad = subprocess.run(run, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    lines = bad.stderr.strip().splitlines()
+    assert len(lines) == 1 and "VLP-32A or a VLP-32B" in lines[0] and "--velodyne-model" in lines[0]
+    good = subprocess.run(run + ["--velodyne-model", "VLP-32B"], capture_output=True, text=True, timeout=60)
+    assert good.returncode == 0, good.stderr
+    with np.load(tmp_path / "out.npz") as npz:
+        assert any(npz[k].shape[-2:-1] == (32,) or 32 in npz[k].shape for k in npz.files if "range" in k)
