@@ -127,7 +127,7 @@ class FrameReader(FrameIterator):
         self.stats = SourceStats()
         self._decoder_options = {
             "velodyne": {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                         "cut_on_block": opts.cut_on_block},
+                         "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
             "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
