@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     losses (``record``), 2 error (one line on stderr, no output left behind), 130 interrupted."""
     from . import cliargs
 
-    argv = cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv))
+    argv = cliargs.preparse_json(cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv)))
     verb = next((a for a in argv if not a.startswith("-")), None)
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning

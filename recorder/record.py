@@ -18,7 +18,6 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 
 from lidarpkt.errors import RecorderError
 
@@ -88,9 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .decode import add_frame_arguments
 
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
-    cliargs.add_json(parser, "also write the summary as JSON")
-    parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),
-                        help="old spelling of --json FILE (kept for scripts)")
+    cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
     cliargs.add_quiet(parser, "no status line and no summary")
 
 
@@ -111,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
     cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
-    cliargs.check_json_output(args.json)
+    cliargs.check_json(args)
     if args.gps:
         cliargs.check_inputs([args.gps], "--gps")
     sensors = None
@@ -246,10 +243,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         summary.update(frames.summary())
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
-    if args.json == "-":
-        print(json.dumps(summary, indent=2))
-    elif args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=2))
+    from lidarpkt import cliargs
+
+    cliargs.emit_json(args, json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
 
 
