@@ -2,7 +2,7 @@
 :func:`lidarpkt.archive.export` to the command line.
 
 ``lidarpkt catalog PATHS... -o catalog.parquet|catalog.json [--json] [--glob G] [--workers N | --scheduler ADDR]``
-``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap [--layout points|frames]
+``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap|pcap [--layout points|frames]
 [--frames-per-file N] [--segment-size S] [--metadata M.json]... [--workers N | --scheduler ADDR] [-q]``
 """
 
@@ -49,7 +49,8 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                    help="output folder (local or fsspec URL); holds the outputs and _manifest.jsonl")
-    p.add_argument("--format", required=True, choices=FORMATS, help="output format")
+    p.add_argument("--format", required=True, choices=FORMATS, help="output format (pcap: the capture's raw "
+                   "packets, from pcapng, MCAP and ROS bags too; a bag's keep the vendor's default ports)")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
     from lidarpkt import cliargs

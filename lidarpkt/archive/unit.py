@@ -119,6 +119,8 @@ def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) 
     stem = Path(capture).stem
     if fmt == "parquet":
         return stage
+    if fmt == "pcap":  # the raw packets, not frames: no frame writer (.packets)
+        return stage / f"{stem}.pcap"
     spec = FORMATS.get(fmt)
     if spec is not None and not spec.directory and not options.get("frames_per_file"):
         return stage / f"{stem}.{fmt}"
@@ -201,6 +203,14 @@ def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], co
     return [target]
 
 
+def _write_pcap(path: str, target: Path, task: UnitTask, scratch: list[str]) -> list[Path]:
+    """The capture's raw packets as a pcap (:func:`.packets.write_packets_pcap`); frames are not counted."""
+    from .packets import write_packets_pcap
+
+    write_packets_pcap(path, target, metadata=[_fetch_input(m, scratch) for m in task.metadata])
+    return [target]
+
+
 def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
     from .ordinals import renumber_from
 
@@ -255,6 +265,8 @@ def run_unit(task: UnitTask) -> UnitResult:
                 target = writer_target(task.format, stage, task.capture, options)
                 if task.format == "mcap":  # today's decode output: raw packets, clouds, log times in the capture
                     outputs = _publish(_decode_mcap(local, target, task, scratch, counts), stage, task)
+                elif task.format == "pcap":  # the raw packets back in a pcap
+                    outputs = _publish(_write_pcap(local, target, task, scratch), stage, task)
                 else:
                     reader = _open_frames(local, task, scratch)
                     writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
