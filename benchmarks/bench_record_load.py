@@ -44,7 +44,7 @@ EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shar
 
 
 def vlp16_payloads(n: int) -> tuple[list[bytes], list[str]]:
-    from lidarpkt.pcap import read_packets
+    from lidarpkt.sources.pcap_reader import read_packets
 
     real = [p.payload for p in read_packets(EXTERNAL / "veloview/vlp-16-test-90deg-1-50-frames.pcap") if len(p.payload) == 1206]
     out = []

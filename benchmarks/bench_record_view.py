@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 from lidarpkt.packet import Packet  # noqa: E402
 from bench_record import _cpu_seconds, _free_port  # noqa: E402
-from recorder.replay import read_capture, replay  # noqa: E402
+from lidarpkt.recorder.replay import read_capture, replay  # noqa: E402
 
 OUSTER_METADATA = REPO / "fixtures" / "canned" / "os1-64-legacy.json"
 

@@ -116,11 +116,10 @@ def json_type(flag: str = "--report"):
 
 # ------------------------------------------------------------------------------ adders
 def add_output(parser: argparse.ArgumentParser, suffixes: Sequence[str], *, required: bool = True,
-               help: str | None = None, aliases: Sequence[str] = ()) -> None:
-    """``-o/--output PATH``; ``suffixes`` (e.g. ``(".mcap", ".npz")``) are checked by :func:`check_output`.
-    ``aliases`` are older spellings kept for scripts (``--out``)."""
+               help: str | None = None) -> None:
+    """``-o/--output PATH``; ``suffixes`` (e.g. ``(".mcap", ".npz")``) are checked by :func:`check_output`."""
     what = " or ".join(f"OUT{s}" for s in suffixes) if suffixes else "DIR"
-    parser.add_argument("-o", "--output", *aliases, dest="output", required=required, metavar=what.split(" or ")[0],
+    parser.add_argument("-o", "--output", dest="output", required=required, metavar=what.split(" or ")[0],
                         help=help or f"the output: {what}")
     parser.set_defaults(_output_suffixes=tuple(suffixes))
 
@@ -148,25 +147,21 @@ def add_json(parser: argparse.ArgumentParser, help: str = "the results as one JS
 
 
 def preparse_json(argv: list[str]) -> list[str]:
-    """The old spellings of ``--json``: ``--json -`` is ``--json`` (stdout); ``--json FILE.json`` and
-    ``--json=FILE`` are set aside so that :func:`check_json` names the flag that writes a file now,
-    rather than the file being taken for an input."""
+    """The old spellings of ``--json`` with a value (``--json FILE.json``, ``--json -``, ``--json=FILE``)
+    are set aside so that :func:`check_json` says what to write now, rather than the value being taken
+    for an input."""
     out = []
     i = 0
     while i < len(argv):
         a = argv[i]
         nxt = argv[i + 1] if i + 1 < len(argv) else None
-        if a == "--json" and nxt == JSON_STDOUT:
-            out.append("--json")
-            i += 2
-            continue
-        if a == "--json" and nxt is not None and nxt.lower().endswith(".json"):
+        if a == "--json" and nxt is not None and (nxt == JSON_STDOUT or nxt.lower().endswith(".json")):
             out += ["--json", f"{_JSON_LEGACY}={nxt}"]
             i += 2
             continue
         if a.startswith("--json="):
             value = a.split("=", 1)[1]
-            out += ["--json"] + ([] if value in ("", JSON_STDOUT) else [f"{_JSON_LEGACY}={value}"])
+            out += ["--json"] + ([f"{_JSON_LEGACY}={value}"] if value else [])
             i += 1
             continue
         out.append(a)
@@ -184,6 +179,8 @@ def check_json(args: argparse.Namespace) -> None:
     file checked like any output. Raises :class:`UsageError` / :class:`OutputError`."""
     legacy = getattr(args, "_json_legacy", None)
     flag = getattr(args, "_json_file_flag", "-o")
+    if legacy == JSON_STDOUT:
+        raise UsageError("--json -: --json alone prints to stdout and takes no value; drop the -")
     if legacy:
         raise UsageError(f"--json {legacy}: --json prints the JSON to stdout and takes no file; "
                          f"write it to a file with {flag} {legacy}")

@@ -133,7 +133,7 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("registration-workers", ["registration-impact", vlp, "--workers", "0"], "--workers 0", []),
         ("registration-map-missing", ["registration-impact", vlp, "--map", str(tmp / "g.npz")], "--map", []),
         # demo
-        ("demo-out-proc", ["demo", "--out", "/proc/lidarpkt-demo"], "/proc/lidarpkt-demo", []),
+        ("demo-out-proc", ["demo", "-o", "/proc/lidarpkt-demo"], "/proc/lidarpkt-demo", []),
         ("demo-root", ["demo", "-o", "/nonexistent-lidarpkt/demo"], "does not exist", [Path("/nonexistent-lidarpkt")]),
         ("demo-frames", ["demo", "-o", str(tmp / "demo"), "--frames", "0"], "--frames 0", [tmp / "demo"]),
         # argparse's own errors are one line too
@@ -248,7 +248,6 @@ def test_record_prints_its_summary_with_json_and_writes_it_with_report(tmp_path)
     """record's -o is the MCAP: --json prints the summary, --report FILE.json writes it (a 1 s
     recording of an idle loopback port: no packets, a summary all the same)."""
     import json
-
     import socket
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -261,22 +260,29 @@ def test_record_prints_its_summary_with_json_and_writes_it_with_report(tmp_path)
     assert doc == json.loads((tmp_path / "r.json").read_text()) and doc["packets"] == 0
     assert (tmp_path / "r.mcap").stat().st_size > 0
 
-def test_old_spellings_still_work(tmp_path, capsys):
-    import json
 
-    """demo --out, multireturn --plot MAP.png, record --report and --json - are kept (README)."""
+def test_json_takes_no_value(tmp_path):
+    """`--json FILE.json` (and `--json -`) of before: one line naming the flag that does it now, not a
+    FILE read as an input or a JSON printed by mistake."""
+    vlp = str(external(VLP10))
+    r = _lidarpkt("info", vlp, "--json", "-")
+    assert r.returncode == 2 and r.stdout == "" and "--json -: --json alone prints to stdout" in r.stderr
+    r = _lidarpkt("info", "--json", str(tmp_path / "i.json"), vlp)
+    assert r.returncode == 2 and r.stdout == "" and f"write it to a file with -o {tmp_path / 'i.json'}" in r.stderr
+    assert not (tmp_path / "i.json").exists()
+
+
+def test_old_spellings_are_gone(tmp_path, capsys):
+    """demo --out and multireturn --monitor-by-row are no flags (one spelling per flag); --plot is always
+    a folder. (record --report is the flag that writes record's JSON summary: its -o is the MCAP.)"""
     from lidarpkt.cli import build_parser
 
-    args = build_parser("demo").parse_args(["demo", "--out", str(tmp_path / "d")])
-    assert args.output == str(tmp_path / "d")
-    args = build_parser("record").parse_args(["record", "--port", "2368", "-o", "x.mcap", "--report", "r.json"])
-    assert args.json_file == "r.json" and not args.json and args.port == [2368]
-    r = _lidarpkt("info", str(external(VLP10)), "--json", "-")  # `--json -`: stdout, as before
-    assert r.returncode == 0 and json.loads(r.stdout)["file"] == str(external(VLP10))
+    for verb, argv in (("demo", ["demo", "--out", str(tmp_path / "d")]),
+                       ("multireturn", ["multireturn", "x.pcap", "-o", "m.npz", "--monitor-by-row"])):
+        with pytest.raises(SystemExit) as exc:
+            build_parser(verb).parse_args(argv)
+        assert exc.value.code == 2 and "unrecognized arguments" in capsys.readouterr().err
     vlp = str(external(VLP10))
-    status = main(["multireturn", vlp, "-o", str(tmp_path / "m.npz"), "--plot", str(tmp_path / "map.png")])
-    assert status == 0, capsys.readouterr().err
-    assert (tmp_path / "map.png").stat().st_size > 0 and (tmp_path / "map_roc.png").stat().st_size > 0
     status = main(["multireturn", vlp, "-o", str(tmp_path / "m2.npz"), "--plot", str(tmp_path / "figs")])
     assert status == 0 and sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
         "multireturn_map.png", "multireturn_roc.png"]

@@ -26,7 +26,7 @@ import pytest
 from foxglove_studio import INSTALL, Unavailable, layout, web_build, write_page
 from view_client import LidarpktProcess
 
-CANNED = Path(__file__).resolve().parents[2] / "fixtures" / "canned"
+CANNED = Path(__file__).resolve().parents[2] / "lidarpkt" / "fixtures" / "canned"
 TOPIC = "/velodyne/points/strongest"
 BUDGET_S = 120  # from the page's start to the cloud drawn: 63 s on this 2-core machine at load 15, far less idle
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]  # WebGL, no GPU

@@ -2,7 +2,7 @@
 
 * ``--points``: the MCAP gets one ``sensor_msgs/PointCloud2`` per frame and return slot, decoded
   off the receive path; every message deserializes with rosbags' stock ROS 2 type store, and the
-  points equal those of ``lidarpkt.open``'s frames (:func:`recorder.pointcloud.frame_points`);
+  points equal those of ``lidarpkt.open``'s frames (:func:`lidarpkt.writers.mcap.pointcloud.frame_points`);
   their log times lie inside the span of the recorded packets. Ouster too, with the metadata
   fetched from ``replay --http`` (``record --sensor``) and written to ``/ouster/metadata``.
 * ``--view``: a Foxglove client watching while recording; the recording loses 0 packets and
@@ -53,7 +53,7 @@ def packet_log_times(messages) -> tuple[int, int]:
 
 
 def check_points(messages, frames, topics) -> None:
-    from recorder.pointcloud import frame_points
+    from lidarpkt.writers.mcap.pointcloud import frame_points
 
     for slot, topic in enumerate(topics):
         clouds = [m for t, _, m in messages if t == topic]
