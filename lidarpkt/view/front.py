@@ -104,6 +104,7 @@ class SubprotocolFront:
 
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
+        assert task is not None  # a handler runs as a task
         self._connections.add(task)
         upstream = None
         try:
