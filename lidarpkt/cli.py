@@ -33,7 +33,12 @@ VERBS: dict[str, tuple[str, str]] = {
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with the CLI's one-line errors: ``lidarpkt: error: <flag>: <what>; <what to do>``, exit 2."""
+    """argparse with the CLI's one-line errors: ``lidarpkt: error: <flag>: <what>; <what to do>``, exit 2,
+    and no abbreviated flags (one spelling per flag: ``--out`` is not ``--output``)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D102 - argparse's hook
         verb = self.prog.split()[-1] if " " in self.prog else None
