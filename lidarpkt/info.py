@@ -1,4 +1,4 @@
-"""``lidarpkt info FILE... [--json [OUT.json]] [--metadata M.json ...]``: what streams and sensors a capture holds.
+"""``lidarpkt info FILE... [--json] [-o OUT.json] [--metadata M.json ...]``: what streams and sensors a capture holds.
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
@@ -7,7 +7,7 @@ VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the 
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
 records. ``--json`` prints the same as one JSON document (one capture object, or
-``{"captures": [...]}`` for several files); ``--json OUT.json`` writes it to a file.
+``{"captures": [...]}`` for several files) on stdout; ``-o OUT.json`` writes it to a file.
 """
 
 from __future__ import annotations
@@ -306,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
     from .ouster import load_metadata
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
-    cliargs.check_json_output(args.json)
+    cliargs.check_json(args)
     metadata = [load_metadata(m) for m in args.metadata or ()]
     docs = []
     status = 0
@@ -319,14 +319,9 @@ def run(args: argparse.Namespace) -> int:
             status = 2
             docs.append({"file": os.fspath(path), "error": str(exc)})
             print(cliargs.error_line(exc), file=sys.stderr)
-    if args.json:
+    if cliargs.wants_json(args):
         doc = docs[0] if len(docs) == 1 else {"captures": docs}
-        text = json.dumps(doc, indent=2) + "\n"
-        if args.json == cliargs.JSON_STDOUT:
-            sys.stdout.write(text)
-        else:
-            with open(args.json, "w", encoding="utf-8") as fh:
-                fh.write(text)
+        cliargs.emit_json(args, json.dumps(doc, indent=2))
     elif any("error" not in d for d in docs):
         print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
     return status

@@ -58,7 +58,7 @@ def test_analysis_runs_on_every_real_capture(ext, tmp_path, capsys, pcap, meta):
         stack = load_stack(path, metadata=ext(meta) if meta else None)
     row, col = pixel_with_return(stack)
     out = tmp_path / "a.json"
-    code = main(["analyze", str(path), *meta_args, "--pixel", f"{row},{col}", "--json", str(out)])
+    code = main(["analyze", str(path), *meta_args, "--pixel", f"{row},{col}", "-o", str(out)])
     text, err = capsys.readouterr()
     assert code == 0, err
     entry = json.loads(out.read_text())["pixels"][0]
