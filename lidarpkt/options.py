@@ -36,9 +36,13 @@ class OpenOptions:
         "we record carry it and need none. VLP-16 needs none. A Hesai angle-correction ``.csv`` here serves as "
         "``calibration``.")
     calibration: Any = _option(
-        None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one; the stock VLP-16 "
-        "calibration by default), or a Hesai Pandar angle-correction CSV (a ``.csv`` path or a loaded "
-        "``HesaiCalibration``; without one Hesai frames have no XYZ).")
+        None, "Velodyne calibration (path to a ROS YAML / VeloView XML, or a loaded one); the model's stock "
+        "calibration by default (the HDL-64E's: read from its packets' status cycle); or a Hesai Pandar "
+        "angle-correction CSV (a ``.csv`` path or a loaded ``HesaiCalibration``; without one Hesai frames have "
+        "no XYZ).")
+    velodyne_model: str | None = _option(
+        None, "Velodyne: the model (\"VLP-32A\", \"HDL-64E S3\", \"Puck LITE\", ...) when its packets cannot say it; "
+        "by default read from their factory byte (the HDL-64E from its block layout).")
     cut_angle_deg: float | None = _option(
         None, "VLP-16 and Hesai: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
     cut_on_block: bool = _option(
@@ -106,6 +110,7 @@ class OpenKeywords(TypedDict, total=False):
 
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None
     calibration: Any
+    velodyne_model: str | None
     cut_angle_deg: float | None
     cut_on_block: bool
     source: str | None

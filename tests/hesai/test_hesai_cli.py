@@ -76,7 +76,7 @@ def test_open_counts_hesai_packets_and_says_what_a_csv_is_for(ext):
     bag, csv = ext("nebula/hesai/xt16/1732848127890747768"), ext("nebula/hesai/PandarXT16.csv")
     with lidarpkt.open(bag, metadata=[csv]) as reader:  # an archive job's --metadata: the CSV is the calibration
         frames = list(reader)
-    assert reader.stats.hesai_packets == 1626 and reader.stats.unrouted_packets == 0
+    assert reader.stats.hesai_data_packets == 1626 and reader.stats.unrouted_packets == 0
     assert frames[1].sensor.geometry is not None and frames[1].sensor.beam_altitude_deg[0] == 15.0
     assert frames[1].sensor.return_mode == "last_strongest" and frames[1].sensor.frequency_hz == pytest.approx(10.0, abs=0.02)
     without = list(lidarpkt.open(bag))

@@ -101,7 +101,8 @@ def test_duplicates_and_late_packets_are_dropped_and_counted(ext):
     assert dec.stats.decoded_packets == 150 and _accounted(dec, len(again) + 100)
     counts = {"late": 10, "duplicate": 5}
 
-    reader = types.SimpleNamespace(decoders={"x": dec})  # what lidarpkt.dropped reads: decoders and their stats
+    # what lidarpkt.dropped reads: the router's sensor keys (vendor, ...) and their decoders' stats
+    reader = types.SimpleNamespace(decoders={("hesai", None, "PandarXT32"): dec})
     assert {k: v for k, v in dropped_counts(reader).items() if k in counts} == counts
 
 
@@ -136,8 +137,8 @@ def test_damaged_packets_in_a_bag_are_reported_by_lidarpkt_dropped(ext, tmp_path
     with pytest.warns(lidarpkt.errors.DroppedPacketsWarning, match="10 skipped as malformed"), \
             lidarpkt.open(tmp_path / "bag") as reader:
         frames = list(reader)
-    assert frames and reader.stats.hesai_packets == 500
-    assert dropped_counts(reader)["malformed"] == 10
+    assert frames and reader.stats.hesai_data_packets == 500
+    assert dropped_counts(reader).malformed == 10
 
 
 def test_a_pandar_scan_of_two_sizes_or_an_oversized_packet_is_one_clear_error(ext, tmp_path):

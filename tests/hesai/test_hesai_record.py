@@ -35,7 +35,7 @@ def test_record_counts_a_pandar_stream_and_keeps_it(ext, tmp_path):
     port = _free_udp_port()
     out, report, log = tmp_path / "rec.mcap", tmp_path / "rec.json", tmp_path / "rec.log"
     cmd = [sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "--port", str(port), "-o", str(out),
-           "--json", str(report)]
+           "--report", str(report)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log.open("w"), cwd=REPO, env=dict(os.environ))
     try:
         deadline = time.monotonic() + 30
