@@ -51,6 +51,7 @@ class SourceStats:
     velodyne_position_packets: int = 0
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
+    ouster_zone_packets: int = 0
     unrouted_packets: int = 0
     unrouted_streams: dict[str, int] = field(default_factory=dict)  # "src → dst (size B)" → packets
     filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
@@ -197,6 +198,10 @@ class FrameReader(FrameIterator):
                     self.stats.ouster_lidar_packets += len(batch)
                     self._name_by_data(key, decoder, batch)
                     return self._push(key, decoder, batch, post_end)
+                if kind == "zone":
+                    self.stats.ouster_zone_packets += len(batch)
+                    decoder.push_zone(batch)
+                    return []
                 self.stats.ouster_imu_packets += len(batch)
                 decoder.push_imu(batch)
                 return []

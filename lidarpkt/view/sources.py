@@ -101,7 +101,10 @@ class LiveDecoder:
                     return []
                 if kind == "lidar":
                     return decoder.push(batch)
-                decoder.push_imu(batch)
+                if kind == "zone":
+                    decoder.push_zone(batch)
+                else:
+                    decoder.push_imu(batch)
                 return []
         kind = velodyne.classify(batch)
         if kind is None:
