@@ -8,8 +8,8 @@ Conventions (those of ouster-sdk's scan batcher):
 * A frame is released as soon as every column of ``column_window`` has arrived, or when a
   packet of another frame arrives (then it is ``partial``), or at :meth:`OusterDecoder.finish`.
 * Columns that never arrived have zero fields, zero timestamp/measurement_id/status and
-  ``column_valid`` False. ``column_valid`` is also False for a column that arrived with its
-  status saying invalid (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF).
+  ``column_valid`` False. So have columns that arrived with their status saying invalid
+  (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF), as in ouster-sdk.
 * Packets of an already released frame are dropped and counted as late; a packet whose first
   measurement id already arrived in its frame is a duplicate (dropped, counted).
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
@@ -163,15 +163,15 @@ class _Builder:
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
 
-    def fields(self, profile) -> dict[str, np.ndarray]:
+    def fields(self, profile, kept: np.ndarray) -> dict[str, np.ndarray]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
-        (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
+        (``[H, W]``, window ``None`` if absent); zeros where ``kept`` (``bool[W]``) is False."""
         if self.outputs is not None:
-            _zero_missing(self.targets, self.received)
+            _zero_missing(self.targets, kept)
             return self.outputs
         planes = self.planes
-        _zero_missing([planes], self.received)
+        _zero_missing([planes], kept)
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
         for attr, per_slot, dtype in field_plan(profile):
@@ -371,7 +371,14 @@ class OusterDecoder:
             status_ok = b.status == LEGACY_STATUS_VALID
         else:
             status_ok = (b.status & 1).astype(bool)
-        px = b.fields(md.profile)
+        valid = b.received & status_ok
+        if not valid.all():
+            # a column whose status says invalid holds nothing (a sensor sends them around an azimuth
+            # window, with timestamps): zero, as a column that never arrived (ouster-sdk drops them too)
+            _zero_missing([b.timestamp_ns, b.measurement_id]
+                          + (list(b.header_status.values()) if b.header_status is not None else [])
+                          + ([b.encoder_count] if b.encoder_count is not None else []), valid)
+        px = b.fields(md.profile, valid)
         if b.planes is not None:
             self._spare_planes, b.planes = b.planes, None
         extra = {k: v for k, v in px.items() if k not in SLOT_ATTRS and k != "near_ir" and v is not None}
@@ -383,7 +390,7 @@ class OusterDecoder:
             range_mm=px["range_mm"],
             reflectivity=px["reflectivity"],
             return_labels=md.return_labels,
-            column_valid=b.received & status_ok,
+            column_valid=valid,
             column_timestamp_ns=b.timestamp_ns,
             azimuth_deg=self._azimuth_deg.copy(),
             signal=px["signal"],
