@@ -52,13 +52,10 @@ from .imu import imu_samples
 from .zone import OusterZoneStates, decode_zone_packets
 from .metadata import OusterMetadata
 from .fieldplan import SLOT_ATTRS, extract, field_plan, new_fields, packet_layout, scatter_steps
-from .profiles import LEGACY_STATUS_VALID
+from .profiles import HEADER_STATUS_FIELDS, LEGACY_STATUS_VALID
 
 _BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
 _NATIVE_PIXEL_BYTES = 16  # ouster_scatter's widest pixel (MAX_WORDS words); wider ones take the NumPy twin
-#: Packet-header fields of firmware 3.x kept per column (``Frame.extra``), all uint8 on the wire.
-HEADER_STATUS_FIELDS = ("alert_flags", "shot_limiting", "thermal_shutdown", "countdown_shot_limiting",
-                        "countdown_thermal_shutdown")
 
 
 @dataclass

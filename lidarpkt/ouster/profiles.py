@@ -122,6 +122,9 @@ FUSA_HEADER: tuple[BitField, ...] = (
 )
 
 HEADER_BYTES = 32
+#: The status fields of the packet header (firmware 3.x; zero before), kept per column in ``Frame.extra``.
+HEADER_STATUS_FIELDS = ("alert_flags", "shot_limiting", "thermal_shutdown", "countdown_shot_limiting",
+                        "countdown_thermal_shutdown")
 FOOTER_BYTES = 32
 CRC_BYTES = 8
 
