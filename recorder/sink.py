@@ -86,7 +86,7 @@ class PacketSink:
         """The Ouster metadata of the sensor sending ``batch`` (by destination port), else the first."""
         if len(self._ouster_mds) > 1 and batch.dst is not None:
             for md in self._ouster_mds:
-                if batch.dst.port in (md.lidar_port, md.imu_port):
+                if batch.dst.port in (md.lidar_port, md.imu_port, md.zm_port):
                     return md
         return self.ouster_metadata
 
@@ -157,6 +157,7 @@ class PacketSink:
         else:
             topic = schemas.VELODYNE_POSITION if kind == streams.VELODYNE_POSITION else schemas.OTHER_PACKETS
         write = self.writer.write
+        self._write_decoded_ouster(kind, md, batch)
         if topic.msgtype == schemas.PACKET_MSG:
             for t, row in zip(host.tolist(), batch.payload):
                 write(topic, schemas.encode_packet_msg(row.tobytes()), t)
@@ -164,6 +165,33 @@ class PacketSink:
             for t, row in zip(host.tolist(), batch.payload):
                 write(topic, schemas.encode_stamped_packet(row.tobytes(), t), t)
         rep.messages += n
+
+    def _write_decoded_ouster(self, kind: str, md, batch: PacketBatch) -> None:
+        """Beside the raw packets: one ``sensor_msgs/Imu`` per IMU sample (log time: its packet's receive time),
+        and the zone states of zone-monitoring packets (their port, size and header say so) as JSON."""
+        if md is None:
+            return
+        from lidarpkt.ouster.detect import classify
+
+        match = classify(batch, [md]) if kind in (streams.OUSTER_IMU, streams.OTHER) else None
+        if match is None:
+            return
+        host = batch.timestamp_ns
+        if match[0] == "imu" and batch.payload_size == md.imu_packet_size:
+            from lidarpkt.ouster.imu import imu_samples
+
+            samples = imu_samples(batch.payload, md, str(batch.src))
+            times = host[samples.extra["packet_index"]].tolist()
+            for t, data in zip(times, schemas.encode_imu_samples(samples, "os_imu")):
+                self.writer.write(schemas.OUSTER_IMU_SAMPLES, data, t)
+        elif match[0] == "zone":
+            from lidarpkt.ouster.zone import decode_zone_packets
+
+            states = decode_zone_packets(batch.payload, md.header_type or "STANDARD")
+            string_t = schemas.typestore().types[schemas.STRING]
+            for t, record in zip(host.tolist(), states.records()):
+                self.writer.write(schemas.OUSTER_ZONE_STATES,
+                                  schemas.encode(schemas.STRING, string_t(data=json.dumps(record))), t)
 
     def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
         if key not in self._described:

@@ -96,7 +96,8 @@ def imu_samples(payload: np.ndarray, metadata, source: str | None = None) -> Imu
     g × 9.80665 and deg/s × π/180; ``extra``: ``sys_timestamp_ns``, ``accel_timestamp_ns``,
     ``gyro_timestamp_ns``. ACCEL32_GYRO32_NMEA: the measurements whose status says valid (bit 0), at
     their own timestamps, in the units they travel in; ``extra``: ``measurement_id``, ``status``,
-    ``frame_id`` and ``nmea_timestamp_ns`` / ``nmea_sentence`` of their packet.
+    ``frame_id`` and ``nmea_timestamp_ns`` / ``nmea_sentence`` of their packet. Both: ``packet_index``,
+    the row of ``payload`` each sample came from.
 
     Raises:
         PacketFormatError: the packets are not the size of the metadata's IMU profile.
@@ -107,6 +108,7 @@ def imu_samples(payload: np.ndarray, metadata, source: str | None = None) -> Imu
         accel = np.stack([rec[k] for k in ("accel_x_g", "accel_y_g", "accel_z_g")], axis=-1).astype(np.float64)
         gyro = np.stack([rec[k] for k in ("gyro_x_deg_per_s", "gyro_y_deg_per_s", "gyro_z_deg_per_s")], axis=-1)
         extra = {k: rec[k].astype(np.int64) for k in ("sys_timestamp_ns", "accel_timestamp_ns", "gyro_timestamp_ns")}
+        extra["packet_index"] = np.arange(len(rec), dtype=np.int64)
         return ImuSamples(rec["gyro_timestamp_ns"].astype(np.int64), accel * STANDARD_GRAVITY_MPS2,
                           np.deg2rad(gyro.astype(np.float64)), source, extra)
     f = decode_imu_nmea(arr, metadata.imu_measurements_per_packet, metadata.profile.header_type or "STANDARD")
@@ -118,7 +120,7 @@ def imu_samples(payload: np.ndarray, metadata, source: str | None = None) -> Imu
     gyro = np.stack([m[k] for k in ("gyro_x_radps", "gyro_y_radps", "gyro_z_radps")], axis=-1).astype(np.float64)
     extra = {"measurement_id": m["measurement_id"], "status": m["status"],
              "frame_id": f["frame_id"][per_packet], "nmea_timestamp_ns": f["nmea_timestamp_ns"][per_packet],
-             "nmea_sentence": f["nmea_sentence"][per_packet]}
+             "nmea_sentence": f["nmea_sentence"][per_packet], "packet_index": per_packet.astype(np.int64)}
     return ImuSamples(m["timestamp_ns"].astype(np.int64), accel, gyro, source, extra)
 
 

@@ -384,3 +384,42 @@ def test_info_names_imu_and_zone_packets(tmp_path):
     assert out.returncode == 0, out.stderr
     text = out.stdout + out.stderr
     assert "Ouster IMU" in text and "ACCEL32_GYRO32_NMEA" in text and "zone monitoring" in text
+
+
+@pytest.mark.parametrize("pcap,meta,samples", [
+    (IMU_ZM[0], IMU_ZM[1], 64), (SDK + "OS-2-128-U1_v2.3.0_1024x10.pcap", SDK + "OS-2-128-U1_v2.3.0_1024x10.json", 10)])
+def test_decode_writes_one_imu_message_per_sample(tmp_path, pcap, meta, samples):
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    out = tmp_path / "o.mcap"
+    run = subprocess.run([sys.executable, "-m", "lidarpkt", "decode", str(external(pcap)), "--metadata",
+                          str(external(meta)), "-o", str(out), "--quiet"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    md = load_metadata(external(meta))
+    want = imu_samples(_packets(pcap, md.imu_packet_size), md)
+    got, zones = [], []
+    with open(out, "rb") as fh:  # read with the official MCAP ROS 2 decoder, not ours
+        for schema, channel, _, msg in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/ouster/imu", "/ouster/zone_states"]):
+            if channel.topic == "/ouster/imu":
+                assert schema.name == "sensor_msgs/msg/Imu"
+                got.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec,
+                            (msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z),
+                            (msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z),
+                            msg.orientation_covariance[0]))
+            else:
+                zones.append(json.loads(msg.data))
+    assert len(got) == samples == len(want)
+    assert [g[0] for g in got] == want.timestamp_ns.tolist()
+    assert np.array_equal(np.array([g[1] for g in got]), want.acceleration_mps2)
+    assert np.array_equal(np.array([g[2] for g in got]), want.angular_velocity_radps)
+    assert all(g[3] == -1.0 for g in got)  # no orientation
+    acc = np.linalg.norm(np.array([g[1] for g in got]), axis=1)
+    assert abs(acc.mean() - 9.81) < 0.2  # m/s², at rest
+    if "imu_zm" in pcap:
+        (z,) = zones
+        assert len(z["zones"]) == 16 and sum(x["live"] for x in z["zones"]) == 4
