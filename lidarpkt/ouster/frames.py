@@ -116,7 +116,8 @@ class _Builder:
         self.status = np.zeros(w, np.uint32)
         self.encoder_count = np.zeros(w, np.uint32) if md.profile.legacy else None
         self.received = np.zeros(w, bool)
-        self.header_status = None if md.profile.legacy else {k: np.zeros(w, np.uint8) for k in HEADER_STATUS_FIELDS}
+        self.header_status = None if md.profile.legacy else dict(
+            zip(HEADER_STATUS_FIELDS, np.zeros((len(HEADER_STATUS_FIELDS), w), np.uint8)))
         self.counters = FrameCounters()
         self.last_mid0 = -1
 
@@ -137,9 +138,10 @@ class _Builder:
         self.status[flat] = f.status.ravel()
         if self.encoder_count is not None:
             self.encoder_count[flat] = f.encoder_count.ravel()
-        if self.header_status is not None:
+        if self.header_status is not None and HEADER_STATUS_FIELDS[0] in f.header:
+            index = mids.astype(np.intp)
             for k, arr in self.header_status.items():
-                arr[flat] = np.repeat(f.header[k], c)
+                arr[index] = f.header[k][:, None]
         self.received[flat] = True
 
     def _add_words(self, words: np.ndarray, flat: np.ndarray) -> None:
@@ -256,8 +258,11 @@ class OusterDecoder:
                 f"Ouster {self.source or 'stream'}: skipped {n} packets of {batch.payload_size} B; the metadata "
                 f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B"), stacklevel=2)
             return []
+        # the status fields of firmware 3.x are read only where a packet has one set (zero before 3.x)
+        status = md.profile.header_status_bytes
+        with_status = status is not None and bool(batch.payload[:, status[0]:status[1]].any())
         f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
-                           header_fields=("frame_id", "init_id", "prod_sn") + HEADER_STATUS_FIELDS)
+                           header_fields=("frame_id", "init_id", "prod_sn") + (HEADER_STATUS_FIELDS if with_status else ()))
         payload = batch.payload if batch.payload.strides[1] == 1 else np.ascontiguousarray(batch.payload)
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
@@ -282,7 +287,7 @@ class OusterDecoder:
             payload = payload[keep]
         if len(f) == 0:
             return []
-        if not md.profile.legacy:
+        if with_status:
             self.stats.shot_limiting_packets += int(np.count_nonzero(f.header["shot_limiting"]))
             self.stats.thermal_shutdown_packets += int(np.count_nonzero(f.header["thermal_shutdown"]))
 

@@ -297,6 +297,11 @@ class Profile:
         return None
 
     @property
+    def header_status_bytes(self) -> tuple[int, int] | None:
+        """``(first, end)`` bytes of the header that hold :data:`HEADER_STATUS_FIELDS`, ``None`` for LEGACY."""
+        return _status_bytes(self.header_fields) if self.header_fields else None
+
+    @property
     def header_bytes(self) -> int:
         return 0 if self.legacy else HEADER_BYTES
 
@@ -349,6 +354,12 @@ class Profile:
     def packet_dtype(self, pixels_per_column: int, columns_per_packet: int = 16) -> np.dtype:
         """Structured dtype of one packet: ``header`` bytes, ``columns[C]``, ``footer`` bytes."""
         return _packet_dtype(self, pixels_per_column, columns_per_packet)
+
+
+@lru_cache(maxsize=None)
+def _status_bytes(header_fields: tuple[BitField, ...]) -> tuple[int, int]:
+    bits = [(f.start_bit, f.start_bit + f.width) for f in header_fields if f.name in HEADER_STATUS_FIELDS]
+    return min(b for b, _ in bits) // 8, -(-max(e for _, e in bits) // 8)
 
 
 @lru_cache(maxsize=64)
@@ -546,6 +557,14 @@ def read_bits(data: np.ndarray, field: BitField) -> np.ndarray:
     first = field.start_bit // 8
     shift = field.start_bit % 8
     nbytes = (shift + field.width + 7) // 8
+    if nbytes == 1:  # within one byte (the header's status fields, read for every packet decoded)
+        v = data[..., first]
+        if shift:
+            v = v >> np.uint8(shift)
+        if field.width < 8:
+            v = v & np.uint8(field.mask)
+        v = v.astype(field.dtype)
+        return v << field.dtype.type(field.upshift) if field.upshift else v
     acc = np.zeros(data.shape[:-1], np.uint64)
     for k in range(nbytes):
         acc |= data[..., first + k].astype(np.uint64) << np.uint64(8 * k)
