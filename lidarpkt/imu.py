@@ -49,11 +49,11 @@ class ImuSamples:
         return int(self.timestamp_ns.shape[0])
 
     @classmethod
-    def empty(cls, source: str | None = None) -> "ImuSamples":
+    def empty(cls, source: str | None = None) -> ImuSamples:
         return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), source)
 
     @classmethod
-    def concatenate(cls, parts: "list[ImuSamples]") -> "ImuSamples":
+    def concatenate(cls, parts: list[ImuSamples]) -> ImuSamples:
         """The samples of ``parts`` one after the other (extra keys: those of the first part)."""
         if not parts:
             return cls.empty()
@@ -64,7 +64,7 @@ class ImuSamples:
                    parts[0].source,
                    {k: np.concatenate([p.extra[k] for p in parts]) for k in keys})
 
-    def select(self, rows) -> "ImuSamples":
+    def select(self, rows) -> ImuSamples:
         """The chosen samples (mask, slice or indices)."""
         return ImuSamples(self.timestamp_ns[rows], self.acceleration_mps2[rows], self.angular_velocity_radps[rows],
                           self.source, {k: v[rows] for k, v in self.extra.items()})

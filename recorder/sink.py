@@ -135,7 +135,7 @@ class PacketSink:
             if kind == streams.OUSTER_LIDAR and md is None:
                 self.notes.append(f"{where} look like Ouster LEGACY lidar packets; without --metadata they are "
                                   "recorded but not checked for loss nor counted as frames")
-            elif kind == streams.OTHER:
+            elif kind == streams.OTHER and not (md is not None and batch.payload_size == md.zone_packet_size):
                 self.notes.append(f"{where} are no stream lidarpkt knows (an Ouster profile needs --metadata); "
                                   "they are kept on /lidarpkt/other_packets")
         host = batch.timestamp_ns

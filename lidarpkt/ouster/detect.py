@@ -17,8 +17,15 @@ from .crc import footer_crc_ok
 from .decode import decode_packets
 from .imu import decode_imu, imu_samples
 from .metadata import OusterMetadata
+from .profiles import (
+    HEADER_BYTES,
+    HEADER_TYPES,
+    IMU_PACKET_SIZE,
+    PROFILES,
+    Profile,
+    read_bits,
+)
 from .zone import decode_zone_packets
-from .profiles import HEADER_BYTES, HEADER_TYPES, IMU_PACKET_SIZE, PROFILES, Profile, read_bits
 
 _GUESS_ROWS = (16, 32, 64, 128)
 
@@ -40,7 +47,7 @@ def _ids_match(batch: PacketBatch, md: OusterMetadata, header_fields=None) -> np
     return ok
 
 
-def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata | None] | None:
+def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata] | None:
     """``("lidar", md)`` / ``("imu", md)`` / ``("zone", md)`` when the batch is a stream of the sensor of
     ``md``, else ``None``.
 
@@ -174,12 +181,12 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
                 "zones_live": int(np.count_nonzero(z.zones["live"][-1])),
                 "zones_triggered": int(np.count_nonzero(z.zones["trigger_status"][-1] & z.zones["live"][-1]))}
     if match is not None and match[0] == "imu" and match[1].imu_profile != "LEGACY":
-        md = match[1]
-        samples = imu_samples(batch.payload, md)
-        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata", "imu_profile": md.imu_profile,
-               "samples": len(samples)}
-        if len(samples):
-            out["timestamp_ns"] = [int(samples.timestamp_ns[0]), int(samples.timestamp_ns[-1])]
+        imu_md = match[1]
+        imu = imu_samples(batch.payload, imu_md)
+        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata", "imu_profile": imu_md.imu_profile,
+               "samples": len(imu)}
+        if len(imu):
+            out["timestamp_ns"] = [int(imu.timestamp_ns[0]), int(imu.timestamp_ns[-1])]
         return out
     if match is not None and match[0] == "imu" or (match is None and batch.payload_size == IMU_PACKET_SIZE):
         if match is None and not _imu_plausible(batch.payload):
@@ -189,6 +196,7 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
                "imu_profile": "LEGACY", "samples": len(batch)}
         out["sys_timestamp_ns"] = [int(samples["sys_timestamp_ns"][0]), int(samples["sys_timestamp_ns"][-1])]
         return out
+    md: OusterMetadata | None = None
     if match is not None:
         md = match[1]
         profile, h, source, candidates = md.profile, md.pixels_per_column, "metadata", [md.profile.name]
@@ -198,7 +206,6 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
             return None
         profile, h = guesses[0]
         source, candidates = "guess", [f"{p.name} ({rows} px)" for p, rows in guesses]
-        md = None
     fields = decode_packets(batch.payload, md if md is not None else _Layout(profile, h), verify_crc=False, fields=(),
                             header_fields=("frame_id", "init_id", "prod_sn", "shot_limiting", "thermal_shutdown"))
     frame_ids = fields.frame_id

@@ -345,6 +345,7 @@ class OusterDecoder:
 
     def _release(self) -> Frame:
         b = self._current
+        assert b is not None
         self._current = None
         self._released.append(b.key)
         md = self.metadata

@@ -18,7 +18,13 @@ import numpy as np
 
 from ..errors import PacketFormatError
 from ..imu import STANDARD_GRAVITY_MPS2, ImuSamples
-from .profiles import HEADER_TYPES, IMU_DTYPE, IMU_PACKET_SIZE, imu_packet_dtype, read_bits
+from .profiles import (
+    HEADER_TYPES,
+    IMU_DTYPE,
+    IMU_PACKET_SIZE,
+    imu_packet_dtype,
+    read_bits,
+)
 
 
 def decode_imu(payload: np.ndarray) -> np.ndarray:

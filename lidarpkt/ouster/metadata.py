@@ -50,7 +50,6 @@ from ..errors import MetadataError
 from .profiles import (
     HEADER_TYPES,
     IMU_PACKET_SIZE,
-    IMU_PROFILES,
     ZONE_PACKET_SIZE,
     Profile,
     get_profile,

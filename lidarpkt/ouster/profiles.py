@@ -21,7 +21,7 @@ the digests in the tests) is derived from these tables.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import numpy as np
 
@@ -356,7 +356,7 @@ class Profile:
         return _packet_dtype(self, pixels_per_column, columns_per_packet)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _status_bytes(header_fields: tuple[BitField, ...]) -> tuple[int, int]:
     bits = [(f.start_bit, f.start_bit + f.width) for f in header_fields if f.name in HEADER_STATUS_FIELDS]
     return min(b for b, _ in bits) // 8, -(-max(e for _, e in bits) // 8)
@@ -415,7 +415,7 @@ for _p in PROFILES.values():
             raise PacketFormatError(f"{_p.name} pixel: field {_f.name} straddles a 32-bit word")
 
 
-@lru_cache(maxsize=None)
+@cache
 def with_header(profile: Profile, header_type: str) -> Profile:
     """``profile`` under the packet header ``header_type`` (``"STANDARD"`` or ``"FUSA"``); LEGACY has none.
 

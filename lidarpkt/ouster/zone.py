@@ -13,7 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PacketFormatError
-from .profiles import HEADER_TYPES, ZONE_PACKET_DTYPE, ZONE_PACKET_SIZE, ZONE_STATE_FIELDS, read_bits
+from .profiles import (
+    HEADER_TYPES,
+    ZONE_PACKET_DTYPE,
+    ZONE_PACKET_SIZE,
+    ZONE_STATE_FIELDS,
+    read_bits,
+)
 
 #: The zone-state fields, reserved bits left out.
 ZONE_FIELD_NAMES = tuple(f.name for f in ZONE_STATE_FIELDS if not f.reserved)

@@ -232,7 +232,7 @@ def test_ouster_scatter_refuses_pixels_wider_than_its_scratch(name):
     profile = PROFILES[name]
     h, c, w = 4, 16, 32
     payload = np.zeros((1, profile.packet_dtype(h, c).itemsize), np.uint8)
-    outputs, targets = new_fields(profile, h, w)
+    _, targets = new_fields(profile, h, w)
     with pytest.raises(ValueError):
         NATIVE.ouster_scatter(payload, *packet_layout(profile, h, c), h, np.arange(c, dtype=np.int64)[None],
                               scatter_steps(profile), targets)
