@@ -18,7 +18,7 @@ from lidarpkt.ouster.imu import imu_samples
 from lidarpkt.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER, read_bits
 from lidarpkt.ouster.zone import decode_zone_packets
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 
 SDK = "ouster-sdk/"
 SHOT = (SDK + "shot_limiting_test.pcap", [SDK + "shot_limiting_test.json"])
