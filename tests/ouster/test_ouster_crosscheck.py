@@ -85,7 +85,7 @@ def test_frames_identical_to_ouster_sdk(pcap, meta):
             assert differ == 0, f"{name} float32 XYZ: {differ} coordinates differ from XYZLutFloat"
 
 
-@pytest.mark.parametrize("meta", sorted({j for _, jsons, _ in CAPTURES for j in jsons}))
+@pytest.mark.parametrize("meta", sorted({j for _, jsons, _ in CAPTURES for j in jsons} | {"ouster-sdk/imu_zm_no_lidar_0.json"}))
 def test_metadata_matches_ouster_sdk(meta):
     core = pytest.importorskip("ouster.sdk.core")
     md: OusterMetadata = load_metadata(external(meta))
@@ -93,7 +93,8 @@ def test_metadata_matches_ouster_sdk(meta):
         warnings.simplefilter("ignore")
         info = core.SensorInfo(external(meta).read_text())
     fmt = info.format
-    assert md.profile.name == str(fmt.udp_profile_lidar).split(".")[-1]
+    # udp_port_lidar 0 turns the lidar stream off: ouster-sdk says profile OFF, lidarpkt keeps the layout and says so
+    assert (md.profile.name if md.lidar_enabled else "OFF") == str(fmt.udp_profile_lidar).split(".")[-1]
     assert md.pixels_per_column == fmt.pixels_per_column
     assert md.columns_per_packet == fmt.columns_per_packet
     assert md.columns_per_frame == fmt.columns_per_frame
@@ -107,7 +108,18 @@ def test_metadata_matches_ouster_sdk(meta):
     assert md.lidar_origin_to_beam_origin_mm == info.lidar_origin_to_beam_origin_mm
     assert md.init_id == info.init_id
     assert (md.serial or "0") == str(info.sn or 0)
-    assert md.packet_size == core.PacketFormat(info).lidar_packet_size
+    pf = core.PacketFormat(info)
+    assert md.packet_size == pf.lidar_packet_size or not md.lidar_enabled
+    # firmware 3.x: header type, IMU profile and its packet size, zone packets, return order
+    assert md.header_type == (None if md.profile.legacy else str(fmt.header_type).split(".")[-1])
+    assert md.imu_profile == str(fmt.udp_profile_imu).split(".")[-1]
+    if md.imu_profile != "LEGACY":
+        assert md.imu_measurements_per_packet == fmt.imu_measurements_per_packet
+    assert md.imu_packet_size == pf.imu_packet_size
+    if not md.profile.legacy:
+        assert md.zone_packet_size == pf.zone_packet_size
+    if info.config.return_order is not None:
+        assert md.return_order == str(info.config.return_order).split(".")[-1]
 
 
 @pytest.mark.parametrize("pcap,jsons", [(p, j) for p, j, _ in CAPTURES if "empty" not in p], ids=lambda x: str(x).split("/")[-1])
