@@ -423,3 +423,63 @@ def test_decode_writes_one_imu_message_per_sample(tmp_path, pcap, meta, samples)
     if "imu_zm" in pcap:
         (z,) = zones
         assert len(z["zones"]) == 16 and sum(x["live"] for x in z["zones"]) == 4
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("header_type", "WIDE", "header_type 'WIDE'"),
+    ("return_order", "LOUDEST_FIRST", "return_order 'LOUDEST_FIRST'"),
+    ("azimuth_window", [0, 400000], "azimuth_window"),
+    ("udp_port_zm", 70000, "udp_port_zm"),
+])
+def test_bad_fw3_metadata_fields_are_named(key, value, match):
+    from lidarpkt.errors import MetadataError
+
+    doc = json.loads(external(SHOT[1][0]).read_text())
+    doc["config_params"][key] = value
+    if key == "header_type":
+        doc["lidar_data_format"][key] = value
+    with pytest.raises(MetadataError, match=match):
+        load_metadata(doc)
+
+
+def test_an_unknown_imu_profile_keeps_the_lidar_data(tmp_path):
+    import lidarpkt
+
+    doc = json.loads(external(SHOT[1][0]).read_text())
+    doc["lidar_data_format"]["udp_profile_imu"] = doc["config_params"]["udp_profile_imu"] = "ACCEL64_GYRO64"
+    md = load_metadata(doc)
+    assert md.imu_packet_size is None
+    (tmp_path / "m.json").write_text(json.dumps(doc))
+    frames = list(lidarpkt.open(external(SHOT[0]), metadata=str(tmp_path / "m.json"), include_partial=True))
+    assert len(frames) == 1 and frames[0].column_valid.sum() == 16
+
+
+def test_wrong_sizes_and_junk_give_clear_errors_or_counts():
+    from hypothesis import given, settings, strategies as st
+
+    from lidarpkt.errors import PacketFormatError
+    from lidarpkt.ouster.imu import decode_imu_nmea
+
+    md = load_metadata(external(IMU_ZM[1]))
+    with pytest.raises(PacketFormatError, match="452 bytes"):
+        decode_imu_nmea(np.zeros((2, 451), np.uint8), 8)
+    with pytest.raises(PacketFormatError, match="680 bytes"):
+        decode_zone_packets(np.zeros((1, 600), np.uint8))
+    dec = OusterDecoder(md)
+    dec.push_imu(PacketBatch.from_payloads(np.zeros((3, 451), np.uint8)))
+    dec.push_zone(PacketBatch.from_payloads(np.zeros((2, 679), np.uint8)))
+    assert dec.stats.size_mismatch == 5 and len(dec.imu_samples()) == 0 and dec.zone_states() == []
+
+    @settings(max_examples=40, deadline=None)
+    @given(st.binary(min_size=452, max_size=452), st.binary(min_size=680, max_size=680))
+    def junk(imu: bytes, zone: bytes):
+        s = imu_samples(np.frombuffer(imu, np.uint8), md)  # NaN or huge floats are values, not errors
+        measurements = np.frombuffer(imu, np.uint8)[132:420].reshape(8, 36)  # after header and NMEA block
+        assert len(s) == int((measurements[:, 10] & 1).sum())  # status bit 0: valid
+        z = decode_zone_packets(zone)
+        assert z.zones["min_range_mm"].max() < 1 << 19
+
+    junk()
