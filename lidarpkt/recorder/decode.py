@@ -187,6 +187,7 @@ def _to_mcap(args, out: Path) -> int:
     progress = cliargs.Progress(args.quiet, total=total * (2 if "packets" in groups and groups - {"packets"} else 1),
                                 desc="decode")
     frames_written = 0
+    decoded_messages = 0  # IMU samples and zone states written beside the packets
     done_before = 0
     described: set[tuple] = set()
     times = {path: capture_times(path, md) for path in args.inputs}
@@ -209,8 +210,9 @@ def _to_mcap(args, out: Path) -> int:
                     b = getattr(reader.stats, "bytes_read", None)
                     progress.update(None if b is None else done_before + b, f"{frames_written} frames")
                 sink.finish()
+                decoded_messages += sink.decoded_messages
                 done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-        packet_messages = writer.messages_written
+        packet_messages = writer.messages_written - decoded_messages
         if groups & {"points", "images"}:
             for path in args.inputs:
                 frame_writer.set_capture_times(*times[path])
@@ -230,8 +232,9 @@ def _to_mcap(args, out: Path) -> int:
     frame_writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
-        frame_messages = writer.messages_written - packet_messages
-        print(f"lidarpkt decode: {packet_messages} packet messages and {frame_messages} frame messages "
+        frame_messages = writer.messages_written - packet_messages - decoded_messages
+        imu = f", {decoded_messages} IMU/zone messages" if decoded_messages else ""
+        print(f"lidarpkt decode: {packet_messages} packet messages{imu} and {frame_messages} frame messages "
               f"({frames_written} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 

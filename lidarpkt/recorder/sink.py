@@ -80,6 +80,7 @@ class PacketSink:
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
+        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written
         for md in self._ouster_mds:
             self._write_ouster_metadata(md, log_time_ns or 0)
 
@@ -185,6 +186,7 @@ class PacketSink:
             times = host[samples.extra["packet_index"]].tolist()
             for t, data in zip(times, schemas.encode_imu_samples(samples, "os_imu")):
                 self.writer.write(schemas.OUSTER_IMU_SAMPLES, data, t)
+            self.decoded_messages += len(samples)
         elif match[0] == "zone":
             from lidarpkt.ouster.zone import decode_zone_packets
 
@@ -193,6 +195,7 @@ class PacketSink:
             for t, record in zip(host.tolist(), states.records()):
                 self.writer.write(schemas.OUSTER_ZONE_STATES,
                                   schemas.encode(schemas.STRING, string_t(data=json.dumps(record))), t)
+            self.decoded_messages += len(states)
 
     def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
         if key not in self._described:
