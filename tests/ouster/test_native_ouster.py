@@ -19,10 +19,10 @@ from lidarpkt.ouster.decode import packet_view, read_pixel_field
 from lidarpkt.ouster.fieldplan import SLOT_FIELDS, extract, new_fields, packet_layout, scatter_steps
 from lidarpkt.ouster.frames import _NATIVE_PIXEL_BYTES, OusterDecoder
 from lidarpkt.ouster.profiles import PROFILES
+from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
 
 # the kernel's widest pixel is 16 bytes; the 20-byte profiles (FIVE_WORD_PIXEL, RGB16 dual) take the NumPy twin
 NATIVE_PROFILES = sorted(n for n, p in PROFILES.items() if p.pixel_bytes <= _NATIVE_PIXEL_BYTES)
-from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
 
 NATIVE = kernels.native
 pytestmark = pytest.mark.skipif(NATIVE is None, reason="the C extension is not built (python setup.py build_ext --inplace) or LIDARPKT_NATIVE=0")
