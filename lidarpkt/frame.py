@@ -50,6 +50,8 @@ class SensorInfo:
             rotation rate the grid every part of lidarpkt uses by default.
         geometry: computes XYZ for frames of this sensor; ``None`` if no calibration.
         serial, firmware, profile, product_id, init_id: as the sensor reports them, ``None`` if unknown.
+        return_order: Ouster ``return_order`` (``STRONGEST_TO_WEAKEST``, ``FARTHEST_TO_NEAREST``,
+            ``NEAREST_TO_FARTHEST``): what orders the return slots; ``None`` otherwise.
         pixel_shift_by_row: ``int[H]`` Ouster stagger shifts (destaggering), ``None`` otherwise.
         source: where the packets came from (``"192.168.1.201:2368"``), for reports.
         metadata: the raw metadata document (Ouster JSON as a dict), empty if none.
@@ -74,6 +76,7 @@ class SensorInfo:
     pixel_shift_by_row: np.ndarray | None = None
     source: str | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    return_order: str | None = None
 
     def describe(self) -> dict[str, Any]:
         """A JSON-ready summary (for ``info`` and MCAP metadata records)."""

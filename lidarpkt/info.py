@@ -239,6 +239,15 @@ def _summary(stream: dict) -> str:
             bits.append(f"frame ids {d['frame_id'][0]}–{d['frame_id'][1]}")
         if d.get("crc") and d["crc"] != "absent":
             bits.append(f"CRC {d['crc']}")
+        if d.get("header_type") == "FUSA":
+            bits.append("FUSA header")
+        for key, what in (("shot_limiting_packets", "shot limiting"), ("thermal_shutdown_packets", "thermal shutdown")):
+            if d.get(key):  # firmware 3.x packet-header status: worth a warning to the user
+                bits.append(f"{what} reported in {d[key]} packets")
+    if kind == "Ouster IMU" and d.get("imu_profile"):
+        bits.append(f"{d['imu_profile']}, {d.get('samples', 0)} samples")
+    if kind == "Ouster zone monitoring":
+        bits.append(f"{d.get('zones_live', 0)} live zones, {d.get('zones_triggered', 0)} triggered")
     if d.get("note"):
         bits.append(d["note"])
     if kind == "Ouster lidar" and d.get("profile_source") == "guess":  # what decode & co will ask for

@@ -71,6 +71,7 @@ class SourceStats:
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
     hesai_data_packets: int = 0
+    ouster_zone_packets: int = 0
     unrouted_packets: int = 0
     unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
     other_sensor_packets: dict[str, int] = field(default_factory=dict)  # "vendor kind" → packets, other vendors

@@ -151,8 +151,9 @@ def _to_mcap(args, out: Path) -> int:
     writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
-        frame_messages = writer.mcap.messages_written - writer.packet_messages
-        print(f"lidarpkt decode: {writer.packet_messages} packet messages and {frame_messages} frame messages "
+        frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
+        imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
+        print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
               f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
