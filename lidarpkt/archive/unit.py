@@ -120,6 +120,8 @@ def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) 
     stem = Path(capture).stem
     if fmt == "parquet":
         return stage
+    if fmt == "pcap":  # the raw packets, not frames: no frame writer (.packets)
+        return stage / f"{stem}.pcap"
     spec = FORMATS.get(fmt)
     if spec is not None and not spec.directory and not options.get("frames_per_file"):
         return stage / f"{stem}.{fmt}"
@@ -182,6 +184,14 @@ def _open_frames(path: str, task: UnitTask, metadata: list[str]) -> Any:
     return lidarpkt.open(path, metadata=metadata or None, **options)
 
 
+def _write_pcap(path: str, target: Path, metadata: list[str]) -> list[Path]:
+    """The capture's raw packets as a pcap (:func:`.packets.write_packets_pcap`); frames are not counted."""
+    from .packets import write_packets_pcap
+
+    write_packets_pcap(path, target, metadata=metadata)
+    return [target]
+
+
 def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
     from .ordinals import renumber_from
 
@@ -235,13 +245,16 @@ def run_unit(task: UnitTask) -> UnitResult:
                 local = _fetch_input(task.input, scratch)
                 target = writer_target(task.format, stage, task.capture, options)
                 metadata = [_fetch_input(m, scratch) for m in task.metadata]
-                reader = _open_frames(local, task, metadata)
-                if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
-                    options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
+                if task.format == "pcap":  # the raw packets back in a pcap
+                    outputs = _publish(_write_pcap(local, target, metadata), stage, task)
                 else:
-                    options = {"capture": task.capture, **options}
-                writer = open_writer(task.format, target, part=task.part, **options)
-                _write_frames(writer, reader, counts, task)
+                    reader = _open_frames(local, task, metadata)
+                    if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
+                        options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
+                    else:
+                        options = {"capture": task.capture, **options}
+                    writer = open_writer(task.format, target, part=task.part, **options)
+                    _write_frames(writer, reader, counts, task)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)
                 counts.frames = 0

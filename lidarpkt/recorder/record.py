@@ -16,7 +16,6 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 from lidarpkt.errors import LidarpktError, RecorderError
 
@@ -86,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .decode import add_frame_arguments
 
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
-    cliargs.add_json(parser, "also write the summary as JSON")
+    cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
     cliargs.add_quiet(parser, "no status line and no summary")
 
 
@@ -95,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
     cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
-    cliargs.check_json_output(args.json)
+    cliargs.check_json(args)
     if args.gps:
         cliargs.check_inputs([args.gps], "--gps")
     sensors = None
@@ -224,10 +223,9 @@ def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, s
         summary.update(frames.summary())
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
-    if args.json == "-":
-        print(json.dumps(summary, indent=2))
-    elif args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=2))
+    from lidarpkt import cliargs
+
+    cliargs.emit_json(args, json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
 
 
