@@ -241,22 +241,25 @@ class Frame:
             UsageError: ``dtype`` is neither float64 nor float32.
         """
         xyz = self.xyz(dtype)
-        mask = self.has_return()
-        slot, row, col = np.nonzero(mask)
-        out = np.empty(slot.size, points_dtype(self, xyz.dtype))
-        sel = xyz[mask]
+        r, h, w = self.shape
+        # flat indices once, then takes: cheaper than a boolean mask per array
+        flat = np.flatnonzero(self.has_return())
+        pixel = flat % (h * w)  # index into [H, W]
+        slot, col = flat // (h * w), flat % w
+        out = np.empty(flat.size, points_dtype(self, xyz.dtype))
+        sel = xyz.reshape(-1, 3)[flat]
         out["x"], out["y"], out["z"] = sel[:, 0], sel[:, 1], sel[:, 2]
-        out["range_mm"] = self.range_mm[mask]
-        out["reflectivity"] = self.reflectivity[mask]
-        out["row"], out["column"], out["return_slot"] = row, col, slot
+        out["range_mm"] = self.range_mm.reshape(-1)[flat]
+        out["reflectivity"] = self.reflectivity.reshape(-1)[flat]
+        out["row"], out["column"], out["return_slot"] = pixel // w, col, slot
         t = self.column_timestamp_ns[col]
         if self.pixel_time_offset_ns is not None:
-            t = t + self.pixel_time_offset_ns[row, col]
+            t = t + self.pixel_time_offset_ns.reshape(-1)[pixel]
         out["timestamp_ns"] = t
         if self.signal is not None:
-            out["signal"] = self.signal[mask]
+            out["signal"] = self.signal.reshape(-1)[flat]
         if self.near_ir is not None:
-            out["near_ir"] = self.near_ir[row, col]
+            out["near_ir"] = self.near_ir.reshape(-1)[pixel]
         return out
 
     def on_grid(self, resolution_deg: float | None = None) -> "Frame":
