@@ -305,8 +305,12 @@ def test_directory_of_captures(tmp_path):
     docs = json.loads(res.stdout)["captures"]
     pcaps = sorted(str(p) for p in root.glob("*/*.pcap"))
     assert sorted(d["file"] for d in docs if d["format"] == "pcap") == pcaps
-    assert [d["format"] for d in docs if d["format"] != "pcap"] == ["rosbag2"]  # the nebula bag folder
+    # every rosbag2 folder (old writers' metadata with empty fields included) and every ROS 1 bag, each read
+    bags = {str(p.parent) for p in root.rglob("metadata.yaml")} | {str(p) for p in root.rglob("*.bag")}
+    assert bags and {d["file"] for d in docs if d["format"] in ("rosbag2", "rosbag1")} == bags
     assert all("error" not in d for d in docs)
+    vls128 = [d for d in docs if "vls128" in d["file"]]
+    assert len(vls128) == 1 and sum(s["packets"] for s in vls128[0]["streams"]) == 2193  # an empty serialization format
     empty = tmp_path / "empty"
     empty.mkdir()
     res = _cli(str(empty))
