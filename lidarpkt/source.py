@@ -27,9 +27,10 @@ from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
+    from .ouster.osf import OsfReader
     from .parallel import ParallelFrameReader
 
-from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
+from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
 from .sources.protocol import PacketSource, open_packet_source
 
@@ -291,15 +292,17 @@ class FrameReader(FrameIterator):
 
 
 @with_options
-def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | ParallelFrameReader":
+def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | ParallelFrameReader | OsfReader":
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
-    ``close()`` (or ``with``) stops reading early.
+    ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
+    frames) gives a :class:`~lidarpkt.ouster.osf.OsfReader` of its stored frames (see
+    :func:`~lidarpkt.ouster.osf.open_osf` for the options it takes).
 
     Args:
-        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
+        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
         {options}
 
     Raises:
@@ -310,6 +313,10 @@ def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | 
         UsageError: ``workers`` is not a whole number >= 1.
     """
     opts = OpenOptions.from_keywords("open_frames", options)
+    if is_osf(path):  # ouster-sdk's frame files: frames, not packets
+        from .ouster.osf import open_osf
+
+        return open_osf(path, opts)
     if opts.workers != 1:
         from .parallel import open_parallel
 

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
+from lidarpkt.sources.magic import is_osf
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
@@ -41,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt import cliargs
     from lidarpkt.writers import SUFFIXES
 
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics")
+    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
     cliargs.add_output(parser, SUFFIXES,
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
@@ -106,6 +107,10 @@ def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], 
 
     offsets: dict[str, int] = {}
     start = end = None
+    if is_osf(path):  # frames, no packets: the span the frames were received in
+        from lidarpkt.ouster.osf import receive_span
+
+        return offsets, *receive_span(path)
     reader = _packet_reader(path)
     for k, batch in enumerate(reader.batches()):
         if len(batch) == 0:
@@ -203,6 +208,8 @@ def _to_mcap(args, out: Path) -> int:
             from .replay import embedded_metadata
 
             for path in args.inputs:
+                if is_osf(path):  # an OSF file holds frames, no packets
+                    continue
                 sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path), log_time_ns=times[path][1])
                 reader = _packet_reader(path)
                 for batch in reader.batches():

@@ -494,16 +494,44 @@ class OsfFile:
                 raise CaptureFormatError(f"{self.path}: damaged OSF file ({type(exc).__name__}: {exc})") from None
             yield frame
 
+    @property
+    def version_text(self) -> str:
+        """The OSF version as ``"major.minor.patch"``."""
+        if self.version < (1 << 16):  # the old enum: V_2_0 = 20, V_2_1 = 21
+            return f"2.{self.version - OSF_VERSION_2_0}.0"
+        return f"{self.version >> 48 & 0xFFFF}.{self.version >> 32 & 0xFFFF}.{self.version >> 16 & 0xFFFF}"
+
     def describe(self) -> dict[str, Any]:
-        """A JSON-ready summary for ``lidarpkt info``: version, sensors, frames each stream declares."""
-        major, minor, patch = (2, 0, 0) if self.version == OSF_VERSION_2_0 else (
-            self.version >> 48 & 0xFFFF, self.version >> 32 & 0xFFFF, self.version >> 16 & 0xFFFF)
-        return {
-            "osf_version": f"{major}.{minor}.{patch}",
-            "sensors": [{"model": s.sensor.model, "serial": s.sensor.serial, "firmware": s.sensor.firmware,
-                         "profile": s.sensor.profile, "columns_per_frame": s.sensor.columns_per_frame,
-                         "rows": s.sensor.rows, "chunks": len(s.chunk_offsets)} for s in self.streams],
-        }
+        """A JSON-ready summary (``lidarpkt info``), read from the chunks without decoding a field: the OSF
+        version and, per sensor, what it is and its frames (count, frame ids, receive times, ns).
+
+        Raises:
+            CaptureFormatError: a chunk or frame message is damaged.
+        """
+        sensors = []
+        try:
+            for stream in self.streams:
+                ids, times, partial = [], [], 0
+                window = stream.metadata.window_mask
+                for ts, _, buf in self._messages(stream):
+                    msg = _root(buf, "LidarScanMsg")
+                    ids.append(int(msg.frame_id))
+                    times.append(ts)
+                    status = msg.header_status
+                    partial += status is None or status.size != window.size or not (status[window] & 1).all()
+                s = stream.sensor
+                sensors.append({
+                    "source": s.source, "model": s.model, "serial": s.serial, "firmware": s.firmware,
+                    "profile": s.profile, "columns_per_frame": s.columns_per_frame, "rows": s.rows,
+                    "frames": len(ids), "partial_frames": int(partial),
+                    "frame_ids": [min(ids), max(ids)] if ids else None,
+                    "first_timestamp_ns": min(times) if times else None,
+                    "last_timestamp_ns": max(times) if times else None})
+        except _Damaged as exc:
+            raise CaptureFormatError(f"{self.path}: damaged OSF file: {exc}") from None
+        except (struct.error, ValueError, IndexError, OverflowError) as exc:
+            raise CaptureFormatError(f"{self.path}: damaged OSF file ({type(exc).__name__}: {exc})") from None
+        return {"osf_version": self.version_text, "sensors": sensors}
 
 
 def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
@@ -535,9 +563,9 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
         if values is not None and values.size not in (0, n_packets):
             raise _Damaged(f"{name} of a frame has {values.size} values, not one per packet ({n_packets})")
         extra[key] = values.astype(dtype) if values is not None and values.size else np.zeros(n_packets, dtype)
-    extra["frame_status"] = np.uint64(msg.frame_status)
-    extra["countdown_thermal_shutdown"] = np.uint8(msg.shutdown_countdown)
-    extra["countdown_shot_limiting"] = np.uint8(msg.shot_limiting_countdown)
+    extra["frame_status"] = np.array(msg.frame_status, np.uint64)
+    extra["countdown_thermal_shutdown"] = np.array(msg.shutdown_countdown, np.uint8)
+    extra["countdown_shot_limiting"] = np.array(msg.shot_limiting_countdown, np.uint8)
     pose = msg.pose
     if pose is not None and pose.size:
         if pose.size != 16 * w:
@@ -556,7 +584,10 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
             if name is None or dtype is None or dtype.kind not in "ui":
                 raise _Damaged(f"a frame stores the channel {chan} of type {tag}, which ouster-sdk does not define")
             data = channel.buffer
-            fields[name] = _decode_image(data if data is not None else b"", (h, w), dtype, md.pixel_shift_by_row)
+            try:
+                fields[name] = _decode_image(data if data is not None else b"", (h, w), dtype, md.pixel_shift_by_row)
+            except _Damaged as exc:
+                raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
     for field in msg.custom_fields or []:
         name = field.name
         dtype = FIELD_TYPES.get(field.tag)
@@ -577,40 +608,40 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
         elif int(np.prod(shape)) == 0:
             fields[name] = np.zeros(shape, dtype)
         else:
-            fields[name] = _decode_image(data, shape, dtype, None)
+            try:
+                fields[name] = _decode_image(data, shape, dtype, None)
+            except _Damaged as exc:
+                raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
 
-    frame_kw: dict[str, Any] = {}
+    # the standard channels become the frame's attributes, in the types frames decoded from packets have
+    # (an older ouster-sdk stored REFLECTIVITY of RNG15_RFL8_NIR8 as uint16): a value that does not fit keeps
+    # the type it was stored in
+    planes: dict[str, dict[Any, np.ndarray]] = {}
     for name, (attr, slot) in _FRAME_ATTRS.items():
-        if name not in fields:
-            continue
-        values = fields.pop(name)
-        target = _ATTR_DTYPES[attr]
-        if values.dtype != target and np.can_cast(values.dtype, target) is False:
-            if values.size and int(values.max()) > np.iinfo(target).max:
-                target = values.dtype  # values beyond the usual type: kept as stored
-        values = values.astype(target, copy=False)
-        if slot is None:
-            frame_kw[attr] = values
-        else:
-            frame_kw.setdefault(attr, {})[slot] = values
-    returns = 2 if any(isinstance(v, dict) and 1 in v for v in frame_kw.values()) else 1
+        if name in fields:
+            values = fields.pop(name)
+            target = np.dtype(_ATTR_DTYPES[attr])
+            fits = values.dtype.kind == "u" and (values.size == 0 or int(values.max()) <= np.iinfo(target).max)
+            planes.setdefault(attr, {})[slot] = values.astype(target, copy=False) if fits else values
+    returns = 2 if any(1 in slots for slots in planes.values()) else 1
+    frame_kw: dict[str, Any] = {"near_ir": planes.get("near_ir", {}).get(None)}
     for attr in ("range_mm", "reflectivity", "signal", "flags"):
-        slots = frame_kw.get(attr)
-        if slots is None:
+        slots = planes.get(attr)
+        if slots is None:  # absent: zeros for the two a frame always has (no return), else None
             frame_kw[attr] = np.zeros((returns, h, w), _ATTR_DTYPES[attr]) if attr in ("range_mm", "reflectivity") else None
             continue
         dtype = np.result_type(*slots.values())
-        frame_kw[attr] = np.stack([slots.get(r, np.zeros((h, w), dtype)) for r in range(returns)]).astype(dtype, copy=False)
+        frame_kw[attr] = np.stack([slots[r].astype(dtype, copy=False) if r in slots else np.zeros((h, w), dtype)
+                                   for r in range(returns)])
     for name, values in fields.items():
         extra[name.lower()] = values
     valid = (status & 1).astype(bool)
-    labels = md.profile.return_labels
-    if len(labels) != returns:
-        labels = ("strongest", "second_strongest")[:returns] if returns == 2 or not labels else labels[:1]
+    labels = tuple(stream.sensor.return_labels[:returns])
+    labels += tuple(f"return_{r + 1}" for r in range(len(labels), returns))
     return Frame(
         sensor=stream.sensor,
         frame_id=int(msg.frame_id),
-        return_labels=tuple(labels),
+        return_labels=labels,
         column_valid=valid,
         column_timestamp_ns=timestamp.astype(np.int64),
         azimuth_deg=np.mod(360.0 * (1.0 - np.arange(w) / w), 360.0),
@@ -660,6 +691,53 @@ class OsfReader(FrameIterator):
     def close(self) -> None:
         self._iter.close()
         self.file.close()
+
+
+_PACKET_OPTIONS = ("ports", "src_addresses", "payload_sizes", "topics", "batch_packets", "source")
+
+
+def open_osf(path: str | os.PathLike[str], options: Any) -> Any:
+    """``lidarpkt.open`` of an OSF file, given its :class:`~lidarpkt.options.OpenOptions`: an :class:`OsfReader`
+    (``workers`` ≥ 2: decoded in a thread ahead of the caller, :class:`~lidarpkt.parallel.PipelinedFrameReader`).
+
+    The file carries its sensors' metadata: ``metadata`` is not used, nor are the options of packet decoding
+    (``calibration``, ``verify_crc``...); ``include_partial`` applies.
+
+    Raises:
+        UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): an OSF holds no packets.
+        UnsupportedContainerError: a ``segment`` of a file cut in several: an OSF file is read whole.
+        UsageError: ``workers`` is not a whole number >= 1.
+        CaptureFormatError: see :class:`OsfFile`.
+    """
+    from ..errors import UnsupportedContainerError, UnsupportedFilterError, UsageError
+
+    given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
+    if given:
+        raise UnsupportedFilterError(f"{path}: {', '.join(n + '=' for n in given)} cannot filter an OSF file: it holds "
+                                     "decoded frames, not packets")
+    if options.segment is not None and options.segment.count != 1:
+        raise UnsupportedContainerError(f"{path}: an OSF file is read whole (one segment)")
+    workers = options.workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    reader = OsfReader(path, include_partial=options.include_partial)
+    if workers == 1:
+        return reader
+    from ..parallel import PipelinedFrameReader
+
+    return PipelinedFrameReader(reader)
+
+
+def receive_span(path: str | os.PathLike[str]) -> tuple[int | None, int | None]:
+    """First and last receive time (ns) of the frames of an OSF file; ``(None, None)`` when it has none."""
+    f = OsfFile(path)
+    try:
+        sensors = f.describe()["sensors"]
+    finally:
+        f.close()
+    firsts = [s["first_timestamp_ns"] for s in sensors if s["first_timestamp_ns"] is not None]
+    lasts = [s["last_timestamp_ns"] for s in sensors if s["last_timestamp_ns"] is not None]
+    return (min(firsts), max(lasts)) if firsts else (None, None)
 
 
 def sensor_metadata_json(path: str | os.PathLike[str]) -> list[dict]:
