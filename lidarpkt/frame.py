@@ -335,22 +335,24 @@ def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """``[..., H, W]`` staggered (Ouster: columns = measurement ids) → destaggered, where adjacent
     columns are adjacent azimuths: ``destaggered[u, (c + shift[u]) % W] = staggered[u, c]``, as
     ouster-sdk does it. ``shift``: ``int[H]`` (``SensorInfo.pixel_shift_by_row``)."""
-    shift = np.asarray(shift)
-    if not np.any(shift):
-        return image
-    w = image.shape[-1]
-    src = (np.arange(w)[None, :] - shift[:, None]) % w  # [H, W]
-    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
+    return _roll_rows(image, np.asarray(shift))
 
 
 def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
     """Inverse of :func:`destagger`."""
-    shift = np.asarray(shift)
+    return _roll_rows(image, -np.asarray(shift))
+
+
+def _roll_rows(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``out[..., u, (c + shift[u]) % W] = image[..., u, c]``: one roll per distinct shift (a sensor has a few), not
+    a gather of every pixel (4x slower on an OS-128 image)."""
     if not np.any(shift):
         return image
-    w = image.shape[-1]
-    src = (np.arange(w)[None, :] + shift[:, None]) % w
-    return np.take_along_axis(image, np.broadcast_to(src, image.shape), axis=-1)
+    out = np.empty_like(image)
+    for s in np.unique(shift).tolist():
+        rows = np.flatnonzero(shift == s)
+        out[..., rows, :] = np.roll(image[..., rows, :], s, axis=-1)
+    return out
 
 
 class FrameIterator:

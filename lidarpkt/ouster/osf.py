@@ -267,21 +267,19 @@ def _png_inflate_unfilter(data: bytes, rows: int, stride: int, bpp: int) -> np.n
             out[r + 1] = np.cumsum(line.reshape(-1, bpp), axis=0, dtype=np.uint8).ravel()
         elif kind == 2:
             out[r + 1] = line + above
-        elif kind in (3, 4):  # Average, Paeth: each pixel needs its left neighbour's result
-            cur = out[r + 1]
-            left = np.zeros(bpp, np.int16)
-            up_left = np.zeros(bpp, np.int16)
-            for x in range(0, stride, bpp):
-                up = above[x : x + bpp].astype(np.int16)
+        elif kind in (3, 4):  # Average, Paeth: each byte needs its left neighbour's result (Python ints: no
+            # NumPy call per pixel; only 16-bit RGBA images, Pillow decodes the others)
+            up, cur, filt = above.tolist(), [0] * stride, line.tolist()
+            for x in range(stride):
+                a = cur[x - bpp] if x >= bpp else 0
+                b = up[x]
                 if kind == 3:
-                    pred = (left + up) >> 1
-                else:
-                    p = left + up - up_left
-                    pa, pb, pc = np.abs(p - left), np.abs(p - up), np.abs(p - up_left)
-                    pred = np.where((pa <= pb) & (pa <= pc), left, np.where(pb <= pc, up, up_left))
-                left = (line[x : x + bpp].astype(np.int16) + pred) & 0xFF
-                cur[x : x + bpp] = left
-                up_left = up
+                    cur[x] = (filt[x] + ((a + b) >> 1)) & 0xFF
+                    continue
+                c = up[x - bpp] if x >= bpp else 0
+                pa, pb, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
+                cur[x] = (filt[x] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 0xFF
+            out[r + 1] = cur
         else:
             raise _Damaged(f"a PNG field image has the unknown filter type {kind}")
     return out[1:]

@@ -192,7 +192,7 @@ def test_info_on_osf():
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "CRC-32" in bad.stderr
 
 
-def test_decode_and_export_osf(tmp_path):
+def test_decode_osf(tmp_path):
     path = external("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.osf")
     frames = list(lidarpkt.open(path))
     assert run_cli("decode", path, "-o", tmp_path / "f.npz", "-q").returncode == 0
@@ -209,6 +209,11 @@ def test_decode_and_export_osf(tmp_path):
     with open(tmp_path / "f.mcap", "rb") as fh:
         topics = [ch.topic for _, ch, _ in make_reader(fh).iter_messages()]
     assert topics.count("/ouster/points") == 3
+
+
+def test_export_osf(tmp_path):
+    path = external("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.osf")
+    frames = list(lidarpkt.open(path))
     pq = pytest.importorskip("pyarrow.parquet")
     proc = run_cli("export", path, "-o", tmp_path / "pq", "--format", "parquet", "--workers", "1", "-q")
     assert proc.returncode == 0, proc.stderr
