@@ -27,8 +27,11 @@ from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
+    from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
+
+    from .options import OpenKeywords
     from .ouster.osf import OsfReader
-    from .parallel import ParallelFrameReader
+    from .parallel import ParallelFrameReader, PipelinedFrameReader
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
@@ -292,7 +295,8 @@ class FrameReader(FrameIterator):
 
 
 @with_options
-def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | ParallelFrameReader | OsfReader":
+def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
+                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader | OsfReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
@@ -312,7 +316,7 @@ def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | 
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
         UsageError: ``workers`` is not a whole number >= 1.
     """
-    opts = OpenOptions.from_keywords("open_frames", options)
+    opts = OpenOptions.from_keywords("open_frames", dict(options))
     if is_osf(path):  # ouster-sdk's frame files: frames, not packets
         from .ouster.osf import open_osf
 

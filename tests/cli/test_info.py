@@ -11,7 +11,7 @@ import pytest
 
 from lidarpkt.info import describe_capture, format_capture
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcapwrite import frames_for, write_pcap_records
+from lidarpkt.writers.pcap import frames_for, write_pcap_records
 from conftest import external
 
 
@@ -194,8 +194,8 @@ def test_damaged_capture_is_reported(tmp_path):
 def test_generated_pcapng_dual_mode_and_gps_locked(tmp_path):
     """Packets patched by hand after the VLP-16 manual's layout (return mode byte 1204, product 1205;
     position: µs timestamp at 198, PPS status at 202, NMEA from 206), in a VLAN-tagged ns pcapng."""
-    from lidarpkt.pcap import read_packets
-    from lidarpkt.pcapwrite import Interface, write_pcapng
+    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.writers.pcap import Interface, write_pcapng
 
     data = [p for p in read_packets(external("rust-lidar-utils/velodyne_example.pcap"))][:20]
     dual = []

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.bags import BagReader
+from lidarpkt.sources.bags import BagReader
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
@@ -146,7 +146,7 @@ def test_ros1_bag_written_by_rosbags(tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-    from lidarpkt.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
 
     store = get_typestore(Stores.ROS1_NOETIC)
     types = {}
