@@ -45,7 +45,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Generator, Iterator
 
 import numpy as np
 
@@ -556,11 +556,11 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
     status = per_column("header_status", np.uint32)
     n_packets = max(1, w // max(1, md.columns_per_packet))
     extra: dict[str, np.ndarray] = {}
-    for name, key, dtype in (("packet_timestamp", "packet_timestamp_ns", np.uint64), ("alert_flags", "alert_flags", np.uint8)):
-        values = getattr(msg, name)
+    for stored, key, kind in (("packet_timestamp", "packet_timestamp_ns", np.uint64), ("alert_flags", "alert_flags", np.uint8)):
+        values = getattr(msg, stored)
         if values is not None and values.size not in (0, n_packets):
-            raise _Damaged(f"{name} of a frame has {values.size} values, not one per packet ({n_packets})")
-        extra[key] = values.astype(dtype) if values is not None and values.size else np.zeros(n_packets, dtype)
+            raise _Damaged(f"{stored} of a frame has {values.size} values, not one per packet ({n_packets})")
+        extra[key] = values.astype(kind) if values is not None and values.size else np.zeros(n_packets, kind)
     extra["frame_status"] = np.array(msg.frame_status, np.uint64)
     extra["countdown_thermal_shutdown"] = np.array(msg.shutdown_countdown, np.uint8)
     extra["countdown_shot_limiting"] = np.array(msg.shot_limiting_countdown, np.uint8)
@@ -570,46 +570,7 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
             raise _Damaged(f"the pose of a frame has {pose.size} values, not 16 per column ({16 * w})")
         extra["pose"] = np.ascontiguousarray(pose.reshape(w, 4, 4).transpose(1, 2, 0))
 
-    fields: dict[str, np.ndarray] = {}
-    types = msg.field_types
-    channels = msg.channels
-    if types is not None and types.size:
-        if channels is None or len(channels) < types.size:
-            raise _Damaged(f"a frame lists {types.size} fields but stores {0 if channels is None else len(channels)}")
-        for (chan, tag), channel in zip(types.tolist(), channels):
-            name = CHAN_FIELDS.get(chan)
-            dtype = FIELD_TYPES.get(tag)
-            if name is None or dtype is None or dtype.kind not in "ui":
-                raise _Damaged(f"a frame stores the channel {chan} of type {tag}, which ouster-sdk does not define")
-            data = channel.buffer
-            try:
-                fields[name] = _decode_image(data if data is not None else b"", (h, w), dtype, md.pixel_shift_by_row)
-            except _Damaged as exc:
-                raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
-    for field in msg.custom_fields or []:
-        name = field.name
-        dtype = FIELD_TYPES.get(field.tag)
-        shape_arr = field.shape
-        shape = tuple(int(s) for s in (shape_arr.tolist() if shape_arr is not None else ()))
-        if dtype is None:
-            raise _Damaged(f"the field {name!r} has the unknown type {field.tag}")
-        if not shape or any(s > h * w * _MAX_ELEMENTS_PER_PIXEL for s in shape) or \
-                int(np.prod(shape, dtype=object)) > h * w * _MAX_ELEMENTS_PER_PIXEL:
-            raise _Damaged(f"the field {name!r} has the shape {shape}, beyond what a frame of {h}x{w} holds")
-        data = field.data
-        data = data if data is not None else b""
-        if len(shape) == 1:
-            if len(data) != shape[0] * dtype.itemsize:
-                raise _Damaged(f"the field {name!r} holds {len(data)} B, not the {shape[0] * dtype.itemsize} B of "
-                               f"{shape[0]} {dtype}")
-            fields[name] = np.frombuffer(bytes(data), dtype).copy()
-        elif int(np.prod(shape)) == 0:
-            fields[name] = np.zeros(shape, dtype)
-        else:
-            try:
-                fields[name] = _decode_image(data, shape, dtype, None)
-            except _Damaged as exc:
-                raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
+    fields = {**_channel_fields(msg, md), **_custom_fields(msg, h, w)}
 
     # the standard channels become the frame's attributes, in the types frames decoded from packets have
     # (an older ouster-sdk stored REFLECTIVITY of RNG15_RFL8_NIR8 as uint16): a value that does not fit keeps
@@ -652,6 +613,58 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
     )
 
 
+def _channel_fields(msg: _Table, md: Any) -> dict[str, np.ndarray]:
+    """The standard channels of a frame message (RANGE, SIGNAL... ``[H, W]``), by name."""
+    h, w = md.pixels_per_column, md.columns_per_frame
+    out: dict[str, np.ndarray] = {}
+    types, channels = msg.field_types, msg.channels
+    if types is None or not types.size:
+        return out
+    if channels is None or len(channels) < types.size:
+        raise _Damaged(f"a frame lists {types.size} fields but stores {0 if channels is None else len(channels)}")
+    for (chan, tag), channel in zip(types.tolist(), channels):
+        name = CHAN_FIELDS.get(chan)
+        element = FIELD_TYPES.get(tag)
+        if name is None or element is None or element.kind not in "ui":
+            raise _Damaged(f"a frame stores the channel {chan} of type {tag}, which ouster-sdk does not define")
+        data = channel.buffer
+        try:
+            out[name] = _decode_image(data if data is not None else b"", (h, w), element, md.pixel_shift_by_row)
+        except _Damaged as exc:
+            raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
+    return out
+
+
+def _custom_fields(msg: _Table, h: int, w: int) -> dict[str, np.ndarray]:
+    """The fields of a frame message stored by name (ZONE_MASK, ZONE_STATES...), in their shapes."""
+    out: dict[str, np.ndarray] = {}
+    for field in msg.custom_fields or []:
+        name: str = field.name
+        element = FIELD_TYPES.get(field.tag)
+        stored = field.shape
+        shape = tuple(int(n) for n in (stored.tolist() if stored is not None else ()))
+        if element is None:
+            raise _Damaged(f"the field {name!r} has the unknown type {field.tag}")
+        most = h * w * _MAX_ELEMENTS_PER_PIXEL
+        if not shape or any(n > most for n in shape) or int(np.prod(shape, dtype=object)) > most:
+            raise _Damaged(f"the field {name!r} has the shape {shape}, beyond what a frame of {h}x{w} holds")
+        data = field.data if field.data is not None else b""
+        size = element.itemsize
+        if len(shape) == 1:  # stored raw
+            if len(data) != shape[0] * size:
+                raise _Damaged(f"the field {name!r} holds {len(data)} B, not the {shape[0] * size} B of "
+                               f"{shape[0]} {element}")
+            out[name] = np.frombuffer(bytes(data), element).copy()
+        elif int(np.prod(shape)) == 0:
+            out[name] = np.zeros(shape, element)
+        else:
+            try:
+                out[name] = _decode_image(data, shape, element, None)
+            except _Damaged as exc:
+                raise _Damaged(f"frame {msg.frame_id}, field {name}: {exc}") from None
+    return out
+
+
 class OsfReader(FrameIterator):
     """The frames of an OSF file (``lidarpkt.open("x.osf")``); ``file`` is its :class:`OsfFile`.
 
@@ -672,7 +685,7 @@ class OsfReader(FrameIterator):
         self._include_partial = include_partial
         self._iter = self._frames()
 
-    def _frames(self) -> Iterator[Frame]:
+    def _frames(self) -> Generator[Frame, None, None]:
         try:
             for frame in self.file.frames():
                 if frame.partial and not self._include_partial:
