@@ -23,11 +23,12 @@ sensors' streams), as :class:`~lidarpkt.frame.Frame` s like those decoded from t
 (columns by measurement id): ``range_mm``, ``reflectivity``, ``signal``, ``flags`` (``[R, H, W]``, R = 2
 when the file stores the second return), ``near_ir``; ``column_timestamp_ns``, ``measurement_id``,
 ``status``; ``column_valid`` = status bit 0. Every other field the file stores is in ``frame.extra``
-under its name in lower case (``zone_mask``, ``window``, ``zone_states``...), and so are the frame's
-header values: ``packet_timestamp_ns`` (``uint64[W / columns_per_packet]``), ``alert_flags``,
-``frame_status``, ``countdown_thermal_shutdown``, ``countdown_shot_limiting`` and ``pose``
-(``float64[4, 4, W]``, only when the file stores one). ``partial`` is True when a column of the
-sensor's column window is not valid.
+under its name in lower case (``zone_mask``, ``window``, ``zone_states``...), and so are the packet header
+values, one per column as in frames decoded from packets (the value of the column's packet; the file keeps
+them per packet or per frame): ``alert_flags``, ``thermal_shutdown``, ``shot_limiting``,
+``countdown_thermal_shutdown``, ``countdown_shot_limiting`` (``uint8[W]``) and ``packet_timestamp_ns``
+(``uint64[W]``, the host time the packet was received); and ``pose`` (``float64[4, 4, W]``, only when the
+file stores one). ``partial`` is True when a column of the sensor's column window is not valid.
 
 Damage is refused as ouster-sdk's reader never does silently: a block whose CRC fails, a field that
 does not decode, an offset outside the file are each a :class:`~lidarpkt.errors.CaptureFormatError`
@@ -554,16 +555,22 @@ def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
     if (timestamp >> np.uint64(63)).any():
         raise _Damaged("a column timestamp is beyond 2**63 ns")
     status = per_column("header_status", np.uint32)
-    n_packets = max(1, w // max(1, md.columns_per_packet))
+    # the packet header values the file keeps (one per packet, or per frame) as the frames decoded from
+    # packets hold them: one per column, the value of the column's packet
+    per_packet = max(1, md.columns_per_packet)
+    n_packets = -(-w // per_packet)
     extra: dict[str, np.ndarray] = {}
     for stored, key, kind in (("packet_timestamp", "packet_timestamp_ns", np.uint64), ("alert_flags", "alert_flags", np.uint8)):
         values = getattr(msg, stored)
         if values is not None and values.size not in (0, n_packets):
             raise _Damaged(f"{stored} of a frame has {values.size} values, not one per packet ({n_packets})")
-        extra[key] = values.astype(kind) if values is not None and values.size else np.zeros(n_packets, kind)
-    extra["frame_status"] = np.array(msg.frame_status, np.uint64)
-    extra["countdown_thermal_shutdown"] = np.array(msg.shutdown_countdown, np.uint8)
-    extra["countdown_shot_limiting"] = np.array(msg.shot_limiting_countdown, np.uint8)
+        values = values.astype(kind) if values is not None and values.size else np.zeros(n_packets, kind)
+        extra[key] = np.repeat(values, per_packet)[:w]
+    status_bits = int(msg.frame_status)  # ouster-sdk's frame_status: thermal shutdown bits 0-3, shot limiting 4-7
+    for key, value in (("thermal_shutdown", status_bits & 0x0F), ("shot_limiting", status_bits >> 4 & 0x0F),
+                       ("countdown_thermal_shutdown", msg.shutdown_countdown),
+                       ("countdown_shot_limiting", msg.shot_limiting_countdown)):
+        extra[key] = np.full(w, value, np.uint8)
     pose = msg.pose
     if pose is not None and pose.size:
         if pose.size != 16 * w:

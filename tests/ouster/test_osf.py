@@ -84,18 +84,21 @@ def test_osf_frames_equal_ouster_sdk(request, name):
                 assert got.dtype.itemsize == want.dtype.itemsize and got.tobytes() == want.tobytes(), field
             else:
                 assert np.array_equal(got, want), f"frame {mine.frame_id} field {field}"
-        ours_only = {k for k in mine.extra if k.upper() not in sdk.fields} - {
-            "packet_timestamp_ns", "alert_flags", "frame_status", "countdown_thermal_shutdown",
-            "countdown_shot_limiting", "pose"}
+        header = {"packet_timestamp_ns", "alert_flags", "thermal_shutdown", "shot_limiting", "countdown_thermal_shutdown",
+                  "countdown_shot_limiting", "pose"}
+        ours_only = {k for k in mine.extra if k.upper() not in sdk.fields} - header
         assert not ours_only, f"fields ouster-sdk does not give: {ours_only}"
         np.testing.assert_array_equal(mine.column_timestamp_ns, sdk.timestamp.astype(np.int64))
         np.testing.assert_array_equal(mine.measurement_id, sdk.measurement_id)
         np.testing.assert_array_equal(mine.status, sdk.status)
-        np.testing.assert_array_equal(mine.extra["packet_timestamp_ns"], sdk.packet_timestamp)
-        np.testing.assert_array_equal(mine.extra["alert_flags"], sdk.alert_flags)
-        assert int(mine.extra["frame_status"]) == sdk.frame_status
-        assert int(mine.extra["countdown_thermal_shutdown"]) == sdk.shutdown_countdown
-        assert int(mine.extra["countdown_shot_limiting"]) == sdk.shot_limiting_countdown
+        # per packet (and per frame) in the file and ouster-sdk, per column in a frame: each column its packet's
+        per_packet = sdk.w // len(sdk.packet_timestamp)
+        np.testing.assert_array_equal(mine.extra["packet_timestamp_ns"], np.repeat(sdk.packet_timestamp, per_packet))
+        np.testing.assert_array_equal(mine.extra["alert_flags"], np.repeat(sdk.alert_flags, per_packet))
+        for key, want in (("thermal_shutdown", int(sdk.thermal_shutdown())), ("shot_limiting", int(sdk.shot_limiting())),
+                          ("countdown_thermal_shutdown", sdk.shutdown_countdown),
+                          ("countdown_shot_limiting", sdk.shot_limiting_countdown)):
+            assert mine.extra[key].shape == (sdk.w,) and (mine.extra[key] == want).all(), key
         assert mine.partial == (not sdk.complete())
         # the metadata the file holds
         info = infos[0]
