@@ -9,7 +9,8 @@ layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet byt
 a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
-packet/loss/frame counter the recorder runs live).
+packet/loss/frame counter the recorder runs live), :mod:`.osf` (ouster-sdk's OSF files of decoded frames,
+read by ``lidarpkt.open``).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
 >>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP
@@ -38,6 +39,8 @@ _LAZY: dict[str, str] = {
     "decode_imu": "imu",
     "encode_imu": "imu",
     "OusterMetadata": "metadata",
+    "OsfFile": "osf",
+    "OsfReader": "osf",
     "load_metadata": "metadata",
     "PROFILES": "profiles",
     "BitField": "profiles",
@@ -52,6 +55,8 @@ __all__ = [
     "OusterGeometry",
     "OusterMetadata",
     "OusterPacketFields",
+    "OsfFile",
+    "OsfReader",
     "PROFILES",
     "Profile",
     "classify",
