@@ -119,6 +119,7 @@ _ATTR_DTYPES = {"range_mm": np.uint32, "reflectivity": np.uint8, "signal": np.ui
                 "near_ir": np.uint16}
 
 _MAX_ELEMENTS_PER_PIXEL = 64  # a decoded field holds at most this many values per pixel of the frame
+_MAX_FRAME_BYTES_PER_PIXEL = 256  # the named fields of a frame decode to at most this (a dual frame's fields: 18 B)
 _ZPNG_MAGIC = 0xFBF8
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -460,17 +461,26 @@ class OsfFile:
                 raise CaptureFormatError(f"{self.path}: the sensor metadata stored in the OSF file: {exc}") from None
             source = f"{self.path.name} (sensor {md.serial or sensor_id})"
             self.streams.append(OsfStream(stream_id, sensor_id, md, md.sensor_info(source),
-                                          sorted(chunks.get(stream_id, []))))
+                                          sorted(set(chunks.get(stream_id, [])))))  # a chunk listed twice: read once
 
     # ------------------------------------------------------------------ messages
     def _messages(self, stream: OsfStream) -> Iterator[tuple[int, int, bytes]]:
         """``(receive ts, stream id, LidarScanMsg buffer)`` of one stream, in file order."""
         for rel in stream.chunk_offsets:
-            chunk = _root(self._block(self.chunks_start + rel, self.metadata_offset, "chunk"), "Chunk", CHUNK_ID)
+            block = self._block(self.chunks_start + rel, self.metadata_offset, "chunk")
+            chunk = _root(block, "Chunk", CHUNK_ID)
+            seen: set[int] = set()
             for msg in chunk.messages or []:
                 if msg.id == stream.stream_id:
                     buf = msg.buffer
-                    yield int(msg.ts), stream.stream_id, bytes(buf) if buf is not None else b""
+                    if buf is None:
+                        continue
+                    # messages sharing one buffer would decode one frame's fields many times from few bytes
+                    where = buf.ctypes.data  # its place in the chunk (a view of it)
+                    if buf.size and where in seen:
+                        raise _Damaged(f"two messages of the chunk at byte {self.chunks_start + rel} share one buffer")
+                    seen.add(where)
+                    yield int(msg.ts), stream.stream_id, bytes(buf)
 
     def frames(self) -> Iterator[Frame]:
         """Every frame of every sensor, by receive time (ties: stream order), as ouster-sdk gives them.
@@ -634,6 +644,8 @@ def _channel_fields(msg: _Table, md: Any) -> dict[str, np.ndarray]:
         element = FIELD_TYPES.get(tag)
         if name is None or element is None or element.kind not in "ui":
             raise _Damaged(f"a frame stores the channel {chan} of type {tag}, which ouster-sdk does not define")
+        if name in out:
+            raise _Damaged(f"a frame stores the channel {name} twice")
         data = channel.buffer
         try:
             out[name] = _decode_image(data if data is not None else b"", (h, w), element, md.pixel_shift_by_row)
@@ -645,8 +657,11 @@ def _channel_fields(msg: _Table, md: Any) -> dict[str, np.ndarray]:
 def _custom_fields(msg: _Table, h: int, w: int) -> dict[str, np.ndarray]:
     """The fields of a frame message stored by name (ZONE_MASK, ZONE_STATES...), in their shapes."""
     out: dict[str, np.ndarray] = {}
+    budget = h * w * _MAX_FRAME_BYTES_PER_PIXEL
     for field in msg.custom_fields or []:
         name: str = field.name
+        if name in out:
+            raise _Damaged(f"a frame stores the field {name!r} twice")
         element = FIELD_TYPES.get(field.tag)
         stored = field.shape
         shape = tuple(int(n) for n in (stored.tolist() if stored is not None else ()))
@@ -657,6 +672,9 @@ def _custom_fields(msg: _Table, h: int, w: int) -> dict[str, np.ndarray]:
             raise _Damaged(f"the field {name!r} has the shape {shape}, beyond what a frame of {h}x{w} holds")
         data = field.data if field.data is not None else b""
         size = element.itemsize
+        budget -= int(np.prod(shape)) * size
+        if budget < 0:  # fields sharing their bytes could otherwise decode to any size
+            raise _Damaged(f"the fields of frame {msg.frame_id} add up to more than {_MAX_FRAME_BYTES_PER_PIXEL} B a pixel")
         if len(shape) == 1:  # stored raw
             if len(data) != shape[0] * size:
                 raise _Damaged(f"the field {name!r} holds {len(data)} B, not the {shape[0] * size} B of "
