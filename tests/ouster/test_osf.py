@@ -435,3 +435,84 @@ def test_64_bit_field_image_round_trip():
            + chunk(b"IDAT", zlib.compress(bytes(raw))) + chunk(b"IEND", b""))
     np.testing.assert_array_equal(_decode_image(png, (h, w), np.dtype("<u8"), None), values)
     np.testing.assert_array_equal(_decode_image(png, (h, w), np.dtype("<i8"), None), values.view(np.int64))
+
+
+# ----------------------------------------------------------------------------- files written here
+
+
+def _built(messages_for, share_buffers=False):
+    """An OSF file of the OS-0-32 sensor's metadata with the frame messages ``messages_for(h, w, shift)`` gives."""
+    from osf_builder import osf_file
+
+    from lidarpkt.ouster import load_metadata
+
+    text = external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json").read_text()
+    md = load_metadata(text)
+    return osf_file(text, messages_for(md.pixels_per_column, md.columns_per_frame, md.pixel_shift_by_row), share_buffers)
+
+
+def _message(h, w, frame_id=5, **kw):
+    from osf_builder import Message
+
+    return Message(frame_id=frame_id, timestamp=10**18 + np.arange(w) * 97_656, measurement_id=np.arange(w),
+                   status=np.ones(w), **kw)
+
+
+@pytest.mark.crosscheck
+def test_osf_written_here_reads_as_ouster_sdk_reads_it(tmp_path):
+    """Fields in every encoding a reader meets (PNG of a destaggered channel, ZPNG of a staggered one, a raw
+    1-D field, a ZPNG 64-bit field): ouster-sdk's reader and lidarpkt's give the same arrays."""
+    from osf_builder import Custom, png_rgba, zpng
+
+    from lidarpkt.frame import destagger
+
+    rng = np.random.default_rng(3)
+
+    def messages(h, w, shift):
+        rng_mm = rng.integers(0, 2**20, (h, w), dtype=np.uint32)
+        refl = rng.integers(0, 256, (h, w), dtype=np.uint8)
+        return [_message(h, w, channels=[(1, 3, png_rgba(destagger(rng_mm, shift))), (5, 1, zpng(refl))], custom=[
+            Custom("SCALARS", 2, (5,), np.arange(5, dtype="<u2").tobytes(), 4),
+            Custom("WIDE", 4, (h, w), zpng(rng.integers(0, 2**63, (h, w), dtype=np.uint64)))])]
+
+    path = tmp_path / "built.osf"
+    path.write_bytes(_built(messages))
+    (sdk,), _ = sdk_osf(path)
+    (ours,) = list(lidarpkt.open(path))
+    assert ours.frame_id == sdk.frame_id == 5
+    np.testing.assert_array_equal(ours.range_mm[0], sdk.field("RANGE"))
+    np.testing.assert_array_equal(ours.reflectivity[0], sdk.field("REFLECTIVITY"))
+    np.testing.assert_array_equal(ours.extra["scalars"], sdk.field("SCALARS"))
+    np.testing.assert_array_equal(ours.extra["wide"], sdk.field("WIDE"))
+    np.testing.assert_array_equal(ours.column_timestamp_ns, sdk.timestamp.astype(np.int64))
+
+
+def test_messages_sharing_one_buffer_are_refused(tmp_path):
+    """Two frame messages pointing at one buffer (a few bytes decoding to a frame each time): an error."""
+    from osf_builder import zpng
+
+    def messages(h, w, shift):
+        return [_message(h, w, frame_id=i, channels=[(5, 1, zpng(np.zeros((h, w), np.uint8)))]) for i in range(3)]
+
+    path = tmp_path / "shared.osf"
+    path.write_bytes(_built(messages, share_buffers=True))
+    with pytest.raises(CaptureFormatError, match="share one buffer"):
+        list(lidarpkt.open(path))
+    path.write_bytes(_built(messages))  # the same messages, each with its own buffer: read
+    assert [f.frame_id for f in lidarpkt.open(path)] == [0, 1, 2]
+
+
+def test_fields_sharing_their_bytes_decode_to_a_bounded_size(tmp_path):
+    """40 named 64-bit fields of a frame all pointing at one small ZPNG image: 320 B a pixel, refused before
+    they are decoded (a frame's fields may decode to at most 256 B a pixel)."""
+    from osf_builder import Custom, zpng
+
+    def messages(h, w, shift):
+        image = zpng(np.zeros((h, w), np.uint64))
+        return [_message(h, w, custom=[Custom(f"F{i}", 4, (h, w), image) for i in range(40)], share_custom_data=True)]
+
+    path = tmp_path / "fields.osf"
+    path.write_bytes(_built(messages))
+    assert path.stat().st_size < 20_000
+    with pytest.raises(CaptureFormatError, match="256 B a pixel"):
+        list(lidarpkt.open(path))
