@@ -10,7 +10,8 @@ and a CRC-32 (zlib's) of both::
     Metadata ("OSF#", at metadata_offset: the entries, each a buffer of its own type)
 
 Metadata entries: ``LidarSensor`` (the sensor's metadata JSON), ``LidarScanStream`` (the stream of
-one sensor's frames), ``StreamingInfo`` (the chunks of each stream), ``Extrinsics``. A frame
+one sensor's frames), ``StreamingInfo`` (the chunks of each stream); others (``Extrinsics``: lidarpkt's
+points are in the sensor frame) are not read. A frame
 message (``LidarScanMsg``) carries per-column arrays (timestamp, measurement id, status), per-packet
 ones (packet timestamp, alert flags), frame scalars (frame id, frame status, countdowns) and its
 fields: the standard channels (RANGE, SIGNAL, ... by enum) and custom fields (by name, with shape
@@ -30,9 +31,9 @@ them per packet or per frame): ``alert_flags``, ``thermal_shutdown``, ``shot_lim
 (``uint64[W]``, the host time the packet was received); and ``pose`` (``float64[4, 4, W]``, only when the
 file stores one). ``partial`` is True when a column of the sensor's column window is not valid.
 
-Damage is refused as ouster-sdk's reader never does silently: a block whose CRC fails, a field that
-does not decode, an offset outside the file are each a :class:`~lidarpkt.errors.CaptureFormatError`
-naming the file and what is wrong. Nothing is allocated from a size the file claims before that size
+Damage is an error where ouster-sdk's reader logs it and skips the chunk or field: a block whose CRC
+fails, a field that does not decode, an offset outside the file are each a
+:class:`~lidarpkt.errors.CaptureFormatError` naming the file and what is wrong, after the frames before it. Nothing is allocated from a size the file claims before that size
 is checked against the file (blocks, vectors) or the frame's own size (decoded fields).
 """
 
@@ -40,7 +41,6 @@ from __future__ import annotations
 
 import heapq
 import io
-import json
 import os
 import struct
 import zlib
@@ -774,12 +774,3 @@ def receive_span(path: str | os.PathLike[str]) -> tuple[int | None, int | None]:
     firsts = [s["first_timestamp_ns"] for s in sensors if s["first_timestamp_ns"] is not None]
     lasts = [s["last_timestamp_ns"] for s in sensors if s["last_timestamp_ns"] is not None]
     return (min(firsts), max(lasts)) if firsts else (None, None)
-
-
-def sensor_metadata_json(path: str | os.PathLike[str]) -> list[dict]:
-    """The sensor metadata documents an OSF file stores, parsed (one per sensor)."""
-    f = OsfFile(path)
-    try:
-        return [json.loads(text) for text in f.sensor_json.values()]
-    finally:
-        f.close()
