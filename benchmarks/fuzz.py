@@ -339,15 +339,16 @@ def bag_input(kind: str, files: dict[str, bytes], opened: str = ".") -> bytes:
     return bytes([sel]) + len(meta).to_bytes(2, "little") + meta + body
 
 
-def _ouster_sized(stream: str, metadata_text: str) -> bool:
-    """Is an unrouted stream (``"src → dst (N B)"``) of the lidar or IMU packet size of this metadata?"""
+def _ouster_sized(stream, metadata_text: str) -> bool:
+    """Is an unrouted stream (a ``lidarpkt.source.UnroutedStream``) of the lidar or IMU packet size of this
+    metadata?"""
     from lidarpkt.ouster import load_metadata
 
     try:
         md = load_metadata(metadata_text)
     except Exception:  # metadata lidarpkt refuses (a LidarpktError was raised by lidarpkt.open then)
         return False
-    return stream.endswith((f"({md.packet_size} B)", f"({md.imu_packet_size} B)"))
+    return stream.payload_size in (md.packet_size, md.imu_packet_size)
 
 
 def make_ouster_ros_target():
