@@ -31,9 +31,10 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
     from .options import OpenKeywords
-    from .parallel import ParallelFrameReader
+    from .ouster.osf import OsfReader
+    from .parallel import ParallelFrameReader, PipelinedFrameReader
 
-from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
+from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
 from .sources.protocol import PacketSource, open_packet_source
 
@@ -290,15 +291,18 @@ class FrameReader(FrameIterator):
 
 
 @with_options
-def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]) -> FrameReader | ParallelFrameReader:
+def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
+                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader | OsfReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
-    ``close()`` (or ``with``) stops reading early.
+    ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
+    frames) gives a :class:`~lidarpkt.ouster.osf.OsfReader` of its stored frames (see
+    :func:`~lidarpkt.ouster.osf.open_osf` for the options it takes).
 
     Args:
-        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
+        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
         {options}
 
     Raises:
@@ -309,6 +313,10 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]) -
         UsageError: ``workers`` is not a whole number >= 1.
     """
     opts = OpenOptions.from_keywords("open_frames", dict(options))
+    if is_osf(path):  # ouster-sdk's frame files: frames, not packets
+        from .ouster.osf import open_osf
+
+        return open_osf(path, opts)
     if opts.workers != 1:
         from .parallel import open_parallel
 
