@@ -28,29 +28,6 @@ FIELD_MAP = {"RANGE": ("range_mm", 0), "RANGE2": ("range_mm", 1), "SIGNAL": ("si
              "FLAGS2": ("flags", 1), "NEAR_IR": ("near_ir", None)}
 
 
-def _profiles_needed(name: str) -> list[str]:
-    """The lidar and IMU profiles of the metadata an OSF file stores that lidarpkt's metadata parser does not
-    take yet (issue 25 parts 1-3 add them): reading the file needs them."""
-    from lidarpkt.errors import MetadataError
-    from lidarpkt.ouster.osf import OsfFile
-
-    try:
-        OsfFile(external("ouster-sdk/" + name)).close()
-        return []
-    except CaptureFormatError as exc:
-        if "is not supported" not in str(exc):
-            raise
-        return [str(exc)]
-    except MetadataError:  # pragma: no cover
-        raise
-
-
-def _needs_profiles(name: str):
-    """``xfail(strict=True)`` while the metadata's profile is not one lidarpkt parses; a plain test once it is."""
-    missing = _profiles_needed(name)
-    return pytest.mark.xfail(bool(missing), reason=f"profile not parsed yet: {missing}", strict=True)
-
-
 def sdk_osf(path):
     osf = pytest.importorskip("ouster.sdk.osf")
     with warnings.catch_warnings():
@@ -62,8 +39,7 @@ def sdk_osf(path):
 
 @pytest.mark.crosscheck
 @pytest.mark.parametrize("name", GOOD)
-def test_osf_frames_equal_ouster_sdk(request, name):
-    request.applymarker(_needs_profiles(name))
+def test_osf_frames_equal_ouster_sdk(name):
     path = external("ouster-sdk/" + name)
     theirs, infos = sdk_osf(path)
     with lidarpkt.open(path) as reader:
