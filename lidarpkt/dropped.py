@@ -11,6 +11,8 @@ The reasons, in the words every report uses (:data:`REASONS`):
 - ``late``: arrived after their frame was released, discarded;
 - ``duplicate``: a copy of a packet already received, discarded;
 - ``malformed``: wrong layout, flag, CRC or measurement id, skipped;
+- ``corrupted``: their clock or counters jumped further than the capture time allows, off the packets
+  on both sides (:mod:`lidarpkt.continuity`), skipped; never counted as packets lost;
 - ``mismatched``: do not fit the Ouster metadata given (size, init_id or serial), skipped;
 - ``unrouted``: of no VLP-16 or Ouster stream lidarpkt could identify, not decoded.
 """
@@ -25,6 +27,7 @@ REASONS: dict[str, str] = {
     "late": "discarded as late (their frame was already complete)",
     "duplicate": "discarded as duplicates",
     "malformed": "skipped as malformed (layout, flag, CRC or measurement id)",
+    "corrupted": "skipped as corrupted (their time or frame id jumped further than the capture time allows)",
     "mismatched": "skipped as not fitting the Ouster metadata (size, init_id or serial)",
     "unrouted": "not decoded (of no VLP-16 or Ouster stream)",
 }
@@ -43,11 +46,13 @@ def dropped_counts(reader: Any) -> dict[str, int]:
             counts["late"] += st.late_packets
             counts["duplicate"] += st.duplicate_packets
             counts["malformed"] += st.malformed + getattr(st, "position_malformed", 0)
+            counts["corrupted"] += getattr(st, "corrupted_packets", 0)
         else:  # Ouster
             counts["lost"] += getattr(st, "lost_packets", 0)
             counts["late"] += getattr(st, "late", 0)
             counts["duplicate"] += getattr(st, "duplicates", 0)
             counts["malformed"] += getattr(st, "crc_failures", 0) + getattr(st, "bad_measurement_id", 0)
+            counts["corrupted"] += getattr(st, "corrupted", 0)
             counts["mismatched"] += getattr(st, "size_mismatch", 0) + getattr(st, "id_mismatch", 0)
     counts["unrouted"] += getattr(getattr(reader, "stats", None), "unrouted_packets", 0)
     return {k: v for k, v in counts.items() if v}

@@ -146,7 +146,7 @@ class PacketSink:
             tracker = self._trackers.get(key)
             if tracker is None:
                 tracker = self._trackers[key] = streams.OusterLoss(md)
-            tracker.update(batch.payload)
+            tracker.update(batch.payload, batch.timestamp_ns)
             rep.count = tracker.count
         else:  # no layout to find gaps in: counted only
             rep.count.packets += n
@@ -176,7 +176,7 @@ class PacketSink:
             kind = data_kind(batch)
             period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": vlp.HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
-        starts = tracker.update(batch.payload)
+        starts = tracker.update(batch.payload, batch.timestamp_ns)
         rep.count = tracker.count
         pending = self._pending.setdefault(key, [])
         cuts = np.flatnonzero(starts).tolist()
