@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 #: How far a stream's own counters may disagree with the capture clock between two packets; beyond
 #: it a step is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), never packets lost.
-from .continuity import INTERRUPTION_S as INTERRUPTION_S  # re-exported: its historical home
+from .continuity import INTERRUPTION_S  # noqa: F401  (re-exported: its historical home)
 
 
 class DecoderCounts(Protocol):
