@@ -5,9 +5,11 @@ decoder and live counter (:mod:`lidarpkt.velodyne.frames`, :mod:`lidarpkt.velody
 
 A packet's *place* is the sensor's own count of it (a VLP-16's µs past the hour, an Ouster's frame
 and measurement ids), in ticks of a known duration. Between two packets the sensor's step and the
-host's capture-time step agree, up to :data:`INTERRUPTION_S` of buffering and stalls. A step that
-disagrees by more is a jump no sensor makes, and a step of more than :data:`INTERRUPTION_S` is an
-interruption (the sensor stopped, or the cable was out), neither of them packets lost:
+host's capture-time step agree: the sensor's may not be longer by more than :data:`INTERRUPTION_S`
+(buffering), nor shorter by more than :data:`CAPTURE_STALL_S` (a stalled sender or reader delivering
+late, in a burst). A step that disagrees by more is a jump no sensor makes, and a step of more than
+:data:`INTERRUPTION_S` is an interruption (the sensor stopped, or the cable was out), neither of them
+packets lost:
 
 * a packet that agrees with neither the packet before it nor the one after is *corrupted*: skipped
   and counted (its own reason in :mod:`lidarpkt.dropped`), the stream goes on from the packet before;
@@ -42,6 +44,10 @@ _TOLERANCE_NS = int(INTERRUPTION_S * 1e9)
 #: as coarse as a 15.6 ms timer tick (Windows captures), so the packets around a gap may carry the
 #: same time though the gap took several periods.
 CAPTURE_RESOLUTION_S = 0.02
+#: How much longer than the sensor's step the capture clock's may be (a stalled sender or reader
+#: delivering packets late, in a burst): beyond it the capture time itself is taken as corrupted.
+CAPTURE_STALL_S = 10.0
+_STALL_NS = int(CAPTURE_STALL_S * 1e9)
 
 
 def packets_spanned(span_ns: np.ndarray | float, period_ns: np.ndarray | float) -> np.ndarray:
@@ -51,12 +57,13 @@ def packets_spanned(span_ns: np.ndarray | float, period_ns: np.ndarray | float) 
 
 
 def jumps(step_ns: np.ndarray, host_step_ns: np.ndarray, host_known: np.ndarray) -> np.ndarray:
-    """``bool[N]``: steps (the sensor's, ns) longer than :data:`INTERRUPTION_S`, or that disagree by
-    more than that with the capture time between the two packets (``host_step_ns``, judged where
-    ``host_known``): an interruption, a restart or a corrupted packet, never a gap of lost packets."""
+    """``bool[N]``: steps (the sensor's, ns) longer than :data:`INTERRUPTION_S`, or longer by more than
+    that than the capture time between the two packets (``host_step_ns``, judged where
+    ``host_known``), or shorter by more than :data:`CAPTURE_STALL_S`: an interruption, a restart or a
+    corrupted packet, never a gap of lost packets."""
     step = np.asarray(step_ns, np.float64)
-    off = np.where(host_known, step - host_step_ns, 0.0)
-    return (np.abs(step) > _TOLERANCE_NS) | (np.abs(off) > _TOLERANCE_NS)
+    ahead = np.where(host_known, step - host_step_ns, 0.0)  # the sensor claims more time than passed
+    return (np.abs(step) > _TOLERANCE_NS) | (ahead > _TOLERANCE_NS) | (ahead < -_STALL_NS)
 
 
 @dataclass
