@@ -11,7 +11,10 @@ Conventions (those of ouster-sdk's scan batcher):
   ``column_valid`` False. ``column_valid`` is also False for a column that arrived with its
   status saying invalid (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF).
 * Packets of an already released frame are dropped and counted as late; a packet whose first
-  measurement id already arrived in its frame is a duplicate (dropped, counted).
+  measurement id already arrived in its frame is a duplicate (dropped, counted). A packet whose
+  frame or measurement id jumps further than the capture time allows, off the packets on both
+  sides, is skipped and counted as corrupted (:mod:`lidarpkt.continuity`); a frame's holes never
+  count more lost packets than its capture time holds.
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
   ouster-sdk's sensor-frame convention (the angle its XYZ table uses; it decreases with c).
 * ``Frame.column_timestamp_ns`` is the column timestamp as the packets carry it: the sensor

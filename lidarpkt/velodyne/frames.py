@@ -40,7 +40,10 @@ firing (packet time + 55.296 µs × sequence); ``pixel_time_offset_ns`` adds 2.3
 
 Order. Packets out of order inside a batch are put back in order (counted); duplicates, and
 packets older than the last packet of an earlier batch, are dropped and counted
-(``duplicate_packets``, ``late_packets``).
+(``duplicate_packets``, ``late_packets``). A packet whose time jumps further than the capture time
+allows, off the packets on both sides, is skipped (``corrupted_packets``); a jump the packets after
+it agree with restarts the stream (``restarts``: the frame is cut, nothing lost or late); a gap never
+counts more lost packets than the capture time holds (:mod:`lidarpkt.continuity`).
 
 VeloView. VeloView (2014, ``vlp-16.test``) splits frames where a *block* azimuth wraps, so
 the second firing sequence of the block that crosses 0° stays in the old frame. With
