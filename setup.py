@@ -1,6 +1,6 @@
 """The optional C extension; everything else about the package is in pyproject.toml.
 
-``_lidarpkt_native`` (``lidarpkt/native/*.c``, one file per concern) holds the compiled kernels of lidarpkt/kernels.py (the pcap record walk,
+``lidarpkt._native`` (``lidarpkt/native/*.c``, one file per concern) holds the compiled kernels of lidarpkt/kernels.py (the pcap record walk,
 row gathers, Ouster and VLP-16 XYZ, the XYZ loops with an AVX2 clone). ``optional=True``: on a machine without a C compiler the install
 still succeeds and lidarpkt runs the pure-NumPy twins of the same kernels (same results, slower).
 ``-ffp-contract=off`` keeps ``r * d + o`` rounded twice, bit-identical to NumPy and ouster-sdk.
@@ -13,7 +13,7 @@ from setuptools import Extension, setup
 setup(
     ext_modules=[
         Extension(
-            "_lidarpkt_native",
+            "lidarpkt._native",
             sources=sorted(str(p) for p in Path("lidarpkt/native").glob("*.c")),
             depends=["lidarpkt/native/common.h"],
             optional=True,

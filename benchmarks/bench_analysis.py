@@ -19,11 +19,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.compare import compare_slots, ks_image  # noqa: E402
-from analysis.gmm_map import fit_gmm_map  # noqa: E402
-from analysis.motion import estimate_frame_offsets, motion_compensated_cdf  # noqa: E402
-from analysis.multireturn import detrended_gap_score, image_statistics, multireturn_map, spatial_gap_score  # noqa: E402
-from analysis.raypath import analyze_raypath  # noqa: E402
+from lidarpkt.analysis.compare import compare_slots, ks_image  # noqa: E402
+from lidarpkt.analysis.gmm_map import fit_gmm_map  # noqa: E402
+from lidarpkt.analysis.motion import estimate_frame_offsets, motion_compensated_cdf  # noqa: E402
+from lidarpkt.analysis.multireturn import detrended_gap_score, image_statistics, multireturn_map, spatial_gap_score  # noqa: E402
+from lidarpkt.analysis.raypath import analyze_raypath  # noqa: E402
 from lidarpkt.frame import FrameStack, SensorInfo  # noqa: E402
 
 

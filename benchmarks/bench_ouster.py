@@ -39,7 +39,7 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
     """Write ``frames`` copies of the capture's single frame; returns (packets, payload bytes)."""
     from lidarpkt.ouster import decode_packets, encode_packets, load_metadata
     from lidarpkt.packet import Endpoint, Packet
-    from lidarpkt.pcap import read_batches
+    from lidarpkt.sources.pcap_reader import read_batches
     from lidarpkt.writers.pcap import write_pcap
 
     md = load_metadata(meta)
@@ -70,7 +70,7 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
 
 def bench_reader(path: Path) -> float:
     """The pcap reader alone (part of the lidarpkt time)."""
-    from lidarpkt.pcap import read_batches
+    from lidarpkt.sources.pcap_reader import read_batches
 
     t = time.perf_counter()
     for _ in read_batches(path):

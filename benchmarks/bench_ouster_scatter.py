@@ -36,7 +36,7 @@ CAPTURES = {_LABELS[key]: files for key, files in _BY_PROFILE.items()}
 def lidar_batch(pcap: str, meta: str):
     from lidarpkt.ouster import classify, load_metadata
     from lidarpkt.packet import PacketBatch
-    from lidarpkt.pcap import read_batches
+    from lidarpkt.sources.pcap_reader import read_batches
 
     md = load_metadata(EXTERNAL / meta)
     batches = [b for b in read_batches(EXTERNAL / pcap) if (m := classify(b, [md])) and m[0] == "lidar"]

@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from lidarpkt.packet import Packet  # noqa: E402
-from recorder.replay import read_capture, replay  # noqa: E402
+from lidarpkt.recorder.replay import read_capture, replay  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 CAPTURES = {
@@ -62,7 +62,7 @@ def run_one(name: str, rate: float | None, seconds: float, tmp: Path) -> dict:
     port = _free_port()
     out, report, log = tmp / f"{name}.mcap", tmp / f"{name}.json", tmp / f"{name}.log"
     proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
-                             "-o", str(out), "--report", str(report), "-q"], stderr=log.open("w"), cwd=REPO)
+                             "-o", str(out), "--json", str(report), "-q"], stderr=log.open("w"), cwd=REPO)
     while "listening on" not in log.read_text():
         if proc.poll() is not None:
             raise SystemExit(log.read_text())
@@ -94,7 +94,7 @@ def bench_decode(tmp: Path) -> list[dict]:
     """``decode`` of the VeloView capture to MCAP, timed in this process (start-up excluded)."""
     import argparse as _argparse
 
-    from recorder import decode
+    from lidarpkt.recorder import decode
 
     pcap = CAPTURES["vlp16"][0]
     out = []

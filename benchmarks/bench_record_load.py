@@ -44,7 +44,7 @@ EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shar
 
 
 def vlp16_payloads(n: int) -> tuple[list[bytes], list[str]]:
-    from lidarpkt.pcap import read_packets
+    from lidarpkt.sources.pcap_reader import read_packets
 
     real = [p.payload for p in read_packets(EXTERNAL / "veloview/vlp-16-test-90deg-1-50-frames.pcap") if len(p.payload) == 1206]
     out = []
@@ -102,7 +102,7 @@ def step(payloads: list[bytes], extra: list[str], rate: float, seconds: float, q
         if p.exists():
             p.unlink()
     cmd = [sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "--port", str(port), "-o", str(out),
-           "--report", str(report), "--queue", str(queue_mb), "-q", *extra]
+           "--json", str(report), "--queue", str(queue_mb), "-q", *extra]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=log.open("w"))
     try:
         deadline = time.monotonic() + 30

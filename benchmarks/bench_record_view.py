@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 from lidarpkt.packet import Packet  # noqa: E402
 from bench_record import _cpu_seconds, _free_port  # noqa: E402
-from recorder.replay import read_capture, replay  # noqa: E402
+from lidarpkt.recorder.replay import read_capture, replay  # noqa: E402
 
 OUSTER_METADATA = REPO / "fixtures" / "canned" / "os1-64-legacy.json"
 
@@ -73,7 +73,7 @@ def run_one(name: str, packets: list[Packet], extra: list[str], rate: float, vie
     out, report, log = tmp / f"{tag}.mcap", tmp / f"{tag}.json", tmp / f"{tag}.log"
     args = ["--view", "--points", "--ws", "127.0.0.1:0"] if view else []
     proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
-                             "-o", str(out), "--report", str(report), "-q", *extra, *args],
+                             "-o", str(out), "--json", str(report), "-q", *extra, *args],
                             stderr=log.open("w"), cwd=REPO)
     client = None
     try:

@@ -11,7 +11,7 @@ Targets (each checks more than "does not crash"):
   may come out, and the chunked fast path (``batches()``, 4096 records a chunk) must give exactly the
   packets of the record-by-record path (``packets()`` with ``batch_packets=1``).
 - ``reassembly``: the input is a script of fragments (key, offset, more flag, length, timestamp) for a
-  small :class:`~lidarpkt.reassembly.Reassembler`; its pending datagrams and held bytes stay within the
+  small :class:`~lidarpkt.sources.reassembly.Reassembler`; its pending datagrams and held bytes stay within the
   bounds, the held-byte count is the bytes actually held, and every byte of a datagram it returns is a byte
   sent for that key at that offset.
 - ``velodyne``: the input is cut into 1206-byte data packets and a 512-byte position packet, fed in
@@ -77,15 +77,15 @@ def _import_lidarpkt(instrument: bool, target: str = ""):
                 import rosbags.highlevel  # noqa: F401
                 import rosbags.rosbag1  # noqa: F401
                 import rosbags.rosbag2  # noqa: F401
-            import lidarpkt.bags  # noqa: F401
+            import lidarpkt.sources.bags  # noqa: F401
             import lidarpkt.ouster  # noqa: F401
-            import lidarpkt.pcap  # noqa: F401
-            import lidarpkt.reassembly  # noqa: F401
+            import lidarpkt.sources.pcap_reader  # noqa: F401
+            import lidarpkt.sources.reassembly  # noqa: F401
             import lidarpkt.source  # noqa: F401
             import lidarpkt.velodyne  # noqa: F401
     else:
         import lidarpkt.ouster  # noqa: F401
-        import lidarpkt.pcap  # noqa: F401
+        import lidarpkt.sources.pcap_reader  # noqa: F401
         import lidarpkt.velodyne  # noqa: F401
 
 
@@ -107,7 +107,7 @@ def _guard(fn):
 
 # ------------------------------------------------------------------------------------------ targets
 def make_pcap_target():
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.pcap")
 
@@ -133,7 +133,7 @@ def make_pcap_target():
 def make_reassembly_target():
     import atheris
 
-    from lidarpkt.reassembly import FRAGMENT_OVERHEAD, Reassembler
+    from lidarpkt.sources.reassembly import FRAGMENT_OVERHEAD, Reassembler
 
     def pattern(key: int, offset: int, n: int, salt: int) -> bytes:
         return bytes(((key * 131 + salt * 17 + offset + i) * 7) & 0xFF for i in range(n))
@@ -331,7 +331,7 @@ def make_bags_target():
     import numpy as np
 
     import lidarpkt
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
     from lidarpkt.errors import LidarpktError
 
     root = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}-bags")
@@ -423,8 +423,8 @@ def _bag_seeds() -> list[bytes]:
     from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.bags import MESSAGE_DEFINITIONS
-    from lidarpkt.pcap import read_packets
+    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.sources.pcap_reader import read_packets
 
     def store(which):
         st = get_typestore(which)
@@ -613,7 +613,7 @@ def seeds(target: str) -> list[bytes]:
             raw = rec.read_bytes()
             for k in range(0, 40, 10):
                 out.append(bytes([6, 1]) + raw[k * 1206 : (k + 4) * 1206])
-        from lidarpkt.pcap import read_packets
+        from lidarpkt.sources.pcap_reader import read_packets
 
         cap = REPO / "fixtures/canned/vlp16-dual.pcap"
         if cap.exists():
@@ -628,7 +628,7 @@ def seeds(target: str) -> list[bytes]:
             out.append(bytes([3, 2]) + b"".join(data) + (pos or bytes(512)))
     elif target == "ouster":
         from lidarpkt.ouster import load_metadata
-        from lidarpkt.pcap import read_packets
+        from lidarpkt.sources.pcap_reader import read_packets
 
         sources = {  # metadata index -> a capture with its packets
             0: REPO / "fixtures/canned/os1-64-legacy.pcap",

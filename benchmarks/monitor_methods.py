@@ -37,15 +37,15 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from analysis.multireturn import MONITOR_METHODS, evaluate_monitor, image_statistics, monitor_score  # noqa: E402
-from analysis.stack import load_stack  # noqa: E402
+from lidarpkt.analysis.multireturn import MONITOR_METHODS, evaluate_monitor, image_statistics, monitor_score  # noqa: E402
+from lidarpkt.analysis.stack import load_stack  # noqa: E402
 
 GENERATED = ["vlp16-strongest", "vlp16-last", "vlp16-dual", "os1-64-legacy", "os1-64-dual"]
 VELOVIEW = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
 
 
 def captures():
-    import fixtures
+    from lidarpkt import fixtures
 
     for name in GENERATED:
         pcap = fixtures.ensure(name, aux=False)
@@ -117,8 +117,8 @@ REGISTRATION_CAPTURES = ["vlp16-strongest", "os1-64-legacy", "veloview (real)"]
 def registration_ranking(stacks: dict, frames: int, n: int, threshold: float) -> dict[str, float]:
     """Print, per capture and method, the translation-error reduction of the monitor's removal,
     and the methods ranked by its mean. Returns {method: mean reduction}."""
-    from analysis.registration import registration_impact
-    from analysis.stack import select_frames
+    from lidarpkt.analysis.registration import registration_impact
+    from lidarpkt.analysis.stack import select_frames
 
     reductions: dict[str, list[float]] = {m: [] for m in MONITOR_METHODS}
     print(f"\nregistration: median translation error (mm), first {frames} frames; "

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DECODE_MODULES = [
     "lidarpkt/velodyne/geometry.py", "lidarpkt/velodyne/calibration.py", "lidarpkt/velodyne/timing.py",
     "lidarpkt/velodyne/decode.py", "lidarpkt/velodyne/packet.py", "lidarpkt/ouster/geometry.py",
-    "lidarpkt/ouster/crc.py", "lidarpkt/ouster/decode.py", "lidarpkt/reassembly.py",
+    "lidarpkt/ouster/crc.py", "lidarpkt/ouster/decode.py", "lidarpkt/sources/reassembly.py",
     "lidarpkt/ouster/profiles.py", "lidarpkt/ouster/frames.py", "lidarpkt/velodyne/frames.py",
 ]
 # the tests that exercise them (the others reach the decoders only through these paths)
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-children", type=int, default=1)
     ap.add_argument("--results-only", action="store_true", help="summarise an earlier run in --workdir")
     ap.add_argument("--only", nargs="+", default=(), metavar="GLOB",
-                    help="mutant names to run, e.g. 'lidarpkt.reassembly*' (the rest stay 'not checked')")
+                    help="mutant names to run, e.g. 'lidarpkt.sources.reassembly*' (the rest stay 'not checked')")
     args = ap.parse_args(argv)
     if args.workdir.name != "lidarpkt":
         ap.error("--workdir must end in /lidarpkt (mutmut finds the package by the folder name)")

@@ -332,7 +332,7 @@ def memory(args, work: Path) -> None:
 # ------------------------------------------------------------------------------------ analysis
 def analysis(args, work: Path) -> None:
     import bench_analysis as ba
-    from analysis.multireturn import image_statistics
+    from lidarpkt.analysis.multireturn import image_statistics
 
     print(f"\nanalysis (load {load()})")
     stack = ba.synthetic_stack(30, 1, 64, 1024)

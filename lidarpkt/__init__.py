@@ -1,50 +1,41 @@
-"""lidarpkt: byte-exact decoding and recording of Velodyne VLP-16 and Ouster OS1 lidar packets.
+"""lidarpkt: byte-exact decoding and recording of spinning-lidar packets (Velodyne, Ouster, Hesai).
 
 >>> import lidarpkt
 >>> for frame in lidarpkt.open("capture.pcap"):            # doctest: +SKIP
 ...     print(frame.frame_id, frame.range_mm.shape, frame.xyz().shape)
 
-``lidarpkt.open`` is :func:`lidarpkt.source.open_frames`; its typed keyword options are declared once,
-in :class:`lidarpkt.options.OpenOptions`, and listed by ``help(lidarpkt.open)``. The names below are imported on first use, so that ``lidarpkt --help`` and ``--version``
-start without NumPy.
+``lidarpkt.open`` is :func:`lidarpkt.source.open_frames`; its keyword options are declared once, in
+:class:`lidarpkt.options.OpenOptions`, and typed for static checkers. The names below are imported on
+first use, so that ``lidarpkt --help`` and ``--version`` start without NumPy.
+
+Everything lidarpkt installs lives under this one name: :mod:`lidarpkt.recorder` (live capture,
+replay, GPS), :mod:`lidarpkt.analysis` (the multi-return analysis), :mod:`lidarpkt.fixtures` (the
+synthetic scene and its canned captures), ``lidarpkt._native`` (the optional compiled kernels).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from pkgutil import extend_path
+from typing import TYPE_CHECKING
 
-from . import _moved
+from ._lazy import lazy_names
+from ._version import __version__
 from .errors import LidarpktError
 
-_moved.install()  # old paths of moved modules (lidarpkt.pcapwrite, recorder.mcap_writer ...)
+# A source checkout on sys.path (``python -m pytest`` from the repository) imports its own modules, and
+# the compiled extension, which only an install builds, from the installed copy of this package.
+__path__ = extend_path(__path__, __name__)
 
 if TYPE_CHECKING:
     from .frame import Frame, FrameCounters, FrameStack, SensorInfo
     from .packet import Endpoint, Packet, PacketBatch
     from .source import open_frames as open  # noqa: A001
-
-# public name -> (module, attribute)
-_LAZY: dict[str, tuple[str, str]] = {
-    "open": ("source", "open_frames"),
-    "Frame": ("frame", "Frame"), "FrameCounters": ("frame", "FrameCounters"), "FrameStack": ("frame", "FrameStack"),
-    "SensorInfo": ("frame", "SensorInfo"),
-    "Endpoint": ("packet", "Endpoint"), "Packet": ("packet", "Packet"), "PacketBatch": ("packet", "PacketBatch"),
-}
-
-
-def __getattr__(name: str) -> Any:
-    target = _LAZY.get(name)
-    if target is None:
-        raise AttributeError(f"module 'lidarpkt' has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f".{target[0]}", __name__), target[1])
-    globals()[name] = value
-    return value
-
+    from .sources.pcap_reader import read_packets
 
 __all__ = [
+    "__version__",
     "open",
+    "read_packets",
     "Frame",
     "FrameCounters",
     "FrameStack",
@@ -54,3 +45,18 @@ __all__ = [
     "Endpoint",
     "LidarpktError",
 ]
+
+_lazy_getattr, __dir__ = lazy_names(__name__, {
+    "Frame": "frame", "FrameCounters": "frame", "FrameStack": "frame", "SensorInfo": "frame",
+    "Endpoint": "packet", "Packet": "packet", "PacketBatch": "packet",
+    "read_packets": "sources.pcap_reader",
+}, __all__)
+
+
+def __getattr__(name: str) -> object:
+    if name == "open":  # lidarpkt.open is source.open_frames, imported on first use
+        from .source import open_frames
+
+        globals()["open"] = open_frames
+        return open_frames
+    return _lazy_getattr(name)

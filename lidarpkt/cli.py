@@ -20,14 +20,14 @@ VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.info", "say what streams and sensors a capture holds"),
     "catalog": ("lidarpkt.archive.cli", "one row per capture file and sensor stream of an archive, in parallel"),
     "export": ("lidarpkt.archive.cli", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
-    "decode": ("recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
-    "record": ("recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
-    "replay": ("recorder.replay", "send a capture's packets over UDP at the original pace"),
+    "decode": ("lidarpkt.recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
+    "record": ("lidarpkt.recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
+    "replay": ("lidarpkt.recorder.replay", "send a capture's packets over UDP at the original pace"),
     "view": ("lidarpkt.view.cli", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
-    "analyze": ("analysis.cli", "range CDFs, motion compensation and GMMs of chosen raypaths"),
-    "multireturn": ("analysis.cli", "whole-image multi-return statistics and monitor flags"),
-    "compare-returns": ("analysis.cli", "compare return slots or captures of one scene in different modes"),
-    "registration-impact": ("analysis.registration_cli", "pose error multi-return raypaths cause in scan matching, with and without the monitor"),
+    "analyze": ("lidarpkt.analysis.cli", "range CDFs, motion compensation and GMMs of chosen raypaths"),
+    "multireturn": ("lidarpkt.analysis.cli", "whole-image multi-return statistics and monitor flags"),
+    "compare-returns": ("lidarpkt.analysis.cli", "compare return slots or captures of one scene in different modes"),
+    "registration-impact": ("lidarpkt.analysis.registration_cli", "pose error multi-return raypaths cause in scan matching, with and without the monitor"),
     "demo": ("lidarpkt.demo", "the whole pipeline on the bundled fixtures: decode, MCAP, analysis, figures"),
 }
 
@@ -79,12 +79,9 @@ class _VersionAction(argparse.Action):
 
 
 def _version() -> str:
-    try:
-        from importlib.metadata import version
+    from ._version import __version__
 
-        return version("lidarpkt")
-    except Exception:  # not installed (running from a checkout)
-        return "unknown"
+    return __version__
 
 
 def _kernels() -> str:
@@ -93,9 +90,9 @@ def _kernels() -> str:
 
     if os.environ.get("LIDARPKT_NATIVE") == "0":
         return "pure NumPy (disabled by LIDARPKT_NATIVE=0)"
-    if importlib.util.find_spec("_lidarpkt_native") is None:
+    if importlib.util.find_spec("lidarpkt._native") is None:
         return "pure NumPy (extension not built)"
-    return "compiled kernels (_lidarpkt_native)"
+    return "compiled kernels (lidarpkt._native)"
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):

@@ -112,11 +112,10 @@ def json_type(flag: str = "--json"):
 
 # ------------------------------------------------------------------------------ adders
 def add_output(parser: argparse.ArgumentParser, suffixes: Sequence[str], *, required: bool = True,
-               help: str | None = None, aliases: Sequence[str] = ()) -> None:
-    """``-o/--output PATH``; ``suffixes`` (e.g. ``(".mcap", ".npz")``) are checked by :func:`check_output`.
-    ``aliases`` are older spellings kept for scripts (``--out``)."""
+               help: str | None = None) -> None:
+    """``-o/--output PATH``; ``suffixes`` (e.g. ``(".mcap", ".npz")``) are checked by :func:`check_output`."""
     what = " or ".join(f"OUT{s}" for s in suffixes) if suffixes else "DIR"
-    parser.add_argument("-o", "--output", *aliases, dest="output", required=required, metavar=what.split(" or ")[0],
+    parser.add_argument("-o", "--output", dest="output", required=required, metavar=what.split(" or ")[0],
                         help=help or f"the output: {what}")
     parser.set_defaults(_output_suffixes=tuple(suffixes))
 

@@ -9,7 +9,7 @@ dual; see ``fixtures/README.md``) it
    (temporal CDF, GMM by EM/BIC) and the whole image (multi-return map),
 
 then prints one table (raypath, capture, slot, returns, clusters, GMM means) and writes the
-paper's figures and a ``summary.json`` into ``-o DIR`` (``--out`` is its old spelling).
+paper's figures and a ``summary.json`` into ``-o DIR``.
 
 The CLI sits at the top of the stack, so this module may import ``recorder``, ``analysis``
 and ``fixtures`` (lazily, inside :func:`run`).
@@ -34,8 +34,8 @@ FIGURE_RAYPATHS = ("window", "foliage")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from . import cliargs
 
-    parser.add_argument("-o", "--output", "--out", dest="output", default="demo-out", metavar="DIR",
-                        help="folder for MCAP files, figures, summary (demo-out; --out is the old spelling)")
+    parser.add_argument("-o", "--output", dest="output", default="demo-out", metavar="DIR",
+                        help="folder for MCAP files, figures, summary (demo-out)")
     parser.add_argument("--frames", type=int, metavar="N",
                         help="frames per capture (default: 50 VLP-16, 30 Ouster, the fixtures' full length)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene's per-firing draws (0)")
@@ -45,8 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import fixtures
-    from analysis import analyze_raypath, available_returns, load_stack, multireturn_map, select_returns
+    from lidarpkt import fixtures
+    from lidarpkt.analysis import analyze_raypath, available_returns, load_stack, multireturn_map, select_returns
 
     from . import cliargs
 
@@ -134,7 +134,7 @@ def _decode_to_mcap(pcap: Path, mcap_path: Path, metadata: Path | None) -> None:
 
 def _mode_comparison_figures(plots, stacks, fixtures, out: Path, args) -> None:
     """Strongest vs last (VLP-16) temporal CDFs of the figure raypaths: how the mode changes what a raypath reports."""
-    from analysis import temporal_cdf
+    from lidarpkt.analysis import temporal_cdf
 
     truth = fixtures.load_truth(fixtures.ensure("vlp16-strongest", frames=args.frames, seed=args.seed))
     for raypath in FIGURE_RAYPATHS:
@@ -162,7 +162,7 @@ def _print_table(rows: list[dict[str, Any]]) -> None:
 
 def _plots_module():
     try:
-        from analysis import plots
+        from lidarpkt.analysis import plots
     except ImportError as exc:  # matplotlib missing: the `plot` extra
         print(f"lidarpkt demo: no figures ({exc}); install the plot extra: pip install 'lidarpkt[plot]'",
               file=sys.stderr)

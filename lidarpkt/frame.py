@@ -7,11 +7,14 @@ Every array with a trailing W axis is per column; ``[R, H, W]`` arrays are per p
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Iterable, Iterator, Protocol, Self
+from typing import TYPE_CHECKING, Any, Iterable, Iterator, Protocol
 
 import numpy as np
 
 from .errors import AnalysisError, CalibrationError, UsageError
+
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing.Self is Python 3.11+
 
 
 class Geometry(Protocol):

@@ -1,4 +1,4 @@
-"""The compiled kernels, when the optional extension ``_lidarpkt_native`` was built.
+"""The compiled kernels, when the optional extension ``lidarpkt._native`` was built.
 
 These loops do not vectorise well in NumPy, and run in C when they can
 (``lidarpkt/native/*.c``, one file per concern: ``walk.c`` the packet walk, ``xyz.c``,
@@ -41,10 +41,10 @@ def _load() -> ModuleType | None:
     if os.environ.get("LIDARPKT_NATIVE", "1") == "0":
         return None
     try:
-        import _lidarpkt_native
+        from . import _native
     except ImportError:
         return None
-    return _lidarpkt_native
+    return _native
 
 
 native: ModuleType | None = _load()

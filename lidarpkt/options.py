@@ -14,12 +14,12 @@ import inspect
 import os
 import textwrap
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Iterable, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
 if TYPE_CHECKING:
     from .sources.segments import Segment
 
-__all__ = ["OpenOptions", "with_options", "load_ouster_metadata"]
+__all__ = ["OpenOptions", "OpenKeywords", "with_options", "load_ouster_metadata"]
 
 
 def _option(default: Any, doc: str) -> Any:
@@ -95,6 +95,30 @@ class OpenOptions:
         """The options the packet reader takes (``None``: the reader's default)."""
         return {"ports": self.ports, "src_addresses": self.src_addresses, "payload_sizes": self.payload_sizes,
                 "topics": self.topics, "batch_packets": self.batch_packets}
+
+
+class OpenKeywords(TypedDict, total=False):
+    """The fields of :class:`OpenOptions` as the keywords of ``lidarpkt.open`` for static type checkers
+    (``**options: Unpack[OpenKeywords]``): a misspelt or mistyped option is found before the script runs.
+    A test holds it equal to :class:`OpenOptions`, name for name and type for type."""
+
+    metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None
+    calibration: Any
+    cut_angle_deg: float | None
+    cut_on_block: bool
+    source: str | None
+    include_partial: bool
+    verify_crc: bool
+    soft_id_check: bool
+    max_sensors: int
+    read_ahead: bool | None
+    segment: Segment | None
+    ports: Iterable[int] | None
+    src_addresses: Iterable[str] | None
+    payload_sizes: Iterable[int] | None
+    topics: Iterable[str] | None
+    batch_packets: int | None
+    workers: int
 
 
 _NAMES = frozenset(f.name for f in dataclasses.fields(OpenOptions))

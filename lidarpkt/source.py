@@ -27,6 +27,9 @@ from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
 
 if TYPE_CHECKING:
+    from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
+
+    from .options import OpenKeywords
     from .parallel import ParallelFrameReader
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
@@ -291,7 +294,7 @@ class FrameReader(FrameIterator):
 
 
 @with_options
-def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | ParallelFrameReader":
+def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]) -> FrameReader | ParallelFrameReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
@@ -309,7 +312,7 @@ def open_frames(path: str | os.PathLike[str], **options: Any) -> "FrameReader | 
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
         UsageError: ``workers`` is not a whole number >= 1.
     """
-    opts = OpenOptions.from_keywords("open_frames", options)
+    opts = OpenOptions.from_keywords("open_frames", dict(options))
     if opts.workers != 1:
         from .parallel import open_parallel
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from conftest import REPO_ROOT, external
 
-CANNED = REPO_ROOT / "fixtures" / "canned"
+CANNED = REPO_ROOT / "lidarpkt" / "fixtures" / "canned"
 
 # (external capture, its metadata or None): copied into the archive under these names
 ARCHIVE_EXTERNAL = [

@@ -3,7 +3,7 @@
 Each helper drives a tool nobody here wrote (ouster-sdk's pcap reader, the official ``mcap_ros2``
 writer) and skips the calling test when that tool is not installed. The VelodyneScan schema text
 below is written out from the ROS message definitions on purpose, not imported from
-``recorder.schemas``, so that a test reading such a file checks our reader against an
+``lidarpkt.writers.mcap.schemas``, so that a test reading such a file checks our reader against an
 independently written one.
 """
 

@@ -152,7 +152,7 @@ def test_vlp16_packet_fields_have_their_documented_types():
 
 
 def test_reassembler_limits_must_be_positive():
-    from lidarpkt.reassembly import Reassembler
+    from lidarpkt.sources.reassembly import Reassembler
 
     Reassembler(timeout_ns=1, max_datagrams=1, max_bytes=1)
     for bad in ({"timeout_ns": 0}, {"max_datagrams": 0}, {"max_bytes": 0}):

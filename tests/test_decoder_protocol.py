@@ -7,14 +7,14 @@ import typing
 
 import numpy as np
 
-import fixtures
+from lidarpkt import fixtures
 import lidarpkt
 from lidarpkt.decoder import Decoder, StreamCounter, StreamCounts
 from lidarpkt.frame import Frame, SensorInfo
 from lidarpkt.ouster import OusterDecoder, load_metadata
 from lidarpkt.ouster import stream as ouster_stream
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 from lidarpkt.velodyne import VelodyneDecoder
 from lidarpkt.velodyne import stream as velodyne_stream
 

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import uniform_filter
 
-import fixtures
+from lidarpkt import fixtures
 import lidarpkt
-from fixtures import generate as gen
-from fixtures import scene as sc
+from lidarpkt.fixtures import generate as gen
+from lidarpkt.fixtures import scene as sc
 
 VLP16 = ("vlp16-strongest", "vlp16-last", "vlp16-dual")
 OUSTER = ("os1-64-legacy", "os1-64-dual")
@@ -251,12 +251,12 @@ def test_first_frames_do_not_depend_on_capture_length():
 def test_generation_is_deterministic_and_cli_regenerates_the_canned_bytes(tmp_path):
     out = tmp_path / "gen"
     r = subprocess.run(
-        [sys.executable, "-m", "fixtures.generate", "--out", str(out), "--sensor", "vlp16", "--frames", "5"],
+        [sys.executable, "-m", "lidarpkt.fixtures.generate", "--out", str(out), "--sensor", "vlp16", "--frames", "5"],
         capture_output=True, text=True, timeout=120,
     )
     assert r.returncode == 0, r.stderr
     r = subprocess.run(
-        [sys.executable, "-m", "fixtures.generate", "--out", str(out), "--sensor", "os1-64", "--frames", "2"],
+        [sys.executable, "-m", "lidarpkt.fixtures.generate", "--out", str(out), "--sensor", "os1-64", "--frames", "2"],
         capture_output=True, text=True, timeout=120,
     )
     assert r.returncode == 0, r.stderr
@@ -265,7 +265,7 @@ def test_generation_is_deterministic_and_cli_regenerates_the_canned_bytes(tmp_pa
         assert json.loads((out / f"{name}.truth.json").read_text()) == fixtures.load_truth(fixtures.canned(name))
         if name.startswith("os1"):
             assert (out / f"{name}.json").read_bytes() == fixtures.metadata_path(fixtures.canned(name)).read_bytes()
-    bad = subprocess.run([sys.executable, "-m", "fixtures.generate", "--out", str(out), "--frames", "0"],
+    bad = subprocess.run([sys.executable, "-m", "lidarpkt.fixtures.generate", "--out", str(out), "--frames", "0"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--frames" in bad.stderr
 
@@ -616,9 +616,9 @@ def test_bad_generator_input_raises_fixture_errors(tmp_path):
         gen.generate(tmp_path, sensor="hdl32")
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    r = subprocess.run([sys.executable, "-m", "fixtures.generate", "--out", str(blocker / "sub"), "--frames", "1",
+    r = subprocess.run([sys.executable, "-m", "lidarpkt.fixtures.generate", "--out", str(blocker / "sub"), "--frames", "1",
                         "--sensor", "vlp16"], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 1 and "fixtures.generate: error:" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "lidarpkt.fixtures.generate: error:" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_reported_reflectivity_is_derived_from_the_measured_strength_and_range():

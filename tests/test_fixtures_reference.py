@@ -11,9 +11,9 @@ import struct
 import numpy as np
 import pytest
 
-import fixtures
+from lidarpkt import fixtures
 import lidarpkt
-from fixtures import generate as gen
+from lidarpkt.fixtures import generate as gen
 
 from test_fixtures import decoded, ipv4_udp_records, report_of  # noqa: E402 (tests dir is on sys.path)
 

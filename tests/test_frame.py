@@ -81,7 +81,7 @@ def test_xyz_dtype_float32_and_a_bad_dtype():
     import lidarpkt
     from lidarpkt.errors import UsageError
 
-    frame = next(iter(lidarpkt.open(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap")))
+    frame = next(iter(lidarpkt.open(REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-dual.pcap")))
     p64, p32 = frame.xyz(), frame.xyz(np.float32)
     assert p32.dtype == np.float32 and np.array_equal(p32, p64.astype(np.float32))
     for bad in (np.float16, np.int32, "no such type"):

@@ -13,7 +13,7 @@ import pytest
 import lidarpkt
 from conftest import REPO_ROOT, external
 
-CANNED = REPO_ROOT / "fixtures" / "canned"
+CANNED = REPO_ROOT / "lidarpkt" / "fixtures" / "canned"
 
 # (id, capture, metadata): "ext:" paths are external captures, the others canned fixtures
 CASES = [

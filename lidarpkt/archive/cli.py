@@ -17,7 +17,7 @@ from pathlib import Path
 from lidarpkt.errors import LidarpktError
 
 from .export import FORMATS
-from .plan import DEFAULT_SEGMENT_BYTES
+from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
 
 
 def _add_engine(p: argparse.ArgumentParser) -> None:

@@ -20,7 +20,9 @@ from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktWarning
 
-from .plan import DEFAULT_SEGMENT_BYTES, PlanError, parse_size, plan_captures, plan_segments
+from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
+
+from .plan import PlanError, parse_size, plan_captures, plan_segments
 
 
 @dataclass(frozen=True)

@@ -61,9 +61,9 @@ def map_capture(task: MapTask) -> list[dict[str, Any]]:
     """
     import numpy as np
 
-    from analysis.multireturn import multireturn_map
-    from analysis.returns import sensor_returns
-    from analysis.stack import load_stack
+    from lidarpkt.analysis.multireturn import multireturn_map
+    from lidarpkt.analysis.returns import sensor_returns
+    from lidarpkt.analysis.stack import load_stack
 
     start = time.perf_counter()
     base = {c: None for c in SUMMARY_COLUMNS}
@@ -165,7 +165,7 @@ def run_multireturn_archive(args: Any) -> int:
     flag); exit status 1 when a capture could not be analysed."""
     import sys
 
-    from analysis.stack import parse_frame_range
+    from lidarpkt.analysis.stack import parse_frame_range
 
     if args.plot:
         raise PlanError(f"--plot {args.plot}: figures are drawn for one capture (-o MAP.npz); "
@@ -175,7 +175,7 @@ def run_multireturn_archive(args: Any) -> int:
 
         cliargs.check_folder(args.output, "-o")
     options: dict[str, Any] = {"neighbourhood": args.neighbourhood, "monitor_frame": args.monitor_frame,
-                               "threshold_m": args.threshold, "method": "row" if args.monitor_by_row else args.method}
+                               "threshold_m": args.threshold, "method": args.method}
     if args.gap is not None:
         options["gap_m"] = args.gap
     rows = multireturn_maps(args.input, args.output, metadata=args.metadata or (), glob=getattr(args, "glob", None),

@@ -24,7 +24,6 @@ import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-import numpy as np
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning, UnknownSensorError
 

@@ -15,7 +15,6 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Iterable, Sequence
 
 from lidarpkt.errors import LidarpktError
-from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES  # a capture above it is cut into segments
 # names a directory walk takes without reading them (the magic bytes decide for the rest)
 CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3")
 _SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,

@@ -188,7 +188,7 @@ def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], co
     return slot's cloud topics); points are not counted for MCAP."""
     from mcap.reader import make_reader
 
-    from recorder.decode import decode_captures
+    from lidarpkt.recorder.decode import decode_captures
 
     metadata = [_fetch_input(m, scratch) for m in task.metadata]
     decode_captures([path], target, quiet=True, **({"metadata": metadata} if metadata else {}),

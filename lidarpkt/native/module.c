@@ -1,4 +1,4 @@
-/* The one extension module `_lidarpkt_native`: its method table (kernels in the other files). */
+/* The one extension module `lidarpkt._native`: its method table (kernels in the other files). */
 #include "common.h"
 
 static PyMethodDef methods[] = {
@@ -12,7 +12,7 @@ static PyMethodDef methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_lidarpkt_native",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "lidarpkt._native",
                                     "Compiled kernels of lidarpkt (optional; see lidarpkt/kernels.py).", -1, methods};
 
-PyMODINIT_FUNC PyInit__lidarpkt_native(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__native(void) { return PyModule_Create(&module); }

@@ -44,7 +44,7 @@ class OusterGeometry:
 
     def _make_lut(self) -> tuple[np.ndarray, np.ndarray]:
         md = self.metadata
-        w, h = md.columns_per_frame, md.pixels_per_column
+        w = md.columns_per_frame
         b2l = np.asarray(md.beam_to_lidar_transform, np.float64)
         l2s = np.asarray(md.lidar_to_sensor_transform, np.float64)
         encoder = 2.0 * np.pi * (1.0 - np.arange(w, dtype=np.float64) / w)  # [W]

@@ -23,12 +23,12 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
+from ..errors import CaptureFormatError, LidarpktWarning, SkippedPacketWarning, TruncatedCaptureWarning
 from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from ..packet import Packet, PacketBatch
 from .filters import check_filters
 from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
-from .magic import MCAP_MAGIC
+from .magic import MCAP_MAGIC, SQLITE_MAGIC
 
 # Definitions of packet message types that are not in rosbags' stock type stores; used when
 # the bag does not carry its own definitions (rosbag2 sqlite3 before the v8 metadata).
@@ -192,6 +192,7 @@ class BagReader:
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
         self.stats: dict[str, Any] = {"messages": 0, "packets": 0, "skipped_topics": {}}
         self._ouster_metadata: str | None = None
+        self._metadata_dir: Any = None  # a TemporaryDirectory holding a completed metadata.yaml, if one was needed
 
     def ouster_metadata(self) -> str | None:
         """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``), once
@@ -228,8 +229,20 @@ class BagReader:
     def _bag_paths(self) -> list[Path]:
         p = self.path
         if p.is_file() and p.suffix == ".db3" and (p.parent / "metadata.yaml").exists():
-            return [p.parent]  # rosbags opens a rosbag2 by its directory
+            p = p.parent  # rosbags opens a rosbag2 by its directory
+        if p.is_dir() and (p / "metadata.yaml").is_file():
+            patched = _with_default_metadata(p)
+            if patched is not None:
+                self._metadata_dir, notes = patched
+                warn(LidarpktWarning(f"{p}: metadata.yaml {notes}; read it so (an old rosbag2 writer left the "
+                                     "field empty)"))
+                return [Path(self._metadata_dir.name)]
         return [p]
+
+    def _cleanup_metadata_dir(self) -> None:
+        if self._metadata_dir is not None:
+            self._metadata_dir.cleanup()
+            self._metadata_dir = None
 
     def _open(self):
         from rosbags.highlevel import AnyReader
@@ -249,6 +262,7 @@ class BagReader:
             bound_rosbags(reader, self.path)  # ROS 1 chunks and rosbag2 messages inflate into a bounded size
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
             _close_failed_open(reader, exc)
+            self._cleanup_metadata_dir()
             if isinstance(exc, CaptureFormatError):
                 raise
             raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
@@ -315,6 +329,7 @@ class BagReader:
                 yield conn.topic, conn.msgtype, int(bag_time_ns), msg
         finally:
             reader.close()
+            self._cleanup_metadata_dir()
 
     def _mcap_messages(self) -> Iterator[tuple[str, str, int, Any]]:
         """Messages of a plain MCAP file (no rosbag2 metadata.yaml needed), in file order.
@@ -370,6 +385,63 @@ class BagReader:
                         f"{self.path}: message on {channel.topic} ({schema.name}) at {message.log_time} ns cannot "
                         f"be decoded: {exc}") from None
                 yield channel.topic, schema.name, int(message.log_time), msg
+
+
+def _with_default_metadata(bag: Path) -> tuple[Any, str] | None:
+    """A temporary rosbag2 folder whose ``metadata.yaml`` fills the fields an old rosbag2 writer left
+    empty or out, and links to ``bag``'s storage files; ``None`` when nothing is missing (or the YAML is
+    not a rosbag2's: rosbags says what is wrong with it). A missing ``storage_identifier`` is the storage
+    its files are (sqlite3 or mcap, by their first bytes); a missing ``serialization_format`` is ``cdr``,
+    the only one rosbag2 writes. Returns ``(TemporaryDirectory, what was filled in)``."""
+    import tempfile
+
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        doc = YAML(typ="safe").load((bag / "metadata.yaml").read_text())
+        info = doc["rosbag2_bagfile_information"]
+        files = [bag / Path(str(name)).name for name in info.get("relative_file_paths") or []]
+        topics = [t["topic_metadata"] for t in info.get("topics_with_message_count") or []]
+    except (OSError, YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
+        return None
+    notes = []
+    if not info.get("storage_identifier"):
+        storage = None
+        for file in files:
+            try:
+                with file.open("rb") as fh:
+                    head = fh.read(max(len(SQLITE_MAGIC), len(MCAP_MAGIC)))
+            except OSError:
+                continue
+            storage = "sqlite3" if head.startswith(SQLITE_MAGIC) else "mcap" if head.startswith(MCAP_MAGIC) else None
+            if storage:
+                break
+        if storage is None:
+            return None  # rosbags names the missing plugin
+        info["storage_identifier"] = storage
+        notes.append(f"names no storage plugin (its files are {storage})")
+    empty = [t.get("name", "?") for t in topics if isinstance(t, dict) and not t.get("serialization_format")]
+    for topic in topics:
+        if isinstance(topic, dict) and not topic.get("serialization_format"):
+            topic["serialization_format"] = "cdr"
+    if empty:
+        notes.append(f"names no serialization format for {', '.join(map(str, empty[:4]))} (cdr, rosbag2's own)")
+    if not notes:
+        return None
+    folder = tempfile.TemporaryDirectory(prefix="lidarpkt-bag-")
+    try:
+        for file in files:
+            if file.exists():
+                os.symlink(file.resolve(), Path(folder.name, file.name))
+        yaml = YAML(typ="safe")
+        yaml.default_flow_style = False
+        with Path(folder.name, "metadata.yaml").open("w") as fh:
+            yaml.dump(doc, fh)
+    except OSError as exc:
+        folder.cleanup()
+        raise CaptureFormatError(f"{bag}: metadata.yaml {'; '.join(notes)}, and completing it in a temporary "
+                                 f"folder failed: {exc}") from exc
+    return folder, "; ".join(notes)
 
 
 class _FileRemainder:

@@ -66,7 +66,6 @@ __all__ = ["ipv4_headers", "plain_udp", "RecordParser", "canonical_address", "is
 def ipv4_headers(buf: np.ndarray, c: Chunk):
     """Records holding UDP/IPv4 at a fixed link offset: ``(ok, l2, l3, ihl)`` (offsets 0 where not ok)."""
     n = c.caplen.shape[0]
-    size = buf.shape[0]
     lt = c.linktype
     l2 = np.full(n, -1, np.int64)
     for link, nbytes in _L2_BYTES.items():

@@ -1,4 +1,4 @@
-"""Offline packet source: UDP datagrams from pcap and pcapng captures (``lidarpkt.pcap`` is this module).
+"""Offline packet source: UDP datagrams from pcap and pcapng captures (``lidarpkt.sources.pcap_reader`` is this module).
 
 Formats (detected by magic number, never by file name): classic libpcap in both byte
 orders with microsecond or nanosecond time stamps (and the 24-byte-record "modified"
@@ -21,7 +21,7 @@ NumPy gathers; the payloads of plain unfragmented UDP/IPv4 records are cut out i
 copy per stream, and whole in-order IPv4 fragment trains are reassembled with array
 operations too. Only the odd records (reordered, duplicated or lost fragments, IPv6,
 three or more VLAN tags, damage) go through the per-record parser and
-:class:`~lidarpkt.reassembly.Reassembler` (bounded, with a host-time timeout so that a
+:class:`~lidarpkt.sources.reassembly.Reassembler` (bounded, with a host-time timeout so that a
 stale fragment is never merged with a later datagram that reuses its IP ID).
 
 Length fields are never trusted over the captured bytes: a UDP payload ends at the
@@ -58,8 +58,8 @@ from ..packet import Packet, PacketBatch
 from .batching import ChunkDecoder
 from .datagram import canonical_address
 from .magic import capture_format, format_from_magic, is_capture
-from .pcap_walk import MAX_RECORD_BYTES, BlockReader, PcapWalk
-from .pcapng_walk import MAX_PCAPNG_BLOCK, PcapngWalk
+from .pcap_walk import BlockReader, PcapWalk
+from .pcapng_walk import PcapngWalk
 from .reassembly import Reassembler
 
 if TYPE_CHECKING:
@@ -72,7 +72,6 @@ __all__ = [
     "read_batches",
     "is_capture",
     "capture_format",
-    "LINKTYPE_NAMES",
 ]
 
 MAX_CHUNK_BYTES = 8 << 20  # a chunk (and so a batch) spans at most this much of the file: 8 MB keeps a chunk in
@@ -312,21 +311,3 @@ def read_packets(path: str | os.PathLike[str], **filters) -> Iterator[Packet]:
 def read_batches(path: str | os.PathLike[str], **filters) -> Iterator[PacketBatch]:
     """Same-stream batches of a capture's UDP datagrams (see :meth:`PcapReader.batches`)."""
     return PcapReader(path, **filters).batches()
-
-
-
-# Names that lidarpkt.pcap offered before the packet-source layer was split out (lidarpkt.pcapwrite,
-# the tests and the benchmarks import them from there); MAX_CHUNK_BYTES and READ_BLOCK_BYTES above are
-# read at each pass, so that setting them on this module (lidarpkt.pcap) still takes effect.
-from .gathers import Chunk as _Chunk, copy_rows as _copy_rows, few_groups as _few_groups  # noqa: E402,F401
-from .gathers import field as _field, gather as _gather  # noqa: E402,F401
-from .layouts import *  # noqa: E402,F401,F403
-from .layouts import LINKTYPE_NAMES, field_offset, header_struct, internet_checksum  # noqa: E402,F401
-from .magic import (  # noqa: E402,F401
-    PCAP_MAGIC_MODIFIED,
-    PCAP_MAGIC_NS,
-    PCAP_MAGIC_US,
-    PCAPNG_BOM,
-    PCAPNG_SHB,
-)
-from .magic import format_from_magic as _format_from_magic  # noqa: E402,F401

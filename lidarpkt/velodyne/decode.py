@@ -137,7 +137,7 @@ def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: 
     (from ``firing_azimuth_cdeg``, ``[N, 12 / slots, 32]``), W = N · (12 / slots) · 2; row r is laser
     ``row_laser[r]``; dual packets (``slots`` 2) put block b in slot b % 2.
 
-    Compiled (``_lidarpkt_native.velodyne_columns``, one pass a packet at a time) when it is built;
+    Compiled (``lidarpkt._native.velodyne_columns``, one pass a packet at a time) when it is built;
     the NumPy twin makes two passes: the strided 3-byte records copied once into [slot, column,
     laser] order (long inner loops), then per row one gather of a laser column (16 small ufunc
     calls); gathering each row straight from the packets walked inner loops of 2 elements and was

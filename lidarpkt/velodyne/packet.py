@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import PacketFormatError
-from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, RETURN_MODES, VLP16
+from .models import RETURN_MODES, VLP16
 
 DATA_PACKET_SIZE = 1206
 POSITION_PACKET_SIZE = 512

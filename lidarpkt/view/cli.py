@@ -18,7 +18,7 @@ import time
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from recorder.record import add_receive_arguments
+    from lidarpkt.recorder.record import add_receive_arguments
 
     from .server import add_ws_argument
 
@@ -132,9 +132,9 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 
 def _view_live(args, stop: threading.Event) -> int:
-    from recorder.capture import UdpCapture
-    from recorder.record import load_ouster_metadata
-    from recorder.sink import batch_from_packets
+    from lidarpkt.recorder.capture import UdpCapture
+    from lidarpkt.recorder.record import load_ouster_metadata
+    from lidarpkt.recorder.sink import batch_from_packets
 
     from .server import start_server
     from .sources import LiveDecoder

@@ -234,7 +234,7 @@ class ViewServer:
         out = []
         with self._lock:
             pending = self._pending_packets
-            for source, n in list(pending.items()):
+            for source in list(pending):
                 if source in self._by_source:
                     self._by_source[source].packets += pending.pop(source)
             for sensor in self._sensors.values():

@@ -316,7 +316,7 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
             sensor = sensors.get(key) or sensors.setdefault(key, _sensor_from(row))
             r, h, w = row["returns"], row["rows"], row["columns"]
 
-            def arr(name: str, dtype: str, shape: tuple) -> np.ndarray | None:
+            def arr(name: str, dtype: str, shape: tuple, row: dict = row) -> np.ndarray | None:
                 value = row[name]
                 return None if value is None else np.asarray(value, dtype).reshape(shape)
 

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from analysis.cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
+from lidarpkt.analysis.cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
 from lidarpkt.errors import AnalysisError
 from test_analysis_support import destaggered_by_definition, make_stack
 

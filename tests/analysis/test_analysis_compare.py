@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analysis.compare import compare_slots, compare_stacks, ks_image
+from lidarpkt.analysis.compare import compare_slots, compare_stacks, ks_image
 from lidarpkt.errors import AnalysisError
 from test_analysis_support import make_stack
 
@@ -88,7 +88,7 @@ def test_comparison_errors():
 
 def test_real_vlp16_dual_capture_slots_mostly_identical(ext):
     """SOURCES.md: in the nebula VLP-16 dual bag about 98% of return pairs are identical."""
-    from analysis.stack import load_stack
+    from lidarpkt.analysis.stack import load_stack
 
     stack = load_stack(ext("nebula/vlp16/1673400471837873222/1673400471837873222_0.db3"))
     assert stack.return_labels == ("last", "strongest")

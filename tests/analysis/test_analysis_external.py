@@ -10,10 +10,10 @@ import warnings
 import numpy as np
 import pytest
 
-from analysis.returns import available_returns, sample_mask, select_returns
-from analysis.cdf import RangeCDF, spatial_cdf, temporal_cdf
-from analysis.multireturn import image_statistics, multireturn_map
-from analysis.stack import load_stack
+from lidarpkt.analysis.returns import available_returns, sample_mask, select_returns
+from lidarpkt.analysis.cdf import RangeCDF, spatial_cdf, temporal_cdf
+from lidarpkt.analysis.multireturn import image_statistics, multireturn_map
+from lidarpkt.analysis.stack import load_stack
 from lidarpkt.cli import main
 
 E_OUSTER = [

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from analysis.cdf import RangeCDF
-from analysis.gmm import fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance
+from lidarpkt.analysis.cdf import RangeCDF
+from lidarpkt.analysis.gmm import fit_auto, fit_em, fit_gmm, fit_thresholds, gap_thresholds, ks_distance
 from lidarpkt.errors import AnalysisError
 
 # 6 returns and 2 non-returns (n = 8): F = 1/8 ... 6/8 at the sorted returns.

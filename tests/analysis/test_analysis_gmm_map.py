@@ -10,9 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from analysis.cdf import temporal_cdf
-from analysis.gmm import fit_em
-from analysis.gmm_map import fit_gmm_map, load_gmm_map
+from lidarpkt.analysis.cdf import temporal_cdf
+from lidarpkt.analysis.gmm import fit_em
+from lidarpkt.analysis.gmm_map import fit_gmm_map, load_gmm_map
 from lidarpkt.cli import main
 from test_analysis_cli import canned  # noqa: F401  (a fixture)
 from test_analysis_support import load_fixture, make_stack

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from analysis.cdf import temporal_cdf
-from analysis.motion import estimate_frame_offsets, motion_compensated_cdf
+from lidarpkt.analysis.cdf import temporal_cdf
+from lidarpkt.analysis.motion import estimate_frame_offsets, motion_compensated_cdf
 from lidarpkt.errors import AnalysisError
 from test_analysis_support import destaggered_by_definition, make_stack
 

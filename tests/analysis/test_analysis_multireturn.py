@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analysis.multireturn import (
+from lidarpkt.analysis.multireturn import (
     MIN_WINDOW_RETURNS,
     MONITOR_METHODS,
     detrended_gap_score,
@@ -54,7 +54,7 @@ def reference_stats(stack, gap_m):
 @pytest.mark.parametrize("gap_m,block", [(0.1, None), (0.03, None), (0.1, 50)])
 def test_image_statistics_match_a_per_pixel_loop(gap_m, block, monkeypatch):
     if block is not None:  # tiny blocks of rows: the blocked path must give the same result
-        import analysis.multireturn as mr
+        import lidarpkt.analysis.multireturn as mr
 
         monkeypatch.setattr(mr, "_BLOCK_SAMPLES", block)
     stack = random_stack()
@@ -253,7 +253,7 @@ def test_monitor_methods_and_their_errors():
 def test_detrended_score_scores_a_64_by_1024_frame_without_a_python_loop_per_pixel(monkeypatch):
     """Vectorised: the plane fits are solved for all pixels in a few NumPy calls, whatever the
     image size (counted, not timed)."""
-    import analysis.multireturn as m
+    import lidarpkt.analysis.multireturn as m
 
     calls = []
     real = m._window_gap

@@ -9,10 +9,10 @@ import pytest
 
 pytest.importorskip("matplotlib", reason="plots need the `plot` extra (matplotlib)")
 
-from analysis import plots  # noqa: E402
-from analysis.compare import compare_slots  # noqa: E402
-from analysis.multireturn import multireturn_map  # noqa: E402
-from analysis.raypath import analyze_raypath  # noqa: E402
+from lidarpkt.analysis import plots  # noqa: E402
+from lidarpkt.analysis.compare import compare_slots  # noqa: E402
+from lidarpkt.analysis.multireturn import multireturn_map  # noqa: E402
+from lidarpkt.analysis.raypath import analyze_raypath  # noqa: E402
 from test_analysis_plots import stack  # noqa: E402,F401 (the shared fixture)
 from test_analysis_support import destaggered_by_definition, make_stack  # noqa: E402
 
@@ -166,7 +166,7 @@ def test_mode_cdf_curves():
     r = np.random.default_rng(1).integers(3000, 9000, size=(6, 1, 4, 32)).astype(np.uint32)
     r[::3, 0, 1, 3] = 0
     st = make_stack(r)
-    from analysis.cdf import temporal_cdf
+    from lidarpkt.analysis.cdf import temporal_cdf
 
     lines = plots.plot_mode_cdfs({"strongest": temporal_cdf(st, 1, 3), "last": temporal_cdf(st, 1, 4)}, 1, 3).axes[0].get_lines()
     for line, col in zip(lines, (3, 4)):

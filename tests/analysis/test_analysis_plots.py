@@ -7,10 +7,10 @@ import pytest
 
 pytest.importorskip("matplotlib", reason="plots need the `plot` extra (matplotlib)")
 
-from analysis import plots  # noqa: E402
-from analysis.compare import compare_slots  # noqa: E402
-from analysis.multireturn import multireturn_map  # noqa: E402
-from analysis.raypath import analyze_raypath  # noqa: E402
+from lidarpkt.analysis import plots  # noqa: E402
+from lidarpkt.analysis.compare import compare_slots  # noqa: E402
+from lidarpkt.analysis.multireturn import multireturn_map  # noqa: E402
+from lidarpkt.analysis.raypath import analyze_raypath  # noqa: E402
 from lidarpkt.errors import AnalysisError  # noqa: E402
 
 from test_analysis_support import make_stack
@@ -102,7 +102,7 @@ def test_mode_cdfs_and_ouster_range_image(tmp_path):
     # the marker of staggered pixel (1, 3) sits at destaggered column 3 + 6
     marker = [line for line in fig.axes[0].get_lines() if line.get_marker() == "s"][0]
     assert marker.get_xdata()[0] == 9 and marker.get_ydata()[0] == 1
-    from analysis.cdf import temporal_cdf
+    from lidarpkt.analysis.cdf import temporal_cdf
 
     fig = plots.plot_mode_cdfs({"strongest": temporal_cdf(st, 1, 3), "last": temporal_cdf(st, 1, 4)}, 1, 3, ks=0.25)
     assert "KS distance 0.250" in fig.axes[0].get_title()

@@ -12,9 +12,9 @@ import pytest
 
 pytest.importorskip("small_gicp", reason="registration-impact needs the registration extra (small_gicp)")
 
-from analysis.multireturn import image_statistics  # noqa: E402
-from analysis.registration import CONDITIONS, pose_error, registration_impact  # noqa: E402
-from analysis.stack import select_frames  # noqa: E402
+from lidarpkt.analysis.multireturn import image_statistics  # noqa: E402
+from lidarpkt.analysis.registration import CONDITIONS, pose_error, registration_impact  # noqa: E402
+from lidarpkt.analysis.stack import select_frames  # noqa: E402
 from lidarpkt.cli import main  # noqa: E402
 from test_analysis_cli import assert_png, canned  # noqa: E402,F401  (canned: a fixture)
 from test_analysis_support import load_fixture  # noqa: E402

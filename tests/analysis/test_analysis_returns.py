@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from analysis.cdf import temporal_cdf
-from analysis.compare import compare_slots, compare_stacks
-from analysis.returns import (
+from lidarpkt.analysis.cdf import temporal_cdf
+from lidarpkt.analysis.compare import compare_slots, compare_stacks
+from lidarpkt.analysis.returns import (
     ReturnStack,
     available_returns,
     parse_return,
@@ -21,7 +21,7 @@ from analysis.returns import (
 )
 from lidarpkt.cli import main
 from lidarpkt.velodyne.dual import signal_order_undecided
-from fixtures import ensure
+from lidarpkt.fixtures import ensure
 from test_analysis_support import load_fixture, make_stack
 
 FRAMES = 50

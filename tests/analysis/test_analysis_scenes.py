@@ -4,14 +4,15 @@ the truth JSON's per-frame samples of the named raypaths, and the generator's fu
 
 from __future__ import annotations
 
+import importlib
 import numpy as np
 import pytest
 
-from analysis.cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
-from analysis.compare import compare_slots, compare_stacks
-from analysis.gmm import fit_gmm
-from analysis.motion import estimate_frame_offsets, motion_compensated_cdf
-from analysis.multireturn import image_statistics, multireturn_map
+from lidarpkt.analysis.cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
+from lidarpkt.analysis.compare import compare_slots, compare_stacks
+from lidarpkt.analysis.gmm import fit_gmm
+from lidarpkt.analysis.motion import estimate_frame_offsets, motion_compensated_cdf
+from lidarpkt.analysis.multireturn import image_statistics, multireturn_map
 from test_analysis_support import load_fixture
 
 VLP_FRAMES, OS1_FRAMES = 50, 30
@@ -28,7 +29,7 @@ def scenes():
 
 @pytest.fixture(scope="module")
 def reports():
-    gen = pytest.importorskip("fixtures.generate")
+    gen = importlib.import_module("lidarpkt.fixtures.generate")
     return {"vlp16": gen.vlp16_reports(VLP_FRAMES, 0, 0), "os1-64": gen.os1_reports(OS1_FRAMES, 0, 0)}
 
 

@@ -3,6 +3,7 @@ and the generated fixture scenes (written once per test session into a temporary
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -45,13 +46,13 @@ def ensure(name: str, **options) -> Path:
     skips the test when the fixture generator is not available."""
     import pytest
 
-    fixtures = pytest.importorskip("fixtures", reason="the fixture generator (fixtures/) is not available")
+    fixtures = importlib.import_module("lidarpkt.fixtures")
     return fixtures.ensure(name, **options)
 
 
 def load_fixture(name: str, **options):
     """(FrameStack of the complete frames, truth dict) of a generated capture."""
-    from analysis.stack import load_stack
+    from lidarpkt.analysis.stack import load_stack
 
     pcap = ensure(name, **options)
     meta = pcap.with_suffix(".json") if name.startswith("os1") else None

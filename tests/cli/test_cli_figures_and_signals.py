@@ -51,7 +51,7 @@ def test_replay_stopped_by_sigterm_prints_its_summary_and_exits_0():
 @pytest.fixture(scope="module")
 def stack():
     pytest.importorskip("matplotlib", reason="figures need the `plot` extra")
-    from analysis.stack import load_stack
+    from lidarpkt.analysis.stack import load_stack
 
     return load_stack(external(VLP20), frames=(0, 20))
 
@@ -71,8 +71,8 @@ def _inside(fig, artist) -> bool:
 
 
 def test_multireturn_map_colour_bar_labels_are_not_cut_off(stack):
-    from analysis import plots
-    from analysis.multireturn import multireturn_map
+    from lidarpkt.analysis import plots
+    from lidarpkt.analysis.multireturn import multireturn_map
 
     fig = plots.plot_multireturn_map(multireturn_map(stack), stack, 0, "VeloView")
     _draw(fig)
@@ -88,7 +88,7 @@ def test_multireturn_map_colour_bar_labels_are_not_cut_off(stack):
 
 
 def test_range_image_pixel_labels_do_not_overlap_and_grey_is_explained(stack):
-    from analysis import plots
+    from lidarpkt.analysis import plots
 
     # (7, 449), (7, 470) and (8, 480): three marks within 31 columns of 900, on neighbouring rows
     fig = plots.plot_range_image(stack, 0, 0, [(7, 449), (7, 470), (8, 480), (2, 890)], "VeloView")

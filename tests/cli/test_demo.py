@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import fixtures
+from lidarpkt import fixtures
 from lidarpkt.velodyne.dual import second_strongest_mark
 
 REPO = Path(__file__).resolve().parents[2]
@@ -19,7 +19,7 @@ FRAMES = 4
 def demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
     proc = subprocess.run(
-        [sys.executable, "-m", "lidarpkt", "demo", "--out", str(out), "--frames", str(FRAMES)],
+        [sys.executable, "-m", "lidarpkt", "demo", "-o", str(out), "--frames", str(FRAMES)],
         capture_output=True, text=True, cwd=REPO, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr

@@ -10,7 +10,7 @@ import pytest
 
 from lidarpkt.info import describe_capture, format_capture
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcapwrite import frames_for, write_pcap_records
+from lidarpkt.writers.pcap import frames_for, write_pcap_records
 from conftest import external
 
 
@@ -193,8 +193,8 @@ def test_damaged_capture_is_reported(tmp_path):
 def test_generated_pcapng_dual_mode_and_gps_locked(tmp_path):
     """Packets patched by hand after the VLP-16 manual's layout (return mode byte 1204, product 1205;
     position: µs timestamp at 198, PPS status at 202, NMEA from 206), in a VLAN-tagged ns pcapng."""
-    from lidarpkt.pcap import read_packets
-    from lidarpkt.pcapwrite import Interface, write_pcapng
+    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.writers.pcap import Interface, write_pcapng
 
     data = [p for p in read_packets(external("rust-lidar-utils/velodyne_example.pcap"))][:20]
     dual = []
@@ -305,8 +305,12 @@ def test_directory_of_captures(tmp_path):
     docs = json.loads(res.stdout)["captures"]
     pcaps = sorted(str(p) for p in root.glob("*/*.pcap"))
     assert sorted(d["file"] for d in docs if d["format"] == "pcap") == pcaps
-    assert [d["format"] for d in docs if d["format"] != "pcap"] == ["rosbag2"]  # the nebula bag folder
+    # every rosbag2 folder (old writers' metadata with empty fields included) and every ROS 1 bag, each read
+    bags = {str(p.parent) for p in root.rglob("metadata.yaml")} | {str(p) for p in root.rglob("*.bag")}
+    assert bags and {d["file"] for d in docs if d["format"] in ("rosbag2", "rosbag1")} == bags
     assert all("error" not in d for d in docs)
+    vls128 = [d for d in docs if "vls128" in d["file"]]
+    assert len(vls128) == 1 and sum(s["packets"] for s in vls128[0]["streams"]) == 2193  # an empty serialization format
     empty = tmp_path / "empty"
     empty.mkdir()
     res = _cli(str(empty))

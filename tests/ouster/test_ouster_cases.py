@@ -9,7 +9,7 @@ import numpy as np
 from conftest import external
 from lidarpkt.ouster import OusterDecoder, classify, load_metadata
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 
 # (capture, metadata files, published digest or None)
 CAPTURES = [

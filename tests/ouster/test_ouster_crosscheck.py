@@ -9,7 +9,7 @@ import pytest
 
 from conftest import external
 from lidarpkt.ouster import OusterMetadata, decode_imu, load_metadata
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 from test_ouster_cases import CAPTURES, decode_frames
 
 pytestmark = pytest.mark.crosscheck

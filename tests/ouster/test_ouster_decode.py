@@ -220,7 +220,7 @@ def test_fields_survive_encode_then_decode(layout, rnd):
 # ----------------------------------------------------------------------------- IMU
 
 from lidarpkt.ouster import decode_imu, encode_imu  # noqa: E402
-from lidarpkt.pcap import read_batches  # noqa: E402
+from lidarpkt.sources.pcap_reader import read_batches  # noqa: E402
 
 
 IMU_CAPTURES = [  # SOURCES.md: the captures that hold 48-byte IMU packets

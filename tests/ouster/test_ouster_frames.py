@@ -20,7 +20,7 @@ from lidarpkt.ouster import (
     load_metadata,
 )
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 from test_ouster_cases import decode_frames, lidar_streams
 
 DUAL = ("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", ["ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"])

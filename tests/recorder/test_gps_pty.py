@@ -13,7 +13,7 @@ import pytest
 
 from lidarpkt.errors import NMEAError, SerialPortError
 from lidarpkt.velodyne import nmea
-from recorder.gps import GpsReader, verify_sentence
+from lidarpkt.recorder.gps import GpsReader, verify_sentence
 from test_replay_record import Recorder
 
 # The classic NMEA 0183 example sentences (GGA, RMC, GSA, VTG) with their published checksums;

@@ -10,9 +10,9 @@ import pytest
 
 from lidarpkt.errors import PortInUseError
 from lidarpkt.ouster.metadata import load_metadata
-from lidarpkt.pcap import read_batches, read_packets
-from recorder import streams
-from recorder.capture import UdpCapture
+from lidarpkt.sources.pcap_reader import read_batches, read_packets
+from lidarpkt.recorder import streams
+from lidarpkt.recorder.capture import UdpCapture
 from conftest import external
 
 
@@ -119,7 +119,7 @@ def test_one_read_is_bounded_so_a_flood_cannot_keep_the_thread_from_stopping():
     """A sender that never pauses (another program, a replay at --max) kept the receive thread in
     its read loop, deaf to stop(): one read takes at most READ_BATCH datagrams, then the thread
     looks at the stop flag again; the backlog is still all read, in order."""
-    from recorder.capture import READ_BATCH
+    from lidarpkt.recorder.capture import READ_BATCH
 
     port = _free_port()
     n = READ_BATCH + 10
@@ -184,7 +184,7 @@ def test_velodyne_dropped_and_repeated_packets_are_counted_exactly():
 
 
 def test_velodyne_dual_mode_period_from_the_real_dual_bag():
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
     payload = np.concatenate([b.payload for b in batches])
@@ -250,8 +250,8 @@ def test_a_sensor_restart_is_an_interruption_not_a_loss():
 def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
     """velodyne_vlp32.pcap is an HDL-32E (SOURCES.md: packets every 552-553 µs)."""
     from lidarpkt.packet import PacketBatch
-    from recorder.mcap_writer import McapWriter
-    from recorder.sink import PacketSink
+    from lidarpkt.writers.mcap.writer import McapWriter
+    from lidarpkt.recorder.sink import PacketSink
 
     payload = _velodyne_payloads("rust-lidar-utils/velodyne_vlp32.pcap")
     vlp_timing = streams.VelodyneLoss()

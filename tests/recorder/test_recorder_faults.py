@@ -13,7 +13,7 @@ import struct
 import time
 
 from conftest import external
-from recorder.replay import read_capture
+from lidarpkt.recorder.replay import read_capture
 from test_replay_record import Recorder, _free_ports, _messages, _recorded_payloads
 
 PERIOD_US = 1327  # VLP-16 single-return packet period, rounded to the µs the packets carry

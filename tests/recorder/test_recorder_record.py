@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from recorder.capture import UdpCapture
-from recorder.replay import read_capture, replay
+from lidarpkt.recorder.capture import UdpCapture
+from lidarpkt.recorder.replay import read_capture, replay
 from conftest import external
 from test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
 
@@ -155,7 +155,7 @@ def test_duration_stop_with_status_lines_and_summary(tmp_path):
 def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(tmp_path):
     import warnings
 
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     mnt = tmp_path / "small"
     mnt.mkdir()

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from lidarpkt.packet import Packet
-from recorder.replay import read_capture, replay
+from lidarpkt.recorder.replay import read_capture, replay
 from conftest import end_process, external, start_process
 
 mcap_reader = pytest.importorskip("mcap.reader")
@@ -93,7 +93,7 @@ class Recorder:
         self.log = tmp_path / "rec.log"
         self.ports = list(ports)
         cmd = [sys.executable, "-m", "lidarpkt", "record", *(["--bind", bind] if bind else []), "-o", str(self.out),
-               "--report", str(self.report), *extra]
+               "--json", str(self.report), *extra]
         for p in ports:
             cmd += ["--port", str(p)]
         # faulthandler: if it ever fails to stop, SIGABRT makes it print every thread's stack to the log
@@ -201,7 +201,7 @@ def _check_lossless(rc, report, packets, rec, lidar_topic, aux_topic):
 
 
 def test_vlp16_dual_canned_capture_through_the_replay_cli(tmp_path):
-    import fixtures
+    from lidarpkt import fixtures
 
     pcap = fixtures.canned("vlp16-dual")
     rc, report, packets, rec = _replay_and_record(tmp_path, pcap, via_cli=True)
@@ -228,7 +228,7 @@ def test_ouster_os1_64_legacy_real_capture(tmp_path):
 
 
 def test_ouster_os1_64_legacy_canned_two_frames(tmp_path):
-    import fixtures
+    from lidarpkt import fixtures
 
     pcap = fixtures.canned("os1-64-legacy")
     rc, report, packets, rec = _replay_and_record(tmp_path, pcap, metadata=fixtures.metadata_path(pcap))
@@ -255,7 +255,7 @@ def test_frames_from_the_recording_equal_frames_from_the_capture(tmp_path):
 def test_sigkill_leaves_the_packets_before_the_last_chunk_readable(tmp_path):
     import warnings
 
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")  # about 2.5 s, 20 Hz
     packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]

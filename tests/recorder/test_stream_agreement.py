@@ -7,16 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import fixtures
+from lidarpkt import fixtures
 from conftest import external
 from lidarpkt.ouster import OusterDecoder, load_metadata
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 from lidarpkt.velodyne import VelodyneDecoder
 from lidarpkt.velodyne.clock import DAY_NS, HOUR_NS, in_nearest_hour_ns, on_nearest_day_ns
-from recorder.gps import sentence_time_ns
-from recorder.mcap_writer import McapWriter
-from recorder.sink import PacketSink, velodyne_sensor_time_ns
+from lidarpkt.recorder.gps import sentence_time_ns
+from lidarpkt.writers.mcap.writer import McapWriter
+from lidarpkt.recorder.sink import PacketSink, velodyne_sensor_time_ns
 
 
 def _vlp_batch(rel: str) -> PacketBatch:
@@ -64,7 +64,7 @@ def test_velodyne_recorder_and_decoder_agree(tmp_path, rel, drop):
 
 
 def test_velodyne_dual_recorder_and_decoder_agree(tmp_path):
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
     batch = _drop(PacketBatch.from_payloads(np.concatenate([b.payload for b in batches]),

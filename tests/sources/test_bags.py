@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.bags import BagReader
-from lidarpkt.errors import CaptureFormatError, LidarpktError
+from lidarpkt.sources.bags import BagReader
+from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
 from reference_tools import velodyne_scan_mcap
@@ -74,6 +74,46 @@ def test_nebula_bag_opens_by_directory_or_db3_and_decodes_dual(ext):
     assert np.allclose(np.diff(starts), 100_000_000, rtol=0.02)  # 10 Hz
 
 
+@pytest.mark.parametrize("bag, packets", [
+    ("nebula/vls128/1614315746471294674", 2193),  # serialization_format: "" (rosbag2 of 2020)
+    ("nebula/hesai/qt128/1730273789074637152", None),  # storage_identifier: ""
+])
+def test_old_rosbag2_metadata_with_empty_fields_opens_with_the_evident_default(ext, bag, packets):
+    import glob
+    import tempfile
+
+    before = set(glob.glob(f"{tempfile.gettempdir()}/lidarpkt-bag-*"))
+    reader = BagReader(ext(bag))
+    with pytest.warns(LidarpktWarning, match="metadata.yaml names no") as said:
+        batches = list(reader.batches())
+    assert len([w for w in said if "metadata.yaml" in str(w.message)]) == 1  # said once
+    assert reader.stats["messages"] > 0 or reader.stats["skipped_topics"]  # the storage was opened and read
+    if packets is not None:
+        assert sum(len(b) for b in batches) == reader.stats["packets"] == packets
+    assert set(glob.glob(f"{tempfile.gettempdir()}/lidarpkt-bag-*")) == before  # the completed copy is gone
+
+
+def test_empty_storage_and_format_fields_are_filled_from_the_files(tmp_path, ext):
+    """The same bag with both fields emptied reads exactly as the original."""
+    import shutil
+
+    src = ext(NEBULA)
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    meta = (bag / "metadata.yaml").read_text()
+    meta = meta.replace("storage_identifier: sqlite3", 'storage_identifier: ""')
+    meta = meta.replace("serialization_format: cdr", "serialization_format: ''")
+    (bag / "metadata.yaml").write_text(meta)
+    with pytest.warns(LidarpktWarning, match="no storage plugin .*sqlite3.*no serialization format"):
+        got = list(BagReader(bag).batches())
+    want = list(BagReader(src).batches())
+    assert [b.payload.tobytes() for b in got] == [b.payload.tobytes() for b in want]
+    assert [b.timestamp_ns.tolist() for b in got] == [b.timestamp_ns.tolist() for b in want]
+    (bag / "1673400471837873222_0.db3").write_bytes(b"neither sqlite nor mcap" * 4)
+    with pytest.raises(CaptureFormatError, match="Storage plugin"):  # nothing to infer: rosbags says what is missing
+        list(BagReader(bag).batches())
+
+
 def _dual_payloads(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(5)
     t_us = 500_000 + np.rint(np.arange(n) * 663.552).astype(np.int64)
@@ -106,7 +146,7 @@ def test_ros1_bag_written_by_rosbags(tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-    from lidarpkt.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
 
     store = get_typestore(Stores.ROS1_NOETIC)
     types = {}

@@ -26,8 +26,8 @@ import lidarpkt
 from conftest import external
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning, NMEAError, TruncatedCaptureWarning
 from lidarpkt.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.pcap import PcapReader
-from lidarpkt.pcapwrite import Interface, frames_for, pcap_bytes, pcapng_bytes
+from lidarpkt.sources.pcap_reader import PcapReader
+from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
 from reference_tools import velodyne_scan_mcap
 
 FIXTURE_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -209,7 +209,7 @@ def test_orphan_fragment_flood_keeps_the_pending_state_capped(tmp_path):
     """30 000 orphan first fragments (distinct IP IDs from 4 senders) with a good packet after every
     1000th: every good packet comes out, and the reader's pending reassembly state never exceeds its
     bounds while reading (benchmarks/bench_orphans.py measures millions, with peak RSS)."""
-    from lidarpkt.pcapwrite import ip_packets, link_frame, udp_datagram
+    from lidarpkt.writers.pcap import ip_packets, link_frame, udp_datagram
 
     good = []
     records = []
@@ -239,9 +239,9 @@ def test_orphan_fragment_flood_keeps_the_pending_state_capped(tmp_path):
 
 # =========================================================================== VLP-16
 def _vlp16_packets(name="vlp16-strongest"):
-    import fixtures
+    from lidarpkt import fixtures
 
-    return list(lidarpkt.pcap.read_packets(fixtures.canned(name)))
+    return list(lidarpkt.sources.pcap_reader.read_packets(fixtures.canned(name)))
 
 
 def _frame_columns(frames):
@@ -296,7 +296,7 @@ def _vlp_base():
 def test_vlp16_bad_packets_among_good_ones_leave_the_good_ones_decoded(tmp_path, damage):
     """Damaged data packets (bad flag, azimuth > 36000, unknown mode, wrong size) in a real-layout
     capture: the frames are exactly those of the same capture with those packets lost."""
-    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.writers.pcap import write_pcap
 
     base = _vlp_base()
     pk, data_idx = base["packets"], base["data_idx"]
@@ -537,7 +537,7 @@ def _small_mcap() -> tuple[bytes, list[bytes], list[int]]:
 
 
 def _bag_packets(path):
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

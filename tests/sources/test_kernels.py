@@ -1,4 +1,4 @@
-"""The compiled kernels (``_lidarpkt_native``) against their pure-NumPy twins, and on their own.
+"""The compiled kernels (``lidarpkt._native``) against their pure-NumPy twins, and on their own.
 
 Every comparison reads the same input twice, once with ``kernels.native`` the extension and once
 with it ``None`` (the NumPy/Python path callers fall back to), and asserts identical output:
@@ -22,15 +22,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import fixtures
+from lidarpkt import fixtures
 import lidarpkt
-import lidarpkt.pcap as pcap_module
+import lidarpkt.sources.pcap_reader as pcap_module
 from conftest import external, external_root
 from lidarpkt import kernels
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcap import MAX_RECORD_BYTES, PcapReader, capture_format
-from lidarpkt.pcapwrite import frames_for, pcap_bytes
+from lidarpkt.sources.pcap_reader import PcapReader, capture_format
+from lidarpkt.sources.pcap_walk import MAX_RECORD_BYTES
+from lidarpkt.writers.pcap import frames_for, pcap_bytes
 from test_ouster_cases import CAPTURES as OUSTER_CAPTURES
 
 NATIVE = kernels.native  # as imported: the extension, or None when not built / LIDARPKT_NATIVE=0
@@ -173,14 +174,14 @@ def test_extension_is_built():
     if os.environ.get("LIDARPKT_NATIVE") == "0":
         pytest.skip("LIDARPKT_NATIVE=0: the compiled kernels are disabled on purpose")
     assert kernels.native is not None, (
-        "the optional extension _lidarpkt_native was not built (no C compiler at install time?) or does not "
+        "the optional extension lidarpkt._native was not built (no C compiler at install time?) or does not "
         f"import; kernels.describe() says: {kernels.describe()}"
     )
-    assert kernels.native.__name__ == "_lidarpkt_native"
+    assert kernels.native.__name__ == "lidarpkt._native"
     for name in ("walk_pcap", "gather_rows", "xyz_lut"):
         assert callable(getattr(kernels.native, name)), name
     text = kernels.describe()
-    assert text == "compiled kernels (_lidarpkt_native)"
+    assert text == "compiled kernels (lidarpkt._native)"
 
 
 def test_describe_names_the_numpy_twin(monkeypatch):
@@ -206,7 +207,7 @@ def test_version_says_which_implementation_runs():
     if NATIVE is not None:
         res = subprocess.run([sys.executable, "-m", "lidarpkt", "--version"], capture_output=True, text=True,
                              timeout=60, env={k: v for k, v in os.environ.items() if k != "LIDARPKT_NATIVE"})
-        assert res.returncode == 0 and res.stdout.strip().endswith(", compiled kernels (_lidarpkt_native)"), res
+        assert res.returncode == 0 and res.stdout.strip().endswith(", compiled kernels (lidarpkt._native)"), res
 
 
 def test_environment_switch_in_a_fresh_interpreter():
@@ -214,7 +215,7 @@ def test_environment_switch_in_a_fresh_interpreter():
     assert _python(code, LIDARPKT_NATIVE="0").splitlines() == ["None", "pure NumPy (disabled by LIDARPKT_NATIVE=0)"]
     if NATIVE is not None:  # and any other value leaves the extension on
         out = _python(code, LIDARPKT_NATIVE="1").splitlines()
-        assert out[0].startswith("<module '_lidarpkt_native'") and out[1].startswith("compiled kernels (")
+        assert out[0].startswith("<module 'lidarpkt._native'") and out[1].startswith("compiled kernels (")
 
 
 # --- 2. pcap reading: real and canned captures ------------------------------------------------------
@@ -358,7 +359,7 @@ def _pcapng_of(records, *, big_endian=False, seed=0, extra_blocks=True, raw_epb_
     2^63 and take the per-record conversion), the records spread over them, and between
     them the blocks the compiled walk must stop at and hand back: simple and obsolete packet blocks,
     a name resolution block, a custom block, an EPB naming an undeclared interface."""
-    from lidarpkt.pcapwrite import Interface, _block, pcapng_bytes
+    from lidarpkt.writers.pcap import Interface, _block, pcapng_bytes
 
     rng = random.Random(seed)
     e = ">" if big_endian else "<"
@@ -414,7 +415,7 @@ def test_generated_pcapng_small_read_blocks(tmp_path, monkeypatch, mixed, block)
 def test_pcapng_time_stamps_outside_int64_are_malformed_either_way(tmp_path, mixed):
     """Whole-second stamps times 10^9 that pass 2^63 take the record-by-record conversion; a time
     beyond 2^63 ns is counted malformed and dropped by both walks."""
-    from lidarpkt.pcapwrite import Interface, _block, pcapng_bytes
+    from lidarpkt.writers.pcap import Interface, _block, pcapng_bytes
 
     head = pcapng_bytes([], interfaces=(Interface(tsresol=0),))  # whole seconds
     e = "<"
@@ -603,7 +604,7 @@ def test_gather_rows_rejects_rows_outside_the_buffer(width):
 @needs_native
 def test_gather_rows_offset_near_int64_max_is_an_index_error():
     code = (
-        "import numpy as np, _lidarpkt_native as n\n"
+        "import numpy as np, lidarpkt._native as n\n"
         "try:\n"
         "    n.gather_rows(np.zeros(100, np.uint8), np.array([2**63 - 1], np.int64), np.empty((1, 8), np.uint8))\n"
         "except IndexError:\n"

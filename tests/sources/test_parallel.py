@@ -30,7 +30,7 @@ from test_segments import ARRAYS, CANNED_NAMES, OUSTER_EXTERNAL, VELODYNE_EXTERN
 
 sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 
-CANNED = REPO_ROOT / "fixtures" / "canned"
+CANNED = REPO_ROOT / "lidarpkt" / "fixtures" / "canned"
 # the captures the segment tests cut, plus the legacy OS-1-64 capture (its metadata has another name)
 EXTERNAL = OUSTER_EXTERNAL + ["ouster-sdk/OS-1-64_1024x10_fw20"] + VELODYNE_EXTERNAL
 
@@ -193,7 +193,7 @@ def test_the_pipeline_warns_in_the_callers_thread(tmp_path):
 
 def test_no_sensor_in_any_segment_raises(tmp_path, small_segments):
     from lidarpkt.packet import Endpoint, Packet
-    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.writers.pcap import write_pcap
 
     path = tmp_path / "other.pcap"
     src, dst = Endpoint("10.0.0.1", 5000), Endpoint("10.0.0.2", 53)

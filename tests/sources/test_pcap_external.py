@@ -17,7 +17,7 @@ import pytest
 
 from lidarpkt.errors import CaptureFormatError
 from lidarpkt.packet import Endpoint
-from lidarpkt.pcap import PcapReader, is_capture, read_batches, read_packets
+from lidarpkt.sources.pcap_reader import PcapReader, is_capture, read_batches, read_packets
 from conftest import external
 from reference_tools import ouster_sdk_pcap_packets
 

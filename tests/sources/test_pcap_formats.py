@@ -1,7 +1,7 @@
 """Generated captures for the cases no real capture covers (SOURCES.md oddity 12).
 
-Each file is written with lidarpkt.pcapwrite from real payloads, read back with
-lidarpkt.pcap, and also read by readers we did not write: dpkt (container and
+Each file is written with lidarpkt.writers.pcap from real payloads, read back with
+lidarpkt.sources.pcap_reader, and also read by readers we did not write: dpkt (container and
 headers) and ouster-sdk's libpcap/libtins reader (container, link layers, VLAN,
 IPv6 and fragment reassembly).
 """
@@ -18,8 +18,8 @@ import pytest
 
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcap import PcapReader, read_batches, read_packets
-from lidarpkt.pcapwrite import (
+from lidarpkt.sources.pcap_reader import PcapReader, read_batches, read_packets
+from lidarpkt.writers.pcap import (
     Interface,
     frames_for,
     pcap_bytes,
@@ -462,7 +462,7 @@ def test_other_link_type_numbers(tmp_path, real_packets, linktype, link, big_end
 
 def _ipv4_with_options(src, dst, ident, payload_l4, *, more=False, offset=0):
     """An IPv4 header with 8 bytes of options (two NOPs, a 4-byte experimental option, end), IHL 7."""
-    from lidarpkt.pcapwrite import internet_checksum
+    from lidarpkt.writers.pcap import internet_checksum
 
     options = b"\x01\x01" + b"\x9e\x04\x00\x00" + b"\x00\x00"
     flags = (0x2000 if more else 0) | (offset // 8)
@@ -473,7 +473,7 @@ def _ipv4_with_options(src, dst, ident, payload_l4, *, more=False, offset=0):
 
 
 def test_ipv4_options_fast_and_fragment_paths(tmp_path, real_packets):
-    from lidarpkt.pcapwrite import link_frame, udp_datagram
+    from lidarpkt.writers.pcap import link_frame, udp_datagram
 
     vlp = [p for p in real_packets if len(p.payload) == 1206][:3]
     ost = [p for p in real_packets if len(p.payload) == 12608][0]
@@ -502,7 +502,7 @@ def test_ipv4_options_fast_and_fragment_paths(tmp_path, real_packets):
 
 
 def test_chunks_are_bounded_in_bytes(tmp_path, monkeypatch, real_packets):
-    import lidarpkt.pcap as pcap_module
+    import lidarpkt.sources.pcap_reader as pcap_module
 
     vlp = [p for p in real_packets if len(p.payload) == 1206]
     path = tmp_path / "c.pcap"
@@ -546,7 +546,7 @@ def test_pcapng_interface_with_unsupported_link_type(tmp_path, real_packets):
         (frame,) = frames_for(p)
         records += [(0, p.timestamp_ns, frame), (1, p.timestamp_ns + 1000, b"\x01\x02" + frame)]  # 147: a user DLT
     path = tmp_path / "u.pcapng"
-    from lidarpkt.pcapwrite import write_pcapng_records
+    from lidarpkt.writers.pcap import write_pcapng_records
 
     write_pcapng_records(path, records, interfaces=[Interface("ethernet"), Interface(147)])
     reader = PcapReader(path)
@@ -585,7 +585,7 @@ def test_pipes_are_refused_clearly(tmp_path):
 def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_packets):
     """Records and pcapng blocks that straddle the read blocks (incl. a big-endian section header)
     give exactly what one whole-file read gives."""
-    import lidarpkt.pcap as pcap_module
+    import lidarpkt.sources.pcap_reader as pcap_module
 
     mixed = real_packets + _v6(real_packets[:6])
     files = {"a.pcap": None, "b.pcapng": None}
@@ -612,7 +612,7 @@ def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_pac
 def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
     """A capture truncated by another process while it is read: no crash (no mmap SIGBUS), the records
     read so far, then a TruncatedCaptureWarning."""
-    import lidarpkt.pcap as pcap_module
+    import lidarpkt.sources.pcap_reader as pcap_module
 
     vlp = [p for p in real_packets if len(p.payload) < 1400]
     path = tmp_path / "s.pcap"

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcap import PcapReader
-from lidarpkt.pcapwrite import Interface, frames_for, pcap_bytes, pcapng_bytes
+from lidarpkt.sources.pcap_reader import PcapReader
+from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
 
 _PACKETS = [
     Packet(1_600_000_000_000_000_000 + i * 1_327_000, Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368),
@@ -142,8 +142,8 @@ _ORIGINALS, _TRAINS = list(_ORIGINALS), list(_TRAINS)
 def test_vector_reassembly_equals_record_by_record(tmp_path, data):
     """Whatever the order, loss and duplication of fragments, the array fast path for whole fragment
     trains gives exactly what the record-by-record reassembler gives (batch_packets=1 never lets a
-    train complete inside a chunk, so everything goes through lidarpkt.reassembly)."""
-    from lidarpkt.pcapwrite import write_pcap_records
+    train complete inside a chunk, so everything goes through lidarpkt.sources.reassembly)."""
+    from lidarpkt.writers.pcap import write_pcap_records
 
     records = []
     for train in _TRAINS:
@@ -214,7 +214,7 @@ def _packet_lists(draw):
 )
 def test_write_read_round_trip(tmp_path, packets, container, link, vlan, mtu, batch_packets):
     """Any packets, written with any framing, read back exactly, in order (µs files: times are µs)."""
-    from lidarpkt.pcapwrite import write_pcap, write_pcapng
+    from lidarpkt.writers.pcap import write_pcap, write_pcapng
 
     path = tmp_path / "r"
     vlan = vlan if link == "ethernet" else ()

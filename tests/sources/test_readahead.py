@@ -20,8 +20,8 @@ import lidarpkt
 from lidarpkt._readahead import THREAD_NAME, ReadAhead
 from lidarpkt.errors import CaptureFormatError, DroppedPacketsWarning, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.pcap import read_packets
-from lidarpkt.pcapwrite import write_pcap, write_pcapng
+from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.writers.pcap import write_pcap, write_pcapng
 
 OUSTER = [
     ("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"),
@@ -186,7 +186,7 @@ def test_warning_is_raised_in_the_caller_as_an_error_filter_says(tmp_path):
 def test_unsupported_link_type_warning_comes_at_the_same_point(tmp_path):
     """SkippedPacketWarning of the per-record path (records of a link type lidarpkt does not read),
     in the middle of the capture: seen between the same frames with and without read-ahead."""
-    from lidarpkt.pcapwrite import Interface, frames_for, write_pcapng_records
+    from lidarpkt.writers.pcap import Interface, frames_for, write_pcapng_records
 
     src = tmp_path / "vlp16.pcap"
     _vlp16_capture(src, n=1500)

@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.pcap import read_packets
-from lidarpkt.pcapwrite import write_pcapng
+from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.writers.pcap import write_pcapng
 from lidarpkt.sources import Segment, plan_segments
 from lidarpkt.sources.segments import _continues_fragment
 
 from conftest import REPO_ROOT, external
 
-CANNED = REPO_ROOT / "fixtures" / "canned"
+CANNED = REPO_ROOT / "lidarpkt" / "fixtures" / "canned"
 OUSTER_EXTERNAL = [
     "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10",
     "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10",
@@ -233,7 +233,7 @@ def _nested_capture(path: Path, ethertype: int) -> None:
     """UDP datagrams whose payloads are runs of 23 plausible 44-byte pcap records that end exactly where
     the payload does (a capture carried inside a capture), with ``ethertype`` in each inner record."""
     from lidarpkt.packet import Endpoint, Packet
-    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.writers.pcap import write_pcap
 
     inner = struct.pack("<IIII", 1_700_000_000, 5, 28, 28) + bytes(12) + struct.pack(">H", ethertype) + bytes(14)
     src, dst = Endpoint("10.0.0.1", 5000), Endpoint("10.0.0.2", 2368)
@@ -271,7 +271,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
 
 def _modified_pcap(path: Path, packets) -> None:
     """``packets`` as a pcap of the modified format (magic a1b2cd34): 24-byte record headers."""
-    from lidarpkt.pcapwrite import frames_for
+    from lidarpkt.writers.pcap import frames_for
 
     out = bytearray(struct.pack("<IHHiIII", 0xA1B2CD34, 2, 4, 0, 0, 65535, 1))
     for p in packets:
@@ -285,9 +285,9 @@ def _modified_pcap(path: Path, packets) -> None:
 def test_resynchronised_cuts_in_every_pcap_variant(tmp_path, variant):
     """Nanosecond and big-endian files, raw-IP and loopback link types, and the 24-byte records of the
     modified format: the re-synchronised cuts are the walked ones."""
-    from lidarpkt.pcapwrite import write_pcap
+    from lidarpkt.writers.pcap import write_pcap
 
-    packets = list(read_packets(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap"))[:300]
+    packets = list(read_packets(REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-dual.pcap"))[:300]
     path = tmp_path / "v.pcap"
     if variant == "modified":
         _modified_pcap(path, packets)
@@ -303,8 +303,8 @@ def test_resynchronised_cuts_in_every_pcap_variant(tmp_path, variant):
 def test_open_takes_every_pcap_magic_the_reader_takes(tmp_path):
     """lidarpkt.open recognises the modified format (24-byte records) as the pcap reader does: the same frames."""
     path = tmp_path / "kuz.pcap"
-    _modified_pcap(path, read_packets(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap"))
-    got, want = _frames(path, None), _frames(REPO_ROOT / "fixtures" / "canned" / "vlp16-dual.pcap", None)
+    _modified_pcap(path, read_packets(REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-dual.pcap"))
+    got, want = _frames(path, None), _frames(REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-dual.pcap", None)
     assert len(got) == len(want) > 0
     for a, b in zip(got, want):
         _assert_same_frame(a, b, "modified")

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarpkt.bags import MESSAGE_DEFINITIONS, BagReader
+from lidarpkt.sources.bags import MESSAGE_DEFINITIONS, BagReader
 from lidarpkt.errors import CaptureFormatError
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_packets
+from lidarpkt.sources.pcap_reader import read_packets
 from lidarpkt.sources.inflate import MAX_INFLATED_BYTES, inflate_bounded
 
 from conftest import REPO_ROOT
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _payloads(n: int = 60):
-    pk = [p for p in read_packets(REPO_ROOT / "fixtures" / "canned" / "vlp16-strongest.pcap") if len(p.payload) == 1206]
+    pk = [p for p in read_packets(REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-strongest.pcap") if len(p.payload) == 1206]
     pk = pk[:n]
     return np.stack([np.frombuffer(p.payload, np.uint8) for p in pk]), np.array([p.timestamp_ns for p in pk], np.int64)
 
@@ -137,7 +137,7 @@ def _zero_bomb(compression: str, size: int) -> bytes:
 
 _READ_AND_REPORT_PEAK = r"""
 import sys
-from lidarpkt.bags import BagReader
+from lidarpkt.sources.bags import BagReader
 from lidarpkt.errors import LidarpktError
 n, outcome = 0, "ok"
 try:
@@ -325,7 +325,7 @@ def test_rosbag2_mcap_storage_without_summary_is_bounded_while_opening(tmp_path)
 _READ_FILE_BOMB = r"""
 import os, sys
 import lidarpkt.sources.inflate as inflate
-from lidarpkt.bags import BagReader
+from lidarpkt.sources.bags import BagReader
 from lidarpkt.errors import CaptureFormatError
 inflate.MAX_INFLATED_BYTES = int(sys.argv[2])  # the floor of the file limit, small so the test writes little
 inflate._DISK_MARGIN_BYTES = int(sys.argv[3])

@@ -11,8 +11,8 @@ import pytest
 import lidarpkt
 from lidarpkt.errors import LidarpktError, UnsupportedContainerError, UnsupportedFilterError
 from lidarpkt.packet import Packet
-from lidarpkt.pcap import PcapReader, read_packets
-from lidarpkt.pcapwrite import frames_for, write_pcap, write_pcap_records, write_pcapng
+from lidarpkt.sources.pcap_reader import PcapReader, read_packets
+from lidarpkt.writers.pcap import frames_for, write_pcap, write_pcap_records, write_pcapng
 from lidarpkt.sources import PacketSource, container_kind, open_packet_source
 from lidarpkt.sources.bags import BagReader
 from lidarpkt.sources.magic import PCAP_MAGIC_BYTES, format_from_magic
@@ -20,7 +20,7 @@ from lidarpkt.sources.magic import PCAP_MAGIC_BYTES, format_from_magic
 from conftest import REPO_ROOT, external
 from reference_tools import velodyne_scan_mcap
 
-CANNED = REPO_ROOT / "fixtures" / "canned"
+CANNED = REPO_ROOT / "lidarpkt" / "fixtures" / "canned"
 NEBULA = "nebula/vlp16/1673400471837873222"
 
 

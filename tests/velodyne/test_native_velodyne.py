@@ -30,7 +30,7 @@ CAPTURES = ["veloview/vlp-16-test-90deg-1-50-frames", "rust-lidar-utils/velodyne
 
 def _path(name: str):
     if name.startswith("canned/"):
-        return REPO_ROOT / "fixtures" / "canned" / f"{name[7:]}.pcap"
+        return REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / f"{name[7:]}.pcap"
     return external(f"{name}.pcap")
 
 

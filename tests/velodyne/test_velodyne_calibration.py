@@ -91,7 +91,7 @@ def test_bad_calibration_files(tmp_path):
 # ------------------------------------------------------------------ NMEA
 def test_real_gprmc_sentence(ext):
     """The $GPRMC sentence of the HDL-32E capture's position packets (a real GPS)."""
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
     from lidarpkt.velodyne import decode_position_packets
 
     batch = next(b for b in PcapReader(ext("rust-lidar-utils/velodyne_vlp32.pcap")).batches() if b.payload_size == 512)

@@ -106,7 +106,7 @@ def test_einride_recording_matches(ext, ours):
 
 @pytest_crosscheck
 def test_rust_lidar_utils_capture_matches(ext):
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_example.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches), calibration=YAML) > 30000
@@ -114,7 +114,7 @@ def test_rust_lidar_utils_capture_matches(ext):
 
 @pytest_crosscheck
 def test_veloview_capture_matches(ext):
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])

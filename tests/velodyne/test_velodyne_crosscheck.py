@@ -73,14 +73,14 @@ def assert_same_points(batch: PacketBatch, *, product_id_override: int | None = 
 
 # ------------------------------------------------------------------ real captures
 def test_strongest_capture_matches(ext):
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_example.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches)) > 30000
 
 
 def test_early_unit_0x21_capture_matches(ext):
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_vlp16.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches), product_id_override=0x22) > 15000
@@ -88,7 +88,7 @@ def test_early_unit_0x21_capture_matches(ext):
 
 def test_veloview_20hz_capture_matches(ext):
     """1902 packets at 20 Hz, including one whose block azimuth reads 36000 (= 0°)."""
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
     from lidarpkt.velodyne import decode_packets
 
     path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
@@ -105,7 +105,7 @@ def test_einride_recording_matches(ext):
 
 
 def test_dual_bag_matches(ext):
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
     assert assert_same_points(batch) > 55000

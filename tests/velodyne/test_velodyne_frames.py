@@ -45,7 +45,7 @@ def decode_all(batches, **options):
 
 
 def pcap_batches(path):
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     return list(PcapReader(path).batches())
 

@@ -383,7 +383,7 @@ def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():
     before = early.sensor_info()
     assert before.frequency_hz is None and before.product_id is None
     frames = []
-    from lidarpkt.pcap import read_batches
+    from lidarpkt.sources.pcap_reader import read_batches
 
     for batch in read_batches(path):
         frames += early.push(batch)

@@ -11,7 +11,7 @@ import pytest
 import lidarpkt
 from lidarpkt.errors import PacketFormatError, UnknownSensorError
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 from lidarpkt.velodyne import VelodyneDecoder, stock_calibration
 from lidarpkt.velodyne.detect import describe_stream
 from lidarpkt.velodyne.models import MODELS, VLP16, model_for_product, model_named

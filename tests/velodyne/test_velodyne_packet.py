@@ -37,7 +37,7 @@ def manual_data_packet(azimuths, dist, refl, timestamp_us, mode_byte, product_by
 
 
 def _real_payloads(ext, name: str, size: int) -> np.ndarray:
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     rows = [b.payload for b in PcapReader(ext(name)).batches() if b.payload_size == size]
     return np.concatenate(rows)
@@ -148,7 +148,7 @@ def test_roundtrip_pcap_payloads(ext, name):
 
 
 def test_roundtrip_dual_bag_payloads(ext):
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
     assert batch.payload.shape == (603, DATA_PACKET_SIZE)
@@ -157,7 +157,7 @@ def test_roundtrip_dual_bag_payloads(ext):
 
 # ------------------------------------------------------------------ what the real captures say
 def test_factory_bytes_of_real_captures(ext):
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
 
     ex = decode_packets(_real_payloads(ext, "rust-lidar-utils/velodyne_example.pcap", DATA_PACKET_SIZE))
     assert set(ex.return_mode.tolist()) == {0x37} and set(ex.product_id.tolist()) == {0x22}
@@ -206,7 +206,7 @@ def test_azimuth_interpolation_within_a_block():
 # ------------------------------------------------------------------ frames → packets
 def test_frames_encode_back_to_the_real_payloads(ext):
     """decode → frames → encode_frames gives every byte back (einride strongest, nebula dual)."""
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
     from lidarpkt.velodyne import VelodyneDecoder, encode_frames
 
     payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, DATA_PACKET_SIZE)
@@ -225,7 +225,7 @@ def test_frames_encode_back_to_the_real_payloads(ext):
 def test_position_timestamps_run_on_the_data_packets_clock(ext):
     """Byte 198 of a position packet is the sensor's µs past the hour: in the VeloView capture each
     position packet's stamp lies within 3 ms of the data packets captured next to it."""
-    from lidarpkt.pcap import PcapReader
+    from lidarpkt.sources.pcap_reader import PcapReader
 
     batches = list(PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")).batches())
     data = PacketBatch.concatenate([b for b in batches if b.payload_size == DATA_PACKET_SIZE])

@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import fixtures
+from lidarpkt import fixtures
 import lidarpkt
-from fixtures import generate as gen
+from lidarpkt.fixtures import generate as gen
 from lidarpkt.ouster import OusterDecoder, load_metadata
 from lidarpkt.packet import PacketBatch
-from lidarpkt.pcap import read_batches
+from lidarpkt.sources.pcap_reader import read_batches
 
 ROTATIONS = 50
 
@@ -41,7 +41,7 @@ def test_fifty_whole_rotations_give_fifty_whole_frames(fifty, mode, cut_on_block
 
 
 def test_the_analysis_stacks_fifty_frames(fifty):
-    from analysis.stack import load_stack
+    from lidarpkt.analysis.stack import load_stack
 
     stack = load_stack(fifty["strongest"])
     assert stack.range_mm.shape[0] == ROTATIONS

@@ -17,7 +17,7 @@ pytest.importorskip("google.protobuf")
 
 from view_client import FoxgloveClient, LidarpktProcess, points_of, stamp_ns  # noqa: E402
 
-CANNED = __import__("pathlib").Path(__file__).resolve().parents[2] / "fixtures" / "canned"
+CANNED = __import__("pathlib").Path(__file__).resolve().parents[2] / "lidarpkt" / "fixtures" / "canned"
 
 
 def expected_points(frame, slot: int, xyz: np.ndarray):

@@ -148,7 +148,7 @@ def test_record_takes_metadata_once_per_sensor(tmp_path):
 
 def test_replay_takes_metadata_once_per_sensor(tmp_path):
     """With two --metadata, the non-legacy stream (known only from its metadata) still goes to --to."""
-    from recorder.replay import read_capture
+    from lidarpkt.recorder.replay import read_capture
 
     capture = CANNED / "os1-64-dual.pcap"
     from lidarpkt.ouster import load_metadata

@@ -2,7 +2,7 @@
 
 * ``--points``: the MCAP gets one ``sensor_msgs/PointCloud2`` per frame and return slot, decoded
   off the receive path; every message deserializes with rosbags' stock ROS 2 type store, and the
-  points equal those of ``lidarpkt.open``'s frames (:func:`recorder.pointcloud.frame_points`);
+  points equal those of ``lidarpkt.open``'s frames (:func:`lidarpkt.writers.mcap.pointcloud.frame_points`);
   their log times lie inside the span of the recorded packets. Ouster too, with the metadata
   fetched from ``replay --http`` (``record --sensor``) and written to ``/ouster/metadata``.
 * ``--view``: a Foxglove client watching while recording; the recording loses 0 packets and
@@ -53,7 +53,7 @@ def packet_log_times(messages) -> tuple[int, int]:
 
 
 def check_points(messages, frames, topics) -> None:
-    from recorder.pointcloud import frame_points
+    from lidarpkt.writers.mcap.pointcloud import frame_points
 
     for slot, topic in enumerate(topics):
         clouds = [m for t, _, m in messages if t == topic]
@@ -73,7 +73,7 @@ def record_replay(tmp_path, capture, *record_args, replay_args, name="rec", view
     out, report = tmp_path / f"{name}.mcap", tmp_path / f"{name}.json"
     client = None
     with LidarpktProcess(tmp_path / f"{name}.log", "record", "--bind", "127.0.0.1", "--port", str(data),
-                         "--port", str(position), "-o", str(out), "--report", str(report), *record_args,
+                         "--port", str(position), "-o", str(out), "--json", str(report), *record_args,
                          ready="listening on") as rec:
         try:
             if view_client:
@@ -129,7 +129,7 @@ def test_record_points_ouster_with_metadata_from_the_sensor(tmp_path):
                          "--port-map", f"{md.imu_port}:{imu}", ready="serving the sensor metadata") as replay:
         with LidarpktProcess(tmp_path / "rec.log", "record", "--bind", "127.0.0.1", "--port", str(lidar),
                              "--port", str(imu), "--sensor", f"127.0.0.1:{replay.port_after('http://')}",
-                             "--points", "-o", str(out), "--report", str(report), ready="listening on") as rec:
+                             "--points", "-o", str(out), "--json", str(report), ready="listening on") as rec:
             assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
             assert rec.stop() == 0, rec.log.read_text()
     summary = json.loads(report.read_text())

@@ -13,8 +13,8 @@ import pytest
 import lidarpkt
 from lidarpkt.view.sources import LiveDecoder, play_capture
 from lidarpkt.view.tap import FrameDropper, FrameTap
-from recorder.replay import read_capture
-from recorder.sink import batch_from_packets
+from lidarpkt.recorder.replay import read_capture
+from lidarpkt.recorder.sink import batch_from_packets
 from test_view_capture import CANNED
 
 

@@ -11,8 +11,8 @@ import pytest
 
 import lidarpkt
 from conftest import external
-from lidarpkt.pcap import read_packets
-from recorder import schemas
+from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.writers.mcap import schemas
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")
 

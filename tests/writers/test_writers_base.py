@@ -92,28 +92,8 @@ def test_npz_read_by_numpy_equals_frames_on_grid(tmp_path, case):
             assert tuple(d[prefix + "return_labels"]) == mine[0].return_labels
 
 
-def test_old_import_paths_are_the_moved_modules():
-    import lidarpkt.pcapwrite
-    import lidarpkt.writers.mcap.pointcloud
-    import lidarpkt.writers.mcap.schemas
-    import lidarpkt.writers.mcap.writer
-    import lidarpkt.writers.pcap
-    import recorder.mcap_writer
-    import recorder.pointcloud
-    import recorder.schemas
-
-    assert lidarpkt.pcapwrite is lidarpkt.writers.pcap
-    assert recorder.mcap_writer is lidarpkt.writers.mcap.writer
-    assert recorder.schemas is lidarpkt.writers.mcap.schemas
-    assert recorder.pointcloud is lidarpkt.writers.mcap.pointcloud
-    assert recorder.schemas.__spec__.name == "lidarpkt.writers.mcap.schemas"  # its own spec kept
-    from recorder.mcap_writer import McapWriter
-
-    assert McapWriter is lidarpkt.writers.mcap.writer.McapWriter
-
-
 def test_base_import_needs_no_export_library():
-    code = ("import sys, lidarpkt, lidarpkt.writers, lidarpkt.writers.mcap.frames, recorder.decode\n"
+    code = ("import sys, lidarpkt, lidarpkt.writers, lidarpkt.writers.mcap.frames, lidarpkt.recorder.decode\n"
             "heavy = {'pyarrow', 'laspy', 'plyfile', 'pypcd4', 'duckdb'} & set(sys.modules)\n"
             "print(sorted(heavy))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
@@ -125,7 +105,7 @@ def test_decode_verb_writes_every_export_suffix(tmp_path, capsys):
 
     from lidarpkt.cli import main
 
-    a, b = (REPO_ROOT / "fixtures" / "canned" / n for n in ("vlp16-dual.pcap", "vlp16-last.pcap"))
+    a, b = (REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / n for n in ("vlp16-dual.pcap", "vlp16-last.pcap"))
 
     def decode(*argv):
         saved = warnings.showwarning
@@ -165,10 +145,10 @@ def test_a_missing_export_library_names_the_extra(tmp_path):
 
 
 def test_decode_python_api_has_the_cli_defaults(tmp_path):
-    from recorder.decode import decode_captures
+    from lidarpkt.recorder.decode import decode_captures
 
-    cap = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.pcap"
-    md = REPO_ROOT / "fixtures" / "canned" / "os1-64-dual.json"
+    cap = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "os1-64-dual.pcap"
+    md = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "os1-64-dual.json"
     decode_captures([cap], tmp_path / "x.mcap", metadata=[md], base_frame="base", mount=["0,0,1,0,0,0"])
     from mcap.reader import make_reader
 

@@ -16,7 +16,7 @@ import pytest
 import lidarpkt
 from lidarpkt.errors import OutputError
 from lidarpkt.writers import open_writer
-from recorder import schemas
+from lidarpkt.writers.mcap import schemas
 from writers_cases import CASES, capture, case, load  # noqa: F401 - the parametrised fixture
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")

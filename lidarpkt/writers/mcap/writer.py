@@ -107,7 +107,7 @@ class McapWriter:
         self._chunk_started: float | None = None
         self._guard(lambda: self._writer.start(profile="ros2", library=LIBRARY))
         for name, data in self._metadata:
-            self._guard(lambda: self._writer.add_metadata(name, data))
+            self._guard(lambda name=name, data=data: self._writer.add_metadata(name, data))
         for topic, data, log_time in self._latched.values():
             self._add(topic, data, log_time)
         self._guard(self._flush_chunk)

@@ -31,10 +31,7 @@ def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...]
     cliargs.check_json_output(getattr(args, "json", None))
     if args.plot:
         _plots()  # matplotlib missing: said before the work, not after
-        if args.plot.lower().endswith(".png"):  # multireturn's old spelling: --plot MAP.png
-            cliargs.check_output(args.plot, "--plot", (".png",))
-        else:
-            cliargs.check_folder(args.plot, "--plot")
+        cliargs.check_folder(args.plot, "--plot")
 
 
 def _status(args: argparse.Namespace, text: str) -> None:
@@ -236,8 +233,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), default=None, metavar="N",
                    help="several captures: processes of a local Dask cluster (default: the CPU count)")
     p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
-    cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder "
-                        "(--plot MAP.png, the old spelling, writes MAP.png and MAP_roc.png)")
+    cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder")
     _add_input(p)
     p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
@@ -251,7 +247,6 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
                         "a shallow angle are one surface, not two); plane = one plane over the whole N×N; gap = the "
                         "paper's §4.3 score, largest gap of the N×N spatial CDF; row = gap within each row of the "
                         "neighbourhood")
-    p.add_argument("--monitor-by-row", action="store_true", help="same as --method row (kept for old scripts)")
     p.add_argument("--gmm-map", metavar="OUT", help="also fit a Gaussian mixture per pixel and return (a probabilistic "
                    "raypath map) and write it: NPZ, or Parquet when OUT ends in .parquet")
     p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
@@ -278,10 +273,6 @@ def run_multireturn(args: argparse.Namespace) -> int:
     if args.gmm_components < 1:
         raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
     method = args.method
-    if args.monitor_by_row:
-        if method not in (None, "row"):
-            raise AnalysisError(f"--monitor-by-row: it means --method row, which contradicts --method {method}; give one of them")
-        method = "row"
     shown = parse_return(args.slot)
     _check_outputs(args, output_suffixes=(".npz",))
     if args.gmm_map:
@@ -315,10 +306,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
         if not 0 <= slot < len(s.return_labels):
             raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
-        if args.plot.lower().endswith(".png"):  # the old spelling: the map's own file name
-            figure, roc = Path(args.plot), Path(args.plot).with_name(Path(args.plot).stem + "_roc.png")
-        else:
-            figure, roc = Path(args.plot) / "multireturn_map.png", Path(args.plot) / "multireturn_roc.png"
+        figure, roc = Path(args.plot) / "multireturn_map.png", Path(args.plot) / "multireturn_roc.png"
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), figure)
         ev = mr.evaluation[slot]
         plots.save(plots.plot_roc(ev, f"Multi-return monitor ({mr.method}) ROC, {s.return_labels[slot]} return\n"

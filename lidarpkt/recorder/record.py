@@ -89,8 +89,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
     cliargs.add_json(parser, "also write the summary as JSON")
-    parser.add_argument("--report", dest="json", metavar="FILE.json", type=cliargs.json_type("--report"),
-                        help="old spelling of --json FILE (kept for scripts)")
     cliargs.add_quiet(parser, "no status line and no summary")
 
 

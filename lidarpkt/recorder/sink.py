@@ -25,6 +25,7 @@ import numpy as np
 from lidarpkt.packet import Endpoint, PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
+from lidarpkt.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
 
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
@@ -110,7 +111,7 @@ class PacketSink:
 
         p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
-        product = vlp.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
+        product = PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
         described = describe_stream(batch) or {}
         self.writer.add_metadata("lidarpkt.sensor", {
             "vendor": "velodyne", "model": described.get("kind", "Velodyne data").replace(" data", ""),
@@ -174,7 +175,7 @@ class PacketSink:
             from lidarpkt.velodyne.detect import data_kind
 
             kind = data_kind(batch)
-            period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": vlp.HDL32E_PACKET_PERIOD_US}.get(kind)
+            period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
         starts = tracker.update(batch.payload, batch.timestamp_ns)
         rep.count = tracker.count

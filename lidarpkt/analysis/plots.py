@@ -199,7 +199,7 @@ def plot_range_image(
     if missing.any():
         ax.imshow(np.where(missing, 1.0, np.nan), aspect="auto", interpolation="nearest", cmap="Greys", vmin=0, vmax=2)
     placed: list[tuple[int, int]] = []
-    for i, (r, c) in enumerate(pixels):
+    for r, c in pixels:
         dc = (c + shift[r]) % w
         ax.plot(dc, r, marker="s", ms=9, mfc="none", mec="red", mew=1.8)
         right = dc > 0.85 * w  # keep the label inside the image near the right edge

@@ -113,7 +113,7 @@ def _write_parquet(m: GmmMap, path: Path) -> None:
         import pyarrow.parquet as pq
     except ImportError:  # pragma: no cover - depends on the install
         raise AnalysisError("a Parquet GMM map needs pyarrow: pip install pyarrow, or write .npz") from None
-    r, l, h, w = m.weights.shape
+    r, components, h, w = m.weights.shape
     ret, row, col = np.meshgrid(np.arange(r), np.arange(h), np.arange(w), indexing="ij")
     cols = {
         "return": pa.DictionaryArray.from_arrays(ret.ravel().astype(np.int32), pa.array(list(m.return_labels))),
@@ -122,10 +122,10 @@ def _write_parquet(m: GmmMap, path: Path) -> None:
         "n_components": pa.array(m.n_components.ravel()),
     }
     for name, arr in (("weight", m.weights), ("mean_m", m.means_m), ("sigma_m", m.sigmas_m)):
-        for c in range(l):
+        for c in range(components):
             cols[f"{name}_{c}"] = pa.array(arr[:, c].ravel())
     meta = {"lidarpkt.gmm_map": json.dumps({
-        "shape": [r, l, h, w], "return_labels": list(m.return_labels), "max_components": m.max_components,
+        "shape": [r, components, h, w], "return_labels": list(m.return_labels), "max_components": m.max_components,
         "min_separation_m": m.min_separation_m, "min_sigma_m": m.min_sigma_m})}
     pq.write_table(pa.table(cols).replace_schema_metadata(meta), path)
 
@@ -137,12 +137,12 @@ def _read_parquet(path: Path) -> GmmMap:
     meta = json.loads((table.schema.metadata or {}).get(b"lidarpkt.gmm_map", b"null"))
     if not meta:
         raise AnalysisError(f"{path}: a Parquet file without lidarpkt's GMM map metadata")
-    r, l, h, w = meta["shape"]
+    r, components, h, w = meta["shape"]
 
     def grid(name):
         return table.column(name).to_numpy().reshape(r, h, w)
 
-    stacked = {n: np.stack([grid(f"{n}_{c}") for c in range(l)], axis=1) for n in ("weight", "mean_m", "sigma_m")}
+    stacked = {n: np.stack([grid(f"{n}_{c}") for c in range(components)], axis=1) for n in ("weight", "mean_m", "sigma_m")}
     return GmmMap(stacked["weight"], stacked["mean_m"], stacked["sigma_m"], grid("n_components"), grid("n_samples"),
                   grid("n_returns"), tuple(meta["return_labels"]), int(meta["max_components"]),
                   float(meta["min_separation_m"]), float(meta["min_sigma_m"]))

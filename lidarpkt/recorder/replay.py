@@ -120,7 +120,7 @@ def embedded_metadata(path: str, look_ahead: int = 64):
 
     if container_kind(path) == "pcap":
         return None
-    from lidarpkt.bags import BagReader
+    from lidarpkt.sources.bags import BagReader
     from lidarpkt.ouster.metadata import load_metadata
 
     reader = BagReader(path)
