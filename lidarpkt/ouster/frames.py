@@ -311,6 +311,7 @@ class OusterDecoder:
 
     def _add(self, f: OusterPacketFields, payload: np.ndarray, host_ns: np.ndarray) -> None:
         b = self._current
+        assert b is not None  # push opens the frame before adding to it
         if host_ns[0] and host_ns[-1]:
             b.host_ns = [b.host_ns[0] or int(host_ns[0]), int(host_ns[-1])]
         mid0 = f.measurement_id[:, 0].astype(np.intp)
