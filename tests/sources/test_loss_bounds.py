@@ -16,7 +16,7 @@ from lidarpkt.dropped import dropped_counts
 from lidarpkt.errors import LidarpktError
 from lidarpkt.ouster import load_metadata
 from lidarpkt.ouster.stream import PacketCounter as OusterCounter
-from lidarpkt.pcap import PcapReader
+from lidarpkt.sources.pcap_reader import PcapReader
 from lidarpkt.velodyne.models import VLP16
 from lidarpkt.velodyne.stream import PacketCounter as VelodyneCounter
 
