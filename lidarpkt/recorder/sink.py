@@ -236,7 +236,8 @@ class PacketSink:
             c = r.count
             out.append(f"  {r.kind:<18} {r.src} -> {r.dst} {r.payload_size} B: {c.packets} packets, "
                        f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations"
-                       + (f", {c.interruptions} interruptions" if c.interruptions else ""))
+                       + (f", {c.interruptions} interruptions" if c.interruptions else "")
+                       + (f", {c.corrupted} corrupted" if c.corrupted else ""))
         return out
 
 

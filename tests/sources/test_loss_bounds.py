@@ -89,6 +89,30 @@ def test_the_live_counter_counts_the_moved_packet_as_corrupted():
         assert c.count.lost <= 1
 
 
+def test_the_recorder_records_the_moved_packet_and_reports_it_corrupted(tmp_path):
+    """The recorder's live path (PacketSink, as `lidarpkt record` feeds it, capture times included):
+    every packet is recorded, the moved one is reported corrupted, no gap is claimed for it beyond its slot."""
+    from lidarpkt.packet import PacketBatch
+    from lidarpkt.recorder.sink import PacketSink
+    from lidarpkt.writers.mcap.writer import McapWriter
+
+    src = external(VLP)
+    pk = _packets(src, 1206)
+    payload = np.frombuffer(b"".join(p.payload for p in pk), np.uint8).reshape(len(pk), 1206).copy()
+    ts = payload[500, 1200:1204].view("<u4")
+    ts[0] = (int(ts[0]) + 1_800_000_000) % 3_600_000_000
+    host = np.array([p.timestamp_ns for p in pk], np.int64)
+    writer = McapWriter(tmp_path / "rec.mcap")
+    sink = PacketSink(writer)
+    for rows in np.array_split(np.arange(len(pk)), 5):
+        sink.push(PacketBatch(pk[0].src, pk[0].dst, host[rows], payload[rows], rows.astype(np.int64)))
+    sink.finish()
+    writer.close()
+    (rep,) = sink.streams.values()
+    assert rep.count.packets == len(pk) and rep.count.corrupted == 1 and sink.lost <= 1
+    assert any("1 corrupted" in line for line in sink.report_lines())
+
+
 def test_a_restarted_vlp16_clock_is_a_restart_nothing_lost_or_late(tmp_path):
     """Every packet from the 1000th on moved 20 minutes back (a sensor clock reset mid-capture): one
     restart, nothing lost, late or skipped, every packet decoded."""
