@@ -67,7 +67,7 @@ def test_a_vlp16_packet_moved_in_time_is_corrupted_not_a_loss(tmp_path, k, by_us
     clean_frames, clean, _ = _open(src)
     frames, st, dropped = _open(moved)
     assert clean.lost_packets == 0 and clean.corrupted_packets == 0
-    assert st.corrupted_packets == 1 and dropped["corrupted"] == 1
+    assert st.corrupted_packets == 1 and dropped.corrupted == 1
     assert st.lost_packets <= 1 and st.late_packets == st.out_of_order_packets == st.restarts == 0
     assert st.decoded_packets == clean.decoded_packets - 1
     # the capture's last frame is the 19 columns of its last packet after the wrap: gone with it
@@ -129,7 +129,7 @@ def test_a_restarted_vlp16_clock_is_a_restart_nothing_lost_or_late(tmp_path):
     _, st, dropped = _open(out)
     assert st.restarts == 1 and st.corrupted_packets == 0
     assert st.lost_packets == st.late_packets == 0 and st.decoded_packets == len(pk)
-    assert "corrupted" not in dropped and "lost" not in dropped
+    assert dropped.corrupted == dropped.lost == 0
 
 
 def _ouster_moved(tmp_path, k: int, by_frames: int):
@@ -149,7 +149,7 @@ def test_an_ouster_packet_whose_frame_id_moved_50000_is_corrupted_not_a_loss(tmp
     md, src, moved = _ouster_moved(tmp_path, k, 50_000)
     clean_frames, clean, _ = _open(src, metadata=md.path)
     frames, st, dropped = _open(moved, metadata=md.path)
-    assert st.corrupted == 1 and dropped["corrupted"] == 1
+    assert st.corrupted == 1 and dropped.corrupted == 1
     assert st.lost_packets <= clean.lost_packets + 1 and st.late == clean.late == 0
     assert frames == clean_frames
     # the live counter, with and without capture times
@@ -220,8 +220,8 @@ def test_damaged_copies_never_claim_more_losses_than_the_capture_holds(tmp_path,
             _, _, dropped = _open(path, **kw)
         except LidarpktError:
             continue
-        worst = max(worst, dropped.get("lost", 0))
-        assert dropped.get("lost", 0) <= capacity, (dropped, capacity)
+        worst = max(worst, dropped.lost)
+        assert dropped.lost <= capacity, (dropped, capacity)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             pk = [p for p in PcapReader(path).packets() if len(p.payload) == size]
