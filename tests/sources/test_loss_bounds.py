@@ -93,7 +93,7 @@ def test_the_recorder_records_the_moved_packet_and_reports_it_corrupted(tmp_path
     """The recorder's live path (PacketSink, as `lidarpkt record` feeds it, capture times included):
     every packet is recorded, the moved one is reported corrupted, no gap is claimed for it beyond its slot."""
     from lidarpkt.packet import PacketBatch
-    from lidarpkt.recorder.sink import PacketSink
+    from lidarpkt.writers.mcap.packets import PacketSink
     from lidarpkt.writers.mcap.writer import McapWriter
 
     src = external(VLP)
