@@ -148,7 +148,7 @@ class PacketSink:
             tracker = self._trackers.get(key)
             if tracker is None:
                 tracker = self._trackers[key] = streams.OusterLoss(md)
-            tracker.update(batch.payload)
+            tracker.update(batch.payload, batch.timestamp_ns)
             rep.count = tracker.count
         elif kind == streams.HESAI_DATA and self._hesai_counted(key, rep, batch):
             pass  # kept on /lidarpkt/other_packets (nebula's packet message), read back by lidarpkt.open
@@ -224,7 +224,7 @@ class PacketSink:
             kind = data_kind(batch)
             period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
-        starts = tracker.update(batch.payload)
+        starts = tracker.update(batch.payload, batch.timestamp_ns)
         rep.count = tracker.count
         pending = self._pending.setdefault(key, [])
         cuts = np.flatnonzero(starts).tolist()
@@ -283,7 +283,8 @@ class PacketSink:
             c = r.count
             out.append(f"  {r.kind:<18} {r.src} -> {r.dst} {r.payload_size} B: {c.packets} packets, "
                        f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations"
-                       + (f", {c.interruptions} interruptions" if c.interruptions else ""))
+                       + (f", {c.interruptions} interruptions" if c.interruptions else "")
+                       + (f", {c.corrupted} corrupted" if c.corrupted else ""))
         return out
 
 
