@@ -139,8 +139,10 @@ class FrameReader(FrameIterator):
             "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
+        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
+        too_many = weakref.WeakMethod(self._too_many_sensors)
         self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
-                             max_sensors=opts.max_sensors, on_limit=self._too_many_sensors)
+                             max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter = FrameReader._frames(weakref.proxy(self))
