@@ -131,3 +131,24 @@ class PacketBatch:
             np.concatenate([b.payload for b in batches]),
             np.concatenate([b.index for b in batches]),
         )
+
+
+def payload_rows(payload: np.ndarray | bytes, size: int | None, what: str) -> np.ndarray:
+    """Packets as ``uint8[N, L]``: one packet (``uint8[L]``, bytes) becomes one row; ``size``: the only
+    length ``L`` allowed (``None``: any).
+
+    Raises:
+        lidarpkt.errors.PacketFormatError: not ``uint8`` rows, or rows of another length (``what`` names
+            the packets in the message: ``"Ouster IMU packets"``).
+    """
+    from .errors import PacketFormatError
+
+    if isinstance(payload, (bytes, bytearray, memoryview)):
+        payload = np.frombuffer(payload, np.uint8)
+    arr = np.asarray(payload)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.dtype != np.uint8 or arr.ndim != 2 or (size is not None and arr.shape[1] != size):
+        need = f"{size} bytes each" if size is not None else "a uint8[N, L] array"
+        raise PacketFormatError(f"{what} must be {need}; got an array {arr.dtype}{list(arr.shape)}")
+    return arr

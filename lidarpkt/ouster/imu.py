@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import PacketFormatError
 from ..imu import STANDARD_GRAVITY_MPS2, ImuSamples
+from ..packet import payload_rows
 from .profiles import (
     HEADER_TYPES,
     IMU_DTYPE,
@@ -32,15 +33,7 @@ def decode_imu(payload: np.ndarray) -> np.ndarray:
 
     Raises :class:`PacketFormatError` when the packets are not 48 bytes.
     """
-    if isinstance(payload, (bytes, bytearray, memoryview)):
-        payload = np.frombuffer(payload, np.uint8)
-    arr = np.asarray(payload)
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.dtype != np.uint8 or arr.ndim != 2 or arr.shape[1] != IMU_PACKET_SIZE:
-        raise PacketFormatError(
-            f"Ouster IMU packets are {IMU_PACKET_SIZE} bytes; got an array {arr.dtype}{list(arr.shape)}"
-        )
+    arr = payload_rows(payload, IMU_PACKET_SIZE, "Ouster IMU packets")
     return np.ascontiguousarray(arr).view(IMU_DTYPE)[:, 0].copy()
 
 
@@ -131,11 +124,4 @@ def imu_samples(payload: np.ndarray, metadata, source: str | None = None) -> Imu
 
 
 def _rows(payload) -> np.ndarray:
-    if isinstance(payload, (bytes, bytearray, memoryview)):
-        payload = np.frombuffer(payload, np.uint8)
-    arr = np.asarray(payload)
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.dtype != np.uint8 or arr.ndim != 2:
-        raise PacketFormatError(f"Ouster IMU packets must be a uint8[N, L] array; got {arr.dtype}{list(arr.shape)}")
-    return arr
+    return payload_rows(payload, None, "Ouster IMU packets")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import PacketFormatError
+from ..packet import payload_rows
 from .profiles import (
     HEADER_TYPES,
     ZONE_PACKET_DTYPE,
@@ -64,14 +64,7 @@ def decode_zone_packets(payload: np.ndarray, header_type: str = "STANDARD") -> O
     Raises:
         PacketFormatError: the packets are not 680 bytes, or not a ``uint8`` array.
     """
-    if isinstance(payload, (bytes, bytearray, memoryview)):
-        payload = np.frombuffer(payload, np.uint8)
-    arr = np.asarray(payload)
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    if arr.dtype != np.uint8 or arr.ndim != 2 or arr.shape[1] != ZONE_PACKET_SIZE:
-        raise PacketFormatError(
-            f"Ouster zone-monitoring packets are {ZONE_PACKET_SIZE} bytes; got an array {arr.dtype}{list(arr.shape)}")
+    arr = payload_rows(payload, ZONE_PACKET_SIZE, "Ouster zone-monitoring packets")
     pk = np.ascontiguousarray(arr).view(ZONE_PACKET_DTYPE)[:, 0]
     header = {f.name: read_bits(pk["header"], f) for f in HEADER_TYPES[header_type] if not f.reserved}
     zones = {f.name: read_bits(pk["zones"], f) for f in ZONE_STATE_FIELDS if not f.reserved}
