@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..sources.layouts import field_names
 from .base import BaseWriter
 
 FIELDS = ("x", "y", "z", "intensity", "ring", "time")
@@ -39,7 +40,7 @@ def cloud_points(frame) -> np.ndarray:
     grid = frame_points(frame)  # [R, H, W] in display order, with range in mm
     r = grid.shape[0]
     names = FIELDS + (("return",) if r > 1 else ())
-    dtype = np.dtype([(n, grid.dtype.fields[n][0]) for n in FIELDS] + ([("return", "u1")] if r > 1 else []))
+    dtype = np.dtype([(n, grid.dtype[n]) for n in FIELDS] + ([("return", "u1")] if r > 1 else []))
     valid = frame.destaggered(np.broadcast_to(frame.column_valid, frame.shape[1:])) \
         if frame.sensor.vendor == "ouster" else np.broadcast_to(frame.column_valid, frame.shape[1:])
     mask = (grid["range"] > 0) & valid[None]
@@ -94,6 +95,6 @@ class PcdWriter(_PerFrameWriter):
     def _dump(self, pts: np.ndarray, fh) -> None:
         from pypcd4 import PointCloud
 
-        names = pts.dtype.names
-        cloud = PointCloud.from_points([pts[n] for n in names], names, [pts.dtype.fields[n][0] for n in names])
+        names = field_names(pts.dtype)
+        cloud = PointCloud.from_points([pts[n] for n in names], names, [pts.dtype[n] for n in names])
         cloud.save(fh)
