@@ -28,10 +28,14 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
+
+if TYPE_CHECKING:
+    from lidarpkt.frame import FrameIterator
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
@@ -131,10 +135,10 @@ def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], 
     return offsets, start, end
 
 
-def _open_frames(path: str, args) -> object:
+def _open_frames(path: str, args) -> FrameIterator:
     import lidarpkt
 
-    options = {}
+    options: dict[str, Any] = {}
     if args.calibration:
         options["calibration"] = args.calibration
     return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
