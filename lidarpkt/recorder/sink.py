@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
@@ -239,7 +240,7 @@ class PacketSink:
         return out
 
 
-def batch_from_packets(items: list[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
+def batch_from_packets(items: Sequence[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
     """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
     each in arrival order (streams in order of first appearance)."""
     groups: dict[tuple, list] = {}
