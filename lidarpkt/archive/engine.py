@@ -186,7 +186,8 @@ class Progress:
         text = f"{self.units_done}/{self.units_total} units"
         if self.failed:
             text += f", {self.failed} failed"
-        self.bar.set_postfix_str(text, refresh=False)
+        if self.bar is not None:
+            self.bar.set_postfix_str(text, refresh=False)
 
     def advance(self, size_bytes: int, *, failed: bool = False) -> None:
         self.units_done += 1
