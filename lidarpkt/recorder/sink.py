@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.packet import Endpoint, PacketBatch
-from lidarpkt.velodyne import packet as vlp
+from lidarpkt.velodyne import models as vlp_models, packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
 
 from lidarpkt.writers.mcap import schemas
@@ -76,7 +76,7 @@ class PacketSink:
         self.ouster_metadata = self._ouster_mds[0] if self._ouster_mds else None  # the first sensor's
         self.max_scan_packets = max_scan_packets
         self.streams: dict[tuple, StreamReport] = {}
-        self._trackers: dict[tuple, object] = {}
+        self._trackers: dict[tuple, streams.VelodyneLoss | streams.OusterLoss] = {}
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
@@ -111,7 +111,7 @@ class PacketSink:
 
         p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
-        product = vlp.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
+        product = vlp_models.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
         described = describe_stream(batch) or {}
         self.writer.add_metadata("lidarpkt.sensor", {
             "vendor": "velodyne", "model": described.get("kind", "Velodyne data").replace(" data", ""),
@@ -175,7 +175,8 @@ class PacketSink:
             from lidarpkt.velodyne.detect import data_kind
 
             kind = data_kind(batch)
-            period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": vlp.HDL32E_PACKET_PERIOD_US}.get(kind)
+            period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US,
+                                                "hdl32e": vlp_models.HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
         starts = tracker.update(batch.payload)
         rep.count = tracker.count
