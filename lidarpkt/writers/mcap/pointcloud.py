@@ -43,8 +43,10 @@ FRAME_IDS = {"velodyne": "velodyne", "ouster": "os_sensor"}
 def point_fields() -> list:
     """The ``sensor_msgs/msg/PointField`` list of :data:`POINT_DTYPE`."""
     pf = schemas.typestore().types["sensor_msgs/msg/PointField"]
-    return [pf(name=name, offset=POINT_DTYPE.fields[name][1], datatype=_DATATYPE[POINT_DTYPE.fields[name][0]],
-               count=1) for name in POINT_DTYPE.names]
+    from lidarpkt.sources.layouts import field_info, field_names
+
+    return [pf(name=name, offset=field_info(POINT_DTYPE, name)[1], datatype=_DATATYPE[POINT_DTYPE[name]],
+               count=1) for name in field_names(POINT_DTYPE)]
 
 
 def _display(frame, image: np.ndarray) -> np.ndarray:
