@@ -172,7 +172,7 @@ def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> Velodyne
             "dx": "distCorrectionX_", "dy": "distCorrectionY_"}
     try:
         for node in px:
-            i = int(node.findtext("id_"))
+            i = int(node.findtext("id_", default=""))  # a missing id is a ValueError, as a bad one
             if i >= count:
                 continue  # the 64-entry table of the XML; only the first 16 ids exist on a VLP-16
             for k, tag in tags.items():
