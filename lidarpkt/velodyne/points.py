@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import UsageError
 from ..frame import Frame
+from .geometry import VelodyneGeometry
 
 POINT_DTYPE = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("intensity", "u1"), ("ring", "<u2"),
@@ -33,6 +35,9 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
     drops outside 0.1–200 m by default). Raises ``CalibrationError`` without a calibration.
     """
     xyz = frame.xyz()  # [R, 16, W, 3]
+    geometry = frame.sensor.geometry
+    if not isinstance(geometry, VelodyneGeometry):
+        raise UsageError(f"frame_points(frame): a {frame.sensor.vendor} frame; give a Velodyne one")
     r, h, w = frame.shape
     rng = frame.range_mm
     keep = rng > 0
@@ -45,13 +50,13 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
         label[1][same] = BOTH
         keep[0] &= ~same
     if min_range_m is not None or max_range_m is not None:
-        d = frame.sensor.geometry.distance_m(frame)
+        d = geometry.distance_m(frame)
         if min_range_m is not None:
             keep &= d >= min_range_m
         if max_range_m is not None:
             keep &= d <= max_range_m
     # order: column, laser id (firing order), slot
-    row_of_laser = np.argsort(frame.sensor.geometry.row_laser)
+    row_of_laser = np.argsort(geometry.row_laser)
     k = keep[:, row_of_laser, :].transpose(2, 1, 0)  # [W, laser, R]
     cidx, lidx, sidx = np.nonzero(k)
     rows = row_of_laser[lidx]
