@@ -88,7 +88,7 @@ def no_sensor_hint(path: Any, unrouted_streams: dict[str, int], metadata: list) 
     for key, count in unrouted_streams.items():
         m = _SIZE.search(key)
         layouts = ouster_layouts(int(m.group(1))) if m else []
-        if not layouts:
+        if not layouts or m is None:
             continue
         size = int(m.group(1))
         if not metadata:
