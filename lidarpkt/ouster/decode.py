@@ -58,7 +58,7 @@ class OusterPacketFields:
     @property
     def frame_id(self) -> np.ndarray:
         """``int64[N]`` frame id of each packet: header field, or the first column's for LEGACY."""
-        if self.profile.legacy:
+        if self.profile.legacy and self.column_frame_id is not None:  # set for LEGACY
             return self.column_frame_id[:, 0].astype(np.int64)
         return self.header["frame_id"].astype(np.int64)
 
