@@ -34,7 +34,7 @@ def _ids_match(batch: PacketBatch, md: OusterMetadata) -> np.ndarray:
     return ok
 
 
-def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata | None] | None:
+def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata] | None:
     """``("lidar", md)`` / ``("imu", md)`` when the batch is a stream of the sensor of ``md``, else ``None``.
 
     Lidar: the payload size must be the metadata's packet size; for non-legacy profiles the
