@@ -51,6 +51,9 @@ class VelodyneGeometry:
     def __init__(self, calibration: VelodyneCalibration | str | None = None) -> None:
         self.calibration = load_calibration(calibration)
         cal = self.calibration
+        # VelodyneCalibration.__post_init__ fills every per-laser table (None: zeros)
+        assert cal.dist_correction_m is not None and cal.vert_offset_m is not None
+        assert cal.horiz_offset_m is not None and cal.rot_correction_rad is not None
         order = cal.rows_to_laser  # laser id of each row
         self.row_laser = order
         omega = cal.vert_correction_rad[order]
