@@ -127,7 +127,7 @@ def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 512]``.
     """
     pk = as_position_packets(payload)
-    return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names})
+    return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names or ()})  # structured: names set
 
 
 def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: np.ndarray, slots: int,
