@@ -54,8 +54,8 @@ class DataPackets:
         """``uint32[N, 12, 32]`` distance in millimetres (2 mm units × 2, exact)."""
         return self.distance_2mm.astype(np.uint32) << 1
 
-    def select(self, rows: np.ndarray) -> "DataPackets":
-        """The chosen packets (boolean mask or indices)."""
+    def select(self, rows: np.ndarray | slice) -> "DataPackets":
+        """The chosen packets (boolean mask, indices or a slice)."""
         return DataPackets(**{k: getattr(self, k)[rows] for k in self.__dataclass_fields__})
 
 
