@@ -77,8 +77,8 @@ class OusterPacketFields:
             return self.status == LEGACY_STATUS_VALID
         return (self.status & 1).astype(bool)
 
-    def select(self, rows: np.ndarray) -> "OusterPacketFields":
-        """The fields of the chosen packets (mask or indices)."""
+    def select(self, rows: np.ndarray | slice) -> "OusterPacketFields":
+        """The fields of the chosen packets (mask, indices or a slice)."""
 
         def pick(a):
             return None if a is None else a[rows]
