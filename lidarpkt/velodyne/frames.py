@@ -454,6 +454,7 @@ class VelodyneDecoder:
         info = self._sensors.get(mode)
         if info is None:
             cal = self.calibration
+            assert cal.rot_correction_rad is not None  # VelodyneCalibration.__post_init__ fills it
             rows = self._row_laser
             freq = self._frequency_hz
             info = SensorInfo(
