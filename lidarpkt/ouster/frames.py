@@ -88,7 +88,8 @@ class _Builder:
         self.key = key
         self.frame_id = frame_id
         self.native = kernels.native
-        self.planes = self.outputs = None
+        self.planes: np.ndarray | None = None  # NumPy path: the packets' pixel words, one plane per word
+        self.outputs: dict[str, np.ndarray | None] | None = None  # compiled path: the fields themselves
         if self.native is not None:
             self.outputs, self.targets = new_fields(md.profile, h, w)
         else:
@@ -111,7 +112,7 @@ class _Builder:
         flat = mids.ravel().astype(np.intp)
         if flat.size == 0:  # every packet was a duplicate
             return
-        if self.outputs is not None:
+        if self.outputs is not None and self.native is not None:
             self.native.ouster_scatter(payload, *packet_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
                                        mids.astype(np.int64), scatter_steps(md.profile), self.targets)
         else:
@@ -119,7 +120,7 @@ class _Builder:
         self.timestamp_ns[flat] = f.timestamp_ns.ravel()
         self.measurement_id[flat] = mids.ravel()
         self.status[flat] = f.status.ravel()
-        if self.encoder_count is not None:
+        if self.encoder_count is not None and f.encoder_count is not None:  # LEGACY
             self.encoder_count[flat] = f.encoder_count.ravel()
         self.received[flat] = True
 
@@ -128,6 +129,7 @@ class _Builder:
         n, c = words.shape[:2]
         m0 = int(flat[0])
         planes = self.planes
+        assert planes is not None  # the NumPy path has them
         src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
         if m0 + n * c <= planes.shape[2] and int(flat[-1]) == m0 + n * c - 1 and (np.diff(flat) == 1).all():
             # the common case: consecutive measurement ids, strided copies into slices of columns,
@@ -141,7 +143,7 @@ class _Builder:
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
 
-    def fields(self, profile) -> dict[str, np.ndarray]:
+    def fields(self, profile) -> dict[str, np.ndarray | None]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
@@ -149,6 +151,7 @@ class _Builder:
             _zero_missing(self.targets, self.received)
             return self.outputs
         planes = self.planes
+        assert planes is not None  # the NumPy path has them
         _zero_missing([planes], self.received)
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
@@ -287,6 +290,7 @@ class OusterDecoder:
 
     def _add(self, f: OusterPacketFields, payload: np.ndarray) -> None:
         b = self._current
+        assert b is not None  # called with a frame in hand
         mid0 = f.measurement_id[:, 0].astype(np.intp)
         if int(mid0[0]) > b.last_mid0 and (mid0[1:] > mid0[:-1]).all() and not b.received[mid0].any():
             # the common case: packets in order, none seen before (no sort, no unique)
@@ -316,6 +320,7 @@ class OusterDecoder:
 
     def _release(self) -> Frame:
         b = self._current
+        assert b is not None  # called with a frame in hand
         self._current = None
         self._released.append(b.key)
         md = self.metadata
@@ -348,11 +353,13 @@ class OusterDecoder:
         if b.planes is not None:
             self._spare_planes, b.planes = b.planes, None
         extra = {"window": px["window"]} if px["window"] is not None else {}
+        range_mm, reflectivity = px["range_mm"], px["reflectivity"]
+        assert range_mm is not None and reflectivity is not None  # every profile has them
         return Frame(
             sensor=self.sensor,
             frame_id=b.frame_id,
-            range_mm=px["range_mm"],
-            reflectivity=px["reflectivity"],
+            range_mm=range_mm,
+            reflectivity=reflectivity,
             return_labels=md.profile.return_labels,
             column_valid=b.received & status_ok,
             column_timestamp_ns=b.timestamp_ns,
