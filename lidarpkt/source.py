@@ -15,7 +15,7 @@ import os
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Generator, Iterator
 
 import numpy as np
 
@@ -30,7 +30,8 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
     from .options import OpenKeywords
-    from .parallel import ParallelFrameReader
+    from ._readahead import ReadAhead
+    from .parallel import ParallelFrameReader, PipelinedFrameReader
 
 from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
@@ -107,7 +108,7 @@ class FrameReader(FrameIterator):
                 filters["segment"] = segment
         self.reader: PacketSource = open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
-        self._read_ahead = None  # the running ReadAhead, if any
+        self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
         self.decoders: dict[tuple, Decoder] = {}  # (vendor, source, ...) -> its decoder
         self._velodyne_options = {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
@@ -120,7 +121,7 @@ class FrameReader(FrameIterator):
         self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter = FrameReader._frames(weakref.proxy(self))
+        self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
 
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
@@ -143,7 +144,7 @@ class FrameReader(FrameIterator):
         self._read_ahead = ReadAhead(self.reader.batches)
         return self._read_ahead
 
-    def _frames(self) -> Iterator[Frame]:
+    def _frames(self) -> Generator[Frame, None, None]:
         from . import ouster, velodyne
 
         embedded = self.reader.ouster_metadata
@@ -151,7 +152,7 @@ class FrameReader(FrameIterator):
         ownership = self._ownership
         try:
             for batch in batches:
-                if embedded and not self._ouster_metadata:
+                if not self._ouster_metadata:
                     # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
                     self._ouster_metadata = load_ouster_metadata(embedded())
                 self.stats.batches += 1
@@ -167,7 +168,7 @@ class FrameReader(FrameIterator):
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
-            batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+            getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
@@ -189,7 +190,7 @@ class FrameReader(FrameIterator):
             match = ouster.classify(batch, self._ouster_metadata)
             if match is not None:
                 kind, md = match
-                key = ("ouster", src, id(md))
+                key: tuple = ("ouster", src, id(md))
                 if self._ownership is not None and self._ownership.state(key, post_end).closed:
                     return []
                 decoder = self._decoder(key, lambda: ouster.OusterDecoder(
@@ -294,7 +295,8 @@ class FrameReader(FrameIterator):
 
 
 @with_options
-def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]) -> FrameReader | ParallelFrameReader:
+def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
+                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
