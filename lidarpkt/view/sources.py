@@ -19,6 +19,7 @@ import threading
 import time
 from typing import Iterator
 
+from lidarpkt.decoder import Decoder
 from lidarpkt.frame import Frame
 from lidarpkt.packet import PacketBatch
 
@@ -82,7 +83,7 @@ class LiveDecoder:
     def __init__(self, ouster_metadata=(), *, max_sensors: int = 16) -> None:
         self.ouster_metadata = list(ouster_metadata or ())
         self.max_sensors = max_sensors
-        self.decoders: dict[tuple, object] = {}
+        self.decoders: dict[tuple, Decoder] = {}
         self.unrouted_packets = 0
         self.position_packets = 0  # VLP-16 position packets seen (not used for the time: module doc)
 
