@@ -27,12 +27,16 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lidarpkt.errors import LidarpktError
 
 from . import messages
+
+if TYPE_CHECKING:
+    from foxglove import WebSocketServer
 
 STATUS_SCHEMA = {
     "type": "object",
@@ -66,8 +70,8 @@ class _Sensor:
     points: list = field(default_factory=list)
     range_images: list = field(default_factory=list)
     reflectivity_images: list = field(default_factory=list)
-    transform: object = None
-    status: object = None
+    transform: Any = None  # foxglove channels, made when the sensor's first frame arrives
+    status: Any = None
     channel_ids: set = field(default_factory=set)
     packets: int = 0
     frames: int = 0
@@ -118,7 +122,7 @@ class ViewServer:
         self._listener = _listener()
         self.first_frame_wait_s = first_frame_wait_s
         try:
-            self._server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+            self._server: WebSocketServer | None = foxglove.start_server(name=name, host=host, port=port, context=self.context,
                                                  server_listener=self._listener)
         except Exception as exc:  # the SDK raises its own RuntimeError subclasses
             raise ViewError(f"--ws {host}:{port}: cannot serve there ({exc}); choose another HOST:PORT") from None
