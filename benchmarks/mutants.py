@@ -51,11 +51,11 @@ MUTANTS = (
     Mutant("range2_shift", "lidarpkt/ouster/profiles.py",
            'BitField("RANGE2", 32, 15, 3)', 'BitField("RANGE2", 32, 15, 2)',
            ("tests/ouster/test_ouster_words.py",), "up-shift of RANGE2 in FUSA_RNG15_RFL8_NIR8_DUAL"),
-    Mutant("plot_reflectivity_reversed", "analysis/plots.py",
+    Mutant("plot_reflectivity_reversed", "lidarpkt/analysis/plots.py",
            'ax2.plot(t.range_m, ra.reflectivity, "o"', 'ax2.plot(t.range_m, ra.reflectivity[::-1], "o"',
            ("tests/analysis/test_analysis_plot_data.py",), "reflectivity points of the temporal-CDF figure reversed"),
-    Mutant("fragment_offset_units", "lidarpkt/pcap.py",
-           "off = (fb & 0x1FFF) * 8", "off = (fb & 0x1FFF)",
+    Mutant("fragment_offset_units", "lidarpkt/sources/trains.py",
+           '"off": (fb & 0x1FFF) * 8,', '"off": (fb & 0x1FFF),',
            ("tests/sources/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
 )
 

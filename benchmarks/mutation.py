@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DECODE_MODULES = [
     "lidarpkt/velodyne/geometry.py", "lidarpkt/velodyne/calibration.py", "lidarpkt/velodyne/timing.py",
     "lidarpkt/velodyne/decode.py", "lidarpkt/velodyne/packet.py", "lidarpkt/ouster/geometry.py",
-    "lidarpkt/ouster/crc.py", "lidarpkt/ouster/decode.py", "lidarpkt/reassembly.py",
+    "lidarpkt/ouster/crc.py", "lidarpkt/ouster/decode.py", "lidarpkt/sources/reassembly.py",
     "lidarpkt/ouster/profiles.py", "lidarpkt/ouster/frames.py", "lidarpkt/velodyne/frames.py",
 ]
 # the tests that exercise them (the others reach the decoders only through these paths)

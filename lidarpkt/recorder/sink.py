@@ -24,8 +24,9 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.packet import Endpoint, PacketBatch
-from lidarpkt.velodyne import models as vlp_models, packet as vlp
+from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
+from lidarpkt.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
 
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
@@ -111,7 +112,7 @@ class PacketSink:
 
         p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
-        product = vlp_models.PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
+        product = PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
         described = describe_stream(batch) or {}
         self.writer.add_metadata("lidarpkt.sensor", {
             "vendor": "velodyne", "model": described.get("kind", "Velodyne data").replace(" data", ""),
@@ -175,8 +176,7 @@ class PacketSink:
             from lidarpkt.velodyne.detect import data_kind
 
             kind = data_kind(batch)
-            period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US,
-                                                "hdl32e": vlp_models.HDL32E_PACKET_PERIOD_US}.get(kind)
+            period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
         starts = tracker.update(batch.payload)
         rep.count = tracker.count
