@@ -53,3 +53,17 @@ def test_mypy_flags_a_misspelt_option_and_sees_frames(tmp_path):
     assert re.search(r'user_script\.py:5: error: Argument "workers" .* incompatible type "str"; expected "int"', out), out
     assert 'user_script.py:7: note: Revealed type is "lidarpkt.frame.Frame"' in out, out
     assert len(re.findall(r": error:", out)) == 2, out  # the well-typed call passes
+
+
+def test_ruff_passes_on_lidarpkt():
+    # the repository's [tool.ruff]; CI runs this through README's test command
+    proc = subprocess.run([sys.executable, "-m", "ruff", "check", "lidarpkt"], cwd=REPO, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_mypy_passes_on_lidarpkt():
+    # the repository's [tool.mypy] (files = lidarpkt); its cache is the repository's .mypy_cache (warm after a
+    # first run; a cold run takes about 30 s of CPU)
+    proc = subprocess.run([sys.executable, "-m", "mypy"], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0 and "Success: no issues found" in proc.stdout, proc.stdout + proc.stderr
