@@ -62,7 +62,7 @@ def run_one(name: str, rate: float | None, seconds: float, tmp: Path) -> dict:
     port = _free_port()
     out, report, log = tmp / f"{name}.mcap", tmp / f"{name}.json", tmp / f"{name}.log"
     proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
-                             "-o", str(out), "--json", str(report), "-q"], stderr=log.open("w"), cwd=REPO)
+                             "-o", str(out), "--report", str(report), "-q"], stderr=log.open("w"), cwd=REPO)
     while "listening on" not in log.read_text():
         if proc.poll() is not None:
             raise SystemExit(log.read_text())

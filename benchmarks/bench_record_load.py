@@ -102,7 +102,7 @@ def step(payloads: list[bytes], extra: list[str], rate: float, seconds: float, q
         if p.exists():
             p.unlink()
     cmd = [sys.executable, "-m", "lidarpkt", "record", "--bind", "127.0.0.1", "--port", str(port), "-o", str(out),
-           "--json", str(report), "--queue", str(queue_mb), "-q", *extra]
+           "--report", str(report), "--queue", str(queue_mb), "-q", *extra]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=log.open("w"))
     try:
         deadline = time.monotonic() + 30

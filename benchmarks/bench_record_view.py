@@ -73,7 +73,7 @@ def run_one(name: str, packets: list[Packet], extra: list[str], rate: float, vie
     out, report, log = tmp / f"{tag}.mcap", tmp / f"{tag}.json", tmp / f"{tag}.log"
     args = ["--view", "--points", "--ws", "127.0.0.1:0"] if view else []
     proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "record", "--port", str(port), "--bind", "127.0.0.1",
-                             "-o", str(out), "--json", str(report), "-q", *extra, *args],
+                             "-o", str(out), "--report", str(report), "-q", *extra, *args],
                             stderr=log.open("w"), cwd=REPO)
     client = None
     try:

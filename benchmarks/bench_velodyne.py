@@ -1,4 +1,4 @@
-"""VLP-16 decoding speed: lidarpkt against velodyne_decoder on the same long dual-return capture.
+"""Velodyne decoding speed: lidarpkt against velodyne_decoder on the same long captures.
 
 Writes a dual-return VLP-16 pcap of ``--seconds`` of sensor time (10 Hz, 1507 packets/s,
 packets from lidarpkt's encoder framed by lidarpkt.writers.pcap), then times in the same run:
@@ -9,7 +9,11 @@ packets from lidarpkt's encoder framed by lidarpkt.writers.pcap), then times in 
 Both produce points for every return of the capture (lidarpkt: a dense [2, 16, W, 3] image
 per frame; velodyne_decoder: its point list). Prints seconds, packets/s and the ratio.
 
-    python benchmarks/bench_velodyne.py [--seconds 60] [--repeat 1] [--keep DIR]
+``--models VLP-32C,VLS-128`` times the other models the same way, each on a capture of its own
+(:func:`build_model`: the model's packets at 10 Hz from lidarpkt's encoder, the model read from the
+factory byte by both decoders), and prints the ratio per model.
+
+    python benchmarks/bench_velodyne.py [--seconds 60] [--repeat 1] [--keep DIR] [--models VLP-32C,VLS-128]
 """
 
 from __future__ import annotations
@@ -70,6 +74,46 @@ def build(path: Path, seconds: float, seed: int = 0, mode: str = "dual") -> int:
     return n
 
 
+def build_model(path: Path, model_name: str, seconds: float, mode: str = "strongest", seed: int = 0) -> int:
+    """A capture of ``model_name`` turning at 10 Hz in ``mode``: block azimuths from each block's firing time,
+    a wall at ~12 m with noise, 5 % of firings without a return (dual: 10 % with a nearer strongest return)."""
+    from lidarpkt.velodyne.layout import packet_layout
+    from lidarpkt.velodyne.models import model_named
+
+    model = model_named(model_name)
+    lay = packet_layout(model, mode)
+    period_ns = model.packet_period_ns(mode)
+    n = int(seconds * 1e9 / period_ns)
+    rng = np.random.default_rng(seed)
+    t_ns = START_NS + np.arange(n, dtype=np.int64) * period_ns
+    t_us = (t_ns // 1000) % 3_600_000_000
+    ref_ns = lay.firing_ns[lay.azimuth_block[:, 0], 0] - lay.dt_s32[lay.azimuth_block[:, 0], 0] * 1e9
+    flags = np.where(lay.flag == 0, 0xEEFF, lay.flag)
+    unit = model.distance_resolution_m * 1000
+    src, dst = Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368)
+    chunk = 20000
+
+    def packets():
+        for a in range(0, n, chunk):
+            b = min(n, a + chunk)
+            az = (np.rint(((t_ns[a:b, None] - START_NS) + ref_ns[None, :]) * 1e-9 * 360000) % 36000).astype(np.int64)
+            dist = rng.integers(int(11_000 / unit), int(13_000 / unit), size=(b - a, 12, 32))
+            dist[rng.random(dist.shape) < 0.05] = 0
+            if mode == "dual":
+                flat = dist.reshape(b - a, -1)
+                last, strong = lay.source[0].ravel(), lay.source[1].ravel()
+                near = rng.random((b - a, last.size)) < 0.1
+                flat[:, strong] = np.where(near, flat[:, last] // 2, flat[:, last])
+            refl = rng.integers(0, 120, size=(b - a, 12, 32))
+            payload = encode_data_packets(az, dist, refl, t_us[a:b], mode, model.product_ids[0],
+                                          flag=np.broadcast_to(flags, (b - a, 12)))
+            for i in range(b - a):
+                yield Packet(int(t_ns[a + i]), src, dst, payload[i].tobytes())
+
+    write_pcap(path, packets(), udp_checksum=False)
+    return n
+
+
 def run_lidarpkt(path: Path, xyz: bool = True, workers: int = 1, read_ahead: bool | None = None) -> tuple[int, int]:
     frames = points = 0
     for f in lidarpkt.open(path, workers=workers, read_ahead=read_ahead):
@@ -84,10 +128,10 @@ def run_lidarpkt_frames_only(path: Path) -> tuple[int, int]:
     return run_lidarpkt(path, xyz=False)
 
 
-def run_velodyne_decoder(path: Path) -> tuple[int, int]:
+def run_velodyne_decoder(path: Path, vlp16: bool = True) -> tuple[int, int]:
     import velodyne_decoder as vd
 
-    cfg = vd.Config(model=vd.Model.VLP16)
+    cfg = vd.Config(model=vd.Model.VLP16) if vlp16 else vd.Config()  # else: the model from the factory byte
     frames = points = 0
     for _, cloud in vd.read_pcap(str(path), cfg, as_pcl_structs=True):
         frames += 1
@@ -109,7 +153,10 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="sensor time of the generated capture (default 60)")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each decoder; the best is reported")
     ap.add_argument("--keep", type=Path, help="write the capture into this directory and keep it")
+    ap.add_argument("--models", help="comma-separated other models to time instead of the VLP-16 (VLP-32C,VLS-128)")
     args = ap.parse_args()
+    if args.models:
+        return main_models(args)
     tmp = None
     if args.keep:
         args.keep.mkdir(parents=True, exist_ok=True)
@@ -134,6 +181,20 @@ def main() -> int:
     print(f"ratio (velodyne_decoder time / lidarpkt time): {t_vd / t_ours:.2f}x")
     if tmp is not None:
         tmp.cleanup()
+    return 0
+
+
+def main_models(args) -> int:
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.keep or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in args.models.split(","):
+            path = folder / f"{name.lower().replace(' ', '_')}_{int(args.seconds)}s.pcap"
+            n = build_model(path, name, args.seconds)
+            t_ours, (frames, returns) = best_of(run_lidarpkt, path, args.repeat)
+            t_vd, (scans, points) = best_of(lambda p: run_velodyne_decoder(p, vlp16=False), path, args.repeat)
+            print(f"{name:8s} lidarpkt {t_ours:6.2f} s ({frames} frames, {returns} returns, XYZ)  velodyne_decoder "
+                  f"{t_vd:6.2f} s ({scans} scans, {points} points)  {n} packets  ratio {t_vd / t_ours:.2f}x")
     return 0
 
 

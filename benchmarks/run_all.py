@@ -20,7 +20,8 @@ every run meets it (issue 16).
   issue's ≤ 1.3 target) and ``frame.xyz()`` (float64, "(info)"); then frames and float32 XYZ again
   with ``read_ahead=False`` (no reader thread; "(info)"). CPU time counts every thread of the process.
 - VLP-16: 60 s strongest and dual captures (``bench_velodyne.build``);
-  ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``.
+  ``lidarpkt.open`` + ``xyz()`` of every frame vs velodyne_decoder ``read_pcap``; the same for VLP-32C
+  and VLS-128 strongest captures (``bench_velodyne.build_model``), the ratio per model.
 - workers: ``lidarpkt.open(path, workers=2)`` (the pipeline: a decode thread beside the read-ahead)
   vs ``workers=1`` in one thread (``read_ahead=False``: one core; the ≥ 1.7 target), and for
   information vs the default ``workers=1`` (which reads ahead on a second core) and vs the
@@ -199,6 +200,14 @@ def velodyne(args, work: Path) -> None:
         path = vlp_capture(args, work, mode)
         ours, ref = alternate(args.repeat, lambda: bv.run_lidarpkt(path), lambda: bv.run_velodyne_decoder(path))
         row(f"VLP-16 {mode}: pcap→frames+XYZ vs velodyne_decoder", fmt(*ours[:2]), fmt(*ref[:2]),
+            *ratio_row(paired(ref, ours, at_least=4.0), "≥ 4"))
+    for model in ("VLP-32C", "VLS-128"):  # the model from the factory byte on both sides
+        path = work / f"{model.lower()}_strongest_{int(args.vlp_seconds)}s.pcap"
+        if not path.exists():
+            bv.build_model(path, model, args.vlp_seconds)
+        ours, ref = alternate(args.repeat, lambda: bv.run_lidarpkt(path),
+                              lambda: bv.run_velodyne_decoder(path, vlp16=False))
+        row(f"{model} strongest: pcap→frames+XYZ vs velodyne_decoder", fmt(*ours[:2]), fmt(*ref[:2]),
             *ratio_row(paired(ref, ours, at_least=4.0), "≥ 4"))
 
 

@@ -33,7 +33,12 @@ VERBS: dict[str, tuple[str, str]] = {
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with the CLI's one-line errors: ``lidarpkt: error: <flag>: <what>; <what to do>``, exit 2."""
+    """argparse with the CLI's one-line errors: ``lidarpkt: error: <flag>: <what>; <what to do>``, exit 2,
+    and no abbreviated flags (one spelling per flag: ``--out`` is not ``--output``)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D102 - argparse's hook
         verb = self.prog.split()[-1] if " " in self.prog else None
@@ -107,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     losses (``record``), 2 error (one line on stderr, no output left behind), 130 interrupted."""
     from . import cliargs
 
-    argv = cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv))
+    argv = cliargs.preparse_json(cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv)))
     verb = next((a for a in argv if not a.startswith("-")), None)
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning

@@ -3,7 +3,11 @@
 Every verb builds its options from these helpers, so a flag means the same thing everywhere:
 
 ``-o/--output PATH``   the output; its suffix picks the format and must be one the verb writes.
-``--json [FILE]``      JSON to FILE (``.json``), or to stdout when given without a value or as ``-``.
+``--json``             the verb's JSON document to stdout, wherever the flag stands (a switch).
+``-o REPORT.json``     the same document to a file, in the verbs whose output is that document
+                       (info, analyze, compare-returns, registration-impact; catalog's ``-o`` takes
+                       ``.parquet`` or ``.json``). Where ``-o`` names another output (record's MCAP),
+                       ``--report FILE.json`` writes the JSON. ``--json -o F.json`` does both.
 ``--plot DIR``         always a folder for figures (created if missing; its parent must exist).
 ``--metadata M.json``  repeatable, one per Ouster sensor.
 ``-q/--quiet``         no progress bar and no status lines.
@@ -33,9 +37,9 @@ from typing import Iterable, Sequence
 from .errors import InputFileError, OutputError, UsageError
 
 __all__ = [
-    "add_output", "add_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
+    "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
     "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
-    "discard_outputs", "error_line", "show_progress", "Progress",
+    "discard_outputs", "error_line", "show_progress", "Progress", "StopSignals",
 ]
 
 JSON_STDOUT = "-"
@@ -88,11 +92,11 @@ def positive_int(text: str, flag: str) -> int:
     return value
 
 
-def _json_target(text: str, flag: str = "--json") -> str:
-    if text == JSON_STDOUT or text.lower().endswith(".json"):
+def _json_file(text: str, flag: str) -> str:
+    if text.lower().endswith(".json"):
         return text
-    raise UsageError(f"{flag} {text}: a JSON output must end in .json (or be - for stdout); "
-                     f"to print JSON to stdout give --json after the input files, or --json -")
+    raise UsageError(f"{flag} {text}: a JSON output must end in .json; give e.g. {flag} report.json "
+                     "(or --json to print it)")
 
 
 def port_type(flag: str = "--port"):
@@ -105,9 +109,9 @@ def positive_int_type(flag: str):
     return _argparse_type(positive_int, flag)
 
 
-def json_type(flag: str = "--json"):
-    """argparse ``type=`` for a JSON output (``.json`` or ``-``)."""
-    return _argparse_type(_json_target, flag)
+def json_type(flag: str = "--report"):
+    """argparse ``type=`` for a JSON output file (``.json``)."""
+    return _argparse_type(_json_file, flag)
 
 
 # ------------------------------------------------------------------------------ adders
@@ -120,11 +124,95 @@ def add_output(parser: argparse.ArgumentParser, suffixes: Sequence[str], *, requ
     parser.set_defaults(_output_suffixes=tuple(suffixes))
 
 
-def add_json(parser: argparse.ArgumentParser, help: str = "the results as one JSON document") -> None:
-    """``--json [FILE]``: to FILE.json, or to stdout without a value or with ``-``."""
-    parser.add_argument("--json", nargs="?", const=JSON_STDOUT, default=None, metavar="FILE",
-                        type=_argparse_type(_json_target, "--json"),
-                        help=f"{help}: to FILE (.json), or to stdout when given without FILE or as -")
+_JSON_LEGACY = "--json-file-given"  # where preparse_json puts the file of the old ``--json FILE`` spelling
+
+
+def add_json(parser: argparse.ArgumentParser, help: str = "the results as one JSON document", *,
+             file_flag: str | None = "-o", aliases: Sequence[str] = ()) -> None:
+    """``--json``: the JSON document to stdout (a switch, wherever it stands), and the flag that
+    writes it to a file: ``file_flag="-o"`` adds ``-o/--output REPORT.json`` (the verbs whose output
+    is that document); ``"--report"`` adds ``--report FILE.json`` (the verbs whose ``-o`` is another
+    output); ``None`` when the verb's own ``-o`` takes ``.json`` and sets ``args.json_file`` itself.
+    ``aliases`` are older spellings of the file flag."""
+    parser.add_argument("--json", action="store_true",
+                        help=f"{help}, printed to stdout" + (f" (to a file: {file_flag} FILE.json)" if file_flag else ""))
+    if file_flag == "-o":
+        parser.add_argument("-o", "--output", *aliases, dest="json_file", metavar="REPORT.json",
+                            type=json_type("-o"), help=f"{help}, written to this file")
+    elif file_flag:
+        parser.add_argument(file_flag, *aliases, dest="json_file", metavar="FILE.json",
+                            type=json_type(file_flag), help=f"{help}, written to this file")
+    parser.add_argument(_JSON_LEGACY, dest="_json_legacy", default=None, help=argparse.SUPPRESS)
+    parser.set_defaults(_json_file_flag=file_flag or "-o")
+
+
+def preparse_json(argv: list[str]) -> list[str]:
+    """The old spellings of ``--json`` with a value (``--json FILE.json``, ``--json -``, ``--json=FILE``)
+    are set aside so that :func:`check_json` says what to write now, rather than the value being taken
+    for an input."""
+    out = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        nxt = argv[i + 1] if i + 1 < len(argv) else None
+        if a == "--json" and nxt is not None and (nxt == JSON_STDOUT or nxt.lower().endswith(".json")):
+            out += ["--json", f"{_JSON_LEGACY}={nxt}"]
+            i += 2
+            continue
+        if a.startswith("--json="):
+            value = a.split("=", 1)[1]
+            out += ["--json"] + ([f"{_JSON_LEGACY}={value}"] if value else [])
+            i += 1
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def json_file(args: argparse.Namespace) -> str | None:
+    """The file the JSON document goes to (``-o REPORT.json``, ``--report``), or None."""
+    return getattr(args, "json_file", None)
+
+
+def check_json(args: argparse.Namespace) -> None:
+    """Before any work: the old ``--json FILE`` spelling named with its replacement, and the JSON
+    file checked like any output. Raises :class:`UsageError` / :class:`OutputError`."""
+    legacy = getattr(args, "_json_legacy", None)
+    flag = getattr(args, "_json_file_flag", "-o")
+    if legacy == JSON_STDOUT:
+        raise UsageError("--json -: --json alone prints to stdout and takes no value; drop the -")
+    if legacy:
+        raise UsageError(f"--json {legacy}: --json prints the JSON to stdout and takes no file; "
+                         f"write it to a file with {flag} {legacy}")
+    target = json_file(args)
+    if target:
+        check_output(target, flag, (".json",))
+
+
+def emit_json(args: argparse.Namespace, text: str) -> str | None:
+    """Write the JSON document ``text``: to stdout with ``--json``, to the JSON file when one is
+    named (under a temporary name, renamed when complete). Returns the file written, or None."""
+    if not text.endswith("\n"):
+        text += "\n"
+    if getattr(args, "json", False):
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    target = json_file(args)
+    if not target:
+        return None
+    from .writers.base import write_atomic
+
+    flag = getattr(args, "_json_file_flag", "-o")
+    try:
+        write_atomic(target, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    except OutputError as exc:
+        raise OutputError(f"{flag} {exc}; choose a writable path") from exc
+    return target
+
+
+def wants_json(args: argparse.Namespace) -> bool:
+    """A JSON document is asked for (stdout or a file)."""
+    return bool(getattr(args, "json", False) or json_file(args))
 
 
 def add_plot(parser: argparse.ArgumentParser, help: str = "write the figures (PNG) into this folder") -> None:
@@ -245,12 +333,6 @@ def check_inputs(paths: Iterable[str | os.PathLike[str]], flag: str | None = Non
             raise InputFileError(f"{name}: not readable (permission denied); check its permissions")
 
 
-def check_json_output(target: str | None) -> None:
-    """``--json FILE`` checked like any output (stdout needs nothing)."""
-    if target and target != JSON_STDOUT:
-        check_output(target, "--json", (".json",))
-
-
 def outputs_mark() -> int:
     """Where a run's outputs start in the list of remembered ones (runs nest: ``demo`` runs ``decode``)."""
     return len(_created)
@@ -324,3 +406,53 @@ class Progress:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class StopSignals:
+    """SIGINT and SIGTERM ask a long-running verb (``record``, ``view``) to stop: it finishes cleanly
+    (closes its files with their index, says its summary) instead of dying mid-write.
+
+    ``with StopSignals() as stop:`` (or :meth:`install` … :meth:`restore`) installs the handlers (in the main thread only: elsewhere signals
+    cannot be handled) and puts the previous ones back at the end. ``stop.event`` is set and
+    ``stop.reason`` names the signal on the first one; with ``second_interrupt_raises``, a second
+    Ctrl-C raises :class:`KeyboardInterrupt` (stop now)."""
+
+    def __init__(self, *, second_interrupt_raises: bool = False) -> None:
+        import threading
+
+        self.event = threading.Event()
+        self.reason: str | None = None
+        self.second_interrupt_raises = second_interrupt_raises
+        self._previous: dict = {}
+
+    def __call__(self, signum, _frame) -> None:
+        import signal
+
+        if self.reason is not None and self.second_interrupt_raises and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.reason = signal.Signals(signum).name
+        self.event.set()
+
+    def install(self) -> "StopSignals":
+        """Handle SIGINT and SIGTERM from now on (main thread only); returns self."""
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self)
+        return self
+
+    def restore(self) -> None:
+        """Put the previous handlers back. Idempotent."""
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def __enter__(self) -> "StopSignals":
+        return self.install()
+
+    def __exit__(self, *exc) -> None:
+        self.restore()

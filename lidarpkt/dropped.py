@@ -17,8 +17,8 @@ The reasons, in the words every report uses (:data:`REASONS`):
 
 from __future__ import annotations
 
-import re
-from typing import Any
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Iterator
 
 REASONS: dict[str, str] = {
     "lost": "lost (missing from the stream, never received)",
@@ -30,32 +30,61 @@ REASONS: dict[str, str] = {
 }
 
 
-def dropped_counts(reader: Any) -> dict[str, int]:
-    """Packets per reason (keys of :data:`REASONS`, zeros left out) over every decoder of a
-    :class:`~lidarpkt.source.FrameReader`."""
-    counts = dict.fromkeys(REASONS, 0)
-    for decoder in getattr(reader, "decoders", {}).values():
-        st = getattr(decoder, "stats", None)
-        if st is None:
-            continue
-        if hasattr(st, "late_packets"):  # VLP-16
-            counts["lost"] += st.lost_packets
-            counts["late"] += st.late_packets
-            counts["duplicate"] += st.duplicate_packets
-            counts["malformed"] += st.malformed + getattr(st, "position_malformed", 0)
-        else:  # Ouster
-            counts["lost"] += getattr(st, "lost_packets", 0)
-            counts["late"] += getattr(st, "late", 0)
-            counts["duplicate"] += getattr(st, "duplicates", 0)
-            counts["malformed"] += getattr(st, "crc_failures", 0) + getattr(st, "bad_measurement_id", 0)
-            counts["mismatched"] += getattr(st, "size_mismatch", 0) + getattr(st, "id_mismatch", 0)
-    counts["unrouted"] += getattr(getattr(reader, "stats", None), "unrouted_packets", 0)
-    return {k: v for k, v in counts.items() if v}
+@dataclass
+class DropCounts:
+    """Packets dropped, by reason: its fields are the keys of :data:`REASONS`, in their order."""
+
+    lost: int = 0
+    late: int = 0
+    duplicate: int = 0
+    malformed: int = 0
+    mismatched: int = 0
+    unrouted: int = 0
+
+    def __iadd__(self, other: "DropCounts") -> "DropCounts":
+        for f in fields(self):
+            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
+        return self
+
+    def items(self) -> Iterator[tuple[str, int]]:
+        """(reason, packets) of the reasons with packets, in :data:`REASONS` order."""
+        return ((f.name, getattr(self, f.name)) for f in fields(self) if getattr(self, f.name))
+
+    def total(self) -> int:
+        return sum(n for _, n in self.items())
 
 
-def format_dropped(counts: dict[str, int], total_packets: int | None = None) -> str:
+if [f.name for f in fields(DropCounts)] != list(REASONS):  # a reason is a field, and a field a reason
+    raise ImportError("lidarpkt.dropped: DropCounts fields and REASONS differ")
+
+
+def _velodyne(st: Any) -> DropCounts:
+    return DropCounts(lost=st.lost_packets, late=st.late_packets, duplicate=st.duplicate_packets,
+                      malformed=st.malformed + st.position_malformed)
+
+
+def _ouster(st: Any) -> DropCounts:
+    return DropCounts(lost=st.lost_packets, late=st.late, duplicate=st.duplicates,
+                      malformed=st.crc_failures + st.bad_measurement_id, mismatched=st.size_mismatch + st.id_mismatch)
+
+
+#: each vendor decoder's ``stats`` → its :class:`DropCounts` (by the vendor of the router's sensor key)
+VENDOR_DROPS: dict[str, Callable[[Any], DropCounts]] = {"velodyne": _velodyne, "ouster": _ouster}
+
+
+def dropped_counts(reader: Any) -> DropCounts:
+    """Packets per reason over every decoder of a :class:`~lidarpkt.source.FrameReader` (its ``decoders``:
+    sensor key (vendor, …) → decoder) and its unrouted packets."""
+    counts = DropCounts()
+    for key, decoder in getattr(reader, "decoders", {}).items():
+        counts += VENDOR_DROPS[key[0]](decoder.stats)
+    counts.unrouted += getattr(getattr(reader, "stats", None), "unrouted_packets", 0)
+    return counts
+
+
+def format_dropped(counts: DropCounts, total_packets: int | None = None) -> str:
     """``"12 lost (missing …), 3755 discarded as late (…)"``, or ``""`` when nothing was dropped."""
-    parts = [f"{n} {REASONS[k]}" for k, n in counts.items() if n]
+    parts = [f"{n} {REASONS[k]}" for k, n in counts.items()]
     if not parts:
         return ""
     head = f"of {total_packets} packets, " if total_packets is not None else ""
@@ -71,9 +100,6 @@ def dropped_summary(reader: Any) -> str | None:
 
 
 # ------------------------------------------------------------------------------ no sensor found
-_SIZE = re.compile(r"\((\d+) B\)$")
-
-
 def ouster_layouts(size: int) -> list[str]:
     """Ouster lidar layouts (``"PROFILE (H px)"``) whose packets are ``size`` bytes, 16 columns each."""
     from .ouster.profiles import PROFILES
@@ -81,16 +107,15 @@ def ouster_layouts(size: int) -> list[str]:
     return [f"{p.name} ({h} px)" for p in PROFILES.values() for h in (16, 32, 64, 128) if p.packet_size(h, 16) == size]
 
 
-def no_sensor_hint(path: Any, unrouted_streams: dict[str, int], metadata: list) -> str | None:
+def no_sensor_hint(path: Any, unrouted_streams: dict[Any, int], metadata: list) -> str | None:
     """The error when no lidar stream was decoded but one has the size of Ouster lidar packets: the
     metadata is missing (and how to give it), or which packet size and profile of the given metadata
     disagree with the packets. ``None`` when no stream looks like Ouster lidar."""
-    for key, count in unrouted_streams.items():
-        m = _SIZE.search(key)
-        layouts = ouster_layouts(int(m.group(1))) if m else []
-        if not layouts or m is None:
+    for key, count in unrouted_streams.items():  # keys: lidarpkt.source.UnroutedStream
+        size = key.payload_size
+        layouts = ouster_layouts(size) if size is not None else []
+        if not layouts:
             continue
-        size = int(m.group(1))
         if not metadata:
             return (f"{path}: the stream {key}, {count} packets, has the size of Ouster lidar packets "
                     f"({' or '.join(layouts)}) but no Ouster metadata was given; pass the sensor's metadata JSON "

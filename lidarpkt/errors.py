@@ -27,6 +27,10 @@ class OutputError(LidarpktError):
     """An output cannot be written where asked: missing or unwritable folder, unknown suffix."""
 
 
+class DiskFullError(OutputError):
+    """The output file could not be written because the disk is full; what was written stays readable."""
+
+
 # --- input files and containers -------------------------------------------------
 class CaptureFormatError(LidarpktError):
     """A file is not a capture lidarpkt can read (wrong magic, unsupported link type, corrupt block)."""
@@ -57,21 +61,26 @@ class CalibrationError(LidarpktError):
     """A calibration file (ROS YAML, VeloView XML) is malformed or not for this sensor."""
 
 
+class SensorConnectionError(LidarpktError):
+    """A sensor did not answer over the network (its HTTP API), or answered with something that is not
+    what a sensor serves."""
+
+
 class NMEAError(LidarpktError):
     """An NMEA sentence is malformed or its checksum does not match."""
 
 
-# --- recording ---------------------------------------------------------------------
+# --- live sources and recording ---------------------------------------------------
+class ReceiveError(LidarpktError):
+    """Live UDP reception failed: a socket could not be opened, joined or read."""
+
+
 class RecorderError(LidarpktError):
-    """Live capture or recording failed."""
+    """Recording (or replaying) failed, or its flags do not go together."""
 
 
-class PortInUseError(RecorderError):
+class PortInUseError(ReceiveError):
     """The UDP port to listen on is already bound by another process."""
-
-
-class DiskFullError(RecorderError):
-    """The output file could not be written because the disk is full; what was written stays readable."""
 
 
 class SerialPortError(RecorderError):

@@ -204,6 +204,58 @@ class Frame:
             )
         return self.sensor.geometry.xyz(self, point_dtype)
 
+    def has_return(self) -> np.ndarray:
+        """``bool[R, H, W]``: the pixels that hold a return (range > 0 in a column a packet delivered).
+
+        The one mask every point output uses: :meth:`points` has a row for each True pixel."""
+        return (self.range_mm > 0) & np.asarray(self.column_valid, bool)[None, None, :]
+
+    def points(self, dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
+        """The frame's returns as a structured array, one row per return, the source of every point
+        output (Parquet, LAS/LAZ, PLY, PCD, PointCloud2, Foxglove).
+
+        A row for each return slot of each pixel that holds a return (:meth:`has_return`), in C
+        order of ``[R, H, W]``: slot, then row, then column (Ouster columns staggered, as sent).
+        A dual-return pixel whose two slots repeat one return is two rows. Fields (:func:`points_dtype`):
+
+        ============  ========  ==============================================================
+        field         type      meaning
+        ============  ========  ==============================================================
+        x, y, z       ``dtype``  metres, :meth:`xyz` (float64, or float32 as ``xyz(float32)``)
+        range_mm      uint32    range in millimetres (> 0)
+        reflectivity  uint8     the sensor's reflectivity
+        row           uint16    beam, 0 = the highest elevation
+        column        uint16    column of the frame's arrays
+        return_slot   uint8     index in ``return_labels``
+        timestamp_ns  int64     the return's firing time, ns since the Unix epoch (column time +
+                                ``pixel_time_offset_ns`` where the sensor defines it)
+        signal        uint16    Ouster: signal photons (only when the frame has ``signal``)
+        near_ir       uint16    Ouster: ambient near-IR of the pixel (only when it has ``near_ir``)
+        ============  ========  ==============================================================
+
+        Raises:
+            CalibrationError: the sensor has no calibration.
+            UsageError: ``dtype`` is neither float64 nor float32.
+        """
+        xyz = self.xyz(dtype)
+        mask = self.has_return()
+        slot, row, col = np.nonzero(mask)
+        out = np.empty(slot.size, points_dtype(self, xyz.dtype))
+        sel = xyz[mask]
+        out["x"], out["y"], out["z"] = sel[:, 0], sel[:, 1], sel[:, 2]
+        out["range_mm"] = self.range_mm[mask]
+        out["reflectivity"] = self.reflectivity[mask]
+        out["row"], out["column"], out["return_slot"] = row, col, slot
+        t = self.column_timestamp_ns[col]
+        if self.pixel_time_offset_ns is not None:
+            t = t + self.pixel_time_offset_ns[row, col]
+        out["timestamp_ns"] = t
+        if self.signal is not None:
+            out["signal"] = self.signal[mask]
+        if self.near_ir is not None:
+            out["near_ir"] = self.near_ir[row, col]
+        return out
+
     def on_grid(self, resolution_deg: float | None = None) -> "Frame":
         """This frame on a fixed azimuth grid, so that pixel (i, j) is the same raypath in every frame.
 
@@ -255,6 +307,21 @@ class Frame:
         see :func:`destagger`. Returns the image unchanged for sensors without a stagger."""
         shift = self.sensor.pixel_shift_by_row
         return image if shift is None else destagger(image, np.asarray(shift))
+
+
+POINT_FIELDS = (("range_mm", "<u4"), ("reflectivity", "u1"), ("row", "<u2"), ("column", "<u2"),
+                ("return_slot", "u1"), ("timestamp_ns", "<i8"))
+VENDOR_POINT_FIELDS = (("signal", "<u2"), ("near_ir", "<u2"))  # present when the frame carries them
+
+
+def points_dtype(frame: Frame, xyz_dtype: "np.typing.DTypeLike" = np.float64) -> np.dtype:
+    """The structured dtype of ``frame.points(xyz_dtype)``: x, y, z, :data:`POINT_FIELDS`, then the
+    :data:`VENDOR_POINT_FIELDS` the frame carries (not None)."""
+    if frame.shape[2] > np.iinfo(np.uint16).max + 1:
+        raise UsageError(f"frame {frame.frame_id}: {frame.shape[2]} columns do not fit the points' uint16 column")
+    xyz = np.dtype(xyz_dtype).newbyteorder("<")
+    extra = [(name, typ) for name, typ in VENDOR_POINT_FIELDS if getattr(frame, name) is not None]
+    return np.dtype([("x", xyz), ("y", xyz), ("z", xyz), *POINT_FIELDS, *extra])
 
 
 _SMOOTH_FIRINGS = 15  # firings averaged to tell the sensor's turn from its encoder's jitter

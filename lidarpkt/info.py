@@ -1,4 +1,4 @@
-"""``lidarpkt info FILE... [--json [OUT.json]] [--metadata M.json ...]``: what streams and sensors a capture holds.
+"""``lidarpkt info FILE... [--json] [-o OUT.json] [--metadata M.json ...]``: what streams and sensors a capture holds.
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
@@ -7,7 +7,7 @@ VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the 
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
 records. ``--json`` prints the same as one JSON document (one capture object, or
-``{"captures": [...]}`` for several files); ``--json OUT.json`` writes it to a file.
+``{"captures": [...]}`` for several files) on stdout; ``-o OUT.json`` writes it to a file.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .sources.magic import capture_format
+from .sources.magic import find_captures
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -51,15 +51,27 @@ def _iso(ns: int) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
 
 
-def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> dict | None:
+def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None, str | None]:
+    """(the vendor module's description of the stream, the vendor whose module described it)."""
     # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
     from .ouster.detect import describe_stream as ouster_stream
     from .velodyne.detect import describe_stream as velodyne_stream
 
     found = velodyne_stream(batch)
-    if found is None:
-        found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
-    return found
+    if found is not None:
+        return found, "velodyne"
+    found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
+    return found, None if found is None else "ouster"
+
+
+def _stream_kind(batch: PacketBatch, metadata: Sequence[Any]) -> str:
+    """What ``lidarpkt.open``'s router makes of the stream (:class:`lidarpkt.streams.StreamKind`): a
+    stream of frames (``velodyne_data``, ``ouster_lidar``), an auxiliary one, or ``other``."""
+    from .router import RouteOptions, Router
+    from .streams import StreamKind
+
+    match = Router(RouteOptions(metadata)).classify(batch)
+    return str(StreamKind.OTHER if match is None else StreamKind.of(match.vendor, match.kind))
 
 
 def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ()) -> dict:
@@ -76,8 +88,10 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         "reassembled", "orphaned_fragments", "duplicate_fragments", "malformed",
         "malformed_reasons", "truncated", "first_time", "last_time", "duration_s", "streams": [...]}``;
         each stream: ``src``, ``dst``, ``dst_port``, ``payload_size``, ``packets``, first/last time
-        (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` and ``details`` (the sensor
-        module's description, or None when unknown).
+        (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` (for people: ``"VLP-16 data"``),
+        ``stream_kind`` (for programs: a :class:`lidarpkt.streams.StreamKind` value, what ``lidarpkt.open``
+        routes it as), ``vendor`` (the sensor module that described it, None when none did) and ``details``
+        (the sensor module's description, or None when unknown).
 
     Raises:
         lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
@@ -108,10 +122,11 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         batch = PacketBatch.concatenate(s.kept)
         s.kept = []
         try:
-            details = _describe(batch, metadata)
+            details, vendor = _describe(batch, metadata)
+            stream_kind = _stream_kind(batch, metadata)
             error = None
         except Exception as exc:  # a description must never stop info: say what failed
-            details, error = None, f"{type(exc).__name__}: {exc}"
+            details, vendor, stream_kind, error = None, None, "other", f"{type(exc).__name__}: {exc}"
         entry = {
             "src": str(s.src) if s.src else None,
             "dst": str(s.dst) if s.dst else None,
@@ -124,6 +139,8 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
             "last_timestamp_ns": s.last_ns,
             "duration_s": (s.last_ns - s.first_ns) / 1e9,
             "kind": (details or {}).get("kind", "unknown"),
+            "stream_kind": stream_kind,
+            "vendor": vendor,
             "details": details,
         }
         if s.kept_packets < s.packets:
@@ -257,22 +274,12 @@ def format_capture(doc: dict) -> str:
 
 
 def _expand(paths: Sequence[str]) -> list[str]:
-    """The files to describe: a directory (other than a rosbag2 folder) stands for every
-    pcap/pcapng/MCAP/ROS bag file under it, in name order."""
+    """The files to describe: a directory (other than a rosbag2 folder) stands for every capture under it
+    (:func:`lidarpkt.sources.magic.find_captures`, as the archive jobs find them), in name order."""
     out: list[str] = []
     for path in paths:
         if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
-            found = []
-            for root, dirs, files in os.walk(path):
-                dirs.sort()
-                if "metadata.yaml" in files:  # a rosbag2 folder inside: one capture
-                    found.append(root)
-                    dirs[:] = []
-                    continue
-                for name in sorted(files):
-                    full = os.path.join(root, name)
-                    if capture_format(full) is not None or name.endswith((".mcap", ".bag")):
-                        found.append(full)
+            found = find_captures(path)
             out.extend(found if found else [path])  # an empty folder still gets its error
         else:
             out.append(path)
@@ -299,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
     from .ouster import load_metadata
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
-    cliargs.check_json_output(args.json)
+    cliargs.check_json(args)
     metadata = [load_metadata(m) for m in args.metadata or ()]
     docs = []
     status = 0
@@ -312,14 +319,9 @@ def run(args: argparse.Namespace) -> int:
             status = 2
             docs.append({"file": os.fspath(path), "error": str(exc)})
             print(cliargs.error_line(exc), file=sys.stderr)
-    if args.json:
+    if cliargs.wants_json(args):
         doc = docs[0] if len(docs) == 1 else {"captures": docs}
-        text = json.dumps(doc, indent=2) + "\n"
-        if args.json == cliargs.JSON_STDOUT:
-            sys.stdout.write(text)
-        else:
-            with open(args.json, "w", encoding="utf-8") as fh:
-                fh.write(text)
+        cliargs.emit_json(args, json.dumps(doc, indent=2))
     elif any("error" not in d for d in docs):
         print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
     return status

@@ -35,8 +35,11 @@ class OpenOptions:
         None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
         "we record carry it and need none. VLP-16 needs none.")
     calibration: Any = _option(
-        None, "VLP-16 calibration (path to a ROS YAML / VeloView XML, or a loaded one); the stock VLP-16 "
-        "calibration by default.")
+        None, "Velodyne calibration (path to a ROS YAML / VeloView XML, or a loaded one); the model's stock "
+        "calibration by default (the HDL-64E's: read from its packets' status cycle).")
+    velodyne_model: str | None = _option(
+        None, "Velodyne: the model (\"VLP-32A\", \"HDL-64E S3\", \"Puck LITE\", ...) when its packets cannot say it; "
+        "by default read from their factory byte (the HDL-64E from its block layout).")
     cut_angle_deg: float | None = _option(
         None, "VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
     cut_on_block: bool = _option(
@@ -104,6 +107,7 @@ class OpenKeywords(TypedDict, total=False):
 
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None
     calibration: Any
+    velodyne_model: str | None
     cut_angle_deg: float | None
     cut_on_block: bool
     source: str | None

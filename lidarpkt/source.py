@@ -15,7 +15,7 @@ import os
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generator, Iterator
+from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from .decoder import Decoder
 from .frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata, with_options
 from .packet import PacketBatch
+from .router import Router, RouteOptions, source_name as _source_name
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
@@ -45,6 +46,21 @@ def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[Packe
     return open_packet_source(path, **filters).batches()
 
 
+class UnroutedStream(NamedTuple):
+    """A stream :func:`open_frames` did not decode, as :attr:`SourceStats.unrouted_streams` keys it;
+    ``str()`` gives ``"src → dst (size B)"``."""
+
+    src: str
+    dst: str
+    payload_size: int | None  # None: the streams beyond the listed ones, summed
+
+    def __str__(self) -> str:
+        return self.src if self.payload_size is None else f"{self.src} → {self.dst} ({self.payload_size} B)"
+
+
+OTHER_STREAMS = UnroutedStream("(other streams)", "", None)
+
+
 @dataclass
 class SourceStats:
     """What :func:`open_frames` saw: packets routed to each kind of decoder and streams it could not use."""
@@ -56,7 +72,8 @@ class SourceStats:
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
     unrouted_packets: int = 0
-    unrouted_streams: dict[str, int] = field(default_factory=dict)  # "src → dst (size B)" → packets
+    unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
+    other_sensor_packets: dict[str, int] = field(default_factory=dict)  # "vendor kind" → packets, other vendors
     filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
     frames: int = 0
 
@@ -94,7 +111,6 @@ class FrameReader(FrameIterator):
         if opts.workers != 1:
             raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
-        self._max_sensors = int(opts.max_sensors)
         self.segment = segment = opts.segment
         self._ownership = None
         filters = opts.filters()  # None: the reader's default
@@ -110,15 +126,14 @@ class FrameReader(FrameIterator):
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
-        self.decoders: dict[tuple, Decoder] = {}  # (vendor, source, ...) -> its decoder
-        self._velodyne_options = {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                                  "cut_on_block": opts.cut_on_block}
-        self._ouster_options = {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}
+        self._decoder_options = {
+            "velodyne": {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
+                         "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
+            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
-        self._ouster_metadata = load_ouster_metadata(opts.metadata)
-        self._warned_max_sensors = False
-        self._named: set[tuple] = set()  # decoders named after their data stream (see _name_by_data)
+        self.router = Router(RouteOptions(load_ouster_metadata(opts.metadata), self._decoder_options),
+                             max_sensors=opts.max_sensors, on_limit=self._too_many_sensors)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
@@ -144,17 +159,24 @@ class FrameReader(FrameIterator):
         self._read_ahead = ReadAhead(self.reader.batches)
         return self._read_ahead
 
-    def _frames(self) -> Generator[Frame, None, None]:
-        from . import ouster, velodyne
+    @property
+    def decoders(self) -> dict[tuple, Decoder]:
+        """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
+        return self.router.decoders
 
+    @property
+    def _ouster_metadata(self) -> list:
+        return list(self.router.options.ouster_metadata)
+
+    def _frames(self) -> Generator[Frame, None, None]:
         embedded = self.reader.ouster_metadata
         batches = self._batches()
         ownership = self._ownership
         try:
             for batch in batches:
-                if not self._ouster_metadata:
+                if not self.router.options.ouster_metadata:
                     # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
-                    self._ouster_metadata = load_ouster_metadata(embedded())
+                    self.router.options = RouteOptions(load_ouster_metadata(embedded()), self._decoder_options)
                 self.stats.batches += 1
                 self.stats.packets += len(batch)
                 src = batch.src.address if batch.src is not None else None
@@ -164,7 +186,7 @@ class FrameReader(FrameIterator):
                     continue
                 split = getattr(self.reader, "split_ordinal", None)
                 post_end = split is not None and int(batch.index[0]) >= split
-                yield from FrameReader._emit(self, self._route(batch, src, ouster, velodyne, post_end))  # self: the weak proxy
+                yield from FrameReader._emit(self, self._route(batch, post_end))  # self: the weak proxy
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
@@ -185,54 +207,29 @@ class FrameReader(FrameIterator):
         if summary:
             warn(DroppedPacketsWarning(summary), stacklevel=3)
 
-    def _route(self, batch: PacketBatch, src: str | None, ouster, velodyne, post_end: bool = False) -> list[Frame]:
-        if self._ouster_metadata:
-            match = ouster.classify(batch, self._ouster_metadata)
-            if match is not None:
-                kind, md = match
-                key: tuple = ("ouster", src, id(md))
-                if self._ownership is not None and self._ownership.state(key, post_end).closed:
-                    return []
-                decoder = self._decoder(key, lambda: ouster.OusterDecoder(
-                    md, source=_source_name(batch), **self._ouster_options))
-                if decoder is None:
-                    return self._unrouted(batch)
-                if kind == "lidar":
-                    self.stats.ouster_lidar_packets += len(batch)
-                    self._name_by_data(key, decoder, batch)
-                    return self._push(key, decoder, batch, post_end)
-                self.stats.ouster_imu_packets += len(batch)
-                decoder.push_imu(batch)
-                return []
-        kind = velodyne.classify(batch)
-        if kind is not None:
-            key = ("velodyne", src)
-            if self._ownership is not None and self._ownership.state(key, post_end).closed:
-                return []
-            decoder = self._decoder(key, lambda: velodyne.VelodyneDecoder(
-                source=_source_name(batch), **self._velodyne_options))
-            if decoder is None:
-                return self._unrouted(batch)
-            if kind == "data":
-                self.stats.velodyne_data_packets += len(batch)
-                self._name_by_data(key, decoder, batch)
-                return self._push(key, decoder, batch, post_end)
-            self.stats.velodyne_position_packets += len(batch)
-            decoder.push_position(batch)
+    def _route(self, batch: PacketBatch, post_end: bool = False) -> list[Frame]:
+        """Route a batch through the one router (:mod:`lidarpkt.router`): its sensor's decoder; reading a
+        segment, nothing for a sensor whose frames of the segment are complete."""
+        router = self.router
+        match = router.classify(batch)
+        if match is None:
+            return self._unrouted(batch)
+        key = router.key(batch, match)
+        if self._ownership is not None and self._ownership.state(key, post_end).closed:
             return []
-        return self._unrouted(batch)
-
-    def _name_by_data(self, key: tuple, decoder, batch: PacketBatch) -> None:
-        """A sensor is named after its data stream (address:port of its first data or lidar packet), even when
-        a position or IMU packet came first and made its decoder: so every segment of a capture names it alike."""
-        if key in self._named:
-            return
-        self._named.add(key)
-        name = _source_name(batch)
-        if decoder.source != name:
-            decoder.source = name
-            if getattr(decoder, "metadata", None) is not None:  # Ouster: the SensorInfo carries the name
-                decoder.sensor = decoder.metadata.sensor_info(name)
+        route = router.route_match(batch, match)
+        if route.decoder is None:
+            return self._unrouted(batch)
+        name = f"{match.vendor}_{match.kind}_packets"
+        if hasattr(self.stats, name):
+            setattr(self.stats, name, getattr(self.stats, name) + len(batch))
+        else:  # a vendor SourceStats has no field of its own for
+            other = self.stats.other_sensor_packets
+            other[f"{match.vendor} {match.kind}"] = other.get(f"{match.vendor} {match.kind}", 0) + len(batch)
+        if match.lidar:
+            return self._push(route.key, route.decoder, batch, post_end)
+        route.decoder.push_auxiliary(batch)
+        return []
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
@@ -248,30 +245,22 @@ class FrameReader(FrameIterator):
         return frames
 
     def _unrouted(self, batch: PacketBatch) -> list[Frame]:
-        key = f"{_source_name(batch)} → {batch.dst if batch.dst is not None else '?'} ({batch.payload_size} B)"
+        key = UnroutedStream(_source_name(batch), str(batch.dst) if batch.dst is not None else "?", batch.payload_size)
         self.stats.unrouted_packets += len(batch)
         streams = self.stats.unrouted_streams
         if key not in streams and len(streams) >= _MAX_LISTED_STREAMS:  # a capture of random traffic
-            key = "(other streams)"
+            key = OTHER_STREAMS
         streams[key] = streams.get(key, 0) + len(batch)
         return []
 
-    def _decoder(self, key: tuple, make):
-        """The decoder of one sensor, made on its first packet; ``None`` beyond ``max_sensors``: each
-        decoder holds up to a frame (~3 MB for an OS-128), so a capture with thousands of source
-        addresses (400 one-packet Ouster sources took 660 MB) must not get one each."""
-        decoder = self.decoders.get(key)
-        if decoder is None:
-            if len(self.decoders) >= self._max_sensors:
-                if not self._warned_max_sensors:
-                    self._warned_max_sensors = True
-                    warn(SkippedPacketWarning(
-                        f"{self.path}: more than {self._max_sensors} sensors (source addresses) in one capture; the "
-                        "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
-                        "source=..., or raise max_sensors=...)"), stacklevel=4)
-                return None
-            decoder = self.decoders[key] = make()
-        return decoder
+    def _too_many_sensors(self) -> None:
+        """The router met a sensor beyond ``max_sensors``: each decoder holds up to a frame (~3 MB for an
+        OS-128), so a capture with thousands of source addresses (400 one-packet Ouster sources took
+        660 MB) must not get one each. Said once."""
+        warn(SkippedPacketWarning(
+            f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
+            "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
+            "source=..., or raise max_sensors=...)"), stacklevel=6)
 
     def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
         for frame in frames:
@@ -372,6 +361,3 @@ def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
     fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
     return int(fields.frame_id[0]) == frame.frame_id
 
-
-def _source_name(batch: PacketBatch) -> str:
-    return str(batch.src) if batch.src is not None else "unknown source"

@@ -1,8 +1,9 @@
 """A Foxglove WebSocket protocol client for the view tests: what the Foxglove app does, with
 ``websockets`` and ``protobuf`` (nothing of lidarpkt's or foxglove-sdk's own code).
 
-It connects under the subprotocol the server accepts (``foxglove.sdk.v1``, else the older
-``foxglove.websocket.v1``), subscribes to every channel advertised (now and later), and
+It offers the subprotocols ``subprotocols`` (default both names of the protocol, the server
+picks: ``foxglove.sdk.v1``, else the older ``foxglove.websocket.v1``; one of them alone to act as
+a viewer that knows only it), subscribes to every channel advertised (now and later), and
 decodes the binary ``messageData`` frames (opcode 0x01: uint32 subscription id, uint64 log
 time, payload) with the schema of the advertisement: protobuf channels through the
 FileDescriptorSet it carries, JSON channels as JSON.
@@ -35,11 +36,12 @@ class FoxgloveClient:
     channels: dict[int, dict] = field(default_factory=dict)
     messages: list[Received] = field(default_factory=list)
     server_info: dict | None = None
+    subprotocols: list[str] = field(default_factory=lambda: list(SUBPROTOCOLS))
 
     def __post_init__(self) -> None:
         from websockets.sync.client import connect
 
-        self._connection = connect(self.url, subprotocols=SUBPROTOCOLS, max_size=None, open_timeout=10)
+        self._connection = connect(self.url, subprotocols=self.subprotocols, max_size=None, open_timeout=10)
         self._ws = self._connection.__enter__()
         self.subprotocol = self._ws.subprotocol
         self._classes: dict[int, object] = {}

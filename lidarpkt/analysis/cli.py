@@ -31,7 +31,8 @@ def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...]
     cliargs.check_inputs((args.metadata or []) + (getattr(args, "metadata2", None) or []), "--metadata")
     if output_suffixes:
         cliargs.check_output(args.output, "-o", output_suffixes)
-    cliargs.check_json_output(getattr(args, "json", None))
+    if hasattr(args, "json"):
+        cliargs.check_json(args)
     if args.plot:
         _plots()  # matplotlib missing: said before the work, not after
         cliargs.check_folder(args.plot, "--plot")
@@ -50,7 +51,7 @@ def _say(args: argparse.Namespace):
     import functools
     import sys
 
-    return functools.partial(print, file=sys.stderr if getattr(args, "json", None) == "-" else sys.stdout)
+    return functools.partial(print, file=sys.stderr if getattr(args, "json", False) else sys.stdout)
 
 
 def _clean(obj: Any) -> Any:
@@ -70,19 +71,13 @@ def _fmt(value: float | None, digits: int = 4) -> str:
     return "n/a" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def _write_json(doc: dict, path: str) -> None:
-    """The document to ``path`` (``-`` = stdout); its folder was checked before the work."""
-    text = json.dumps(_clean(doc), allow_nan=False) + "\n"
-    if path == "-":
-        import sys
+def _write_json(args: argparse.Namespace, doc: dict) -> None:
+    """The document to stdout (``--json``) and/or its file (``-o REPORT.json``, checked before the work)."""
+    from lidarpkt import cliargs
 
-        sys.stdout.write(text)
-        return
-    out = Path(path)
-    try:
-        out.write_text(text)
-    except OSError as exc:
-        raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
+    written = cliargs.emit_json(args, json.dumps(_clean(doc), allow_nan=False))
+    if written:
+        _status(args, f"wrote {written}")
 
 
 def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None, workers: int = 1):
@@ -201,10 +196,7 @@ def run_analyze(args: argparse.Namespace) -> int:
         if ra.motion is not None:
             moved = int(np.count_nonzero(np.any(ra.motion.offsets != 0, axis=1)))
             print(f"{'':>4} motion compensation: {moved} of {len(stack)} frames moved")
-    if args.json:
-        _write_json({"frames": len(stack), "pixels": [ra.to_json() for ra in results]}, args.json)
-        if args.json != "-":
-            _status(args, f"wrote {args.json}")
+    _write_json(args, {"frames": len(stack), "pixels": [ra.to_json() for ra in results]})
     if args.plot:
         plots = _plots()
         out = Path(args.plot)
@@ -458,10 +450,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
             if plots:
                 figs.append((plots.plot_mode_cdfs({la: ca, lb: cb}, r, c, src_a, ks), f"r{r}_c{c}_modes.png"))
     doc["raypaths"] = raypaths
-    if args.json:
-        _write_json(doc, args.json)
-        if args.json != "-":
-            _status(args, f"wrote {args.json}")
+    _write_json(args, doc)
     if plots:
         for fig, name in figs:
             plots.save(fig, Path(args.plot) / name)

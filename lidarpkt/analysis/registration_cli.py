@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from lidarpkt.errors import AnalysisError
@@ -80,20 +79,11 @@ def run(args: argparse.Namespace) -> int:
         threshold_m=args.threshold, settings=settings, map_range_mm=map_range,
     )
     doc = {"input": args.input, **impact.to_json()}
-    to_stdout = args.json == "-"
-    if not args.quiet and not to_stdout:
+    if not args.quiet and not args.json:  # with --json stdout is the document alone
         print_table(impact, _source(args.input, stack))
-    if args.json:
-        text = json.dumps(_clean(doc), allow_nan=False)
-        if to_stdout:
-            sys.stdout.write(text + "\n")
-        else:
-            out = Path(args.json)
-            try:
-                out.write_text(text + "\n")
-            except OSError as exc:
-                raise AnalysisError(f"--json {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
-            _status(args, f"wrote {out}")
+    written = cliargs.emit_json(args, json.dumps(_clean(doc), allow_nan=False))
+    if written:
+        _status(args, f"wrote {written}")
     if args.plot:
         plots = _plots()
         out = Path(args.plot)

@@ -13,6 +13,7 @@ import warnings
 from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
+from lidarpkt.streams import StreamKind
 
 from .engine import EngineOptions, run_rows
 from .plan import Capture, is_remote, local_path, plan_captures
@@ -24,14 +25,6 @@ CATALOG_COLUMNS: dict[str, str] = {
     "start_ns": "int64", "end_ns": "int64", "packets": "int64", "frames": "int64", "partial_frames": "int64",
     "lost_packets": "int64", "skipped_packets": "int64", "malformed_records": "int64", "error": "string",
 }
-
-
-def _vendor(kind: str) -> str | None:
-    if kind.startswith("Ouster"):
-        return "ouster"
-    if kind == "unknown":
-        return None
-    return "velodyne"
 
 
 def _mode(details: dict[str, Any]) -> str | None:
@@ -119,15 +112,15 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         source = s["src"] or "unknown source"
         # a decoder is per source address (its frames name the port of its first packet, which may be
         # the IMU's): the frames go to the first lidar stream of that address
-        decoded = _take(per_source, source) if s["kind"] in ("VLP-16 data", "Ouster lidar") else None
+        decoded = _take(per_source, source) if StreamKind(s["stream_kind"]).is_lidar else None
         row = dict(base)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
-                   vendor=_vendor(s["kind"]), model=(decoded or {}).get("model") or details.get("product_name"),
+                   vendor=s["vendor"], model=(decoded or {}).get("model") or details.get("product_name"),
                    mode=_mode(details), payload_size=s["payload_size"], start_ns=s["first_timestamp_ns"],
                    end_ns=s["last_timestamp_ns"], packets=s["packets"])
         if decoded is not None:
             row.update({k: decoded[k] for k in ("frames", "partial_frames", "lost_packets", "skipped_packets")})
-        elif s["kind"] == "unknown":
+        elif s["details"] is None:  # no sensor module knows it
             row.update(frames=0, partial_frames=0, lost_packets=0, skipped_packets=s["packets"])
         rows.append(row)
     if not rows:

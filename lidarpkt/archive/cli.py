@@ -1,8 +1,8 @@
 """The ``catalog`` and ``export`` verbs: wiring of :func:`lidarpkt.archive.catalog` and
 :func:`lidarpkt.archive.export` to the command line.
 
-``lidarpkt catalog PATHS... -o catalog.parquet [--json [FILE]] [--glob G] [--workers N | --scheduler ADDR]``
-``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap [--layout points|frames]
+``lidarpkt catalog PATHS... -o catalog.parquet|catalog.json [--json] [--glob G] [--workers N | --scheduler ADDR]``
+``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap|pcap [--layout points|frames]
 [--frames-per-file N] [--segment-size S] [--metadata M.json]... [--workers N | --scheduler ADDR] [-q]``
 """
 
@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-from pathlib import Path
 
 from lidarpkt.errors import LidarpktError
+from lidarpkt.writers.base import write_atomic
 
 from .export import FORMATS
 from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
@@ -36,10 +35,11 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
 def add_catalog_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt catalog``."""
     p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
-    p.add_argument("-o", "--output", metavar="CATALOG.parquet", help="write the catalog as a Parquet file")
+    p.add_argument("-o", "--output", metavar="CATALOG.parquet",
+                   help="write the catalog to this file: Parquet (.parquet) or a JSON list of rows (.json)")
     from lidarpkt import cliargs
 
-    cliargs.add_json(p, "the catalog as a JSON list of rows")
+    cliargs.add_json(p, "the catalog as a JSON list of rows", file_flag=None)
     _add_engine(p)
 
 
@@ -48,7 +48,8 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                    help="output folder (local or fsspec URL); holds the outputs and _manifest.jsonl")
-    p.add_argument("--format", required=True, choices=FORMATS, help="output format")
+    p.add_argument("--format", required=True, choices=FORMATS, help="output format (pcap: the capture's raw "
+                   "packets, from pcapng, MCAP and ROS bags too; a bag's keep the vendor's default ports)")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
     from lidarpkt import cliargs
@@ -68,51 +69,35 @@ def _check_engine(args: argparse.Namespace) -> None:
     cliargs.check_inputs([m for m in args.metadata or () if "://" not in m], "--metadata")  # URLs: read by the units
 
 
-def _write_atomic(path: Path, write) -> None:
-    """``write(tmp)`` then rename to ``path``: no half-written output."""
-    if not path.parent.is_dir():
-        raise LidarpktError(f"-o {path}: the folder {path.parent} does not exist; create it first")
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise LidarpktError(f"-o {path}: cannot write ({exc.strerror or exc})") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def run_catalog(args: argparse.Namespace) -> int:
     """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
     from . import CATALOG_COLUMNS
     from .catalog import catalog_rows, rows_to_table
 
     if not args.output and not args.json:
-        raise LidarpktError("-o/--output: give -o CATALOG.parquet, or --json to print the catalog")
+        raise LidarpktError("-o/--output: give -o CATALOG.parquet (or CATALOG.json), or --json to print the catalog")
     _check_engine(args)
     from lidarpkt import cliargs
 
     # checked before the work: a typo must not cost a pass over an archive
-    out = cliargs.check_output(args.output, "-o", (".parquet",)) if args.output else None
-    cliargs.check_json_output(args.json)
+    out = cliargs.check_output(args.output, "-o", (".parquet", ".json")) if args.output else None
+    if out is not None and out.suffix.lower() == ".json":  # -o's suffix picks the format
+        args.json_file, out = args.output, None
+    cliargs.check_json(args)
     rows = catalog_rows(args.paths, glob=args.glob, metadata=args.metadata or (), workers=args.workers,
                         scheduler=args.scheduler, progress=not args.quiet)
     if out is not None:
         import pyarrow.parquet as pq
 
         table = rows_to_table(rows, CATALOG_COLUMNS)
-        _write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
-    if args.json:
-        text = json.dumps(rows, indent=1, default=str) + "\n"
-        if args.json == "-":
-            sys.stdout.write(text)
-        else:
-            _write_atomic(Path(args.json), lambda tmp: tmp.write_text(text, encoding="utf-8"))
+        write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    if cliargs.wants_json(args):
+        cliargs.emit_json(args, json.dumps(rows, indent=1, default=str))
     if not args.quiet:
         files = len({r["path"] for r in rows})
         bad = len({r["path"] for r in rows if r["error"]})
         print(f"lidarpkt catalog: {len(rows)} streams in {files} files ({bad} with errors)"
-              + (f" in {out}" if out else ""), file=sys.stderr)
+              + (f" in {out or cliargs.json_file(args)}" if out or cliargs.json_file(args) else ""), file=sys.stderr)
     return 0
 
 

@@ -9,7 +9,6 @@ submits picklable calls and hands each result back as it arrives, with a progres
 from __future__ import annotations
 
 import os
-import sys
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -166,36 +165,28 @@ def run_rows(
 
 
 class Progress:
-    """The job's progress bar (tqdm on stderr): bytes done of the total, inputs done, rate, time left."""
+    """The job's progress bar (:class:`lidarpkt.cliargs.Progress`, the bar of every verb): bytes done of
+    the total, with the inputs done (and failed) beside it."""
 
     def __init__(self, total_bytes: int, total_units: int, *, enabled: bool, label: str) -> None:
+        from lidarpkt.cliargs import Progress as Bar
+
         self.units_total = total_units
         self.units_done = 0
         self.failed = 0
-        self.bar = None
-        if enabled and sys.stderr.isatty():  # as decode does: no bar in logs and pipes
-            try:
-                from tqdm import tqdm
-            except ImportError:
-                return
-            self.bar = tqdm(total=total_bytes, unit="B", unit_scale=True, unit_divisor=1024, desc=label,
-                            file=sys.stderr, dynamic_ncols=True, mininterval=0.5)
-            self._postfix()
+        self.bytes_done = 0
+        self.bar = Bar(not enabled, total=total_bytes, desc=label)
+        self.bar.update(0, self._status())
 
-    def _postfix(self) -> None:
+    def _status(self) -> str:
         text = f"{self.units_done}/{self.units_total} units"
-        if self.failed:
-            text += f", {self.failed} failed"
-        if self.bar is not None:
-            self.bar.set_postfix_str(text, refresh=False)
+        return text + (f", {self.failed} failed" if self.failed else "")
 
     def advance(self, size_bytes: int, *, failed: bool = False) -> None:
         self.units_done += 1
         self.failed += int(failed)
-        if self.bar is not None:
-            self._postfix()
-            self.bar.update(size_bytes)
+        self.bytes_done += size_bytes
+        self.bar.update(self.bytes_done, self._status())
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        self.bar.close()

@@ -25,12 +25,13 @@ from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
 from .plan import PlanError, is_remote, local_path, plan_captures, plan_segments
 from .unit import STAGING, UnitResult, UnitTask, run_unit
 
-FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap")
+FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap", "pcap")
 # MCAP is ``lidarpkt decode IN -o OUT.mcap``'s output: one recording of the capture (raw packets,
 # clouds, log times, one summary and index), which a reader opens as one file; segments would
-# split one recording into several, so it runs whole files. Every other format runs segments
-# (PLY/PCD: one file per frame, named by the whole-file frame id a segment knows: .ordinals).
-WHOLE_FILE_FORMATS = ("mcap",)
+# split one recording into several, so it runs whole files. pcap is the capture's raw packets
+# (:mod:`.packets`), one file per capture too. Every other format runs segments (PLY/PCD: one
+# file per frame, named by the whole-file frame id a segment knows: .ordinals).
+WHOLE_FILE_FORMATS = ("mcap", "pcap")
 
 
 @dataclass

@@ -45,13 +45,13 @@ class MapTask:
 def _save_npz(path: Path, arrays: dict[str, Any]) -> None:
     import numpy as np
 
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
+    from lidarpkt.writers.base import write_atomic
+
+    def save(tmp: Path) -> None:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+
+    write_atomic(path, save)
 
 
 def map_capture(task: MapTask) -> list[dict[str, Any]]:
@@ -145,13 +145,15 @@ def multireturn_maps(
     rows = run_rows(map_capture, tasks, [c.size_bytes for c in captures],
                     EngineOptions(workers=workers, scheduler=scheduler, client=client), label="multireturn",
                     progress=progress, lost=_lost_map)
-    summary = root / "summary.csv"
-    tmp = summary.with_name(".summary.csv.tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=SUMMARY_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, summary)
+    def save(tmp: Path) -> None:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=SUMMARY_COLUMNS)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    from lidarpkt.writers.base import write_atomic
+
+    write_atomic(root / "summary.csv", save)
     return rows
 
 

@@ -15,11 +15,11 @@ from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 from lidarpkt.errors import LidarpktError
+from lidarpkt.sources.magic import CAPTURE_SUFFIXES, find_captures
 
 if TYPE_CHECKING:
     from lidarpkt.sources.segments import Segment
-# names a directory walk takes without reading them (the magic bytes decide for the rest)
-CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3")
+
 _SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
                "t": 10**12, "tb": 10**12, "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
 
@@ -90,35 +90,8 @@ def _filesystem(url: str):
     return fs, path
 
 
-def _looks_like_capture(path: str) -> bool:
-    from lidarpkt.errors import UnsupportedContainerError
-    from lidarpkt.source import container_kind
-
-    if path.lower().endswith(CAPTURE_SUFFIXES):
-        return True
-    try:
-        container_kind(path)
-        return True
-    except UnsupportedContainerError:
-        return False
-
-
 def _walk_local(root: str, pattern: str | None) -> list[tuple[str, int, int]]:
-    found = []
-    for dirpath, dirs, files in os.walk(root):
-        dirs.sort()
-        if "metadata.yaml" in files:  # a rosbag2 folder: one capture
-            dirs[:] = []
-            if pattern is None or fnmatch.fnmatch(os.path.basename(dirpath), pattern):
-                found.append(_stat_local(dirpath))
-            continue
-        for name in sorted(files):
-            full = os.path.join(dirpath, name)
-            if pattern is not None and not fnmatch.fnmatch(name, pattern):
-                continue
-            if pattern is not None or _looks_like_capture(full):
-                found.append(_stat_local(full))
-    return found
+    return [_stat_local(p) for p in find_captures(root, pattern)]
 
 
 def _stat_local(path: str) -> tuple[str, int, int]:

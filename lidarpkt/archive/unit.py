@@ -28,6 +28,7 @@ from lidarpkt.errors import LidarpktError, LidarpktWarning, OutputError
 from .plan import is_remote, local_path
 
 STAGING = ".staging"  # under a local OUTDIR: the unfinished units' files (hidden from Parquet readers)
+DECODE_TOPICS = ("packets", "points")  # an MCAP unit writes what `lidarpkt decode IN -o OUT.mcap` writes
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,8 @@ def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) 
     stem = Path(capture).stem
     if fmt == "parquet":
         return stage
+    if fmt == "pcap":  # the raw packets, not frames: no frame writer (.packets)
+        return stage / f"{stem}.pcap"
     spec = FORMATS.get(fmt)
     if spec is not None and not spec.directory and not options.get("frames_per_file"):
         return stage / f"{stem}.{fmt}"
@@ -171,33 +174,21 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
     return tuple(sorted(rels))
 
 
-def _open_frames(path: str, task: UnitTask, scratch: list[str]) -> Any:
-    """The FrameReader of the task's capture (of its segment, when it has one)."""
+def _open_frames(path: str, task: UnitTask, metadata: list[str]) -> Any:
+    """The FrameReader of the task's capture (of its segment, when it has one); ``metadata``: local paths."""
     import lidarpkt
 
     options: dict[str, Any] = {}
     if task.segment is not None:
         options["segment"] = task.segment
-    metadata = [_fetch_input(m, scratch) for m in task.metadata]
     return lidarpkt.open(path, metadata=metadata or None, **options)
 
 
-def _decode_mcap(path: str, target: Path, task: UnitTask, scratch: list[str], counts: _Counts) -> list[Path]:
-    """``lidarpkt decode IN -o OUT.mcap`` (recorder.decode.decode_captures, imported here: lidarpkt
-    itself does not depend on the recorder); frames counted from the MCAP's statistics (the first
-    return slot's cloud topics); points are not counted for MCAP."""
-    from mcap.reader import make_reader
+def _write_pcap(path: str, target: Path, metadata: list[str]) -> list[Path]:
+    """The capture's raw packets as a pcap (:func:`.packets.write_packets_pcap`); frames are not counted."""
+    from .packets import write_packets_pcap
 
-    from lidarpkt.recorder.decode import decode_captures
-
-    metadata = [_fetch_input(m, scratch) for m in task.metadata]
-    decode_captures([path], target, quiet=True, **({"metadata": metadata} if metadata else {}),
-                    **dict(task.options))
-    with open(target, "rb") as fh:
-        summary = make_reader(fh).get_summary()
-    if summary is not None and summary.statistics is not None:
-        counts.frames = sum(n for cid, n in summary.statistics.channel_message_counts.items()
-                            if summary.channels[cid].topic.endswith("points"))
+    write_packets_pcap(path, target, metadata=metadata)
     return [target]
 
 
@@ -253,11 +244,16 @@ def run_unit(task: UnitTask) -> UnitResult:
             try:
                 local = _fetch_input(task.input, scratch)
                 target = writer_target(task.format, stage, task.capture, options)
-                if task.format == "mcap":  # today's decode output: raw packets, clouds, log times in the capture
-                    outputs = _publish(_decode_mcap(local, target, task, scratch, counts), stage, task)
+                metadata = [_fetch_input(m, scratch) for m in task.metadata]
+                if task.format == "pcap":  # the raw packets back in a pcap
+                    outputs = _publish(_write_pcap(local, target, metadata), stage, task)
                 else:
-                    reader = _open_frames(local, task, scratch)
-                    writer = open_writer(task.format, target, capture=task.capture, part=task.part, **options)
+                    reader = _open_frames(local, task, metadata)
+                    if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
+                        options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
+                    else:
+                        options = {"capture": task.capture, **options}
+                    writer = open_writer(task.format, target, part=task.part, **options)
                     _write_frames(writer, reader, counts, task)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)

@@ -75,6 +75,7 @@ PyObject *lp_gather_rows(PyObject *self, PyObject *args);
 PyObject *lp_xyz_lut(PyObject *self, PyObject *args);
 PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args);
 PyObject *lp_velodyne_columns(PyObject *self, PyObject *args);
+PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args);
 PyObject *lp_ouster_scatter(PyObject *self, PyObject *args);
 
 #endif

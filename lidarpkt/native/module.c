@@ -7,6 +7,8 @@ static PyMethodDef methods[] = {
     {"gather_rows", lp_gather_rows, METH_VARARGS, "Rows of bytes at offsets of a buffer."},
     {"xyz_lut", lp_xyz_lut, METH_VARARGS, "range * direction + offset, zero where range is 0."},
     {"velodyne_columns", lp_velodyne_columns, METH_VARARGS, "VLP-16 packets into range-image columns; see native/velodyne.c."},
+    {"velodyne_layout_columns", lp_velodyne_layout_columns, METH_VARARGS,
+     "Any Velodyne model's packets into range-image columns by its layout table; see native/velodyne.c."},
     {"velodyne_xyz", lp_velodyne_xyz, METH_VARARGS, "VLP-16 XYZ from ranges and per-firing azimuths; see native/velodyne.c."},
     {"ouster_scatter", lp_ouster_scatter, METH_VARARGS, "Ouster packets into a frame's [H, W] field arrays; see native/ouster.c."},
     {NULL, NULL, 0, NULL},

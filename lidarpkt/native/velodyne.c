@@ -1,12 +1,15 @@
-/* VLP-16: packets into range-image columns, and XYZ from ranges and firing azimuths. */
+/* Velodyne: packets into range-image columns (the VLP-16's, and any model's from its layout table), and XYZ
+ * from ranges and firing azimuths. */
 #include "common.h"
 
 /* velodyne_xyz(range, azimuth, cos, neg_sin, coef, has_dist, has_voff, out)
  *
- * range: uint32 [R, 16, W]; azimuth: uint16 [16, W] (0.01 degree, < 36000); cos, neg_sin: float64
- * [T, 36000] with T = 1 (one table) or 16 (one per row); coef: float64 [5, 16] (k_xy, k_z, dc_xy,
- * dc_z, vert_offset per row); out: float64 [R, 16, W, 3]; all C-contiguous. The operations and
- * their order are those of VelodyneGeometry._points (its NumPy twin), so the bytes are the same:
+ * range: uint32 [R, H, W]; azimuth: uint16 [H, W] (0.01 degree, < 36000); cos, neg_sin: float64
+ * [T, 36000] with T = 1 (one table) or H (one per row); coef: float64 [5, H] (k_xy, k_z, dc_xy,
+ * dc_z, vert_offset per row) or [7, H] (and cos r, sin r of each row's azimuth correction r, with
+ * one table: cos(a - r) = cos a cos r - neg_sin a sin r, neg_sin(a - r) = neg_sin a cos r + cos a sin r);
+ * out: float64 [R, H, W, 3]; all C-contiguous. The operations and their order are those of
+ * VelodyneGeometry._points (its NumPy twin), so the bytes are the same:
  *   hit = range > 0; dxy = range * k_xy; dz = range * k_z;
  *   if has_dist: dxy += hit * dc_xy; dz += hit * dc_z
  *   x = dxy * cos[a]; y = dxy * neg_sin[a]; if has_voff: dz = (dz + voff) * hit; z = dz
@@ -15,7 +18,8 @@
 MULTIVERSION
 static void velodyne_xyz_rows(const uint32_t *restrict rng, const uint16_t *restrict az, const double *restrict cos_t,
                               const double *restrict nsin_t, double kxy, double kz, double dcxy, double dcz,
-                              double voff, int has_dist, int has_voff, double *restrict out, Py_ssize_t w) {
+                              double voff, int has_dist, int has_voff, int has_rot, double cr, double sr,
+                              double *restrict out, Py_ssize_t w) {
     for (Py_ssize_t i = 0; i < w; i++) {
         uint32_t v = rng[i];
         double hit = v > 0 ? 1.0 : 0.0, s = (double)v;
@@ -24,8 +28,14 @@ static void velodyne_xyz_rows(const uint32_t *restrict rng, const uint16_t *rest
             dxy = dxy + hit * dcxy;
             dz = dz + hit * dcz;
         }
-        out[3 * i] = dxy * cos_t[az[i]];
-        out[3 * i + 1] = dxy * nsin_t[az[i]];
+        double c = cos_t[az[i]], ns = nsin_t[az[i]];
+        if (has_rot) {
+            double c2 = c * cr - ns * sr;
+            ns = ns * cr + c * sr;
+            c = c2;
+        }
+        out[3 * i] = dxy * c;
+        out[3 * i + 1] = dxy * ns;
         if (has_voff) dz = (dz + voff) * hit;
         out[3 * i + 2] = dz;
     }
@@ -52,10 +62,13 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
         }
     }
     {
-        Py_ssize_t hw = b[1].len / 2, w = hw / 16, table = 36000;
+        Py_ssize_t ncoef = b[4].len / 8, h_rows = ncoef % 7 == 0 && ncoef % 5 != 0 ? ncoef / 7 : ncoef / 5;
+        int has_rot = ncoef == 7 * h_rows;
+        Py_ssize_t hw = b[1].len / 2, w = h_rows ? hw / h_rows : 0, table = 36000;
         Py_ssize_t rows_t = b[2].len / 8 / table;
-        if (hw % 16 || hw == 0 || (b[0].len / 4) % hw || b[5].len != (b[0].len / 4) * 24 || b[2].len != b[3].len ||
-            (rows_t != 1 && rows_t != 16) || b[2].len != rows_t * table * 8 || b[4].len != 5 * 16 * 8) {
+        if (h_rows == 0 || hw % h_rows || hw == 0 || (b[0].len / 4) % hw || b[5].len != (b[0].len / 4) * 24 ||
+            b[2].len != b[3].len || (rows_t != 1 && rows_t != h_rows) || (has_rot && rows_t != 1) ||
+            b[2].len != rows_t * table * 8) {
             PyErr_SetString(PyExc_ValueError, "velodyne_xyz: arrays of disagreeing sizes");
             goto done;
         }
@@ -73,11 +86,12 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
         double *out = (double *)b[5].buf;
         Py_BEGIN_ALLOW_THREADS
         for (Py_ssize_t r = 0; r < returns; r++) {
-            for (Py_ssize_t h = 0; h < 16; h++) {
-                Py_ssize_t t = rows_t == 16 ? h * table : 0;
-                velodyne_xyz_rows(rng + (r * 16 + h) * w, az + h * w, cos_t + t, nsin_t + t, coef[h], coef[16 + h],
-                                  coef[32 + h], coef[48 + h], coef[64 + h], has_dist, has_voff,
-                                  out + (r * 16 + h) * w * 3, w);
+            for (Py_ssize_t h = 0; h < h_rows; h++) {
+                Py_ssize_t t = rows_t == h_rows && rows_t > 1 ? h * table : 0;
+                velodyne_xyz_rows(rng + (r * h_rows + h) * w, az + h * w, cos_t + t, nsin_t + t, coef[h],
+                                  coef[h_rows + h], coef[2 * h_rows + h], coef[3 * h_rows + h], coef[4 * h_rows + h],
+                                  has_dist, has_voff, has_rot, has_rot ? coef[5 * h_rows + h] : 1.0,
+                                  has_rot ? coef[6 * h_rows + h] : 0.0, out + (r * h_rows + h) * w * 3, w);
             }
         }
         Py_END_ALLOW_THREADS
@@ -180,6 +194,117 @@ PyObject *lp_velodyne_columns(PyObject *self, PyObject *args) {
             }
         }
         Py_END_ALLOW_THREADS
+    }
+    result = Py_NewRef(Py_None);
+done:
+    return release_buffers(b, got, result);
+}
+
+/* velodyne_layout_columns(distance, reflectivity, azimuth, source, azimuth_block, dt, rate, unit, range_out,
+ *                         refl_out, az_out)
+ *
+ * Any model's packets into range-image columns, as lidarpkt.velodyne.decode.layout_pixels (its NumPy twin):
+ * distance uint16 [N, 12, 32], reflectivity uint8 [N, 12, 32], azimuth uint16 [N, 12] (any strides: views
+ * of the payloads); source int64 [S, L, C] (channel b * 32 + j of every pixel, rows in frame order),
+ * azimuth_block int64 [L, C] and dt float32 [L, C] (the block whose azimuth a row's firing takes, and its
+ * delay after that block's reference firing, float32 seconds), rate float32 [N] (0.01 degree per second),
+ * unit: mm per distance unit; outputs C-contiguous range_out uint32 [S, L, N * C], refl_out uint8
+ * [S, L, N * C], az_out uint16 [L, N * C]. Azimuth = lround(block azimuth + rate * dt) mod 36000 in
+ * float32, summed in the twin's order (rate * dt, + azimuth, + 36000, + 0.5, truncated).
+ */
+PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
+    PyObject *o[10];
+    unsigned int unit;
+    if (!PyArg_ParseTuple(args, "OOOOOOOIOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &unit, &o[7], &o[8],
+                          &o[9]))
+        return NULL;
+    static const Py_ssize_t sizes[10] = {2, 1, 2, 8, 8, 4, 4, 4, 1, 2};
+    static const char *codes[10] = {"H", "B", "H", INTEGER_CODES, INTEGER_CODES, "f", "f", "IL", "B", "H"};
+    Py_buffer b[10];
+    int got = 0;
+    PyObject *result = NULL;
+    for (; got < 10; got++) {
+        int flags = got < 3 ? PyBUF_STRIDES | PyBUF_FORMAT
+                            : PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got >= 7 ? PyBUF_WRITABLE : 0);
+        if (get_buffer(o[got], &b[got], flags, sizes[got], "velodyne_layout_columns") < 0) goto done;
+        if (!is_native(b[got].format, codes[got])) {
+            PyErr_SetString(PyExc_ValueError, "velodyne_layout_columns: unexpected item types");
+            got++;
+            goto done;
+        }
+    }
+    {
+        Py_ssize_t n = b[0].ndim == 3 ? b[0].shape[0] : -1;
+        Py_ssize_t s = b[3].ndim == 3 ? b[3].shape[0] : 0, l = b[3].ndim == 3 ? b[3].shape[1] : 0;
+        Py_ssize_t c = b[3].ndim == 3 ? b[3].shape[2] : 0, w = n * c;
+        if (n < 0 || b[0].shape[1] != 12 || b[0].shape[2] != 32 || b[1].ndim != 3 || b[1].shape[0] != n ||
+            b[1].shape[1] != 12 || b[1].shape[2] != 32 || b[2].ndim != 2 || b[2].shape[0] != n ||
+            b[2].shape[1] != 12 || s < 1 || b[4].len != l * c * 8 || b[5].len != l * c * 4 || b[6].len != n * 4 ||
+            b[7].len != s * l * w * 4 || b[8].len != s * l * w || b[9].len != l * w * 2) {
+            PyErr_SetString(PyExc_ValueError, "velodyne_layout_columns: arrays of disagreeing shapes");
+            goto done;
+        }
+        const int64_t *src = (const int64_t *)b[3].buf, *azb = (const int64_t *)b[4].buf;
+        for (Py_ssize_t i = 0; i < s * l * c; i++) {
+            if (src[i] < 0 || src[i] >= 12 * 32 || (i < l * c && (azb[i] < 0 || azb[i] >= 12))) {
+                PyErr_SetString(PyExc_ValueError, "velodyne_layout_columns: a channel or block outside the packet");
+                goto done;
+            }
+        }
+        const char *dist = (const char *)b[0].buf, *refl = (const char *)b[1].buf, *azp = (const char *)b[2].buf;
+        const Py_ssize_t *ds = b[0].strides, *rs = b[1].strides, *as = b[2].strides;
+        const float *dt = (const float *)b[5].buf, *rate = (const float *)b[6].buf;
+        uint32_t *rng_out = (uint32_t *)b[7].buf;
+        uint8_t *refl_out = (uint8_t *)b[8].buf;
+        uint16_t *az_out = (uint16_t *)b[9].buf;
+        /* byte offsets inside a packet's records of every pixel's distance and reflectivity, and of each
+         * firing's block azimuth: the inner loops add them to a packet's base */
+        Py_ssize_t npx = s * l * c;
+        Py_ssize_t *off = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(2 * npx + l * c));
+        if (off == NULL) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        for (Py_ssize_t i = 0; i < npx; i++) {
+            Py_ssize_t blk = src[i] >> 5, ch = src[i] & 31;
+            off[i] = blk * ds[1] + ch * ds[2];
+            off[npx + i] = blk * rs[1] + ch * rs[2];
+        }
+        for (Py_ssize_t i = 0; i < l * c; i++) off[2 * npx + i] = azb[i] * as[1];
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t p0 = 0; p0 < n; p0 += 64) {
+            Py_ssize_t p1 = p0 + 64 < n ? p0 + 64 : n;
+            for (Py_ssize_t row = 0; row < s * l; row++) {
+                const Py_ssize_t *od = off + row * c, *orf = off + npx + row * c;
+                uint32_t *ro = rng_out + row * w;
+                uint8_t *fo = refl_out + row * w;
+                for (Py_ssize_t p = p0; p < p1; p++) {
+                    const char *dp = dist + p * ds[0], *rp = refl + p * rs[0];
+                    for (Py_ssize_t k = 0; k < c; k++) {
+                        ro[p * c + k] = unit * (uint32_t)load_u16(dp + od[k]);
+                        fo[p * c + k] = (uint8_t)rp[orf[k]];
+                    }
+                }
+            }
+            for (Py_ssize_t row = 0; row < l; row++) {
+                const Py_ssize_t *oa = off + 2 * npx + row * c;
+                const float *dtr = dt + row * c;
+                uint16_t *ao = az_out + row * w;
+                for (Py_ssize_t p = p0; p < p1; p++) {
+                    const char *ap = azp + p * as[0];
+                    float rp_ = rate[p];
+                    for (Py_ssize_t k = 0; k < c; k++) {
+                        float v = rp_ * dtr[k];
+                        v += (float)load_u16(ap + oa[k]);
+                        v += 36000.0f;
+                        v += 0.5f;
+                        ao[p * c + k] = (uint16_t)((int32_t)v % 36000);
+                    }
+                }
+            }
+        }
+        Py_END_ALLOW_THREADS
+        PyMem_Free(off);
     }
     result = Py_NewRef(Py_None);
 done:

@@ -16,7 +16,7 @@ import urllib.error
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-from lidarpkt.errors import MetadataError, RecorderError
+from lidarpkt.errors import MetadataError, SensorConnectionError, UsageError
 
 METADATA_PATH = "/api/v1/sensor/metadata"
 DEFAULT_HTTP_PORT = 80
@@ -24,13 +24,13 @@ DEFAULT_HTTP_PORT = 80
 
 def parse_sensor(text: str, flag: str = "--sensor") -> tuple[str, int]:
     """``"HOST[:PORT]"`` → (host, port), port 80 by default; port 0 (any free port) only for the
-    server side (``--http``). Raises :class:`RecorderError`."""
+    server side (``--http``). Raises :class:`~lidarpkt.errors.UsageError` naming ``flag``."""
     host, sep, port = text.rpartition(":")
     if not sep or "]" in port:  # no port (or a bare IPv6 address in brackets)
         host, port = text, str(DEFAULT_HTTP_PORT)
     lowest = 0 if flag == "--http" else 1
     if not host or not port.isdigit() or not lowest <= int(port) <= 65535:
-        raise RecorderError(f"{flag} {text!r}: expected HOST or HOST:PORT, e.g. os-122201000001.local or 10.5.6.101:80")
+        raise UsageError(f"{flag} {text!r}: expected HOST or HOST:PORT, e.g. os-122201000001.local or 10.5.6.101:80")
     return host.strip("[]"), int(port)
 
 
@@ -43,7 +43,7 @@ def fetch_metadata_text(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: 
     """The metadata JSON text the sensor at ``host:port`` serves.
 
     Raises:
-        RecorderError: no answer within ``timeout_s``, connection refused, an HTTP error status
+        SensorConnectionError: no answer within ``timeout_s``, connection refused, an HTTP error status
             or a body that is not JSON; the message names the host and the URL tried.
     """
     url = metadata_url(host, port)
@@ -51,23 +51,23 @@ def fetch_metadata_text(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: 
         with urllib.request.urlopen(url, timeout=timeout_s) as response:
             body = response.read(16 << 20)  # a metadata JSON is a few kB; a bound against a wrong server
     except urllib.error.HTTPError as exc:
-        raise RecorderError(f"--sensor {host}:{port}: GET {url} answered HTTP {exc.code} {exc.reason}; is this "
-                            "an Ouster sensor (firmware 2.x or later)? Or give its metadata with --metadata") from None
+        raise SensorConnectionError(f"--sensor {host}:{port}: GET {url} answered HTTP {exc.code} {exc.reason}; is this "
+                                    "an Ouster sensor (firmware 2.x or later)? Or give its metadata with --metadata") from exc
     except (urllib.error.URLError, OSError) as exc:
         reason = getattr(exc, "reason", exc)
-        raise RecorderError(f"--sensor {host}:{port}: no answer to GET {url} within {timeout_s:g} s ({reason}); "
-                            "check the address and that the sensor is on, or give --metadata M.json") from None
+        raise SensorConnectionError(f"--sensor {host}:{port}: no answer to GET {url} within {timeout_s:g} s ({reason}); "
+                                    "check the address and that the sensor is on, or give --metadata M.json") from exc
     text = body.decode("utf-8", errors="replace")
     try:
         json.loads(text)
-    except ValueError:
-        raise RecorderError(f"--sensor {host}:{port}: GET {url} did not return JSON; is this an Ouster sensor? "
-                            "Or give its metadata with --metadata") from None
+    except ValueError as exc:
+        raise SensorConnectionError(f"--sensor {host}:{port}: GET {url} did not return JSON; is this an Ouster sensor? "
+                                    "Or give its metadata with --metadata") from exc
     return text
 
 
 def fetch_metadata(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: float = 5.0):
-    """:func:`fetch_metadata_text`, parsed. Raises :class:`RecorderError`, or
+    """:func:`fetch_metadata_text`, parsed. Raises :class:`~lidarpkt.errors.SensorConnectionError`, or
     :class:`MetadataError` when the JSON is not usable Ouster metadata."""
     from .metadata import load_metadata
 
@@ -75,7 +75,7 @@ def fetch_metadata(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: float
     try:
         return load_metadata(text)
     except MetadataError as exc:
-        raise MetadataError(f"--sensor {host}:{port}: the metadata it served is not usable: {exc}") from None
+        raise MetadataError(f"--sensor {host}:{port}: the metadata it served is not usable: {exc}") from exc
 
 
 class MetadataHttpServer:
@@ -83,7 +83,7 @@ class MetadataHttpServer:
     one, see :attr:`port`), in a daemon thread; 404 elsewhere. Use as a context manager or :meth:`close`.
 
     Raises:
-        RecorderError: the address cannot be bound.
+        UsageError: the address cannot be bound.
     """
 
     def __init__(self, metadata_text: str, host: str = "127.0.0.1", port: int = 0) -> None:
@@ -108,8 +108,8 @@ class MetadataHttpServer:
         try:
             self._httpd = ThreadingHTTPServer((host, port), Handler)
         except OSError as exc:
-            raise RecorderError(f"--http {host}:{port}: cannot serve there ({exc.strerror or exc}); "
-                                "choose another HOST:PORT") from None
+            raise UsageError(f"--http {host}:{port}: cannot serve there ({exc.strerror or exc}); "
+                             "choose another HOST:PORT") from exc
         self._httpd.daemon_threads = True
         self.host = host
         self.port = self._httpd.server_address[1]

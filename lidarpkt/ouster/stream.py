@@ -1,5 +1,5 @@
 """An Ouster lidar stream's packets counted: what a payload size is, how many packets a gap lost,
-where a frame ends. The recorder's live path (``recorder/streams.py``) uses :class:`PacketCounter`;
+where a frame ends. The recorder's live path (:mod:`lidarpkt.streams`) uses :class:`PacketCounter`;
 :class:`~lidarpkt.ouster.OusterDecoder` ends a frame at the same place (a change of frame id) and
 places packets by the same measurement ids.
 

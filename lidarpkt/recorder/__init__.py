@@ -1,8 +1,8 @@
-"""lidarpkt recorder: live UDP capture, replay, serial GPS and the packets → MCAP topics sink.
+"""lidarpkt recorder: recording live sensors, replay and serial GPS.
 
-Modules: :mod:`lidarpkt.recorder.sink` (packets → topics, shared by ``record`` and ``decode``),
-:mod:`lidarpkt.recorder.streams` (stream kinds and loss accounting), :mod:`lidarpkt.recorder.capture`
-(receive thread), :mod:`lidarpkt.recorder.gps` (serial NMEA), and the verbs
+Modules: :mod:`lidarpkt.recorder.gps` (serial NMEA), and the verbs
 :mod:`lidarpkt.recorder.record`, :mod:`lidarpkt.recorder.replay`, :mod:`lidarpkt.recorder.decode`.
-The MCAP writer, its schemas and point clouds live in :mod:`lidarpkt.writers.mcap`.
+The MCAP writer, its schemas, point clouds and the packets → topics sink live in
+:mod:`lidarpkt.writers.mcap`; stream kinds and loss accounting in :mod:`lidarpkt.streams`; the live UDP packet source in
+:mod:`lidarpkt.sources.udp`.
 """

@@ -24,13 +24,11 @@ skipped, lost or discarded is said once per input (:mod:`lidarpkt.dropped`).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
@@ -49,7 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="VLP-16 calibration (ROS YAML or VeloView XML)")
+    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML)")
+    parser.add_argument("--velodyne-model", metavar="NAME",
+                        help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG",
@@ -88,59 +88,14 @@ def _bytes_read(reader) -> int | None:
     return getattr(stats, "bytes_read", None)
 
 
-def _packet_reader(path: str):
-    """The packet reader of one input (:func:`lidarpkt.sources.open_packet_source`)."""
-    from lidarpkt.sources import open_packet_source
-
-    return open_packet_source(path)
-
-
-def capture_times(path: str, md, look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
-    """(clock offsets, first and last packet host time in ns) of one input.
-
-    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
-    among the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the
-    hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
-    kept inside the capture's span (its first and last packet)."""
-    from lidarpkt.velodyne import packet as vlp
-
-    from . import streams
-    from .sink import velodyne_sensor_time_ns
-
-    offsets: dict[str, int] = {}
-    start = end = None
-    reader = _packet_reader(path)
-    for k, batch in enumerate(reader.batches()):
-        if len(batch) == 0:
-            continue
-        t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
-        start = t0 if start is None else min(start, t0)
-        end = t1 if end is None else max(end, t1)
-        src = str(batch.src) if batch.src is not None else "unknown source"
-        if k >= look_ahead or src in offsets:
-            continue
-        if md is None and getattr(reader, "ouster_metadata", None) and reader.ouster_metadata():
-            from lidarpkt.ouster.metadata import load_metadata
-
-            md = load_metadata(reader.ouster_metadata())
-        kind = streams.classify_size(batch.payload_size, md)
-        host = int(batch.timestamp_ns[0])
-        if kind == streams.VELODYNE_DATA:
-            ts_us = vlp.as_data_packets(batch.payload[:1])["timestamp_us"]
-            offsets[src] = host - int(velodyne_sensor_time_ns(ts_us, batch.timestamp_ns[:1])[0])
-        elif kind == streams.OUSTER_LIDAR and md is not None:
-            dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
-            first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
-            offsets[src] = host - int(first["timestamp_ns"])
-    return offsets, start, end
-
-
 def _open_frames(path: str, args) -> FrameIterator:
     import lidarpkt
 
     options: dict[str, Any] = {}
     if args.calibration:
         options["calibration"] = args.calibration
+    if getattr(args, "velodyne_model", None):
+        options["velodyne_model"] = args.velodyne_model
     return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
 
 
@@ -171,72 +126,37 @@ def run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
+    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
+    input: what a script writes with the library (the writer reads each input's packets itself)."""
+    from lidarpkt import cliargs
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
-
-    from .sink import PacketSink
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
-        raise RecorderError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
-    md = None
-    if args.metadata:
-        from lidarpkt.ouster.metadata import load_metadata
-
-        md = load_metadata(args.metadata[0])
-    total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
-    from lidarpkt import cliargs
-
-    progress = cliargs.Progress(args.quiet, total=total * (2 if "packets" in groups and groups - {"packets"} else 1),
+        raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
+    frames_too = bool(groups & {"points", "images"})
+    sizes = {p: Path(p).stat().st_size if Path(p).is_file() else 0 for p in args.inputs}
+    progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
                                 desc="decode")
-    frames_written = 0
-    done_before = 0
-    described: set[tuple] = set()
-    times = {path: capture_times(path, md) for path in args.inputs}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, **frame_options(args)) as frame_writer:
-        writer = frame_writer.mcap
-        if args.calibration:
-            try:
-                text = Path(args.calibration).read_text(encoding="utf-8", errors="replace")
-            except OSError as exc:
-                raise RecorderError(f"cannot read the calibration {args.calibration}: {exc.strerror}") from None
-            writer.add_metadata("lidarpkt.calibration", {"path": str(args.calibration), "content": text})
-        if "packets" in groups:
-            from .replay import embedded_metadata
-
-            for path in args.inputs:
-                sink = PacketSink(writer, ouster_metadata=md or embedded_metadata(path), log_time_ns=times[path][1])
-                reader = _packet_reader(path)
-                for batch in reader.batches():
-                    sink.push(batch)
-                    b = getattr(reader.stats, "bytes_read", None)
-                    progress.update(None if b is None else done_before + b, f"{frames_written} frames")
-                sink.finish()
-                done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-        packet_messages = writer.messages_written
-        if groups & {"points", "images"}:
-            for path in args.inputs:
-                frame_writer.set_capture_times(*times[path])
-                reader = _open_frames(path, args)
-                for frame in reader:
-                    sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
-                    if sensor_key not in described:  # what the frames were decoded with, once per sensor
-                        described.add(sensor_key)
-                        writer.add_metadata("lidarpkt.frames", {
-                            "input": str(path), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
-                            "calibration": str(args.calibration or "stock")})
-                    frame_writer.write(frame)
-                    frames_written += 1
-                    b = _bytes_read(reader)
-                    progress.update(None if b is None else done_before + b, f"{frames_written} frames")
-                done_before += Path(path).stat().st_size if Path(path).is_file() else 0
-    frame_writer.close()
+    counts = {"frames": 0, "done_before": 0}
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
+                     calibration=args.calibration, **frame_options(args)) as writer:
+        for path in args.inputs:
+            before = counts["done_before"]
+            writer.add_capture(path, progress=lambda b, before=before: progress.update(
+                before + b, f"{counts['frames']} frames"))
+            if "packets" in groups:
+                counts["done_before"] += sizes[path]
+            if frames_too:
+                _write_frames(writer, path, args, progress, counts)
+    writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
-        frame_messages = writer.messages_written - packet_messages
-        print(f"lidarpkt decode: {packet_messages} packet messages and {frame_messages} frame messages "
-              f"({frames_written} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+        frame_messages = writer.mcap.messages_written - writer.packet_messages
+        print(f"lidarpkt decode: {writer.packet_messages} packet messages and {frame_messages} frame messages "
+              f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 

@@ -44,7 +44,7 @@ class LiveFrames:
                  sensors=None) -> None:
         from lidarpkt.view.sources import LiveDecoder
         from lidarpkt.view.tap import FrameDropper, FrameTap
-        from lidarpkt.writers.mcap.frames import SensorFrames
+        from lidarpkt.writers.mcap.frames import FrameTopics, SensorFrames
 
         self.sensors = sensors or SensorFrames()
 
@@ -52,6 +52,7 @@ class LiveFrames:
         self._last_status = time.monotonic()
         self.points_frames = 0
         self._points: queue.SimpleQueue = queue.SimpleQueue()
+        self._topics = FrameTopics(_QueuedMessages(self._points), ("points",), self.sensors)
         consumers = []
         if points:
             consumers.append(self._encode_points)
@@ -70,19 +71,9 @@ class LiveFrames:
         self.tap = FrameTap(LiveDecoder(ouster_metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
 
     def _encode_points(self, frame) -> None:  # runs in the tap's thread
-        from lidarpkt.writers.mcap.pointcloud import pointcloud_messages
-
-        t = self.tap.host_time_ns
-        if self.sensors.is_new(frame.sensor):  # its mount first, once (latched: every file of a rotation has it)
-            tf = self.sensors.transform(frame.sensor, t)
-            if tf is not None:
-                self._points.put((schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf), t,
-                                  self.sensors.frame_id(frame.sensor)))  # latched per sensor frame
-        name = self.sensors.frame_id(frame.sensor)
-        encoded = [(topic, schemas.encode(topic.msgtype, msg))
-                   for topic, msg in pointcloud_messages(frame, frame_id=name)]
-        for topic, data in encoded:
-            self._points.put((topic, data, t, None))
+        # decode's own frames → messages (FrameTopics: each new sensor's latched mount, then its clouds),
+        # encoded here and queued for the recorder's thread, which owns the MCAP writer
+        self._topics.write(frame, self.tap.host_time_ns)
         self.points_frames += 1
 
     def offer(self, batches: list) -> None:
@@ -133,3 +124,17 @@ class LiveFrames:
             "packets_not_decoded": self.tap.dropped_packets,
             "frames_error": str(error) if error is not None else None,
         }
+
+
+class _QueuedMessages:
+    """What :class:`~lidarpkt.writers.mcap.frames.FrameTopics` writes to, as an MCAP writer would take it:
+    encoded here, queued as ``(topic, data, log time, latch key or None)`` for :meth:`LiveFrames.write_points`."""
+
+    def __init__(self, out: queue.SimpleQueue) -> None:
+        self.out = out
+
+    def write_message(self, topic, message, log_time_ns: int) -> None:
+        self.out.put((topic, schemas.encode(topic.msgtype, message), log_time_ns, None))
+
+    def write_latched(self, topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
+        self.out.put((topic, data, log_time_ns, key))

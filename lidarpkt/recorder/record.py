@@ -1,7 +1,7 @@
 """``lidarpkt record``: capture a live sensor (and a serial GPS) to MCAP without losing a packet.
 
-The receive thread (:mod:`recorder.capture`) reads the sockets; this loop drains its queue,
-writes the packets through :class:`recorder.sink.PacketSink`, counts loss, prints a status
+The live packet source (:mod:`lidarpkt.sources.udp`) reads the sockets in its thread; this loop polls it,
+writes the packets through :class:`lidarpkt.writers.mcap.packets.PacketSink`, counts loss, prints a status
 line each second and a summary at the end. It stops on Ctrl-C, SIGTERM, ``--duration`` or
 ``--frames`` and closes the file with its summary and index. Killed outright, it leaves a
 file readable up to its last complete chunk (``--chunk-seconds``, 0.5 s by default).
@@ -14,19 +14,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 import time
-from pathlib import Path
 
-from lidarpkt.errors import RecorderError
+from lidarpkt.errors import LidarpktError, RecorderError
 
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 
-from .capture import UdpCapture
-from .sink import PacketSink, batch_from_packets
+from lidarpkt.sources.udp import UdpSource
+from lidarpkt.writers.mcap.packets import PacketSink
 
 
 def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +47,7 @@ def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
 def load_ouster_metadata(args: argparse.Namespace) -> list:
     """The Ouster metadata of ``--metadata`` (each) and of ``--sensor`` (fetched over HTTP).
 
-    Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`RecorderError` (a sensor
+    Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`~lidarpkt.errors.SensorConnectionError` (a sensor
     that does not answer; the message names the host and the URL tried).
     """
     from lidarpkt.ouster.metadata import load_metadata
@@ -88,20 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .decode import add_frame_arguments
 
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
-    cliargs.add_json(parser, "also write the summary as JSON")
+    cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
     cliargs.add_quiet(parser, "no status line and no summary")
-
-
-class _StopFlag:
-    """Set by SIGINT/SIGTERM: the loop then finishes the file cleanly."""
-
-    def __init__(self) -> None:
-        self.reason: str | None = None
-
-    def __call__(self, signum, _frame) -> None:
-        if self.reason is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt  # a second Ctrl-C: stop now (the file is still closed with its index)
-        self.reason = signal.Signals(signum).name
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
     cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
-    cliargs.check_json_output(args.json)
+    cliargs.check_json(args)
     if args.gps:
         cliargs.check_inputs([args.gps], "--gps")
     sensors = None
@@ -123,15 +108,12 @@ def run(args: argparse.Namespace) -> int:
 
         sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
     mds = load_ouster_metadata(args)
-    stop = _StopFlag()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, stop)
+    # a second Ctrl-C: stop now (the file still gets its index)
+    stop = cliargs.StopSignals(second_interrupt_raises=True).install()
     capture = gps = writer = frames = None
     try:
         ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
-        capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
+        capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
         if args.gps:  # opened before the file, so that a wrong port leaves no empty recording
             from .gps import GpsReader
@@ -155,8 +137,7 @@ def run(args: argparse.Namespace) -> int:
         capture.start()
         return _loop(args, capture, writer, sink, gps, stop, frames)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        stop.restore()
         if gps is not None:
             gps.close()
         if capture is not None:
@@ -166,11 +147,11 @@ def run(args: argparse.Namespace) -> int:
         if writer is not None:
             try:
                 writer.close()
-            except RecorderError:
+            except LidarpktError:
                 pass  # the error that stopped the loop is the one reported
 
 
-def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, stop: _StopFlag, frames=None) -> int:
+def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, stop, frames=None) -> int:
     start = time.monotonic()
     last_status = start
     last_packets = 0
@@ -180,9 +161,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     last_rx: float | None = None  # when a datagram last arrived
     silent = False
     while reason is None:
-        items = capture.drain(timeout=0.05)
+        batches = capture.poll(timeout=0.05)
         now = time.monotonic()
-        if items:
+        if batches:
             if silent and last_rx is not None:  # silent is only ever set after a datagram
                 _notice(f"packets again after {now - last_rx:.1f} s of silence")
                 silent = False
@@ -190,7 +171,6 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         elif last_rx is not None and not silent and now - last_rx > 1.0:
             silent = True  # the sensor stopped, restarted or was unplugged: keep recording
             _notice(f"no packets for {now - last_rx:.1f} s (sensor stopped or unplugged?); still listening")
-        batches = batch_from_packets(items)
         for batch in batches:
             sink.push(batch)
         if frames is not None:  # after the packets are written; never waits (see recorder.frames)
@@ -223,10 +203,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
     # stop receiving, then write whatever was already received
     capture.stop()
     while True:
-        items = capture.drain(timeout=0.0, max_items=65536)
-        if not items:
+        batches = capture.poll(timeout=0.0, max_items=65536)
+        if not batches:
             break
-        batches = batch_from_packets(items)
         for batch in batches:
             sink.push(batch)
         if frames is not None:
@@ -244,10 +223,9 @@ def _loop(args, capture: UdpCapture, writer: McapWriter, sink: PacketSink, gps, 
         summary.update(frames.summary())
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
-    if args.json == "-":
-        print(json.dumps(summary, indent=2))
-    elif args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=2))
+    from lidarpkt import cliargs
+
+    cliargs.emit_json(args, json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
 
 
@@ -266,12 +244,12 @@ def _write_gps(writer: McapWriter, gps) -> None:
         writer.write_message(schemas.NMEA, msg, host_ns)
 
 
-def _lost(capture: UdpCapture, sink: PacketSink) -> str:
+def _lost(capture: UdpSource, sink: PacketSink) -> str:
     s = capture.stats
     return f"{sink.lost} (gaps) + {s.kernel_dropped} (kernel) + {s.queue_overflow} (queue)"
 
 
-def _lost_total(capture: UdpCapture, sink: PacketSink) -> int:
+def _lost_total(capture: UdpSource, sink: PacketSink) -> int:
     s = capture.stats
     return max(sink.lost, s.kernel_dropped + s.queue_overflow)
 

@@ -26,7 +26,7 @@ import numpy as np
 from lidarpkt.errors import LidarpktError, RecorderError
 from lidarpkt.packet import Packet
 
-from . import streams
+from lidarpkt import streams
 
 DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
@@ -116,18 +116,10 @@ def read_capture(path: str) -> Iterator[Packet]:
 def embedded_metadata(path: str, look_ahead: int = 64):
     """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
     for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
-    from lidarpkt.source import container_kind
-
-    if container_kind(path) == "pcap":
-        return None
-    from lidarpkt.sources.bags import BagReader
     from lidarpkt.ouster.metadata import load_metadata
+    from lidarpkt.sources.protocol import embedded_ouster_metadata
 
-    reader = BagReader(path)
-    for k, _ in enumerate(reader.batches()):
-        if reader.ouster_metadata() or k >= look_ahead:
-            break
-    text = reader.ouster_metadata()
+    text = embedded_ouster_metadata(path, look_ahead)
     return load_metadata(text) if text else None
 
 

@@ -14,6 +14,7 @@
 ``batching``       chunks to same-stream batches (filters, ordinals, grouping)
 ``bags``           :class:`BagReader`: MCAP files and ROS 1 / rosbag2 bags
 ``segments``       :func:`plan_segments` and the ownership rule of ``lidarpkt.open(segment=...)``
+``udp``            :class:`UdpSource`: live UDP reception (``record``, ``view``, ``udp://`` sources)
 =================  ===========================================================================
 """
 

@@ -9,7 +9,7 @@ bag's receive time; source and destination are ``None`` (a bag does not keep the
 What is extracted is decided by the message type alone, in :data:`PACKET_EXTRACTORS`:
 a function from one deserialised message to ``(payloads uint8[N, L], timestamp_ns int64[N])``.
 Adding a sensor's packet topic means adding one entry (and, if ROS does not ship the
-type, its ``.msg`` definition to :data:`MESSAGE_DEFINITIONS`).
+type, its ``.msg`` definition to :data:`lidarpkt.sources.rosmsgs.MESSAGE_DEFINITIONS`).
 """
 
 from __future__ import annotations
@@ -29,17 +29,7 @@ from ..packet import Packet, PacketBatch
 from .filters import check_filters
 from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
 from .magic import MCAP_MAGIC, SQLITE_MAGIC
-
-# Definitions of packet message types that are not in rosbags' stock type stores; used when
-# the bag does not carry its own definitions (rosbag2 sqlite3 before the v8 metadata).
-MESSAGE_DEFINITIONS: dict[str, str] = {
-    "velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data\n",
-    "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
-    # ouster-ros lidar and IMU packet topics (/ouster/lidar_packets, /ouster/imu_packets)
-    "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
-    # nebula's stamped packet; lidarpkt's recorder writes VLP-16 position packets with it
-    "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
-}
+from .rosmsgs import MESSAGE_DEFINITIONS, new_typestore  # noqa: F401 (MESSAGE_DEFINITIONS: the table, public here too)
 
 # Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String), as ouster-ros names it.
 OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/metadata")
@@ -246,13 +236,8 @@ class BagReader:
 
     def _open(self):
         from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-        store = get_typestore(Stores.ROS2_HUMBLE)
-        extra: dict = {}
-        for name, text in MESSAGE_DEFINITIONS.items():
-            extra.update(get_types_from_msg(text, name))
-        store.register(extra)
+        store = new_typestore()
         reader = None
         try:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
@@ -338,13 +323,9 @@ class BagReader:
         chunk) yields everything up to the damage and then a :class:`TruncatedCaptureWarning`.
         """
         from mcap.exceptions import McapError
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+        from rosbags.typesys import get_types_from_msg
 
-        store = get_typestore(Stores.ROS2_HUMBLE)
-        extra: dict = {}
-        for name, text in MESSAGE_DEFINITIONS.items():
-            extra.update(get_types_from_msg(text, name))
-        store.register(extra)
+        store = new_typestore()
         known: dict[int, bool] = {}
         n = 0
         with self.path.open("rb") as fh:

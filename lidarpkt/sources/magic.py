@@ -14,6 +14,7 @@ from ..errors import UnsupportedContainerError
 __all__ = [
     "PCAP_MAGIC_US", "PCAP_MAGIC_NS", "PCAP_MAGIC_MODIFIED", "PCAPNG_SHB", "PCAPNG_BOM", "PCAP_MAGIC_BYTES",
     "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "capture_format", "format_from_magic", "is_capture", "container_kind",
+    "CAPTURE_SUFFIXES", "looks_like_capture", "find_captures",
 ]
 
 PCAP_MAGIC_US = 0xA1B2C3D4
@@ -86,3 +87,40 @@ def container_kind(path: str | os.PathLike[str]) -> str:
     raise UnsupportedContainerError(
         f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag): it starts with {shown}"
     )
+
+
+# names a folder walk takes without reading them (the magic bytes decide for the rest)
+CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3")
+
+
+def looks_like_capture(path: str | os.PathLike[str]) -> bool:
+    """A capture suffix (:data:`CAPTURE_SUFFIXES`), or first bytes a container reader knows (never raises)."""
+    if os.fspath(path).lower().endswith(CAPTURE_SUFFIXES):
+        return True
+    try:
+        container_kind(path)
+        return True
+    except UnsupportedContainerError:
+        return False
+
+
+def find_captures(root: str | os.PathLike[str], pattern: str | None = None) -> list[str]:
+    """The captures under a local folder, in name order (folders walked depth first, sorted): a rosbag2
+    folder (one with a ``metadata.yaml``) is one capture, not walked into; a file is one when it
+    :func:`looks_like_capture`, or, with ``pattern`` (an ``fnmatch`` pattern), when its name matches.
+    The one discovery of ``info`` and the archive jobs."""
+    import fnmatch
+
+    found: list[str] = []
+    for dirpath, dirs, files in os.walk(root):
+        dirs.sort()
+        if "metadata.yaml" in files:
+            dirs[:] = []
+            if pattern is None or fnmatch.fnmatch(os.path.basename(dirpath), pattern):
+                found.append(dirpath)
+            continue
+        for name in sorted(files):
+            full = os.path.join(dirpath, name)
+            if (fnmatch.fnmatch(name, pattern)) if pattern is not None else looks_like_capture(full):
+                found.append(full)
+    return found

@@ -37,7 +37,9 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
     """The packet reader of a capture, chosen by its first bytes (never its name).
 
     Args:
-        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``.
+        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``; or
+            ``udp://[ADDRESS]:PORT[,PORT...]`` to receive live (:class:`~lidarpkt.sources.udp.UdpSource`,
+            whose options are then ``multicast``, ``interface``, ``rcvbuf_bytes``, ``queue_bytes``).
         **options: filters and reader options: pcap/pcapng take ``ports`` (destination ports),
             ``src_addresses``, ``payload_sizes``, ``batch_packets``, the reassembly bounds and
             ``segment``; bags and MCAP take ``topics`` and ``payload_sizes``.
@@ -48,6 +50,11 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
             (bags record no ports or addresses); ``None`` values are accepted everywhere.
         CaptureFormatError: the file's header is unusable.
     """
+    if str(path).startswith("udp://"):
+        from .udp import UdpSource, parse_udp_url
+
+        bind, ports = parse_udp_url(str(path))
+        return UdpSource(ports, bind=bind, **options)
     kind = container_kind(path)
     check_filters(path, kind, options)
     options = {k: v for k, v in options.items() if v is not None}
@@ -58,3 +65,15 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
     from .bags import BagReader
 
     return BagReader(path, **options)
+
+
+def embedded_ouster_metadata(path: str | os.PathLike[str], look_ahead: int = 64) -> str | None:
+    """The Ouster metadata JSON text recorded in an MCAP file or bag (``/ouster/metadata``), looked for
+    among its first ``look_ahead`` batches; ``None`` for pcaps and files without it."""
+    if container_kind(path) == "pcap":
+        return None
+    reader = open_packet_source(path)
+    for k, _ in enumerate(reader.batches()):
+        if reader.ouster_metadata() or k >= look_ahead:
+            break
+    return reader.ouster_metadata()

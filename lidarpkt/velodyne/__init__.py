@@ -1,4 +1,5 @@
-"""Velodyne VLP-16: packet layouts, batch decoding, frames, XYZ, calibration and the encoder.
+"""Velodyne spinning lidars (VLP-16, Puck LITE and Hi-Res, HDL-32E, VLP-32A/B/C, VLS-128 / Alpha Prime,
+HDL-64E S2/S3): packet layouts, batch decoding, frames, XYZ, calibration and the encoder.
 
 Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PACKET_SIZE`,
 :func:`classify`, :func:`describe_stream`, :class:`VelodyneDecoder`, :func:`decode_packets`,
@@ -6,12 +7,15 @@ Public names (others rely on them): :data:`DATA_PACKET_SIZE`, :data:`POSITION_PA
 :func:`encode_frames`, :func:`load_calibration`, :func:`frame_points`, :class:`VelodyneModel`,
 :data:`VLP16`.
 
-Modules: ``models`` (the model table: lasers, product ids, firing timing, per model), ``packet``
+Modules: ``models`` (the model table: lasers, product ids, firing timing, per model), ``layout`` (each
+model's per-block, per-channel tables in each return mode), ``hdl64e`` (the HDL-64E's status cycle
+and the calibration it carries), ``packet``
 (the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a batch), ``encode``
 (the inverse), ``timing`` (firing times, per-firing azimuth, rotation rate), ``clock`` (the hour of
 a packet stamp, the day of an NMEA time), ``stream`` (size classifier; loss, rotation and
 whole-rotation rules shared by the decoder and the recorder), ``frames`` (:class:`VelodyneDecoder`:
-frames, absolute time, losses), ``dual`` (which dual-return firings hold the second strongest), ``detect`` (VLP-16 or not), ``calibration`` (stock, ROS YAML,
+frames, absolute time, losses), ``dual`` (which dual-return firings hold the second strongest), ``detect`` (which
+model), ``calibration`` (stock, ROS YAML,
 VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_decoder's layout),
 ``nmea`` ($GPRMC/$GPGGA).
 """
@@ -29,6 +33,8 @@ _LAZY: dict[str, str] = {
     "PositionPackets": "decode",
     "decode_packets": "decode",
     "decode_position_packets": "decode",
+    "Hdl32eInertial": "decode",
+    "hdl32e_inertial": "decode",
     "classify": "detect",
     "describe_stream": "detect",
     "encode_data_packets": "encode",
@@ -56,6 +62,8 @@ __all__ = [
     "PositionPackets",
     "decode_packets",
     "decode_position_packets",
+    "hdl32e_inertial",
+    "Hdl32eInertial",
     "encode_data_packets",
     "encode_position_packets",
     "encode_frames",

@@ -45,10 +45,20 @@ class VelodyneCalibration:
     dist_correction_m: np.ndarray | None = None
     distance_resolution_m: float = VLP16.distance_resolution_m
     source: str = "stock"
+    dist_correction_x_m: np.ndarray | None = None
+    dist_correction_y_m: np.ndarray | None = None
+    focal_distance_m: np.ndarray | None = None
+    focal_slope: np.ndarray | None = None
+    min_intensity: np.ndarray | None = None
+    max_intensity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         lasers = int(np.size(self.vert_correction_rad))
-        for name in ("vert_correction_rad", "rot_correction_rad", "vert_offset_m", "horiz_offset_m", "dist_correction_m"):
+        if self.max_intensity is None:
+            self.max_intensity = np.full(lasers, 255.0)
+        for name in ("vert_correction_rad", "rot_correction_rad", "vert_offset_m", "horiz_offset_m", "dist_correction_m",
+                     "dist_correction_x_m", "dist_correction_y_m", "focal_distance_m", "focal_slope", "min_intensity",
+                     "max_intensity"):
             value = getattr(self, name)
             arr = np.zeros(lasers) if value is None else np.asarray(value, dtype=np.float64)
             if arr.shape != (lasers,):
@@ -66,6 +76,13 @@ class VelodyneCalibration:
         return np.degrees(self.vert_correction_rad)
 
     @property
+    def two_point(self) -> np.ndarray:
+        """``bool[L]``: lasers with a two-point distance correction (dist_correction_x and _y both set; the
+        HDL-64E manual's near-range interpolation)."""
+        assert self.dist_correction_x_m is not None and self.dist_correction_y_m is not None  # __post_init__ fills them
+        return (self.dist_correction_x_m != 0) & (self.dist_correction_y_m != 0)
+
+    @property
     def rows_to_laser(self) -> np.ndarray:
         """Laser id of each frame row (row 0 = highest elevation)."""
         return np.argsort(-self.vert_correction_rad, kind="stable")
@@ -73,10 +90,22 @@ class VelodyneCalibration:
 
 def stock_calibration(model: VelodyneModel = VLP16) -> VelodyneCalibration:
     """The built-in calibration of ``model`` (the VLP-16's: see the module docstring), from the model table."""
+    if not model.default_calibration:
+        raise CalibrationError(
+            f"a {model.name} has no stock calibration: each unit's is its own (its data packets carry it in their "
+            "status bytes, which the decoder reads); pass calibration= (--calibration) with the unit's ROS YAML or "
+            "VeloView XML")
+    # float32 angles as velodyne_decoder tabulates its stock ones (float(deg · π / 180))
     omega = np.radians(np.asarray(model.elevation_deg, dtype=np.float64))
+    omega = omega.astype(np.float32).astype(np.float64) if model is not VLP16 else omega
+    rot = np.radians(np.asarray(model.azimuth_offset_deg or (0.0,) * model.lasers, dtype=np.float64))
+    rot = rot.astype(np.float32).astype(np.float64)
+    voff = (np.asarray(model.vert_offset_m, np.float64) if model.vert_offset_m is not None
+            else model.beam_origin_forward_m * np.tan(-omega))
     return VelodyneCalibration(
         vert_correction_rad=omega,
-        vert_offset_m=model.beam_origin_forward_m * np.tan(-omega),
+        rot_correction_rad=rot,
+        vert_offset_m=voff,
         distance_resolution_m=model.distance_resolution_m,
         source="stock",
     )
@@ -99,7 +128,7 @@ def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None,
     try:
         text = p.read_text(encoding="utf-8", errors="replace")
     except OSError as exc:
-        raise CalibrationError(f"cannot read VLP-16 calibration {p}: {exc.strerror}") from None
+        raise CalibrationError(f"cannot read {model.name} calibration {p}: {exc.strerror}") from None
     head = text.lstrip()[:400]
     if head.startswith("<?xml") or "<boost_serialization" in head or head.startswith("<"):
         return _from_veloview_xml(text, str(p), model)
@@ -131,11 +160,13 @@ def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCali
     count = model.lasers
     if n != count or len(lasers) != count:
         raise CalibrationError(f"{source} describes {len(lasers)} lasers (num_lasers {n}): a {model.name} has {count}")
-    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy")}
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy", "fd", "fs", "imin")}
+    values["imax"] = np.full(count, 255.0)
     seen = set()
     keys = {"vert": "vert_correction", "rot": "rot_correction", "voff": "vert_offset_correction",
             "hoff": "horiz_offset_correction", "dist": "dist_correction",
-            "dx": "dist_correction_x", "dy": "dist_correction_y"}
+            "dx": "dist_correction_x", "dy": "dist_correction_y", "fd": "focal_distance", "fs": "focal_slope",
+            "imin": "min_intensity", "imax": "max_intensity"}
     for entry in lasers:
         try:
             i = int(entry["laser_id"])
@@ -143,16 +174,19 @@ def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCali
                 raise ValueError(f"laser_id {i} out of range or repeated")
             seen.add(i)
             values["vert"][i] = float(entry["vert_correction"])
-            for k in ("rot", "voff", "hoff", "dist", "dx", "dy"):
-                values[k][i] = float(entry.get(keys[k], 0.0))
+            for k in ("rot", "voff", "hoff", "dist", "dx", "dy", "fd", "fs", "imin", "imax"):
+                values[k][i] = float(entry.get(keys[k], values[k][i]))
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationError(f"{source}: bad laser entry {entry!r}: {exc}") from None
-    _refuse_two_point(values["dx"], values["dy"], source)
-    return VelodyneCalibration(
+    if model.sequences_per_block == 2:
+        _refuse_two_point(values["dx"], values["dy"], source)
+    return _checked(VelodyneCalibration(
         vert_correction_rad=values["vert"], rot_correction_rad=values["rot"], vert_offset_m=values["voff"],
         horiz_offset_m=values["hoff"], dist_correction_m=values["dist"],
-        distance_resolution_m=float(doc.get("distance_resolution", 0.002)), source=source,
-    )
+        distance_resolution_m=float(doc.get("distance_resolution", model.distance_resolution_m)), source=source,
+        dist_correction_x_m=values["dx"], dist_correction_y_m=values["dy"], focal_distance_m=values["fd"],
+        focal_slope=values["fs"], min_intensity=values["imin"], max_intensity=values["imax"],
+    ), model)
 
 
 def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> VelodyneCalibration:
@@ -165,24 +199,49 @@ def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> Velodyne
     if len(px) < count:
         raise CalibrationError(f"{source}: VeloView XML with {len(px)} <px> laser entries; a {model.name} needs {count}")
     lsb = root.findtext(".//distLSB_")
-    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy")}
+    values = {k: np.zeros(count) for k in ("vert", "rot", "voff", "hoff", "dist", "dx", "dy", "fd", "fs", "imin")}
+    values["imax"] = np.full(count, 255.0)
     # VeloView stores angles in degrees and lengths in centimetres
     tags = {"vert": "vertCorrection_", "rot": "rotCorrection_", "voff": "vertOffsetCorrection_",
             "hoff": "horizOffsetCorrection_", "dist": "distCorrection_",
-            "dx": "distCorrectionX_", "dy": "distCorrectionY_"}
+            "dx": "distCorrectionX_", "dy": "distCorrectionY_", "fd": "focalDistance_", "fs": "focalSlope_"}
     try:
         for node in px:
             i = int(node.findtext("id_", default=""))  # a missing id is a ValueError, as a bad one
             if i >= count:
-                continue  # the 64-entry table of the XML; only the first 16 ids exist on a VLP-16
+                continue  # the XML's table has at least 64 entries; only the model's first ids exist
             for k, tag in tags.items():
                 values[k][i] = float(node.findtext(tag) or 0.0)
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{source}: bad <px> entry: {exc}") from None
-    _refuse_two_point(values["dx"], values["dy"], source)
-    return VelodyneCalibration(
+    if model.sequences_per_block == 2:
+        _refuse_two_point(values["dx"], values["dy"], source)
+    return _checked(VelodyneCalibration(
         vert_correction_rad=np.radians(values["vert"]), rot_correction_rad=np.radians(values["rot"]),
         vert_offset_m=values["voff"] / 100.0, horiz_offset_m=values["hoff"] / 100.0,
         dist_correction_m=values["dist"] / 100.0,
-        distance_resolution_m=float(lsb) / 100.0 if lsb else 0.002, source=source,
-    )
+        distance_resolution_m=float(lsb) / 100.0 if lsb else model.distance_resolution_m, source=source,
+        dist_correction_x_m=values["dx"] / 100.0, dist_correction_y_m=values["dy"] / 100.0,
+        focal_distance_m=values["fd"] / 100.0, focal_slope=values["fs"],
+    ), model)
+
+
+def _checked(cal: VelodyneCalibration, model: VelodyneModel) -> VelodyneCalibration:
+    """A calibration whose elevations are another model's (an HDL-32E's file for a VLP-32C: both have 32
+    lasers) raises :class:`CalibrationError`: a unit's elevations stay within a degree or two of its model's.
+    The 16-laser Pucks are left as the VLP-16 always was (any 16 elevations)."""
+    if not model.default_calibration or model.sequences_per_block == 2:
+        return cal
+    stock = np.sort(np.asarray(model.elevation_deg))
+    ours = np.sort(cal.elevation_deg)
+    worst = float(np.max(np.abs(stock - ours)))
+    if worst > 3.0:
+        from .models import MODELS
+
+        like = [m.name for m in MODELS if m.lasers == model.lasers and m.default_calibration and
+                float(np.max(np.abs(np.sort(np.asarray(m.elevation_deg)) - ours))) <= 3.0]
+        raise CalibrationError(
+            f"{cal.source}: elevations {ours.min():.1f}°…{ours.max():.1f}° are not a {model.name}'s "
+            f"({stock.min():.1f}°…{stock.max():.1f}°)" + (f"; it looks like a {like[0]} calibration" if like else "")
+            + ": pass the sensor's own calibration")
+    return cal

@@ -121,6 +121,48 @@ def decode_packets(payload: np.ndarray, *, copy: bool = True) -> DataPackets:
     )
 
 
+@dataclass(eq=False)
+class Hdl32eInertial:
+    """The inertial words of N HDL-32E position packets, three sensors each (HDL-32E manual, "Positioning Packet").
+
+    Attributes:
+        gyro_deg_s: ``float64[N, 3]`` rotation rate of each sensor's gyroscope, °/s.
+        temperature_c: ``float64[N, 3]`` each sensor's temperature, °C.
+        accel_g: ``float64[N, 3, 2]`` each sensor's X and Y acceleration, g.
+        tag: ``uint8[N, 3, 4]`` the high 4 bits of each word (gyro, temperature, accel X, accel Y): 0, 1, 2, 3
+            in the real capture, the word's place.
+    """
+
+    gyro_deg_s: np.ndarray
+    temperature_c: np.ndarray
+    accel_g: np.ndarray
+    tag: np.ndarray
+
+
+def hdl32e_inertial(payload: np.ndarray) -> Hdl32eInertial:
+    """The gyro, temperature and accelerometer readings of ``uint8[N, 512]`` HDL-32E position payloads.
+
+    Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 512]``.
+    """
+    from .packet import (HDL32E_ACCEL_G, HDL32E_GYRO_DEG_S, HDL32E_INERTIAL_DTYPE, HDL32E_INERTIAL_OFFSET,
+                         HDL32E_TEMPERATURE_C, HDL32E_TEMPERATURE_OFFSET_C)
+
+    pos = as_position_packets(payload)  # checks the size
+    raw = np.asarray(payload, np.uint8)
+    words = np.ascontiguousarray(raw[:, HDL32E_INERTIAL_OFFSET:HDL32E_INERTIAL_OFFSET + HDL32E_INERTIAL_DTYPE.itemsize])
+    sensors = words.view(HDL32E_INERTIAL_DTYPE)[:, 0]["sensors"]  # [N, 3]
+    u = np.stack([sensors[k] for k in ("gyro", "temperature", "accel_x", "accel_y")], axis=-1).astype(np.int32)
+    value = u & 0x0FFF
+    value = np.where(value >= 0x800, value - 0x1000, value)  # 12-bit two's complement
+    del pos
+    return Hdl32eInertial(
+        gyro_deg_s=value[..., 0] * HDL32E_GYRO_DEG_S,
+        temperature_c=value[..., 1] * HDL32E_TEMPERATURE_C + HDL32E_TEMPERATURE_OFFSET_C,
+        accel_g=value[..., 2:4] * HDL32E_ACCEL_G,
+        tag=(u >> 12).astype(np.uint8),
+    )
+
+
 def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     """Every field of ``uint8[N, 512]`` VLP-16 position payloads (see :class:`PositionPackets`).
 
@@ -168,3 +210,57 @@ def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: 
         refl[:, row] = f[:, :, laser]
         az_px[row] = a[:, laser]
     return rng, refl, az_px
+
+
+def flags_ok(raw: DataPackets, model) -> np.ndarray:
+    """``bool[N]``: each block carries its bank's flag (``model``'s single-mode layout: 0xEEFF, 0xDDFF, ...;
+    in the VLS-128's dual mode blocks 8–11 are unused and not checked) and an azimuth ≤ 36000."""
+    from .layout import packet_layout
+
+    single = packet_layout(model, "strongest").flag
+    dual = packet_layout(model, "dual").flag
+    is_dual = (raw.return_mode == 0x39)[:, None]
+    expected = np.where(is_dual, dual[None, :], single[None, :])
+    good = ((raw.flag == expected) | (expected == 0)) & ((raw.azimuth_cdeg <= 36000) | (expected == 0))
+    return np.all(good, axis=1)
+
+
+def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: np.ndarray,
+                  unit_mm: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels of a batch as range-image columns, for any model's :class:`~.layout.PacketLayout`:
+    ``range_mm`` ``uint32[slots, L, W]`` (the wire's distance × ``unit_mm``), ``reflectivity``
+    ``uint8[slots, L, W]`` and per-firing ``azimuth`` ``uint16[L, W]``, W = N · columns per packet; row r
+    is laser ``row_laser[r]``. ``rate_cdeg_s``: ``float32[N]`` rotation rate of each packet (0.01°/s).
+
+    The azimuth of a firing is velodyne_decoder's: lround(block azimuth + rate · dt) mod 36000 in float32.
+    """
+    from .timing import round_azimuth_cdeg
+
+    n = len(raw)
+    src = layout.source[:, row_laser, :]  # [S, L, C] channel index of each pixel, rows in elevation order
+    s, lasers, c = src.shape
+    src0 = src[0]
+    block = layout.azimuth_block.reshape(-1)[src0]  # [L, C]
+    dt = layout.dt_s32.reshape(-1)[src0]
+    native = kernels.native
+    if native is not None and hasattr(native, "velodyne_layout_columns"):
+        rng = np.empty((s, lasers, n * c), np.uint32)
+        f = np.empty((s, lasers, n * c), np.uint8)
+        az_px = np.empty((lasers, n * c), np.uint16)
+        native.velodyne_layout_columns(raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg,
+                                       np.ascontiguousarray(src, np.int64), np.ascontiguousarray(block, np.int64),
+                                       np.ascontiguousarray(dt, np.float32),
+                                       np.ascontiguousarray(rate_cdeg_s, np.float32), unit_mm, rng, f, az_px)
+        return rng, f, az_px
+    dist = np.ascontiguousarray(raw.distance_2mm).reshape(n, -1)
+    refl = np.ascontiguousarray(raw.reflectivity).reshape(n, -1)
+    rng = np.empty((s, lasers, n, c), np.uint32)
+    rng[...] = dist[:, src].transpose(1, 2, 0, 3)
+    rng *= np.uint32(unit_mm)
+    f = np.empty((s, lasers, n, c), np.uint8)
+    f[...] = refl[:, src].transpose(1, 2, 0, 3)
+    az = raw.azimuth_cdeg[:, block]  # [n, L, C]
+    value = np.asarray(rate_cdeg_s, np.float32)[:, None, None] * dt[None]
+    az_px = round_azimuth_cdeg(value, az)
+    return (rng.reshape(s, lasers, n * c), f.reshape(s, lasers, n * c),
+            np.ascontiguousarray(az_px.transpose(1, 0, 2)).reshape(lasers, n * c))

@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import UnknownSensorError
 from ..packet import PacketBatch
 from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
-from .models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES, VLP16
+from .models import (AMBIGUOUS_PRODUCTS, BANK_FLAGS, HDL32E, HDL32E_PACKET_PERIOD_US, HDL64E_S2, HDL64E_S3, MODELS,
+                     PRODUCT_NAMES, VLP16, VelodyneModel, model_for_product)
 from .nmea import parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
 from .stream import stream_kind
@@ -56,37 +58,34 @@ def _layout_says_vlp16(raw) -> bool:
     return bool(np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6)
 
 
+def _velodyne_shaped(raw) -> np.ndarray:
+    """``bool[N]``: block 0 flagged 0xEEFF, blocks 0–7 flagged with a bank (0xEEFF … 0xBBFF; the VLS-128's
+    dual packets leave blocks 8–11 unused), block 0's azimuth below 360°: a Velodyne data packet of some model."""
+    flags = np.asarray(raw.flag)
+    return (flags[:, 0] == BANK_FLAGS[0]) & np.all(np.isin(flags[:, :8], BANK_FLAGS), axis=1) & (
+        np.asarray(raw.azimuth_cdeg)[:, 0] <= 36000)
+
+
 def data_kind(batch: PacketBatch) -> str | None:
-    """``"vlp16"``, ``"hdl32e"``, ``"other"`` (another Velodyne model by its product byte: Puck Hi-Res,
-    VLP-32C, ...) or ``None`` (not Velodyne-like data packets) for a batch of 1206-byte payloads."""
+    """``"vlp16"``, ``"hdl32e"``, ``"other"`` (another Velodyne model: by its factory byte, the HDL-64E by its
+    upper/lower blocks, or an unknown byte the decoder will name) or ``None`` (not Velodyne data packets)
+    for a batch of 1206-byte payloads."""
     if batch.payload_size != DATA_PACKET_SIZE or len(batch) == 0:
         return None
     raw = decode_packets(batch.payload, copy=False)
-    ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
-    if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not VLP-16 layout
+    shaped = _velodyne_shaped(raw)
+    hdl64 = _is_hdl64e(raw)
+    ok = shaped & (np.isin(raw.return_mode, list(RETURN_MODES)) | hdl64)
+    if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not Velodyne layout
         return None
+    if np.count_nonzero(hdl64 & ok) * 2 > np.count_nonzero(ok):
+        return "other"
     product = int(np.bincount(raw.product_id[ok]).argmax())
     if product == PRODUCT_VLP16:
         return "vlp16"
     if product != PRODUCT_HDL32E:
-        return "other" if product in PRODUCT_NAMES else None
-    raw = raw.select(ok)
-    dual = bool(np.median(raw.return_mode) == 0x39)
-    expected = VLP16.packet_period_us("dual" if dual else "strongest")
-    hdl = HDL32E_PACKET_PERIOD_US / 2 if dual else HDL32E_PACKET_PERIOD_US
-    period = _median_period_us(raw.timestamp_us)
-    if period is not None:
-        if abs(period - expected) < 0.05 * expected:
-            return "vlp16"
-        if abs(period - hdl) < 0.05 * hdl:
-            return "hdl32e"
-        # neither: lost packets stretch the steps; count steps that are whole VLP-16 periods
-        d = _forward_steps_us(raw.timestamp_us)
-        fits = lambda p: np.abs(d - np.rint(d / p) * p) <= 3  # noqa: E731 - µs stamps jitter by 1
-        n_vlp, n_hdl = int(np.count_nonzero(fits(expected))), int(np.count_nonzero(fits(hdl)))
-        if n_vlp != n_hdl:
-            return "vlp16" if n_vlp > n_hdl else "hdl32e"
-    return "vlp16" if _layout_says_vlp16(raw) else "hdl32e"
+        return "other"
+    return "vlp16" if _timing_or_layout_says_vlp16(raw.select(ok)) else "hdl32e"
 
 
 def position_kind(batch: PacketBatch) -> str | None:
@@ -101,15 +100,15 @@ def position_kind(batch: PacketBatch) -> str | None:
 
 
 def classify(batch: PacketBatch) -> str | None:
-    """``"data"`` or ``"position"`` for VLP-16 packet streams, ``None`` for anything else (an HDL-32E too).
+    """``"data"`` or ``"position"`` for Velodyne packet streams (any model), ``None`` for anything else.
 
     The size says which stream it could be (:func:`lidarpkt.velodyne.stream.stream_kind`, the recorder's
     cheap test); the content decides."""
     kind = stream_kind(batch.payload_size)
     if kind == "data":
-        return "data" if data_kind(batch) == "vlp16" else None
+        return "data" if data_kind(batch) is not None else None
     if kind == "position":
-        return "position" if position_kind(batch) == "vlp16" else None
+        return "position" if position_kind(batch) is not None else None
     return None
 
 
@@ -128,13 +127,22 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         if kind is None:
             return None
         raw = decode_packets(batch.payload)
-        ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
+        hdl64 = _is_hdl64e(raw)
+        ok = _velodyne_shaped(raw) & (np.isin(raw.return_mode, list(RETURN_MODES)) | hdl64)
         good = raw.select(ok)
+        if np.count_nonzero(hdl64) * 2 > len(raw):
+            good = hdl64e_modes(good)
         product = int(np.bincount(good.product_id).argmax())
         modes = sorted({RETURN_MODES[int(m)] for m in np.unique(good.return_mode)})
+        try:
+            name = detect_model(good).name
+            note = None
+        except UnknownSensorError as exc:
+            name = PRODUCT_NAMES.get(product, f"unknown 0x{product:02x}")
+            note = str(exc)
         out = {
-            "kind": "VLP-16 data" if kind == "vlp16" else
-                    f"{'HDL-32E' if kind == 'hdl32e' else PRODUCT_NAMES[product]} data (not a VLP-16)",
+            "kind": f"{name} data",
+            "model": name,
             "return_mode": modes[0] if len(modes) == 1 else modes,
             "product_id": product,
             "product_name": PRODUCT_NAMES.get(product, f"unknown 0x{product:02x}"),
@@ -143,10 +151,15 @@ def describe_stream(batch: PacketBatch) -> dict | None:
             "packet_period_us": _median_period_us(good.timestamp_us),
             "first_timestamp_us": int(good.timestamp_us[0]) if len(good) else None,
         }
+        if note:
+            out["note"] = note
         if kind == "vlp16":
             out["rotation_hz"] = rotation_frequency_hz(good.azimuth_cdeg, good.return_mode == 0x39) if len(good) else None
             if product == PRODUCT_HDL32E:
                 out["note"] = "an early VLP-16 by its packet timing and layout"  # the product byte is shown beside it
+        elif note is None and len(good):
+            out["rotation_hz"] = rotation_frequency_hz(good.azimuth_cdeg, good.return_mode == 0x39,
+                                                       detect_model(good))
         return out
     if batch.payload_size == POSITION_PACKET_SIZE:
         kind = position_kind(batch)
@@ -168,7 +181,7 @@ def describe_stream(batch: PacketBatch) -> dict | None:
             except Exception as exc:  # NMEAError: reported, not raised, in a description
                 fix_valid = f"unreadable: {exc}"
         return {
-            "kind": "VLP-16 position" if kind == "vlp16" else "HDL-32E position (not a VLP-16)",
+            "kind": "VLP-16 position" if kind == "vlp16" else "HDL-32E position",
             "packets": len(batch),
             "pps_status": PPS_STATUS.get(int(pos.pps_status[0]), int(pos.pps_status[0])),
             "nmea_first": first or None,
@@ -177,3 +190,113 @@ def describe_stream(batch: PacketBatch) -> dict | None:
             "first_timestamp_us": int(pos.timestamp_us[0]),
         }
     return None
+
+
+def _is_hdl64e(raw) -> np.ndarray:
+    """``bool[N]``: packets whose blocks alternate upper (0xEEFF) and lower (0xDDFF) banks: an HDL-64E's."""
+    expected = np.array([BANK_FLAGS[i % 2] for i in range(raw.flag.shape[1])])
+    return np.all(raw.flag == expected, axis=1)
+
+
+def hdl64e_model(raw) -> VelodyneModel:
+    """HDL-64E S2 or S3 by the packet period (6 columns of 48 µs or of 57.6 µs; half in dual mode); S3 when
+    the stamps cannot tell."""
+    d = _forward_steps_us(raw.timestamp_us)
+    if d.size:
+        dual = np.count_nonzero(raw.azimuth_cdeg[:, 0] == raw.azimuth_cdeg[:, 2]) * 2 > len(raw)
+        period = float(np.median(d))
+        best = min((HDL64E_S2, HDL64E_S3),
+                   key=lambda m: abs(period - m.packet_period_us("dual" if dual else "strongest")))
+        return best
+    return HDL64E_S3
+
+
+def product_model(product: int, raw, source: str | None = None) -> VelodyneModel:
+    """The model a factory byte names (0x21: HDL-32E or early VLP-16, by timing and layout).
+
+    Raises :class:`~lidarpkt.errors.UnknownSensorError` for a byte no model carries, or one (0x23) that
+    names two models the packets cannot tell apart (the error names the option that picks one)."""
+    where = f"{source}: " if source else ""
+    if product in AMBIGUOUS_PRODUCTS:
+        a, b = AMBIGUOUS_PRODUCTS[product]
+        raise UnknownSensorError(
+            f"{where}Velodyne factory byte 0x{product:02x} is a {a} or a {b}, which the packets cannot tell apart; "
+            f"say which with velodyne_model='{a}' or '{b}' (--velodyne-model)")
+    if product == 0x21:
+        return VLP16 if _timing_or_layout_says_vlp16(raw) else HDL32E
+    model = model_for_product(product)
+    if model is None:
+        name = PRODUCT_NAMES.get(product)
+        raise UnknownSensorError(
+            f"{where}Velodyne factory byte 0x{product:02x}" + (f" ({name})" if name else "") + " names no model "
+            f"lidarpkt decodes ({', '.join(m.name for m in MODELS)}); pick one with velodyne_model=... "
+            "(--velodyne-model) if the byte is wrong")
+    return model
+
+
+def detect_model(raw, source: str | None = None) -> VelodyneModel:
+    """The model of a batch of data packets (:class:`~.decode.DataPackets`): the HDL-64E by its block
+    layout, the others by their factory byte (the most common one).
+
+    Raises :class:`~lidarpkt.errors.UnknownSensorError` (see :func:`product_model`)."""
+    if len(raw) and np.count_nonzero(_is_hdl64e(raw)) * 2 > len(raw):
+        return hdl64e_model(raw)
+    product = int(np.bincount(np.asarray(raw.product_id)).argmax()) if len(raw) else 0x22
+    return product_model(product, raw, source)
+
+
+def check_product(raw, model: VelodyneModel, source: str | None = None) -> None:
+    """Packets of another table model than the one the decoder was given raise
+    :class:`~lidarpkt.errors.UnknownSensorError` (velodyne_model= / calibration for the wrong sensor)."""
+    product = int(np.bincount(np.asarray(raw.product_id)).argmax())
+    if product in model.product_ids or product == 0x23 and model.name in ("VLP-32A", "VLP-32B"):
+        return
+    other = model_for_product(product)
+    if other is not None and other.lasers != model.lasers:
+        raise UnknownSensorError(
+            f"{source + ': ' if source else ''}packets of a {other.name} (factory byte 0x{product:02x}) given to a "
+            f"{model.name} decoder; drop velodyne_model= (--velodyne-model) or name the sensor's model")
+
+
+def hdl64e_modes(raw):
+    """HDL-64E packets carry a status byte where the others carry the return mode: a packet is dual when
+    blocks 0 and 2 share an azimuth (both returns of one upper firing), else strongest."""
+    import dataclasses
+
+    dual = raw.azimuth_cdeg[:, 0] == raw.azimuth_cdeg[:, 2]
+    modes = np.where(dual, 0x39, 0x37).astype(np.uint8)
+    return dataclasses.replace(raw, return_mode=modes)
+
+
+def vls128_sequence_ns(raw, model: VelodyneModel) -> float | None:
+    """The VLS-128's firing sequence from its packet period: 20 channels of 2.665 µs (packets every
+    160 µs; dual every 53.3 µs) before firmware 5.2.3.0, of 2.89 µs (173.4 µs) after; ``None`` if the
+    stamps cannot tell."""
+    d = _forward_steps_us(raw.timestamp_us)
+    if not d.size:
+        return None
+    dual = np.count_nonzero(raw.return_mode == 0x39) * 2 > len(raw)
+    period = float(np.median(d)) * (3 if dual else 1)
+    if 153 < period < 180:
+        return 20 * (8000.0 / 3.0 if period < 167 else 2890.0)
+    return None
+
+
+def _timing_or_layout_says_vlp16(raw) -> bool:
+    ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
+    raw = raw.select(ok) if np.any(ok) else raw
+    dual = bool(np.median(raw.return_mode) == 0x39) if len(raw) else False
+    expected = VLP16.packet_period_us("dual" if dual else "strongest")
+    hdl = HDL32E_PACKET_PERIOD_US / 2 if dual else HDL32E_PACKET_PERIOD_US
+    period = _median_period_us(raw.timestamp_us)
+    if period is not None:
+        if abs(period - expected) < 0.05 * expected:
+            return True
+        if abs(period - hdl) < 0.05 * hdl:
+            return False
+        d = _forward_steps_us(raw.timestamp_us)
+        fits = lambda p: np.abs(d - np.rint(d / p) * p) <= 3  # noqa: E731 - µs stamps jitter by 1
+        n_vlp, n_hdl = int(np.count_nonzero(fits(expected))), int(np.count_nonzero(fits(hdl)))
+        if n_vlp != n_hdl:
+            return n_vlp > n_hdl
+    return _layout_says_vlp16(raw)

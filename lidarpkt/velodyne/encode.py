@@ -168,6 +168,11 @@ def encode_position_packets(
 def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     """Data packets that decode to ``frames`` (the inverse of :class:`~lidarpkt.velodyne.VelodyneDecoder`).
 
+    Any model: the 16-laser Pucks as below; the others through their layout table
+    (:mod:`lidarpkt.velodyne.layout`): every block of a column takes the azimuth of the column's
+    first firing (laser 0), the timestamp is the first column's time less the model's column offset;
+    the HDL-64E's status bytes are written as zeros, the VLS-128's unused dual blocks as zero blocks.
+
     ``frames``: consecutive VLP-16 frames of one return mode, as the decoder made them (their
     columns, concatenated, must start at a packet boundary: 24 columns per packet in single-return
     modes, 12 in dual). Invalid (lost) columns are skipped. Block azimuths come from the first
@@ -192,6 +197,8 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     mode = modes.pop()
     model = model_named(frames[0].sensor.model) if frames[0].sensor.model else VLP16
     geometry = frames[0].sensor.geometry
+    if model.sequences_per_block != 2:
+        return _encode_layout_frames(frames, model, mode)
     row_laser = getattr(geometry, "row_laser", np.argsort(-np.asarray(model.elevation_deg), kind="stable"))
     laser_row = np.argsort(row_laser)  # row of each laser id
     valid = np.concatenate([f.column_valid for f in frames])
@@ -222,3 +229,41 @@ def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
     toh_us = (ts.reshape(n, per)[:, 0] // 1000) % 3_600_000_000
     product = frames[0].sensor.product_id if frames[0].sensor.product_id is not None else PRODUCT_VLP16
     return encode_data_packets(block_az, dist, refl, toh_us, mode, product)
+
+
+def _encode_layout_frames(frames: "list[Frame]", model, mode: str) -> np.ndarray:
+    """:func:`encode_frames` for a model decoded through its layout table (not a 16-laser Puck)."""
+    from .layout import packet_layout
+
+    lay = packet_layout(model, mode)
+    row_laser = getattr(frames[0].sensor.geometry, "row_laser", np.argsort(-np.asarray(model.elevation_deg),
+                                                                             kind="stable"))
+    laser_row = np.argsort(row_laser)
+    valid = np.concatenate([f.column_valid for f in frames])
+    rng = np.concatenate([f.range_mm for f in frames], axis=-1)[..., valid]
+    refl = np.concatenate([f.reflectivity for f in frames], axis=-1)[..., valid]
+    az = np.concatenate([f.extra["azimuth_cdeg"] for f in frames], axis=-1)[:, valid]
+    ts = np.concatenate([f.column_timestamp_ns for f in frames])[valid]
+    c = lay.columns
+    w = rng.shape[-1]
+    if w % c:
+        raise PacketFormatError(f"{w} valid columns do not fill whole {mode} packets of {c} columns")
+    n = w // c
+    unit = round(model.distance_resolution_m * 1000)
+    dist = np.zeros((n, 12 * 32), np.int64)
+    f_out = np.zeros((n, 12 * 32), np.int64)
+    for slot in range(lay.slots):
+        src = lay.source[slot]  # [L, C] channel of each laser's pixel
+        dist[:, src] = (rng[slot][laser_row] // unit).reshape(model.lasers, n, c).transpose(1, 0, 2)
+        f_out[:, src] = refl[slot][laser_row].reshape(model.lasers, n, c).transpose(1, 0, 2)
+    column_az = az[laser_row[0]].reshape(n, c)  # laser 0 fires first in every column
+    used = lay.column[:, 0] >= 0
+    block_az = np.where(used[None, :], column_az[:, np.maximum(lay.column[:, 0], 0)], 0)
+    flags = np.broadcast_to(lay.flag, (n, 12))
+    first_ns = ts.reshape(n, c)[:, 0] - int(round(model.column_offset_ns))
+    toh_us = (first_ns // 1000) % 3_600_000_000
+    hdl64 = model.dual_layout == "upper_lower"
+    product = 0 if hdl64 else (frames[0].sensor.product_id if frames[0].sensor.product_id is not None
+                               else model.product_ids[0])
+    return encode_data_packets(block_az, dist.reshape(n, 12, 32), f_out.reshape(n, 12, 32), toh_us,
+                               0 if hdl64 else mode, product, flag=flags)

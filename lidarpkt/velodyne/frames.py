@@ -62,17 +62,22 @@ from .._readahead import warn  # warnings.warn, or handed to the caller's thread
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .clock import SensorClock, fix_time_ns
-from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets
+from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, flags_ok, layout_pixels
+from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
+from .layout import packet_layout
 from .dual import second_strongest_mark
 from .geometry import VelodyneGeometry
+from .hdl64e import StatusCycle
 from .nmea import parse_sentence_rows
-from .calibration import load_calibration
+from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from .stream import packets_lost, rotation_is_whole, wrapped
-from .timing import firing_azimuth_cdeg, rotation_frequency_hz
+from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
+#: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
+MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
 
@@ -164,16 +169,23 @@ class VelodyneDecoder:
 
     def __init__(self, *, calibration=None, cut_angle_deg: float | None = None, source: str | None = None,
                  max_gap_s: float = 0.2, cut_on_block: bool = False, max_frame_columns: int = 8192,
-                 model: VelodyneModel | str = VLP16, **options) -> None:
+                 model: VelodyneModel | str | None = None, **options) -> None:
         if options:
             raise TypeError(f"unknown VelodyneDecoder options: {sorted(options)}")
-        self.model: VelodyneModel = model_named(model) if isinstance(model, str) else model
-        cal = load_calibration(calibration, self.model)
-        if cal.lasers != self.model.lasers:
-            raise CalibrationError(f"{cal.source}: a calibration of {cal.lasers} lasers for a {self.model.name}, "
-                                   f"which has {self.model.lasers}; pass the sensor's own calibration")
-        self.geometry = VelodyneGeometry(cal)
-        self.calibration = self.geometry.calibration
+        self._calibration_arg = calibration
+        self.geometry: VelodyneGeometry | None = None
+        self.calibration: VelodyneCalibration | None = None
+        self._sensors: dict[str, SensorInfo] = {}
+        self._held: list[PacketBatch] = []
+        self._held_packets = 0
+        self._model_given = model is not None
+        self._model_arg_named = model is not None
+        if model is None and calibration is not None:  # its model is known once packets name it
+            self._calibration_arg = None
+            self._set_model(VLP16)
+            self._calibration_arg = calibration
+        else:
+            self._set_model(VLP16 if model is None else model_named(model) if isinstance(model, str) else model)
         self.cut_cdeg = 0.0 if cut_angle_deg is None else float(cut_angle_deg) % 360.0 * 100.0
         self.source = source
         self.max_gap_ns = int(max_gap_s * 1e9)
@@ -181,7 +193,6 @@ class VelodyneDecoder:
         self.max_frame_columns = int(max_frame_columns)
         self._pending_columns = 0
         self.stats = DecoderStats()
-        self._row_laser = self.geometry.row_laser  # laser id of each row
         self._pending: list[_Columns] = []
         self._start_unknown = True  # the pending frame does not begin at a wrap (the first of a stream)
         self._pending_counters = FrameCounters()
@@ -190,10 +201,80 @@ class VelodyneDecoder:
         self._last_key: float | None = None  # cut key of the last column
         self._last_az_cdeg: float | None = None
         self.clock = SensorClock()  # the hour of the packet stamps
-        self._sensors: dict[str, SensorInfo] = {}
         self._product_id: int | None = None
         self._frame_id = 0
         self._frequency_hz: float | None = None
+        self._timing_set = False
+        self._prev_first_az: int | None = None  # VLS-128: first block azimuth of the last packet
+        self._prev_stamp_us: int | None = None
+
+    def _set_model(self, model: VelodyneModel) -> None:
+        """Take ``model`` and its calibration (the one given, else the packets' own for the HDL-64E, else stock)."""
+        self.model = model
+        if not model.default_calibration and self._calibration_arg is None:
+            self.geometry = None  # read from the packets' status cycle (lidarpkt.velodyne.hdl64e)
+            self.calibration = None
+            self._row_laser = np.arange(model.lasers)
+            self._status = StatusCycle()
+            self._held = []
+            self._held_packets = 0
+            self._sensors = {}
+            return
+        cal = load_calibration(self._calibration_arg, model)
+        self.geometry = VelodyneGeometry(cal, model)
+        self.calibration = self.geometry.calibration
+        self._row_laser = self.geometry.row_laser
+        self._sensors = {}
+
+    def _await_calibration(self, batch: PacketBatch, raw: DataPackets) -> list[Frame]:
+        """Hold the packets of an HDL-64E until its status cycle brought its calibration, then decode them.
+
+        Raises :class:`CalibrationError` when :data:`MAX_HELD_PACKETS` passed without one (a cycle takes
+        about 4200 packets: the calibration does not come, or comes corrupt)."""
+        cal = self._status.push(raw.return_mode, raw.product_id)  # status type and value bytes
+        if cal is None:
+            self._held.append(batch)
+            self._held_packets += len(batch)
+            if self._held_packets > MAX_HELD_PACKETS:
+                self._held = []
+                raise CalibrationError(
+                    f"{self.source or self.model.name}: no calibration in the status bytes of {self._held_packets} "
+                    f"{self.model.name} packets ({self._status.bad_blocks} blocks with a bad checksum); pass the "
+                    "unit's calibration (calibration=, --calibration)")
+            return []
+        if self._status.s3 != (self.model.name == "HDL-64E S3") and not self._model_arg_named:
+            from .models import HDL64E_S2, HDL64E_S3
+
+            self.model = HDL64E_S3 if self._status.s3 else HDL64E_S2
+        self.geometry = VelodyneGeometry(cal, self.model)
+        self.calibration = cal
+        self._row_laser = self.geometry.row_laser
+        self._sensors = {}
+        held, self._held, self._held_packets = self._held, [], 0
+        frames: list[Frame] = []
+        for b in held + [batch]:
+            frames += self._push_data(b)
+        return frames
+
+    def _resolve_model(self, raw: DataPackets, batch_times_us: np.ndarray) -> None:
+        """On the first data packets: the model they name (when none was given), the VLS-128's firmware timing."""
+        if not self._model_given:
+            model = detect_model(raw)
+            if model is not self.model or self._calibration_arg is not None:
+                self._set_model(model)
+            self._model_given = True
+        elif self.model.product_ids and len(raw):
+            check_product(raw, self.model, self.source)
+        if self.model.dual_layout != "banks":
+            self._timing_set = True
+        elif not self._timing_set:
+            seq = vls128_sequence_ns(raw, self.model)
+            if seq is not None:
+                self.model = self.model.with_sequence_ns(seq)
+                if self.geometry is not None:
+                    self.geometry.model = self.model
+                self._sensors = {}
+            self._timing_set = True
 
     # ------------------------------------------------------------------ time
     def absolute_time_ns(self, timestamp_us: np.ndarray, host_ns: np.ndarray) -> np.ndarray:
@@ -246,8 +327,17 @@ class VelodyneDecoder:
                 f"{self.source or self.model.name}: skipped {n} packets of {batch.payload_size} B (a "
                 f"{self.model.name} data packet has {DATA_PACKET_SIZE} B)"), stacklevel=2)
             return []
+        return self._push_data(batch)
+
+    def _push_data(self, batch: PacketBatch) -> list[Frame]:
         raw = decode_packets(batch.payload, copy=False)
-        ok = raw.flag_ok
+        if not self._model_given or not self._timing_set or self.model.product_ids:
+            self._resolve_model(raw, raw.timestamp_us)
+        if self.geometry is None:  # an HDL-64E whose calibration its status cycle has not yet brought
+            return self._await_calibration(batch, raw)
+        if not self.model.product_ids and self.model.dual_layout == "upper_lower":
+            raw = hdl64e_modes(raw)
+        ok = raw.flag_ok if self.model.blocks_per_column == 1 else flags_ok(raw, self.model)
         known = np.isin(raw.return_mode, list(RETURN_MODES))
         bad_flag = int(np.count_nonzero(~ok))
         bad_mode = int(np.count_nonzero(ok & ~known))
@@ -257,7 +347,7 @@ class VelodyneDecoder:
             self._pending_counters.malformed_packets += bad_flag + bad_mode
             warn(SkippedPacketWarning(
                 f"{self.source or self.model.name}: skipped {bad_flag} packets with a bad block flag or azimuth and "
-                f"{bad_mode} with an unknown return mode"), stacklevel=2)
+                f"{bad_mode} with an unknown return mode"), stacklevel=3)
             keep = ok & known
             raw = raw.select(keep)
             times = batch.timestamp_ns[keep]
@@ -289,6 +379,11 @@ class VelodyneDecoder:
         self._mode = mode
         if self._frequency_hz is None:
             self._frequency_hz = rotation_frequency_hz(raw.azimuth_cdeg, raw.return_mode == DUAL, self.model)
+            if self._frequency_hz is None and self.model.dual_layout == "banks" and len(raw) > 1:
+                rate = np.median(interpacket_rate_cdeg_s(raw.azimuth_cdeg[:, 0], raw.timestamp_us,
+                                                         packet_layout(self.model, mode),
+                                                         self.model.packet_period_us(mode), None, None)[0])
+                self._frequency_hz = round(float(rate) / 36000.0, 2) or None
         # Packets out of order inside a batch are put back in order (counted, kept); duplicates and
         # packets older than the last one of an earlier batch (its frame may be gone) are dropped, counted.
         last = self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min
@@ -337,6 +432,12 @@ class VelodyneDecoder:
         return frames
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:
+        if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path
+            rate = self._packet_rates(raw, mode)
+            rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), rate, self._row_laser,
+                                             round(self.model.distance_resolution_m * 1000))
+            per_packet = self.model.columns_per_packet(mode)
+            return self._finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet)
         dual = mode == "dual"
         per_packet = self.model.columns_per_packet(mode)
         slots, seqs = (2 if dual else 1), self.model.sequences_per_block
@@ -347,12 +448,22 @@ class VelodyneDecoder:
         rng, refl, az_px = column_pixels(raw, fa, self._row_laser, slots, seqs)
         return self._finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet)
 
+    def _packet_rates(self, raw: DataPackets, mode: str) -> np.ndarray:
+        """``float32[N]`` rotation rate of each packet, 0.01° per second, as velodyne_decoder measures it."""
+        lay = packet_layout(self.model, mode)
+        if self.model.dual_layout != "banks":
+            return packet_rate_cdeg_s(raw.azimuth_cdeg, lay)
+        rate, self._prev_first_az, self._prev_stamp_us = interpacket_rate_cdeg_s(
+            raw.azimuth_cdeg[:, 0], raw.timestamp_us, lay, self.model.packet_period_us(mode),
+            self._prev_first_az, self._prev_stamp_us)
+        return rate
+
     def _finish_columns(self, rng: np.ndarray, refl: np.ndarray, az_px: np.ndarray, abs_ns: np.ndarray,
                         index: np.ndarray, miss: np.ndarray, per_packet: int) -> _Columns:
         """Column times, packet ordinals and the columns standing for lost packets, around the pixels."""
         n, n_lasers, model, lasers = len(abs_ns), self.model.lasers, self.model, self._row_laser
         col_az = az_px[int(np.flatnonzero(lasers == 0)[0])].astype(np.float64)  # laser 0 fires first
-        seq = np.arange(per_packet, dtype=np.int64) * model.sequence_ns
+        seq = np.rint(model.column_offset_ns + np.arange(per_packet) * float(model.sequence_ns)).astype(np.int64)
         ts = (abs_ns[:, None] + seq[None, :]).reshape(-1)
         pidx = np.repeat(index.astype(np.int64), per_packet)
         total_missing = int(miss.sum())
@@ -439,7 +550,15 @@ class VelodyneDecoder:
         """The last frame, if any columns are pending (partial unless it reaches the cut angle).
 
         The decoder can be reused afterwards.
+
+        Raises :class:`CalibrationError` when HDL-64E packets are still held because their status cycle
+        never brought a calibration.
         """
+        if self.geometry is None and self._held_packets:
+            n, self._held, self._held_packets = self._held_packets, [], 0
+            raise CalibrationError(
+                f"{self.source or self.model.name}: the status bytes of the {n} {self.model.name} packets held no "
+                "whole calibration; pass the unit's calibration (calibration=, --calibration)")
         frames = self._flush(end="cut")
         self._last_key = None
         self._last_az_cdeg = None
@@ -454,24 +573,27 @@ class VelodyneDecoder:
         info = self._sensors.get(mode)
         if info is None:
             cal = self.calibration
-            assert cal.rot_correction_rad is not None  # VelodyneCalibration.__post_init__ fills it
             rows = self._row_laser
             freq = self._frequency_hz
             info = SensorInfo(
                 vendor="velodyne", model=self.model.name, rows=self.model.lasers,
                 columns_per_frame=self.model.columns_per_rotation(freq),
                 return_mode=mode, return_labels=LABELS[mode],
-                beam_altitude_deg=cal.elevation_deg[rows], beam_azimuth_deg=np.degrees(cal.rot_correction_rad[rows]),
+                # an HDL-64E before its status cycle brought the calibration: no angles yet
+                beam_altitude_deg=cal.elevation_deg[rows] if cal is not None else np.zeros(self.model.lasers),
+                beam_azimuth_deg=(np.degrees(np.asarray(cal.rot_correction_rad)[rows]) if cal is not None
+                                  else np.zeros(self.model.lasers)),
                 frequency_hz=freq, grid_resolution_deg=self.model.grid_resolution_deg, geometry=self.geometry,
                 product_id=self._product_id, source=self.source, profile=mode,
             )
-            if self._mode is not None:  # kept once packets have told the rate and product id
+            if self._mode is not None and cal is not None:  # kept once packets have told the rate and product id
                 self._sensors[mode] = info
         return info
 
     def _make_frame(self, cols: _Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
-        toff = np.where(cols.valid[None, :], (self.model.firing_ns * self._row_laser.astype(np.int64))[:, None], 0)
+        offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
+        toff = np.where(cols.valid[None, :], offsets[:, None], 0)
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
             extra["second_strongest"] = second_strongest_mark(cols.range_mm, cols.reflectivity)

@@ -23,6 +23,7 @@ import numpy as np
 from .. import kernels
 from ..errors import CalibrationError
 from .calibration import VelodyneCalibration, load_calibration
+from .models import VLP16, VelodyneModel
 
 
 @functools.lru_cache(maxsize=8)
@@ -48,16 +49,26 @@ class VelodyneGeometry:
     Raises :class:`CalibrationError` for a frame without per-firing azimuths.
     """
 
-    def __init__(self, calibration: VelodyneCalibration | str | None = None) -> None:
-        self.calibration = load_calibration(calibration)
+    def __init__(self, calibration: VelodyneCalibration | str | None = None, model: VelodyneModel = VLP16) -> None:
+        self.model = model
+        self.calibration = load_calibration(calibration, model)
         cal = self.calibration
+        if cal.lasers != model.lasers:
+            raise CalibrationError(f"{cal.source}: a calibration of {cal.lasers} lasers for a {model.name}, "
+                                   f"which has {model.lasers}; pass the sensor's own calibration")
         # VelodyneCalibration.__post_init__ fills every per-laser table (None: zeros)
         assert cal.dist_correction_m is not None and cal.vert_offset_m is not None
         assert cal.horiz_offset_m is not None and cal.rot_correction_rad is not None
         order = cal.rows_to_laser  # laser id of each row
         self.row_laser = order
         omega = cal.vert_correction_rad[order]
-        mm = cal.distance_resolution_m / 2.0  # metres per millimetre of range_mm (range_mm = raw × 2)
+        # metres per millimetre of range_mm (range_mm = raw × the model's unit; the file's resolution scales raw)
+        unit_mm = round(model.distance_resolution_m * 1000)
+        mm = cal.distance_resolution_m / unit_mm
+        if model is not VLP16 and model.sequences_per_block != 2:
+            # the manual's unit, whatever the file says: nebula's VLS128.yaml says 0.007 m for the VLS-128's 4 mm
+            mm = model.distance_resolution_m / unit_mm
+        lasers = model.lasers
         self._metres_per_mm = mm
         self._k_xy = (mm * np.cos(omega))[:, None]  # [16, 1]: range_mm → horizontal distance
         self._k_z = (mm * np.sin(omega))[:, None]
@@ -68,16 +79,21 @@ class VelodyneGeometry:
         self._horiz_offset = cal.horiz_offset_m[order][:, None]
         rot = cal.rot_correction_rad[order]
         self._per_row = bool(np.any(rot != 0))
-        self._cos, self._neg_sin = _trig_tables(tuple(rot.tolist()) if self._per_row else None)
-        self._rows = np.arange(16)[:, None]
+        # a table per row up to 32 rows (9 MB each... of 16 for a VLP-16); beyond, cos/sin of the azimuth
+        # combined with each row's correction per pixel
+        self._cos, self._neg_sin = _trig_tables(tuple(rot.tolist()) if self._per_row and lasers <= 16 else None)
+        self._rows = np.arange(lasers)[:, None]
+        self._rot = rot[:, None]
+        self._two_point = bool(np.any(cal.two_point))
         # the compiled kernel's per-row coefficients (k_xy, k_z, dc_xy, dc_z, vert_offset) and switches
         self._coef = np.ascontiguousarray(np.stack([self._k_xy[:, 0], self._k_z[:, 0], self._dc_xy[:, 0],
                                                     self._dc_z[:, 0], self._vert_offset[:, 0]]), np.float64)
+        self._coef_rot = np.ascontiguousarray(np.concatenate([self._coef, np.cos(self._rot).T, np.sin(self._rot).T]))
         self._has_dist = bool(np.any(self._dist_correction))
         self._has_voff = bool(np.any(self._vert_offset))
 
     def distance_m(self, frame) -> np.ndarray:
-        """``float64[R, 16, W]`` corrected distance, metres (0 stays 0)."""
+        """``float64[R, L, W]`` corrected distance, metres (0 stays 0)."""
         rng = frame.range_mm
         return np.where(rng > 0, rng * self._metres_per_mm + self._dist_correction, 0.0)
 
@@ -99,17 +115,23 @@ class VelodyneGeometry:
         native = kernels.native
         # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]; the
         # kernel has no horizontal-offset term, so a calibration with one takes the NumPy path
-        if (native is not None and rng.ndim == 3 and rng.shape[1] == 16 and np.shape(az_cdeg) == rng.shape[1:]
-                and not np.any(self._horiz_offset)):
+        if (native is not None and rng.ndim == 3 and rng.shape[1] == len(self.row_laser)
+                and np.shape(az_cdeg) == rng.shape[1:] and not np.any(self._horiz_offset) and not self._two_point):
             out = np.empty(rng.shape + (3,), dtype=np.float64)
+            coef = self._coef
+            if self._per_row and self._cos.ndim == 1:  # one table, each row's correction combined per pixel
+                coef = self._coef_rot
             native.velodyne_xyz(np.ascontiguousarray(rng, np.uint32), np.ascontiguousarray(az_cdeg, np.uint16),
-                                self._cos, self._neg_sin, self._coef, self._has_dist, self._has_voff, out)
+                                self._cos, self._neg_sin, coef, self._has_dist, self._has_voff, out)
             return out
         idx = np.asarray(az_cdeg, dtype=np.intp)
-        if self._per_row:
+        if self._cos.ndim == 2:
             cos_a, neg_sin_a = self._cos[self._rows, idx], self._neg_sin[self._rows, idx]  # [16, W]
         else:
             cos_a, neg_sin_a = self._cos[idx], self._neg_sin[idx]
+            if self._per_row:  # cos(a − r) = cos a cos r + sin a sin r; −sin(a − r) = −sin a cos r + cos a sin r
+                cr, sr = np.cos(self._rot), np.sin(self._rot)
+                cos_a, neg_sin_a = cos_a * cr - neg_sin_a * sr, neg_sin_a * cr + cos_a * sr
         out = np.empty(rng.shape + (3,), dtype=np.float64)
         self._points(rng, cos_a, neg_sin_a, out)
         return out
@@ -119,6 +141,9 @@ class VelodyneGeometry:
 
         Computing both dual slots outright is as fast as reusing slot 0 where they agree (measured).
         """
+        if self._two_point:
+            self._points_two_point(rng, cos_a, neg_sin_a, out)
+            return
         k_xy, k_z, dc_xy, dc_z, voff = self._k_xy, self._k_z, self._dc_xy, self._dc_z, self._vert_offset
         hit = rng > 0
         dxy = rng * k_xy  # horizontal distance, metres
@@ -136,3 +161,32 @@ class VelodyneGeometry:
             dz += voff
             dz *= hit
         out[..., 2] = dz
+
+    def _points_two_point(self, rng: np.ndarray, cos_a: np.ndarray, neg_sin_a: np.ndarray, out: np.ndarray) -> None:
+        """XYZ with the HDL-64E S3 manual's two-point distance correction: below 25.04 m the correction of each
+        axis is interpolated between the near-point one (dist_correction_x at 2.40 m sideways, _y at 1.93 m
+        forward) and the far one (dist_correction), z taking the mean of the two (as velodyne_decoder and the
+        ROS driver do; the manual's z uses y's, taken for a slip)."""
+        cal = self.calibration
+        order = self.row_laser
+        two = cal.two_point[order][:, None]
+        dc = self._dist_correction
+        assert cal.dist_correction_x_m is not None and cal.dist_correction_y_m is not None  # filled (zeros)
+        dcx = cal.dist_correction_x_m[order][:, None]
+        dcy = cal.dist_correction_y_m[order][:, None]
+        omega = cal.vert_correction_rad[order][:, None]
+        cos_w, sin_w = np.cos(omega), np.sin(omega)
+        hit = rng > 0
+        d = rng * self._metres_per_mm  # measured distance, m
+        sin_a = -neg_sin_a
+        xy = (d + dc) * cos_w
+        near = two & (d < 25.04)
+        x_coeff = (np.abs(xy * sin_a) - 2.40) / (25.04 - 2.40)
+        y_coeff = (np.abs(xy * cos_a) - 1.93) / (25.04 - 1.93)
+        cx = np.where(near, x_coeff * dc + (1 - x_coeff) * dcx, dc)
+        cy = np.where(near, y_coeff * dc + (1 - y_coeff) * dcy, dc)
+        cz = np.where(near, (cx + cy) / 2, dc)
+        h = self._horiz_offset
+        out[..., 0] = ((d + cy) * cos_w * cos_a + h * sin_a) * hit
+        out[..., 1] = (-(d + cx) * cos_w * sin_a + h * cos_a) * hit
+        out[..., 2] = ((d + cz) * sin_w + self._vert_offset) * hit

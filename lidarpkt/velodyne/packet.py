@@ -84,6 +84,19 @@ ROW_TO_LASER = np.argsort(-LASER_ELEVATION_DEG, kind="stable")
 SINGLE_PACKET_PERIOD_US = VLP16.packet_period_us("strongest")  # 1327.104
 
 
+# HDL-32E position packets (HDL-32E manual, appendix B, "Positioning Packet"): bytes 14–37 hold three
+# gyro/temperature/accelerometer sensors, each four u16 LE words whose low 12 bits are a two's-complement
+# reading (the high 4 bits are status): gyro (0.09766 °/s per count), temperature (0.1453 °C per count
+# + 25 °C), accelerometer X and Y (0.001221 g per count). Offsets inside the packet.
+HDL32E_INERTIAL_OFFSET = 14
+HDL32E_SENSOR_DTYPE = np.dtype([("gyro", "<u2"), ("temperature", "<u2"), ("accel_x", "<u2"), ("accel_y", "<u2")])
+HDL32E_INERTIAL_DTYPE = np.dtype([("sensors", HDL32E_SENSOR_DTYPE, (3,))])
+HDL32E_GYRO_DEG_S = 0.09766
+HDL32E_TEMPERATURE_C = 0.1453
+HDL32E_TEMPERATURE_OFFSET_C = 25.0
+HDL32E_ACCEL_G = 0.001221
+
+
 def as_data_packets(payload: np.ndarray) -> np.ndarray:
     """View ``uint8[N, 1206]`` payloads as ``DATA_PACKET_DTYPE[N]`` (no copy when C-contiguous).
 

@@ -32,41 +32,38 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
     (with slot 1's reflectivity, as velodyne_decoder does), else one point per non-empty
     slot (2 for slot 0 = last, 1 for slot 1).
     ``min_range_m`` / ``max_range_m`` drop points outside that distance (velodyne_decoder
-    drops outside 0.1–200 m by default). Raises ``CalibrationError`` without a calibration.
+    drops outside 0.1–200 m by default). The points are rows of ``frame.points()`` in
+    velodyne_decoder's layout and order. Raises ``CalibrationError`` without a calibration.
     """
-    xyz = frame.xyz()  # [R, 16, W, 3]
+    pts = frame.points()
     geometry = frame.sensor.geometry
     if not isinstance(geometry, VelodyneGeometry):
         raise UsageError(f"frame_points(frame): a {frame.sensor.vendor} frame; give a Velodyne one")
-    r, h, w = frame.shape
-    rng = frame.range_mm
-    keep = rng > 0
+    slot, row, col = pts["return_slot"], pts["row"], pts["column"]
     codes = np.array([_LABEL_CODE.get(lbl, 0) for lbl in frame.return_labels], np.uint8)
-    label = np.broadcast_to(codes[:, None, None], rng.shape).copy()
-    if r == 2:
+    label = codes[slot]
+    keep = np.ones(pts.size, bool)
+    if frame.shape[0] == 2:
         # velodyne_decoder's rule: equal distances are one return, reported with slot 1's
         # (the strongest block's) reflectivity, whatever slot 0's says
-        same = (rng[0] == rng[1]) & keep[0]
-        label[1][same] = BOTH
-        keep[0] &= ~same
+        same = frame.range_mm[1 - slot, row, col] == pts["range_mm"]
+        label = np.where(same & (slot == 1), BOTH, label).astype(np.uint8)
+        keep &= ~(same & (slot == 0))
     if min_range_m is not None or max_range_m is not None:
-        d = geometry.distance_m(frame)
+        d = geometry.distance_m(frame)[slot, row, col]
         if min_range_m is not None:
             keep &= d >= min_range_m
         if max_range_m is not None:
             keep &= d <= max_range_m
-    # order: column, laser id (firing order), slot
-    row_of_laser = np.argsort(geometry.row_laser)
-    k = keep[:, row_of_laser, :].transpose(2, 1, 0)  # [W, laser, R]
-    cidx, lidx, sidx = np.nonzero(k)
-    rows = row_of_laser[lidx]
-    out = np.empty(cidx.size, POINT_DTYPE)
-    p = xyz[sidx, rows, cidx]
-    out["x"], out["y"], out["z"] = p[:, 0], p[:, 1], p[:, 2]
-    out["intensity"] = frame.reflectivity[sidx, rows, cidx]
-    out["ring"] = h - 1 - rows
-    out["column"] = cidx
-    toff = frame.pixel_time_offset_ns
-    out["time_ns"] = frame.column_timestamp_ns[cidx] + (toff[rows, cidx] if toff is not None else 0)
-    out["return_type"] = label[sidx, rows, cidx]
+    laser = np.asarray(geometry.row_laser)[row]
+    order = np.flatnonzero(keep)
+    order = order[np.lexsort((slot[order], laser[order], col[order]))]  # column, laser id (firing order), slot
+    pts, label = pts[order], label[order]
+    out = np.empty(pts.size, POINT_DTYPE)
+    out["x"], out["y"], out["z"] = pts["x"], pts["y"], pts["z"]
+    out["intensity"] = pts["reflectivity"]
+    out["ring"] = frame.shape[1] - 1 - pts["row"].astype(np.int64)
+    out["column"] = pts["column"]
+    out["time_ns"] = pts["timestamp_ns"]
+    out["return_type"] = label
     return out

@@ -1,6 +1,6 @@
 """A VLP-16 stream's packets counted: what a payload size is, how many packets a gap lost, where a
 rotation ends. The decoder (:mod:`lidarpkt.velodyne.frames`) and the recorder's live path
-(:class:`PacketCounter`, through ``recorder/streams.py``) both use these rules, so that they cannot
+(:class:`PacketCounter`, through :mod:`lidarpkt.streams`) both use these rules, so that they cannot
 disagree about packet periods and rotations.
 
 * Packet period: the model table's (:meth:`VelodyneModel.packet_period_us`: 1327.104 µs in the

@@ -92,9 +92,59 @@ def rotation_frequency_hz(azimuth_cdeg: np.ndarray, dual: np.ndarray, model: Vel
     """Rotation rate in Hz (2 decimals) from the azimuth advance inside packets (median over the
     packets), ``None`` if unmeasurable. ``azimuth_cdeg``: ``[N, 12]`` block azimuths; ``dual``: ``bool[N]``."""
     diff = (azimuth_cdeg[:, -1].astype(np.int64) - azimuth_cdeg[:, 0]) % 36000
-    # firing sequences between the first and the last block (dual: block pairs share their firings)
-    b, s = model.blocks_per_packet, model.sequences_per_block
-    seqs = np.where(dual, (b // 2 - 1) * s, (b - 1) * s)
-    rate = diff / (seqs * model.sequence_ns)  # 0.01° per ns
+    if model.dual_layout == "banks":  # the VLS-128's blocks share 3 (dual: 1) azimuths: measured between packets
+        return None
+    if model.sequences_per_block == 2:
+        # firing sequences between the first and the last block (dual: block pairs share their firings)
+        b, s = model.blocks_per_packet, model.sequences_per_block
+        seqs = np.where(dual, (b // 2 - 1) * s, (b - 1) * s)
+        rate = diff / (seqs * model.sequence_ns)  # 0.01° per ns
+    else:
+        from .layout import packet_layout
+
+        span_ns = np.where(dual, float(packet_layout(model, "dual").rate_span_s32),
+                           float(packet_layout(model, "strongest").rate_span_s32)) * 1e9
+        rate = diff / span_ns
     hz = float(np.median(rate)) * 1e9 / 36000.0 if rate.size else 0.0
     return round(hz, 2) if hz > 0 else None
+
+
+def round_azimuth_cdeg(value: np.ndarray, block_azimuth_cdeg: np.ndarray) -> np.ndarray:
+    """``uint16``: lround(block azimuth + ``value``) mod 36000, summed in float32 in velodyne_decoder's order
+    (``value`` = rate · dt, float32; ``block_azimuth_cdeg`` broadcast to it). Modifies ``value``."""
+    value += block_azimuth_cdeg.astype(np.float32)
+    value += np.float32(36000)
+    value += np.float32(0.5)  # lround of a positive value: + 0.5 is exact in [36000, 72000), then floor
+    rounded = value.astype(np.int32)
+    rounded %= 36000
+    return rounded.astype(np.uint16)
+
+
+def packet_rate_cdeg_s(azimuth_cdeg: np.ndarray, layout) -> np.ndarray:
+    """``float32[N]`` rotation rate inside each packet, 0.01°/s: the last block's azimuth advance over block 0's
+    (mod 36000), over the time between their firings (velodyne_decoder's float32 arithmetic)."""
+    az = np.asarray(azimuth_cdeg)
+    diff = (az[:, -1].astype(np.int32) - az[:, 0].astype(np.int32) + 36000) % 36000
+    return diff.astype(np.float32) / layout.rate_span_s32
+
+
+def interpacket_rate_cdeg_s(first_azimuth_cdeg: np.ndarray, timestamp_us: np.ndarray, layout, period_us: float,
+                            prev_az: int | None, prev_us: int | None) -> tuple[np.ndarray, int, int]:
+    """VLS-128: ``float32[N]`` rotation rate of each packet from the advance of the first block's azimuth since
+    the previous packet (``prev_az`` / ``prev_us``: the last packet of an earlier batch), over the packets'
+    time (the packets a lost stretch skipped counted by the stamps); the first packet of a stream takes the
+    next one's. Returns the rates and the new ``prev_az``, ``prev_us``."""
+    az = np.asarray(first_azimuth_cdeg).astype(np.int64)
+    ts = np.asarray(timestamp_us).astype(np.int64)
+    n = az.size
+    if prev_az is not None:
+        az_prev = np.concatenate([[prev_az], az[:-1]])
+        ts_prev = np.concatenate([[prev_us], ts[:-1]])
+    else:
+        az_prev, ts_prev = np.concatenate([az[:1], az[:-1]]), np.concatenate([ts[:1], ts[:-1]])
+    diff = (az - az_prev) % 36000
+    steps = np.maximum(np.rint(((ts - ts_prev) % 3_600_000_000) / period_us), 1).astype(np.int64)
+    rate = diff.astype(np.float32) / (layout.rate_span_s32 * steps.astype(np.float32))
+    if prev_az is None:
+        rate[0] = rate[1] if n > 1 else 0.0
+    return rate.astype(np.float32), int(az[-1]), int(ts[-1])

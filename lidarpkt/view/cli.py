@@ -11,7 +11,6 @@ flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multi
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
@@ -34,24 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cliargs.add_quiet(parser, "no status lines")
 
 
-class _Stop:
-    """SIGINT/SIGTERM set it; the loops finish cleanly."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.previous = {}
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.previous[sig] = signal.signal(sig, self)
-
-    def __call__(self, signum, _frame) -> None:
-        self.event.set()
-
-    def restore(self) -> None:
-        for sig, handler in self.previous.items():
-            signal.signal(sig, handler)
-
-
 def run(args: argparse.Namespace) -> int:
     from lidarpkt import cliargs
     from lidarpkt.errors import LidarpktError
@@ -67,13 +48,10 @@ def run(args: argparse.Namespace) -> int:
     parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
         raise LidarpktError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time)")
-    stop = _Stop()
-    try:
+    with cliargs.StopSignals() as stop:
         if args.source is not None:
             return _view_capture(args, stop.event)
         return _view_live(args, stop.event)
-    finally:
-        stop.restore()
 
 
 def _deadline(args) -> float:
@@ -132,9 +110,8 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 
 def _view_live(args, stop: threading.Event) -> int:
-    from lidarpkt.recorder.capture import UdpCapture
     from lidarpkt.recorder.record import load_ouster_metadata
-    from lidarpkt.recorder.sink import batch_from_packets
+    from lidarpkt.sources.udp import UdpSource
 
     from .server import start_server
     from .sources import LiveDecoder
@@ -142,7 +119,7 @@ def _view_live(args, stop: threading.Event) -> int:
 
     mds = load_ouster_metadata(args)
     ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
-    capture = UdpCapture(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
+    capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                          rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
     server = tap = dropper = None
     try:
@@ -160,13 +137,13 @@ def _view_live(args, stop: threading.Event) -> int:
         deadline = _deadline(args)
         last_status = time.monotonic()
         while not stop.is_set() and time.monotonic() < deadline:
-            tap.offer(batch_from_packets(capture.drain(timeout=0.05)))
+            tap.offer(capture.poll(timeout=0.05))
             if time.monotonic() - last_status >= 1.0:
                 last_status = time.monotonic()
                 _status_line(server.publish_status(), args.quiet)
         capture.stop()
-        while items := capture.drain(timeout=0.0, max_items=65536):
-            tap.offer(batch_from_packets(items))
+        while batches := capture.poll(timeout=0.0, max_items=65536):
+            tap.offer(batches)
     finally:
         capture.close()
         if tap is not None:

@@ -2,15 +2,15 @@
 
 Pure functions, no server: the schema classes are foxglove-sdk's own (``foxglove.messages``).
 
-Point cloud of one return slot (one message per slot): only the pixels with a return
-(``range_mm > 0`` in a valid column), in frame order (row-major over ``[H, W]``, Ouster
-columns staggered as on the wire), so no point sits on the sensor's origin. Each point is
-:data:`POINT_DTYPE` (24 bytes, little-endian):
+Point cloud of one return slot (one message per slot): the rows of ``Frame.points()`` of that
+slot (only the pixels with a return, row-major over ``[H, W]``, Ouster columns staggered as on
+the wire), so no point sits on the sensor's origin. Each point is :data:`POINT_DTYPE` (24 bytes,
+little-endian):
 
 =============  =======  =================================================================
 field          type     meaning
 =============  =======  =================================================================
-x, y, z        float32  metres, ``Frame.xyz()`` (the reference tools' sensor frame)
+x, y, z        float32  metres, ``Frame.points()`` rounded (the reference tools' sensor frame)
 range          uint32   millimetres, ``Frame.range_mm``
 reflectivity   uint16   the sensor's reflectivity
 row            uint16   image row (0 = top beam)
@@ -60,32 +60,33 @@ def timestamp(ns: int):
     return Timestamp(int(ns) // 1_000_000_000, int(ns) % 1_000_000_000)
 
 
-def frame_points(frame, slot: int, xyz: np.ndarray | None = None) -> np.ndarray:
-    """``POINT_DTYPE[N]``: the returns of ``frame``'s slot ``slot`` (see the module doc).
+def slot_points(points: np.ndarray, slot: int) -> np.ndarray:
+    """The rows of ``points`` (``Frame.points()``, slot-major) of return slot ``slot``: a view."""
+    lo, hi = np.searchsorted(points["return_slot"], [slot, slot + 1])
+    return points[lo:hi]
 
-    ``xyz`` is ``frame.xyz()`` (float ``[R, H, W, 3]``, metres) when already computed.
+
+def frame_points(frame, slot: int, points: np.ndarray | None = None) -> np.ndarray:
+    """``POINT_DTYPE[N]``: the returns of ``frame``'s slot ``slot`` (see the module doc), from
+    ``points`` (``frame.points()``, computed here when not given).
+
     Raises :class:`lidarpkt.errors.CalibrationError` when the sensor has no geometry.
     """
-    if xyz is None:
-        xyz = frame.xyz()
-    rng = frame.range_mm[slot]
-    hit = (rng > 0) & np.asarray(frame.column_valid, bool)[None, :]
-    rows, _cols = np.nonzero(hit)
-    pts = np.empty(rows.size, POINT_DTYPE)
-    sel = xyz[slot][hit]
-    pts["x"], pts["y"], pts["z"] = sel[:, 0], sel[:, 1], sel[:, 2]
-    pts["range"] = rng[hit]
-    pts["reflectivity"] = frame.reflectivity[slot][hit]
-    pts["row"] = rows
-    pts["return"] = slot
+    src = slot_points(frame.points() if points is None else points, slot)
+    pts = np.empty(src.size, POINT_DTYPE)
+    for name in ("x", "y", "z", "reflectivity", "row"):
+        pts[name] = src[name]
+    pts["range"] = src["range_mm"]
+    pts["return"] = src["return_slot"]
     return pts
 
 
-def point_cloud(frame, slot: int, frame_id: str, xyz: np.ndarray | None = None):
-    """``foxglove.PointCloud`` of one return slot, stamped with the frame's sensor time."""
+def point_cloud(frame, slot: int, frame_id: str, points: np.ndarray | None = None):
+    """``foxglove.PointCloud`` of one return slot, stamped with the frame's sensor time; ``points``
+    is ``frame.points()`` when already computed."""
     from foxglove.messages import PointCloud, Pose, Quaternion, Vector3
 
-    pts = frame_points(frame, slot, xyz)
+    pts = frame_points(frame, slot, points)
     origin = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
     return PointCloud(timestamp=timestamp(frame.timestamp_ns), frame_id=frame_id, pose=origin,
                       point_stride=POINT_DTYPE.itemsize, fields=point_fields(), data=pts.tobytes())

@@ -1,7 +1,9 @@
 """The Foxglove WebSocket server of ``lidarpkt view`` and ``record --view`` (foxglove-sdk's own server).
 
-:class:`ViewServer` starts foxglove-sdk's WebSocket server on its own logging context and
-publishes frames. Each sensor (vendor + source address) gets a name (``velodyne``,
+:class:`ViewServer` starts foxglove-sdk's WebSocket server on its own logging context, on a
+loopback port behind :class:`~lidarpkt.view.front.SubprotocolFront` on the public one, so that
+viewers offering either subprotocol name of the protocol (``foxglove.sdk.v1``, and the older
+``foxglove.websocket.v1`` that the SDK alone refuses) connect, and publishes frames. Each sensor (vendor + source address) gets a name (``velodyne``,
 ``ouster``, ``velodyne_2`` …, also its ``frame_id``) and these channels, advertised on
 its first frame:
 
@@ -121,13 +123,21 @@ class ViewServer:
         self.context = foxglove.Context()
         self._listener = _listener()
         self.first_frame_wait_s = first_frame_wait_s
-        try:
-            self._server: WebSocketServer | None = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+        from .front import SubprotocolFront
+
+        try:  # the SDK's server on loopback; the public port is the front's
+            self._server: WebSocketServer | None = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
                                                  server_listener=self._listener)
         except Exception as exc:  # the SDK raises its own RuntimeError subclasses
-            raise ViewError(f"--ws {host}:{port}: cannot serve there ({exc}); choose another HOST:PORT") from None
+            raise ViewError(f"--ws {host}:{port}: cannot start the Foxglove server ({exc})") from None
+        try:
+            self._front = SubprotocolFront(host, port, self._server.port)
+        except OSError as exc:
+            self._server.stop()
+            raise ViewError(f"--ws {host}:{port}: cannot serve there ({exc.strerror or exc}); "
+                            "choose another HOST:PORT") from None
         self.host = host
-        self.port = self._server.port
+        self.port = self._front.port
         self._sensors: dict[tuple, _Sensor] = {}
         self._by_source: dict[str, _Sensor] = {}
         self._names: set[str] = set()
@@ -196,21 +206,21 @@ class ViewServer:
             return self._sensor(frame).name
 
     # ---------------------------------------------------------------- publishing
-    def publish(self, frame, xyz: np.ndarray | None = None) -> None:
+    def publish(self, frame, points: np.ndarray | None = None) -> None:
         """Publish one frame: point clouds, images and transform of its sensor.
 
-        ``xyz`` is ``frame.xyz()`` if already computed. Raises
+        ``points`` is ``frame.points()`` if already computed. Raises
         :class:`lidarpkt.errors.CalibrationError` when the sensor has no geometry.
         """
         with self._lock:
             sensor = self._sensor(frame)
         if not sensor.frames and self.first_frame_wait_s > 0:
             self._wait_for_sensor_subscription(sensor, self.first_frame_wait_s)
-        if xyz is None:
-            xyz = frame.xyz()
+        if points is None:
+            points = frame.points()
         sensor.transform.log(messages.transform(frame, sensor.name))
         for slot in range(frame.shape[0]):
-            sensor.points[slot].log(messages.point_cloud(frame, slot, sensor.name, xyz))
+            sensor.points[slot].log(messages.point_cloud(frame, slot, sensor.name, points))
             rng, refl = messages.images(frame, slot, sensor.name)
             sensor.range_images[slot].log(rng)
             sensor.reflectivity_images[slot].log(refl)
@@ -262,7 +272,10 @@ class ViewServer:
         if server is not None:
             if grace_s > 0:
                 time.sleep(grace_s)
-            server.stop()
+            try:
+                server.stop()
+            finally:
+                self._front.close()
 
     def __enter__(self) -> "ViewServer":
         return self

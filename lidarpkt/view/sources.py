@@ -3,7 +3,7 @@
 * :func:`play_capture`: ``lidarpkt.open``'s frames, released at the pace of their sensor
   timestamps divided by ``rate`` (optionally looping).
 * :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
-  routed to one frame decoder per sensor, as ``lidarpkt.open`` routes a capture's:
+  routed to one frame decoder per sensor by ``lidarpkt.open``'s own router (:mod:`lidarpkt.router`):
   VLP-16 streams by their packets, Ouster streams by the metadata given.
 
 Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
@@ -22,6 +22,7 @@ from typing import Iterator
 from lidarpkt.decoder import Decoder
 from lidarpkt.frame import Frame
 from lidarpkt.packet import PacketBatch
+from lidarpkt.router import MAX_SENSORS, RouteOptions, Router
 
 
 def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1.0, loop: bool = False,
@@ -69,63 +70,42 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
 
 
 class LiveDecoder:
-    """Packet batches (one stream and payload size each, arrival order) → frames, per sensor.
+    """Packet batches (one stream and payload size each, arrival order) → frames, per sensor, through the
+    one router of files and live sources (:class:`lidarpkt.router.Router`).
 
     Args:
         ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of each Ouster sensor
             (none for VLP-16 only).
-        max_sensors: most sensors (source addresses) decoded; packets of more are counted in
-            :attr:`unrouted_packets`.
+        max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
+            counted in :attr:`unrouted_packets`.
 
-    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on.
+    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on. VLP-16 position
+    packets are counted in :attr:`position_packets`, not decoded (module doc).
     """
 
-    def __init__(self, ouster_metadata=(), *, max_sensors: int = 16) -> None:
+    def __init__(self, ouster_metadata=(), *, max_sensors: int = MAX_SENSORS) -> None:
         self.ouster_metadata = list(ouster_metadata or ())
-        self.max_sensors = max_sensors
-        self.decoders: dict[tuple, Decoder] = {}
+        self.router = Router(RouteOptions(self.ouster_metadata), max_sensors=max_sensors,
+                             unused_auxiliary=frozenset({"velodyne"}))
         self.unrouted_packets = 0
-        self.position_packets = 0  # VLP-16 position packets seen (not used for the time: module doc)
+
+    @property
+    def decoders(self) -> dict[tuple, Decoder]:
+        return self.router.decoders
+
+    @property
+    def position_packets(self) -> int:
+        """VLP-16 position packets seen (not used for the time: module doc)."""
+        return self.router.packets.get(("velodyne", "position"), 0)
 
     def push(self, batch: PacketBatch) -> list[Frame]:
         """Decode one batch; returns the frames it completed."""
-        from lidarpkt import ouster, velodyne
-
-        src = str(batch.src) if batch.src is not None else "unknown source"
-        if self.ouster_metadata:
-            match = ouster.classify(batch, self.ouster_metadata)
-            if match is not None:
-                kind, md = match
-                decoder = self._decoder(("ouster", src, id(md)), lambda: ouster.OusterDecoder(md, source=src))
-                if decoder is None:
-                    self.unrouted_packets += len(batch)
-                    return []
-                if kind == "lidar":
-                    return decoder.push(batch)
-                decoder.push_imu(batch)
-                return []
-        kind = velodyne.classify(batch)
-        if kind is None:
+        frames = self.router.push(batch)
+        if frames is None:
             self.unrouted_packets += len(batch)
             return []
-        if kind == "position":
-            self.position_packets += len(batch)
-            return []
-        decoder = self._decoder(("velodyne", src), lambda: velodyne.VelodyneDecoder(source=src))
-        if decoder is None:
-            self.unrouted_packets += len(batch)
-            return []
-        return decoder.push(batch)
-
-    def _decoder(self, key: tuple, make):
-        decoder = self.decoders.get(key)
-        if decoder is None and len(self.decoders) < self.max_sensors:
-            decoder = self.decoders[key] = make()
-        return decoder
+        return frames
 
     def finish(self) -> list[Frame]:
         """The frames still being assembled (the last, partial ones)."""
-        out: list[Frame] = []
-        for decoder in self.decoders.values():
-            out += decoder.finish()
-        return out
+        return self.router.finish()

@@ -13,7 +13,7 @@ import os
 import re
 import secrets
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 from lidarpkt.errors import OutputError
 
@@ -57,7 +57,7 @@ class AtomicFiles:
         try:
             os.replace(tmp, final)
         except OSError as exc:
-            raise OutputError(f"{final}: cannot rename {tmp.name} into place: {exc.strerror or exc}") from None
+            raise OutputError(f"{final}: cannot rename {tmp.name} into place: {exc.strerror or exc}") from exc
         self.committed.append(final)
         return final
 
@@ -71,6 +71,25 @@ class AtomicFiles:
             except OSError:
                 pass  # best effort: the name stays hidden and marked .tmp
             self._pending.pop(tmp, None)
+
+
+def write_atomic(path: str | os.PathLike[str], write: Callable[[Path], object]) -> Path:
+    """``write(tmp)`` into a hidden temporary beside ``path`` (:class:`AtomicFiles`), then renamed to
+    ``path``: no reader ever sees a half-written file, and on any error the temporary is removed.
+
+    Raises:
+        OutputError: the folder does not exist, or writing or renaming failed (the cause chained).
+        And what ``write`` raises otherwise.
+    """
+    files = AtomicFiles()
+    tmp = files.temporary(path)
+    try:
+        write(tmp)
+        return files.commit(tmp)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write it ({exc.strerror or exc})") from exc
+    finally:
+        files.abort()  # nothing left once committed; the temporary otherwise
 
 
 class BaseWriter:

@@ -4,8 +4,8 @@
 sensor and frame id, so the names do not depend on how the capture was segmented). One point per
 return slot that holds a return, *as the sensor sent it* (a dual-return pixel whose two slots
 repeat one return is two points, told apart by ``return``); pixels with no return are left out.
-Points are in the order of the ``PointCloud2`` lidarpkt writes (slot, then row, then column;
-Ouster destaggered). Fields, as the ROS drivers name them (the MCAP ``PointCloud2`` values):
+Points are the rows of ``Frame.points()``, in its order (slot, then row, then column; Ouster
+columns staggered, as sent). Fields, as the ROS drivers name them (the MCAP ``PointCloud2`` values):
 
 =========  =======  ===============================================================================
 field      type     meaning
@@ -32,25 +32,21 @@ FIELDS = ("x", "y", "z", "intensity", "ring", "time")
 
 
 def cloud_points(frame) -> np.ndarray:
-    """The points of one frame as a structured array with the fields of the module doc.
+    """The points of one frame as a structured array with the fields of the module doc: the rows of
+    ``frame.points()``, in its order, as the ``PointCloud2`` writer names them.
 
     Raises :class:`~lidarpkt.errors.CalibrationError` when the sensor has no calibration."""
-    from .mcap.pointcloud import frame_points
+    from .mcap.pointcloud import cloud_fields
 
-    grid = frame_points(frame)  # [R, H, W] in display order, with range in mm
-    r = grid.shape[0]
-    names = FIELDS + (("return",) if r > 1 else ())
-    dtype = np.dtype([(n, grid.dtype[n]) for n in FIELDS] + ([("return", "u1")] if r > 1 else []))
-    valid = frame.destaggered(np.broadcast_to(frame.column_valid, frame.shape[1:])) \
-        if frame.sensor.vendor == "ouster" else np.broadcast_to(frame.column_valid, frame.shape[1:])
-    mask = (grid["range"] > 0) & valid[None]
-    slot, _, _ = np.nonzero(mask)
-    out = np.empty(slot.size, dtype)
-    picked = grid[mask]
+    pts = frame.points()
+    fields = cloud_fields(frame, pts)
+    dual = frame.shape[0] > 1
+    dtype = np.dtype([(n, fields.dtype[n]) for n in FIELDS] + ([("return", "u1")] if dual else []))
+    out = np.empty(pts.size, dtype)
     for n in FIELDS:
-        out[n] = picked[n]
-    if "return" in names:
-        out["return"] = slot.astype(np.uint8)
+        out[n] = fields[n]
+    if dual:
+        out["return"] = pts["return_slot"]
     return out
 
 

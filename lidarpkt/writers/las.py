@@ -56,44 +56,32 @@ def adjusted_gps_time(unix_ns: np.ndarray) -> np.ndarray:
 
 
 def las_points(frame) -> dict[str, np.ndarray]:
-    """The points of one frame with LAS return numbering (see the module doc), as arrays.
+    """The points of one frame with LAS return numbering (see the module doc), as arrays: the rows
+    of ``frame.points()``, in its order, less the second slot of a dual pixel that repeats the first.
 
     Keys: ``xyz`` float64 [N, 3], ``reflectivity``, ``return_number``, ``number_of_returns``,
     ``timestamp_ns``, ``row``, ``column``. Raises :class:`~lidarpkt.errors.CalibrationError` when
     the sensor has no calibration.
     """
     r = frame.shape[0]
-    rng = np.where(frame.column_valid[None, None, :], frame.range_mm, 0)
-    xyz = frame.xyz()
+    pts = frame.points()
     if r == 1:
-        keep = [rng[0] > 0]
-        numbers = [(np.ones_like(rng[0], np.uint8), np.ones_like(rng[0], np.uint8))]
+        ones = np.ones(pts.size, np.uint8)
+        return_number, number_of_returns = ones, ones
     elif r == 2:
-        a, b = rng[0], rng[1]
-        two = (a > 0) & (b > 0) & (a != b)
-        first_is_near = a < b
-        # slot 0: always a point when it holds a return; 2 of 2 when it is the farther of two
-        keep = [a > 0, (b > 0) & ((a == 0) | two)]
-        n_ret = np.where(two, 2, 1).astype(np.uint8)
-        numbers = [(np.where(two & ~first_is_near, 2, 1).astype(np.uint8), n_ret),
-                   (np.where(two & first_is_near, 2, 1).astype(np.uint8), n_ret)]
+        own = pts["range_mm"]
+        # the other slot of the same pixel (its column is valid: the point is a return)
+        other = frame.range_mm[1 - pts["return_slot"], pts["row"], pts["column"]]
+        two = (other > 0) & (other != own)  # two different returns of one pulse
+        keep = (pts["return_slot"] == 0) | (other == 0) | two  # slot 1 repeating slot 0 is not a pulse
+        pts, own, two = pts[keep], own[keep], two[keep]
+        return_number = np.where(two & (own > other[keep]), 2, 1).astype(np.uint8)  # 2 of 2: the farther
+        number_of_returns = np.where(two, 2, 1).astype(np.uint8)
     else:
         raise OutputError(f"frame {frame.frame_id}: {r} return slots; LAS numbering is defined here for 1 or 2")
-    parts: dict[str, list] = {k: [] for k in ("xyz", "reflectivity", "return_number", "number_of_returns",
-                                               "timestamp_ns", "row", "column")}
-    for slot in range(r):
-        rows, cols = np.nonzero(keep[slot])
-        t = frame.column_timestamp_ns[cols]
-        if frame.pixel_time_offset_ns is not None:
-            t = t + frame.pixel_time_offset_ns[rows, cols]
-        parts["xyz"].append(xyz[slot, rows, cols])
-        parts["reflectivity"].append(frame.reflectivity[slot, rows, cols])
-        parts["return_number"].append(numbers[slot][0][rows, cols])
-        parts["number_of_returns"].append(numbers[slot][1][rows, cols])
-        parts["timestamp_ns"].append(t)
-        parts["row"].append(rows)
-        parts["column"].append(cols)
-    return {k: np.concatenate(v) for k, v in parts.items()}
+    return {"xyz": np.column_stack([pts["x"], pts["y"], pts["z"]]), "reflectivity": pts["reflectivity"],
+            "return_number": return_number, "number_of_returns": number_of_returns,
+            "timestamp_ns": pts["timestamp_ns"], "row": pts["row"], "column": pts["column"]}
 
 
 class LasWriter(BaseWriter):

@@ -7,10 +7,10 @@ DuckDB (``read_parquet('OUT/**/*.parquet', hive_partitioning=true)``) and Dask
 (``dask.dataframe.read_parquet(OUT)``) read it without lidarpkt. Every file of a dataset has the
 same schema (the Ouster-only columns are null for Velodyne), so captures of both vendors mix.
 
-``layout="points"`` (default): one row per return, *as the sensor sent it*: every return slot
-that holds a return is a row (a dual-return pixel whose two slots repeat one return gives two
-rows, told apart by ``return_slot``); pixels with no return (range 0) and columns no packet
-delivered are not rows. Columns:
+``layout="points"`` (default): one row per row of :meth:`lidarpkt.Frame.points`, in its order:
+every return slot that holds a return, *as the sensor sent it* (a dual-return pixel whose two
+slots repeat one return gives two rows, told apart by ``return_slot``); pixels with no return
+(range 0) and columns no packet delivered are not rows. Columns:
 
 ======================  =========  =================================================================
 column                  type       meaning
@@ -26,7 +26,7 @@ azimuth_deg             float64    the column's azimuth (measured VLP-16, encode
 return_slot             uint8      index in ``Frame.return_labels``
 return_label            string     ``strongest``, ``last``, ``second_strongest`` ...
 range_m                 float64    range in metres (``range_mm / 1000``, exact)
-x, y, z                 float32    metres, ``Frame.xyz()`` rounded to float32
+x, y, z                 float32    metres, ``Frame.points()`` (float64) rounded to float32
 reflectivity            uint8      the sensor's reflectivity
 signal                  uint16     Ouster signal photons (null for Velodyne)
 near_ir                 uint16     Ouster ambient near-IR of the pixel (null for Velodyne)
@@ -133,29 +133,25 @@ def _checked(frame, name: str, dtype: str) -> np.ndarray | None:
 
 
 def frame_points(frame) -> dict[str, np.ndarray]:
-    """The ``layout="points"`` columns of one frame as NumPy arrays (every return, see module doc).
+    """The ``layout="points"`` columns of one frame as NumPy arrays: the rows of
+    :meth:`lidarpkt.Frame.points`, with ``range_m`` = ``range_mm / 1000`` and x, y, z rounded to float32.
 
     Raises :class:`~lidarpkt.errors.CalibrationError` when the frame's sensor has no calibration.
     """
-    mask = (frame.range_mm > 0) & frame.column_valid[None, None, :]
-    slot, row, col = np.nonzero(mask)
-    xyz = frame.xyz()[mask].astype(np.float32)
-    t = frame.column_timestamp_ns[col]
-    if frame.pixel_time_offset_ns is not None:
-        t = t + frame.pixel_time_offset_ns[row, col]
+    pts = frame.points()
+    n = pts.size
     out = {
-        "frame_id": np.full(slot.size, frame.frame_id, np.int64),
-        "frame_timestamp_ns": np.full(slot.size, frame.timestamp_ns, np.int64),
-        "timestamp_ns": t.astype(np.int64), "row": row.astype(np.uint16), "column": col.astype(np.uint16),
-        "azimuth_deg": frame.azimuth_deg[col].astype(np.float64), "return_slot": slot.astype(np.uint8),
-        "range_m": frame.range_mm[mask].astype(np.float64) / 1000.0,
-        "x": np.ascontiguousarray(xyz[:, 0]), "y": np.ascontiguousarray(xyz[:, 1]),
-        "z": np.ascontiguousarray(xyz[:, 2]), "reflectivity": frame.reflectivity[mask].astype(np.uint8),
+        "frame_id": np.full(n, frame.frame_id, np.int64),
+        "frame_timestamp_ns": np.full(n, frame.timestamp_ns, np.int64),
+        "timestamp_ns": pts["timestamp_ns"], "row": pts["row"], "column": pts["column"],
+        "azimuth_deg": frame.azimuth_deg[pts["column"]].astype(np.float64), "return_slot": pts["return_slot"],
+        "range_m": pts["range_mm"].astype(np.float64) / 1000.0,
+        "x": pts["x"].astype(np.float32), "y": pts["y"].astype(np.float32), "z": pts["z"].astype(np.float32),
+        "reflectivity": pts["reflectivity"],
     }
-    if frame.signal is not None:
-        out["signal"] = frame.signal[mask].astype(np.uint16)
-    if frame.near_ir is not None:
-        out["near_ir"] = frame.near_ir[row, col].astype(np.uint16)
+    for name in ("signal", "near_ir"):
+        if name in pts.dtype.names:
+            out[name] = pts[name]
     return out
 
 

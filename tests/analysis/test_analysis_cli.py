@@ -45,7 +45,7 @@ def test_analyze_json_has_the_issue_schema_and_the_truth(canned, tmp_path, capsy
     out = tmp_path / "a.json"
     code, text, err = run(
         ["analyze", str(pcap), "--pixel", f"{wall[0]},{wall[1]}", "--pixel", f"{window[0]},{window[1]}",
-         "--motion-compensation", "--gmm", "auto", "--json", str(out), "--plot", str(tmp_path / "fig")],
+         "--motion-compensation", "--gmm", "auto", "-o", str(out), "--plot", str(tmp_path / "fig")],
         capsys,
     )
     assert code == 0, err
@@ -81,7 +81,7 @@ def test_analyze_return_slot_by_label_and_frame_range(canned, tmp_path, capsys):
     r, c = truth["raypaths"]["window"]["pixel"][0]
     out = tmp_path / "a.json"
     code, _, err = run(["analyze", str(pcap), "--pixel", f"{r},{c}", "--return", "strongest", "--frames", "2:5",
-                        "--gmm", "em", "--neighbourhood", "3", "--json", str(out)], capsys)
+                        "--gmm", "em", "--neighbourhood", "3", "-o", str(out)], capsys)
     assert code == 0, err
     doc = json.loads(out.read_text())
     entry = doc["pixels"][0]
@@ -107,7 +107,7 @@ def test_analyze_ouster_with_metadata(canned, tmp_path, capsys):
     r, c = truth["raypaths"]["window"]["pixel"][0]
     out = tmp_path / "o.json"
     code, _, err = run(["analyze", str(pcap), "--metadata", str(pcap.with_suffix(".json")), "--pixel", f"{r},{c}",
-                        "--return", "1", "--json", str(out)], capsys)
+                        "--return", "1", "-o", str(out)], capsys)
     assert code == 0, err
     entry = json.loads(out.read_text())["pixels"][0]
     assert entry["label"] == "second_strongest"
@@ -188,7 +188,7 @@ def test_compare_returns_dual_and_two_modes(canned, tmp_path, capsys):
     dual, truth = canned("vlp16-dual")
     out = tmp_path / "c.json"
     r, c = truth["raypaths"]["window"]["pixel"][0]
-    code, text, err = run(["compare-returns", str(dual), "--json", str(out), "--plot", str(tmp_path / "d"),
+    code, text, err = run(["compare-returns", str(dual), "-o", str(out), "--plot", str(tmp_path / "d"),
                            "--pixel", f"{r},{c}"], capsys)
     assert code == 0, err
     doc = json.loads(out.read_text())
@@ -201,7 +201,7 @@ def test_compare_returns_dual_and_two_modes(canned, tmp_path, capsys):
     strongest, _ = canned("vlp16-strongest")
     last, _ = canned("vlp16-last")
     out2 = tmp_path / "c2.json"
-    code, text, err = run(["compare-returns", str(strongest), str(last), "--paired", "--json", str(out2),
+    code, text, err = run(["compare-returns", str(strongest), str(last), "--paired", "-o", str(out2),
                            "--pixel", f"{r},{c}"], capsys)
     assert code == 0, err
     doc = json.loads(out2.read_text())
@@ -231,7 +231,7 @@ def test_compare_returns_picks_slots_of_two_captures(canned, tmp_path, capsys):
     last, _ = canned("vlp16-last")
     out = tmp_path / "c.json"
     code, _, err = run(["compare-returns", str(dual), str(last), "--return", "last", "--return2", "0", "--paired",
-                        "--json", str(out)], capsys)
+                        "-o", str(out)], capsys)
     assert code == 0, err
     doc = json.loads(out.read_text())
     # the dual capture's last-return slot and the last-mode capture report the same firings
@@ -249,6 +249,6 @@ def test_analyze_mcap_input_gives_the_same_document_as_the_pcap(canned, tmp_path
     assert main(["decode", str(pcap), *meta, "-o", str(mcap), "-q"]) == 0
     r, c = truth["raypaths"]["window"]["pixel"][0]
     for src, extra, out in ((pcap, meta, "p.json"), (mcap, [], "m.json")):
-        code, _, err = run(["analyze", str(src), *extra, "--pixel", f"{r},{c}", "--return", "1", "--json", str(tmp_path / out)], capsys)
+        code, _, err = run(["analyze", str(src), *extra, "--pixel", f"{r},{c}", "--return", "1", "-o", str(tmp_path / out)], capsys)
         assert code == 0, err
     assert (tmp_path / "p.json").read_text() == (tmp_path / "m.json").read_text()

@@ -119,7 +119,7 @@ def test_multireturn_writes_the_map_and_registration_uses_it(canned, tmp_path, c
     assert gm.max_components == 3 and gm.weights.shape == (1, 3, 16, 1800)
     out = tmp_path / "r.json"
     assert main(["registration-impact", str(pcap), "--map", str(gpath), "--algorithm", "icp_point_to_plane",
-                 "--mode", "scan_to_map", "--json", str(out), "-q"]) == 0
+                 "--mode", "scan_to_map", "-o", str(out), "-q"]) == 0
     doc = json.loads(out.read_text())
     assert doc["map"] == "gmm_map"
     c = doc["algorithms"]["icp_point_to_plane_scan_to_map"]["conditions"]["all"]

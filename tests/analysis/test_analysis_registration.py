@@ -88,7 +88,7 @@ def test_pose_error_of_known_poses():
 def test_cli_on_a_real_capture_writes_the_documented_json_table_and_figures(ext, tmp_path, capsys):
     pcap = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     out = tmp_path / "r.json"
-    code = main(["registration-impact", str(pcap), "--frames", "0:5", "--json", str(out), "--plot", str(tmp_path / "fig")])
+    code = main(["registration-impact", str(pcap), "--frames", "0:5", "-o", str(out), "--plot", str(tmp_path / "fig")])
     text, err = capsys.readouterr()
     assert code == 0, err
     doc = json.loads(out.read_text())
@@ -129,7 +129,7 @@ def test_cli_on_a_real_capture_writes_the_documented_json_table_and_figures(ext,
 )
 def test_cli_errors_are_one_line_and_exit_2(canned, tmp_path, capsys, extra, message):
     pcap, _ = canned("vlp16-strongest")
-    code = main(["registration-impact", str(pcap), "--json", str(tmp_path / "x.json"), *extra])
+    code = main(["registration-impact", str(pcap), "-o", str(tmp_path / "x.json"), *extra])
     _, err = capsys.readouterr()
     assert code == 2 and message in err and err.startswith("lidarpkt: error: ")
     assert not (tmp_path / "x.json").exists()

@@ -92,7 +92,7 @@ def test_compare_returns_pairs_the_same_kinds_and_finds_them_identical(modes, tm
     dual_p, strongest_p, last_p = (ensure(f"vlp16-{m}", frames=FRAMES, aux=False) for m in ("dual", "strongest", "last"))
     for single, kind in ((last_p, "last"), (strongest_p, "strongest")):
         out = tmp_path / f"{kind}.json"
-        assert main(["compare-returns", str(single), str(dual_p), "--paired", "--json", str(out)]) == 0
+        assert main(["compare-returns", str(single), str(dual_p), "--paired", "-o", str(out)]) == 0
         doc = json.loads(out.read_text())
         capsys.readouterr()
         assert doc["modes"]["labels"] == [kind, kind]
@@ -107,7 +107,7 @@ def test_compare_returns_pairs_the_same_kinds_and_finds_them_identical(modes, tm
             assert frac == pytest.approx(1.0 - wrong.mean(), abs=1e-12)
     # the raw slot, asked for by index, is the old comparison: it differs wherever the last was the strongest
     out = tmp_path / "raw.json"
-    assert main(["compare-returns", str(strongest_p), str(dual_p), "--return2", "1", "--paired", "--json", str(out)]) == 0
+    assert main(["compare-returns", str(strongest_p), str(dual_p), "--return2", "1", "--paired", "-o", str(out)]) == 0
     raw_marked = modes["dual"].range_mm[:, 1] != modes["strongest"].range_mm[:, 0]
     assert json.loads(out.read_text())["paired"]["fraction_identical"] == pytest.approx(1.0 - raw_marked.mean(), abs=1e-12)
     capsys.readouterr()

@@ -37,8 +37,10 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         # info
         ("info-missing", ["info", missing], f"{missing}: no such file or directory", []),
         ("info-metadata-missing", ["info", vlp, "--metadata", str(tmp / "m.json")], "--metadata", []),
-        ("info-json-suffix", ["info", vlp, "--json", str(tmp / "i.txt")], "--json", [tmp / "i.txt"]),
-        ("info-json-unwritable", ["info", vlp, "--json", "/proc/lidarpkt-i.json"], "/proc", []),
+        ("info-json-suffix", ["info", vlp, "-o", str(tmp / "i.txt")], "-o", [tmp / "i.txt"]),
+        ("info-json-unwritable", ["info", vlp, "-o", "/proc/lidarpkt-i.json"], "/proc", []),
+        ("info-json-old-spelling", ["info", vlp, "--json", str(tmp / "i.json")], f"-o {tmp / 'i.json'}",
+         [tmp / "i.json"]),
         ("info-not-a-capture", ["info", str(external("einride-vlp16-go/packet.bin"))], "is not a capture lidarpkt reads",
          []),
         ("decode-not-a-capture", ["decode", str(external("einride-vlp16-go/packet.bin")), "-o", str(tmp / "n.npz")],
@@ -84,9 +86,9 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("analyze-pixel-form", ["analyze", vlp, "--pixel", "7"], "--pixel 7", []),
         ("analyze-pixel-range", ["analyze", vlp, "--pixel", "7,5000"], "--pixel 7,5000: outside", []),
         ("analyze-plot-proc", ["analyze", vlp, "--pixel", "7,100", "--plot", "/proc/lidarpkt-figs"], "--plot", []),
-        ("analyze-json-root", ["analyze", vlp, "--pixel", "7,100", "--json", "/nonexistent-lidarpkt/r.json"],
+        ("analyze-json-root", ["analyze", vlp, "--pixel", "7,100", "-o", "/nonexistent-lidarpkt/r.json"],
          "does not exist", [Path("/nonexistent-lidarpkt")]),
-        ("analyze-ouster-no-metadata", ["analyze", os0, "--pixel", "1,1", "--json", str(tmp / "a.json"),
+        ("analyze-ouster-no-metadata", ["analyze", os0, "--pixel", "1,1", "-o", str(tmp / "a.json"),
                                         "--plot", str(tmp / "afigs")], "--metadata",
          [tmp / "a.json", tmp / "afigs"]),
         # multireturn
@@ -101,13 +103,13 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
         ("multireturn-wrong-metadata", ["multireturn", os2, "--metadata", os0_json, "-o", str(tmp / "mm.npz"),
                                         "--plot", str(tmp / "mfigs")], "does not fit", [tmp / "mm.npz", tmp / "mfigs"]),
         # compare-returns
-        ("compare-json-proc", ["compare-returns", vlp, "--json", "/proc/lidarpkt-c.json"], "--json", []),
+        ("compare-json-proc", ["compare-returns", vlp, "-o", "/proc/lidarpkt-c.json"], "-o /proc", []),
         ("compare-plot-file", ["compare-returns", vlp, "--plot", str(tmp / "c.png")], "--plot", [tmp / "c.png"]),
         ("compare-missing-second", ["compare-returns", vlp, missing], "no such file or directory", []),
         # catalog and export
         ("catalog-suffix", ["catalog", vlp10, "-o", str(tmp / "c.csv")], ".parquet", [tmp / "c.csv"]),
         ("catalog-proc", ["catalog", vlp10, "-o", "/proc/lidarpkt-c.parquet"], "/proc", []),
-        ("catalog-json-suffix", ["catalog", vlp10, "--json", str(tmp / "c.txt")], "--json", [tmp / "c.txt"]),
+        ("catalog-json-suffix", ["catalog", vlp10, "-o", str(tmp / "c.txt")], "-o", [tmp / "c.txt"]),
         ("catalog-workers", ["catalog", vlp10, "-o", str(tmp / "c.parquet"), "--workers", "0"], "--workers 0",
          [tmp / "c.parquet"]),
         ("export-missing-input", ["export", missing, "-o", str(tmp / "ex"), "--format", "npz", "--workers", "1"],
@@ -123,7 +125,9 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
                                     "0"], "--frames-per-file 0", [tmp / "e"]),
         # registration-impact
         ("registration-missing", ["registration-impact", missing], "no such file or directory", []),
-        ("registration-json-proc", ["registration-impact", vlp, "--json", "/proc/lidarpkt-r.json"], "--json", []),
+        ("registration-json-proc", ["registration-impact", vlp, "-o", "/proc/lidarpkt-r.json"], "-o /proc", []),
+        ("record-json-old-spelling", ["record", "--port", "2368", "-o", str(tmp / "r.mcap"), "--json",
+                                      str(tmp / "r.json")], f"--report {tmp / 'r.json'}", [tmp / "r.mcap"]),
         ("registration-plot-file", ["registration-impact", vlp, "--plot", str(tmp / "r.png")], "--plot",
          [tmp / "r.png"]),
         ("registration-workers", ["registration-impact", vlp, "--workers", "0"], "--workers 0", []),
@@ -189,31 +193,91 @@ def test_an_unreadable_input_is_named(tmp_path, capsys):
     _check("unreadable", status, capsys.readouterr().err, f"{src}: not readable", [tmp_path / "x.npz"])
 
 
-def test_json_without_a_value_goes_to_stdout_in_every_verb_that_has_it(tmp_path):
-    """--json [FILE]: a switch (stdout) or a file, the same in info and analyze; the text report
-    then goes to stderr so that stdout is one JSON document."""
+def _lidarpkt(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "lidarpkt", *argv], capture_output=True, text=True, cwd=REPO,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
+
+
+def _json_verbs() -> dict[str, list[str]]:
+    """Every verb that writes a JSON document (record: below), with the arguments of a small run."""
+    vlp = str(external(VLP10))
+    return {
+        "info": ["info", vlp],
+        "analyze": ["analyze", vlp, "--pixel", "7,100", "--gmm", "none", "-q"],
+        "compare-returns": ["compare-returns", vlp, vlp, "--paired", "-q"],
+        "registration-impact": ["registration-impact", vlp, "--algorithm", "icp_point_to_point",
+                                "--mode", "scan_to_scan", "--downsample", "1", "-q"],
+        "catalog": ["catalog", vlp, "--workers", "1", "-q"],
+    }
+
+
+def test_info_json_before_or_after_the_capture_prints_the_same_document():
+    """The spellings users type, as a real command line: `lidarpkt info --json CAPTURE` and
+    `lidarpkt info CAPTURE --json` print the same JSON document alone on stdout."""
     import json
 
     vlp = str(external(VLP10))
-    for argv in (["info", vlp, "--json"], ["info", vlp, "--json", "-"],
-                 ["analyze", vlp, "--pixel", "7,100", "--gmm", "none", "--json"]):
-        r = subprocess.run([sys.executable, "-m", "lidarpkt", *argv], capture_output=True, text=True, cwd=REPO,
-                           env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
-        assert r.returncode == 0, (argv, r.stderr)
-        json.loads(r.stdout)
-    out = tmp_path / "info.json"
-    r = subprocess.run([sys.executable, "-m", "lidarpkt", "info", vlp, "--json", str(out)], capture_output=True,
-                       text=True, cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
-    assert r.returncode == 0 and r.stdout == "" and json.loads(out.read_text())["file"] == vlp
+    first, last = _lidarpkt("info", "--json", vlp), _lidarpkt("info", vlp, "--json")
+    assert first.returncode == 0 and last.returncode == 0, (first.stderr, last.stderr)
+    assert first.stdout == last.stdout and json.loads(first.stdout)["file"] == vlp
+
+
+@pytest.mark.parametrize("verb", ["info", "analyze", "compare-returns", "registration-impact", "catalog"])
+def test_json_prints_to_stdout_wherever_it_stands_and_o_writes_the_file(tmp_path, capsys, verb):
+    """--json is a switch: before or after the input it prints the same document, alone, on stdout
+    (text reports go to stderr); -o REPORT.json writes that document to a file; both together do both."""
+    import json
+
+    def run(*argv: str) -> str:
+        assert main(list(argv)) == 0, capsys.readouterr().err
+        return capsys.readouterr().out
+
+    argv = _json_verbs()[verb]
+    head, tail = argv[:1], argv[1:]
+    doc = json.loads(run(*head, "--json", *tail))
+    assert doc and json.loads(run(*argv, "--json")) == doc
+    out = tmp_path / "report.json"
+    stdout = run(*argv, "-o", str(out))
+    assert json.loads(out.read_text()) == doc
+    assert not stdout.lstrip().startswith(("{", "["))  # the document went to the file, not stdout
+    assert json.loads(run(*head, "--json", *tail, "-o", str(tmp_path / "both.json"))) == doc
+    assert json.loads((tmp_path / "both.json").read_text()) == doc
+
+
+def test_record_prints_its_summary_with_json_and_writes_it_with_report(tmp_path):
+    """record's -o is the MCAP: --json prints the summary, --report FILE.json writes it (a 1 s
+    recording of an idle loopback port: no packets, a summary all the same)."""
+    import json
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = str(s.getsockname()[1])
+    r = _lidarpkt("record", "--json", "--port", port, "--bind", "127.0.0.1", "--duration", "1",
+                  "-o", str(tmp_path / "r.mcap"), "--report", str(tmp_path / "r.json"), "-q")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc == json.loads((tmp_path / "r.json").read_text()) and doc["packets"] == 0
+    assert (tmp_path / "r.mcap").stat().st_size > 0
+
+
+def test_json_takes_no_value(tmp_path):
+    """`--json FILE.json` (and `--json -`) of before: one line naming the flag that does it now, not a
+    FILE read as an input or a JSON printed by mistake."""
+    vlp = str(external(VLP10))
+    r = _lidarpkt("info", vlp, "--json", "-")
+    assert r.returncode == 2 and r.stdout == "" and "--json -: --json alone prints to stdout" in r.stderr
+    r = _lidarpkt("info", "--json", str(tmp_path / "i.json"), vlp)
+    assert r.returncode == 2 and r.stdout == "" and f"write it to a file with -o {tmp_path / 'i.json'}" in r.stderr
+    assert not (tmp_path / "i.json").exists()
 
 
 def test_old_spellings_are_gone(tmp_path, capsys):
-    """demo --out, multireturn --monitor-by-row and record --report are no flags (one spelling per flag);
-    --plot is always a folder."""
+    """demo --out and multireturn --monitor-by-row are no flags (one spelling per flag); --plot is always
+    a folder. (record --report is the flag that writes record's JSON summary: its -o is the MCAP.)"""
     from lidarpkt.cli import build_parser
 
     for verb, argv in (("demo", ["demo", "--out", str(tmp_path / "d")]),
-                       ("record", ["record", "--port", "2368", "-o", "x.mcap", "--report", "r.json"]),
                        ("multireturn", ["multireturn", "x.pcap", "-o", "m.npz", "--monitor-by-row"])):
         with pytest.raises(SystemExit) as exc:
             build_parser(verb).parse_args(argv)

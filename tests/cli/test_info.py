@@ -61,12 +61,12 @@ def test_vlp16_modern_and_veloview():
     assert doc["first_time"].startswith("2014-11-04")
 
 
-def test_hdl32_is_flagged_not_vlp16():
+def test_hdl32_is_named_an_hdl32e():
     doc = _info("rust-lidar-utils/velodyne_vlp32.pcap")
     (data,) = _by(doc, 1206)
     (pos,) = _by(doc, 512)
     assert (data["packets"], pos["packets"]) == (91, 9)
-    assert "not a VLP-16" in data["kind"] and "not a VLP-16" in pos["kind"]
+    assert data["kind"] == "HDL-32E data" and pos["kind"] == "HDL-32E position"
     # "9 position (valid $GPRMC, fix A)", captured 2012-12-11
     assert pos["details"]["nmea_first"].startswith("$GPRMC")
     assert pos["details"]["fix_valid"] is True

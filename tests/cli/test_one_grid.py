@@ -57,7 +57,7 @@ def test_readme_example_decode_npz_and_analyze_agree_on_the_grid_and_the_returns
     assert np.array_equal(npz["azimuth_deg"][complete], stack.azimuth_deg)
 
     args = [a for rc in PIXELS for a in ("--pixel", f"{rc[0]},{rc[1]}")]
-    r = _cli("analyze", pcap, *args, "--gmm", "none", "--json", tmp_path / "a.json")
+    r = _cli("analyze", pcap, *args, "--gmm", "none", "-o", tmp_path / "a.json")
     assert r.returncode == 0, r.stderr
     assert "50 frames of 16x900" in r.stdout
     cli = {(p["row"], p["col"]): p for p in json.loads((tmp_path / "a.json").read_text())["pixels"]}
@@ -217,11 +217,13 @@ def test_the_sensor_packages_still_give_every_public_name_and_submodule():
 
 def test_a_verbs_help_lists_the_common_flags_the_same_way():
     for verb, flags in {"decode": ("-o OUT.mcap", "--metadata M.json", "-q, --quiet"),
-                        "analyze": ("--json [FILE]", "--plot DIR", "--metadata M.json", "--pixel ROW,COL", "-q, --quiet"),
+                        "analyze": ("--json", "-o REPORT.json", "--plot DIR", "--metadata M.json", "--pixel ROW,COL", "-q, --quiet"),
                         "multireturn": ("-o OUT", "--plot DIR", "--workers N", "-q, --quiet"),
-                        "compare-returns": ("--json [FILE]", "--plot DIR", "-q, --quiet"),
-                        "info": ("--json [FILE]", "--metadata M.json", "-q, --quiet"),
-                        "record": ("-o OUT.mcap", "--json [FILE]", "-q, --quiet"),
+                        "compare-returns": ("--json", "-o REPORT.json", "--plot DIR", "-q, --quiet"),
+                        "info": ("--json", "-o REPORT.json", "--metadata M.json", "-q, --quiet"),
+                        "registration-impact": ("--json", "-o REPORT.json", "--plot DIR", "-q, --quiet"),
+                        "catalog": ("--json", "-o CATALOG.parquet", "-q, --quiet"),
+                        "record": ("-o OUT.mcap", "--json", "--report FILE.json", "-q, --quiet"),
                         "replay": ("--metadata M.json", "-q, --quiet"),
                         "demo": ("-o DIR", "-q, --quiet")}.items():
         r = _cli(verb, "--help")

@@ -11,8 +11,8 @@ import pytest
 from lidarpkt.errors import PortInUseError
 from lidarpkt.ouster.metadata import load_metadata
 from lidarpkt.sources.pcap_reader import read_batches, read_packets
-from lidarpkt.recorder import streams
-from lidarpkt.recorder.capture import UdpCapture
+from lidarpkt import streams
+from lidarpkt.sources.udp import UdpSource
 from conftest import external
 
 
@@ -22,7 +22,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _drain_until(cap: UdpCapture, n: int, timeout_s: float = 10.0) -> list:
+def _drain_until(cap: UdpSource, n: int, timeout_s: float = 10.0) -> list:
     got: list = []
     deadline = time.monotonic() + timeout_s
     while len(got) < n and time.monotonic() < deadline:
@@ -33,7 +33,7 @@ def _drain_until(cap: UdpCapture, n: int, timeout_s: float = 10.0) -> list:
 def test_capture_receives_real_payloads_in_order_with_kernel_times_and_destination():
     packets = list(read_packets(external("rust-lidar-utils/velodyne_vlp16.pcap")))
     port = _free_port()
-    with UdpCapture([port], bind="127.0.0.1") as cap:
+    with UdpSource([port], bind="127.0.0.1") as cap:
         cap.start()
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             before = time.time_ns()
@@ -52,7 +52,7 @@ def test_capture_receives_real_payloads_in_order_with_kernel_times_and_destinati
 
 def test_capture_reports_the_buffer_the_kernel_granted():
     port = _free_port()
-    with UdpCapture([port], bind="127.0.0.1", rcvbuf_bytes=1 << 20) as cap:
+    with UdpSource([port], bind="127.0.0.1", rcvbuf_bytes=1 << 20) as cap:
         granted = cap.stats.rcvbuf_granted[port]
         raw = cap._sockets[0][0].getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
     assert granted == raw // 2 and granted > 0
@@ -64,7 +64,7 @@ def test_port_in_use_is_a_clear_error():
     port = holder.getsockname()[1]
     try:
         with pytest.raises(PortInUseError, match=f"port {port}.*already in use"):
-            UdpCapture([port], bind="127.0.0.1")
+            UdpSource([port], bind="127.0.0.1")
     finally:
         holder.close()
 
@@ -72,7 +72,7 @@ def test_port_in_use_is_a_clear_error():
 def test_queue_overflow_is_counted_not_blocking():
     port = _free_port()
     payload = bytes(1206)
-    with UdpCapture([port], bind="127.0.0.1", queue_bytes=10 * 1206) as cap:
+    with UdpSource([port], bind="127.0.0.1", queue_bytes=10 * 1206) as cap:
         cap.start()
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             for _ in range(50):
@@ -100,7 +100,7 @@ def test_a_signal_handler_outliving_the_wait_does_not_make_drain_wait_for_the_ne
 
     previous = signal.signal(signal.SIGUSR1, slow_handler)
     main = threading.main_thread().ident
-    with UdpCapture([port], bind="127.0.0.1") as cap, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+    with UdpSource([port], bind="127.0.0.1") as cap, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         cap.start()
         late = threading.Timer(5.0, lambda: tx.sendto(b"late", ("127.0.0.1", port)))
         try:
@@ -117,11 +117,11 @@ def test_one_read_is_bounded_so_a_flood_cannot_keep_the_thread_from_stopping():
     """A sender that never pauses (another program, a replay at --max) kept the receive thread in
     its read loop, deaf to stop(): one read takes at most READ_BATCH datagrams, then the thread
     looks at the stop flag again; the backlog is still all read, in order."""
-    from lidarpkt.recorder.capture import READ_BATCH
+    from lidarpkt.sources.udp import READ_BATCH
 
     port = _free_port()
     n = READ_BATCH + 10
-    with UdpCapture([port], bind="127.0.0.1") as cap:  # not started: the reads are driven here
+    with UdpSource([port], bind="127.0.0.1") as cap:  # not started: the reads are driven here
         (sock, _), = cap._sockets
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             for i in range(n):
@@ -138,7 +138,7 @@ def test_kernel_drops_are_reported_through_so_rxq_ovfl():
     port = _free_port()
     payload = bytes(1206)
     # a tiny kernel buffer and nobody reading: the kernel must drop, and say how many
-    with UdpCapture([port], bind="127.0.0.1", rcvbuf_bytes=4096) as cap:
+    with UdpSource([port], bind="127.0.0.1", rcvbuf_bytes=4096) as cap:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
             for _ in range(200):
                 tx.sendto(payload, ("127.0.0.1", port))
@@ -249,7 +249,7 @@ def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
     """velodyne_vlp32.pcap is an HDL-32E (SOURCES.md: packets every 552-553 µs)."""
     from lidarpkt.packet import PacketBatch
     from lidarpkt.writers.mcap.writer import McapWriter
-    from lidarpkt.recorder.sink import PacketSink
+    from lidarpkt.writers.mcap.packets import PacketSink
 
     payload = _velodyne_payloads("rust-lidar-utils/velodyne_vlp32.pcap")
     vlp_timing = streams.VelodyneLoss()

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from lidarpkt.recorder.capture import UdpCapture
+from lidarpkt.sources.udp import UdpSource
 from lidarpkt.recorder.replay import read_capture, replay
 from conftest import external
 from test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
@@ -90,7 +90,7 @@ def test_multicast_group_on_loopback(tmp_path):
     (port,) = _free_ports(1)
     group = "239.255.76.16"
     try:
-        UdpCapture([port], multicast=group, interface="127.0.0.1").close()
+        UdpSource([port], multicast=group, interface="127.0.0.1").close()
     except Exception as exc:  # no multicast route on this machine
         pytest.skip(f"cannot join a multicast group on loopback here: {exc}")
     with Recorder(tmp_path, [port], "--multicast", group, "--interface", "lo", "-q", bind=None) as rec:

@@ -64,7 +64,7 @@ class Recorder:
         self.report = tmp_path / "rec.json"
         self.log = tmp_path / "rec.log"
         cmd = [sys.executable, "-m", "lidarpkt", "record", *(["--bind", bind] if bind else []), "-o", str(self.out),
-               "--json", str(self.report), *extra]
+               "--report", str(self.report), *extra]
         for p in ports:
             cmd += ["--port", str(p)]
         # faulthandler: if it ever fails to stop, SIGABRT makes it print every thread's stack to the log

@@ -16,7 +16,7 @@ from lidarpkt.velodyne import VelodyneDecoder
 from lidarpkt.velodyne.clock import DAY_NS, HOUR_NS, in_nearest_hour_ns, on_nearest_day_ns
 from lidarpkt.recorder.gps import sentence_time_ns
 from lidarpkt.writers.mcap.writer import McapWriter
-from lidarpkt.recorder.sink import PacketSink, velodyne_sensor_time_ns
+from lidarpkt.writers.mcap.packets import PacketSink, velodyne_sensor_time_ns
 
 
 def _vlp_batch(rel: str) -> PacketBatch:

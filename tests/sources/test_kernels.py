@@ -25,12 +25,12 @@ from hypothesis import strategies as st
 from lidarpkt import fixtures
 import lidarpkt
 import lidarpkt.sources.pcap_reader as pcap_module
+from lidarpkt.sources import gathers
 from conftest import external, external_root
 from lidarpkt import kernels
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.packet import Endpoint, Packet
 from lidarpkt.sources.pcap_reader import PcapReader, capture_format
-from lidarpkt.sources.gathers import copy_rows
 from lidarpkt.sources.pcap_walk import MAX_RECORD_BYTES
 from lidarpkt.writers.pcap import frames_for, pcap_bytes
 from test_ouster_cases import CAPTURES as OUSTER_CAPTURES
@@ -582,9 +582,9 @@ def test_gather_rows_equals_slicing(width):
             want = np.array([buf[o : o + width] for o in offs.tolist()], np.uint8).reshape(n, width)
             assert np.array_equal(out, want)
             with _impl(None):
-                assert np.array_equal(copy_rows(buf, offs, width), want)
+                assert np.array_equal(gathers.copy_rows(buf, offs, width), want)
             with _impl(NATIVE):
-                assert np.array_equal(copy_rows(buf, offs, width), want)
+                assert np.array_equal(gathers.copy_rows(buf, offs, width), want)
     # any writable bytes-like source works (the reader passes NumPy arrays, bytes would do)
     out = np.empty((2, 3), np.uint8)
     NATIVE.gather_rows(b"abcdefgh", np.array([5, 0], np.int64), out)

@@ -218,7 +218,7 @@ def test_decode_and_analyze_take_workers(tmp_path, small_segments):
     reports = []
     for n in (1, 3):
         out = tmp_path / f"a{n}.json"
-        assert main(["analyze", path, "--pixel", "7,100", "--workers", str(n), "--json", str(out), "-q"]) == 0
+        assert main(["analyze", path, "--pixel", "7,100", "--workers", str(n), "-o", str(out), "-q"]) == 0
         reports.append(out.read_text())
     assert reports[0] == reports[1]
 

@@ -59,9 +59,9 @@ def test_position_packets_are_routed_not_reported_as_unknown(ext):
     assert reader.stats.velodyne_data_packets == 84 and reader.stats.velodyne_position_packets == 16
 
 
-def test_hdl32e_capture_is_refused_naming_its_streams(ext):
-    with pytest.raises(UnknownSensorError, match="1206 B"):
-        list(lidarpkt.open(ext("rust-lidar-utils/velodyne_vlp32.pcap")))
+def test_hdl32e_capture_is_decoded_as_an_hdl32e(ext):
+    frames = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_vlp32.pcap")))
+    assert frames and {f.sensor.model for f in frames} == {"HDL-32E"}
 
 
 def test_ouster_capture_without_metadata_says_to_pass_it(ext):

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.errors import SkippedPacketWarning, UnknownSensorError
+from lidarpkt.errors import SkippedPacketWarning
 from lidarpkt.packet import PacketBatch
+from lidarpkt.velodyne.detect import data_kind
 from lidarpkt.velodyne import (
     VelodyneDecoder,
     classify,
@@ -201,17 +202,16 @@ def test_early_unit_with_hdl32e_product_id_is_a_vlp16(ext):
     assert len(frames) == 2 and frames[0].sensor.model == "VLP-16"
 
 
-def test_hdl32e_capture_is_not_decoded_as_vlp16(ext):
+def test_hdl32e_capture_is_decoded_as_an_hdl32e_not_a_vlp16(ext):
     path = ext("rust-lidar-utils/velodyne_vlp32.pcap")
     batches = pcap_batches(path)
-    assert all(classify(b) is None for b in batches)
     data = next(b for b in batches if b.payload_size == 1206)
-    assert describe_stream(data)["kind"] == "HDL-32E data (not a VLP-16)"
-    assert classify(data.select(np.array([3]))) is None  # one packet: the layout decides
+    assert describe_stream(data)["kind"] == "HDL-32E data"
+    assert data_kind(data.select(np.array([3]))) == "hdl32e"  # one packet: the layout decides
     pos = describe_stream(next(b for b in batches if b.payload_size == 512))
     assert pos["kind"].startswith("HDL-32E position")
-    with pytest.raises(UnknownSensorError):
-        list(lidarpkt.open(path))
+    frames = list(lidarpkt.open(path))
+    assert frames and all(f.sensor.model == "HDL-32E" and f.sensor.rows == 32 for f in frames)
 
 
 def test_lidarpkt_open_reads_every_real_vlp16_capture(ext):
@@ -461,27 +461,30 @@ def test_a_gap_across_the_wrap_is_counted_on_both_sides(ext):
         assert a.shape[2] == b.shape[2] or abs(a.shape[2] - b.shape[2]) <= 24
 
 
-def test_other_velodyne_models_are_named_not_decoded(ext):
+def test_other_velodyne_models_are_named_by_their_factory_byte(ext):
     payload = einride(ext)[:20].copy()
     payload[:, 1205] = 0x28  # VLP-32C
     batch = PacketBatch.from_payloads(payload, 1_600_000_000_000_000_000 + np.arange(20) * 1_327_104)
-    assert classify(batch) is None
-    assert describe_stream(batch)["kind"] == "VLP-32C data (not a VLP-16)"
-    payload[:, 1205] = 0x99  # no Velodyne product
+    assert classify(batch) == "data"
+    assert describe_stream(batch)["kind"] == "VLP-32C data"
+    payload[:, 1205] = 0x99  # no Velodyne product: routed, and the decoder names the byte
+    desc = describe_stream(PacketBatch.from_payloads(payload))
+    assert desc["kind"] == "unknown 0x99 data" and "factory byte 0x99 names no model" in desc["note"]
+    payload[:, :2] = 0  # not a Velodyne block flag
     assert describe_stream(PacketBatch.from_payloads(payload)) is None
 
 
 def test_one_packet_without_returns_is_classified_by_its_azimuth_step(ext):
     vlp = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp16.pcap")) if b.payload_size == 1206)
     hdl = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp32.pcap")) if b.payload_size == 1206)
-    for batch, expected in ((vlp, "data"), (hdl, None)):
+    for batch, expected in ((vlp, "vlp16"), (hdl, "hdl32e")):
         one = batch.select(np.array([5]))
         empty = one.payload.copy()
         for blk in range(12):  # clear every distance: no returns to compare
             rows = 100 * blk + 4 + 3 * np.arange(32)
             empty[0, rows] = 0
             empty[0, rows + 1] = 0
-        assert classify(PacketBatch.from_payloads(empty)) == expected
+        assert data_kind(PacketBatch.from_payloads(empty)) == expected
 
 
 def test_timing_still_decides_with_lost_packets(ext):
@@ -489,5 +492,5 @@ def test_timing_still_decides_with_lost_packets(ext):
     hdl = next(b for b in pcap_batches(ext("rust-lidar-utils/velodyne_vlp32.pcap")) if b.payload_size == 1206)
     assert classify(vlp.select(np.array([0, 2, 3, 7]))) == "data"  # steps of 2, 1 and 4 periods
     assert classify(vlp.select(np.array([0, 2]))) == "data"
-    assert classify(hdl.select(np.array([0, 3, 4, 9]))) is None
-    assert classify(hdl.select(np.array([0, 2]))) is None
+    assert data_kind(hdl.select(np.array([0, 3, 4, 9]))) == "hdl32e"
+    assert data_kind(hdl.select(np.array([0, 2]))) == "hdl32e"

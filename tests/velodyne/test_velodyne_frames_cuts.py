@@ -367,7 +367,7 @@ def test_bad_options_are_named():
     with pytest.raises(TypeError, match=r"^unknown VelodyneDecoder options: \['bogus'\]$"):
         VelodyneDecoder(bogus=1)
     with pytest.raises(CalibrationError, match=r"a calibration of 32 lasers for a VLP-16, which has 16; pass the sensor's own"):
-        VelodyneDecoder(calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))
+        VelodyneDecoder(model="VLP-16", calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))
 
 
 def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():

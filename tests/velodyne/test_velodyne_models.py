@@ -34,12 +34,15 @@ def test_vlp16_row_has_the_manuals_numbers():
 
 
 def test_table_lookups():
-    assert MODELS == (VLP16,)
-    assert model_for_product(0x22) is VLP16 and model_for_product(0x21) is VLP16
-    assert model_for_product(0x28) is None  # VLP-32C: known by name, not decoded
-    assert model_named("VLP-16") is VLP16
-    with pytest.raises(UnknownSensorError, match="VLP-32C"):
-        model_named("VLP-32C")
+    assert MODELS[0] is VLP16
+    assert model_for_product(0x22) is VLP16 and model_for_product(0x21) is VLP16  # detection tells an HDL-32E
+    assert model_for_product(0x28).name == "VLP-32C" and model_for_product(0xA1).name == "VLS-128"
+    assert model_for_product(0x24).name == "Puck Hi-Res"
+    assert model_for_product(0x23) is None  # VLP-32A or B: the option picks one
+    assert model_for_product(0x99) is None
+    assert model_named("VLP-16") is VLP16 and model_named("vls128").name == "VLS-128"
+    with pytest.raises(UnknownSensorError, match="VLP-64X"):
+        model_named("VLP-64X")
 
 
 def test_a_row_that_does_not_fill_the_packet_is_refused():
@@ -142,7 +145,8 @@ def test_decoder_takes_a_model_by_row_or_name_and_checks_the_calibration():
     from lidarpkt.velodyne import VelodyneCalibration
 
     assert VelodyneDecoder(model="VLP-16").model is VLP16
-    with pytest.raises(UnknownSensorError, match="VLP-32C"):
-        VelodyneDecoder(model="VLP-32C")
+    assert VelodyneDecoder(model="VLP-32C").model.lasers == 32
+    with pytest.raises(UnknownSensorError, match="VLP-64X"):
+        VelodyneDecoder(model="VLP-64X")
     with pytest.raises(CalibrationError, match="32 lasers"):
-        VelodyneDecoder(calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))
+        VelodyneDecoder(model="VLP-16", calibration=VelodyneCalibration(vert_correction_rad=np.zeros(32)))

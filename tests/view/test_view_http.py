@@ -15,7 +15,7 @@ import threading
 
 import pytest
 
-from lidarpkt.errors import RecorderError
+from lidarpkt.errors import SensorConnectionError, UsageError
 from lidarpkt.ouster.sensor_http import MetadataHttpServer, fetch_metadata, fetch_metadata_text, parse_sensor
 from test_view_capture import CANNED
 from test_view_live import free_udp_ports
@@ -43,13 +43,13 @@ def test_served_metadata_is_byte_for_byte_and_parses():
         assert md.raw == json.loads(text) and md.columns_per_frame == 1024
         with pytest.raises(urllib.error.HTTPError):
             urllib.request.urlopen(f"http://127.0.0.1:{server.port}/api/v1/other", timeout=10)
-    with pytest.raises(RecorderError, match="no answer"):  # closed: the port is released
+    with pytest.raises(SensorConnectionError, match="no answer"):  # closed: the port is released
         fetch_metadata_text("127.0.0.1", server.port, timeout_s=2)
 
 
 def test_no_sensor_names_host_and_url():
     port = closed_tcp_port()
-    with pytest.raises(RecorderError) as info:
+    with pytest.raises(SensorConnectionError) as info:
         fetch_metadata_text("127.0.0.1", port, timeout_s=2)
     msg = str(info.value)
     assert f"--sensor 127.0.0.1:{port}" in msg and f"http://127.0.0.1:{port}/api/v1/sensor/metadata" in msg
@@ -71,7 +71,7 @@ def test_a_server_that_is_no_sensor():
     t = threading.Thread(target=httpd.serve_forever, daemon=True)
     t.start()
     try:
-        with pytest.raises(RecorderError, match="did not return JSON"):
+        with pytest.raises(SensorConnectionError, match="did not return JSON"):
             fetch_metadata_text("127.0.0.1", httpd.server_address[1])
     finally:
         httpd.shutdown()
@@ -83,7 +83,7 @@ def test_a_sensor_that_never_answers_times_out():
     listener.bind(("127.0.0.1", 0))
     listener.listen(1)
     try:
-        with pytest.raises(RecorderError, match=r"within 0\.5 s"):
+        with pytest.raises(SensorConnectionError, match=r"within 0\.5 s"):
             fetch_metadata_text("127.0.0.1", listener.getsockname()[1], timeout_s=0.5)
     finally:
         listener.close()
@@ -98,7 +98,7 @@ def test_parse_sensor(text, expected):
 
 @pytest.mark.parametrize("text", ["host:0", "host:x", ":80", "host:70000"])
 def test_parse_sensor_rejects(text):
-    with pytest.raises(RecorderError, match="--sensor"):
+    with pytest.raises(UsageError, match="--sensor"):
         parse_sensor(text)
 
 

@@ -73,7 +73,7 @@ def record_replay(tmp_path, capture, *record_args, replay_args, name="rec", view
     out, report = tmp_path / f"{name}.mcap", tmp_path / f"{name}.json"
     client = None
     with LidarpktProcess(tmp_path / f"{name}.log", "record", "--bind", "127.0.0.1", "--port", str(data),
-                         "--port", str(position), "-o", str(out), "--json", str(report), *record_args,
+                         "--port", str(position), "-o", str(out), "--report", str(report), *record_args,
                          ready="listening on") as rec:
         try:
             if view_client:
@@ -129,7 +129,7 @@ def test_record_points_ouster_with_metadata_from_the_sensor(tmp_path):
                          "--port-map", f"{md.imu_port}:{imu}", ready="serving the sensor metadata") as replay:
         with LidarpktProcess(tmp_path / "rec.log", "record", "--bind", "127.0.0.1", "--port", str(lidar),
                              "--port", str(imu), "--sensor", f"127.0.0.1:{replay.port_after('http://')}",
-                             "--points", "-o", str(out), "--json", str(report), ready="listening on") as rec:
+                             "--points", "-o", str(out), "--report", str(report), ready="listening on") as rec:
             assert replay.proc.wait(timeout=120) == 0, replay.log.read_text()
             assert rec.stop() == 0, rec.log.read_text()
     summary = json.loads(report.read_text())

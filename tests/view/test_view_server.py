@@ -76,3 +76,56 @@ def test_parse_ws_rejects(text):
 
 def test_parse_ws():
     assert parse_ws("0.0.0.0:8765") == ("0.0.0.0", 8765) and parse_ws("[::1]:0") == ("::1", 0)
+
+
+@pytest.mark.parametrize("offered", [["foxglove.sdk.v1"], ["foxglove.websocket.v1"],
+                                     ["foxglove.websocket.v1", "foxglove.sdk.v1"]])
+def test_viewers_of_either_subprotocol_name_receive_the_frames(offered):
+    """foxglove-sdk 0.30 alone answers an offer of only ``foxglove.websocket.v1`` (Foxglove Studio's web
+    builds, older Lichtblick) with HTTP 400; through the view's front both names connect, each
+    client is answered with the name it offered, and gets every frame."""
+    vlp = list(lidarpkt.open(CANNED / "vlp16-strongest.pcap"))[:3]
+    with ViewServer("127.0.0.1", 0, first_frame_wait_s=5.0) as server:
+        client = FoxgloveClient(f"ws://127.0.0.1:{server.port}", subprotocols=offered)
+        try:
+            assert client.subprotocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered else offered[0])
+            for frame in vlp:
+                server.publish(frame)
+            assert client.wait_for(lambda c: len(c.on("/velodyne/points/strongest")) == len(vlp), 30)
+        finally:
+            client.close()
+    got = client.on("/velodyne/points/strongest")
+    assert [stamp_ns(m.message) for m in got] == [f.timestamp_ns for f in vlp]
+    xyz, _ = points_of(got[0].message)
+    np.testing.assert_array_equal(xyz, expected_points(vlp[0], 0, vlp[0].xyz())[0])
+    assert client.server_info["name"] == "lidarpkt"
+
+
+def test_the_sdk_alone_refuses_the_older_name_and_the_front_still_refuses_unknown_ones():
+    """Why the front exists (foxglove-sdk's own server refuses ``foxglove.websocket.v1``), and that it
+    renames only that name: an unknown subprotocol is still refused with the SDK's HTTP 400."""
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    with ViewServer("127.0.0.1", 0) as server:
+        direct = f"ws://127.0.0.1:{server._server.port}"
+        with pytest.raises(InvalidStatus, match="400"):
+            connect(direct, subprotocols=["foxglove.websocket.v1"], open_timeout=10)
+        with pytest.raises(InvalidStatus, match="400"):
+            connect(f"ws://127.0.0.1:{server.port}", subprotocols=["ros.bridge.v2"], open_timeout=10)
+
+
+def test_subprotocol_renaming_in_the_handshake_heads():
+    from lidarpkt.view.front import rename_answer, rename_offer
+
+    head = (b"GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Key: k\r\n"
+            b"sec-websocket-protocol:  foxglove.websocket.v1 , other\r\n\r\n")
+    renamed, did = rename_offer(head)
+    assert did and b"sec-websocket-protocol: foxglove.sdk.v1, other\r\n" in renamed
+    assert renamed.startswith(b"GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Key: k\r\n") and renamed.endswith(b"\r\n\r\n")
+    both = head.replace(b"other", b"foxglove.sdk.v1")
+    assert rename_offer(both) == (both, False)  # the client knows the newer name: untouched
+    plain = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"
+    assert rename_offer(plain) == (plain, False)
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+    assert rename_answer(answer) == answer.replace(b"foxglove.sdk.v1", b"foxglove.websocket.v1")

@@ -14,7 +14,7 @@ import lidarpkt
 from lidarpkt.view.sources import LiveDecoder, play_capture
 from lidarpkt.view.tap import FrameDropper, FrameTap
 from lidarpkt.recorder.replay import read_capture
-from lidarpkt.recorder.sink import batch_from_packets
+from lidarpkt.sources.udp import batch_from_packets
 from test_view_capture import CANNED
 
 

@@ -81,6 +81,31 @@ def test_points_read_by_pyarrow_and_duckdb_equal_lidarpkt_open(tmp_path, case):
         np.testing.assert_array_equal(xyz[k], exp[k])
 
 
+def test_points_rows_equal_frame_points(tmp_path, case):
+    """The points layout holds exactly the rows of ``Frame.points()``, in its order (x, y, z rounded
+    to the file's float32, range in metres), read back by pyarrow."""
+    cap, _, frames = load(case)
+    _write(frames, tmp_path / "ds", cap)
+    t = pq.read_table(tmp_path / "ds")
+    assert t.num_rows == sum(f.points().size for f in frames)
+    start = 0
+    for f in frames:  # one frame at a time: a profile without signal has no such field in points()
+        pts = f.points()
+        rows = t.slice(start, pts.size)
+        start += pts.size
+        for name in ("row", "column", "return_slot", "timestamp_ns", "reflectivity"):
+            np.testing.assert_array_equal(rows.column(name).to_numpy(), pts[name], err_msg=name)
+            assert rows.column(name).type.to_pandas_dtype() == pts.dtype[name], name
+        for name in "xyz":
+            np.testing.assert_array_equal(rows.column(name).to_numpy(), pts[name].astype(np.float32), err_msg=name)
+        np.testing.assert_array_equal(rows.column("range_m").to_numpy(), pts["range_mm"] / 1000.0)
+        for name in ("signal", "near_ir"):
+            if name in pts.dtype.names:
+                np.testing.assert_array_equal(rows.column(name).to_numpy(), pts[name], err_msg=name)
+            else:
+                assert rows.column(name).null_count == rows.num_rows
+
+
 FIELDS = ("range_mm", "reflectivity", "signal", "near_ir", "flags", "pixel_time_offset_ns", "column_valid",
           "column_timestamp_ns", "azimuth_deg", "measurement_id", "status", "encoder_count")
 

@@ -5,8 +5,8 @@ a base frame (``--base-frame``, ``--mount x,y,z,roll,pitch,yaw``: metres and deg
 x, then pitch about y, then yaw about z, fixed axes, as tf2's ``setRPY``). :class:`FrameTopics`
 writes a frame's messages through a :class:`~lidarpkt.writers.mcap.writer.McapWriter` (what
 ``record --points`` uses); :class:`McapFrameWriter` is the MCAP writer of
-:func:`lidarpkt.writers.open_writer` (what ``decode`` uses; ``decode`` also writes the raw packets
-into its :attr:`~McapFrameWriter.mcap` through :class:`recorder.sink.PacketSink`).
+:func:`lidarpkt.writers.open_writer` (what ``decode`` uses): the capture's raw packets
+(:mod:`lidarpkt.writers.mcap.packets`) and its frames' messages.
 
 Log times: a frame's messages are logged when its last packet was received: its last column's
 sensor time plus the sensor's clock offset (host − sensor time on its first packet), kept inside
@@ -16,8 +16,10 @@ sensor time plus the sensor's clock offset (host − sensor time on its first pa
 
 from __future__ import annotations
 
+import json
 import os
-from typing import Any, Iterable, Sequence
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -177,20 +179,42 @@ class FrameTopics:
 
 
 class McapFrameWriter(BaseWriter):
-    """ROS 2 MCAP of a capture's frames (see the module doc).
+    """ROS 2 MCAP of a capture: its raw packets and its frames' messages (see the module doc).
+
+    What ``lidarpkt decode IN -o OUT.mcap`` writes, from Python:
+
+    >>> with open_writer("mcap", "out.mcap", capture="drive.pcap", topics=("packets", "points")) as w:  # doctest: +SKIP
+    ...     for frame in lidarpkt.open("drive.pcap"):
+    ...         w.write(frame)
+
+    The packets and their capture times come from the capture itself (``capture``, read again
+    here; the frames need not be all of it): before the first frame (or at :meth:`close` when no
+    frame comes), :meth:`add_capture` writes the capture's packets when ``packets`` is among the
+    topics (:class:`~lidarpkt.writers.mcap.packets.PacketSink`) and measures its clock offsets and
+    span (:func:`~lidarpkt.writers.mcap.packets.capture_times`), the frames' log times. Call
+    :meth:`add_capture` yourself to put the frames of several captures in one file.
 
     Args:
         out: the ``.mcap`` file (its folder must exist).
-        capture, part: see :func:`lidarpkt.writers.open_writer`.
-        topics: groups among ``packets``, ``points``, ``images`` (packets are written by the
-            caller into :attr:`mcap`; this writer writes points and images).
+        capture: the capture file the frames come from (pcap/pcapng, MCAP, bag). ``None`` (or a name
+            that is no file) writes frames only, logged at their sensor time; ``packets`` needs the file.
+        part: see :func:`lidarpkt.writers.open_writer`.
+        topics: groups among ``packets``, ``points``, ``images``.
         frame_ids, base_frame, mounts: see :class:`SensorFrames`.
-        clock_offsets: host − sensor time (ns) per source address (see :func:`frame_log_time`).
-        start_ns, end_ns: the capture's first and last packet host times; log times are kept
-            inside them. :func:`recorder.decode.capture_times` measures all three from the
-            capture; without them frames are logged at their sensor time (an Ouster clock counting
-            from boot then gives 1970 times: pass them, or use ``recorder.decode.decode_captures``).
+        metadata: the Ouster metadata of the capture's sensors, as ``lidarpkt.open`` takes it (paths,
+            dicts or loaded, one per sensor): which packets are Ouster packets, and their clocks. The
+            capture's own ``/ouster/metadata`` serves when none is given.
+        calibration: the VLP-16 calibration file the frames were decoded with, recorded in the file's
+            metadata (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
+        clock_offsets, start_ns, end_ns: host − sensor time (ns) per source address, the capture's
+            first and last packet host times (see :func:`frame_log_time`), to use instead of measuring
+            them from ``capture``.
         chunk_bytes: MCAP chunk size.
+
+    Raises:
+        OutputError: an unknown topic group; ``packets`` without a capture; the output cannot be
+            written. MetadataError: ``metadata`` is no Ouster metadata. What reading the capture
+            raises (:func:`lidarpkt.sources.open_packet_source`), from :meth:`add_capture`.
     """
 
     suffix = ".mcap"
@@ -198,21 +222,79 @@ class McapFrameWriter(BaseWriter):
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
                  topics: Iterable[str] = ("points",), frame_ids: Sequence[str] | str | None = None,
                  base_frame: str | None = None, mounts: Iterable[Mount | str] | None = None,
+                 metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
+        from lidarpkt.options import load_ouster_metadata
+
         from .writer import McapWriter
 
         super().__init__(out, capture=capture, part=part)
         groups = set(topics)
         if not groups or groups - set(TOPIC_GROUPS):
-            raise OutputError(f"--topics {','.join(sorted(groups))}: choose among {', '.join(TOPIC_GROUPS)}")
+            raise OutputError(f"topics={','.join(sorted(groups))}: choose among {', '.join(TOPIC_GROUPS)}")
+        readable = capture is not None and (Path(capture).is_file() or Path(capture).is_dir())
+        if "packets" in groups and not readable:
+            raise OutputError(f"topics=packets: the packets are read from the capture, and capture={capture} is "
+                              "no file; give capture=<the capture's path>")
         sensors = SensorFrames(frame_ids, base_frame, mounts)
+        self.ouster_metadata = load_ouster_metadata(metadata)
+        self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
         self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        self.groups = groups
         self.topics = FrameTopics(self.mcap, groups, sensors)
         self.clock_offsets = dict(clock_offsets or {})
         self.start_ns, self.end_ns = start_ns, end_ns
+        self._given_times = clock_offsets is not None or start_ns is not None or end_ns is not None
+        self._pending_capture = str(capture) if readable else None
+        self._input: str | None = None if capture is None else str(capture)
+        self._described: set[tuple] = set()
+        self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
+        if self.calibration is not None:
+            self._add_calibration_record(self.calibration)
+
+    def _add_calibration_record(self, calibration: str) -> None:
+        try:
+            text = Path(calibration).read_text(encoding="utf-8", errors="replace")
+        except OSError as exc:
+            raise OutputError(f"calibration={calibration}: cannot read it to record it: "
+                              f"{exc.strerror or exc}") from exc
+        self.mcap.add_metadata("lidarpkt.calibration", {"path": calibration, "content": text})
+
+    def add_capture(self, capture: str | os.PathLike[str], *, progress: Callable[[int], None] | None = None) -> None:
+        """The capture whose frames come next: its packets are written (``packets`` topic) and its clock
+        offsets and span measured (unless given to the constructor). ``progress(bytes_read)`` is called
+        as its packets are read."""
+        from lidarpkt.sources import open_packet_source
+        from lidarpkt.sources.protocol import embedded_ouster_metadata
+
+        from .packets import PacketSink, capture_times
+
+        self._pending_capture = None
+        self._input = str(capture)
+        mds = self.ouster_metadata
+        if not self._given_times:
+            self.set_capture_times(*capture_times(capture, mds))
+        if "packets" not in self.groups:
+            return
+        if not mds:
+            from lidarpkt.options import load_ouster_metadata
+
+            embedded = embedded_ouster_metadata(capture)
+            mds = load_ouster_metadata(embedded) if embedded else []
+        before = self.mcap.messages_written
+        sink = PacketSink(self.mcap, ouster_metadata=mds, log_time_ns=self.start_ns)
+        reader = open_packet_source(capture)
+        for batch in reader.batches():
+            sink.push(batch)
+            if progress is not None:
+                done = getattr(reader.stats, "bytes_read", None)
+                if done is not None:
+                    progress(int(done))
+        sink.finish()
+        self.packet_messages += self.mcap.messages_written - before
 
     def set_capture_times(self, clock_offsets: dict[str, int], start_ns: int | None, end_ns: int | None) -> None:
         """The clock offsets and time span of the capture whose frames come next."""
@@ -228,9 +310,21 @@ class McapFrameWriter(BaseWriter):
         return t
 
     def _write(self, frame) -> None:
+        if self._pending_capture is not None:
+            self.add_capture(self._pending_capture)
+        if not self.groups & {"points", "images"}:
+            return
+        sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
+        if sensor_key not in self._described:  # what the frames were decoded with, once per sensor
+            self._described.add(sensor_key)
+            self.mcap.add_metadata("lidarpkt.frames", {
+                "input": str(self._input), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
+                "calibration": self.calibration or "stock"})
         self.topics.write(frame, self.log_time(frame), self.start_ns)
 
     def _finish(self) -> None:
+        if self._pending_capture is not None:  # no frame came: the capture's packets all the same
+            self.add_capture(self._pending_capture)
         self.mcap.close()
         self.files.commit(self._tmp)
 

@@ -5,7 +5,9 @@ top beam, as in :class:`lidarpkt.frame.Frame`), ``width`` = W columns; Ouster cl
 images are destaggered (as ouster-ros publishes them), VLP-16 ones keep the firing order.
 Pixels without a return (range 0, or a column no packet delivered) have NaN x, y, z, and the
 cloud's ``is_dense`` is false (the ROS convention for an organised cloud: viewers skip them
-instead of drawing them on the sensor's origin). The ``header.frame_id`` is the sensor's
+instead of drawing them on the sensor's origin); their other fields say what the image says of
+the pixel (its row, its column's time, the sensor's reflectivity). The returns are the rows of
+``Frame.points()``, the same as every other point output. The ``header.frame_id`` is the sensor's
 (:class:`lidarpkt.writers.mcap.frames.SensorFrames`; by default ``velodyne`` / ``os_sensor``).
 
 Point fields (the layout is :data:`POINT_DTYPE`; the PointField list derives from it):
@@ -13,7 +15,7 @@ Point fields (the layout is :data:`POINT_DTYPE`; the PointField list derives fro
 =================  =========  ==================================================================
 field              type       meaning
 =================  =========  ==================================================================
-x, y, z            float32    metres, the reference tools' frame (``Frame.xyz()``); NaN: no return
+x, y, z            float32    metres, the reference tools' frame (``Frame.points()``); NaN: no return
 intensity          float32    VLP-16: calibrated reflectivity (as the ROS driver); Ouster: signal
 reflectivity       uint16     the sensor's reflectivity byte
 ring               uint16     VLP-16: ring as the ROS driver (0 = lowest beam, = 15 − row);
@@ -54,40 +56,63 @@ def _display(frame, image: np.ndarray) -> np.ndarray:
     return frame.destaggered(image) if frame.sensor.vendor == "ouster" else image
 
 
-def frame_points(frame, xyz: np.ndarray | None = None) -> np.ndarray:
-    """``POINT_DTYPE[R, H, W]`` points of ``frame`` in display order (see module doc).
+def cloud_fields(frame, points: np.ndarray) -> np.ndarray:
+    """``POINT_DTYPE[N]``: rows of ``frame.points()`` as the ROS drivers name and type their fields
+    (see the module doc), in the same order."""
+    out = np.empty(points.size, POINT_DTYPE)
+    out["x"], out["y"], out["z"] = points["x"], points["y"], points["z"]
+    out["reflectivity"] = points["reflectivity"]
+    ouster_signal = frame.sensor.vendor == "ouster" and "signal" in (points.dtype.names or ())
+    out["intensity"] = points["signal"] if ouster_signal else points["reflectivity"]
+    out["ring"] = (frame.shape[1] - 1 - points["row"]) if frame.sensor.vendor == "velodyne" else points["row"]
+    out["time"] = (points["timestamp_ns"] - frame.timestamp_ns).astype(np.float64) * 1e-9
+    out["range"] = points["range_mm"]
+    return out
 
-    ``xyz`` defaults to ``frame.xyz()`` (raises :class:`lidarpkt.errors.CalibrationError`
-    when the sensor has no calibration).
-    """
-    r, h, w = frame.shape
-    if xyz is None:
-        xyz = frame.xyz()
-    pts = np.zeros((r, h, w), POINT_DTYPE)
-    xyz = _display(frame, np.moveaxis(xyz, -1, 0))  # [3, R, H, W] so the last two axes are (H, W)
-    no_return = _display(frame, (frame.range_mm == 0) | ~frame.column_valid)
-    pts["x"], pts["y"], pts["z"] = (np.where(no_return, np.float32(np.nan), c) for c in xyz)
-    refl = _display(frame, frame.reflectivity)
-    pts["reflectivity"] = refl
-    if frame.sensor.vendor == "ouster" and frame.signal is not None:
-        pts["intensity"] = _display(frame, frame.signal)
-    else:
-        pts["intensity"] = refl
-    rows = np.arange(h, dtype=np.uint16)[:, None]
-    pts["ring"] = (h - 1 - rows) if frame.sensor.vendor == "velodyne" else rows
-    t_ns = np.where(frame.column_valid, frame.column_timestamp_ns - frame.timestamp_ns, 0)[None, :]
+
+def _no_return_rows(frame, mask: np.ndarray, like: np.dtype) -> np.ndarray:
+    """Rows in the layout of ``frame.points()`` for the pixels of ``mask`` (those without a return):
+    NaN x, y, z, range 0, and what the image says of the pixel (its reflectivity and signal, its
+    row, its firing time: the column's, or the frame's where no packet delivered the column)."""
+    slot, row, col = np.nonzero(mask)
+    out = np.zeros(slot.size, like)
+    out["x"] = out["y"] = out["z"] = np.nan
+    out["reflectivity"] = frame.reflectivity[mask]
+    out["row"], out["column"], out["return_slot"] = row, col, slot
+    t = np.where(frame.column_valid[col], frame.column_timestamp_ns[col], frame.timestamp_ns)
     if frame.pixel_time_offset_ns is not None:
-        t_ns = t_ns + frame.pixel_time_offset_ns
-    pts["time"] = _display(frame, np.broadcast_to(t_ns, (h, w)).astype(np.float64) * 1e-9)
-    pts["range"] = _display(frame, frame.range_mm)
-    return pts
+        t = t + frame.pixel_time_offset_ns[row, col]
+    out["timestamp_ns"] = t
+    if "signal" in (like.names or ()):  # a structured dtype: names is set
+        out["signal"] = frame.signal[mask]
+    if "near_ir" in (like.names or ()):
+        out["near_ir"] = frame.near_ir[row, col]
+    return out
 
 
-def pointcloud_messages(frame, xyz: np.ndarray | None = None, *,
+def frame_points(frame, points: np.ndarray | None = None) -> np.ndarray:
+    """``POINT_DTYPE[R, H, W]`` organised points of ``frame`` in display order (see module doc).
+
+    The returns are ``points`` (``frame.points()``, computed here when not given) through
+    :func:`cloud_fields`. An organised cloud also has a point for every pixel without a return,
+    which ``points()`` has no row for: those come from the image (:func:`_no_return_rows`).
+    Raises :class:`lidarpkt.errors.CalibrationError` when the sensor has no calibration.
+    """
+    if points is None:
+        points = frame.points()
+    hit = frame.has_return()
+    grid = np.empty(frame.shape, POINT_DTYPE)
+    grid[hit] = cloud_fields(frame, points)  # points() is hit's pixels in C order, as boolean indexing
+    grid[~hit] = cloud_fields(frame, _no_return_rows(frame, ~hit, points.dtype))
+    return _display(frame, grid)
+
+
+def pointcloud_messages(frame, points: np.ndarray | None = None, *,
                         frame_id: str | None = None) -> list[tuple[schemas.Topic, object]]:
     """``(topic, PointCloud2)`` for each return slot of ``frame``; ``header.stamp`` = sensor time,
-    ``header.frame_id`` = ``frame_id`` (default: the vendor's, :data:`FRAME_IDS`)."""
-    pts = frame_points(frame, xyz)
+    ``header.frame_id`` = ``frame_id`` (default: the vendor's, :data:`FRAME_IDS`); ``points`` is
+    ``frame.points()`` when already computed."""
+    pts = frame_points(frame, points)
     store = schemas.typestore()
     pc2 = store.types[schemas.POINTCLOUD2]
     r, h, w = pts.shape

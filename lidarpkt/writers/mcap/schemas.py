@@ -47,19 +47,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, PacketFormatError
-
-# --- message definitions not in the rosbags store (as the drivers' packages define them) ----
-MSG_DEFINITIONS: dict[str, str] = {
-    # ros-drivers/velodyne, velodyne_msgs (ROS 2)
-    "velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data\n",
-    "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
-    # ouster-ros, ouster_sensor_msgs
-    "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
-    # ros-drivers/nmea_msgs
-    "nmea_msgs/msg/Sentence": "std_msgs/Header header\nstring sentence\n",
-    # tier4/nebula, nebula_msgs: a stamped packet of any size (used for VLP-16 position packets)
-    "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
-}
+# the message types rosbags' store lacks (the drivers' packet types) and the store built with them: one
+# table for the readers and this writer
+from lidarpkt.sources.rosmsgs import MESSAGE_DEFINITIONS, typestore  # noqa: F401 (public here too)
 
 VELODYNE_SCAN = "velodyne_msgs/msg/VelodyneScan"
 PACKET_MSG = "ouster_sensor_msgs/msg/PacketMsg"
@@ -124,20 +114,6 @@ def image_topic(vendor: str, field: str, slot: int) -> Topic:
     """Image topic of one field (``range``, ``reflectivity``) and return slot."""
     prefix = "/velodyne" if vendor == "velodyne" else "/ouster"
     return Topic(f"{prefix}/{field}_image" + ("" if slot == 0 else str(slot + 1)), IMAGE)
-
-
-# --- the rosbags type store, built once --------------------------------------------------------
-@functools.lru_cache(maxsize=1)
-def typestore():
-    """A rosbags type store (ROS 2 Humble) with the driver messages above registered."""
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    types: dict = {}
-    for name, text in MSG_DEFINITIONS.items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    return store
 
 
 @functools.lru_cache(maxsize=None)

@@ -14,7 +14,7 @@ the output is ``STEM_0000.mcap``, ``STEM_0001.mcap`` …; every file is complete
 (metadata records and latched topics such as ``/ouster/metadata`` are written again).
 
 Errors: :class:`lidarpkt.errors.DiskFullError` when the disk is full (what was written is
-readable up to the last complete chunk), :class:`lidarpkt.errors.RecorderError` for other
+readable up to the last complete chunk), :class:`lidarpkt.errors.OutputError` for other
 write failures.
 """
 
@@ -27,7 +27,7 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, Callable
 
-from lidarpkt.errors import DiskFullError, RecorderError
+from lidarpkt.errors import DiskFullError, OutputError
 
 from . import schemas
 from .schemas import Topic
@@ -52,7 +52,7 @@ class McapWriter:
         clock: wall clock in seconds (tests pass a fake one).
 
     Raises:
-        RecorderError: the file cannot be created (with the reason).
+        OutputError: the file cannot be created (with the reason).
     """
 
     _writer: Writer  # the mcap writer of the current file (from the first _open_next on)
@@ -101,7 +101,7 @@ class McapWriter:
         try:
             self._file = open(path, "wb")
         except OSError as exc:
-            raise RecorderError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
+            raise OutputError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
         self.files.append(path)
         self._writer = Writer(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
                               index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
@@ -128,7 +128,7 @@ class McapWriter:
                     f"no space left while writing {where} ({self.messages_written} messages written): "
                     "the file is readable up to its last complete chunk; free space and record again"
                 ) from exc
-            raise RecorderError(f"writing {where} failed: {exc.strerror or exc}") from exc
+            raise OutputError(f"writing {where} failed: {exc.strerror or exc}") from exc
 
     def _abandon(self) -> None:
         """Stop writing after a failed write: close the file without a summary (still readable)."""
@@ -170,7 +170,7 @@ class McapWriter:
     def write(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         """Write one CDR message on ``topic``; log time = host receive time (ns since the epoch)."""
         if self._closed:
-            raise RecorderError(f"{self.path} is closed")
+            raise OutputError(f"{self.path} is closed")
         self._guard(lambda: self._add(topic, data, log_time_ns, publish_time_ns))
         self.tick()
 

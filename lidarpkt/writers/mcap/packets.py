@@ -1,4 +1,5 @@
-"""Raw packets into MCAP topics, losslessly, with loss accounting: shared by ``record`` and ``decode``.
+"""Raw packets into MCAP topics, losslessly, with loss accounting: what ``record`` writes live and
+the MCAP frame writer writes of a capture (``decode``).
 
 :class:`PacketSink` takes packet batches (one stream, one payload size, in arrival order)
 and writes them to a :class:`~lidarpkt.writers.mcap.writer.McapWriter`:
@@ -13,26 +14,28 @@ and writes them to a :class:`~lidarpkt.writers.mcap.writer.McapWriter`:
 
 Sensor descriptions go into MCAP metadata records named ``lidarpkt.sensor``; the Ouster
 metadata JSON also goes to the latched ``/ouster/metadata`` topic.
+
+:func:`capture_times` measures what frames need to be logged at the host time of a capture:
+each sensor's clock offset and the capture's first and last packet times.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from lidarpkt.packet import Endpoint, PacketBatch
+from lidarpkt import streams
+from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
 from lidarpkt.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
 
-from lidarpkt.writers.mcap import schemas
-from lidarpkt.writers.mcap.writer import McapWriter
-
-from . import streams
-
+from . import schemas
+from .writer import McapWriter
 
 
 def velodyne_sensor_time_ns(timestamp_us: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
@@ -86,11 +89,7 @@ class PacketSink:
 
     def _metadata_for(self, batch: PacketBatch):
         """The Ouster metadata of the sensor sending ``batch`` (by destination port), else the first."""
-        if len(self._ouster_mds) > 1 and batch.dst is not None:
-            for md in self._ouster_mds:
-                if batch.dst.port in (md.lidar_port, md.imu_port):
-                    return md
-        return self.ouster_metadata
+        return metadata_for(batch, self._ouster_mds)
 
     # ----------------------------------------------------------------- metadata
     def _write_ouster_metadata(self, md, log_time_ns: int) -> None:
@@ -241,15 +240,54 @@ class PacketSink:
         return out
 
 
-def batch_from_packets(items: Sequence[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
-    """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
-    each in arrival order (streams in order of first appearance)."""
-    groups: dict[tuple, list] = {}
-    for t, src, dst, payload in items:
-        groups.setdefault((src, dst, len(payload)), []).append((t, payload))
-    out = []
-    for (src, dst, size), rows in groups.items():
-        times = np.fromiter((t for t, _ in rows), np.int64, len(rows))
-        arr = np.frombuffer(b"".join(p for _, p in rows), np.uint8).reshape(len(rows), size)
-        out.append(PacketBatch(src, dst, times, arr, np.zeros(len(rows), np.int64)))
-    return out
+def metadata_for(batch: PacketBatch, ouster_metadata: Sequence[Any]):
+    """Of the Ouster metadata given (one per sensor), the one whose lidar or IMU port is ``batch``'s
+    destination port, else the first; None when none is given."""
+    if len(ouster_metadata) > 1 and batch.dst is not None:
+        for md in ouster_metadata:
+            if batch.dst.port in (md.lidar_port, md.imu_port):
+                return md
+    return ouster_metadata[0] if ouster_metadata else None
+
+
+def capture_times(path: str | os.PathLike[str], ouster_metadata: Sequence[Any] = (),
+                  look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
+    """(clock offsets, first and last packet host time in ns) of one capture.
+
+    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
+    among the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the
+    hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
+    kept inside the capture's span (its first and last packet). ``ouster_metadata``: loaded Ouster
+    metadata, one per sensor (the capture's own ``/ouster/metadata`` serves when none is given).
+
+    Raises what :func:`lidarpkt.sources.open_packet_source` raises.
+    """
+    from lidarpkt.options import load_ouster_metadata
+    from lidarpkt.sources import open_packet_source
+
+    mds = list(ouster_metadata)
+    offsets: dict[str, int] = {}
+    start = end = None
+    reader = open_packet_source(path)
+    for k, batch in enumerate(reader.batches()):
+        if len(batch) == 0:
+            continue
+        t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
+        start = t0 if start is None else min(start, t0)
+        end = t1 if end is None else max(end, t1)
+        src = str(batch.src) if batch.src is not None else "unknown source"
+        if k >= look_ahead or src in offsets:
+            continue
+        if not mds and reader.ouster_metadata():
+            mds = load_ouster_metadata(reader.ouster_metadata())
+        md = metadata_for(batch, mds)
+        kind = streams.classify_size(batch.payload_size, md)
+        host = int(batch.timestamp_ns[0])
+        if kind == streams.VELODYNE_DATA:
+            ts_us = vlp.as_data_packets(batch.payload[:1])["timestamp_us"]
+            offsets[src] = host - int(velodyne_sensor_time_ns(ts_us, batch.timestamp_ns[:1])[0])
+        elif kind == streams.OUSTER_LIDAR and md is not None:
+            dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
+            first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
+            offsets[src] = host - int(first["timestamp_ns"])
+    return offsets, start, end

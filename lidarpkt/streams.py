@@ -1,4 +1,5 @@
-"""What each received datagram is, and which ones are missing: the recorder's cheap live path.
+"""What each received datagram is, and which ones are missing: the cheap path of recording and
+writing raw packets (no decoding).
 
 :func:`classify_size` names the stream of a payload from its size (and the Ouster metadata when
 given); :class:`VelodyneLoss` and :class:`OusterLoss` count lost packets and rotations from the
@@ -18,22 +19,57 @@ A step back (or a repeat) is counted as out of order, never as loss. A jump of m
 
 from __future__ import annotations
 
+from enum import Enum
+
 from lidarpkt.decoder import INTERRUPTION_S, StreamCounts
 from lidarpkt.ouster import stream as ouster_stream
 from lidarpkt.velodyne import stream as velodyne_stream
 
-VELODYNE_DATA = "velodyne_data"
-VELODYNE_POSITION = "velodyne_position"
-OUSTER_LIDAR = "ouster_lidar"
-OUSTER_IMU = "ouster_imu"
-OTHER = "other"
+
+class StreamKind(str, Enum):
+    """What a stream of datagrams is. A ``str`` (its value) so that it reads and prints as the word."""
+
+    VELODYNE_DATA = "velodyne_data"
+    VELODYNE_POSITION = "velodyne_position"
+    OUSTER_LIDAR = "ouster_lidar"
+    OUSTER_IMU = "ouster_imu"
+    OTHER = "other"
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+    @classmethod
+    def of(cls, vendor: str, kind: str) -> "StreamKind":
+        """The kind of a vendor's stream by the vendor's own name of it (``("velodyne", "data")``, the
+        :class:`lidarpkt.router.Match` fields); :attr:`OTHER` for a pair this table does not name."""
+        return _KINDS.get((vendor, kind), cls.OTHER)
+
+    @property
+    def vendor(self) -> str | None:
+        """``"velodyne"``, ``"ouster"``, or None for :attr:`OTHER`."""
+        return None if self is StreamKind.OTHER else self.value.split("_")[0]
+
+    @property
+    def is_lidar(self) -> bool:
+        """A stream of range measurements (the one frames are made of)."""
+        return self in (StreamKind.VELODYNE_DATA, StreamKind.OUSTER_LIDAR)
+
+
+VELODYNE_DATA = StreamKind.VELODYNE_DATA
+VELODYNE_POSITION = StreamKind.VELODYNE_POSITION
+OUSTER_LIDAR = StreamKind.OUSTER_LIDAR
+OUSTER_IMU = StreamKind.OUSTER_IMU
+OTHER = StreamKind.OTHER
 
 _KINDS = {("velodyne", "data"): VELODYNE_DATA, ("velodyne", "position"): VELODYNE_POSITION,
           ("ouster", "lidar"): OUSTER_LIDAR, ("ouster", "imu"): OUSTER_IMU}
 
 
-def classify_size(size: int, ouster_metadata=None) -> str:
-    """Stream kind of a ``size``-byte payload: one of the module constants.
+def classify_size(size: int, ouster_metadata=None) -> StreamKind:
+    """Stream kind of a ``size``-byte payload.
 
     ``ouster_metadata`` (:class:`lidarpkt.ouster.metadata.OusterMetadata`) makes the
     non-legacy Ouster profiles recognisable; without it only LEGACY sizes are.
@@ -52,5 +88,5 @@ VelodyneLoss = velodyne_stream.PacketCounter
 #: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.ouster.stream.PacketCounter`.
 OusterLoss = ouster_stream.PacketCounter
 
-__all__ = ["VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "OTHER", "INTERRUPTION_S",
+__all__ = ["StreamKind", "VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "OTHER", "INTERRUPTION_S",
            "classify_size", "LossCount", "VelodyneLoss", "OusterLoss"]

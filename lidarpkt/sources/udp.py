@@ -1,6 +1,6 @@
-"""Live UDP capture: a receive thread that never waits for the writer.
+"""Live UDP capture as a packet source: a receive thread that never waits for its consumer.
 
-:class:`UdpCapture` binds one socket per port (unicast, broadcast or multicast), asks the
+:class:`UdpSource` binds one socket per port (unicast, broadcast or multicast), asks the
 kernel for a large receive buffer (32 MiB; ``SO_RCVBUFFORCE`` when the process may, else
 ``SO_RCVBUF``, capped by ``net.core.rmem_max``) and reports what it granted. A thread
 reads datagrams with their kernel receive time (``SO_TIMESTAMPNS``), their destination
@@ -10,8 +10,13 @@ bounded by a byte budget: when the consumer falls behind by more than ``queue_by
 new datagrams are dropped *and counted* (``queue_overflow``), the socket is never left
 unread.
 
+It is a :class:`~lidarpkt.sources.protocol.PacketSource` like a capture file's reader:
+:meth:`UdpSource.batches` yields same-stream batches as they arrive (until :meth:`~UdpSource.stop`),
+:meth:`UdpSource.poll` the batches received so far, for a loop that has other things to do between
+them (``record``, ``view``). ``open_packet_source("udp://[ADDRESS]:PORT[,PORT...]")`` opens one.
+
 Errors: :class:`lidarpkt.errors.PortInUseError` when a port is already bound,
-:class:`lidarpkt.errors.RecorderError` for any other socket failure (with the reason).
+:class:`lidarpkt.errors.ReceiveError` for any other socket failure (with the reason).
 """
 
 from __future__ import annotations
@@ -26,8 +31,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from lidarpkt.errors import PortInUseError, RecorderError
-from lidarpkt.packet import Endpoint
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from lidarpkt.errors import PortInUseError, ReceiveError
+from lidarpkt.packet import Endpoint, Packet, PacketBatch
 
 # Linux socket options Python does not name
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
@@ -59,7 +68,7 @@ class CaptureStats:
         return sum(self.kernel_drops.values())
 
 
-class UdpCapture:
+class UdpSource:
     """Receives UDP datagrams on ``ports`` in a background thread.
 
     Args:
@@ -71,19 +80,20 @@ class UdpCapture:
         queue_bytes: payload bytes allowed to wait for the consumer before drops are counted.
 
     Raises:
-        PortInUseError, RecorderError: from :meth:`open` (called by the constructor).
+        PortInUseError, ReceiveError: from :meth:`open` (called by the constructor).
     """
 
     def __init__(self, ports: list[int], *, bind: str | None = None, multicast: str | None = None,
                  interface: str | None = None, rcvbuf_bytes: int = 32 << 20, queue_bytes: int = 256 << 20) -> None:
         if not ports:
-            raise RecorderError("no UDP port to listen on: give --port (2368 VLP-16 data, 8308 position, "
+            raise ReceiveError("no UDP port to listen on: give --port (2368 VLP-16 data, 8308 position, "
                                 "7502/7503 Ouster lidar/IMU)")
         self.ports = list(dict.fromkeys(int(p) for p in ports))
         self.multicast = multicast
         self.bind_address = bind or (multicast if multicast else "0.0.0.0")
         self.interface = interface
         self.queue_bytes = queue_bytes
+        self.path = f"udp://{self.bind_address}:{','.join(map(str, self.ports))}"  # its name, as a file's path
         self.stats = CaptureStats(rcvbuf_requested=rcvbuf_bytes)
         self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
         # drain() waits on this, not on SimpleQueue.get(timeout): CPython's SimpleQueue.get waits
@@ -131,12 +141,12 @@ class UdpCapture:
                         "(another recorder or the sensor's driver?): stop it or choose another --port"
                     ) from None
                 if exc.errno == errno.EADDRNOTAVAIL:
-                    raise RecorderError(f"cannot listen on {self.bind_address}:{port}: no local interface "
+                    raise ReceiveError(f"cannot listen on {self.bind_address}:{port}: no local interface "
                                         "has that address (check --bind)") from None
                 if exc.errno == errno.EACCES:
-                    raise RecorderError(f"not allowed to listen on UDP port {port} (ports below 1024 need "
+                    raise ReceiveError(f"not allowed to listen on UDP port {port} (ports below 1024 need "
                                         "privileges)") from None
-                raise RecorderError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror or exc}") from None
+                raise ReceiveError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror or exc}") from None
             if self.multicast:
                 self._join(sock, self.multicast)
             sock.setblocking(False)
@@ -158,7 +168,7 @@ class UdpCapture:
         try:
             group = socket.inet_aton(multicast)
         except OSError:
-            raise RecorderError(f"--multicast {multicast!r} is not an IPv4 address") from None
+            raise ReceiveError(f"--multicast {self.multicast!r} is not an IPv4 address") from None
         ifindex, ifaddr = 0, b"\x00\x00\x00\x00"
         if self.interface:
             try:
@@ -167,12 +177,12 @@ class UdpCapture:
                 try:
                     ifindex = socket.if_nametoindex(self.interface)
                 except OSError:
-                    raise RecorderError(f"--interface {self.interface!r} is neither an IPv4 address nor "
+                    raise ReceiveError(f"--interface {self.interface!r} is neither an IPv4 address nor "
                                         "a network interface of this machine") from None
         try:
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, group + ifaddr + struct.pack("@i", ifindex))
         except OSError as exc:
-            raise RecorderError(f"cannot join multicast group {multicast}: {exc.strerror or exc}") from None
+            raise ReceiveError(f"cannot join multicast group {self.multicast}: {exc.strerror or exc}") from None
 
     # ----------------------------------------------------------------- thread
     def start(self) -> None:
@@ -262,7 +272,7 @@ class UdpCapture:
     def drain(self, timeout: float = 0.1, max_items: int = 4096) -> list[Item]:
         """Datagrams received so far, oldest first (waits up to ``timeout`` s for the first).
 
-        Raises :class:`RecorderError` if the receive thread failed.
+        Raises :class:`ReceiveError` if the receive thread failed.
         """
         items: list[Item] = []
         if self._queue.empty() and timeout > 0:
@@ -275,8 +285,33 @@ class UdpCapture:
             pass
         self._bytes_out += sum(len(it[3]) for it in items)
         if not items and self.error is not None:
-            raise RecorderError(f"the UDP receive thread failed: {self.error!r}")
+            raise ReceiveError(f"the UDP receive thread failed: {self.error!r}")
         return items
+
+    def poll(self, timeout: float = 0.1, max_items: int = 4096) -> list[PacketBatch]:
+        """The datagrams received so far as same-stream batches (:func:`batch_from_packets`), waiting up to
+        ``timeout`` s for the first. Raises :class:`~lidarpkt.errors.ReceiveError` if the receive thread failed."""
+        return batch_from_packets(self.drain(timeout, max_items))
+
+    def batches(self) -> Iterator[PacketBatch]:
+        """Batches as they arrive (starting the receive thread if it is not running), until :meth:`stop`
+        is called and everything received has been handed out."""
+        if self._thread is None:
+            self.start()
+        while not self._stop.is_set():
+            yield from self.poll(0.1)
+        while items := self.drain(timeout=0.0, max_items=65536):
+            yield from batch_from_packets(items)
+
+    def packets(self) -> Iterator[Packet]:
+        """The datagrams one by one, as :meth:`batches` delivers them."""
+        for batch in self.batches():
+            for t, row in zip(batch.timestamp_ns.tolist(), batch.payload):
+                yield Packet(t, batch.src, batch.dst, row.tobytes())
+
+    def ouster_metadata(self) -> str | None:
+        """None: the network carries no metadata (an Ouster sensor serves it over HTTP: :mod:`lidarpkt.ouster.sensor_http`)."""
+        return None
 
     @property
     def queued_bytes(self) -> int:
@@ -294,8 +329,39 @@ class UdpCapture:
             sock.close()
         self._sockets.clear()
 
-    def __enter__(self) -> "UdpCapture":
+    def __enter__(self) -> "UdpSource":
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def batch_from_packets(items: Sequence[tuple[int, Endpoint | None, Endpoint | None, bytes]]) -> list[PacketBatch]:
+    """Group ``(host_time_ns, src, dst, payload)`` items into same-stream, same-size batches,
+    each in arrival order (streams in order of first appearance)."""
+    groups: dict[tuple, list] = {}
+    for t, src, dst, payload in items:
+        groups.setdefault((src, dst, len(payload)), []).append((t, payload))
+    out = []
+    for (src, dst, size), rows in groups.items():
+        times = np.fromiter((t for t, _ in rows), np.int64, len(rows))
+        arr = np.frombuffer(b"".join(p for _, p in rows), np.uint8).reshape(len(rows), size)
+        out.append(PacketBatch(src, dst, times, arr, np.zeros(len(rows), np.int64)))
+    return out
+
+
+def parse_udp_url(url: str) -> tuple[str | None, list[int]]:
+    """``"udp://[ADDRESS]:PORT[,PORT...]"`` → (bind address or None for every interface, ports).
+
+    Raises :class:`~lidarpkt.errors.UsageError` naming the URL."""
+    from lidarpkt.errors import UsageError
+
+    rest = url[len("udp://"):] if url.startswith("udp://") else url
+    host, sep, ports = rest.rpartition(":")
+    try:
+        numbers = [int(p) for p in ports.split(",")] if sep else []
+    except ValueError:
+        numbers = []
+    if not numbers or not all(0 < p < 65536 for p in numbers):
+        raise UsageError(f"{url}: expected udp://[ADDRESS]:PORT[,PORT...], e.g. udp://:2368,8308")
+    return (host.strip("[]") or None), numbers

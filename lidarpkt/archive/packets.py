@@ -1,0 +1,207 @@
+"""Back to pcap: the raw packets of any capture that holds them, written as a classic pcap
+(``lidarpkt export --format pcap``), for VeloView, ouster-cli, velodyne_decoder, Wireshark.
+
+Every packet the capture's packet reader yields (:func:`lidarpkt.sources.open_packet_source`:
+pcap, pcapng, MCAP, ROS bags), lidar and IMU/position packets alike, goes out in capture order
+with its capture time (nanoseconds) and its UDP payload byte for byte, framed by
+:class:`lidarpkt.writers.pcap.PcapBatchWriter` (Ethernet, IPv4 fragmented at MTU 1500, valid
+checksums). A pcap keeps its packets' addresses and ports. A ROS bag or an MCAP records neither,
+so each stream gets its vendor's factory defaults (:func:`default_endpoints`):
+
+=====================  ===============================  ==========================================
+stream                 source → destination             why
+=====================  ===============================  ==========================================
+VLP-16 data (1206 B)   192.168.1.201:2368 → broadcast   the VLP-16 manual's factory IP and ports;
+VLP-16 position (512)  192.168.1.201:8308 → broadcast   it broadcasts by default
+Ouster lidar / IMU     169.254.0.2 → 169.254.0.1        the metadata's ``udp_port_lidar`` /
+                                                        ``udp_port_imu`` (7502 / 7503 without it);
+                                                        link-local, the sensor's fallback address
+anything else          192.168.1.201:2368 → broadcast   the common lidar default
+=====================  ===============================  ==========================================
+
+A bag's or an MCAP's file order need not be its capture order (a writer may store each topic's
+messages apart, as ``decode`` does with a chunk's IMU packets): their packets go out in the order
+of their capture times (stable: equal times keep the file's order), sorted within a window of
+:data:`REORDER_WINDOW_NS` of capture time, which bounds the memory; a packet that comes later
+than that in the file keeps its file place. A pcap's record order is its capture order.
+
+An Ouster OSF file holds decoded scans, not packets: :func:`write_packets_pcap` refuses it
+with one line saying so.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from lidarpkt.errors import CaptureFormatError, UnsupportedContainerError
+from lidarpkt.packet import Endpoint, PacketBatch
+
+__all__ = ["PacketExport", "default_endpoints", "time_ordered", "write_packets_pcap"]
+
+# VLP-16 user manual, factory settings: sensor 192.168.1.201, data port 2368, position port 8308,
+# destination broadcast
+VELODYNE_SENSOR = "192.168.1.201"
+VELODYNE_DATA_PORT = 2368
+VELODYNE_POSITION_PORT = 8308
+BROADCAST = "255.255.255.255"
+# an Ouster sensor without a DHCP lease takes a link-local address; the host is the other end
+OUSTER_SENSOR = "169.254.0.2"
+OUSTER_HOST = "169.254.0.1"
+OSF_IDENTIFIER = b"OSF$"  # the flatbuffer file identifier at bytes 8-11 of an OSF file
+REORDER_WINDOW_NS = 2_000_000_000  # a bag's packets are put in time order within this much capture time
+
+
+@dataclass
+class PacketExport:
+    """What :func:`write_packets_pcap` wrote: ``packets``; ``defaulted``: for a bag or MCAP, the
+    endpoints given to each payload size (``{1206: "192.168.1.201:2368 → 255.255.255.255:2368"}``)."""
+
+    packets: int = 0
+    defaulted: dict[int, str] = field(default_factory=dict)
+
+
+def _is_osf(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    with path.open("rb") as fh:
+        return fh.read(12)[8:12] == OSF_IDENTIFIER
+
+
+def default_endpoints(batch: PacketBatch, ouster_metadata: Sequence[Any] = ()) -> tuple[Endpoint, Endpoint]:
+    """(source, destination) for a batch whose container kept no addresses: the vendor defaults of the
+    module doc, chosen by what the packets are (Ouster: by the metadata when given, else its guess)."""
+    from lidarpkt import ouster
+    from lidarpkt.ouster.metadata import DEFAULT_IMU_PORT, DEFAULT_LIDAR_PORT
+    from lidarpkt.velodyne.stream import stream_kind
+
+    kind = stream_kind(batch.payload_size)
+    if kind is not None:
+        port = VELODYNE_DATA_PORT if kind == "data" else VELODYNE_POSITION_PORT
+        return Endpoint(VELODYNE_SENSOR, port), Endpoint(BROADCAST, port)
+    match = ouster.classify(batch, ouster_metadata) if ouster_metadata else None
+    if match is not None:
+        what, md = match
+        port = md.lidar_port if what == "lidar" else md.imu_port
+    else:
+        described = ouster.describe_stream(batch)
+        if described is None:
+            return Endpoint(VELODYNE_SENSOR, VELODYNE_DATA_PORT), Endpoint(BROADCAST, VELODYNE_DATA_PORT)
+        port = DEFAULT_IMU_PORT if described["kind"] == "Ouster IMU" else DEFAULT_LIDAR_PORT
+    return Endpoint(OUSTER_SENSOR, port), Endpoint(OUSTER_HOST, port)
+
+
+def time_ordered(batches: Iterable[PacketBatch], window_ns: int = REORDER_WINDOW_NS) -> Iterator[PacketBatch]:
+    """The packets of ``batches`` in capture-time order (stable), re-indexed in that order, as one batch
+    per stream and release, in the order of their first packet (as
+    :class:`~lidarpkt.writers.pcap.PcapBatchWriter` takes them). Packets are held until the latest
+    time seen is ``window_ns`` past them (released two windows at a time), so memory holds at most
+    about twice that much capture time."""
+    pending: list[PacketBatch] = []
+    oldest = latest = None
+    next_index = 0
+    for batch in batches:
+        if len(batch) == 0:
+            continue
+        pending.append(batch)
+        low, high = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
+        oldest = low if oldest is None else min(oldest, low)
+        latest = high if latest is None else max(latest, high)
+        if oldest <= latest - 2 * window_ns:
+            out, pending = _release(pending, latest - window_ns, next_index)
+            next_index += sum(len(b) for b in out)
+            oldest = min((int(b.timestamp_ns.min()) for b in pending), default=None)
+            yield from out
+    if pending:
+        yield from _release(pending, None, next_index)[0]
+
+
+def _release(pending: list[PacketBatch], until_ns: int | None,
+             first: int) -> tuple[list[PacketBatch], list[PacketBatch]]:
+    """(the held packets with a time <= ``until_ns`` (all: None) in time order, indexed from ``first``,
+    one batch per stream; the rest, one batch per stream, still held)."""
+    groups: dict[tuple, list[PacketBatch]] = {}
+    for b in pending:
+        groups.setdefault((b.src, b.dst, b.payload_size), []).append(b)
+    merged = [PacketBatch(g[0].src, g[0].dst, np.concatenate([b.timestamp_ns for b in g]),
+                          np.concatenate([b.payload for b in g]), np.concatenate([b.index for b in g]))
+              if len(g) > 1 else g[0] for g in groups.values()]
+    times = np.concatenate([b.timestamp_ns for b in merged])
+    order_in = np.concatenate([b.index for b in merged])
+    take = np.ones(times.size, bool) if until_ns is None else times <= until_ns
+    sel = np.flatnonzero(take)
+    sel = sel[np.lexsort((order_in[sel], times[sel]))]  # by time, then the file's order
+    new_index = np.empty(times.size, np.int64)
+    new_index[sel] = first + np.arange(sel.size)
+    out, keep, at = [], [], 0
+    for b in merged:
+        mine = slice(at, at + len(b))
+        at += len(b)
+        taken = np.flatnonzero(take[mine])
+        if taken.size:
+            rows = taken[np.argsort(new_index[mine][taken], kind="stable")]
+            out.append(PacketBatch(b.src, b.dst, b.timestamp_ns[rows], b.payload[rows], new_index[mine][rows]))
+        rest = np.flatnonzero(~take[mine])
+        if rest.size:
+            keep.append(PacketBatch(b.src, b.dst, b.timestamp_ns[rest], b.payload[rest], b.index[rest]))
+    out.sort(key=lambda b: int(b.index[0]))
+    return out, keep
+
+
+def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str], *,
+                       metadata: Sequence[Any] = ()) -> PacketExport:
+    """Write every UDP packet of the capture ``path`` to the pcap ``out``, in capture order.
+
+    Args:
+        path: pcap/pcapng, MCAP, rosbag2 (folder or .db3) or ROS 1 bag.
+        out: the pcap to write (overwritten).
+        metadata: Ouster metadata (paths, JSON text or loaded) naming the ports of a bag's Ouster
+            streams; an MCAP's own ``/ouster/metadata`` serves when none is given.
+
+    Returns:
+        a :class:`PacketExport`.
+
+    Raises:
+        UnsupportedContainerError: an OSF file, or no capture lidarpkt reads.
+        CaptureFormatError: a bag or MCAP without raw packet topics, or a damaged capture (what
+            was read before the damage is in ``out``).
+    """
+    from lidarpkt.options import load_ouster_metadata
+    from lidarpkt.sources import open_packet_source
+    from lidarpkt.sources.magic import container_kind
+    from lidarpkt.writers.pcap import PcapBatchWriter
+
+    src_path = Path(path)
+    if _is_osf(src_path):
+        raise UnsupportedContainerError(
+            f"{src_path} is an Ouster OSF file: it holds decoded scans, not the sensor's UDP packets, so there "
+            "are no packets to write as a pcap; export --format pcap takes a pcap, pcapng, MCAP or ROS bag "
+            "that holds the packets")
+    kind = container_kind(src_path)
+    source = open_packet_source(src_path)
+    given = load_ouster_metadata(list(metadata)) if metadata else []
+    result = PacketExport()
+    chosen: dict[int, tuple[Endpoint, Endpoint]] = {}  # a bag's endpoints by payload size
+    batches = source.batches() if kind == "pcap" else time_ordered(source.batches())
+    with PcapBatchWriter(out) as writer:
+        for batch in batches:
+            src = dst = None
+            if batch.src is None or batch.dst is None:
+                size = batch.payload_size
+                if size not in chosen:
+                    mds = given
+                    if not mds and source.ouster_metadata():  # an MCAP's own, once read past
+                        mds = load_ouster_metadata(source.ouster_metadata())
+                    chosen[size] = default_endpoints(batch, mds)
+                    result.defaulted[size] = f"{chosen[size][0]} → {chosen[size][1]}"
+                src, dst = chosen[size]
+            writer.write(batch, src, dst)
+    result.packets = writer.packets_written
+    if result.packets == 0 and kind != "pcap":
+        raise CaptureFormatError(f"{src_path}: holds no topic of raw sensor packets (velodyne_msgs, "
+                                 "ouster_sensor_msgs, nebula_msgs); there are no packets to write as a pcap")
+    return result
