@@ -21,6 +21,11 @@ Targets (each checks more than "does not crash"):
   packets of its size for :class:`~lidarpkt.ouster.OusterDecoder`; frames must have consistent shapes.
 - ``metadata``: the input is an Ouster metadata JSON for ``load_metadata``; a metadata it accepts must
   also build a decoder and decode a packet of its own size.
+- ``hesai``: the first byte picks a Pandar model (bits 0-2) and whether the decoder is told it or detects
+  it (bit 3), the second the batch length; the rest is cut into packets of the model's size and pushed
+  to :class:`~lidarpkt.hesai.HesaiDecoder` (with a calibration of the model's channels), and described
+  by ``describe_stream``. Every packet is counted (decoded, malformed, duplicate or late); frames have
+  the model's rows, 1-3 slots and one azimuth and time per column; XYZ is finite.
 - ``bags``: the first byte picks the container (see :func:`bag_files`): an ``.mcap`` file, a ROS 1 ``.bag``,
   a rosbag2 sqlite3 bag (opened by its ``.db3`` or its directory) or a rosbag2 directory with MCAP
   storage; for the rosbag2 kinds the input also carries the ``metadata.yaml``. ``BagReader.batches()``
@@ -55,9 +60,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
-TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata", "bags")
+TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata", "bags", "hesai")
 MAX_LEN = {"pcap": 70_000, "reassembly": 4096, "velodyne": 1206 * 4 + 600, "ouster": 70_000, "metadata": 16_384,
-           "bags": 70_000}
+           "bags": 70_000, "hesai": 1266 * 5 + 2}
 
 
 class Finding(AssertionError):
@@ -77,6 +82,7 @@ def _import_lidarpkt(instrument: bool, target: str = ""):
                 import rosbags.highlevel  # noqa: F401
                 import rosbags.rosbag1  # noqa: F401
                 import rosbags.rosbag2  # noqa: F401
+            import lidarpkt.hesai.frames  # noqa: F401
             import lidarpkt.sources.bags  # noqa: F401
             import lidarpkt.ouster  # noqa: F401
             import lidarpkt.sources.pcap_reader  # noqa: F401
@@ -216,6 +222,45 @@ def make_velodyne_target():
             if h != 16 or r not in (1, 2) or f.column_valid.shape != (w,) or f.azimuth_deg.shape != (w,):
                 raise Finding(f"frame shapes {f.range_mm.shape} / {f.column_valid.shape}")
             f.xyz()
+
+    return target
+
+
+def make_hesai_target():
+    import numpy as np
+
+    from lidarpkt.hesai import HesaiCalibration, HesaiDecoder, describe_stream
+    from lidarpkt.hesai.models import MODELS
+    from lidarpkt.packet import PacketBatch
+
+    def target(data: bytes) -> None:
+        if len(data) < 3:
+            return
+        model = MODELS[data[0] % len(MODELS)]
+        step = 1 + data[1] % 4
+        size = model.sizes[(data[0] >> 4) % len(model.sizes)]
+        body = data[2:]
+        n = len(body) // size
+        payload = np.frombuffer(body[: n * size], np.uint8).reshape(n, size)
+        cal = HesaiCalibration(np.linspace(15, -25, model.channels), np.linspace(-3, 3, model.channels), "fuzz")
+        dec = HesaiDecoder(model=None if data[0] & 8 else model, calibration=cal, max_frame_columns=64)
+        host = np.arange(n, dtype=np.int64) * 500_000 + 1_600_000_000_000_000_000
+        frames = []
+        for i in range(0, n, step):
+            batch = PacketBatch.from_payloads(payload[i : i + step], host[i : i + step], first_index=i)
+            frames += dec.push(batch)
+            describe_stream(batch)
+        frames += dec.finish()
+        st = dec.stats
+        if st.packets != n or st.decoded_packets + st.malformed + st.duplicate_packets + st.late_packets != n:
+            raise Finding(f"{n} packets pushed: {st}")
+        for f in frames:
+            r, h, w = f.range_mm.shape
+            if h != model.channels or r not in (1, 2, 3) or f.azimuth_deg.shape != (w,) \
+                    or f.column_timestamp_ns.shape != (w,) or f.pixel_time_offset_ns.shape != (h, w):
+                raise Finding(f"frame shapes {f.range_mm.shape} / {f.azimuth_deg.shape}")
+            if not np.isfinite(f.xyz()).all():
+                raise Finding("XYZ not finite")
 
     return target
 
@@ -405,6 +450,7 @@ MAKERS = {
     "ouster": make_ouster_target,
     "metadata": make_metadata_target,
     "bags": make_bags_target,
+    "hesai": make_hesai_target,
 }
 
 
@@ -663,6 +709,19 @@ def seeds(target: str) -> list[bytes]:
                 out.append(text)
     elif target == "bags":
         out += _bag_seeds()
+    elif target == "hesai":
+        from lidarpkt.hesai.models import MODELS
+        from lidarpkt.sources.bags import BagReader
+
+        for bag in sorted(glob.glob(str(EXTERNAL / "nebula/hesai/*/*/metadata.yaml"))):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                batch = next(iter(BagReader(Path(bag).parent).batches()))
+            i = next(k for k, m in enumerate(MODELS) if batch.payload_size in m.sizes)
+            pick = MODELS[i].sizes.index(batch.payload_size) << 4
+            k = max(1, min(4, MAX_LEN["hesai"] // batch.payload_size))
+            out.append(bytes([i | pick, 1]) + batch.payload[:k].tobytes())
+            out.append(bytes([i | pick | 8, 0]) + batch.payload[:k].tobytes())
     return out
 
 

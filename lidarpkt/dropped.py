@@ -68,8 +68,12 @@ def _ouster(st: Any) -> DropCounts:
                       malformed=st.crc_failures + st.bad_measurement_id, mismatched=st.size_mismatch + st.id_mismatch)
 
 
+def _hesai(st: Any) -> DropCounts:
+    return DropCounts(lost=st.lost_packets, late=st.late_packets, duplicate=st.duplicate_packets, malformed=st.malformed)
+
+
 #: each vendor decoder's ``stats`` → its :class:`DropCounts` (by the vendor of the router's sensor key)
-VENDOR_DROPS: dict[str, Callable[[Any], DropCounts]] = {"velodyne": _velodyne, "ouster": _ouster}
+VENDOR_DROPS: dict[str, Callable[[Any], DropCounts]] = {"velodyne": _velodyne, "ouster": _ouster, "hesai": _hesai}
 
 
 def dropped_counts(reader: Any) -> DropCounts:

@@ -34,7 +34,7 @@ class SensorInfo:
     Ouster legacy packet size) and from the Ouster metadata JSON otherwise.
 
     Attributes:
-        vendor: ``"velodyne"`` or ``"ouster"``.
+        vendor: ``"velodyne"``, ``"ouster"`` or ``"hesai"``.
         model: e.g. ``"VLP-16"``, ``"OS-1-64"``.
         rows: H, beams per column.
         columns_per_frame: W of a full frame. Ouster: exact (512/1024/2048). VLP-16:
@@ -50,6 +50,8 @@ class SensorInfo:
             rotation rate the grid every part of lidarpkt uses by default.
         geometry: computes XYZ for frames of this sensor; ``None`` if no calibration.
         serial, firmware, profile, product_id, init_id: as the sensor reports them, ``None`` if unknown.
+        return_order: Ouster ``return_order`` (``STRONGEST_TO_WEAKEST``, ``FARTHEST_TO_NEAREST``,
+            ``NEAREST_TO_FARTHEST``): what orders the return slots; ``None`` otherwise.
         pixel_shift_by_row: ``int[H]`` Ouster stagger shifts (destaggering), ``None`` otherwise.
         source: where the packets came from (``"192.168.1.201:2368"``), for reports.
         metadata: the raw metadata document (Ouster JSON as a dict), empty if none.
@@ -74,6 +76,7 @@ class SensorInfo:
     pixel_shift_by_row: np.ndarray | None = None
     source: str | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    return_order: str | None = None
 
     def describe(self) -> dict[str, Any]:
         """A JSON-ready summary (for ``info`` and MCAP metadata records)."""
@@ -115,7 +118,7 @@ class Frame:
 
     Attributes:
         sensor: the :class:`SensorInfo` of the sensor that sent it.
-        frame_id: Ouster: the frame id of its packets. VLP-16: rotation counter from the
+        frame_id: Ouster: the frame id of its packets. VLP-16 and Hesai: rotation counter from the
             start of the input (0 = the first, possibly partial, rotation).
         range_mm: ``uint32[R, H, W]`` range in millimetres (exact sensor units converted);
             0 = the sensor fired and reported no return.
@@ -337,6 +340,11 @@ def _grid_positions(azimuth_deg: np.ndarray, timestamp_ns: np.ndarray, res: floa
     measured = np.mod(azimuth_deg, 360.0)
     if measured.size < 8:
         return measured / res + 1e-9
+    steps = measured / res
+    if np.all(np.abs(steps - np.rint(steps)) < 1e-6):
+        # a sensor that reports its firings on the grid itself (Hesai XT and QT: 0.18° and 0.4° steps): each
+        # firing is its bin; a line fitted through their times (µs jitter) would only move some across an edge
+        return np.rint(steps) + 1e-9
     turns = np.concatenate([[0], np.cumsum(np.diff(measured) < -180.0)])  # unwrap through 0°
     unwrapped = measured + 360.0 * turns
     t = (timestamp_ns - timestamp_ns[0]).astype(np.float64)

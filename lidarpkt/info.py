@@ -2,7 +2,8 @@
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
-describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`):
+describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`,
+:func:`lidarpkt.hesai.describe_stream`: Hesai Pandar data, model, protocol, return mode, motor speed):
 VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
@@ -54,12 +55,16 @@ def _iso(ns: int) -> str:
 def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None, str | None]:
     """(the vendor module's description of the stream, the vendor whose module described it)."""
     # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
+    from .hesai.detect import describe_stream as hesai_stream
     from .ouster.detect import describe_stream as ouster_stream
     from .velodyne.detect import describe_stream as velodyne_stream
 
     found = velodyne_stream(batch)
     if found is not None:
         return found, "velodyne"
+    found = hesai_stream(batch)  # sizes no VLP-16 or Ouster profile sends, checked by their bytes
+    if found is not None:
+        return found, "hesai"
     found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
     return found, None if found is None else "ouster"
 
@@ -204,6 +209,8 @@ def _summary(stream: dict) -> str:
     if kind == "unknown":
         return "unknown" + (f" (description failed: {stream['describe_error']})" if "describe_error" in stream else "")
     bits = [kind]
+    if "protocol" in d:  # Hesai
+        bits.append(f"protocol {d['protocol']}")
     if "return_mode" in d:
         mode = d["return_mode"]
         bits.append(mode if isinstance(mode, str) else "/".join(mode))
@@ -232,6 +239,15 @@ def _summary(stream: dict) -> str:
             bits.append(f"frame ids {d['frame_id'][0]}–{d['frame_id'][1]}")
         if d.get("crc") and d["crc"] != "absent":
             bits.append(f"CRC {d['crc']}")
+        if d.get("header_type") == "FUSA":
+            bits.append("FUSA header")
+        for key, what in (("shot_limiting_packets", "shot limiting"), ("thermal_shutdown_packets", "thermal shutdown")):
+            if d.get(key):  # firmware 3.x packet-header status: worth a warning to the user
+                bits.append(f"{what} reported in {d[key]} packets")
+    if kind == "Ouster IMU" and d.get("imu_profile"):
+        bits.append(f"{d['imu_profile']}, {d.get('samples', 0)} samples")
+    if kind == "Ouster zone monitoring":
+        bits.append(f"{d.get('zones_live', 0)} live zones, {d.get('zones_triggered', 0)} triggered")
     if d.get("note"):
         bits.append(d["note"])
     if kind == "Ouster lidar" and d.get("profile_source") == "guess":  # what decode & co will ask for

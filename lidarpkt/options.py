@@ -33,15 +33,18 @@ class OpenOptions:
 
     metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = _option(
         None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
-        "we record carry it and need none. VLP-16 needs none.")
+        "we record carry it and need none. VLP-16 needs none. A Hesai angle-correction ``.csv`` here serves as "
+        "``calibration``.")
     calibration: Any = _option(
         None, "Velodyne calibration (path to a ROS YAML / VeloView XML, or a loaded one); the model's stock "
-        "calibration by default (the HDL-64E's: read from its packets' status cycle).")
+        "calibration by default (the HDL-64E's: read from its packets' status cycle); or a Hesai Pandar "
+        "angle-correction CSV (a ``.csv`` path or a loaded ``HesaiCalibration``; without one Hesai frames have "
+        "no XYZ).")
     velodyne_model: str | None = _option(
         None, "Velodyne: the model (\"VLP-32A\", \"HDL-64E S3\", \"Puck LITE\", ...) when its packets cannot say it; "
         "by default read from their factory byte (the HDL-64E from its block layout).")
     cut_angle_deg: float | None = _option(
-        None, "VLP-16: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
+        None, "VLP-16 and Hesai: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
     cut_on_block: bool = _option(
         False, "VLP-16: cut at the block that wraps (VeloView's frames) rather than at the firing sequence "
         "that wraps.")

@@ -261,7 +261,7 @@ class Renumber:
     def frame(self, frame: Frame) -> Frame:
         """``frame`` of the current segment with the whole file's ordinals and SensorInfo."""
         frame.sensor = self._sensor(frame.sensor)
-        if frame.sensor.vendor == "velodyne":
+        if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the stream's start
             key = str(frame.sensor.source)
             frame.frame_id = self.next_frame_id.get(key, 0)
             self.next_frame_id[key] = frame.frame_id + 1

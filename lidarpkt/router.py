@@ -96,9 +96,19 @@ def _velodyne(batch: PacketBatch, options: RouteOptions) -> Match | None:
                  lambda source: velodyne.VelodyneDecoder(source=source, **options.of("velodyne")))
 
 
+def _hesai(batch: PacketBatch, options: RouteOptions) -> Match | None:
+    from . import hesai
+
+    model = hesai.classify(batch)  # sizes only Pandars send, then their header or block start bytes
+    if model is None:
+        return None
+    return Match("hesai", "data", True, (model.name,),
+                 lambda source: hesai.HesaiDecoder(model=model, source=source, **options.of("hesai")))
+
+
 #: The vendors, in the order their classifiers are asked (Ouster first: its packets are recognised only
 #: with the metadata given, and then they are the metadata's, whatever their size says otherwise).
-VENDORS: tuple[Vendor, ...] = (Vendor("ouster", _ouster), Vendor("velodyne", _velodyne))
+VENDORS: tuple[Vendor, ...] = (Vendor("ouster", _ouster), Vendor("velodyne", _velodyne), Vendor("hesai", _hesai))
 
 
 def source_name(batch: PacketBatch) -> str:

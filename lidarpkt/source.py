@@ -71,6 +71,8 @@ class SourceStats:
     velodyne_position_packets: int = 0
     ouster_lidar_packets: int = 0
     ouster_imu_packets: int = 0
+    hesai_data_packets: int = 0
+    ouster_zone_packets: int = 0
     unrouted_packets: int = 0
     unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
     other_sensor_packets: dict[str, int] = field(default_factory=dict)  # "vendor kind" → packets, other vendors
@@ -126,13 +128,18 @@ class FrameReader(FrameIterator):
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
-        self._decoder_options = {
-            "velodyne": {"calibration": opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
+        from .hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
+
+        hesai_cal = is_hesai_calibration(opts.calibration)
+        metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
+        self._decoder_options: dict[str, dict[str, Any]] = {
+            "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
                          "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
-            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check}}
+            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
+            "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
-        self.router = Router(RouteOptions(load_ouster_metadata(opts.metadata), self._decoder_options),
+        self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
                              max_sensors=opts.max_sensors, on_limit=self._too_many_sensors)
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
@@ -198,7 +205,7 @@ class FrameReader(FrameIterator):
             raise UnknownSensorError(self._no_sensor_message())
         from .dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
 
-        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets):
+        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets or self.stats.hesai_data_packets):
             wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
             if wrong:  # Ouster lidar packets without (fitting) metadata: say so, not "no frames"
                 raise UnknownSensorError(wrong)
@@ -280,7 +287,7 @@ class FrameReader(FrameIterator):
         if wrong:
             return wrong
         hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
-        return f"{self.path}: no VLP-16 or Ouster stream found among {streams}.{hint}"
+        return f"{self.path}: no VLP-16 or Ouster stream (nor a Hesai Pandar one) found among {streams}.{hint}"
 
 
 @with_options
@@ -335,6 +342,19 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     except OSError:
         return False
     return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
+
+
+def _split_hesai(metadata: Any) -> tuple[Any, Any]:
+    """(the Ouster metadata, the Hesai calibration) of the ``metadata`` option: an archive job's
+    ``--metadata`` may name a Pandar's angle-correction CSV, its sensor description as the JSON is an Ouster's."""
+    from .hesai.calibration import is_hesai_calibration
+
+    items = metadata if isinstance(metadata, (list, tuple)) else [metadata] if metadata is not None else []
+    hesai = [m for m in items if is_hesai_calibration(m)]
+    if not hesai:
+        return metadata, None
+    rest = [m for m in items if not is_hesai_calibration(m)]
+    return rest or None, hesai[0]
 
 
 def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:

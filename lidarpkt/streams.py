@@ -10,6 +10,8 @@ that the recorder and the decoder cannot disagree about packet periods and rotat
 * VLP-16: the device timestamp (µs past the hour) of consecutive data packets advances by exactly
   one packet period (1327.104 µs single return, 663.552 µs dual: manual, "Timing"); a gap of k
   periods means k − 1 packets lost. A rotation ends where the first block's azimuth wraps.
+* Hesai Pandar (sizes only these models send; the content is checked by the counter): the UDP
+  sequence number, else the packet time (:mod:`lidarpkt.hesai.stream`).
 * Ouster: the (frame id, measurement id) of each packet's first column gives its place in the
   stream; a jump of k packets means k − 1 lost. A rotation ends where the frame id changes.
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 from enum import Enum
 
 from lidarpkt.decoder import INTERRUPTION_S, StreamCounts
+from lidarpkt.hesai import stream as hesai_stream
 from lidarpkt.ouster import stream as ouster_stream
 from lidarpkt.velodyne import stream as velodyne_stream
 
@@ -33,6 +36,7 @@ class StreamKind(str, Enum):
     VELODYNE_POSITION = "velodyne_position"
     OUSTER_LIDAR = "ouster_lidar"
     OUSTER_IMU = "ouster_imu"
+    HESAI_DATA = "hesai_data"
     OTHER = "other"
 
     def __str__(self) -> str:
@@ -49,23 +53,24 @@ class StreamKind(str, Enum):
 
     @property
     def vendor(self) -> str | None:
-        """``"velodyne"``, ``"ouster"``, or None for :attr:`OTHER`."""
+        """``"velodyne"``, ``"ouster"``, ``"hesai"``, or None for :attr:`OTHER`."""
         return None if self is StreamKind.OTHER else self.value.split("_")[0]
 
     @property
     def is_lidar(self) -> bool:
         """A stream of range measurements (the one frames are made of)."""
-        return self in (StreamKind.VELODYNE_DATA, StreamKind.OUSTER_LIDAR)
+        return self in (StreamKind.VELODYNE_DATA, StreamKind.OUSTER_LIDAR, StreamKind.HESAI_DATA)
 
 
 VELODYNE_DATA = StreamKind.VELODYNE_DATA
 VELODYNE_POSITION = StreamKind.VELODYNE_POSITION
 OUSTER_LIDAR = StreamKind.OUSTER_LIDAR
 OUSTER_IMU = StreamKind.OUSTER_IMU
+HESAI_DATA = StreamKind.HESAI_DATA
 OTHER = StreamKind.OTHER
 
 _KINDS = {("velodyne", "data"): VELODYNE_DATA, ("velodyne", "position"): VELODYNE_POSITION,
-          ("ouster", "lidar"): OUSTER_LIDAR, ("ouster", "imu"): OUSTER_IMU}
+          ("ouster", "lidar"): OUSTER_LIDAR, ("ouster", "imu"): OUSTER_IMU, ("hesai", "data"): HESAI_DATA}
 
 
 def classify_size(size: int, ouster_metadata=None) -> StreamKind:
@@ -78,7 +83,9 @@ def classify_size(size: int, ouster_metadata=None) -> StreamKind:
     if kind is not None:
         return _KINDS["velodyne", kind]
     kind = ouster_stream.stream_kind(size, ouster_metadata)
-    return OTHER if kind is None else _KINDS["ouster", kind]
+    if kind is not None:
+        return _KINDS["ouster", kind]
+    return HESAI_DATA if hesai_stream.stream_kind(size) else OTHER
 
 
 #: The counts of one stream (the vendor counters' own).
@@ -87,6 +94,8 @@ LossCount = StreamCounts
 VelodyneLoss = velodyne_stream.PacketCounter
 #: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.ouster.stream.PacketCounter`.
 OusterLoss = ouster_stream.PacketCounter
+#: Loss and rotation counting of one Hesai Pandar stream: :class:`lidarpkt.hesai.stream.PacketCounter`.
+HesaiLoss = hesai_stream.PacketCounter
 
-__all__ = ["StreamKind", "VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "OTHER", "INTERRUPTION_S",
-           "classify_size", "LossCount", "VelodyneLoss", "OusterLoss"]
+__all__ = ["StreamKind", "VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "HESAI_DATA", "OTHER",
+           "INTERRUPTION_S", "classify_size", "LossCount", "VelodyneLoss", "OusterLoss", "HesaiLoss"]

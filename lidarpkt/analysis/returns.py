@@ -58,10 +58,12 @@ class ReturnStack(FrameStack):
 
 def is_vlp16_dual(stack: FrameStack) -> bool:
     """True for a VLP-16 dual-return stack as decoded (slot 1 mixes strongest and second
-    strongest); False for a stack already made of selections (:func:`select_returns`)."""
+    strongest), or a Hesai Pandar's in Last+Strongest mode, which fills its slots by the same rule
+    (its decoder marks the second strongest: :mod:`lidarpkt.hesai.models`); False for a stack
+    already made of selections (:func:`select_returns`)."""
     if getattr(stack, "sources", None) is not None:
         return False
-    return stack.sensor.vendor == "velodyne" and tuple(stack.return_labels) == _VLP16_DUAL
+    return stack.sensor.vendor in ("velodyne", "hesai") and tuple(stack.return_labels) == _VLP16_DUAL
 
 
 def available_returns(stack: FrameStack) -> tuple[str, ...]:

@@ -115,7 +115,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         decoded = _take(per_source, source) if StreamKind(s["stream_kind"]).is_lidar else None
         row = dict(base)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
-                   vendor=s["vendor"], model=(decoded or {}).get("model") or details.get("product_name"),
+                   vendor=s["vendor"], model=(decoded or {}).get("model") or details.get("product_name") or details.get("model"),
                    mode=_mode(details), payload_size=s["payload_size"], start_ns=s["first_timestamp_ns"],
                    end_ns=s["last_timestamp_ns"], packets=s["packets"])
         if decoded is not None:

@@ -24,7 +24,8 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
     from lidarpkt import cliargs
 
     cliargs.add_metadata(p, "Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
-                            "JSON beside each capture with the same stem")
+                            "JSON beside each capture with the same stem. A Hesai Pandar's angle-correction "
+                            "CSV here gives its XYZ")
     p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
                    help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
     p.add_argument("--scheduler", metavar="ADDR",

@@ -85,7 +85,7 @@ def count_segment(task: CountTask) -> SegmentCount:
             warnings.simplefilter("ignore", LidarpktWarning)  # the unit reports them
             reader = lidarpkt.open(local_path(task.input), segment=task.segment)
             for frame in reader:
-                if frame.sensor.vendor == "velodyne":
+                if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the start
                     source = str(frame.sensor.source)
                     frames[source] = frames.get(source, 0) + 1
                     rates.setdefault(source, (frame.sensor.frequency_hz, frame.sensor.columns_per_frame))

@@ -1,14 +1,18 @@
 """Ouster OS0/OS1/OS2 lidar packets: metadata, byte-exact decoding and encoding, frames, XYZ.
 
-Supported lidar profiles: LEGACY (any channel count), RNG19_RFL8_SIG16_NIR16,
-RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8 and FUSA_RNG15_RFL8_NIR8_DUAL; LEGACY IMU packets.
+Supported lidar profiles: every one of the firmware manual: LEGACY (any channel count),
+RNG19_RFL8_SIG16_NIR16(_DUAL), RNG15_RFL8_NIR8(_DUAL), the ZONE16 and RGB16 variants,
+RNG15_RFL8_WIN8, FIVE_WORD_PIXEL, under a STANDARD or FUSA packet header (``header_type``; the
+deprecated FUSA_RNG15_RFL8_NIR8_DUAL name too). IMU profiles LEGACY and ACCEL32_GYRO32_NMEA;
+zone-monitoring packets.
 
 Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
 layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
 :mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`; :mod:`.fieldplan` where
 a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
-:mod:`.imu`, :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
+:mod:`.imu` (both IMU profiles, :func:`imu_samples` in SI units), :mod:`.zone` (zone-monitoring
+packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
 packet/loss/frame counter the recorder runs live).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
@@ -36,13 +40,18 @@ _LAZY: dict[str, str] = {
     "OusterDecoderStats": "frames",
     "OusterGeometry": "geometry",
     "decode_imu": "imu",
+    "decode_imu_nmea": "imu",
     "encode_imu": "imu",
+    "imu_samples": "imu",
+    "OusterZoneStates": "zone",
+    "decode_zone_packets": "zone",
     "OusterMetadata": "metadata",
     "load_metadata": "metadata",
     "PROFILES": "profiles",
     "BitField": "profiles",
     "Profile": "profiles",
     "get_profile": "profiles",
+    "with_header": "profiles",
 }
 
 __all__ = [
@@ -52,20 +61,25 @@ __all__ = [
     "OusterGeometry",
     "OusterMetadata",
     "OusterPacketFields",
+    "OusterZoneStates",
     "PROFILES",
     "Profile",
     "classify",
     "crc64_xz",
     "describe_stream",
     "decode_imu",
+    "decode_imu_nmea",
     "decode_packets",
+    "decode_zone_packets",
     "empty_fields",
     "encode_frame",
     "encode_imu",
     "encode_packets",
     "frame_fields",
     "get_profile",
+    "imu_samples",
     "load_metadata",
+    "with_header",
 ]
 
 

@@ -15,18 +15,31 @@ import numpy as np
 from ..packet import PacketBatch
 from .crc import footer_crc_ok
 from .decode import decode_packets
-from .imu import decode_imu
+from .imu import decode_imu, imu_samples
 from .metadata import OusterMetadata
-from .profiles import IMU_PACKET_SIZE, PROFILES, Profile, read_bits
+from .profiles import (
+    HEADER_BYTES,
+    HEADER_TYPES,
+    IMU_PACKET_SIZE,
+    PROFILES,
+    Profile,
+    read_bits,
+)
+from .zone import decode_zone_packets
 
 _GUESS_ROWS = (16, 32, 64, 128)
 
 
-def _ids_match(batch: PacketBatch, md: OusterMetadata) -> np.ndarray:
+#: ``packet_type`` of the non-legacy packet header: lidar, IMU (ACCEL32_GYRO32_NMEA), zone monitoring.
+PACKET_TYPE_LIDAR, PACKET_TYPE_IMU, PACKET_TYPE_ZONE = 1, 2, 3
+
+
+def _ids_match(batch: PacketBatch, md: OusterMetadata, header_fields=None) -> np.ndarray:
     """``bool[N]``: the header's serial (and init_id, when the metadata has one) are the metadata's."""
-    header = batch.payload[:, : md.profile.header_bytes]
+    header_fields = header_fields or md.profile.header_fields or HEADER_TYPES["STANDARD"]
+    header = batch.payload[:, :HEADER_BYTES]
     ok = np.ones(len(batch), bool)
-    fields = {f.name: f for f in md.profile.header_fields}
+    fields = {f.name: f for f in header_fields}
     if md.serial_int is not None:
         ok &= read_bits(header, fields["prod_sn"]) == np.uint64(md.serial_int)
     if md.init_id:
@@ -35,25 +48,30 @@ def _ids_match(batch: PacketBatch, md: OusterMetadata) -> np.ndarray:
 
 
 def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[str, OusterMetadata] | None:
-    """``("lidar", md)`` / ``("imu", md)`` when the batch is a stream of the sensor of ``md``, else ``None``.
+    """``("lidar", md)`` / ``("imu", md)`` / ``("zone", md)`` when the batch is a stream of the sensor of
+    ``md``, else ``None``.
 
     Lidar: the payload size must be the metadata's packet size; for non-legacy profiles the
     init_id and serial of the packet header must match too (for most of the batch). LEGACY
-    packets carry no identity: the first metadata of the right size wins. IMU (48 B): the
+    packets carry no identity: the first metadata of the right size wins. LEGACY IMU (48 B): the
     metadata whose IMU port is the destination port, else the first one when the accelerations
-    are plausible (|a| between 0.5 and 2 g); LEGACY IMU packets carry no identity either.
+    are plausible (|a| between 0.5 and 2 g). ACCEL32_GYRO32_NMEA IMU and zone-monitoring packets
+    (680 B) carry the packet header: its packet type (2, 3), init_id and serial must match.
     """
     if len(batch) == 0 or not metadata:
         return None
     size = batch.payload_size
-    if size == IMU_PACKET_SIZE:
+    for kind, md in _headed_matches(batch, metadata):
+        return kind, md
+    if size == IMU_PACKET_SIZE and any(md.imu_profile == "LEGACY" for md in metadata):
+        metadata = [md for md in metadata if md.imu_profile == "LEGACY"]
         port = batch.dst.port if batch.dst is not None else None
         for md in metadata:
             if md.imu_port == port:
                 return "imu", md
         return ("imu", metadata[0]) if _imu_plausible(batch.payload) else None
     for md in metadata:
-        if md.packet_size != size:
+        if md.packet_size != size or not md.lidar_enabled:
             continue
         if md.profile.legacy:
             if _legacy_plausible(batch.payload, md.profile, md.pixels_per_column):
@@ -62,6 +80,27 @@ def classify(batch: PacketBatch, metadata: Sequence[OusterMetadata]) -> tuple[st
         if _ids_match(batch, md).mean() >= 0.5:
             return "lidar", md
     return None
+
+
+def _headed_matches(batch: PacketBatch, metadata: Sequence[OusterMetadata]):
+    """(kind, md) of ACCEL32_GYRO32_NMEA IMU or zone-monitoring packets of the sizes, packet types and
+    identities of ``metadata`` (most of the batch)."""
+    size = batch.payload_size
+    if size < HEADER_BYTES:
+        return
+    for md in metadata:
+        header_type = md.header_type or "STANDARD"
+        if size == md.imu_packet_size and md.imu_profile != "LEGACY":
+            kind, ptype = "imu", PACKET_TYPE_IMU
+        elif size == md.zone_packet_size and not md.profile.legacy:
+            kind, ptype = "zone", PACKET_TYPE_ZONE
+        else:
+            continue
+        fields = HEADER_TYPES[header_type]
+        ptype_field = next(f for f in fields if f.name == "packet_type")
+        ok = _ids_match(batch, md, fields) & (read_bits(batch.payload[:, :HEADER_BYTES], ptype_field) == ptype)
+        if ok.mean() >= 0.5:
+            yield kind, md
 
 
 def _imu_plausible(payload: np.ndarray) -> bool:
@@ -127,18 +166,37 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
     "pixels_per_column", "packets", "frame_id": [first, last], "columns": measurement ids seen,
     "crc": "valid" | "invalid" | "absent", ...}``. Without metadata the profile is a guess from
     the size and header (``"candidates"`` lists every layout that fits, e.g. two for 8448 B).
-    IMU: ``{"kind": "Ouster IMU", "packets", ...}``.
+    Non-legacy lidar streams also count the packets whose header reports shot limiting or a coming
+    thermal shutdown (``"shot_limiting_packets"``, ``"thermal_shutdown_packets"``).
+    IMU: ``{"kind": "Ouster IMU", "packets", "imu_profile", "samples", ...}``.
+    Zone monitoring: ``{"kind": "Ouster zone monitoring", "packets", "zones_live", "zones_triggered"}``.
     """
     if len(batch) == 0:
         return None
     match = classify(batch, metadata) if metadata else None
+    if match is not None and match[0] == "zone":
+        z = decode_zone_packets(batch.payload, match[1].header_type or "STANDARD")
+        return {"kind": "Ouster zone monitoring", "packets": len(batch), "profile_source": "metadata",
+                "timestamp_ns": [int(z.timestamp_ns[0]), int(z.timestamp_ns[-1])],
+                "zones_live": int(np.count_nonzero(z.zones["live"][-1])),
+                "zones_triggered": int(np.count_nonzero(z.zones["trigger_status"][-1] & z.zones["live"][-1]))}
+    if match is not None and match[0] == "imu" and match[1].imu_profile != "LEGACY":
+        imu_md = match[1]
+        imu = imu_samples(batch.payload, imu_md)
+        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata", "imu_profile": imu_md.imu_profile,
+               "samples": len(imu)}
+        if len(imu):
+            out["timestamp_ns"] = [int(imu.timestamp_ns[0]), int(imu.timestamp_ns[-1])]
+        return out
     if match is not None and match[0] == "imu" or (match is None and batch.payload_size == IMU_PACKET_SIZE):
         if match is None and not _imu_plausible(batch.payload):
             return None  # 48 bytes that do not read as an IMU
         samples = decode_imu(batch.payload)
-        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata" if match else "guess"}
+        out = {"kind": "Ouster IMU", "packets": len(batch), "profile_source": "metadata" if match else "guess",
+               "imu_profile": "LEGACY", "samples": len(batch)}
         out["sys_timestamp_ns"] = [int(samples["sys_timestamp_ns"][0]), int(samples["sys_timestamp_ns"][-1])]
         return out
+    md: OusterMetadata | None = None
     if match is not None:
         md = match[1]
         profile, h, source, candidates = md.profile, md.pixels_per_column, "metadata", [md.profile.name]
@@ -148,8 +206,8 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
             return None
         profile, h = guesses[0]
         source, candidates = "guess", [f"{p.name} ({rows} px)" for p, rows in guesses]
-        md = None
-    fields = decode_packets(batch.payload, md if md is not None else _Layout(profile, h), verify_crc=False, fields=())
+    fields = decode_packets(batch.payload, md if md is not None else _Layout(profile, h), verify_crc=False, fields=(),
+                            header_fields=("frame_id", "init_id", "prod_sn", "shot_limiting", "thermal_shutdown"))
     frame_ids = fields.frame_id
     mids = fields.measurement_id
     if profile.legacy:
@@ -179,6 +237,9 @@ def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ())
     if not profile.legacy:
         out["init_id"] = int(fields.header["init_id"][0])
         out["serial"] = str(int(fields.header["prod_sn"][0]))
+        out["header_type"] = profile.header_type
+        out["shot_limiting_packets"] = int(np.count_nonzero(fields.header["shot_limiting"]))
+        out["thermal_shutdown_packets"] = int(np.count_nonzero(fields.header["thermal_shutdown"]))
     if md is not None:
         out["crc_failures"] = int((~footer_crc_ok(batch.payload)).sum()) if md.footer_kind == "crc" else 0
     return out

@@ -12,7 +12,8 @@ import numpy as np
 from ..errors import PacketFormatError
 from .crc import crc64_xz
 from .decode import OusterPacketFields
-from .profiles import Profile, _to_raw, write_bits
+from .fieldplan import plane_attr
+from .profiles import HEADER_STATUS_FIELDS, Profile, _to_raw, write_bits
 
 
 def encode_packets(fields: OusterPacketFields, metadata=None, *, crc: bool | None = None) -> np.ndarray:
@@ -171,8 +172,9 @@ def frame_fields(frame, metadata, *, all_packets: bool = False, init_id: int | N
                 pixels[name] = per_pixel(arr[slot])
     if "NEAR_IR" in names and frame.near_ir is not None:
         pixels["NEAR_IR"] = per_pixel(frame.near_ir)
-    if "WINDOW" in names and "window" in frame.extra:
-        pixels["WINDOW"] = per_pixel(frame.extra["window"])
+    for name in names - {n for sl in _FRAME_SLOTS for n in sl} - {"NEAR_IR"}:  # WINDOW, ZONE_MASK, R, G, B
+        if plane_attr(name) in frame.extra:
+            pixels[name] = per_pixel(frame.extra[plane_attr(name)])
 
     valid_status = 0xFFFFFFFF if profile.legacy else 1
     status = per_column(frame.status, 0).astype(np.uint32)
@@ -191,6 +193,9 @@ def frame_fields(frame, metadata, *, all_packets: bool = False, init_id: int | N
             "init_id": np.full(n, metadata.init_id if init_id is None else init_id, np.uint32),
             "prod_sn": np.full(n, metadata.serial_int or 0, np.uint64),
         }
+        for key in HEADER_STATUS_FIELDS:  # per column in the frame: the packet's first column's
+            if key in frame.extra:
+                header[key] = np.asarray(frame.extra[key])[cols[:, 0]]
     return OusterPacketFields(
         profile=profile,
         pixels_per_column=h,

@@ -16,11 +16,22 @@ SLOT_FIELDS = (
     ("RANGE", "REFLECTIVITY", "SIGNAL", "FLAGS"),
     ("RANGE2", "REFLECTIVITY2", "SIGNAL2", "FLAGS2"),
 )
+SLOT_ATTRS = ("range_mm", "reflectivity", "signal", "flags")
+
+
+def plane_attr(name: str) -> str:
+    """The frame attribute (or ``Frame.extra`` key) of a one-plane pixel field: its name lower-cased
+    (``NEAR_IR`` → ``near_ir``, ``ZONE_MASK`` → ``zone_mask``, ``R`` → ``r``)."""
+    return name.lower()
 
 
 @lru_cache(maxsize=None)
 def field_plan(profile) -> tuple:
     """Per frame attribute: (attr, one extraction step per return slot, dtype); no steps = absent.
+
+    The four slot attributes (:data:`SLOT_ATTRS`) and ``near_ir`` always appear; every other pixel
+    field of the profile (``WINDOW``, ``ZONE_MASK``, ``R``/``G``/``B`` ...) follows with one plane,
+    under :func:`plane_attr` of its name.
 
     A step is (word index, bit offset in the word, mask or 0 when the cast already drops the bits
     above the field, up-shift): see :func:`extract`.
@@ -28,15 +39,17 @@ def field_plan(profile) -> tuple:
     names = set(profile.field_names)
     slots = SLOT_FIELDS[: profile.returns]
     plan: list[tuple[str, tuple[tuple[int, int, int, int], ...], np.dtype | None]] = []
-    for i, attr in enumerate(("range_mm", "reflectivity", "signal", "flags")):
+    for i, attr in enumerate(SLOT_ATTRS):
         if slots[0][i] not in names:
             plan.append((attr, (), None))
             continue
         fs = [profile.field(sl[i]) for sl in slots]
         plan.append((attr, tuple(_step(f) for f in fs), fs[0].dtype))
-    for attr, name in (("near_ir", "NEAR_IR"), ("window", "WINDOW")):
+    in_slots = {n for sl in SLOT_FIELDS for n in sl}
+    planes = ["NEAR_IR"] + [n for n in profile.field_names if n not in in_slots and n != "NEAR_IR"]
+    for name in planes:
         f = profile.field(name) if name in names else None
-        plan.append((attr, (_step(f),) if f is not None else (), f.dtype if f is not None else None))
+        plan.append((plane_attr(name), (_step(f),) if f is not None else (), f.dtype if f is not None else None))
     return tuple(plan)
 
 
@@ -48,7 +61,7 @@ def new_fields(profile, h: int, w: int) -> tuple[dict[str, np.ndarray | None], l
     for attr, per_slot, dtype in field_plan(profile):
         if not per_slot:
             out[attr] = None
-        elif attr in ("near_ir", "window"):
+        elif attr not in SLOT_ATTRS:
             out[attr] = plane = np.empty((h, w), dtype)
             targets.append(plane)
         else:

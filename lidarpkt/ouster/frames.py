@@ -8,8 +8,8 @@ Conventions (those of ouster-sdk's scan batcher):
 * A frame is released as soon as every column of ``column_window`` has arrived, or when a
   packet of another frame arrives (then it is ``partial``), or at :meth:`OusterDecoder.finish`.
 * Columns that never arrived have zero fields, zero timestamp/measurement_id/status and
-  ``column_valid`` False. ``column_valid`` is also False for a column that arrived with its
-  status saying invalid (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF).
+  ``column_valid`` False. So have columns that arrived with their status saying invalid
+  (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF), as in ouster-sdk.
 * Packets of an already released frame are dropped and counted as late; a packet whose first
   measurement id already arrived in its frame is a duplicate (dropped, counted).
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
@@ -19,7 +19,15 @@ Conventions (those of ouster-sdk's scan batcher):
   ``TIME_FROM_INTERNAL_OSC`` it counts from the sensor's boot. ouster-sdk reports the same.
 * ``Frame.status``: LEGACY status word, else the 16-bit column status; ``Frame.encoder_count``:
   LEGACY only (90112 ticks per turn).
-* ``Frame.extra``: ``"window"`` ``uint8[H, W]`` (WINDOW field, profiles that have it).
+* ``Frame.extra``: every pixel field of the profile that is not a return-slot field or NEAR_IR,
+  ``[H, W]``, under its name lower-cased: ``"window"`` (WINDOW), ``"zone_mask"`` (ZONE_MASK),
+  ``"r"``, ``"g"``, ``"b"`` (RGB16 profiles). Non-legacy profiles add the packet-header status of
+  each column's packet, ``[W]``: ``"alert_flags"``, ``"shot_limiting"``, ``"thermal_shutdown"``,
+  ``"countdown_shot_limiting"``, ``"countdown_thermal_shutdown"`` (firmware 3.x; zero before).
+* ``Frame.return_labels`` follow the metadata's ``return_order`` (``farthest``, ``second_farthest``
+  for FARTHEST_TO_NEAREST ...).
+* Columns outside ``column_window`` (the sensor's ``azimuth_window``) are never sent: they are not
+  lost packets and do not make a frame partial.
 * The last 16 released frames are remembered to recognise late packets; a packet of an older
   frame starts a new (partial) frame.
 * IMU packets carry no sensor identity: :func:`~lidarpkt.ouster.classify` gives them to the
@@ -39,12 +47,15 @@ from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
-from .imu import decode_imu
+from ..imu import ImuSamples
+from .imu import imu_samples
+from .zone import OusterZoneStates, decode_zone_packets
 from .metadata import OusterMetadata
-from .fieldplan import extract, field_plan, new_fields, packet_layout, scatter_steps
-from .profiles import LEGACY_STATUS_VALID
+from .fieldplan import SLOT_ATTRS, extract, field_plan, new_fields, packet_layout, scatter_steps
+from .profiles import HEADER_STATUS_FIELDS, LEGACY_STATUS_VALID
 
 _BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
+_NATIVE_PIXEL_BYTES = 16  # ouster_scatter's widest pixel (MAX_WORDS words); wider ones take the NumPy twin
 
 
 @dataclass
@@ -65,6 +76,10 @@ class OusterDecoderStats:
     partial_frames: int = 0
     imu_packets: int = 0
     imu_dropped: int = 0  # IMU samples beyond max_imu_samples (oldest dropped)
+    imu_invalid: int = 0  # ACCEL32_GYRO32_NMEA measurements whose status says invalid: skipped
+    zone_packets: int = 0
+    shot_limiting_packets: int = 0  # lidar packets whose header says shot limiting is imminent or active
+    thermal_shutdown_packets: int = 0  # lidar packets whose header says thermal shutdown is imminent
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in dc_fields(self)}
@@ -87,7 +102,7 @@ class _Builder:
         h, w = md.pixels_per_column, md.columns_per_frame
         self.key = key
         self.frame_id = frame_id
-        self.native = kernels.native
+        self.native = kernels.native if md.profile.pixel_bytes <= _NATIVE_PIXEL_BYTES else None
         self.planes: np.ndarray | None = None  # NumPy path: the packets' pixel words, one plane per word
         self.outputs: dict[str, np.ndarray | None] | None = None  # compiled path: the fields themselves
         if self.native is not None:
@@ -102,6 +117,8 @@ class _Builder:
         self.status = np.zeros(w, np.uint32)
         self.encoder_count = np.zeros(w, np.uint32) if md.profile.legacy else None
         self.received = np.zeros(w, bool)
+        self.header_status = None if md.profile.legacy else dict(
+            zip(HEADER_STATUS_FIELDS, np.zeros((len(HEADER_STATUS_FIELDS), w), np.uint8)))
         self.counters = FrameCounters()
         self.last_mid0 = -1
 
@@ -122,6 +139,10 @@ class _Builder:
         self.status[flat] = f.status.ravel()
         if self.encoder_count is not None and f.encoder_count is not None:  # LEGACY
             self.encoder_count[flat] = f.encoder_count.ravel()
+        if self.header_status is not None and HEADER_STATUS_FIELDS[0] in f.header:
+            index = mids.astype(np.intp)
+            for k, arr in self.header_status.items():
+                arr[index] = f.header[k][:, None]
         self.received[flat] = True
 
     def _add_words(self, words: np.ndarray, flat: np.ndarray) -> None:
@@ -143,22 +164,22 @@ class _Builder:
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
 
-    def fields(self, profile) -> dict[str, np.ndarray | None]:
+    def fields(self, profile, kept: np.ndarray) -> dict[str, np.ndarray | None]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
-        (``[H, W]``, window ``None`` if absent); zeros where no column arrived."""
+        (``[H, W]``, window ``None`` if absent); zeros where ``kept`` (``bool[W]``) is False."""
         if self.outputs is not None:
-            _zero_missing(self.targets, self.received)
+            _zero_missing(self.targets, kept)
             return self.outputs
         planes = self.planes
         assert planes is not None  # the NumPy path has them
-        _zero_missing([planes], self.received)
+        _zero_missing([planes], kept)
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
         for attr, per_slot, dtype in field_plan(profile):
             if not per_slot:
                 out[attr] = None
-            elif attr in ("near_ir", "window"):
+            elif attr not in SLOT_ATTRS:
                 out[attr] = extract(planes, per_slot[0], np.empty(shape, dtype))
             else:
                 arr = np.empty((len(per_slot),) + shape, dtype)
@@ -189,7 +210,8 @@ class OusterDecoder:
             (count) those that fail.
         soft_id_check: accept packets whose init_id differs from the metadata (the serial is
             still checked); by default they are skipped and counted.
-        max_imu_samples: IMU samples kept (the oldest are dropped and counted beyond that).
+        max_imu_samples: IMU samples kept (the oldest are dropped and counted beyond that); as many
+            zone-monitoring packets are kept.
 
     ``push(batch)`` returns the frames completed by the batch; ``finish()`` the last partial one.
     :attr:`stats` counts what was skipped and why; each frame's ``counters`` what happened to it.
@@ -219,7 +241,8 @@ class OusterDecoder:
         self._pending_counters = FrameCounters()  # skips seen while no frame was open
         self._window = metadata.window_mask
         self._azimuth_deg = np.mod(360.0 * (1.0 - np.arange(metadata.columns_per_frame) / metadata.columns_per_frame), 360.0)
-        self._imu: deque[np.ndarray] = deque()
+        self._imu: deque[ImuSamples] = deque()
+        self._zones: deque[OusterZoneStates] = deque()
         self._imu_count = 0
         self._max_imu = max_imu_samples
 
@@ -238,8 +261,11 @@ class OusterDecoder:
                 f"Ouster {self.source or 'stream'}: skipped {n} packets of {batch.payload_size} B; the metadata "
                 f"({md.profile.name}, {md.pixels_per_column} px) expects {md.packet_size} B"), stacklevel=2)
             return []
+        # the status fields of firmware 3.x are read only where a packet has one set (zero before 3.x)
+        status = md.profile.header_status_bytes
+        with_status = status is not None and bool(batch.payload[:, status[0]:status[1]].any())
         f = decode_packets(batch.payload, md, verify_crc=self.verify_crc, fields=(),
-                           header_fields=("frame_id", "init_id", "prod_sn"))
+                           header_fields=("frame_id", "init_id", "prod_sn") + (HEADER_STATUS_FIELDS if with_status else ()))
         payload = batch.payload if batch.payload.strides[1] == 1 else np.ascontiguousarray(batch.payload)
         keep = np.ones(n, bool)
         if f.crc_ok is not None:
@@ -264,6 +290,9 @@ class OusterDecoder:
             payload = payload[keep]
         if len(f) == 0:
             return []
+        if with_status:
+            self.stats.shot_limiting_packets += int(np.count_nonzero(f.header["shot_limiting"]))
+            self.stats.thermal_shutdown_packets += int(np.count_nonzero(f.header["thermal_shutdown"]))
 
         frame_id = f.frame_id
         init = f.init_id.astype(np.int64) if f.init_id is not None else np.zeros(len(f), np.int64)
@@ -320,7 +349,7 @@ class OusterDecoder:
 
     def _release(self) -> Frame:
         b = self._current
-        assert b is not None  # called with a frame in hand
+        assert b is not None
         self._current = None
         self._released.append(b.key)
         md = self.metadata
@@ -349,10 +378,19 @@ class OusterDecoder:
             status_ok = b.status == LEGACY_STATUS_VALID
         else:
             status_ok = (b.status & 1).astype(bool)
-        px = b.fields(md.profile)
+        valid = b.received & status_ok
+        if not valid.all():
+            # a column whose status says invalid holds nothing (a sensor sends them around an azimuth
+            # window, with timestamps): zero, as a column that never arrived (ouster-sdk drops them too)
+            _zero_missing([b.timestamp_ns, b.measurement_id]
+                          + (list(b.header_status.values()) if b.header_status is not None else [])
+                          + ([b.encoder_count] if b.encoder_count is not None else []), valid)
+        px = b.fields(md.profile, valid)
         if b.planes is not None:
             self._spare_planes, b.planes = b.planes, None
-        extra = {"window": px["window"]} if px["window"] is not None else {}
+        extra = {k: v for k, v in px.items() if k not in SLOT_ATTRS and k != "near_ir" and v is not None}
+        if b.header_status is not None:  # zero where no column arrived (filled only from received packets)
+            extra.update(b.header_status)
         range_mm, reflectivity = px["range_mm"], px["reflectivity"]
         assert range_mm is not None and reflectivity is not None  # every profile has them
         return Frame(
@@ -360,8 +398,8 @@ class OusterDecoder:
             frame_id=b.frame_id,
             range_mm=range_mm,
             reflectivity=reflectivity,
-            return_labels=md.profile.return_labels,
-            column_valid=b.received & status_ok,
+            return_labels=md.return_labels,
+            column_valid=valid,
             column_timestamp_ns=b.timestamp_ns,
             azimuth_deg=self._azimuth_deg.copy(),
             signal=px["signal"],
@@ -401,16 +439,23 @@ class OusterDecoder:
 
     # ------------------------------------------------------------------ IMU
     def push_auxiliary(self, batch: PacketBatch) -> None:
-        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_imu`."""
-        self.push_imu(batch)
+        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_imu` (:meth:`push_zone` for zone packets)."""
+        if batch.payload_size == self.metadata.zone_packet_size and batch.payload_size != self.metadata.imu_packet_size:
+            self.push_zone(batch)
+        else:
+            self.push_imu(batch)
 
     def push_imu(self, batch: PacketBatch) -> None:
-        """Keep this sensor's IMU samples (see :meth:`imu_samples`); wrong-size packets are counted and skipped."""
-        if batch.payload_size != self.metadata.imu_packet_size:
+        """Keep this sensor's IMU samples (see :meth:`imu_samples`), either IMU profile; packets of the wrong
+        size (or of an IMU profile lidarpkt does not know) are counted and skipped."""
+        md = self.metadata
+        if batch.payload_size != md.imu_packet_size:
             self.stats.size_mismatch += len(batch)
             return
-        samples = decode_imu(batch.payload)
-        self.stats.imu_packets += len(samples)
+        self.stats.imu_packets += len(batch)
+        samples = imu_samples(batch.payload, md, self.source)
+        if md.imu_profile != "LEGACY":
+            self.stats.imu_invalid += len(batch) * md.imu_measurements_per_packet - len(samples)
         self._imu.append(samples)
         self._imu_count += len(samples)
         while self._imu_count > self._max_imu:
@@ -421,12 +466,27 @@ class OusterDecoder:
                 self._imu_count -= len(head)
                 self.stats.imu_dropped += len(head)
             else:
-                self._imu[0] = head[drop:]
+                self._imu[0] = head.select(slice(drop, None))
                 self._imu_count -= drop
                 self.stats.imu_dropped += drop
 
-    def imu_samples(self) -> np.ndarray:
-        """The IMU samples kept so far, ``IMU_DTYPE[n]`` in arrival order."""
-        from .profiles import IMU_DTYPE
+    def imu_samples(self) -> ImuSamples:
+        """The IMU samples kept so far (:class:`~lidarpkt.imu.ImuSamples`, m/s², rad/s), in arrival order."""
+        return ImuSamples.concatenate(list(self._imu)) if self._imu else ImuSamples.empty(self.source)
 
-        return np.concatenate(list(self._imu)) if self._imu else np.zeros(0, IMU_DTYPE)
+    # ------------------------------------------------------------------ zone monitoring
+    def push_zone(self, batch: PacketBatch) -> None:
+        """Keep this sensor's zone-monitoring packets, decoded (see :meth:`zone_states`); wrong sizes are
+        counted and skipped."""
+        md = self.metadata
+        if batch.payload_size != md.zone_packet_size:
+            self.stats.size_mismatch += len(batch)
+            return
+        self.stats.zone_packets += len(batch)
+        self._zones.append(decode_zone_packets(batch.payload, md.profile.header_type or "STANDARD"))
+        while sum(len(z) for z in self._zones) > self._max_imu:
+            self._zones.popleft()
+
+    def zone_states(self) -> list[OusterZoneStates]:
+        """The zone-monitoring packets kept so far, decoded, one :class:`OusterZoneStates` per batch pushed."""
+        return list(self._zones)

@@ -24,7 +24,13 @@ lidar_origin_to_beam_origin_mm            12.163
 beam_to_lidar_transform                   identity with x translation = lidar_origin_to_beam_origin_mm
 lidar_to_sensor_transform                 diag(−1, −1, 1) with z translation 36.18 mm
 imu_to_sensor_transform                   identity with translation (6.253, −11.775, 7.645) mm
-udp_port_lidar / udp_port_imu             7502 / 7503
+udp_port_lidar / udp_port_imu             7502 / 7503 (udp_port_lidar 0: the lidar stream is off)
+udp_port_zm                               none (zone monitoring off)
+udp_profile_imu                           ``LEGACY``
+imu_measurements_per_packet               8 (ACCEL32_GYRO32_NMEA)
+header_type                               ``FUSA`` for FUSA_RNG15_RFL8_NIR8_DUAL, else ``STANDARD``
+return_order                              ``STRONGEST_TO_WEAKEST``
+timestamp_mode, azimuth_window            none (as the sensor was set; not needed to decode)
 initialization_id, prod_sn                0 / ``None`` (not checked: legacy packets carry neither)
 ========================================  ============================================================
 """
@@ -41,7 +47,15 @@ from typing import Any
 import numpy as np
 
 from ..errors import MetadataError
-from .profiles import IMU_PACKET_SIZE, Profile, get_profile
+from .profiles import (
+    HEADER_TYPES,
+    IMU_PACKET_SIZE,
+    ZONE_PACKET_SIZE,
+    Profile,
+    get_profile,
+    imu_packet_dtype,
+    with_header,
+)
 
 DEFAULT_LIDAR_ORIGIN_TO_BEAM_ORIGIN_MM = 12.163
 DEFAULT_LIDAR_TO_SENSOR = np.array([[-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 1, 36.18], [0, 0, 0, 1]], dtype=np.float64)
@@ -74,6 +88,15 @@ class OusterMetadata:
         lidar_port, imu_port: UDP destination ports.
         init_id: ``initialization_id`` (0 if absent); serial: ``prod_sn`` as text (``None`` if absent).
         firmware: ``build_rev`` (or ``image_rev``), ``None`` if absent; prod_line: e.g. ``"OS-1-64"``.
+        imu_profile: ``udp_profile_imu`` (``LEGACY``, ``ACCEL32_GYRO32_NMEA``; another name is kept, its
+            packets are not decoded); imu_measurements_per_packet: of ACCEL32_GYRO32_NMEA packets.
+        zm_port: UDP port of the zone-monitoring packets, ``None`` when zone monitoring is off.
+        lidar_enabled: False when the metadata turns the lidar stream off (``udp_port_lidar`` 0).
+        return_order: which return goes in which slot (``STRONGEST_TO_WEAKEST``,
+            ``FARTHEST_TO_NEAREST``, ``NEAREST_TO_FARTHEST``); it names the return slots.
+        timestamp_mode: e.g. ``TIME_FROM_PTP_1588`` (``None`` if absent): what the column timestamps count.
+        azimuth_window: ``(first, last)`` millidegrees the sensor sends (``None`` if absent); the
+            columns it covers are ``column_window``.
         raw: the JSON document as a dict.
         defaulted: names of the fields that were absent and took their documented default.
     """
@@ -101,6 +124,13 @@ class OusterMetadata:
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
     defaulted: tuple[str, ...] = ()
     path: str | None = None
+    imu_profile: str = "LEGACY"
+    imu_measurements_per_packet: int = 8
+    zm_port: int | None = None
+    lidar_enabled: bool = True
+    return_order: str = "STRONGEST_TO_WEAKEST"
+    timestamp_mode: str | None = None
+    azimuth_window: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ derived
     @property
@@ -109,8 +139,27 @@ class OusterMetadata:
         return self.profile.packet_size(self.pixels_per_column, self.columns_per_packet)
 
     @property
-    def imu_packet_size(self) -> int:
-        return IMU_PACKET_SIZE
+    def imu_packet_size(self) -> int | None:
+        """Bytes of one IMU packet of ``imu_profile``; ``None`` for a profile lidarpkt does not know."""
+        if self.imu_profile == "LEGACY":
+            return IMU_PACKET_SIZE
+        if self.imu_profile == "ACCEL32_GYRO32_NMEA":
+            return imu_packet_dtype(self.imu_measurements_per_packet).itemsize
+        return None
+
+    @property
+    def zone_packet_size(self) -> int:
+        return ZONE_PACKET_SIZE
+
+    @property
+    def header_type(self) -> str | None:
+        """Packet-header layout: ``"STANDARD"``, ``"FUSA"``, ``None`` for LEGACY lidar packets."""
+        return self.profile.header_type
+
+    @property
+    def return_labels(self) -> tuple[str, ...]:
+        """The label of each return slot of the profile, by ``return_order``."""
+        return RETURN_LABELS.get(self.return_order, RETURN_LABELS["STRONGEST_TO_WEAKEST"])[: self.profile.returns]
 
     @property
     def profile_name(self) -> str:
@@ -141,7 +190,7 @@ class OusterMetadata:
         ``"unknown"`` (firmware not in the metadata), ``"none"`` (LEGACY: no footer)."""
         if self.profile.legacy:
             return "none"
-        if self.profile.name.startswith("FUSA"):
+        if self.profile.header_type == "FUSA":  # no CRC in FUSA footers (ouster-sdk: none to check)
             return "zero"
         v = self.firmware_version
         if v is None:
@@ -176,7 +225,8 @@ class OusterMetadata:
             rows=self.pixels_per_column,
             columns_per_frame=self.columns_per_frame,
             return_mode=mode,
-            return_labels=self.profile.return_labels,
+            return_labels=self.return_labels,
+            return_order=self.return_order,
             beam_altitude_deg=self.beam_altitude_deg,
             beam_azimuth_deg=self.beam_azimuth_deg,
             frequency_hz=self.frequency_hz,
@@ -249,6 +299,15 @@ def _floats(doc: dict, what: str, paths: tuple[tuple[str, ...], ...], shape: tup
 
 _DF = ("lidar_data_format",), ("data_format",)
 
+#: Return-slot labels by ``return_order`` (ouster-sdk's ReturnOrder names, the last two of older firmware).
+RETURN_LABELS: dict[str, tuple[str, str]] = {
+    "STRONGEST_TO_WEAKEST": ("strongest", "second_strongest"),
+    "FARTHEST_TO_NEAREST": ("farthest", "second_farthest"),
+    "NEAREST_TO_FARTHEST": ("nearest", "second_nearest"),
+    "STRONGEST_RETURN_FIRST": ("strongest", "second_strongest"),
+    "LAST_RETURN_FIRST": ("last", "second_last"),
+}
+
 
 def _df(key: str) -> tuple[tuple[str, ...], ...]:
     return tuple(p + (key,) for p in _DF)
@@ -313,6 +372,14 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
     if not isinstance(profile_name, str):
         raise MetadataError(f"metadata field lidar_data_format.udp_profile_lidar must be text, got {profile_name!r}")
     profile = get_profile(profile_name)
+    header_type = _get(doc, *_df("header_type"), ("config_params", "header_type"))  # firmware 3.2+
+    if header_type is None:
+        header_type = "FUSA" if profile.header_type == "FUSA" else "STANDARD"
+        if not profile.legacy:
+            defaulted.append("header_type")
+    if not isinstance(header_type, str) or header_type not in HEADER_TYPES:
+        raise MetadataError(f"metadata field lidar_data_format.header_type {header_type!r}: expected one of {', '.join(HEADER_TYPES)}")
+    profile = with_header(profile, header_type)
 
     lidar_mode = _get(doc, ("config_params", "lidar_mode"), ("lidar_mode",))
     mode_w = mode_hz = None
@@ -419,8 +486,35 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
     firmware = _get(doc, ("sensor_info", "build_rev"), ("build_rev",))
     prod_line = _get(doc, ("sensor_info", "prod_line"), ("prod_line",))
     imu_profile = _get(doc, *_df("udp_profile_imu"), ("config_params", "udp_profile_imu"))
-    if imu_profile not in (None, "LEGACY"):
-        raise MetadataError(f"udp_profile_imu {imu_profile!r} is not supported (only LEGACY)")
+    if imu_profile is None:
+        imu_profile = "LEGACY"
+        defaulted.append("udp_profile_imu")
+    # an IMU profile lidarpkt does not know never keeps the lidar data from being decoded: kept by name
+    imu_profile = str(imu_profile)
+    imu_m = _int(doc, "IMU measurements per packet", ("imu_data_format", "imu_measurements_per_packet"))
+    if imu_m is None:
+        imu_m = 8
+        if imu_profile == "ACCEL32_GYRO32_NMEA":
+            defaulted.append("imu_measurements_per_packet")
+    if not 0 < imu_m <= 1024:
+        raise MetadataError(f"metadata field imu_data_format.imu_measurements_per_packet {imu_m} outside 1..1024")
+    zm_port = _int(doc, "UDP port", ("config_params", "udp_port_zm"), ("udp_port_zm",))
+    if zm_port is not None and not 0 <= zm_port <= 65535:
+        raise MetadataError(f"metadata field config_params.udp_port_zm {zm_port} is not a UDP port (0-65535)")
+    lidar_off = _get(doc, ("config_params", "udp_port_lidar"), ("udp_port_lidar",)) == 0
+    return_order = _get(doc, ("config_params", "return_order"), ("return_order",))
+    if return_order is None:
+        return_order = "STRONGEST_TO_WEAKEST"
+        defaulted.append("return_order")
+    if return_order not in RETURN_LABELS:
+        raise MetadataError(f"metadata field config_params.return_order {return_order!r}: expected one of {', '.join(RETURN_LABELS)}")
+    timestamp_mode = _get(doc, ("config_params", "timestamp_mode"), ("timestamp_mode",))
+    azimuth_window = _get(doc, ("config_params", "azimuth_window"), ("azimuth_window",))
+    if azimuth_window is not None:
+        if not (isinstance(azimuth_window, (list, tuple)) and len(azimuth_window) == 2
+                and all(isinstance(x, int) and 0 <= x <= 360000 for x in azimuth_window)):
+            raise MetadataError(f"metadata field config_params.azimuth_window must be [first, last] millidegrees in 0..360000, got {azimuth_window!r}")
+        azimuth_window = (int(azimuth_window[0]), int(azimuth_window[1]))
 
     return OusterMetadata(
         profile=profile,
@@ -446,4 +540,11 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
         raw=doc,
         defaulted=tuple(defaulted),
         path=path,
+        imu_profile=imu_profile,
+        imu_measurements_per_packet=imu_m,
+        zm_port=zm_port or None,
+        lidar_enabled=not lidar_off,
+        return_order=str(return_order),
+        timestamp_mode=str(timestamp_mode) if timestamp_mode is not None else None,
+        azimuth_window=azimuth_window,
     )

@@ -20,8 +20,8 @@ the digests in the tests) is derived from these tables.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import lru_cache
+from dataclasses import dataclass, replace
+from functools import cache, lru_cache
 
 import numpy as np
 
@@ -122,6 +122,9 @@ FUSA_HEADER: tuple[BitField, ...] = (
 )
 
 HEADER_BYTES = 32
+#: The status fields of the packet header (firmware 3.x; zero before), kept per column in ``Frame.extra``.
+HEADER_STATUS_FIELDS = ("alert_flags", "shot_limiting", "thermal_shutdown", "countdown_shot_limiting",
+                        "countdown_thermal_shutdown")
 FOOTER_BYTES = 32
 CRC_BYTES = 8
 
@@ -177,7 +180,7 @@ _RNG15_PIXEL = (
     BitField("REFLECTIVITY", 16, 8),
     BitField("NEAR_IR", 24, 8, 4),
 )
-_FUSA_DUAL_PIXEL = (
+_RNG15_DUAL_PIXEL = (
     BitField("RANGE", 0, 15, 3),
     BitField("FLAGS", 15, 1),
     BitField("REFLECTIVITY", 16, 8),
@@ -187,6 +190,77 @@ _FUSA_DUAL_PIXEL = (
     BitField("REFLECTIVITY2", 48, 8),
     BitField("WINDOW", 56, 8),
 )
+_RNG15_ZONE16_PIXEL = (
+    BitField("RANGE", 0, 15, 3),
+    BitField("FLAGS", 15, 1),
+    BitField("REFLECTIVITY", 16, 8),
+    BitField("NEAR_IR", 24, 8, 4),
+    BitField("ZONE_MASK", 32, 16),
+    BitField("WINDOW", 48, 8),
+    *_reserved(56, 8),
+)
+_RNG19_ZONE16_PIXEL = (
+    BitField("RANGE", 0, 19),
+    BitField("FLAGS", 19, 5),
+    *_reserved(24, 8),
+    BitField("REFLECTIVITY", 32, 8),
+    BitField("WINDOW", 40, 8),
+    BitField("SIGNAL", 48, 16),
+    BitField("NEAR_IR", 64, 16),
+    BitField("ZONE_MASK", 80, 16),
+)
+_RNG19_ZONE16_DUAL_PIXEL = (  # no NEAR_IR: the zone mask takes its place
+    BitField("RANGE", 0, 19),
+    BitField("FLAGS", 19, 5),
+    BitField("REFLECTIVITY", 24, 8),
+    BitField("RANGE2", 32, 19),
+    BitField("FLAGS2", 51, 5),
+    BitField("REFLECTIVITY2", 56, 8),
+    BitField("SIGNAL", 64, 16),
+    BitField("SIGNAL2", 80, 16),
+    BitField("ZONE_MASK", 96, 16),
+    *_reserved(112, 8),
+    BitField("WINDOW", 120, 8),
+)
+_RNG19_RGB16_PIXEL = (
+    BitField("RANGE", 0, 19),
+    BitField("FLAGS", 19, 5),
+    BitField("REFLECTIVITY", 24, 8),
+    BitField("SIGNAL", 32, 16),
+    BitField("NEAR_IR", 48, 16),
+    BitField("R", 64, 16),
+    BitField("G", 80, 16),
+    BitField("B", 96, 16),
+    *_reserved(112, 16),
+)
+_RNG19_DUAL_FIRST_FOUR_WORDS = (
+    BitField("RANGE", 0, 19),
+    BitField("FLAGS", 19, 5),
+    BitField("REFLECTIVITY", 24, 8),
+    BitField("RANGE2", 32, 19),
+    BitField("FLAGS2", 51, 5),
+    BitField("REFLECTIVITY2", 56, 8),
+    BitField("SIGNAL", 64, 16),
+    BitField("SIGNAL2", 80, 16),
+    BitField("NEAR_IR", 96, 16),
+)
+_RNG19_RGB16_DUAL_PIXEL = (
+    *_RNG19_DUAL_FIRST_FOUR_WORDS,
+    BitField("R", 112, 16),
+    BitField("G", 128, 16),
+    BitField("B", 144, 16),
+)
+_FIVE_WORD_PIXEL = (*_RNG19_DUAL_FIRST_FOUR_WORDS, *_reserved(112, 48))
+_RNG15_WIN8_PIXEL = (
+    BitField("RANGE", 0, 15, 3),
+    BitField("FLAGS", 15, 1),
+    BitField("REFLECTIVITY", 16, 8),
+    BitField("WINDOW", 24, 8),
+)
+
+#: Packet-header layouts by the metadata's ``header_type`` (firmware 3.2 names it; FUSA before it
+#: was implied by the FUSA_RNG15_RFL8_NIR8_DUAL profile name).
+HEADER_TYPES: dict[str, tuple[BitField, ...]] = {"STANDARD": STANDARD_HEADER, "FUSA": FUSA_HEADER}
 
 
 @dataclass(frozen=True)
@@ -213,6 +287,19 @@ class Profile:
         # by name (equal profiles have equal names): the field-wise hash of the dataclass hashed every bit
         # field each time a profile keyed a cache, ~70 times per batch of packets decoded
         return hash(self.name)
+
+    @property
+    def header_type(self) -> str | None:
+        """``"STANDARD"`` or ``"FUSA"`` (the packet-header layout), ``None`` for LEGACY (no header)."""
+        for name, fields in HEADER_TYPES.items():
+            if fields is self.header_fields:
+                return name
+        return None
+
+    @property
+    def header_status_bytes(self) -> tuple[int, int] | None:
+        """``(first, end)`` bytes of the header that hold :data:`HEADER_STATUS_FIELDS`, ``None`` for LEGACY."""
+        return _status_bytes(self.header_fields) if self.header_fields else None
 
     @property
     def header_bytes(self) -> int:
@@ -269,6 +356,12 @@ class Profile:
         return _packet_dtype(self, pixels_per_column, columns_per_packet)
 
 
+@cache
+def _status_bytes(header_fields: tuple[BitField, ...]) -> tuple[int, int]:
+    bits = [(f.start_bit, f.start_bit + f.width) for f in header_fields if f.name in HEADER_STATUS_FIELDS]
+    return min(b for b, _ in bits) // 8, -(-max(e for _, e in bits) // 8)
+
+
 @lru_cache(maxsize=64)
 def _packet_dtype(profile: Profile, h: int, c: int) -> np.dtype:
     names = ["header", "columns", "footer"]
@@ -277,18 +370,40 @@ def _packet_dtype(profile: Profile, h: int, c: int) -> np.dtype:
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": profile.packet_size(h, c)})
 
 
+_DUAL = ("strongest", "second_strongest")
 LEGACY = Profile("LEGACY", 12, _LEGACY_PIXEL, legacy=True)
 RNG19_RFL8_SIG16_NIR16 = Profile("RNG19_RFL8_SIG16_NIR16", 12, _RNG19_PIXEL, STANDARD_HEADER)
-RNG19_RFL8_SIG16_NIR16_DUAL = Profile(
-    "RNG19_RFL8_SIG16_NIR16_DUAL", 16, _RNG19_DUAL_PIXEL, STANDARD_HEADER, ("strongest", "second_strongest")
-)
+RNG19_RFL8_SIG16_NIR16_DUAL = Profile("RNG19_RFL8_SIG16_NIR16_DUAL", 16, _RNG19_DUAL_PIXEL, STANDARD_HEADER, _DUAL)
 RNG15_RFL8_NIR8 = Profile("RNG15_RFL8_NIR8", 4, _RNG15_PIXEL, STANDARD_HEADER)
-FUSA_RNG15_RFL8_NIR8_DUAL = Profile(
-    "FUSA_RNG15_RFL8_NIR8_DUAL", 8, _FUSA_DUAL_PIXEL, FUSA_HEADER, ("strongest", "second_strongest")
-)
+RNG15_RFL8_NIR8_DUAL = Profile("RNG15_RFL8_NIR8_DUAL", 8, _RNG15_DUAL_PIXEL, STANDARD_HEADER, _DUAL)
+# the deprecated name of RNG15_RFL8_NIR8_DUAL under a FUSA header (firmware 3.1)
+FUSA_RNG15_RFL8_NIR8_DUAL = Profile("FUSA_RNG15_RFL8_NIR8_DUAL", 8, _RNG15_DUAL_PIXEL, FUSA_HEADER, _DUAL)
+RNG15_RFL8_NIR8_ZONE16 = Profile("RNG15_RFL8_NIR8_ZONE16", 8, _RNG15_ZONE16_PIXEL, STANDARD_HEADER)
+RNG19_RFL8_SIG16_NIR16_ZONE16 = Profile("RNG19_RFL8_SIG16_NIR16_ZONE16", 12, _RNG19_ZONE16_PIXEL, STANDARD_HEADER)
+RNG19_RFL8_SIG16_ZONE16_DUAL = Profile("RNG19_RFL8_SIG16_ZONE16_DUAL", 16, _RNG19_ZONE16_DUAL_PIXEL, STANDARD_HEADER, _DUAL)
+RNG19_RFL8_SIG16_NIR16_RGB16 = Profile("RNG19_RFL8_SIG16_NIR16_RGB16", 16, _RNG19_RGB16_PIXEL, STANDARD_HEADER)
+RNG19_RFL8_SIG16_NIR16_RGB16_DUAL = Profile(
+    "RNG19_RFL8_SIG16_NIR16_RGB16_DUAL", 20, _RNG19_RGB16_DUAL_PIXEL, STANDARD_HEADER, _DUAL)
+RNG15_RFL8_WIN8 = Profile("RNG15_RFL8_WIN8", 4, _RNG15_WIN8_PIXEL, STANDARD_HEADER)
+FIVE_WORD_PIXEL = Profile("FIVE_WORD_PIXEL", 20, _FIVE_WORD_PIXEL, STANDARD_HEADER, _DUAL)
 
 PROFILES: dict[str, Profile] = {
-    p.name: p for p in (LEGACY, RNG19_RFL8_SIG16_NIR16, RNG19_RFL8_SIG16_NIR16_DUAL, RNG15_RFL8_NIR8, FUSA_RNG15_RFL8_NIR8_DUAL)
+    p.name: p
+    for p in (
+        LEGACY,
+        RNG19_RFL8_SIG16_NIR16,
+        RNG19_RFL8_SIG16_NIR16_DUAL,
+        RNG15_RFL8_NIR8,
+        RNG15_RFL8_NIR8_DUAL,
+        FUSA_RNG15_RFL8_NIR8_DUAL,
+        RNG15_RFL8_NIR8_ZONE16,
+        RNG19_RFL8_SIG16_NIR16_ZONE16,
+        RNG19_RFL8_SIG16_ZONE16_DUAL,
+        RNG19_RFL8_SIG16_NIR16_RGB16,
+        RNG19_RFL8_SIG16_NIR16_RGB16_DUAL,
+        RNG15_RFL8_WIN8,
+        FIVE_WORD_PIXEL,
+    )
 }
 
 for _p in PROFILES.values():
@@ -298,6 +413,24 @@ for _p in PROFILES.values():
     for _f in _p.pixel_fields:  # decode reads each pixel field from one 32-bit word
         if _f.start_bit // 32 != (_f.start_bit + _f.width - 1) // 32:
             raise PacketFormatError(f"{_p.name} pixel: field {_f.name} straddles a 32-bit word")
+
+
+@cache
+def with_header(profile: Profile, header_type: str) -> Profile:
+    """``profile`` under the packet header ``header_type`` (``"STANDARD"`` or ``"FUSA"``); LEGACY has none.
+
+    The same object for the same arguments (decoders key caches by profile).
+
+    Raises:
+        MetadataError: ``header_type`` is neither.
+    """
+    if profile.legacy:
+        return profile
+    try:
+        header = HEADER_TYPES[header_type]
+    except KeyError:
+        raise MetadataError(f"header_type {header_type!r} is not supported; supported: {', '.join(HEADER_TYPES)}") from None
+    return profile if header is profile.header_fields else replace(profile, header_fields=header)
 
 
 def get_profile(name: str) -> Profile:
@@ -328,6 +461,93 @@ IMU_DTYPE = np.dtype(
 )
 IMU_PACKET_SIZE = IMU_DTYPE.itemsize
 
+#: IMU profiles of the metadata's ``udp_profile_imu``.
+IMU_PROFILES = ("LEGACY", "ACCEL32_GYRO32_NMEA")
+
+#: ACCEL32_GYRO32_NMEA (firmware 3.x): the 32-byte packet header of the lidar packets, this NMEA block,
+#: ``imu_measurements_per_packet`` measurements of :data:`IMU_MEASUREMENT_DTYPE`, the 32-byte footer.
+#: The sentence is NUL-padded ASCII (the last NMEA sentence the sensor received, empty without one).
+IMU_NMEA_BLOCK_DTYPE = np.dtype(
+    {"names": ["nmea_timestamp_ns", "nmea_sentence"], "formats": ["<u8", "S85"], "offsets": [0, 8], "itemsize": 100}
+)
+#: One ACCEL32_GYRO32_NMEA measurement: a column-like header (status bit 0 = valid), acceleration in m/s²
+#: and angular velocity in rad/s (float32; the LEGACY packet's are in g and deg/s).
+IMU_MEASUREMENT_DTYPE = np.dtype(
+    [
+        ("timestamp_ns", "<u8"),
+        ("measurement_id", "<u2"),
+        ("status", "<u2"),
+        ("accel_x_mps2", "<f4"),
+        ("accel_y_mps2", "<f4"),
+        ("accel_z_mps2", "<f4"),
+        ("gyro_x_radps", "<f4"),
+        ("gyro_y_radps", "<f4"),
+        ("gyro_z_radps", "<f4"),
+    ]
+)
+
+
+def imu_packet_dtype(measurements: int) -> np.dtype:
+    """Structured dtype of one ACCEL32_GYRO32_NMEA packet holding ``measurements`` measurements."""
+    return _imu_packet_dtype(int(measurements))
+
+
+@lru_cache(maxsize=16)
+def _imu_packet_dtype(m: int) -> np.dtype:
+    nmea_at = HEADER_BYTES
+    meas_at = nmea_at + IMU_NMEA_BLOCK_DTYPE.itemsize
+    footer_at = meas_at + m * IMU_MEASUREMENT_DTYPE.itemsize
+    return np.dtype(
+        {
+            "names": ["header", "nmea", "measurements", "footer"],
+            "formats": [("u1", (HEADER_BYTES,)), IMU_NMEA_BLOCK_DTYPE, (IMU_MEASUREMENT_DTYPE, (m,)), ("u1", (FOOTER_BYTES,))],
+            "offsets": [0, nmea_at, meas_at, footer_at],
+            "itemsize": footer_at + FOOTER_BYTES,
+        }
+    )
+
+
+# --------------------------------------------------------------------------- zone monitoring
+
+ZONES_PER_PACKET = 16
+ZONESET_HASH_BYTES = 32
+#: One zone's state in a zone-monitoring packet (36 bytes); the ranges are in mm like RANGE.
+ZONE_STATE_FIELDS: tuple[BitField, ...] = (
+    BitField("live", 0, 1),
+    *_reserved(1, 7),
+    BitField("id", 8, 8),
+    BitField("error_flags", 16, 8),
+    *_reserved(24, 2),
+    BitField("trigger_type", 26, 2),
+    *_reserved(28, 3),
+    BitField("trigger_status", 31, 1),
+    BitField("triggered_frames", 32, 32),
+    BitField("count", 64, 32),
+    BitField("occlusion_count", 96, 32),
+    BitField("invalid_count", 128, 32),
+    BitField("max_count", 160, 32),
+    BitField("min_range_mm", 192, 19),
+    *_reserved(211, 13),
+    BitField("max_range_mm", 224, 19),
+    *_reserved(243, 13),
+    BitField("mean_range_mm", 256, 19),
+    *_reserved(275, 13),
+)
+ZONE_STATE_BYTES = 36
+_check_cover(ZONE_STATE_FIELDS, ZONE_STATE_BYTES * 8, "zone state")
+#: Zone-monitoring packet: packet header, timestamp (ns), SHA-256 of the live zone set, 16 zone states, footer.
+ZONE_PACKET_DTYPE = np.dtype(
+    {
+        "names": ["header", "timestamp_ns", "live_zoneset_hash", "zones", "footer"],
+        "formats": [("u1", (HEADER_BYTES,)), "<u8", ("u1", (ZONESET_HASH_BYTES,)),
+                    ("u1", (ZONES_PER_PACKET, ZONE_STATE_BYTES)), ("u1", (FOOTER_BYTES,))],
+        "offsets": [0, HEADER_BYTES, HEADER_BYTES + 8, HEADER_BYTES + 8 + ZONESET_HASH_BYTES,
+                    HEADER_BYTES + 8 + ZONESET_HASH_BYTES + ZONES_PER_PACKET * ZONE_STATE_BYTES],
+        "itemsize": HEADER_BYTES + 8 + ZONESET_HASH_BYTES + ZONES_PER_PACKET * ZONE_STATE_BYTES + FOOTER_BYTES,
+    }
+)
+ZONE_PACKET_SIZE = ZONE_PACKET_DTYPE.itemsize
+
 
 # --------------------------------------------------------------------------- bit access helpers
 
@@ -337,6 +557,14 @@ def read_bits(data: np.ndarray, field: BitField) -> np.ndarray:
     first = field.start_bit // 8
     shift = field.start_bit % 8
     nbytes = (shift + field.width + 7) // 8
+    if nbytes == 1:  # within one byte (the header's status fields, read for every packet decoded)
+        v = data[..., first]
+        if shift:
+            v = v >> np.uint8(shift)
+        if field.width < 8:
+            v = v & np.uint8(field.mask)
+        v = v.astype(field.dtype)
+        return v << field.dtype.type(field.upshift) if field.upshift else v
     acc = np.zeros(data.shape[:-1], np.uint64)
     for k in range(nbytes):
         acc |= data[..., first + k].astype(np.uint64) << np.uint64(8 * k)

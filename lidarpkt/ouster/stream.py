@@ -26,7 +26,7 @@ def stream_kind(payload_size: int, metadata: OusterMetadata | None = None) -> st
     recognisable; without it only the LEGACY sizes of 16 to 128 beams are."""
     if metadata is not None and payload_size == metadata.packet_size:
         return "lidar"
-    if payload_size == IMU_PACKET_SIZE:
+    if payload_size == IMU_PACKET_SIZE or (metadata is not None and payload_size == metadata.imu_packet_size):
         return "imu"
     if metadata is None and payload_size in LEGACY_SIZES:
         return "lidar"

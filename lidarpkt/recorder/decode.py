@@ -47,7 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML)")
+    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
+                        "Pandar's angle-correction CSV")
     parser.add_argument("--velodyne-model", metavar="NAME",
                         help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
@@ -154,8 +155,9 @@ def _to_mcap(args, out: Path) -> int:
     writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
-        frame_messages = writer.mcap.messages_written - writer.packet_messages
-        print(f"lidarpkt decode: {writer.packet_messages} packet messages and {frame_messages} frame messages "
+        frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
+        imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
+        print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
               f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 

@@ -48,9 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http", metavar="HOST:PORT",
                         help="also serve the (first) --metadata at GET /api/v1/sensor/metadata there, as the "
                              "sensor does (for record/view --sensor)")
+    parser.add_argument("--ptc", metavar="HOST:PORT",
+                        help="also answer Hesai PTC commands there (a Pandar's TCP port 9347), serving --calibration "
+                             "for 'get calibration' (0x05), as the sensor does")
+    parser.add_argument("--calibration", metavar="FILE", help="the Hesai angle-correction CSV --ptc serves")
     parser.add_argument("--start-after-fetch", type=float, metavar="S",
-                        help="with --http: send nothing until the metadata has been fetched, then start S seconds "
-                             "later (the client opens its sockets after fetching)")
+                        help="with --http or --ptc: send nothing until the metadata (calibration) has been fetched, "
+                             "then start S seconds later (the client opens its sockets after fetching)")
     cliargs.add_quiet(parser, "no summary")
 
 
@@ -160,7 +164,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
                 kind = next((k for k in kinds if k != streams.OTHER), streams.OTHER)
                 if kind == streams.OTHER and mds == [None] and _ouster_lidar_by_header(p):
                     kind = streams.OUSTER_LIDAR  # as `lidarpkt info` recognises it without metadata
-                if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR):
+                if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR, streams.HESAI_DATA):
                     out_port = port
                 else:
                     base = orig if orig is not None else DEFAULT_PORTS.get(kind, port)
@@ -235,8 +239,9 @@ def run(args: argparse.Namespace) -> int:
         # printed even with --quiet: scripts wait for it before starting the client
         print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
               "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
-    elif args.start_after_fetch is not None:
-        raise RecorderError("--start-after-fetch: it needs --http HOST:PORT; give both or neither")
+    ptc = _ptc_server(args)
+    if args.start_after_fetch is not None and http is None and ptc is None:
+        raise RecorderError("--start-after-fetch: it needs --http HOST:PORT or --ptc HOST:PORT; give both or neither")
     import signal
     import threading
 
@@ -244,9 +249,9 @@ def run(args: argparse.Namespace) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     try:
-        if http is not None and args.start_after_fetch is not None:
+        if args.start_after_fetch is not None:
             try:
-                http.fetched.wait()
+                (http.fetched if http is not None else ptc.served).wait()
             except KeyboardInterrupt:
                 return 0
             time.sleep(args.start_after_fetch)
@@ -256,6 +261,37 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, previous)
         if http is not None:
             http.close()
+        if ptc is not None:
+            ptc.close()
+
+
+def _ptc_server(args):
+    """The PTC server of ``--ptc`` serving ``--calibration`` (a Hesai CSV, checked first), or None."""
+    if args.calibration and not args.ptc:
+        raise RecorderError(f"--calibration {args.calibration}: replay serves it over --ptc HOST:PORT; give both")
+    if not args.ptc:
+        return None
+    if not args.calibration:
+        raise RecorderError(f"--ptc {args.ptc}: there is no calibration to serve; give --calibration PandarXT32.csv")
+    from lidarpkt import cliargs
+    from lidarpkt.hesai.calibration import load_calibration
+    from lidarpkt.hesai.ptc import GET_LIDAR_CALIBRATION, PTC_PORT, PtcServer
+
+    cliargs.check_inputs([args.calibration], "--calibration")
+    load_calibration(args.calibration)  # a CalibrationError now, not in the client
+    host, sep, port_text = args.ptc.rpartition(":")
+    if not sep:
+        host, port_text = args.ptc, str(PTC_PORT)
+    if not host or not port_text.isdigit() or int(port_text) > 65535:
+        raise RecorderError(f"--ptc {args.ptc!r}: expected HOST or HOST:PORT, e.g. 127.0.0.1:9347 (0: any free port)")
+    host, port = host.strip("[]"), int(port_text)
+    try:
+        server = PtcServer({GET_LIDAR_CALIBRATION: open(args.calibration, "rb").read()}, host, port)
+    except OSError as exc:
+        raise RecorderError(f"--ptc {args.ptc}: cannot listen there ({exc.strerror or exc}); choose another port") from None
+    # printed even with --quiet: scripts wait for it before starting the client
+    print(f"lidarpkt replay: serving the Hesai calibration over PTC at {host}:{server.port}", file=sys.stderr, flush=True)
+    return server
 
 
 def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: list) -> int:

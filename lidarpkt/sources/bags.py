@@ -64,12 +64,29 @@ def _nebula_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
 
 
+def _pandar_scan(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    packets = msg.packets
+    if not packets:
+        return np.zeros((0, 0), np.uint8), np.zeros(0, np.int64)
+    sizes = {int(p.size) for p in packets}
+    if len(sizes) != 1:  # one sensor sends one size; a batch holds one size
+        raise ValueError(f"packets of {len(sizes)} sizes ({sorted(sizes)[:4]}) in one PandarScan")
+    size = sizes.pop()
+    if not 0 < size <= 1500:
+        raise ValueError(f"packet size {size} outside the 1500-byte buffer")
+    payload = np.stack([np.asarray(p.data, dtype=np.uint8)[:size] for p in packets])
+    times = np.array([_stamp_ns(p.stamp) for p in packets], dtype=np.int64)
+    times[times == 0] = bag_time_ns
+    return payload, times
+
+
 # message type → extractor(message, bag receive time ns) → (payloads [N, L], times ns [N])
 PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]] = {
     "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
     "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
     "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
     "nebula_msgs/msg/NebulaPacket": _nebula_packet,
+    "pandar_msgs/msg/PandarScan": _pandar_scan,
 }
 
 

@@ -19,6 +19,9 @@ MESSAGE_DEFINITIONS: dict[str, str] = {
     "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
     # tier4/nebula, nebula_msgs: a stamped packet of any size (lidarpkt writes VLP-16 position packets with it)
     "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
+    # tier4/nebula, pandar_msgs: a Hesai scan of fixed 1500-byte buffers, each packet's length in `size`
+    "pandar_msgs/msg/PandarPacket": "builtin_interfaces/Time stamp\nuint8[1500] data\nuint32 size\n",
+    "pandar_msgs/msg/PandarScan": "std_msgs/Header header\npandar_msgs/PandarPacket[] packets\n",
     # ros-drivers/nmea_msgs
     "nmea_msgs/msg/Sentence": "std_msgs/Header header\nstring sentence\n",
 }

@@ -26,6 +26,13 @@ CAPTURES = [
     ("ouster-sdk/same_ports_legacy.pcap", ["ouster-sdk/same_ports_legacy.1.json", "ouster-sdk/same_ports_legacy.2.json"], None),
     ("ouster-sdk/same_ports_nonlegacy.pcap", ["ouster-sdk/same_ports_nonlegacy.1.json", "ouster-sdk/same_ports_nonlegacy.2.json"], None),
     ("rust-lidar-utils/ouster_example.pcap", ["rust-lidar-utils/ouster_example.json"], None),
+    # firmware 3.x: RNG19 single with an ACCEL32_GYRO32_NMEA IMU, FARTHEST_TO_NEAREST, shot limiting in the header
+    ("ouster-sdk/shot_limiting_test.pcap", ["ouster-sdk/shot_limiting_test.json"], None),
+    ("ouster-sdk/OS-1-128_767798045_1024x10_20230712_120049.pcap", ["ouster-sdk/OS-1-128_767798045_1024x10_20230712_120049.json"], None),
+    ("ouster-sdk/same_ports.pcap", ["ouster-sdk/same_ports.1.json", "ouster-sdk/same_ports.2.json", "ouster-sdk/same_ports.2.non_colliding_imu.json"], None),
+    ("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.pcap", ["ouster-sdk/OS-1-128_v2.3.0_1024x10.json"], None),
+    ("ouster-sdk/windowed_frame1.pcap", ["ouster-sdk/windowed_frame1_0.json"], None),
+    ("ouster-sdk/windowed_frame2.pcap", ["ouster-sdk/windowed_frame2_0.json"], None),
 ]
 DIGESTED = [c for c in CAPTURES if c[2]]
 IDS = [c[0].split("/")[-1] for c in CAPTURES]

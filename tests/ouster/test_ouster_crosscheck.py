@@ -29,6 +29,8 @@ FIELD_MAP = {
     "FLAGS2": ("flags", 1),
     "NEAR_IR": ("near_ir", None),
 }
+# pixel fields that land in Frame.extra, under their names lower-cased
+EXTRA_FIELDS = ("WINDOW", "ZONE_MASK", "R", "G", "B")
 
 
 def sdk_frames(pcap: str, meta: str):
@@ -50,11 +52,15 @@ def test_frames_identical_to_ouster_sdk(pcap, meta):
     lut = core.XYZLut(info, use_extrinsics=False)
     lut32 = core.XYZLutFloat(info, use_extrinsics=False)
     for mine, sdk in zip(ours, theirs):
-        assert set(sdk.fields) <= set(FIELD_MAP), f"SDK field without a counterpart: {set(sdk.fields) - set(FIELD_MAP)}"
-        for name in sdk.fields:
-            attr, slot = FIELD_MAP[name]
-            arr = getattr(mine, attr)
-            arr = arr if slot is None else arr[slot]
+        pixel_fields = [n for n in sdk.fields if sdk.field(n).shape == mine.range_mm.shape[1:]]
+        assert set(pixel_fields) <= set(FIELD_MAP) | set(EXTRA_FIELDS), f"SDK field without a counterpart: {set(pixel_fields) - set(FIELD_MAP)}"
+        for name in pixel_fields:
+            if name in EXTRA_FIELDS:
+                arr = mine.extra[name.lower()]
+            else:
+                attr, slot = FIELD_MAP[name]
+                arr = getattr(mine, attr)
+                arr = arr if slot is None else arr[slot]
             want = sdk.field(name)
             assert arr.dtype == want.dtype, name
             assert np.array_equal(arr, want), f"frame {mine.frame_id} field {name} differs"
@@ -79,7 +85,7 @@ def test_frames_identical_to_ouster_sdk(pcap, meta):
             assert differ == 0, f"{name} float32 XYZ: {differ} coordinates differ from XYZLutFloat"
 
 
-@pytest.mark.parametrize("meta", sorted({j for _, jsons, _ in CAPTURES for j in jsons}))
+@pytest.mark.parametrize("meta", sorted({j for _, jsons, _ in CAPTURES for j in jsons} | {"ouster-sdk/imu_zm_no_lidar_0.json"}))
 def test_metadata_matches_ouster_sdk(meta):
     core = pytest.importorskip("ouster.sdk.core")
     md: OusterMetadata = load_metadata(external(meta))
@@ -87,7 +93,8 @@ def test_metadata_matches_ouster_sdk(meta):
         warnings.simplefilter("ignore")
         info = core.SensorInfo(external(meta).read_text())
     fmt = info.format
-    assert md.profile.name == str(fmt.udp_profile_lidar).split(".")[-1]
+    # udp_port_lidar 0 turns the lidar stream off: ouster-sdk says profile OFF, lidarpkt keeps the layout and says so
+    assert (md.profile.name if md.lidar_enabled else "OFF") == str(fmt.udp_profile_lidar).split(".")[-1]
     assert md.pixels_per_column == fmt.pixels_per_column
     assert md.columns_per_packet == fmt.columns_per_packet
     assert md.columns_per_frame == fmt.columns_per_frame
@@ -101,7 +108,18 @@ def test_metadata_matches_ouster_sdk(meta):
     assert md.lidar_origin_to_beam_origin_mm == info.lidar_origin_to_beam_origin_mm
     assert md.init_id == info.init_id
     assert (md.serial or "0") == str(info.sn or 0)
-    assert md.packet_size == core.PacketFormat(info).lidar_packet_size
+    pf = core.PacketFormat(info)
+    assert md.packet_size == pf.lidar_packet_size or not md.lidar_enabled
+    # firmware 3.x: header type, IMU profile and its packet size, zone packets, return order
+    assert md.header_type == (None if md.profile.legacy else str(fmt.header_type).split(".")[-1])
+    assert md.imu_profile == str(fmt.udp_profile_imu).split(".")[-1]
+    if md.imu_profile != "LEGACY":
+        assert md.imu_measurements_per_packet == fmt.imu_measurements_per_packet
+    assert md.imu_packet_size == pf.imu_packet_size
+    if not md.profile.legacy:
+        assert md.zone_packet_size == pf.zone_packet_size
+    if info.config.return_order is not None:
+        assert md.return_order == str(info.config.return_order).split(".")[-1]
 
 
 @pytest.mark.parametrize("pcap,jsons", [(p, j) for p, j, _ in CAPTURES if "empty" not in p], ids=lambda x: str(x).split("/")[-1])

@@ -52,8 +52,8 @@ def test_bit_field_types_masks_and_lookups():
     with pytest.raises(KeyError, match="RNG15_RFL8_NIR8 has no pixel field 'SIGNAL'"):
         P.RNG15_RFL8_NIR8.field("SIGNAL")
     assert P.get_profile("LEGACY") is P.LEGACY
-    with pytest.raises(MetadataError, match="'FIVE_WORD_PIXEL' is not supported"):
-        P.get_profile("FIVE_WORD_PIXEL")
+    with pytest.raises(MetadataError, match="'RNG99_BOGUS' is not supported"):
+        P.get_profile("RNG99_BOGUS")
 
 
 @pytest.mark.parametrize("profile,h,size", [

@@ -381,7 +381,7 @@ def test_mcap_to_mcap_keeps_non_legacy_ouster_topics_from_the_recorded_metadata(
     _, _, a = _official(first)
     _, _, b = _official(second)
     topics = lambda msgs: sorted({t for t, _, _ in msgs})  # noqa: E731
-    assert topics(b) == topics(a) == ["/ouster/imu_packets", "/ouster/lidar_packets", "/ouster/metadata"]
+    assert topics(b) == topics(a) == ["/ouster/imu", "/ouster/imu_packets", "/ouster/lidar_packets", "/ouster/metadata"]  # /ouster/imu: decoded samples
     lidar = lambda msgs: [bytes(m.buf) for t, _, m in msgs if t == "/ouster/lidar_packets"]  # noqa: E731
     assert lidar(b) == lidar(a) and len(lidar(a)) == 64
 

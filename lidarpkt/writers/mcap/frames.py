@@ -252,6 +252,7 @@ class McapFrameWriter(BaseWriter):
         self._input: str | None = None if capture is None else str(capture)
         self._described: set[tuple] = set()
         self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
+        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written beside them
         if self.calibration is not None:
             self._add_calibration_record(self.calibration)
 
@@ -294,7 +295,8 @@ class McapFrameWriter(BaseWriter):
                 if done is not None:
                     progress(int(done))
         sink.finish()
-        self.packet_messages += self.mcap.messages_written - before
+        self.decoded_messages += sink.decoded_messages
+        self.packet_messages += self.mcap.messages_written - before - sink.decoded_messages
 
     def set_capture_times(self, clock_offsets: dict[str, int], start_ns: int | None, end_ns: int | None) -> None:
         """The clock offsets and time span of the capture whose frames come next."""

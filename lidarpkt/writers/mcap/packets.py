@@ -29,6 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lidarpkt import streams
+from lidarpkt.decoder import StreamCounter
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
@@ -80,10 +81,11 @@ class PacketSink:
         self.ouster_metadata = self._ouster_mds[0] if self._ouster_mds else None  # the first sensor's
         self.max_scan_packets = max_scan_packets
         self.streams: dict[tuple, StreamReport] = {}
-        self._trackers: dict[tuple, streams.VelodyneLoss | streams.OusterLoss] = {}
+        self._trackers: dict[tuple, StreamCounter] = {}
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
+        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written
         for md in self._ouster_mds:
             self._write_ouster_metadata(md, log_time_ns or 0)
 
@@ -136,7 +138,7 @@ class PacketSink:
             if kind == streams.OUSTER_LIDAR and md is None:
                 self.notes.append(f"{where} look like Ouster LEGACY lidar packets; without --metadata they are "
                                   "recorded but not checked for loss nor counted as frames")
-            elif kind == streams.OTHER:
+            elif kind == streams.OTHER and not (md is not None and batch.payload_size == md.zone_packet_size):
                 self.notes.append(f"{where} are no stream lidarpkt knows (an Ouster profile needs --metadata); "
                                   "they are kept on /lidarpkt/other_packets")
         host = batch.timestamp_ns
@@ -149,6 +151,8 @@ class PacketSink:
                 tracker = self._trackers[key] = streams.OusterLoss(md)
             tracker.update(batch.payload)
             rep.count = tracker.count
+        elif kind == streams.HESAI_DATA and self._hesai_counted(key, rep, batch):
+            pass  # kept on /lidarpkt/other_packets (nebula's packet message), read back by lidarpkt.open
         else:  # no layout to find gaps in: counted only
             rep.count.packets += n
         if kind == streams.OUSTER_LIDAR:
@@ -158,6 +162,7 @@ class PacketSink:
         else:
             topic = schemas.VELODYNE_POSITION if kind == streams.VELODYNE_POSITION else schemas.OTHER_PACKETS
         write = self.writer.write
+        self._write_decoded_ouster(kind, md, batch)
         if topic.msgtype == schemas.PACKET_MSG:
             for t, row in zip(host.tolist(), batch.payload):
                 write(topic, schemas.encode_packet_msg(row.tobytes()), t)
@@ -165,6 +170,49 @@ class PacketSink:
             for t, row in zip(host.tolist(), batch.payload):
                 write(topic, schemas.encode_stamped_packet(row.tobytes(), t), t)
         rep.messages += n
+
+    def _hesai_counted(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> bool:
+        """Count a Pandar stream's losses and rotations; False (counted as packets only) if its bytes are no Pandar's."""
+        from lidarpkt.errors import PacketFormatError
+
+        tracker = self._trackers.get(key)
+        if tracker is None:
+            tracker = self._trackers[key] = streams.HesaiLoss()
+        try:
+            tracker.update(batch.payload)
+        except PacketFormatError:
+            return False
+        rep.count = tracker.count
+        return True
+
+    def _write_decoded_ouster(self, kind: str, md, batch: PacketBatch) -> None:
+        """Beside the raw packets: one ``sensor_msgs/Imu`` per IMU sample (log time: its packet's receive time),
+        and the zone states of zone-monitoring packets (their port, size and header say so) as JSON."""
+        if md is None:
+            return
+        from lidarpkt.ouster.detect import classify
+
+        match = classify(batch, [md]) if kind in (streams.OUSTER_IMU, streams.OTHER) else None
+        if match is None:
+            return
+        host = batch.timestamp_ns
+        if match[0] == "imu" and batch.payload_size == md.imu_packet_size:
+            from lidarpkt.ouster.imu import imu_samples
+
+            samples = imu_samples(batch.payload, md, str(batch.src))
+            times = host[samples.extra["packet_index"]].tolist()
+            for t, data in zip(times, schemas.encode_imu_samples(samples, "os_imu")):
+                self.writer.write(schemas.OUSTER_IMU_SAMPLES, data, t)
+            self.decoded_messages += len(samples)
+        elif match[0] == "zone":
+            from lidarpkt.ouster.zone import decode_zone_packets
+
+            states = decode_zone_packets(batch.payload, md.header_type or "STANDARD")
+            string_t = schemas.typestore().types[schemas.STRING]
+            for t, record in zip(host.tolist(), states.records()):
+                self.writer.write(schemas.OUSTER_ZONE_STATES,
+                                  schemas.encode(schemas.STRING, string_t(data=json.dumps(record))), t)
+            self.decoded_messages += len(states)
 
     def _push_velodyne(self, key: tuple, rep: StreamReport, batch: PacketBatch) -> None:
         if key not in self._described:
@@ -227,7 +275,7 @@ class PacketSink:
     def frames(self) -> int:
         """Rotations completed, over the lidar streams (the largest of them)."""
         return max((r.count.frames for r in self.streams.values()
-                    if r.kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR)), default=0)
+                    if r.kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR, streams.HESAI_DATA)), default=0)
 
     def report_lines(self) -> list[str]:
         """One line per stream for the end-of-run summary."""
@@ -245,7 +293,7 @@ def metadata_for(batch: PacketBatch, ouster_metadata: Sequence[Any]):
     destination port, else the first; None when none is given."""
     if len(ouster_metadata) > 1 and batch.dst is not None:
         for md in ouster_metadata:
-            if batch.dst.port in (md.lidar_port, md.imu_port):
+            if batch.dst.port in (md.lidar_port, md.imu_port, md.zm_port):
                 return md
     return ouster_metadata[0] if ouster_metadata else None
 

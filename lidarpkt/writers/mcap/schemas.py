@@ -23,11 +23,17 @@ topic                             type                                   content
 ``/ouster/lidar_packets``         ``ouster_sensor_msgs/msg/PacketMsg``   one Ouster lidar packet per message
 ``/ouster/imu_packets``           ``ouster_sensor_msgs/msg/PacketMsg``   one Ouster IMU packet per message
 ``/ouster/metadata``              ``std_msgs/msg/String``                the sensor metadata JSON (latched)
+``/ouster/imu``                   ``sensor_msgs/msg/Imu``                one IMU sample (decode, with metadata):
+                                                                         m/s², rad/s, ``header.stamp`` = sensor
+                                                                         time, orientation unknown
+``/ouster/zone_states``           ``std_msgs/msg/String``                one zone-monitoring packet's 16 zone
+                                                                         states as JSON
 ``/lidarpkt/other_packets``       ``nebula_msgs/msg/NebulaPacket``       datagrams of no known stream (kept,
                                                                          never dropped)
 ``/velodyne_points`` (``2``)      ``sensor_msgs/msg/PointCloud2``        organised frame, return slot 0 (1);
                                                                          NaN x/y/z where no return
 ``/ouster/points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        organised frame, destaggered
+``/pandar_points`` (``2``)        ``sensor_msgs/msg/PointCloud2``        Hesai frame (nebula's topic name)
 ``<prefix>/range_image`` (``2``)  ``sensor_msgs/msg/Image``              ``32FC1`` range in metres
 ``<prefix>/reflectivity_image``   ``sensor_msgs/msg/Image``              ``mono8`` reflectivity
 ``/gps/nmea_sentence``            ``nmea_msgs/msg/Sentence``             one verified NMEA sentence
@@ -100,19 +106,22 @@ OUSTER_LIDAR = Topic("/ouster/lidar_packets", PACKET_MSG)
 OUSTER_IMU = Topic("/ouster/imu_packets", PACKET_MSG)
 OUSTER_METADATA = Topic("/ouster/metadata", STRING, QOS_LATCHED)
 OTHER_PACKETS = Topic("/lidarpkt/other_packets", NEBULA_PACKET)
+IMU = "sensor_msgs/msg/Imu"
+OUSTER_IMU_SAMPLES = Topic("/ouster/imu", IMU)
+OUSTER_ZONE_STATES = Topic("/ouster/zone_states", STRING, QOS_RELIABLE)
 NMEA = Topic("/gps/nmea_sentence", NMEA_SENTENCE, QOS_RELIABLE)
 TF_STATIC = Topic("/tf_static", TF_MESSAGE, QOS_LATCHED)
 
 
 def points_topic(vendor: str, slot: int) -> Topic:
     """PointCloud2 topic of return slot ``slot`` (0 or 1) of a ``vendor`` frame."""
-    base = "/velodyne_points" if vendor == "velodyne" else "/ouster/points"
+    base = {"velodyne": "/velodyne_points", "hesai": "/pandar_points"}.get(vendor, "/ouster/points")
     return Topic(base + ("" if slot == 0 else str(slot + 1)), POINTCLOUD2)
 
 
 def image_topic(vendor: str, field: str, slot: int) -> Topic:
     """Image topic of one field (``range``, ``reflectivity``) and return slot."""
-    prefix = "/velodyne" if vendor == "velodyne" else "/ouster"
+    prefix = {"velodyne": "/velodyne", "hesai": "/pandar"}.get(vendor, "/ouster")
     return Topic(f"{prefix}/{field}_image" + ("" if slot == 0 else str(slot + 1)), IMAGE)
 
 
@@ -252,3 +261,22 @@ def decode_stamped_packet(data: bytes) -> tuple[int, bytes]:
     if len(data) < 16 or len(data) < 16 + n:
         raise CaptureFormatError(f"NebulaPacket says {n} bytes but holds {len(data) - 16}")
     return sec * 1_000_000_000 + nanosec, bytes(data[16:16 + n])
+
+
+def encode_imu_samples(samples, frame_id: str) -> list[bytes]:
+    """One ``sensor_msgs/msg/Imu`` (CDR) per sample of :class:`lidarpkt.imu.ImuSamples`: ``header.stamp`` = the
+    sample's time, angular velocity (rad/s) and linear acceleration (m/s²) as given, covariances unknown (0), and
+    no orientation (``orientation_covariance[0] = -1``, REP 145)."""
+    store = typestore()
+    imu_t, vec_t, quat_t = store.types[IMU], store.types["geometry_msgs/msg/Vector3"], store.types["geometry_msgs/msg/Quaternion"]
+    no_orientation = np.zeros(9)
+    no_orientation[0] = -1.0
+    unknown = np.zeros(9)
+    out = []
+    for t, a, w in zip(samples.timestamp_ns.tolist(), samples.acceleration_mps2.tolist(), samples.angular_velocity_radps.tolist()):
+        msg = imu_t(header=header(t, frame_id), orientation=quat_t(x=0.0, y=0.0, z=0.0, w=0.0),
+                    orientation_covariance=no_orientation, angular_velocity=vec_t(x=w[0], y=w[1], z=w[2]),
+                    angular_velocity_covariance=unknown, linear_acceleration=vec_t(x=a[0], y=a[1], z=a[2]),
+                    linear_acceleration_covariance=unknown)
+        out.append(encode(IMU, msg))
+    return out
