@@ -32,6 +32,17 @@ Targets (each checks more than "does not crash"):
   is read to the end: batch indices follow on, ``stats["packets"]`` counts them, ``ouster_metadata()`` is
   a JSON object or ``None``, no file stays open (also while a lidarpkt error is kept); then
   ``lidarpkt.open`` reads the same bag and routes as many packets.
+- ``ouster-ros``: the ``bags`` target on bags as ouster-ros writes them (seeds: ROS 1 ``ouster_ros/PacketMsg``
+  on ``/os_node0/*_packets``, ROS 2 ``ouster_sensor_msgs/msg/PacketMsg`` on ``/ouster/*``, the metadata after
+  the first packets on ``<ns>/metadata``); also, when the bag holds metadata, no packet of its lidar or IMU
+  size is left unrouted.
+- ``osf``: the input is a flag byte and an OSF file for ``lidarpkt.open`` (seeds: small files written by
+  ouster-sdk with its PNG and ZPNG encoders, when it is installed, and the empty one of its tests). Flag bit 0:
+  the CRC-32 of every block is made right first (:func:`osf_with_crcs`), so that mutations reach the
+  flatbuffers, the images and the sizes rather than stop at the CRC. Every frame has the shapes
+  its sensor's metadata gives (``[R, H, W]`` pixels, ``[W]`` columns), ``stats.frames`` counts them, and
+  ``lidarpkt info``'s description (read without decoding the fields) counts as many frames when both read
+  the whole file.
 
 Each target runs as libFuzzer processes of at most ``--segment`` seconds (60) on one corpus folder, one
 after the other: under atheris the process RSS grows by tens of KB per execution (the same inputs in
@@ -60,9 +71,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
-TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata", "bags", "hesai")
+TARGETS = ("pcap", "reassembly", "velodyne", "ouster", "metadata", "bags", "hesai", "ouster-ros", "osf")
 MAX_LEN = {"pcap": 70_000, "reassembly": 4096, "velodyne": 1206 * 4 + 600, "ouster": 70_000, "metadata": 16_384,
-           "bags": 70_000, "hesai": 1266 * 5 + 2}
+           "bags": 70_000, "hesai": 1266 * 5 + 2, "ouster-ros": 70_000, "osf": 70_000}
 
 
 class Finding(AssertionError):
@@ -75,9 +86,11 @@ def _import_lidarpkt(instrument: bool, target: str = ""):
 
         # bags: the container parsers it drives (mcap, rosbags) are instrumented too, so that coverage
         # leads the mutations past their checks into the records lidarpkt reads
-        third_party = ["mcap", "rosbags"] if target == "bags" else []
+        third_party = ["mcap", "rosbags"] if target in ("bags", "ouster-ros") else ["flatbuffers"] if target == "osf" else []
         with atheris.instrument_imports(include=["lidarpkt"] + third_party):
-            if third_party:
+            if "flatbuffers" in third_party:
+                import flatbuffers.table  # noqa: F401
+            if "mcap" in third_party:
                 import mcap.reader  # noqa: F401
                 import rosbags.highlevel  # noqa: F401
                 import rosbags.rosbag1  # noqa: F401
@@ -85,6 +98,7 @@ def _import_lidarpkt(instrument: bool, target: str = ""):
             import lidarpkt.hesai.frames  # noqa: F401
             import lidarpkt.sources.bags  # noqa: F401
             import lidarpkt.ouster  # noqa: F401
+            import lidarpkt.ouster.osf  # noqa: F401
             import lidarpkt.sources.pcap_reader  # noqa: F401
             import lidarpkt.sources.reassembly  # noqa: F401
             import lidarpkt.source  # noqa: F401
@@ -370,7 +384,97 @@ def bag_input(kind: str, files: dict[str, bytes], opened: str = ".") -> bytes:
     return bytes([sel]) + len(meta).to_bytes(2, "little") + meta + body
 
 
-def make_bags_target():
+def _ouster_sized(stream, metadata_text: str) -> bool:
+    """Is an unrouted stream (a ``lidarpkt.source.UnroutedStream``) of the lidar or IMU packet size of this
+    metadata?"""
+    from lidarpkt.ouster import load_metadata
+
+    try:
+        md = load_metadata(metadata_text)
+    except Exception:  # metadata lidarpkt refuses (a LidarpktError was raised by lidarpkt.open then)
+        return False
+    return stream.payload_size in (md.packet_size, md.imu_packet_size)
+
+
+def make_ouster_ros_target():
+    return make_bags_target(ouster_routing=True)
+
+
+def make_osf_target():
+    import lidarpkt
+    from lidarpkt.info import describe_capture
+
+    path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.osf")
+
+    def target(data: bytes) -> None:
+        if not data:
+            return
+        with open(path, "wb") as fh:
+            fh.write(osf_with_crcs(data[1:]) if data[0] & 1 else data[1:])
+        try:
+            described = None
+            try:
+                described = describe_capture(path)["frames"]
+            except lidarpkt.LidarpktError:
+                pass
+            n = 0
+            with lidarpkt.open(path) as reader:
+                for frame in reader:
+                    s = frame.sensor
+                    r, h, w = frame.shape
+                    if (h, w) != (s.rows, s.columns_per_frame) or r not in (1, 2) or r != len(frame.return_labels):
+                        raise Finding(f"frame of shape {frame.shape} for a sensor of {s.rows} x {s.columns_per_frame}")
+                    for name in ("column_valid", "column_timestamp_ns", "azimuth_deg", "measurement_id", "status"):
+                        if getattr(frame, name).shape != (w,):
+                            raise Finding(f"{name} has the shape {getattr(frame, name).shape}, not ({w},)")
+                    for name in ("reflectivity", "signal", "flags"):
+                        arr = getattr(frame, name)
+                        if arr is not None and arr.shape != frame.shape:
+                            raise Finding(f"{name} has the shape {arr.shape}, not {frame.shape}")
+                    n += 1
+            if reader.stats.frames != n:
+                raise Finding(f"stats.frames = {reader.stats.frames}, {n} frames yielded")
+            if described is not None and described != n:
+                raise Finding(f"info counts {described} frames, lidarpkt.open gave {n}")
+        finally:
+            os.unlink(path)  # libFuzzer ends the process with exit(): leave nothing behind
+
+    return target
+
+
+def osf_with_crcs(data: bytes) -> bytes:
+    """``data`` with the CRC-32 after each block it can find (header; chunks up to the metadata offset the header
+    names; metadata) made right: the file as it would be if the damage had been written with its CRCs."""
+    import zlib
+
+    from lidarpkt.ouster.osf import _root
+
+    out = bytearray(data)
+
+    def fix(start: int) -> int | None:
+        if start + 4 > len(out):
+            return None
+        end = start + 4 + struct.unpack_from("<I", out, start)[0]
+        if end + 4 > len(out):
+            return None
+        struct.pack_into("<I", out, end, zlib.crc32(bytes(out[start:end])))
+        return end + 4
+
+    pos = fix(0)
+    if pos is None:
+        return bytes(out)
+    try:
+        meta = int(_root(bytes(out[: pos - 4]), "Header").metadata_offset)
+    except Exception:  # not a header the reader would take: nothing more to repair
+        return bytes(out)
+    while pos is not None and pos < meta:
+        pos = fix(pos)
+    if meta < len(out):
+        fix(meta)
+    return bytes(out)
+
+
+def make_bags_target(ouster_routing: bool = False):
     import shutil
 
     import numpy as np
@@ -427,6 +531,10 @@ def make_bags_target():
                     fr.close()
                 if fr.stats.packets != count:
                     raise Finding(f"lidarpkt.open routed {fr.stats.packets} packets, BagReader gave {count}")
+                if ouster_routing and md is not None:
+                    left = {k: n for k, n in fr.stats.unrouted_streams.items() if _ouster_sized(k, md)}
+                    if left:
+                        raise Finding(f"packets of the bag's own Ouster sizes left unrouted: {left}")
         except LidarpktError as exc:
             error = exc  # kept, as a caller may keep it, while the open files are counted
         finally:
@@ -451,6 +559,8 @@ MAKERS = {
     "metadata": make_metadata_target,
     "bags": make_bags_target,
     "hesai": make_hesai_target,
+    "ouster-ros": make_ouster_ros_target,
+    "osf": make_osf_target,
 }
 
 
@@ -722,7 +832,99 @@ def seeds(target: str) -> list[bytes]:
             k = max(1, min(4, MAX_LEN["hesai"] // batch.payload_size))
             out.append(bytes([i | pick, 1]) + batch.payload[:k].tobytes())
             out.append(bytes([i | pick | 8, 0]) + batch.payload[:k].tobytes())
+    elif target == "ouster-ros":
+        out += _ouster_ros_seeds()
+    elif target == "osf":
+        out += _osf_seeds()
     return out
+
+
+def _ouster_ros_seeds() -> list[bytes]:
+    """ouster-ros bags cut down from ``512x10_raw.bag`` (its metadata, 2 lidar and 2 IMU packets, the metadata
+    recorded after the first packets as there): as ROS 1 (``ouster_ros/PacketMsg``) and as rosbag2 sqlite3
+    (``ouster_sensor_msgs/msg/PacketMsg``)."""
+    import numpy as np
+
+    src = EXTERNAL / "ouster-sdk/512x10_raw.bag"
+    if not src.exists():
+        return []
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    kept, counts = [], {}
+    with AnyReader([src]) as reader:
+        for conn, t, raw in reader.messages():
+            kind = conn.topic.rsplit("/", 1)[1]
+            if counts.get(kind, 0) < (1 if kind == "metadata" else 2):
+                counts[kind] = counts.get(kind, 0) + 1
+                kept.append((conn, t, raw, reader.deserialize(raw, conn.msgtype)))
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        ros1 = Path(tmp, "b.bag")
+        with Writer1(ros1) as w:
+            conns = {}
+            for conn, t, raw, _ in kept:
+                if conn.topic not in conns:
+                    conns[conn.topic] = w.add_connection(conn.topic, conn.msgtype, msgdef=conn.msgdef, md5sum=conn.digest)
+                w.write(conns[conn.topic], t, raw)
+        out.append(bag_input("ros1", {"b.bag": ros1.read_bytes()}))
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        store.register(get_types_from_msg("uint8[] buf\n", "ouster_sensor_msgs/msg/PacketMsg"))
+        bag2 = Path(tmp, "b2")
+        with Writer2(bag2) as w:
+            conns = {}
+            for conn, t, _, msg in kept:
+                topic = "/ouster/" + conn.topic.rsplit("/", 1)[1]
+                if conn.msgtype == "std_msgs/msg/String":
+                    typ, m = "std_msgs/msg/String", store.types["std_msgs/msg/String"](data=msg.data)
+                else:
+                    typ = "ouster_sensor_msgs/msg/PacketMsg"
+                    m = store.types[typ](buf=np.asarray(msg.buf, np.uint8))
+                if topic not in conns:
+                    conns[topic] = w.add_connection(topic, typ, typestore=store)
+                w.write(conns[topic], t, store.serialize_cdr(m, typ))
+        files = {p.name: p.read_bytes() for p in bag2.iterdir()}
+        db3 = next(k for k in files if k.endswith(".db3"))
+        out.append(bag_input("rosbag2-sqlite3", {"b_0.db3": files[db3], "metadata.yaml": files["metadata.yaml"].replace(
+            db3.encode(), b"b_0.db3")}))
+    return [x for x in out if len(x) <= MAX_LEN["ouster-ros"]]
+
+
+def _osf_seeds() -> list[bytes]:
+    """The empty OSF of ouster-sdk's tests, and one-frame files written by ouster-sdk (PNG and ZPNG encoders, a
+    sparse RANGE, all other fields zero) when it is installed: small enough to mutate quickly."""
+    out = []
+    empty = EXTERNAL / "ouster-sdk/empty_osf.osf"
+    if empty.exists():
+        out += [b"\x00" + empty.read_bytes(), b"\x01" + empty.read_bytes()]
+    meta = EXTERNAL / "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"
+    try:
+        import numpy as np
+        from ouster.sdk import core, osf
+    except ImportError:
+        return out
+    if not meta.exists():
+        return out
+    info = core.SensorInfo(meta.read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, encoder in enumerate((osf.PngLidarFrameEncoder(1), osf.ZPngLidarFrameEncoder(1))):
+            frame = core.LidarFrame(info)
+            rng = np.random.default_rng(i)
+            rng_field = frame.field("RANGE")
+            rng_field[:] = 0
+            rng_field[::4, ::8] = rng.integers(0, 200_000, rng_field[::4, ::8].shape)
+            frame.timestamp[:] = 10**18 + np.arange(info.w) * 97_656
+            frame.measurement_id[:] = np.arange(info.w)
+            frame.status[:] = 1
+            frame.frame_id = 7
+            path = os.path.join(tmp, f"s{i}.osf")
+            writer = osf.Writer(path, info, [], 0, osf.Encoder(encoder))
+            writer.save(0, frame)
+            writer.close()
+            out += [b"\x00" + Path(path).read_bytes(), b"\x01" + Path(path).read_bytes()]
+    return [x for x in out if len(x) <= MAX_LEN["osf"]]
 
 
 # ------------------------------------------------------------------------------------------ main

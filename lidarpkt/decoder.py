@@ -24,9 +24,9 @@ if TYPE_CHECKING:
     from .frame import Frame, SensorInfo
     from .packet import PacketBatch
 
-#: A jump of more than this in a stream's own counters (the sensor stopped, restarted, or the cable
-#: was out) is an interruption: counted on its own, not as packets lost.
-INTERRUPTION_S = 1.0
+#: How far a stream's own counters may disagree with the capture clock between two packets; beyond
+#: it a step is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), never packets lost.
+from .continuity import INTERRUPTION_S  # noqa: F401  (re-exported: its historical home)
 
 
 class DecoderCounts(Protocol):
@@ -65,13 +65,15 @@ class Decoder(Protocol):
 
 @dataclass
 class StreamCounts:
-    """Counts of one stream: packets seen, lost (gaps), out of order, rotations completed, interruptions."""
+    """Counts of one stream: packets seen, lost (gaps), out of order, rotations completed, restarts
+    (``interruptions``) and corrupted packets (see :mod:`lidarpkt.continuity`)."""
 
     packets: int = 0
     lost: int = 0
     out_of_order: int = 0
     frames: int = 0
-    interruptions: int = 0  # jumps of more than INTERRUPTION_S in the stream's own counters
+    interruptions: int = 0  # restarts: a jump in the stream's counters the capture time cannot explain, then agreement
+    corrupted: int = 0  # packets off both neighbours by such a jump: skipped
 
 
 @runtime_checkable
@@ -80,6 +82,7 @@ class StreamCounter(Protocol):
 
     count: StreamCounts
 
-    def update(self, payload: np.ndarray) -> np.ndarray:
-        """Count ``uint8[N, L]`` payloads; returns ``bool[N]``, True where a packet starts a new rotation."""
+    def update(self, payload: np.ndarray, host_ns: np.ndarray | None = None) -> np.ndarray:
+        """Count ``uint8[N, L]`` payloads captured at ``host_ns`` (``int64[N]``, ns; ``None`` or 0:
+        unknown); returns ``bool[N]``, True where a packet starts a new rotation."""
         ...

@@ -11,6 +11,8 @@ The reasons, in the words every report uses (:data:`REASONS`):
 - ``late``: arrived after their frame was released, discarded;
 - ``duplicate``: a copy of a packet already received, discarded;
 - ``malformed``: wrong layout, flag, CRC or measurement id, skipped;
+- ``corrupted``: their clock or counters jumped further than the capture time allows, off the packets
+  on both sides (:mod:`lidarpkt.continuity`), skipped; never counted as packets lost;
 - ``mismatched``: do not fit the Ouster metadata given (size, init_id or serial), skipped;
 - ``unrouted``: of no VLP-16 or Ouster stream lidarpkt could identify, not decoded.
 """
@@ -25,6 +27,7 @@ REASONS: dict[str, str] = {
     "late": "discarded as late (their frame was already complete)",
     "duplicate": "discarded as duplicates",
     "malformed": "skipped as malformed (layout, flag, CRC or measurement id)",
+    "corrupted": "skipped as corrupted (their time or frame id jumped further than the capture time allows)",
     "mismatched": "skipped as not fitting the Ouster metadata (size, init_id or serial)",
     "unrouted": "not decoded (of no VLP-16 or Ouster stream)",
 }
@@ -38,6 +41,7 @@ class DropCounts:
     late: int = 0
     duplicate: int = 0
     malformed: int = 0
+    corrupted: int = 0
     mismatched: int = 0
     unrouted: int = 0
 
@@ -60,12 +64,13 @@ if [f.name for f in fields(DropCounts)] != list(REASONS):  # a reason is a field
 
 def _velodyne(st: Any) -> DropCounts:
     return DropCounts(lost=st.lost_packets, late=st.late_packets, duplicate=st.duplicate_packets,
-                      malformed=st.malformed + st.position_malformed)
+                      malformed=st.malformed + st.position_malformed, corrupted=st.corrupted_packets)
 
 
 def _ouster(st: Any) -> DropCounts:
     return DropCounts(lost=st.lost_packets, late=st.late, duplicate=st.duplicates,
-                      malformed=st.crc_failures + st.bad_measurement_id, mismatched=st.size_mismatch + st.id_mismatch)
+                      malformed=st.crc_failures + st.bad_measurement_id, corrupted=st.corrupted,
+                      mismatched=st.size_mismatch + st.id_mismatch)
 
 
 def _hesai(st: Any) -> DropCounts:

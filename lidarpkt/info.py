@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import LidarpktError
 from .packet import Endpoint, PacketBatch
-from .sources.magic import find_captures
+from .sources.magic import find_captures, is_osf
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -84,7 +84,10 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
 
     Args:
         path: a pcap/pcapng file (or an MCAP file / ROS bag of raw packets: then the pcap-only
-            counts are absent, and an Ouster metadata recorded in the file is used).
+            counts are absent, and an Ouster metadata recorded in the file is used; or an OSF file:
+            then ``{"file", "format": "osf", "osf_version", "sensors": [...], "frames", "first_time",
+            "last_time", "duration_s", "streams": []}``, each sensor's model, serial, firmware,
+            profile, size, frame count, frame ids and receive times).
         metadata: parsed Ouster metadata (:func:`lidarpkt.ouster.load_metadata`) for the
             sensors in the capture; used to name Ouster profiles exactly.
 
@@ -101,6 +104,8 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     Raises:
         lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
     """
+    if is_osf(path):
+        return _describe_osf(path)
     reader, kind = _open_reader(path)
     streams: dict[tuple, _Stream] = {}
     for batch in reader.batches():
@@ -195,6 +200,40 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     return doc
 
 
+def _describe_osf(path: str | os.PathLike[str]) -> dict:
+    """:func:`describe_capture` of an OSF file: its version and, per sensor, its frames (no packets, no streams)."""
+    from .ouster.osf import OsfFile
+
+    osf = OsfFile(path)
+    try:
+        doc: dict[str, Any] = {"file": os.fspath(path), "format": "osf", **osf.describe()}
+    finally:
+        osf.close()
+    firsts = [s["first_timestamp_ns"] for s in doc["sensors"] if s["first_timestamp_ns"] is not None]
+    lasts = [s["last_timestamp_ns"] for s in doc["sensors"] if s["last_timestamp_ns"] is not None]
+    for s in doc["sensors"]:
+        for key in ("first", "last"):
+            ns = s[f"{key}_timestamp_ns"]
+            s[f"{key}_time"] = _iso(ns) if ns is not None else None
+    doc.update(frames=sum(s["frames"] for s in doc["sensors"]),
+               first_time=_iso(min(firsts)) if firsts else None, last_time=_iso(max(lasts)) if lasts else None,
+               duration_s=(max(lasts) - min(firsts)) / 1e9 if firsts else 0.0, streams=[])
+    return doc
+
+
+def _format_osf(doc: dict) -> str:
+    n = len(doc["sensors"])
+    head = f"{doc['file']}: OSF {doc['osf_version']}, {n} sensor{'s' * (n != 1)}, {doc['frames']} frames"
+    lines = [head + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")]
+    for s in doc["sensors"]:
+        ids = f", frame ids {s['frame_ids'][0]}–{s['frame_ids'][1]}" if s["frame_ids"] else ""
+        lines.append(f"  {s['model']} {s['serial'] or '?'} ({s['firmware'] or 'firmware ?'}): {s['profile']}, "
+                     f"{s['columns_per_frame']} × {s['rows']}, {s['frames']} frames{ids} (decoded frames: no packets)")
+    if not doc["sensors"]:
+        lines.append("  no sensor")
+    return "\n".join(lines)
+
+
 def _open_reader(path: str | os.PathLike[str]):
     """(reader, kind): the capture's packet reader (:func:`lidarpkt.sources.open_packet_source`) and its
     container kind (``"pcap"`` for pcap/pcapng, else ``"mcap"``, ``"rosbag1"``, ``"rosbag2"``)."""
@@ -257,6 +296,8 @@ def _summary(stream: dict) -> str:
 
 def format_capture(doc: dict) -> str:
     """The text report of one :func:`describe_capture` result."""
+    if doc.get("format") == "osf":
+        return _format_osf(doc)
     pcap = "link_types" in doc
     if pcap:
         links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"
@@ -308,7 +349,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
-        help="pcap/pcapng capture(s), MCAP files or ROS bags; a directory stands for every capture under it",
+        help="pcap/pcapng capture(s), MCAP files, ROS bags or OSF files; a directory stands for every capture under it",
     )
     cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
     cliargs.add_metadata(parser, "Ouster metadata JSON of a sensor in the capture (names profiles exactly); "

@@ -32,9 +32,10 @@ if TYPE_CHECKING:
 
     from .options import OpenKeywords
     from ._readahead import ReadAhead
+    from .ouster.osf import OsfReader
     from .parallel import ParallelFrameReader, PipelinedFrameReader
 
-from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind  # noqa: F401 (public here too)
+from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
 from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
 from .sources.protocol import PacketSource, open_packet_source
 
@@ -139,8 +140,10 @@ class FrameReader(FrameIterator):
             "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
+        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
+        too_many = weakref.WeakMethod(self._too_many_sensors)
         self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
-                             max_sensors=opts.max_sensors, on_limit=self._too_many_sensors)
+                             max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
         self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
@@ -267,7 +270,7 @@ class FrameReader(FrameIterator):
         warn(SkippedPacketWarning(
             f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
             "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
-            "source=..., or raise max_sensors=...)"), stacklevel=6)
+            "source=..., or raise max_sensors=...)"), stacklevel=7)
 
     def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
         for frame in frames:
@@ -292,15 +295,17 @@ class FrameReader(FrameIterator):
 
 @with_options
 def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
-                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader:
+                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader | OsfReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
-    ``close()`` (or ``with``) stops reading early.
+    ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
+    frames) gives a :class:`~lidarpkt.ouster.osf.OsfReader` of its stored frames (see
+    :func:`~lidarpkt.ouster.osf.open_osf` for the options it takes).
 
     Args:
-        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, or ROS 1 ``.bag``.
+        path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
         {options}
 
     Raises:
@@ -311,6 +316,10 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         UsageError: ``workers`` is not a whole number >= 1.
     """
     opts = OpenOptions.from_keywords("open_frames", dict(options))
+    if is_osf(path):  # ouster-sdk's frame files: frames, not packets
+        from .ouster.osf import open_osf
+
+        return open_osf(path, opts)
     if opts.workers != 1:
         from .parallel import open_parallel
 

@@ -115,3 +115,61 @@ def under_mutmut() -> bool:
     import os
 
     return "MUTANT_UNDER_TEST" in os.environ
+
+
+# ------------------------------------------------------------------ processes a test starts
+_STARTED: list = []  # (Popen, owner): every process started through start_process, until reaped
+
+
+def _default_signals() -> None:
+    """In the child, before exec: SIGINT and SIGQUIT back to their defaults. A test run as a background
+    job of a non-interactive shell (or by some CI runners) inherits them ignored, and a Python program
+    started with SIGINT ignored never raises KeyboardInterrupt: a test's Ctrl-C would not reach it."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGQUIT):
+        signal.signal(sig, signal.SIG_DFL)
+
+
+def start_process(args, *, owner: str = "test", **kwargs):
+    """``subprocess.Popen(args, **kwargs)`` for tests: signals at their defaults whatever this process
+    inherited, its own process group (so that its own children can be ended with it), and remembered
+    so that :func:`end_process` (called by the autouse fixture after each test, pass or fail, for
+    ``owner="test"``; by the fixture that started it otherwise) leaves nothing running."""
+    import subprocess
+
+    kwargs.setdefault("start_new_session", True)
+    proc = subprocess.Popen(args, preexec_fn=_default_signals, **kwargs)
+    _STARTED.append((proc, owner))
+    return proc
+
+
+def end_process(proc, timeout: float = 30.0) -> None:
+    """Kill ``proc`` and its process group if anything of it still runs, and reap it."""
+    import os
+    import signal
+    import subprocess
+
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)  # the group: also what it started
+    except (ProcessLookupError, PermissionError):
+        pass
+    if proc.poll() is None:
+        proc.kill()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pass
+    for stream in (proc.stdin, proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+    _STARTED[:] = [(p, o) for p, o in _STARTED if p is not proc]
+
+
+@pytest.fixture(autouse=True)
+def _no_process_left_behind():
+    """Every process a test started with :func:`start_process` is ended when the test ends, pass or fail."""
+    yield
+    for proc, owner in list(_STARTED):
+        if owner == "test":
+            end_process(proc)

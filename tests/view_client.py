@@ -18,6 +18,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from conftest import end_process, start_process
+
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01
 
@@ -161,13 +163,12 @@ class LidarpktProcess:
         from pathlib import Path
 
         self.log = Path(log_path)
-        self.proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", *args], stdout=subprocess.DEVNULL,
-                                     stderr=self.log.open("w"), cwd=Path(__file__).resolve().parents[1])
+        self.proc = start_process([sys.executable, "-m", "lidarpkt", *args], stdout=subprocess.DEVNULL,
+                                  stderr=self.log.open("w"), cwd=Path(__file__).resolve().parents[1])
         deadline = time.monotonic() + timeout
         while ready is not None and ready not in self.log.read_text():
             if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.proc.kill()
-                self.proc.wait(30)
+                end_process(self.proc)
                 raise AssertionError(f"lidarpkt {args[0]} did not start: {self.log.read_text()}")
             time.sleep(0.02)
 
@@ -188,6 +189,4 @@ class LidarpktProcess:
         return self
 
     def __exit__(self, *_exc) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=60)
+        end_process(self.proc)

@@ -140,7 +140,7 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
 
 
 def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP, ROS bag or OSF")
     from lidarpkt import cliargs
 
     cliargs.add_workers(p)
@@ -217,7 +217,7 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP or ROS bag; several captures "
+    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP, ROS bag or OSF; several captures "
                    "or a folder (or --workers/--scheduler): -o is a folder of maps and summary.csv "
                    "(lidarpkt.archive.multireturn_maps)")
     from lidarpkt import cliargs

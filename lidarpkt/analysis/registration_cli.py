@@ -14,7 +14,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from .multireturn import MONITOR_METHODS
     from .registration import ALGORITHMS, MODES
 
-    p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP or ROS bag")
+    p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP, ROS bag or OSF")
     from lidarpkt import cliargs
 
     cliargs.add_metadata(p)

@@ -96,7 +96,8 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         except (LidarpktError, OSError) as exc:
             msg = str(exc) if isinstance(exc, LidarpktError) else f"{capture.url}: cannot read ({exc.strerror or exc})"
             return [{**base, "error": msg}]
-        per_source, error = _count_frames(path, md)  # the loaded metadata: a remote JSON is no local path
+        # the loaded metadata: a remote JSON is no local path. An OSF file's frames are counted by describe_capture.
+        per_source, error = _count_frames(path, md) if doc["format"] != "osf" else ({}, None)
     finally:
         if scratch:
             import shutil
@@ -107,6 +108,11 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
     if doc.get("truncated") and not error:
         base["error"] = f"{capture.url}: truncated: {doc.get('truncated_reason')}"
     rows = []
+    for s in doc.get("sensors", ()):  # an OSF file: decoded frames of each sensor, no packets
+        rows.append({**base, "stream": s["source"], "source": s["source"], "kind": "Ouster frames (OSF)",
+                     "vendor": "ouster", "model": s["model"], "mode": s["profile"], "start_ns": s["first_timestamp_ns"],
+                     "end_ns": s["last_timestamp_ns"], "packets": 0, "frames": s["frames"],
+                     "partial_frames": s["partial_frames"], "lost_packets": 0, "skipped_packets": 0})
     for s in doc["streams"]:
         details = s.get("details") or {}
         source = s["src"] or "unknown source"

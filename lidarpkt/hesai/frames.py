@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._readahead import warn
+from ..continuity import StreamContinuity
 from ..errors import CalibrationError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
@@ -116,6 +117,8 @@ class HesaiDecoder:
         self._last_seq: int | None = None
         self._last_key: float | None = None
         self._period_ns: float | None = None
+        self._last_host_ns = 0  # capture time of the last packet counted (0: unknown)
+        self._continuity = StreamContinuity(1.0)  # only its capture-time credit: losses the capture can hold
         self._rpm: int | None = None
         self._sensors: dict[int, SensorInfo] = {}
         self._time_table = np.zeros((0, 0), np.int64)  # [H, 2·G] firing offsets of the current mode (see _columns)
@@ -169,7 +172,8 @@ class HesaiDecoder:
         if len(raw) == 0:
             return []
         self.stats.decoded_packets += len(raw)
-        self._count_lost(raw)
+        order = np.argsort(batch.index, kind="stable")  # the kept packets' capture times, by their ordinals
+        self._count_lost(raw, batch.timestamp_ns[order[np.searchsorted(batch.index[order], index)]])
         frames: list[Frame] = []
         change = np.flatnonzero(np.diff(raw.return_mode.astype(np.int16))) + 1
         gaps = np.flatnonzero(np.diff(raw.timestamp_ns) > self.max_gap_ns) + 1
@@ -226,7 +230,14 @@ class HesaiDecoder:
             self._last_ts = int(raw.timestamp_ns[-1])
         return raw, index
 
-    def _count_lost(self, raw: HesaiPackets) -> None:
+    def _count_lost(self, raw: HesaiPackets, host_ns: np.ndarray) -> None:
+        """Packets lost between these and the ones before, by the UDP sequence number where the model sends
+        one, else by the sensor's time steps; never more than the capture time between them can hold
+        (:meth:`lidarpkt.continuity.StreamContinuity.bound_lost`)."""
+        dt = np.diff(raw.timestamp_ns).astype(np.float64)
+        if dt.size:
+            med = float(np.median(dt))
+            self._period_ns = med if med > 0 else self._period_ns
         if raw.udp_sequence is not None:
             seq = raw.udp_sequence.astype(np.int64)
             prev = np.concatenate([[seq[0] - 1 if self._last_seq is None else self._last_seq], seq[:-1]])
@@ -234,14 +245,16 @@ class HesaiDecoder:
             lost = np.where((step > 1) & (step < 1 << 20), step - 1, 0)  # a restart (huge step) is no loss
             self._last_seq = int(seq[-1])
         else:
-            dt = np.diff(raw.timestamp_ns).astype(np.float64)
-            if dt.size:
-                med = float(np.median(dt))
-                self._period_ns = med if med > 0 else self._period_ns
             if not self._period_ns or dt.size == 0:
                 return
-            lost = np.maximum(np.rint(dt / self._period_ns).astype(np.int64) - 1, 0)
-            lost[dt > self.max_gap_ns] = 0
+            lost = np.concatenate([[0], np.maximum(np.rint(dt / self._period_ns).astype(np.int64) - 1, 0)])
+            lost[1:][dt > self.max_gap_ns] = 0
+        host = np.asarray(host_ns, np.int64)
+        prev_host = np.concatenate([[self._last_host_ns], host[:-1]])
+        known = (host > 0) & (prev_host > 0)
+        if self._period_ns and lost.any():
+            lost = self._continuity.bound_lost(lost, np.where(known, host - prev_host, 0), known, self._period_ns)
+        self._last_host_ns = int(host[-1])
         total = int(lost.sum())
         self.stats.lost_packets += total
         self._pending_counters.lost_packets += total

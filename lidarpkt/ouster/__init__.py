@@ -13,7 +13,8 @@ a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu` (both IMU profiles, :func:`imu_samples` in SI units), :mod:`.zone` (zone-monitoring
 packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
-packet/loss/frame counter the recorder runs live).
+packet/loss/frame counter the recorder runs live), :mod:`.osf` (ouster-sdk's OSF files of decoded
+frames, read by ``lidarpkt.open``).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
 >>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP
@@ -46,6 +47,8 @@ _LAZY: dict[str, str] = {
     "OusterZoneStates": "zone",
     "decode_zone_packets": "zone",
     "OusterMetadata": "metadata",
+    "OsfFile": "osf",
+    "OsfReader": "osf",
     "load_metadata": "metadata",
     "PROFILES": "profiles",
     "BitField": "profiles",
@@ -62,6 +65,8 @@ __all__ = [
     "OusterMetadata",
     "OusterPacketFields",
     "OusterZoneStates",
+    "OsfFile",
+    "OsfReader",
     "PROFILES",
     "Profile",
     "classify",

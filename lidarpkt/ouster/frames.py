@@ -11,7 +11,10 @@ Conventions (those of ouster-sdk's scan batcher):
   ``column_valid`` False. So have columns that arrived with their status saying invalid
   (non-legacy status bit 0 clear; LEGACY status word ≠ 0xFFFFFFFF), as in ouster-sdk.
 * Packets of an already released frame are dropped and counted as late; a packet whose first
-  measurement id already arrived in its frame is a duplicate (dropped, counted).
+  measurement id already arrived in its frame is a duplicate (dropped, counted). A packet whose
+  frame or measurement id jumps further than the capture time allows, off the packets on both
+  sides, is skipped and counted as corrupted (:mod:`lidarpkt.continuity`); a frame's holes never
+  count more lost packets than its capture time holds.
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
   ouster-sdk's sensor-frame convention (the angle its XYZ table uses; it decreases with c).
 * ``Frame.column_timestamp_ns`` is the column timestamp as the packets carry it: the sensor
@@ -43,6 +46,7 @@ import numpy as np
 
 from .. import kernels
 from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from ..continuity import CAPTURE_RESOLUTION_S, packets_spanned
 from ..errors import SensorMismatchError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
@@ -53,6 +57,7 @@ from .zone import OusterZoneStates, decode_zone_packets
 from .metadata import OusterMetadata
 from .fieldplan import SLOT_ATTRS, extract, field_plan, new_fields, packet_layout, scatter_steps
 from .profiles import HEADER_STATUS_FIELDS, LEGACY_STATUS_VALID
+from .stream import packet_period_ns, packet_places, stream_continuity
 
 _BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
 _NATIVE_PIXEL_BYTES = 16  # ouster_scatter's widest pixel (MAX_WORDS words); wider ones take the NumPy twin
@@ -71,7 +76,9 @@ class OusterDecoderStats:
     late: int = 0  # of a frame already released: dropped
     duplicates: int = 0  # first measurement id already received in the frame: dropped
     out_of_order: int = 0  # measurement id lower than the previous packet's (kept)
-    lost_packets: int = 0  # holes between the first and last received columns of a frame
+    lost_packets: int = 0  # holes between the first and last received columns of a frame (at most what its capture time holds)
+    corrupted: int = 0  # frame/measurement ids off both neighbours by more than the capture time allows: skipped
+    restarts: int = 0  # the ids jumped (or paused more than INTERRUPTION_S) and went on from there
     frames: int = 0
     partial_frames: int = 0
     imu_packets: int = 0
@@ -121,6 +128,8 @@ class _Builder:
             zip(HEADER_STATUS_FIELDS, np.zeros((len(HEADER_STATUS_FIELDS), w), np.uint8)))
         self.counters = FrameCounters()
         self.last_mid0 = -1
+        self.packets = 0  # packets placed
+        self.host_ns = [0, 0]  # first and last capture time of its packets (0: unknown)
 
     def add(self, f: OusterPacketFields, payload: np.ndarray, md: OusterMetadata) -> None:
         """Columns of packets ``f`` with their payloads ``uint8[n, packet_size]``."""
@@ -243,6 +252,8 @@ class OusterDecoder:
         self._azimuth_deg = np.mod(360.0 * (1.0 - np.arange(metadata.columns_per_frame) / metadata.columns_per_frame), 360.0)
         self._imu: deque[ImuSamples] = deque()
         self._zones: deque[OusterZoneStates] = deque()
+        self.continuity = stream_continuity(metadata)  # corrupted packets, restarts
+        self._period_ns = packet_period_ns(metadata)
         self._imu_count = 0
         self._max_imu = max_imu_samples
 
@@ -284,12 +295,25 @@ class OusterDecoder:
         self.stats.bad_measurement_id += int((keep & bad_mid).sum())
         keep &= ~bad_mid
         skipped = n - int(keep.sum())
+        host = batch.timestamp_ns
         if skipped:
             self._count_skipped(skipped)
             f = f.select(keep)
             payload = payload[keep]
+            host = host[keep]
         if len(f) == 0:
             return []
+        st = self.continuity.check(packet_places(f.frame_id, f.measurement_id[:, 0], md), host)
+        self.stats.restarts += st.restarts
+        if st.corrupted:
+            self.stats.corrupted += st.corrupted
+            self._count_skipped(st.corrupted)
+            warn(SkippedPacketWarning(
+                f"Ouster {self.source or 'stream'}: skipped {st.corrupted} packets whose frame or measurement id "
+                "jumped further than the capture time allows (corrupted)"), stacklevel=2)
+            f, payload, host = f.select(st.keep), payload[st.keep], host[st.keep]
+            if len(f) == 0:
+                return []
         if with_status:
             self.stats.shot_limiting_packets += int(np.count_nonzero(f.header["shot_limiting"]))
             self.stats.thermal_shutdown_packets += int(np.count_nonzero(f.header["thermal_shutdown"]))
@@ -312,19 +336,22 @@ class OusterDecoder:
                 self._current = _Builder(self, key, key[1])
                 self._current.counters = self._current.counters.add(self._pending_counters)
                 self._pending_counters = FrameCounters()
-            self._add(f.select(slice(s, e)), payload[s:e])
+            self._add(f.select(slice(s, e)), payload[s:e], host[s:e])
             if self._current.received[self._window].all():
                 out.append(self._release())
         return out
 
-    def _add(self, f: OusterPacketFields, payload: np.ndarray) -> None:
+    def _add(self, f: OusterPacketFields, payload: np.ndarray, host_ns: np.ndarray) -> None:
         b = self._current
-        assert b is not None  # called with a frame in hand
+        assert b is not None  # push opens the frame before adding to it
+        if host_ns[0] and host_ns[-1]:
+            b.host_ns = [b.host_ns[0] or int(host_ns[0]), int(host_ns[-1])]
         mid0 = f.measurement_id[:, 0].astype(np.intp)
         if int(mid0[0]) > b.last_mid0 and (mid0[1:] > mid0[:-1]).all() and not b.received[mid0].any():
             # the common case: packets in order, none seen before (no sort, no unique)
             b.last_mid0 = int(mid0[-1])
             self.stats.accepted += len(f)
+            b.packets += len(f)
             b.add(f, payload, self.metadata)
             return
         order = np.concatenate([[b.last_mid0], mid0])
@@ -341,6 +368,7 @@ class OusterDecoder:
             f = f.select(fresh)
             payload = payload[fresh]
         self.stats.accepted += len(f)
+        b.packets += len(f)
         b.add(f, payload, self.metadata)
 
     def _count_skipped(self, n: int) -> None:
@@ -370,6 +398,10 @@ class OusterDecoder:
             lost = int(np.unique(holes // md.columns_per_packet).size) if holes.size else 0
         else:
             lost = 0
+        if lost and b.host_ns[0] and b.host_ns[1]:
+            # never more than the frame's capture time holds beside the packets that arrived
+            span = abs(b.host_ns[1] - b.host_ns[0]) + CAPTURE_RESOLUTION_S * 1e9
+            lost = min(lost, max(int(packets_spanned(span, self._period_ns)) + 1 - b.packets, 0))
         b.counters.lost_packets += lost
         self.stats.lost_packets += lost
         self.stats.frames += 1

@@ -496,8 +496,11 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
         imu_m = 8
         if imu_profile == "ACCEL32_GYRO32_NMEA":
             defaulted.append("imu_measurements_per_packet")
-    if not 0 < imu_m <= 1024:
-        raise MetadataError(f"metadata field imu_data_format.imu_measurements_per_packet {imu_m} outside 1..1024")
+    # only ACCEL32_GYRO32_NMEA packets are sized by it; firmware writes 0 beside a LEGACY IMU (OSF files of fw 3.x)
+    least = 1 if imu_profile == "ACCEL32_GYRO32_NMEA" else 0
+    if not least <= imu_m <= 1024:
+        raise MetadataError(f"metadata field imu_data_format.imu_measurements_per_packet {imu_m} outside {least}..1024"
+                            f" (udp_profile_imu {imu_profile})")
     zm_port = _int(doc, "UDP port", ("config_params", "udp_port_zm"), ("udp_port_zm",))
     if zm_port is not None and not 0 <= zm_port <= 65535:
         raise MetadataError(f"metadata field config_params.udp_port_zm {zm_port} is not a UDP port (0-65535)")

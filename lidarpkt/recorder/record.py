@@ -268,6 +268,8 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "lost_gaps": sink.lost,
         "out_of_order": sink.out_of_order,
         "interruptions": sum(r.count.interruptions for r in sink.streams.values()),
+        # packets whose own counters jumped off both neighbours (lidarpkt.continuity): recorded, not counted
+        "corrupted": sum(r.count.corrupted for r in sink.streams.values()),
         "kernel_drops": s.kernel_dropped,
         "queue_overflow": s.queue_overflow,
         # datagrams dropped here (kernel, queue) leave gaps in the stream counters too: counting both
@@ -281,7 +283,8 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "streams": [
             {"kind": r.kind, "src": r.src, "dst": r.dst, "payload_size": r.payload_size,
              "packets": r.count.packets, "lost": r.count.lost, "out_of_order": r.count.out_of_order,
-             "frames": r.count.frames, "interruptions": r.count.interruptions, "messages": r.messages}
+             "frames": r.count.frames, "interruptions": r.count.interruptions, "corrupted": r.count.corrupted,
+             "messages": r.messages}
             for r in sink.streams.values()
         ],
     }
@@ -299,6 +302,9 @@ def _summary_text(d: dict, sink: PacketSink) -> str:
     if d["interruptions"]:
         lines.append(f"  the sensor stream was interrupted {d['interruptions']} time(s) (a jump of more than a second "
                      "in its own counters: stopped, restarted or unplugged); recording went on")
+    if d["corrupted"]:
+        lines.append(f"  {d['corrupted']} packets were corrupted (their own counters jumped further than the capture "
+                     "time allows): recorded as received, not counted as gaps")
     if d["gps_sentences"] or d["gps_bad_checksum"]:
         lines.append(f"  GPS: {d['gps_sentences']} sentences, {d['gps_bad_checksum']} rejected (bad checksum)")
     if "frames_decoded" in d:

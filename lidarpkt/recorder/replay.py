@@ -312,8 +312,8 @@ def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: li
                 break
             if s.packets == 0:
                 raise LidarpktError(f"{args.file}: holds no UDP packets to replay; check it with lidarpkt info")
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt:  # between two rounds (opening the capture again): interrupted all the same
+        total.interrupted = True
     if not args.quiet:
         ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
         print(f"lidarpkt replay: {'interrupted; ' if total.interrupted else ''}sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "

@@ -31,8 +31,16 @@ from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope,
 from .magic import MCAP_MAGIC, SQLITE_MAGIC
 from .rosmsgs import MESSAGE_DEFINITIONS, new_typestore  # noqa: F401 (MESSAGE_DEFINITIONS: the table, public here too)
 
-# Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String), as ouster-ros names it.
-OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/metadata")
+# Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String) as ouster-ros names them: its node's
+# namespace (``/ouster``, ``/os_node``, ``/os_node0``, a user's own) then ``metadata``; every std_msgs/String
+# topic named so is read (:func:`is_ouster_metadata_topic`), these are examples.
+OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/os_node0/metadata", "/metadata")
+
+
+def is_ouster_metadata_topic(topic: str) -> bool:
+    """Is ``topic`` (of type std_msgs/String) where ouster-ros records the sensor metadata: ``/metadata`` or
+    any ``<namespace>/metadata``?"""
+    return topic == "/metadata" or topic.endswith("/metadata")
 
 
 def _stamp_ns(stamp: Any) -> int:
@@ -85,6 +93,7 @@ PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]
     "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
     "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
     "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
+    "ouster_ros/msg/PacketMsg": _ouster_packet,
     "nebula_msgs/msg/NebulaPacket": _nebula_packet,
     "pandar_msgs/msg/PandarScan": _pandar_scan,
 }
@@ -199,12 +208,85 @@ class BagReader:
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
         self.stats: dict[str, Any] = {"messages": 0, "packets": 0, "skipped_topics": {}}
         self._ouster_metadata: str | None = None
+        self._metadata_topics: list | None = None  # set by batches(): metadata topics not read yet ([MCAP_MAGIC]: a plain MCAP)
+        self._metadata_scanned = False
         self._metadata_dir: Any = None  # a TemporaryDirectory holding a completed metadata.yaml, if one was needed
 
     def ouster_metadata(self) -> str | None:
-        """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``), once
-        :meth:`batches` has read past it; ``None`` if there is none."""
+        """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``, ``/os_node0/metadata``...);
+        ``None`` if there is none.
+
+        Once :meth:`batches` has started on a ROS bag (not a plain MCAP file, read as one stream), the
+        metadata topics are read ahead of the packets if need be: ouster-ros records the metadata after the
+        first packets, which would otherwise reach the caller before their metadata does.
+        """
+        if self._ouster_metadata is None and self._metadata_topics is not None:
+            topics, self._metadata_topics = self._metadata_topics, None
+            if topics == [MCAP_MAGIC]:
+                self._ouster_metadata = self._scan_mcap_metadata()
+            elif topics:
+                self._metadata_scanned = True
+                self._ouster_metadata = self._scan_metadata(topics)
         return self._ouster_metadata
+
+    def _scan_mcap_metadata(self) -> str | None:
+        """The first Ouster metadata message within the first :data:`MCAP_METADATA_LOOKAHEAD_BYTES` of a plain
+        MCAP file, read as a stream of its own; ``None`` if there is none there, or damage comes first (which
+        the pass over the packets reports)."""
+        from mcap.exceptions import McapError
+
+        from .rosmsgs import typestore
+
+        store = typestore()
+        with self.path.open("rb") as fh:
+            try:
+                for schema, channel, message in _mcap_stream_messages(fh, self.path):
+                    if fh.tell() > MCAP_METADATA_LOOKAHEAD_BYTES:
+                        return None
+                    if (schema is None or channel.message_encoding != "cdr" or schema.name not in
+                            ("std_msgs/msg/String", "std_msgs/String") or not is_ouster_metadata_topic(channel.topic)):
+                        continue
+                    text = store.deserialize_cdr(message.data, "std_msgs/msg/String").data
+                    found = self._metadata_text(channel.topic, text)
+                    if found is not None:
+                        self._metadata_scanned = True
+                        return found
+            except (McapError, CaptureFormatError, struct.error, EOFError, ValueError, OverflowError,
+                    OSError) + _DECOMPRESSION_ERRORS:
+                return None
+        return None
+
+    def _scan_metadata(self, topics: list[str]) -> str | None:
+        """The first Ouster metadata among the messages of ``topics``, read by a reader of their own (beside the
+        one reading the packets, whose completed metadata.yaml folder, if any, stays theirs)."""
+        import warnings
+
+        packets_dir, self._metadata_dir = self._metadata_dir, None
+        try:
+            with warnings.catch_warnings():  # what opening the bag warns of, the packets' reader said already
+                warnings.simplefilter("ignore", LidarpktWarning)
+                reader = self._open()
+        except BaseException:
+            self._metadata_dir = packets_dir
+            raise
+        try:
+            conns = [c for c in reader.connections if c.topic in topics
+                     and _normalise_type(c.msgtype) == "std_msgs/msg/String"]
+            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path, needs_scope(reader)):
+                try:
+                    text = reader.deserialize(raw, conn.msgtype).data
+                except Exception as exc:
+                    raise CaptureFormatError(
+                        f"{self.path}: message on {conn.topic} ({conn.msgtype}) at {bag_time_ns} ns cannot be "
+                        f"decoded: {exc}") from None
+                found = self._metadata_text(conn.topic, text)
+                if found is not None:
+                    return found
+            return None
+        finally:
+            reader.close()
+            self._cleanup_metadata_dir()
+            self._metadata_dir = packets_dir
 
     def _metadata_text(self, topic: str, text: str) -> str | None:
         """``text`` if it is a JSON object, as Ouster metadata is; else ``None`` and a warning. Callers hand
@@ -224,7 +306,7 @@ class BagReader:
     def _wanted(self, topic: str, msgtype: str) -> bool:
         kind = _normalise_type(msgtype)
         if kind == "std_msgs/msg/String":
-            return topic in OUSTER_METADATA_TOPICS
+            return is_ouster_metadata_topic(topic)
         return kind in PACKET_EXTRACTORS and (self.topics is None or topic in self.topics)
 
     def _is_mcap_file(self) -> bool:
@@ -279,7 +361,7 @@ class BagReader:
             for topic, msgtype, bag_time_ns, msg in messages:
                 kind = _normalise_type(msgtype)
                 if kind == "std_msgs/msg/String":
-                    if self._ouster_metadata is None:
+                    if self._ouster_metadata is None and not self._metadata_scanned:
                         self._ouster_metadata = self._metadata_text(topic, msg.data)
                     continue
                 if bag_time_ns >= 1 << 63:  # MCAP log times are uint64; packet times are int64 ns
@@ -320,6 +402,7 @@ class BagReader:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
             if not conns:
                 return  # (rosbags reads no connections as all of them)
+            self._metadata_topics = [c.topic for c in conns if _normalise_type(c.msgtype) == "std_msgs/msg/String"]
             for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path,
                                                       needs_scope(reader)):
                 try:
@@ -345,6 +428,7 @@ class BagReader:
         store = new_typestore()
         known: dict[int, bool] = {}
         n = 0
+        self._metadata_topics = [MCAP_MAGIC]  # ouster_metadata(): look ahead in the file (see there)
         with self.path.open("rb") as fh:
             it = _mcap_stream_messages(fh, self.path)
             while True:
@@ -461,6 +545,9 @@ class _FileRemainder:
         return getattr(self._fh, name)
 
 
+# ouster-ros records its metadata a few packets after the start; a plain MCAP file (read as one stream) is
+# searched this far for it when the packets come first
+MCAP_METADATA_LOOKAHEAD_BYTES = 64 << 20
 MAX_MCAP_CHUNK_BYTES = 256 << 20  # uncompressed bytes of one MCAP chunk (writers use a few MB; ours ~1 s of data)
 
 

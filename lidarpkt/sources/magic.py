@@ -13,8 +13,8 @@ from ..errors import UnsupportedContainerError
 
 __all__ = [
     "PCAP_MAGIC_US", "PCAP_MAGIC_NS", "PCAP_MAGIC_MODIFIED", "PCAPNG_SHB", "PCAPNG_BOM", "PCAP_MAGIC_BYTES",
-    "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "capture_format", "format_from_magic", "is_capture", "container_kind",
-    "CAPTURE_SUFFIXES", "looks_like_capture", "find_captures",
+    "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "OSF_IDENTIFIER", "is_osf", "capture_format", "format_from_magic",
+    "is_capture", "container_kind", "CAPTURE_SUFFIXES", "looks_like_capture", "find_captures",
 ]
 
 PCAP_MAGIC_US = 0xA1B2C3D4
@@ -29,6 +29,8 @@ PCAP_MAGIC_BYTES = frozenset(
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+# ouster-sdk's OSF: a size-prefixed flatbuffer whose file identifier (bytes 8-12) names the OSF header
+OSF_IDENTIFIER = b"OSF$"
 
 
 def capture_format(path: str | os.PathLike[str]) -> str | None:
@@ -58,8 +60,18 @@ def is_capture(path: str | os.PathLike[str]) -> bool:
     return capture_format(path) is not None
 
 
+def is_osf(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` is a file that starts as an OSF file does (never raises)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(12)[8:12] == OSF_IDENTIFIER
+    except OSError:
+        return False
+
+
 def container_kind(path: str | os.PathLike[str]) -> str:
-    """``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"`` (directory or .db3) or ``"rosbag1"``, from the first bytes.
+    """``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"`` (directory or .db3), ``"rosbag1"`` or ``"osf"`` (ouster-sdk's
+    frame files: frames, not packets), from the first bytes.
 
     Raises :class:`UnsupportedContainerError` naming the file and what it starts with.
     """
@@ -83,14 +95,16 @@ def container_kind(path: str | os.PathLike[str]) -> str:
         return "rosbag1"
     if head.startswith(SQLITE_MAGIC):
         return "rosbag2"
+    if head[8:12] == OSF_IDENTIFIER:
+        return "osf"
     shown = head.hex(" ") if head else "nothing (empty file)"
     raise UnsupportedContainerError(
-        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag): it starts with {shown}"
+        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag, OSF): it starts with {shown}"
     )
 
 
 # names a folder walk takes without reading them (the magic bytes decide for the rest)
-CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3")
+CAPTURE_SUFFIXES = (".pcap", ".pcapng", ".cap", ".mcap", ".bag", ".db3", ".osf")
 
 
 def looks_like_capture(path: str | os.PathLike[str]) -> bool:

@@ -45,7 +45,7 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
             ``segment``; bags and MCAP take ``topics`` and ``payload_sizes``.
 
     Raises:
-        UnsupportedContainerError: the file is no capture lidarpkt reads.
+        UnsupportedContainerError: the file is no capture lidarpkt reads, or an OSF file (frames, not packets).
         UnsupportedFilterError: an option this container's reader does not know or cannot apply
             (bags record no ports or addresses); ``None`` values are accepted everywhere.
         CaptureFormatError: the file's header is unusable.
@@ -56,6 +56,11 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
         bind, ports = parse_udp_url(str(path))
         return UdpSource(ports, bind=bind, **options)
     kind = container_kind(path)
+    if kind == "osf":
+        from ..errors import UnsupportedContainerError
+
+        raise UnsupportedContainerError(f"{path} is an OSF file: it holds decoded frames, not packets; read its frames "
+                                        "with lidarpkt.open")
     check_filters(path, kind, options)
     options = {k: v for k, v in options.items() if v is not None}
     if kind == "pcap":

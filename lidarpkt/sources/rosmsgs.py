@@ -17,6 +17,8 @@ MESSAGE_DEFINITIONS: dict[str, str] = {
     "velodyne_msgs/msg/VelodyneScan": "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n",
     # ouster-ros, ouster_sensor_msgs: the lidar and IMU packet topics (/ouster/lidar_packets, /ouster/imu_packets)
     "ouster_sensor_msgs/msg/PacketMsg": "uint8[] buf\n",
+    # ouster-ros on ROS 1, before it moved its messages into ouster_sensor_msgs (/os_node/lidar_packets ...)
+    "ouster_ros/msg/PacketMsg": "uint8[] buf\n",
     # tier4/nebula, nebula_msgs: a stamped packet of any size (lidarpkt writes VLP-16 position packets with it)
     "nebula_msgs/msg/NebulaPacket": "builtin_interfaces/Time stamp\nuint8[] data\n",
     # tier4/nebula, pandar_msgs: a Hesai scan of fixed 1500-byte buffers, each packet's length in `size`

@@ -40,7 +40,10 @@ firing (packet time + 55.296 µs × sequence); ``pixel_time_offset_ns`` adds 2.3
 
 Order. Packets out of order inside a batch are put back in order (counted); duplicates, and
 packets older than the last packet of an earlier batch, are dropped and counted
-(``duplicate_packets``, ``late_packets``).
+(``duplicate_packets``, ``late_packets``). A packet whose time jumps further than the capture time
+allows, off the packets on both sides, is skipped (``corrupted_packets``); a jump the packets after
+it agree with restarts the stream (``restarts``: the frame is cut, nothing lost or late); a gap never
+counts more lost packets than the capture time holds (:mod:`lidarpkt.continuity`).
 
 VeloView. VeloView (2014, ``vlp-16.test``) splits frames where a *block* azimuth wraps, so
 the second firing sequence of the block that crosses 0° stays in the old frame. With
@@ -57,11 +60,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..continuity import StreamContinuity
 from ..errors import CalibrationError, SkippedPacketWarning
 from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
-from .clock import SensorClock, fix_time_ns
+from .clock import HOUR_US, SensorClock, fix_time_ns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, flags_ok, layout_pixels
 from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
 from .layout import packet_layout
@@ -93,7 +97,9 @@ class DecoderStats:
     duplicate_packets: int = 0  # same sensor timestamp as an earlier packet
     out_of_order_packets: int = 0  # older than an earlier packet (put back in order within a batch)
     late_packets: int = 0  # older than the last packet of an earlier batch: dropped
-    lost_packets: int = 0  # inferred from time gaps
+    lost_packets: int = 0  # inferred from time gaps, never more than the capture time holds
+    corrupted_packets: int = 0  # off both neighbours by more than the capture time allows: skipped
+    restarts: int = 0  # the stream's clock jumped (or paused more than INTERRUPTION_S) and went on from there
     long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
     overlong_frames: int = 0  # frames released without an azimuth wrap (max_frame_columns)
     position_packets: int = 0
@@ -201,6 +207,8 @@ class VelodyneDecoder:
         self._last_key: float | None = None  # cut key of the last column
         self._last_az_cdeg: float | None = None
         self.clock = SensorClock()  # the hour of the packet stamps
+        self.continuity = StreamContinuity(1000, HOUR_US)  # corrupted packets, restarts, the loss bound
+        self._last_host_ns = 0  # capture time of the last packet kept (0: unknown)
         self._product_id: int | None = None
         self._frame_id = 0
         self._frequency_hz: float | None = None
@@ -356,19 +364,34 @@ class VelodyneDecoder:
             times, index = batch.timestamp_ns, batch.index
         if len(raw) == 0:
             return []
+        st = self.continuity.check(raw.timestamp_us.astype(np.int64), times)
+        restart = st.restart
+        if st.corrupted:
+            self.stats.corrupted_packets += st.corrupted
+            self._pending_counters.malformed_packets += st.corrupted
+            warn(SkippedPacketWarning(
+                f"{self.source or self.model.name}: skipped {st.corrupted} packets whose time jumped further than the "
+                "capture time allows (corrupted)"), stacklevel=3)
+            raw, times, index, restart = raw.select(st.keep), times[st.keep], index[st.keep], restart[st.keep]
+            if len(raw) == 0:
+                return []
+        self.stats.restarts += st.restarts
         if self._product_id is None:
             self._product_id = int(raw.product_id[0])
         abs_ns = self.absolute_time_ns(raw.timestamp_us, times)
         frames: list[Frame] = []
-        # runs of one return mode
+        # runs of one return mode, and of one stream between restarts
         change = np.flatnonzero(np.diff(raw.return_mode.astype(np.int16))) + 1
-        bounds = [0, *change.tolist(), len(raw)]
+        bounds = sorted({0, *change.tolist(), *np.flatnonzero(restart).tolist(), len(raw)})
         for a, b in zip(bounds[:-1], bounds[1:]):
-            frames += self._push_run(raw.select(slice(a, b)), abs_ns[a:b], index[a:b])
+            if restart[a]:  # the clock jumped and went on from there: a new stream, nothing lost or late
+                frames += self._flush(end="cut")
+                self._last_abs_ns = self._last_key = self._last_az_cdeg = None
+            frames += self._push_run(raw.select(slice(a, b)), abs_ns[a:b], index[a:b], times[a:b])
         self.stats.frames += len(frames)
         return frames
 
-    def _push_run(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray) -> list[Frame]:
+    def _push_run(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, host_ns: np.ndarray) -> list[Frame]:
         mode = RETURN_MODES[int(raw.return_mode[0])]
         frames: list[Frame] = []
         if self._mode is not None and mode != self._mode:
@@ -391,7 +414,7 @@ class VelodyneDecoder:
         ooo = int(np.count_nonzero(abs_ns < running))
         if ooo:
             order = np.argsort(abs_ns, kind="stable")
-            raw, abs_ns, index = raw.select(order), abs_ns[order], index[order]
+            raw, abs_ns, index, host_ns = raw.select(order), abs_ns[order], index[order], host_ns[order]
             self.stats.out_of_order_packets += ooo
             self._pending_counters.out_of_order_packets += ooo
         late = abs_ns < last
@@ -403,13 +426,15 @@ class VelodyneDecoder:
             self._pending_counters.late_packets += n_late
             self._pending_counters.duplicate_packets += n_dup
             fresh = ~(late | dup)
-            raw, abs_ns, index = raw.select(fresh), abs_ns[fresh], index[fresh]
+            raw, abs_ns, index, host_ns = raw.select(fresh), abs_ns[fresh], index[fresh], host_ns[fresh]
             if len(raw) == 0:
                 return frames
         self.stats.decoded_packets += len(raw)
         period_ns = self.model.packet_period_ns(mode)
         gaps = np.diff(np.concatenate([[abs_ns[0] if self._last_abs_ns is None else self._last_abs_ns], abs_ns]))
-        missing = packets_lost(gaps, period_ns)
+        prev_host = np.concatenate([[self._last_host_ns if self._last_abs_ns is not None else 0], host_ns[:-1]])
+        missing = self.continuity.bound_lost(packets_lost(gaps, period_ns), host_ns - prev_host,
+                                             (host_ns != 0) & (prev_host != 0), period_ns)
         long_gap = gaps > self.max_gap_ns
         cuts = np.flatnonzero(long_gap)
         bounds = sorted({0, *cuts.tolist(), len(raw)})
@@ -429,6 +454,7 @@ class VelodyneDecoder:
             cols = self._columns(raw.select(slice(a, b)), abs_ns[a:b], index[a:b], miss, mode)
             frames += self._append(cols)
         self._last_abs_ns = int(abs_ns[-1])
+        self._last_host_ns = int(host_ns[-1])
         return frames
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:

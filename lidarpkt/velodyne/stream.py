@@ -11,17 +11,18 @@ disagree about packet periods and rotations.
   both count the same wraps (a wrap inside the last packet of a capture too). A frame that does
   not begin or end at a wrap is whole when it reaches the cut within one firing interval
   (:func:`rotation_is_whole`).
-* A step back (or a repeat) is out of order, never loss; a jump of more than
-  :data:`~lidarpkt.decoder.INTERRUPTION_S` in the packets' own clock is an interruption, counted on
-  its own.
+* A step back (or a repeat) is out of order, never loss; a step the capture time cannot explain
+  is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), counted on its own, and losses
+  are never more than the capture time can hold.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..decoder import INTERRUPTION_S, StreamCounts
-from .clock import hour_steps_us
+from ..continuity import StreamContinuity
+from ..decoder import StreamCounts
+from .clock import HOUR_US
 from .models import VLP16
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, as_data_packets
 
@@ -85,14 +86,16 @@ class PacketCounter:
     def __init__(self, single_period_us: float | None = VLP16.packet_period_us("strongest")) -> None:
         self.single_period_us = single_period_us
         self.count = StreamCounts()
-        self._last_ts: int | None = None
+        self.continuity = StreamContinuity(1000, HOUR_US)  # places: µs past the hour
         self._last_az: int | None = None  # first block of the last packet
         self._last_block_az: int | None = None  # last block of the last packet
 
-    def update(self, payload: np.ndarray) -> np.ndarray:
-        """Count ``uint8[N, 1206]`` payloads; returns ``bool[N]``, True where a packet is the first of a
-        new rotation (its first block's azimuth wrapped from the previous packet's). ``count.frames``
-        counts the rotations completed: the wraps between any two consecutive blocks.
+    def update(self, payload: np.ndarray, host_ns: np.ndarray | None = None) -> np.ndarray:
+        """Count ``uint8[N, 1206]`` payloads captured at ``host_ns`` (``int64[N]`` ns, 0 or ``None``:
+        unknown); returns ``bool[N]``, True where a packet is the first of a new rotation (its first
+        block's azimuth wrapped from the previous packet's). ``count.frames`` counts the rotations
+        completed: the wraps between any two consecutive blocks. Corrupted packets (see
+        :mod:`lidarpkt.continuity`) are counted and take no part in losses or rotations.
 
         Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of another size.
         """
@@ -101,22 +104,32 @@ class PacketCounter:
         self.count.packets += n
         if n == 0:
             return np.zeros(0, bool)
-        ts = p["timestamp_us"].astype(np.int64)
+        host = np.zeros(n, np.int64) if host_ns is None else np.asarray(host_ns, np.int64)
+        st = self.continuity.check(p["timestamp_us"].astype(np.int64), host)
+        self.count.corrupted += st.corrupted
+        self.count.interruptions += st.restarts
+        new_rotation = np.zeros(n, bool)
+        keep = st.keep
+        if not keep.all():
+            p, st_steps = p[keep], st.step_ticks[keep]
+        else:
+            st_steps = st.step_ticks
+        if len(p) == 0:
+            return new_rotation
         blocks_az = p["blocks"]["azimuth_cdeg"].astype(np.int64)
         az = blocks_az[:, 0]
-        single = self.single_period_us or 1.0
-        period = np.where(p["return_mode"] == RETURN_MODE_CODES["dual"], single / 2, single)
-        dt = hour_steps_us(ts, self._last_ts)  # a step back stays negative
-        steps = np.rint(dt / period).astype(np.int64)
-        if self._last_ts is None:
-            steps[0] = 1
-        jump = np.abs(dt) > INTERRUPTION_S * 1e6
-        self.count.interruptions += int(np.count_nonzero(jump))
-        steps[jump] = 1
         if self.single_period_us is not None:
-            self.count.lost += int(packets_lost(steps, 1).sum())
+            period_us = np.where(p["return_mode"] == RETURN_MODE_CODES["dual"], self.single_period_us / 2,
+                                 self.single_period_us)
+            steps = np.rint(st_steps / period_us).astype(np.int64)
+            steps[st.begins[keep]] = 1  # a restart, and the first packet of a stream, lose nothing
+            lost = np.zeros(n, np.int64)
+            lost[keep] = packets_lost(steps, 1)
+            period_ns = np.full(n, self.single_period_us * 1000.0)
+            period_ns[keep] = period_us * 1000.0
+            self.count.lost += int(self.continuity.bound_lost(lost, st.host_step_ns, st.host_known, period_ns).sum())
             self.count.out_of_order += int(np.count_nonzero(steps <= 0))
-        new_rotation = wrapped(az, self._last_az)
+        new_rotation[keep] = wrapped(az, self._last_az)
         self.count.frames += int(np.count_nonzero(wrapped(blocks_az.ravel(), self._last_block_az)))
-        self._last_ts, self._last_az, self._last_block_az = int(ts[-1]), int(az[-1]), int(blocks_az[-1, -1])
+        self._last_az, self._last_block_az = int(az[-1]), int(blocks_az[-1, -1])
         return new_rotation

@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .server import add_ws_argument
 
     parser.add_argument("source", nargs="?", metavar="SOURCE",
-                        help="capture to show (pcap/pcapng, MCAP, ROS bag); without it, a live sensor")
+                        help="capture to show (pcap/pcapng, MCAP, ROS bag, OSF); without it, a live sensor")
     add_ws_argument(parser)
     parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")

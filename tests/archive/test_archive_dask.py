@@ -20,7 +20,7 @@ distributed = pytest.importorskip("distributed")
 
 from archive_cases import (CANNED, assert_same_outputs, cli_env, lidarpkt_cli, manifest_rows,  # noqa: E402
                            no_partial_files, output_files)
-from conftest import external  # noqa: E402
+from conftest import end_process, external, start_process  # noqa: E402
 from lidarpkt.archive import catalog, export  # noqa: E402
 from lidarpkt.archive.engine import EngineOptions, run_all  # noqa: E402
 
@@ -97,8 +97,8 @@ class DaskProcesses:
 
     def _start(self, *args: str) -> subprocess.Popen:
         log = open(self.tmp / f"dask-{len(self.procs)}.log", "w")
-        proc = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]],
-                                stdout=log, stderr=subprocess.STDOUT, env=cli_env(), cwd=self.tmp)
+        proc = start_process([sys.executable, "-m", "distributed.cli.dask_" + args[0], *args[1:]],
+                             stdout=log, stderr=subprocess.STDOUT, env=cli_env(), cwd=self.tmp)
         self.procs.append(proc)
         return proc
 
@@ -120,8 +120,8 @@ class DaskProcesses:
             try:
                 proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+                pass
+            end_process(proc)
 
 
 def _running_units(outdir: Path) -> int:
@@ -152,8 +152,8 @@ def test_separate_process_cluster_file_urls_and_a_killed_worker(archive, referen
         # the same cluster by DASK_SCHEDULER_ADDRESS; one of its two workers killed in the middle of the job
         out = tmp_path / "las"
         env = {**cli_env(), "DASK_SCHEDULER_ADDRESS": cluster.address}
-        job = subprocess.Popen([sys.executable, "-m", "lidarpkt", "export", str(archive), "-o", str(out),
-                                "--format", "las", "-q"], env=env, stderr=subprocess.PIPE, text=True)
+        job = start_process([sys.executable, "-m", "lidarpkt", "export", str(archive), "-o", str(out),
+                             "--format", "las", "-q"], env=env, stderr=subprocess.PIPE, text=True)
         try:
             _wait_until(out, job, rows=0, running=2)  # both workers inside a unit
             victim = cluster.workers[0]
@@ -161,9 +161,7 @@ def test_separate_process_cluster_file_urls_and_a_killed_worker(archive, referen
             victim.wait(timeout=20)
             assert job.wait(timeout=240) == 0, job.stderr.read()
         finally:
-            if job.poll() is None:
-                job.kill()
-                job.wait()
+            end_process(job)
         assert len(manifest_rows(out)) == 5  # each unit recorded once (the killed worker's too)
         assert_same_outputs(out, reference["las"])
         assert not no_partial_files(out)
@@ -173,15 +171,13 @@ def test_killed_job_resumes_skips_done_units_and_leaves_no_partial_files(archive
     out = tmp_path / "parquet"
     args = [sys.executable, "-m", "lidarpkt", "export", str(archive), "-o", str(out), "--format", "parquet",
             "--workers", "1", "-q"]
-    job = subprocess.Popen(args, env=cli_env(), stderr=subprocess.PIPE, text=True)
+    job = start_process(args, env=cli_env(), stderr=subprocess.PIPE, text=True)
     try:
         _wait_until(out, job, rows=1, running=1)  # one unit done, the next one writing
         job.send_signal(signal.SIGKILL)
         job.wait(timeout=20)
     finally:
-        if job.poll() is None:
-            job.kill()
-            job.wait()
+        end_process(job)
     assert _running_units(out) == 1  # the killed unit's partial files, under .staging
     done_before = {r["key"] for r in manifest_rows(out) if r["status"] == "done"}
     total = len(reference_rows := manifest_rows(reference["parquet"]))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import external
+from conftest import end_process, external, start_process
 
 REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
@@ -33,18 +33,16 @@ def test_replay_stopped_by_sigterm_prints_its_summary_and_exits_0():
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sink.bind(("127.0.0.1", port))
     sink.settimeout(30)
-    proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "replay", str(external(VLP20)), "--to",
-                             f"127.0.0.1:{port}", "--loop"], stderr=subprocess.PIPE, text=True, cwd=REPO,
-                            env=dict(os.environ, PYTHONPATH=str(REPO)))
+    proc = start_process([sys.executable, "-m", "lidarpkt", "replay", str(external(VLP20)), "--to",
+                          f"127.0.0.1:{port}", "--loop"], stderr=subprocess.PIPE, text=True, cwd=REPO,
+                         env=dict(os.environ, PYTHONPATH=str(REPO)))
     try:
         sink.recv(2048)  # it is sending
         time.sleep(0.3)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        end_process(proc)
         sink.close()
     assert proc.returncode == 0, err  # was 143, without a summary
     assert "lidarpkt replay: interrupted; sent" in err and "Traceback" not in err

@@ -168,3 +168,28 @@ def test_random_bytes_of_every_size_never_crash(model):
             except LidarpktError:
                 pass
             assert dec.stats.packets == 64
+
+
+def test_a_udp_sequence_jump_claims_no_more_lost_packets_than_the_capture_time_holds(ext):
+    """A sequence number moved 500,000 on (below the restart threshold) in a 0.1 s stretch of packets: the
+    losses claimed are bounded by the capture time between the packets around it (lidarpkt.continuity)."""
+    batch = _bag_batch(ext, "xt32")
+    model = detect_model(batch.payload)
+    layout = model.layout
+    assert model is not None and "udp_sequence" in layout["tail"].names and layout.itemsize == batch.payload_size
+    clean = _decoder(model)
+    clean.push(batch)
+    payload = batch.payload.copy()
+    packets = payload.view(layout).reshape(-1)
+    packets["tail"]["udp_sequence"][len(packets) // 2:] += 500_000  # every later packet agrees: a jump, not one bad packet
+    hostile = _decoder(model)
+    hostile.push(PacketBatch.from_payloads(payload, batch.timestamp_ns, first_index=0))
+    from lidarpkt.continuity import CAPTURE_RESOLUTION_S
+    from lidarpkt.hesai.decode import decode_packets
+
+    span_ns = int(batch.timestamp_ns[-1] - batch.timestamp_ns[0])  # capture time of the whole batch
+    period_ns = float(np.median(np.diff(decode_packets(batch.payload, model).timestamp_ns)))  # the sensor's
+    # packets the capture time holds beyond those received, and the 20 ms a loss may borrow (bursty capture clocks)
+    room = span_ns / period_ns - (len(batch) - 1) + CAPTURE_RESOLUTION_S * 1e9 / period_ns
+    assert clean.stats.lost_packets == 0
+    assert 0 <= hostile.stats.lost_packets <= max(room, 0) + 1

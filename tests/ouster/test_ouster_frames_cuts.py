@@ -161,15 +161,17 @@ def test_frame_fields_keep_their_documented_types(assembly):
 # ------------------------------------------------------------------ which frame a packet belongs to
 def test_the_last_16_released_frames_are_remembered(assembly):
     """Frames 1-18, one packet each: when frame 1 comes back, only frames 3-18 are remembered (16):
-    it starts a new frame; a packet of frame 3 is late."""
+    it starts a new frame; a packet of frame 3 is late. (Frame 1 comes back with two packets: a jump
+    of 1.7 s back is a restart only when the packet after it agrees, lidarpkt.continuity.)"""
     md, p = dual()
     dec = OusterDecoder(md)
     frames = []
-    for fid in [*range(1, 19), 1, 3]:
-        frames += dec.push(PacketBatch.from_payloads(relabel(md, p[:1], frame_id=fid)))
+    for fid, n in [*((f, 1) for f in range(1, 19)), (1, 2), (3, 1)]:
+        frames += dec.push(PacketBatch.from_payloads(relabel(md, p[:n], frame_id=fid)))
     frames += dec.finish()
     assert [f.frame_id for f in frames] == [*range(1, 19), 1]
     assert dec.stats.late == 1 and frames[-1].counters.late_packets == 1
+    assert dec.stats.restarts == 1 and dec.stats.corrupted == 0
 
 
 @pytest.mark.parametrize("missing,lost", [(992, 0), (1008, 1), (0, 1), (16, 0)])

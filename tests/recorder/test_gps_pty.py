@@ -57,6 +57,18 @@ def _pty():
     return master, slave, os.ttyname(slave)
 
 
+def _wait_until_read(slave: int, timeout_s: float = 60.0) -> None:
+    """Until the recorder has read every byte written to the pty (none waits on its side), at most
+    ``timeout_s``: a condition, not a guess of how long a loaded machine takes."""
+    import fcntl
+    import termios
+
+    deadline = time.monotonic() + timeout_s
+    while int.from_bytes(fcntl.ioctl(slave, termios.FIONREAD, b"\0\0\0\0"), "little"):
+        assert time.monotonic() < deadline, "the recorder did not read the GPS sentences"
+        time.sleep(0.02)
+
+
 def test_gps_reader_over_a_real_pty_keeps_good_sentences_and_counts_bad_ones():
     master, slave, name = _pty()
     try:
@@ -70,7 +82,7 @@ def test_gps_reader_over_a_real_pty_keeps_good_sentences_and_counts_bad_ones():
             os.write(master, data[i:i + 37])
             time.sleep(0.01)
         got = []
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 60  # a generous bound: the loop ends on the condition
         while len(got) < len(GOOD) and time.monotonic() < deadline:
             got += gps.drain()
             time.sleep(0.02)
@@ -103,7 +115,7 @@ def test_record_writes_gps_sentences_into_the_mcap(tmp_path):
             for s in [GOOD[0], BAD[0], GOOD[1], GOOD[3]]:
                 os.write(master, (s + "\r\n").encode())
                 time.sleep(0.05)
-            time.sleep(0.5)
+            _wait_until_read(slave)
             assert rec.stop(signal.SIGINT) == 0, rec.log.read_text()  # Ctrl-C: a clean stop
     finally:
         os.close(master)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from conftest import external
+from conftest import end_process, external, start_process
 from test_replay_record import REPO, _messages
 
 OS1 = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"
@@ -129,8 +129,8 @@ def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
     pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     master, slave = pty.openpty()
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "-o", str(tmp_path / "p.npz")],
-                                stderr=slave, stdout=subprocess.DEVNULL, cwd=REPO)
+        proc = start_process([sys.executable, "-m", "lidarpkt", "decode", str(pcap), "-o", str(tmp_path / "p.npz")],
+                             stderr=slave, stdout=subprocess.DEVNULL, cwd=REPO)
         os.close(slave)
         chunks = []
         while True:
@@ -144,6 +144,8 @@ def test_progress_bar_on_a_terminal_and_none_in_a_pipe(tmp_path):
         assert proc.wait(timeout=120) == 0
     finally:
         os.close(master)
+        if "proc" in locals():
+            end_process(proc)
     text = b"".join(chunks).decode(errors="replace")
     assert "decode:" in text and "%|" in text and "52 frames" in text  # tqdm's bar, with the frame count
     piped = _decode(pcap, "-o", tmp_path / "q.npz")

@@ -48,7 +48,7 @@ def test_a_burst_above_the_sustainable_rate_is_recorded_or_reported_lost_exactly
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for p in payloads:
             tx.sendto(p, ("127.0.0.1", port))
-    time.sleep(1.0)  # whatever the recorder will read has arrived
+    rec.wait_until_read()  # the kernel holds nothing more: every datagram was read or dropped
     rc = rec.stop()
     report = json.loads(rec.report.read_text())
     _, msgs = _messages(rec.out)
@@ -75,14 +75,18 @@ def test_a_sensor_that_stops_and_restarts_is_reported_and_nothing_is_lost(tmp_pa
         for p in before:
             tx.sendto(p, ("127.0.0.1", port))
             time.sleep(0.0005)
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + 60
         while "no packets for" not in rec.log.read_text():
             assert rec.proc.poll() is None and time.monotonic() < deadline, rec.log.read_text()
             time.sleep(0.05)
         for p in after:
             tx.sendto(p, ("127.0.0.1", port))
             time.sleep(0.0005)
-    time.sleep(0.5)
+    rec.wait_until_read()
+    deadline = time.monotonic() + 60  # the recorder says so once it has taken them
+    while "packets again after" not in rec.log.read_text():
+        assert rec.proc.poll() is None and time.monotonic() < deadline, rec.log.read_text()
+        time.sleep(0.05)
     assert rec.stop() == 0
     log = rec.log.read_text()
     assert "still listening" in log and "packets again after" in log

@@ -37,7 +37,7 @@ def test_rotation_by_size_splits_the_recording_without_losing_a_packet(tmp_path)
     (port,) = _free_ports(1)
     rec = Recorder(tmp_path, [port], "--rotate-size", "0.1", "--chunk-seconds", "0.05", "-q")
     replay(packets, "127.0.0.1", port, rate=10.0)
-    time.sleep(0.5)
+    rec.wait_until_read()
     assert rec.stop() == 0
     report = json.loads(rec.report.read_text())
     files = report["files"]
@@ -57,7 +57,7 @@ def test_unknown_datagrams_are_kept_on_their_own_topic(tmp_path):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for p in payloads:
             tx.sendto(p, ("127.0.0.1", port))
-    time.sleep(0.5)
+    rec.wait_until_read()
     assert rec.stop() == 0
     _, msgs = _messages(rec.out)
     assert [bytes(m.data) for t, _, m in msgs if t == "/lidarpkt/other_packets"] == payloads
@@ -76,7 +76,7 @@ def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
 
     md = load_metadata(meta)
     replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, ouster_metadata=md)
-    time.sleep(0.5)
+    rec.wait_until_read()
     assert rec.stop() == 0
     _, msgs = _messages(rec.out)
     got = _recorded_payloads(msgs)
@@ -99,7 +99,7 @@ def test_multicast_group_on_loopback(tmp_path):
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
             for p in payloads:
                 tx.sendto(p, (group, port))
-        time.sleep(0.5)
+        rec.wait_until_read()
         assert rec.stop() == 0, rec.log.read_text()
     out, report = rec.out, rec.report
     summary = json.loads(report.read_text())
@@ -192,13 +192,17 @@ def test_a_silent_sensor_is_reported_and_the_recording_goes_on(tmp_path):
     with Recorder(tmp_path, [port], "-q") as rec, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for p in payloads[:40]:
             tx.sendto(p, ("127.0.0.1", port))
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + 60
         while "no packets for" not in rec.log.read_text():
             assert time.monotonic() < deadline, rec.log.read_text()
             time.sleep(0.05)
         for p in payloads[40:]:
             tx.sendto(p, ("127.0.0.1", port))
-        time.sleep(0.5)
+        rec.wait_until_read()
+        deadline = time.monotonic() + 60  # the recorder says so once it has taken them
+        while "packets again after" not in rec.log.read_text():
+            assert time.monotonic() < deadline, rec.log.read_text()
+            time.sleep(0.05)
         assert rec.stop() == 0
     assert "packets again after" in rec.log.read_text()
     _, msgs = _messages(rec.out)

@@ -396,3 +396,20 @@ def test_cli_says_in_one_line_which_option_picks_a_vlp32a_or_b(tmp_path):
     assert good.returncode == 0, good.stderr
     with np.load(tmp_path / "out.npz") as npz:
         assert any(npz[k].shape[-2:-1] == (32,) or 32 in npz[k].shape for k in npz.files if "range" in k)
+
+
+def test_decode_to_mcap_names_the_model_and_its_own_elevations(ext, tmp_path):
+    """The MCAP's sensor record of a VLP-32C bag: its model and its 32 stock elevations (not the VLP-16's)."""
+    import json
+
+    from mcap.reader import make_reader
+
+    from lidarpkt.cli import main
+
+    out = tmp_path / "vlp32c.mcap"
+    assert main(["decode", str(ext("nebula/vlp32/1713492677464078412")), "-o", str(out), "-q"]) == 0
+    with out.open("rb") as fh:
+        records = [m for m in make_reader(fh).iter_metadata() if m.name == "lidarpkt.sensor"]
+    assert records and records[0].metadata["model"] == "VLP-32C"
+    elevations = json.loads(records[0].metadata["laser_elevation_deg"])
+    assert elevations == [float(e) for e in model_named("VLP-32C").elevation_deg] and len(elevations) == 32

@@ -269,6 +269,7 @@ class McapFrameWriter(BaseWriter):
         offsets and span measured (unless given to the constructor). ``progress(bytes_read)`` is called
         as its packets are read."""
         from lidarpkt.sources import open_packet_source
+        from lidarpkt.sources.magic import is_osf
         from lidarpkt.sources.protocol import embedded_ouster_metadata
 
         from .packets import PacketSink, capture_times
@@ -276,6 +277,12 @@ class McapFrameWriter(BaseWriter):
         self._pending_capture = None
         self._input = str(capture)
         mds = self.ouster_metadata
+        if is_osf(capture):  # decoded frames, no packets: the span they were received in
+            if not self._given_times:
+                from lidarpkt.ouster.osf import receive_span
+
+                self.set_capture_times({}, *receive_span(capture))
+            return
         if not self._given_times:
             self.set_capture_times(*capture_times(capture, mds))
         if "packets" not in self.groups:

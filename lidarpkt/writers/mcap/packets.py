@@ -109,16 +109,23 @@ class PacketSink:
         })
 
     def _describe_velodyne(self, batch: PacketBatch, src: str) -> None:
-        from lidarpkt.velodyne.detect import describe_stream
+        from lidarpkt.errors import LidarpktError
+        from lidarpkt.velodyne.decode import decode_packets
+        from lidarpkt.velodyne.detect import describe_stream, detect_model
 
         p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
         product = PRODUCT_NAMES.get(int(p["product_id"]), f"0x{int(p['product_id']):02x}")
         described = describe_stream(batch) or {}
+        try:  # the model's own stock elevations (an HDL-32E's 32, not the VLP-16's 16)
+            model = detect_model(decode_packets(batch.payload, copy=False), src)
+        except LidarpktError:  # an unknown or ambiguous factory byte: the decoder says so; no elevations here
+            model = None
         self.writer.add_metadata("lidarpkt.sensor", {
-            "vendor": "velodyne", "model": described.get("kind", "Velodyne data").replace(" data", ""),
+            "vendor": "velodyne", "model": model.name if model is not None else
+            described.get("kind", "Velodyne data").replace(" data", ""),
             "return_mode": mode, "product_id": f"0x{int(p['product_id']):02x} ({product})", "source": src,
-            "laser_elevation_deg": json.dumps(vlp.LASER_ELEVATION_DEG.tolist()),
+            **({"laser_elevation_deg": json.dumps([float(e) for e in model.elevation_deg])} if model is not None else {}),
             "stream": json.dumps(described, default=str),
         })
 
@@ -149,7 +156,7 @@ class PacketSink:
             tracker = self._trackers.get(key)
             if tracker is None:
                 tracker = self._trackers[key] = streams.OusterLoss(md)
-            tracker.update(batch.payload)
+            tracker.update(batch.payload, batch.timestamp_ns)
             rep.count = tracker.count
         elif kind == streams.HESAI_DATA and self._hesai_counted(key, rep, batch):
             pass  # kept on /lidarpkt/other_packets (nebula's packet message), read back by lidarpkt.open
@@ -225,7 +232,7 @@ class PacketSink:
             kind = data_kind(batch)
             period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
-        starts = tracker.update(batch.payload)
+        starts = tracker.update(batch.payload, batch.timestamp_ns)
         rep.count = tracker.count
         pending = self._pending.setdefault(key, [])
         cuts = np.flatnonzero(starts).tolist()
@@ -284,7 +291,8 @@ class PacketSink:
             c = r.count
             out.append(f"  {r.kind:<18} {r.src} -> {r.dst} {r.payload_size} B: {c.packets} packets, "
                        f"{c.lost} lost, {c.out_of_order} out of order, {c.frames} rotations"
-                       + (f", {c.interruptions} interruptions" if c.interruptions else ""))
+                       + (f", {c.interruptions} interruptions" if c.interruptions else "")
+                       + (f", {c.corrupted} corrupted" if c.corrupted else ""))
         return out
 
 
