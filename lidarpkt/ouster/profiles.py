@@ -161,7 +161,7 @@ _RNG19_PIXEL = (
     *_reserved(80, 8),
     BitField("WINDOW", 88, 8),
 )
-_RNG19_DUAL_PIXEL = (
+_RNG19_DUAL_FIRST_FOUR_WORDS = (
     BitField("RANGE", 0, 19),
     BitField("FLAGS", 19, 5),
     BitField("REFLECTIVITY", 24, 8),
@@ -171,6 +171,9 @@ _RNG19_DUAL_PIXEL = (
     BitField("SIGNAL", 64, 16),
     BitField("SIGNAL2", 80, 16),
     BitField("NEAR_IR", 96, 16),
+)
+_RNG19_DUAL_PIXEL = (
+    *_RNG19_DUAL_FIRST_FOUR_WORDS,
     *_reserved(112, 8),
     BitField("WINDOW", 120, 8),
 )
@@ -232,17 +235,6 @@ _RNG19_RGB16_PIXEL = (
     BitField("G", 80, 16),
     BitField("B", 96, 16),
     *_reserved(112, 16),
-)
-_RNG19_DUAL_FIRST_FOUR_WORDS = (
-    BitField("RANGE", 0, 19),
-    BitField("FLAGS", 19, 5),
-    BitField("REFLECTIVITY", 24, 8),
-    BitField("RANGE2", 32, 19),
-    BitField("FLAGS2", 51, 5),
-    BitField("REFLECTIVITY2", 56, 8),
-    BitField("SIGNAL", 64, 16),
-    BitField("SIGNAL2", 80, 16),
-    BitField("NEAR_IR", 96, 16),
 )
 _RNG19_RGB16_DUAL_PIXEL = (
     *_RNG19_DUAL_FIRST_FOUR_WORDS,
