@@ -20,9 +20,10 @@ from __future__ import annotations
 import threading
 import warnings
 from collections import deque
-from typing import Callable, Iterator
+from typing import Any, Callable, Generic, Iterator, TypeVar
 
 _local = threading.local()
+T = TypeVar("T")  # what the reader yields (packet batches, frames)
 
 THREAD_NAME = "lidarpkt-read-ahead"
 DEFAULT_MAX_BYTES = 16 << 20  # queued batches (payload bytes; one read block); one batch is always allowed. 8-48 MB measured alike, 16 MB steadier
@@ -37,7 +38,7 @@ def warn(message: Warning, stacklevel: int = 1) -> None:
     warnings.warn(message, stacklevel=stacklevel + 1)
 
 
-class ReadAhead:
+class ReadAhead(Generic[T]):
     """Iterator over the items of ``make_batches()`` (called in the thread), read ahead.
 
     ``nbytes(item)`` is what an item counts against ``max_bytes`` (packet batches: their payload);
@@ -45,10 +46,10 @@ class ReadAhead:
     through :func:`warn`, so they travel on to the outermost caller.
     """
 
-    def __init__(self, make_batches: Callable[[], Iterator], *, max_bytes: int = DEFAULT_MAX_BYTES,
-                 nbytes: Callable[[object], int] | None = None, name: str = THREAD_NAME) -> None:
+    def __init__(self, make_batches: Callable[[], Iterator[T]], *, max_bytes: int = DEFAULT_MAX_BYTES,
+                 nbytes: Callable[[T], int] | None = None, name: str = THREAD_NAME) -> None:
         self._make = make_batches
-        self._nbytes = nbytes or _nbytes
+        self._nbytes: Callable[[T], int] = nbytes or _nbytes
         self._max_bytes = max(1, int(max_bytes))
         self._cond = threading.Condition()
         self._items: deque = deque()  # (kind, value, nbytes): kind "batch" | "warning" | "error" | "end"
@@ -90,10 +91,10 @@ class ReadAhead:
             _local.sink = None
 
     # ------------------------------------------------------------------ caller
-    def __iter__(self) -> "ReadAhead":
+    def __iter__(self) -> ReadAhead[T]:
         return self
 
-    def __next__(self):
+    def __next__(self) -> T:
         while True:
             if self._done:
                 raise StopIteration
@@ -133,6 +134,6 @@ class ReadAhead:
         return self._thread.is_alive()
 
 
-def _nbytes(batch) -> int:
+def _nbytes(batch: Any) -> int:
     payload = getattr(batch, "payload", None)
     return int(getattr(payload, "nbytes", 0)) + 16 * len(batch)

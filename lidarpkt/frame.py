@@ -197,17 +197,17 @@ class Frame:
             UsageError: ``dtype`` is neither float64 nor float32.
         """
         try:
-            dtype = np.dtype(dtype)
+            point_dtype: np.dtype | None = np.dtype(dtype)
         except TypeError:
-            dtype = None
-        if dtype not in (np.float64, np.float32):
+            point_dtype = None
+        if point_dtype not in (np.float64, np.float32):
             raise UsageError("xyz(dtype=...): not float64 or float32; give numpy.float64 or numpy.float32")
         if self.sensor.geometry is None:
             raise CalibrationError(
                 f"no calibration for {self.sensor.model} from {self.sensor.source}: "
                 "pass the sensor's metadata/calibration file to compute points"
             )
-        return self.sensor.geometry.xyz(self, dtype)
+        return self.sensor.geometry.xyz(self, point_dtype)
 
     def has_return(self) -> np.ndarray:
         """``bool[R, H, W]``: the pixels that hold a return (range > 0 in a column a packet delivered).

@@ -81,8 +81,8 @@ class PacketBatch:
         for t, row in zip(self.timestamp_ns.tolist(), self.payload):
             yield Packet(int(t), self.src, self.dst, row.tobytes())
 
-    def select(self, mask_or_indices: np.ndarray) -> "PacketBatch":
-        """A batch of the chosen rows (boolean mask or integer indices), same stream."""
+    def select(self, mask_or_indices: np.ndarray | slice) -> "PacketBatch":
+        """A batch of the chosen rows (boolean mask, integer indices or a slice), same stream."""
         return PacketBatch(
             self.src,
             self.dst,

@@ -37,7 +37,7 @@ from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 import dataclasses
 from dataclasses import fields
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Generator
 
 import numpy as np
 
@@ -111,6 +111,8 @@ class ParallelFrameReader(FrameIterator):
     single-threaded reader would (the frames of the segments before it are yielded first).
     """
 
+    _iter: Generator[Frame, None, None]  # closed by close()
+
     def __init__(self, path: str | os.PathLike[str], segments: list, options: OpenOptions,
                  open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
         """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
@@ -170,7 +172,7 @@ class ParallelFrameReader(FrameIterator):
         out.put((_END, stats, getattr(pcap, "split_ordinal", None), unknown, error, getattr(pcap, "split_offset", None),
                  bool(getattr(read_stats, "truncated", False))))
 
-    def _frames(self) -> Iterator[Frame]:
+    def _frames(self) -> Generator[Frame, None, None]:
         pending: deque[tuple[Any, queue.SimpleQueue]] = deque()
         todo = iter(self.segments)
         renumber = Renumber()

@@ -15,7 +15,7 @@ import os
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator, NamedTuple
+from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
     from .options import OpenKeywords
+    from ._readahead import ReadAhead
     from .ouster.osf import OsfReader
     from .parallel import ParallelFrameReader, PipelinedFrameReader
 
@@ -126,13 +127,13 @@ class FrameReader(FrameIterator):
                 filters["segment"] = segment
         self.reader: PacketSource = open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
-        self._read_ahead = None  # the running ReadAhead, if any
+        self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
         from .hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
 
         hesai_cal = is_hesai_calibration(opts.calibration)
         metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
-        self._decoder_options = {
+        self._decoder_options: dict[str, dict[str, Any]] = {
             "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
                          "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
             "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
@@ -145,7 +146,7 @@ class FrameReader(FrameIterator):
                              max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter = FrameReader._frames(weakref.proxy(self))
+        self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
 
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
@@ -177,13 +178,13 @@ class FrameReader(FrameIterator):
     def _ouster_metadata(self) -> list:
         return list(self.router.options.ouster_metadata)
 
-    def _frames(self) -> Iterator[Frame]:
+    def _frames(self) -> Generator[Frame, None, None]:
         embedded = self.reader.ouster_metadata
         batches = self._batches()
         ownership = self._ownership
         try:
             for batch in batches:
-                if embedded and not self.router.options.ouster_metadata:
+                if not self.router.options.ouster_metadata:
                     # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
                     self.router.options = RouteOptions(load_ouster_metadata(embedded()), self._decoder_options)
                 self.stats.batches += 1
@@ -199,7 +200,7 @@ class FrameReader(FrameIterator):
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
-            batches.close()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+            getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))

@@ -11,11 +11,14 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
+
+if TYPE_CHECKING:
+    from lidarpkt.frame import FrameStack
 
 # ---------------------------------------------------------------------------- helpers
 
@@ -277,7 +280,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
                          threshold_m=args.threshold, method=method)
     out = Path(args.output)
     try:
-        np.savez_compressed(out, **mr.to_npz_dict(), frame_id=stack.frame_id)
+        np.savez_compressed(out, allow_pickle=False, **mr.to_npz_dict(), frame_id=stack.frame_id)
     except OSError as exc:
         raise AnalysisError(f"-o {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
     s = mr.stats
@@ -360,7 +363,7 @@ def _pair_returns(a, b, sel_a, sel_b):
 
 def run_compare_returns(args: argparse.Namespace) -> int:
     from .cdf import temporal_cdf
-    from .compare import compare_slots, compare_stacks, ks_image
+    from .compare import PairedComparison, compare_slots, compare_stacks, ks_image
     from .returns import available_returns, parse_return, resolve, sample_mask, select_returns
 
     pixels = list(args.pixel)
@@ -377,6 +380,8 @@ def run_compare_returns(args: argparse.Namespace) -> int:
     doc: dict[str, Any] = {"inputs": [args.input]}
     plots = _plots() if args.plot else None
     figs = []
+    pc: PairedComparison | None
+    pairs: list[tuple[FrameStack, int, FrameStack, int]]  # (stack, slot) pairs compared raypath by raypath
     if args.input2 is None:
         if a.range_mm.shape[1] < 2:
             raise AnalysisError(
@@ -405,8 +410,10 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)
         a, sa_i = resolve(a, sel_a)
         b, sb_i = resolve(b, sel_b)
-        res = compare_stacks(a, b, sa_i, sb_i, paired=args.paired)
-        dist, pc = res if args.paired else (res, None)
+        if args.paired:
+            dist, pc = compare_stacks(a, b, sa_i, sb_i, paired=True)
+        else:
+            dist, pc = compare_stacks(a, b, sa_i, sb_i), None
         doc["modes"] = dist.summary()
         if plots:
             figs.append((plots.plot_pixel_map(dist.ks, f"KS distance between the temporal CDFs, {dist.labels[0]} "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 
@@ -181,6 +182,17 @@ def ks_image(a_mm: np.ndarray, a_valid: np.ndarray, b_mm: np.ndarray, b_valid: n
     return np.where((na > 0) & (nb > 0), ks, np.nan)
 
 
+@overload
+def compare_stacks(a: FrameStack, b: FrameStack, slot_a: int | str = 0, slot_b: int | str = 0, *,
+                   paired: Literal[False] = False, delta_edges_m: np.ndarray | None = None) -> DistributionComparison: ...
+@overload
+def compare_stacks(a: FrameStack, b: FrameStack, slot_a: int | str = 0, slot_b: int | str = 0, *,
+                   paired: Literal[True], delta_edges_m: np.ndarray | None = None,
+                   ) -> tuple[DistributionComparison, PairedComparison]: ...
+@overload
+def compare_stacks(a: FrameStack, b: FrameStack, slot_a: int | str = 0, slot_b: int | str = 0, *,
+                   paired: bool, delta_edges_m: np.ndarray | None = None,
+                   ) -> DistributionComparison | tuple[DistributionComparison, PairedComparison]: ...
 def compare_stacks(
     a: FrameStack,
     b: FrameStack,

@@ -115,7 +115,7 @@ def _finish(method: str, cdf: RangeCDF, w, mu, sigma, **extra) -> GaussianMixtur
 
 
 def fit_thresholds(
-    cdf: RangeCDF, thresholds: Sequence[float], *, min_sigma_m: float = DEFAULT_MIN_SIGMA_M, method: str = "thresholds"
+    cdf: RangeCDF, thresholds: Sequence[float] | np.ndarray, *, min_sigma_m: float = DEFAULT_MIN_SIGMA_M, method: str = "thresholds"
 ) -> GaussianMixture:
     """Mixture from segmenting the sorted samples at CDF thresholds (eq. 7).
 
@@ -211,7 +211,7 @@ def fit_em(
     x = cdf.range_m
     n = x.size
     return_fraction = n / cdf.n_samples
-    best = None
+    best: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None  # (BIC, weights, means, sigmas)
     spread = max(float(np.std(x)), min_sigma_m)
     for m in range(1, min(max_components, np.unique(x).size) + 1):
         starts = []
@@ -237,11 +237,13 @@ def fit_em(
         bic = -2.0 * ll + (3 * m - 1) * np.log(n)
         if best is None or bic < best[0]:
             best = (bic, w, mu, sigma)
-    bic, w, mu, sigma = best  # m = 1 always converges
+    if best is None:  # m = 1 always converges
+        raise AnalysisError(f"EM found no Gaussian mixture of {n} returns")
+    bic, w, mu, sigma = best
     return _finish("em", cdf, w * return_fraction, mu, sigma, bic=float(bic))
 
 
-def parse_method(method: str | Sequence[float]) -> str | np.ndarray:
+def parse_method(method: str | Sequence[float] | np.ndarray) -> str | np.ndarray:
     """``"em"``/``"auto"``, or CDF thresholds (a sequence or a string like ``"0.14,0.38,0.68"``)
     checked to be increasing values in (0, 1). Raises AnalysisError otherwise."""
     if isinstance(method, str):
@@ -259,7 +261,7 @@ def parse_method(method: str | Sequence[float]) -> str | np.ndarray:
     return t
 
 
-def fit_gmm(cdf: RangeCDF, method: str | Sequence[float] = "em", **options) -> GaussianMixture:
+def fit_gmm(cdf: RangeCDF, method: str | Sequence[float] | np.ndarray = "em", **options) -> GaussianMixture:
     """``method``: ``"em"``, ``"auto"``, a sequence of CDF thresholds, or a string of them
     (``"0.14,0.38,0.68"``, as ``--gmm`` takes it). Options go to the fitting function."""
     method = parse_method(method)

@@ -80,7 +80,7 @@ def _block_statistics(rng: np.ndarray, valid: np.ndarray, gap_mm: float) -> tupl
         dev = np.where(is_ret, r_m - mean, 0.0)
         std = np.sqrt((dev * dev).sum(axis=0) / n_ret)
     if k > 1:
-        step = np.diff(srt.astype(np.int64), axis=0)  # mm between consecutive sorted samples
+        step: np.ndarray = np.diff(srt.astype(np.int64), axis=0)  # int64 mm between consecutive sorted samples
         boundary = is_ret[1:] & (step > gap_mm)  # is_ret[1:] means both sides are returns
         n_clusters = (n_ret > 0).astype(np.int64) + boundary.sum(axis=0)
         gap = np.where(boundary, step, 0).max(axis=0) / 1000.0

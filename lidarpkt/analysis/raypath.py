@@ -78,7 +78,7 @@ def analyze_raypath(
     *,
     neighbourhood: int = 5,
     motion_compensation: bool = False,
-    gmm: str | Sequence[float] | None = "em",
+    gmm: str | Sequence[float] | np.ndarray | None = "em",
 ) -> RaypathAnalysis:
     """Temporal CDF, reflectivity, spatial CDFs, optionally the motion-compensated CDF and a GMM
     (``gmm``: ``"em"``, ``"auto"``, CDF thresholds, or None) of one raypath.

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Sequence
+from typing import Sequence, cast
 
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.frame import FrameStack
+from lidarpkt.frame import Frame, FrameStack
 
 from .gmm import DEFAULT_GAP_M
 from .multireturn import DEFAULT_MONITOR_METHOD, MONITOR_METHODS, image_statistics, monitor_score
@@ -152,7 +152,7 @@ def points_of(stack: FrameStack, frame: int, range_mm: np.ndarray) -> np.ndarray
     az_cdeg = (np.rint(np.mod(stack.azimuth_deg[frame], 360.0) * 100.0).astype(np.int64) % 36000).astype(np.uint16)
     view = SimpleNamespace(range_mm=np.ascontiguousarray(range_mm[None], np.uint32),
                            extra={"azimuth_cdeg": np.broadcast_to(az_cdeg, (h, w))})
-    return geometry.xyz(view)[0]
+    return geometry.xyz(cast("Frame", view))[0]  # a geometry reads only a frame's range_mm and extra
 
 
 def removal_masks(
@@ -277,8 +277,8 @@ def registration_impact(
             else:
                 map_points = _map_points(stack, map_range_mm, ~removed[cond][0])
             targets["scan_to_map"] = (reg.prepare(map_points), range(k))
-        for mode, (target, frames) in targets.items():
-            frames = np.fromiter(frames, np.int64)
+        for mode, (target, frame_range) in targets.items():
+            frames = np.fromiter(frame_range, np.int64)
             lost = int(np.count_nonzero((has_return & removed[cond])[frames]))
             for alg in algorithms:
                 errors[alg][mode][cond] = _register(reg, target, [sources[i] for i in frames], alg, frames, lost)

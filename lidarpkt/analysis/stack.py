@@ -12,6 +12,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -24,7 +25,7 @@ _MAX_PARTIAL_FALLBACK = 8
 def load_stack(
     path: str | Path,
     *,
-    metadata: str | Path | list[str | Path] | None = None,
+    metadata: str | Path | Sequence[str | Path] | None = None,
     frames: tuple[int | None, int | None] | None = None,
     include_partial: bool = False,
     resolution_deg: float | None = None,
@@ -49,7 +50,7 @@ def load_stack(
     """
     import lidarpkt
 
-    if isinstance(metadata, (list, tuple)):
+    if metadata is not None and not isinstance(metadata, (str, Path)):  # a list of them
         metadata = [str(m) for m in metadata] or None
     kwargs: dict = {"workers": workers}
     if metadata is not None:

@@ -78,9 +78,9 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
     """
     from lidarpkt.info import describe_capture
 
-    base = {c: None for c in CATALOG_COLUMNS}
+    base: dict[str, Any] = {c: None for c in CATALOG_COLUMNS}
     base.update(path=capture.url, size_bytes=capture.size_bytes)
-    scratch = None
+    scratch: list[str] | None = None
     try:
         path = local_path(capture.url)
         if is_remote(capture.url):

@@ -86,7 +86,8 @@ def plan_units(paths: Sequence[str | os.PathLike[str]], out: str, fmt: str, opti
     """(tasks, capture mtime by key, tasks that failed while planning with their error)."""
     tasks, mtimes, failed = [], {}, []
     for cap in plan_captures(paths, glob=glob, metadata=metadata):
-        base = dict(input=cap.url, capture=cap.name, output=out, format=fmt, options=options, metadata=cap.metadata)
+        base: dict[str, Any] = dict(input=cap.url, capture=cap.name, output=out, format=fmt, options=options,
+                                    metadata=cap.metadata)
         try:
             segments = [None] if fmt in WHOLE_FILE_FORMATS else plan_segments(cap, segment_bytes)
         except LidarpktError as exc:  # cannot be indexed: recorded as this input's failure
@@ -222,7 +223,8 @@ def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOp
                 lost=lambda job, why: SegmentCount(job.key, error=f"{job.input}: counting its frames: {why}"))
     finally:
         bar.close()
-    ready, unknown = [], []
+    ready: list[UnitTask] = []
+    unknown: list[UnitTask] = []
     for t in todo:
         if t.segment is None or t.segment.index == 0:
             ready.append(t)

@@ -66,7 +66,7 @@ def map_capture(task: MapTask) -> list[dict[str, Any]]:
     from lidarpkt.analysis.stack import load_stack
 
     start = time.perf_counter()
-    base = {c: None for c in SUMMARY_COLUMNS}
+    base: dict[str, Any] = {c: None for c in SUMMARY_COLUMNS}
     base.update(capture=task.capture, input=task.input)
     try:
         with warnings.catch_warnings():

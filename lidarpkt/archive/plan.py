@@ -12,10 +12,13 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 from lidarpkt.errors import LidarpktError
 from lidarpkt.sources.magic import CAPTURE_SUFFIXES, find_captures
+
+if TYPE_CHECKING:
+    from lidarpkt.sources.segments import Segment
 
 _SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
                "t": 10**12, "tb": 10**12, "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
@@ -138,8 +141,8 @@ def expand_paths(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = 
             out.extend(_walk_local(path, glob))
         else:
             out.append(_stat_local(path))
-    seen: set[str] = set()
-    unique = [e for e in out if not (e[0] in seen or seen.add(e[0]))]
+    first: dict[str, tuple[str, int, int]] = {}  # each capture once, where it was first found
+    unique = [first.setdefault(e[0], e) for e in out if e[0] not in first]
     if not unique:
         where = ", ".join(os.fspath(p) for p in paths)
         raise PlanError(f"{where}: no capture found" + (f" matching --glob {glob}" if glob else "")
@@ -182,8 +185,8 @@ def sidecar_metadata(url: str) -> str | None:
         fs, path = _filesystem(url)
         candidate = str(PurePosixPath(path).with_suffix(".json"))
         return url.split("://", 1)[0] + "://" + candidate if fs.exists(candidate) else None
-    candidate = Path(local_path(url)).with_suffix(".json")
-    return str(candidate) if candidate.is_file() else None
+    beside = Path(local_path(url)).with_suffix(".json")
+    return str(beside) if beside.is_file() else None
 
 
 def plan_captures(
@@ -214,7 +217,7 @@ def plan_captures(
     return captures
 
 
-def plan_segments(capture: Capture, segment_bytes: int) -> list[Any | None]:
+def plan_segments(capture: Capture, segment_bytes: int) -> Sequence[Segment | None]:
     """Segments of one capture: ``[None]`` (the whole file) at or below ``segment_bytes``, for
     remote inputs, rosbag2 folders and files :func:`lidarpkt.sources.segments.plan_segments` keeps
     whole (MCAP, bags); else its record-aligned :class:`~lidarpkt.sources.segments.Segment` s.

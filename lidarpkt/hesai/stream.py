@@ -38,8 +38,10 @@ class PacketCounter:
         self._last_az: int | None = None
         self._period_ns: float | None = None
 
-    def update(self, payload: np.ndarray) -> np.ndarray:
+    def update(self, payload: np.ndarray, host_ns: np.ndarray | None = None) -> np.ndarray:
         """Count ``uint8[N, L]`` payloads; returns ``bool[N]``, True where a packet starts a new rotation.
+        ``host_ns`` (the :class:`~lidarpkt.decoder.StreamCounter` protocol's capture times) is not used yet:
+        losses are not bounded by capture time here as the Pandar decoder bounds them.
 
         Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of no Pandar model."""
         n = len(payload)

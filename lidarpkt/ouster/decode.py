@@ -58,7 +58,7 @@ class OusterPacketFields:
     @property
     def frame_id(self) -> np.ndarray:
         """``int64[N]`` frame id of each packet: header field, or the first column's for LEGACY."""
-        if self.profile.legacy:
+        if self.profile.legacy and self.column_frame_id is not None:  # set for LEGACY
             return self.column_frame_id[:, 0].astype(np.int64)
         return self.header["frame_id"].astype(np.int64)
 
@@ -77,8 +77,8 @@ class OusterPacketFields:
             return self.status == LEGACY_STATUS_VALID
         return (self.status & 1).astype(bool)
 
-    def select(self, rows: np.ndarray) -> "OusterPacketFields":
-        """The fields of the chosen packets (mask or indices)."""
+    def select(self, rows: np.ndarray | slice) -> "OusterPacketFields":
+        """The fields of the chosen packets (mask, indices or a slice)."""
 
         def pick(a):
             return None if a is None else a[rows]

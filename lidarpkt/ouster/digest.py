@@ -14,6 +14,7 @@ from typing import Iterable
 
 import numpy as np
 
+from ..errors import UsageError
 from ..frame import Frame
 from .decode import OusterPacketFields, read_pixel_field
 from .profiles import BitField, Profile
@@ -40,7 +41,7 @@ class PacketDigest:
         self._feed("TIMESTAMP", fields.timestamp_ns.astype("<u8"))
         self._feed("MEASUREMENT_ID", fields.measurement_id.astype("<u2"))
         self._feed("STATUS", fields.status.astype("<u4"))
-        if prof.legacy:
+        if prof.legacy and fields.encoder_count is not None and fields.column_frame_id is not None:  # set for LEGACY
             self._feed("ENCODER_COUNT", fields.encoder_count.astype("<u4"))
             self._feed("FRAME_ID", fields.column_frame_id.astype("<u2"))
         else:  # the SDK does not fill these for non-legacy packets
@@ -79,6 +80,8 @@ def frame_digest(frame: Frame) -> dict[str, str]:
     def md5(arr: np.ndarray) -> str:
         return hashlib.md5(np.ascontiguousarray(arr).tobytes()).hexdigest()
 
+    if frame.status is None or frame.measurement_id is None:
+        raise UsageError(f"frame_digest(frame): a {frame.sensor.vendor} frame has no Ouster column status")
     out = {
         "FRAME_ID": str(frame.frame_id),
         "TIMESTAMP": md5(frame.column_timestamp_ns.astype("<u8")),

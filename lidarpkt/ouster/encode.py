@@ -150,7 +150,7 @@ def frame_fields(frame, metadata, *, all_packets: bool = False, init_id: int | N
         )
     window_packets = np.unique(np.flatnonzero(metadata.window_mask) // c)
     if not all_packets:
-        valid = np.asarray(frame.column_valid, bool).reshape(-1, c).any(axis=1)
+        valid = np.asarray(np.asarray(frame.column_valid, bool).reshape(-1, c).any(axis=1))  # bool[packets]
         window_packets = window_packets[valid[window_packets]]
     n = len(window_packets)
     cols = (window_packets[:, None] * c + np.arange(c)[None, :])  # [n, C] column indices

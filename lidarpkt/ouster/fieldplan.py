@@ -38,7 +38,7 @@ def field_plan(profile) -> tuple:
     """
     names = set(profile.field_names)
     slots = SLOT_FIELDS[: profile.returns]
-    plan = []
+    plan: list[tuple[str, tuple[tuple[int, int, int, int], ...], np.dtype | None]] = []
     for i, attr in enumerate(SLOT_ATTRS):
         if slots[0][i] not in names:
             plan.append((attr, (), None))
@@ -62,11 +62,11 @@ def new_fields(profile, h: int, w: int) -> tuple[dict[str, np.ndarray | None], l
         if not per_slot:
             out[attr] = None
         elif attr not in SLOT_ATTRS:
-            out[attr] = np.empty((h, w), dtype)
-            targets.append(out[attr])
+            out[attr] = plane = np.empty((h, w), dtype)
+            targets.append(plane)
         else:
-            out[attr] = np.empty((len(per_slot), h, w), dtype)
-            targets.extend(out[attr])
+            out[attr] = planes = np.empty((len(per_slot), h, w), dtype)
+            targets.extend(planes)
     return out, targets
 
 

@@ -110,7 +110,8 @@ class _Builder:
         self.key = key
         self.frame_id = frame_id
         self.native = kernels.native if md.profile.pixel_bytes <= _NATIVE_PIXEL_BYTES else None
-        self.planes = self.outputs = None
+        self.planes: np.ndarray | None = None  # NumPy path: the packets' pixel words, one plane per word
+        self.outputs: dict[str, np.ndarray | None] | None = None  # compiled path: the fields themselves
         if self.native is not None:
             self.outputs, self.targets = new_fields(md.profile, h, w)
         else:
@@ -137,7 +138,7 @@ class _Builder:
         flat = mids.ravel().astype(np.intp)
         if flat.size == 0:  # every packet was a duplicate
             return
-        if self.outputs is not None:
+        if self.outputs is not None and self.native is not None:
             self.native.ouster_scatter(payload, *packet_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
                                        mids.astype(np.int64), scatter_steps(md.profile), self.targets)
         else:
@@ -145,7 +146,7 @@ class _Builder:
         self.timestamp_ns[flat] = f.timestamp_ns.ravel()
         self.measurement_id[flat] = mids.ravel()
         self.status[flat] = f.status.ravel()
-        if self.encoder_count is not None:
+        if self.encoder_count is not None and f.encoder_count is not None:  # LEGACY
             self.encoder_count[flat] = f.encoder_count.ravel()
         if self.header_status is not None and HEADER_STATUS_FIELDS[0] in f.header:
             index = mids.astype(np.intp)
@@ -158,6 +159,7 @@ class _Builder:
         n, c = words.shape[:2]
         m0 = int(flat[0])
         planes = self.planes
+        assert planes is not None  # the NumPy path has them
         src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
         if m0 + n * c <= planes.shape[2] and int(flat[-1]) == m0 + n * c - 1 and (np.diff(flat) == 1).all():
             # the common case: consecutive measurement ids, strided copies into slices of columns,
@@ -171,7 +173,7 @@ class _Builder:
         else:
             planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
 
-    def fields(self, profile, kept: np.ndarray) -> dict[str, np.ndarray]:
+    def fields(self, profile, kept: np.ndarray) -> dict[str, np.ndarray | None]:
         """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
         (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
         (``[H, W]``, window ``None`` if absent); zeros where ``kept`` (``bool[W]``) is False."""
@@ -179,6 +181,7 @@ class _Builder:
             _zero_missing(self.targets, kept)
             return self.outputs
         planes = self.planes
+        assert planes is not None  # the NumPy path has them
         _zero_missing([planes], kept)
         shape = planes.shape[1:]
         out: dict[str, np.ndarray | None] = {}
@@ -420,11 +423,13 @@ class OusterDecoder:
         extra = {k: v for k, v in px.items() if k not in SLOT_ATTRS and k != "near_ir" and v is not None}
         if b.header_status is not None:  # zero where no column arrived (filled only from received packets)
             extra.update(b.header_status)
+        range_mm, reflectivity = px["range_mm"], px["reflectivity"]
+        assert range_mm is not None and reflectivity is not None  # every profile has them
         return Frame(
             sensor=self.sensor,
             frame_id=b.frame_id,
-            range_mm=px["range_mm"],
-            reflectivity=px["reflectivity"],
+            range_mm=range_mm,
+            reflectivity=reflectivity,
             return_labels=md.return_labels,
             column_valid=valid,
             column_timestamp_ns=b.timestamp_ns,

@@ -43,8 +43,8 @@ def encode_imu(samples: np.ndarray | dict) -> np.ndarray:
     Raises :class:`PacketFormatError` on unknown or missing field names or mismatched lengths.
     """
     if isinstance(samples, dict):
-        missing = set(IMU_DTYPE.names) - set(samples)
-        extra = set(samples) - set(IMU_DTYPE.names)
+        missing = set(IMU_DTYPE.names or ()) - set(samples)  # a structured dtype: names is set
+        extra = set(samples) - set(IMU_DTYPE.names or ())
         if missing or extra:
             raise PacketFormatError(f"IMU fields: missing {sorted(missing)}, unknown {sorted(extra)}")
         lengths = {np.shape(v) for v in samples.values()}

@@ -402,7 +402,8 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
         )
     c = _int(doc, "columns per packet", *_df("columns_per_packet"), ("config_params", "columns_per_packet"))
     if c is None:
-        c, _ = 16, defaulted.append("columns_per_packet")
+        c = 16
+        defaulted.append("columns_per_packet")
     if c <= 0:
         raise MetadataError(f"metadata field columns_per_packet must be positive, got {c}")
     w = _int(doc, "columns per frame", *_df("columns_per_frame"))
@@ -464,12 +465,15 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
     lidar_port = _int(doc, "UDP port", ("config_params", "udp_port_lidar"), ("udp_port_lidar",))
     imu_port = _int(doc, "UDP port", ("config_params", "udp_port_imu"), ("udp_port_imu",))
     if lidar_port is None:
-        lidar_port, _ = DEFAULT_LIDAR_PORT, defaulted.append("udp_port_lidar")
+        lidar_port = DEFAULT_LIDAR_PORT
+        defaulted.append("udp_port_lidar")
     if imu_port is None:
-        imu_port, _ = DEFAULT_IMU_PORT, defaulted.append("udp_port_imu")
+        imu_port = DEFAULT_IMU_PORT
+        defaulted.append("udp_port_imu")
     init_id = _int(doc, "initialization id", ("sensor_info", "initialization_id"), ("initialization_id",))
     if init_id is None:
-        init_id, _ = 0, defaulted.append("initialization_id")
+        init_id = 0
+        defaulted.append("initialization_id")
     if not 0 <= init_id < 1 << 24:
         raise MetadataError(f"metadata field sensor_info.initialization_id {init_id} does not fit the packet's 24 bits")
     for name, port in (("udp_port_lidar", lidar_port), ("udp_port_imu", imu_port)):

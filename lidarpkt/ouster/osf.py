@@ -708,7 +708,7 @@ class OsfReader(FrameIterator):
         self.stats = SourceStats()
         self.decoders: dict = {}
         self._include_partial = include_partial
-        self._iter = self._frames()
+        self._iter: Generator[Frame, None, None] = self._frames()
 
     def _frames(self) -> Generator[Frame, None, None]:
         try:

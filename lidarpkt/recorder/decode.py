@@ -27,9 +27,13 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
+
+if TYPE_CHECKING:
+    from lidarpkt.frame import FrameIterator
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
@@ -85,10 +89,10 @@ def _bytes_read(reader) -> int | None:
     return getattr(stats, "bytes_read", None)
 
 
-def _open_frames(path: str, args) -> object:
+def _open_frames(path: str, args) -> FrameIterator:
     import lidarpkt
 
-    options = {}
+    options: dict[str, Any] = {}
     if args.calibration:
         options["calibration"] = args.calibration
     if getattr(args, "velodyne_model", None):

@@ -164,7 +164,7 @@ def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, s
         batches = capture.poll(timeout=0.05)
         now = time.monotonic()
         if batches:
-            if silent:
+            if silent and last_rx is not None:  # silent is only ever set after a datagram
                 _notice(f"packets again after {now - last_rx:.1f} s of silence")
                 silent = False
             last_rx = now

@@ -18,7 +18,7 @@ import json
 import socket
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -65,7 +65,7 @@ class ReplayStats:
     packets: int = 0
     bytes: int = 0
     seconds: float = 0.0
-    per_port: dict[int, int] | None = None
+    per_port: dict[int, int] = field(default_factory=dict)  # destination port -> packets
     unknown: int = 0  # packets of no known stream (sent to their original or mapped port)
     interrupted: bool = False  # stopped by Ctrl-C or SIGTERM before the end
 

@@ -19,7 +19,7 @@ import os
 import struct
 import traceback
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Generator, Iterable, Iterator
 
 import numpy as np
 
@@ -120,7 +120,7 @@ def _normalise_type(msgtype: str) -> str:
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
 
 
-def _release(exc: BaseException) -> None:
+def _release(exc: BaseException | None) -> None:
     """Clear the locals of the library frames that ``exc`` (and what it chains) keeps, then close the
     sqlite3 connections among them. An error met while stepping a query keeps rosbags' cursor, and so
     the ``.db3``, open; rosbags' sqlite3 storage does not close the connection it opened when the
@@ -251,8 +251,8 @@ class BagReader:
                     if found is not None:
                         self._metadata_scanned = True
                         return found
-            except (McapError, CaptureFormatError, struct.error, EOFError, ValueError, OverflowError, OSError,
-                    *_DECOMPRESSION_ERRORS):
+            except (McapError, CaptureFormatError, struct.error, EOFError, ValueError, OverflowError,
+                    OSError) + _DECOMPRESSION_ERRORS:
                 return None
         return None
 
@@ -391,7 +391,7 @@ class BagReader:
         for batch in self.batches():
             yield from batch.packets()
 
-    def _rosbags_messages(self) -> Iterator[tuple[str, str, int, Any]]:
+    def _rosbags_messages(self) -> Generator[tuple[str, str, int, Any], None, None]:
         reader = self._open()
         try:
             conns = []
@@ -416,7 +416,7 @@ class BagReader:
             reader.close()
             self._cleanup_metadata_dir()
 
-    def _mcap_messages(self) -> Iterator[tuple[str, str, int, Any]]:
+    def _mcap_messages(self) -> Generator[tuple[str, str, int, Any], None, None]:
         """Messages of a plain MCAP file (no rosbag2 metadata.yaml needed), in file order.
 
         Read record by record, so a file whose writer was killed (no summary, a cut last
@@ -436,8 +436,7 @@ class BagReader:
                     schema, channel, message = next(it)
                 except StopIteration:
                     return
-                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError,
-                        *_DECOMPRESSION_ERRORS) as exc:  # OverflowError: a record length of 2**63 or more in a chunk
+                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError) + _DECOMPRESSION_ERRORS as exc:  # OverflowError: a record length of 2**63 or more in a chunk
                     warn(TruncatedCaptureWarning(
                         f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
                         "messages before the damage were read (a recording that was killed ends like this)"))
@@ -571,7 +570,8 @@ def _mcap_stream_messages(fh, path: Path) -> Iterator[tuple[Any, Any, Any]]:
 
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
-    for record in StreamReader(_FileRemainder(fh), emit_chunks=True).records:
+    # mcap annotates its input as a union of file classes; it only calls read(), which _FileRemainder has
+    for record in StreamReader(_FileRemainder(fh), emit_chunks=True).records:  # type: ignore[arg-type]
         for rec in breakup_chunk(_inflated(record, path)) if isinstance(record, Chunk) else (record,):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec

@@ -10,6 +10,7 @@ size) and copies each group's payloads out in one pass.
 from __future__ import annotations
 
 import socket
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from .gathers import Chunk, copy_rows, few_groups, field
 from .layouts import IPV4_HEADER, LINKTYPE_NAMES, UDP_HEADER
 from .reassembly import Reassembler
 from .trains import Trains, fragment_trains
+
+if TYPE_CHECKING:
+    from .pcap_reader import ReadStats
 
 __all__ = ["ChunkDecoder"]
 
@@ -33,7 +37,7 @@ class ChunkDecoder(RecordParser):
         reassembly_args: keyword arguments of :class:`~lidarpkt.sources.reassembly.Reassembler`.
     """
 
-    def __init__(self, path: str, stats, ports, src_addresses, payload_sizes, reassembly_args: dict) -> None:
+    def __init__(self, path: str, stats: ReadStats, ports, src_addresses, payload_sizes, reassembly_args: dict) -> None:
         self.path = path
         self.stats = stats
         self.ports = ports
@@ -101,7 +105,7 @@ class ChunkDecoder(RecordParser):
             caps = c.caplen[slow].tolist()
             lts = c.linktype[slow].tolist()
             tss = c.ts_ns[slow].tolist()
-            mv = memoryview(buf)
+            mv = buf.data
             for i, o, cap, lt, ts in zip(slow.tolist(), offs, caps, lts, tss):
                 got = self._parse_record(lt, mv[o : o + cap], ts)
                 if got is not None:

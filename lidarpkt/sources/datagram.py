@@ -15,6 +15,7 @@ and, when the sender wrote one, its UDP checksum.
 from __future__ import annotations
 
 import socket
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -59,6 +60,10 @@ from .layouts import (
     internet_checksum,
 )
 from .trains import MIXED_CHECKSUM as _MIXED_CHECKSUM
+
+if TYPE_CHECKING:
+    from .pcap_reader import ReadStats
+    from .reassembly import Reassembler
 
 __all__ = ["ipv4_headers", "plain_udp", "RecordParser", "canonical_address", "is_ipv4_text", "ipv4_text"]
 
@@ -119,7 +124,9 @@ class RecordParser:
     """
 
     path: str
-    stats: object
+    stats: ReadStats
+    _reasm: Reassembler
+    _warned_links: set[int]
     ports: frozenset[int] | None
     src_addresses: frozenset[str] | None
     payload_sizes: frozenset[int] | None

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import kernels
+from .layouts import ByteOrder, field_info
 
 __all__ = ["Chunk", "gather", "copy_rows", "field", "few_groups"]
 
@@ -33,9 +34,9 @@ def gather(buf: np.ndarray, idx: np.ndarray, dtype) -> np.ndarray:
     return copy_rows(buf, idx, size).view(dtype).reshape(-1)
 
 
-def field(buf: np.ndarray, base: np.ndarray, layout: np.dtype, name: str, endian: str | None = None) -> np.ndarray:
+def field(buf: np.ndarray, base: np.ndarray, layout: np.dtype, name: str, endian: ByteOrder | None = None) -> np.ndarray:
     """int64 values of one header field at each ``base`` offset (offsets clipped into the buffer)."""
-    dt, off = layout.fields[name][:2]
+    dt, off = field_info(layout, name)
     if endian is not None and dt.itemsize > 1:
         dt = dt.newbyteorder(endian)
     idx = np.minimum(base + off, buf.shape[0] - dt.itemsize)
@@ -50,7 +51,7 @@ def few_groups(k1: np.ndarray, k2: np.ndarray, limit: int = 8) -> list[np.ndarra
     comparison pass per stream is far cheaper than the sorts of ``np.unique``.
     """
     left = np.arange(k1.shape[0])
-    groups = []
+    groups: list[np.ndarray] = []
     while left.size:
         if len(groups) == limit:
             return None

@@ -167,7 +167,8 @@ def _install() -> None:
         return
     with _INSTALL_LOCK:
         if not isinstance(storage_mcap.DECOMPRESSORS, _ScopedDecompressors):
-            storage_mcap.DECOMPRESSORS = _ScopedDecompressors(storage_mcap.DECOMPRESSORS)
+            # rosbags annotates its table as a dict; it only ever looks entries up, which a mapping serves
+            storage_mcap.DECOMPRESSORS = _ScopedDecompressors(storage_mcap.DECOMPRESSORS)  # type: ignore[assignment]
 
 
 @contextlib.contextmanager

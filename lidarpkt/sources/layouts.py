@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import struct
 from functools import lru_cache
+from typing import Literal
 
 import numpy as np
+
+ByteOrder = Literal["<", ">"]  # a layout's byte order where the container decides it (pcap, pcapng, BSD loopback)
 
 # --- link types (tcpdump.org/linktypes.html) --------------------------------------------
 LINKTYPE_NULL = 0
@@ -83,24 +86,41 @@ UDP_HEADER = np.dtype([("src_port", ">u2"), ("dst_port", ">u2"), ("length", ">u2
 _STRUCT_CODES = {"u1": "B", "u2": "H", "u4": "I", "u8": "Q", "i1": "b", "i2": "h", "i4": "i", "i8": "q"}
 
 
+def field_names(layout: np.dtype) -> tuple[str, ...]:
+    """The field names of a structured layout, in order; TypeError for a dtype without fields."""
+    if layout.names is None:
+        raise TypeError(f"layout: {layout} is not a structured dtype")
+    return layout.names
+
+
+def field_info(layout: np.dtype, name: str) -> tuple[np.dtype, int]:
+    """``(dtype, byte offset)`` of field ``name`` of a structured layout; TypeError for a dtype
+    without fields, KeyError for an unknown name."""
+    if layout.fields is None:
+        raise TypeError(f"layout: {layout} is not a structured dtype")
+    dt, off = layout.fields[name][:2]
+    return dt, off
+
+
 @lru_cache(maxsize=64)
 def header_struct(layout: np.dtype, endian: str | None = None) -> struct.Struct:
     """A :class:`struct.Struct` for a header layout (``endian`` "<"/">" for the container headers)."""
     codes = []
     pos = 0
-    for name in layout.names:
-        dt, off = layout.fields[name][:2]
+    names = field_names(layout)
+    for name in names:
+        dt, off = field_info(layout, name)
         if off != pos:
             raise ValueError(f"{name}: layouts must be packed")
         codes.append(f"{dt.itemsize}s" if dt.kind == "V" else _STRUCT_CODES[f"{dt.kind}{dt.itemsize}"])
         pos += dt.itemsize
-    order = endian or (">" if any(layout.fields[n][0].byteorder == ">" for n in layout.names) else "<")
+    order = endian or (">" if any(field_info(layout, n)[0].byteorder == ">" for n in names) else "<")
     return struct.Struct(order + "".join(codes))
 
 
 def field_offset(layout: np.dtype, name: str) -> int:
     """Byte offset of a field in a header layout."""
-    return layout.fields[name][1]
+    return field_info(layout, name)[1]
 
 
 def _fold(total):

@@ -198,7 +198,7 @@ class PcapReader:
             )
         walk_type = PcapWalk if self.format == "pcap" else PcapngWalk
         self._walk = walk_type(self.path, self.stats, self.batch_packets, segment)
-        if self.format == "pcap":
+        if isinstance(self._walk, PcapWalk):  # pcapng's headers are blocks, read by the walk
             self._walk.parse_header(head)
 
 
@@ -274,7 +274,7 @@ class PcapReader:
         old = self.stats
         fresh = ReadStats(
             path=self.path,
-            format=self.format,
+            format=self.format or "",
             snaplen=old.snaplen,
             nanosecond=old.nanosecond,
             big_endian=old.big_endian,

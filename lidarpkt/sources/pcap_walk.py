@@ -19,6 +19,7 @@ from ..errors import CaptureFormatError
 from .gathers import Chunk, field
 from .layouts import (
     LINKTYPE_NAMES,
+    ByteOrder,
     PCAP_GLOBAL_HEADER,
     PCAP_MODIFIED_EXTRA,
     PCAP_RECORD_HEADER,
@@ -56,7 +57,7 @@ class BlockReader:
             want = min(want, max(0, self.segment_end - offset) + POST_END_READ_BYTES)
         if self._buf is None or self._buf.shape[0] < want:
             self._buf = np.empty(max(want, 1), np.uint8)
-        view = memoryview(self._buf)[:want]
+        view = self._buf.data[:want]  # the array's own memoryview
         self.fh.seek(offset)
         got = 0
         while got < want:
@@ -109,6 +110,7 @@ class PcapWalk(Walk):
                 f"{self.path}: pcap global header cut short ({len(head)} of {PCAP_GLOBAL_HEADER.itemsize} bytes)"
             )
         magic_le = struct.unpack_from("<I", head)[0]
+        endian: ByteOrder
         if magic_le in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
             endian = "<"
         else:
@@ -189,7 +191,7 @@ class PcapWalk(Walk):
         n = 0
         chunk = self.batch_packets
         byte_end = self.split_limit(off, rel)  # records of this chunk start before byte_end
-        mv = memoryview(buf)
+        mv = buf.data
         native = kernels.native
         stop = refill = False
         while n < chunk and rel < byte_end:

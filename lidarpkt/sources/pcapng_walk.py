@@ -62,7 +62,8 @@ class _Gathered:
 
     def _lists_to_piece(self) -> None:
         if self.lists[0]:
-            self.pieces.append(tuple(np.asarray(col, np.int64) for col in self.lists))
+            data_off, caplen, ts_ns, linktype = (np.asarray(col, np.int64) for col in self.lists)
+            self.pieces.append((data_off, caplen, ts_ns, linktype))
             for col in self.lists:
                 col.clear()
 
@@ -93,7 +94,7 @@ class PcapngWalk(Walk):
         self._interfaces_seen = len(ifaces)
         base = chunk_start = off  # file offsets of buf[0] and of the chunk being gathered
         buf = blocks.read(off)
-        mv = memoryview(buf)
+        mv = buf.data
         while off < blocks.size:
             rel = off - base
             end = buf.shape[0]
@@ -104,7 +105,7 @@ class PcapngWalk(Walk):
             if rel + 12 > end and base + end < blocks.size and off != base:  # read on from here
                 base = chunk_start = off
                 buf = blocks.read(off)
-                mv = memoryview(buf)
+                mv = buf.data
                 continue
             if rel + 12 > end:
                 self.truncate(f"capture cut short: {end - rel} byte(s) of a pcapng block header at offset {off}")
@@ -120,9 +121,10 @@ class PcapngWalk(Walk):
                         chunk_start = off
                     continue
             if unpack_from("<I", mv, rel)[0] == PCAPNG_SHB:
-                endian = self._section_endian(mv, rel, end, off, first)
-                if endian is None:
+                section_endian = self._section_endian(mv, rel, end, off, first)
+                if section_endian is None:
                     break
+                endian = section_endian
                 ifaces = []
             btype, blen = header_struct(PCAPNG_BLOCK_HEADER, endian).unpack_from(mv, rel)
             whole = (12 <= blen <= MAX_PCAPNG_BLOCK and not blen % 4) or self._check_length(
@@ -133,7 +135,7 @@ class PcapngWalk(Walk):
                 if off != base:  # read on from here (a block larger than a read block is damage, below)
                     base = chunk_start = off
                     buf = blocks.read(off)
-                    mv = memoryview(buf)
+                    mv = buf.data
                     continue
             if not whole or not ((rel + blen <= end and unpack_from(endian + "I", mv, rel + blen - 4)[0] == blen)
                                  or self._check_trailer(mv, rel, end, btype, blen, endian, off, first, got.pending)):
@@ -163,11 +165,14 @@ class PcapngWalk(Walk):
                     byte_limit: int) -> int | None:
         """Enhanced packet blocks from ``rel`` by the compiled walk, added to ``got``; where the walk
         stopped (relative to ``buf``), or None when it took none."""
+        native = kernels.native
+        if native is None:  # the callers check; this keeps the walk correct without them
+            return None
         room = self.batch_packets - got.pending
         data, capl, iface, raw = (np.empty(room, np.int64), np.empty(room, np.int64),
                                   np.empty(room, np.int64), np.empty(room, np.uint64))
-        k, nxt = kernels.native.walk_pcapng(buf, rel, end, endian != _NATIVE_ORDER, len(ifaces), MAX_PCAPNG_BLOCK,
-                                            room, byte_limit, data, capl, iface, raw)
+        k, nxt = native.walk_pcapng(buf, rel, end, endian != _NATIVE_ORDER, len(ifaces), MAX_PCAPNG_BLOCK,
+                                    room, byte_limit, data, capl, iface, raw)
         if not k:
             return None
         got.add_piece(self._times(ifaces, data[:k], capl[:k], iface[:k], raw[:k]))
@@ -274,7 +279,8 @@ class PcapngWalk(Walk):
     def preamble(self, blocks: BlockReader, offsets: tuple[int, ...]) -> tuple[str, list]:
         """Byte order and interfaces of a pcapng section, from its section header block and interface
         description blocks at ``offsets`` (as :func:`lidarpkt.sources.segments.plan_segments` found them)."""
-        endian, ifaces = "<", []
+        endian = "<"
+        ifaces: list[tuple[int, int, int, int, int]] = []
         st = self.stats
         for o in offsets:
             blocks.fh.seek(o)

@@ -112,14 +112,14 @@ class Reassembler:
             self._drop(key)
             self.stats.timed_out_datagrams += 1
 
-    def add(self, key: Hashable, offset: int, more: bool, data: bytes, timestamp_ns: int) -> bytes | None:
+    def add(self, key: Hashable, offset: int, more: bool, data: bytes | memoryview, timestamp_ns: int) -> bytes | None:
         """Offer one fragment; return the whole datagram payload when this fragment completes it.
 
         Args:
             key: identifies the datagram (e.g. ``(4, src, dst, proto, ip_id)``).
             offset: byte offset of ``data`` in the datagram payload (fragment offset × 8).
             more: the More Fragments flag (False on the last fragment).
-            data: the fragment's payload bytes.
+            data: the fragment's payload bytes (copied when held).
             timestamp_ns: host capture time of the fragment.
 
         Returns:

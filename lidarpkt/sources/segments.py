@@ -168,7 +168,7 @@ def _pcap_skip(fh, off: int, limit: int, endian: str, hdr: int, max_cap: int) ->
     u32 = struct.Struct(endian + "I").unpack_from
     swap = (endian == ">") != (struct.pack("=I", 1) == struct.pack(">I", 1))
     native = kernels.native
-    found = np.empty(1 << 16, np.int64) if native is not None else None
+    found = np.empty(1 << 16 if native is not None else 0, np.int64)  # the compiled walk's record offsets
     while True:
         fh.seek(off)
         raw = fh.read(_READ)

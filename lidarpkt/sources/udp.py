@@ -148,7 +148,7 @@ class UdpSource:
                                         "privileges)") from None
                 raise ReceiveError(f"cannot listen on {self.bind_address}:{port}: {exc.strerror or exc}") from None
             if self.multicast:
-                self._join(sock)
+                self._join(sock, self.multicast)
             sock.setblocking(False)
             return sock
         except BaseException:
@@ -164,9 +164,9 @@ class UdpSource:
         # Linux reports twice the usable size (it counts its bookkeeping); report the usable part
         self.stats.rcvbuf_granted[port] = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2
 
-    def _join(self, sock: socket.socket) -> None:
+    def _join(self, sock: socket.socket, multicast: str) -> None:
         try:
-            group = socket.inet_aton(self.multicast)
+            group = socket.inet_aton(multicast)
         except OSError:
             raise ReceiveError(f"--multicast {self.multicast!r} is not an IPv4 address") from None
         ifindex, ifaddr = 0, b"\x00\x00\x00\x00"
@@ -193,11 +193,11 @@ class UdpSource:
     def _run(self) -> None:
         sel = selectors.DefaultSelector()
         for sock, port in self._sockets:
-            sel.register(sock, selectors.EVENT_READ, port)
+            sel.register(sock, selectors.EVENT_READ, (sock, port))
         try:
             while not self._stop.is_set():
                 for key, _ in sel.select(timeout=0.1):
-                    self._read_all(key.fileobj, key.data)
+                    self._read_all(*key.data)  # (socket, port)
                     self._queued.set()
             # what the kernel already holds is not lost on a clean stop; a sender that never pauses
             # cannot keep the recorder from stopping: the final read ends after FINAL_READ_S

@@ -79,6 +79,7 @@ class VelodyneCalibration:
     def two_point(self) -> np.ndarray:
         """``bool[L]``: lasers with a two-point distance correction (dist_correction_x and _y both set; the
         HDL-64E manual's near-range interpolation)."""
+        assert self.dist_correction_x_m is not None and self.dist_correction_y_m is not None  # __post_init__ fills them
         return (self.dist_correction_x_m != 0) & (self.dist_correction_y_m != 0)
 
     @property
@@ -206,7 +207,7 @@ def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> Velodyne
             "dx": "distCorrectionX_", "dy": "distCorrectionY_", "fd": "focalDistance_", "fs": "focalSlope_"}
     try:
         for node in px:
-            i = int(node.findtext("id_"))
+            i = int(node.findtext("id_", default=""))  # a missing id is a ValueError, as a bad one
             if i >= count:
                 continue  # the XML's table has at least 64 entries; only the model's first ids exist
             for k, tag in tags.items():

@@ -54,8 +54,8 @@ class DataPackets:
         """``uint32[N, 12, 32]`` distance in millimetres (2 mm units × 2, exact)."""
         return self.distance_2mm.astype(np.uint32) << 1
 
-    def select(self, rows: np.ndarray) -> "DataPackets":
-        """The chosen packets (boolean mask or indices)."""
+    def select(self, rows: np.ndarray | slice) -> "DataPackets":
+        """The chosen packets (boolean mask, indices or a slice)."""
         return DataPackets(**{k: getattr(self, k)[rows] for k in self.__dataclass_fields__})
 
 
@@ -169,7 +169,7 @@ def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     Raises :class:`~lidarpkt.errors.PacketFormatError` if the payload is not ``[N, 512]``.
     """
     pk = as_position_packets(payload)
-    return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names})
+    return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names or ()})  # structured: names set
 
 
 def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: np.ndarray, slots: int,

@@ -55,7 +55,7 @@ def _layout_says_vlp16(raw) -> bool:
         steps = steps[steps > 0]  # dual-mode pairs repeat their azimuth
         return bool(steps.size) and float(np.median(steps)) >= 27
     close = np.abs(a - b) <= np.maximum(25, (a + b) // 40)  # within 50 mm or 5 %
-    return np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6
+    return bool(np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6)
 
 
 def _velodyne_shaped(raw) -> np.ndarray:
@@ -168,7 +168,8 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         pos = decode_position_packets(batch.payload)
         sentences = pos.sentences()
         first = next((s for s in sentences if s), "")
-        fix_valid = gps_time = None
+        fix_valid: bool | str | None = None  # str: why the sentence is unreadable
+        gps_time = None
         if first:
             try:
                 fix = parse_nmea(first)

@@ -39,7 +39,7 @@ def _mode_code(return_mode) -> np.ndarray | int:
     return np.asarray(return_mode)
 
 
-def _check_range(name: str, values: np.ndarray, upper: int) -> None:
+def _check_range(name: str, values: np.ndarray | int, upper: int) -> None:
     values = np.asarray(values)
     if values.size and (values.min() < 0 or values.max() > upper):
         raise PacketFormatError(f"{name} must lie in 0..{upper}, got {values.min()}..{values.max()}")

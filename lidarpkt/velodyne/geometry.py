@@ -56,6 +56,9 @@ class VelodyneGeometry:
         if cal.lasers != model.lasers:
             raise CalibrationError(f"{cal.source}: a calibration of {cal.lasers} lasers for a {model.name}, "
                                    f"which has {model.lasers}; pass the sensor's own calibration")
+        # VelodyneCalibration.__post_init__ fills every per-laser table (None: zeros)
+        assert cal.dist_correction_m is not None and cal.vert_offset_m is not None
+        assert cal.horiz_offset_m is not None and cal.rot_correction_rad is not None
         order = cal.rows_to_laser  # laser id of each row
         self.row_laser = order
         omega = cal.vert_correction_rad[order]
@@ -168,6 +171,7 @@ class VelodyneGeometry:
         order = self.row_laser
         two = cal.two_point[order][:, None]
         dc = self._dist_correction
+        assert cal.dist_correction_x_m is not None and cal.dist_correction_y_m is not None  # filled (zeros)
         dcx = cal.dist_correction_x_m[order][:, None]
         dcy = cal.dist_correction_y_m[order][:, None]
         omega = cal.vert_correction_rad[order][:, None]

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import UsageError
 from ..frame import Frame
+from .geometry import VelodyneGeometry
 
 POINT_DTYPE = np.dtype([
     ("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("intensity", "u1"), ("ring", "<u2"),
@@ -34,6 +36,9 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
     velodyne_decoder's layout and order. Raises ``CalibrationError`` without a calibration.
     """
     pts = frame.points()
+    geometry = frame.sensor.geometry
+    if not isinstance(geometry, VelodyneGeometry):
+        raise UsageError(f"frame_points(frame): a {frame.sensor.vendor} frame; give a Velodyne one")
     slot, row, col = pts["return_slot"], pts["row"], pts["column"]
     codes = np.array([_LABEL_CODE.get(lbl, 0) for lbl in frame.return_labels], np.uint8)
     label = codes[slot]
@@ -45,12 +50,12 @@ def frame_points(frame: Frame, *, min_range_m: float | None = None, max_range_m:
         label = np.where(same & (slot == 1), BOTH, label).astype(np.uint8)
         keep &= ~(same & (slot == 0))
     if min_range_m is not None or max_range_m is not None:
-        d = frame.sensor.geometry.distance_m(frame)[slot, row, col]
+        d = geometry.distance_m(frame)[slot, row, col]
         if min_range_m is not None:
             keep &= d >= min_range_m
         if max_range_m is not None:
             keep &= d <= max_range_m
-    laser = np.asarray(frame.sensor.geometry.row_laser)[row]
+    laser = np.asarray(geometry.row_laser)[row]
     order = np.flatnonzero(keep)
     order = order[np.lexsort((slot[order], laser[order], col[order]))]  # column, laser id (firing order), slot
     pts, label = pts[order], label[order]

@@ -46,9 +46,11 @@ def point_fields() -> list:
     """The ``PackedElementField`` list of :data:`POINT_DTYPE`."""
     from foxglove.messages import PackedElementField
 
+    from lidarpkt.sources.layouts import field_info, field_names
+
     types = _numeric_types()
-    return [PackedElementField(name=name, offset=POINT_DTYPE.fields[name][1], type=types[POINT_DTYPE.fields[name][0]])
-            for name in POINT_DTYPE.names]
+    return [PackedElementField(name=name, offset=field_info(POINT_DTYPE, name)[1], type=types[POINT_DTYPE[name]])
+            for name in field_names(POINT_DTYPE)]
 
 
 def timestamp(ns: int):

@@ -29,12 +29,16 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lidarpkt.errors import LidarpktError
 
 from . import messages
+
+if TYPE_CHECKING:
+    from foxglove import WebSocketServer
 
 STATUS_SCHEMA = {
     "type": "object",
@@ -68,8 +72,8 @@ class _Sensor:
     points: list = field(default_factory=list)
     range_images: list = field(default_factory=list)
     reflectivity_images: list = field(default_factory=list)
-    transform: object = None
-    status: object = None
+    transform: Any = None  # foxglove channels, made when the sensor's first frame arrives
+    status: Any = None
     channel_ids: set = field(default_factory=set)
     packets: int = 0
     frames: int = 0
@@ -122,7 +126,7 @@ class ViewServer:
         from .front import SubprotocolFront
 
         try:  # the SDK's server on loopback; the public port is the front's
-            self._server = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
+            self._server: WebSocketServer | None = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
                                                  server_listener=self._listener)
         except Exception as exc:  # the SDK raises its own RuntimeError subclasses
             raise ViewError(f"--ws {host}:{port}: cannot start the Foxglove server ({exc})") from None

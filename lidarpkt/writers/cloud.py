@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..sources.layouts import field_names
 from .base import BaseWriter
 
 FIELDS = ("x", "y", "z", "intensity", "ring", "time")
@@ -40,7 +41,7 @@ def cloud_points(frame) -> np.ndarray:
     pts = frame.points()
     fields = cloud_fields(frame, pts)
     dual = frame.shape[0] > 1
-    dtype = np.dtype([(n, fields.dtype.fields[n][0]) for n in FIELDS] + ([("return", "u1")] if dual else []))
+    dtype = np.dtype([(n, fields.dtype[n]) for n in FIELDS] + ([("return", "u1")] if dual else []))
     out = np.empty(pts.size, dtype)
     for n in FIELDS:
         out[n] = fields[n]
@@ -90,6 +91,6 @@ class PcdWriter(_PerFrameWriter):
     def _dump(self, pts: np.ndarray, fh) -> None:
         from pypcd4 import PointCloud
 
-        names = pts.dtype.names
-        cloud = PointCloud.from_points([pts[n] for n in names], names, [pts.dtype.fields[n][0] for n in names])
+        names = field_names(pts.dtype)
+        cloud = PointCloud.from_points([pts[n] for n in names], names, [pts.dtype[n] for n in names])
         cloud.save(fh)

@@ -18,7 +18,7 @@ import shutil
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -38,7 +38,7 @@ class _Spool:
     def __init__(self, tmpdir: Path, index: int, first) -> None:
         self.tmpdir = tmpdir
         self.index = index
-        self.files: dict[str, tuple[object, np.dtype, tuple]] = {}
+        self.files: dict[str, tuple[BinaryIO, np.dtype, tuple[int, ...]]] = {}
         self.scalars: dict[str, list] = {"frame_id": [], "partial": [], "lost_packets": []}
         self.constants = {"return_labels": np.array(first.return_labels),
                           "sensor_json": np.array(json.dumps(first.sensor.describe(), default=str))}
@@ -52,8 +52,8 @@ class _Spool:
             arr = np.ascontiguousarray(arr)
             entry = self.files.get(name)
             if entry is None:
-                fh = open(self.tmpdir / f"s{self.index}_{name}.raw", "w+b")
-                entry = self.files[name] = (fh, arr.dtype, arr.shape)
+                raw = open(self.tmpdir / f"s{self.index}_{name}.raw", "w+b")
+                entry = self.files[name] = (raw, arr.dtype, arr.shape)
             fh, dtype, shape = entry
             if arr.dtype != dtype or arr.shape != shape:
                 raise OutputError(f"frame {frame.frame_id}: {name} is {arr.dtype}{list(arr.shape)}, unlike the "

@@ -316,7 +316,7 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
                 value = row[name]
                 return None if value is None else np.asarray(value, dtype).reshape(shape)
 
-            kwargs = {n: arr(n, t, (r, h, w)) for n, t in PIXEL_ARRAYS.items()}
+            kwargs: dict[str, Any] = {n: arr(n, t, (r, h, w)) for n, t in PIXEL_ARRAYS.items()}  # Frame checks them
             kwargs.update({n: arr(n, t, (h, w)) for n, t in IMAGE_ARRAYS.items()})
             kwargs.update({n: arr(n, t, (w,)) for n, t in COLUMN_ARRAYS.items()})
             extra = {e["name"]: np.frombuffer(e["data"], np.lib.format.descr_to_dtype(e["dtype"]))

@@ -254,15 +254,15 @@ class McapFrameWriter(BaseWriter):
         self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
         self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written beside them
         if self.calibration is not None:
-            self._add_calibration_record()
+            self._add_calibration_record(self.calibration)
 
-    def _add_calibration_record(self) -> None:
+    def _add_calibration_record(self, calibration: str) -> None:
         try:
-            text = Path(self.calibration).read_text(encoding="utf-8", errors="replace")
+            text = Path(calibration).read_text(encoding="utf-8", errors="replace")
         except OSError as exc:
-            raise OutputError(f"calibration={self.calibration}: cannot read it to record it: "
+            raise OutputError(f"calibration={calibration}: cannot read it to record it: "
                               f"{exc.strerror or exc}") from exc
-        self.mcap.add_metadata("lidarpkt.calibration", {"path": self.calibration, "content": text})
+        self.mcap.add_metadata("lidarpkt.calibration", {"path": calibration, "content": text})
 
     def add_capture(self, capture: str | os.PathLike[str], *, progress: Callable[[int], None] | None = None) -> None:
         """The capture whose frames come next: its packets are written (``packets`` topic) and its clock

@@ -29,6 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lidarpkt import streams
+from lidarpkt.decoder import StreamCounter
 from lidarpkt.packet import PacketBatch
 from lidarpkt.velodyne import packet as vlp
 from lidarpkt.velodyne.clock import in_nearest_hour_ns
@@ -80,7 +81,7 @@ class PacketSink:
         self.ouster_metadata = self._ouster_mds[0] if self._ouster_mds else None  # the first sensor's
         self.max_scan_packets = max_scan_packets
         self.streams: dict[tuple, StreamReport] = {}
-        self._trackers: dict[tuple, object] = {}
+        self._trackers: dict[tuple, StreamCounter] = {}
         self._pending: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._described: set[tuple] = set()
         self.notes: list[str] = []  # things the user should know about the streams, in order
@@ -229,7 +230,7 @@ class PacketSink:
             from lidarpkt.velodyne.detect import data_kind
 
             kind = data_kind(batch)
-            period = {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
+            period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
             tracker = self._trackers[key] = streams.VelodyneLoss(period)
         starts = tracker.update(batch.payload, batch.timestamp_ns)
         rep.count = tracker.count

@@ -45,8 +45,10 @@ FRAME_IDS = {"velodyne": "velodyne", "ouster": "os_sensor"}
 def point_fields() -> list:
     """The ``sensor_msgs/msg/PointField`` list of :data:`POINT_DTYPE`."""
     pf = schemas.typestore().types["sensor_msgs/msg/PointField"]
-    return [pf(name=name, offset=POINT_DTYPE.fields[name][1], datatype=_DATATYPE[POINT_DTYPE.fields[name][0]],
-               count=1) for name in POINT_DTYPE.names]
+    from lidarpkt.sources.layouts import field_info, field_names
+
+    return [pf(name=name, offset=field_info(POINT_DTYPE, name)[1], datatype=_DATATYPE[POINT_DTYPE[name]],
+               count=1) for name in field_names(POINT_DTYPE)]
 
 
 def _display(frame, image: np.ndarray) -> np.ndarray:
@@ -60,7 +62,7 @@ def cloud_fields(frame, points: np.ndarray) -> np.ndarray:
     out = np.empty(points.size, POINT_DTYPE)
     out["x"], out["y"], out["z"] = points["x"], points["y"], points["z"]
     out["reflectivity"] = points["reflectivity"]
-    ouster_signal = frame.sensor.vendor == "ouster" and "signal" in points.dtype.names
+    ouster_signal = frame.sensor.vendor == "ouster" and "signal" in (points.dtype.names or ())
     out["intensity"] = points["signal"] if ouster_signal else points["reflectivity"]
     out["ring"] = (frame.shape[1] - 1 - points["row"]) if frame.sensor.vendor == "velodyne" else points["row"]
     out["time"] = (points["timestamp_ns"] - frame.timestamp_ns).astype(np.float64) * 1e-9
@@ -81,9 +83,9 @@ def _no_return_rows(frame, mask: np.ndarray, like: np.dtype) -> np.ndarray:
     if frame.pixel_time_offset_ns is not None:
         t = t + frame.pixel_time_offset_ns[row, col]
     out["timestamp_ns"] = t
-    if "signal" in like.names:
+    if "signal" in (like.names or ()):  # a structured dtype: names is set
         out["signal"] = frame.signal[mask]
-    if "near_ir" in like.names:
+    if "near_ir" in (like.names or ()):
         out["near_ir"] = frame.near_ir[row, col]
     return out
 

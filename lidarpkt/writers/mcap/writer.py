@@ -23,13 +23,17 @@ from __future__ import annotations
 import errno
 import os
 import time
+from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, BinaryIO, Callable
 
 from lidarpkt.errors import DiskFullError, OutputError
 
 from . import schemas
 from .schemas import Topic
+
+if TYPE_CHECKING:
+    from mcap.writer import Writer
 
 LIBRARY = "lidarpkt recorder"
 
@@ -50,6 +54,8 @@ class McapWriter:
     Raises:
         OutputError: the file cannot be created (with the reason).
     """
+
+    _writer: Writer  # the mcap writer of the current file (from the first _open_next on)
 
     def __init__(
         self,
@@ -77,8 +83,7 @@ class McapWriter:
         self._bytes_closed_files = 0
         self._metadata: list[tuple[str, dict[str, str]]] = []
         self._latched: dict[tuple[str, str], tuple[Topic, bytes, int]] = {}  # (topic, key): latest
-        self._file = None
-        self._writer = None
+        self._file: BinaryIO | None = None  # the current file; None once finished
         self._closed = False
         self._open_next()
 
@@ -106,8 +111,8 @@ class McapWriter:
         self._opened_at = self._clock()
         self._chunk_started: float | None = None
         self._guard(lambda: self._writer.start(profile="ros2", library=LIBRARY))
-        for name, data in self._metadata:
-            self._guard(lambda name=name, data=data: self._writer.add_metadata(name, data))
+        for name, fields in self._metadata:
+            self._guard(partial(self._writer.add_metadata, name, fields))
         for topic, data, log_time in self._latched.values():
             self._add(topic, data, log_time)
         self._guard(self._flush_chunk)
@@ -204,7 +209,7 @@ class McapWriter:
             self._rotate()
 
     def _rotation_due(self, now: float) -> bool:
-        if self.rotate_bytes is not None and self._file.tell() >= self.rotate_bytes:
+        if self.rotate_bytes is not None and self._file is not None and self._file.tell() >= self.rotate_bytes:
             return True
         return self.rotate_seconds is not None and now - self._opened_at >= self.rotate_seconds
 
@@ -213,14 +218,18 @@ class McapWriter:
         self._open_next()
 
     def _finish_current(self) -> None:
-        def finish():
+        fh = self._file
+        if fh is None:  # finished already
+            return
+
+        def finish() -> None:
             self._writer.finish()
-            self._file.flush()
-            os.fsync(self._file.fileno())
+            fh.flush()
+            os.fsync(fh.fileno())
 
         self._guard(finish)
-        self._bytes_closed_files += self._file.tell()
-        self._file.close()
+        self._bytes_closed_files += fh.tell()
+        fh.close()
         self._file = None
 
     def close(self) -> None:
