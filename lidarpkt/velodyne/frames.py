@@ -100,6 +100,8 @@ class DecoderStats:
     lost_packets: int = 0  # inferred from time gaps, never more than the capture time holds
     corrupted_packets: int = 0  # off both neighbours by more than the capture time allows: skipped
     restarts: int = 0  # the stream's clock jumped (or paused more than INTERRUPTION_S) and went on from there
+    outside_fov_packets: int = 0  # not sent: the sensor's field of view leaves out a sector (a gap at the same
+    # azimuths every rotation), so not lost
     long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
     overlong_frames: int = 0  # frames released without an azimuth wrap (max_frame_columns)
     position_packets: int = 0
@@ -204,6 +206,8 @@ class VelodyneDecoder:
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
         self._last_abs_ns: int | None = None  # sensor time of the last packet kept
+        self._last_packet_az_cdeg: int | None = None  # azimuth of the last packet's last block
+        self._gap_sectors: list[tuple[tuple[int, int], int]] = []  # ((az before, az after), lost) of wide gaps
         self._last_key: float | None = None  # cut key of the last column
         self._last_az_cdeg: float | None = None
         self.clock = SensorClock()  # the hour of the packet stamps
@@ -435,6 +439,7 @@ class VelodyneDecoder:
         prev_host = np.concatenate([[self._last_host_ns if self._last_abs_ns is not None else 0], host_ns[:-1]])
         missing = self.continuity.bound_lost(packets_lost(gaps, period_ns), host_ns - prev_host,
                                              (host_ns != 0) & (prev_host != 0), period_ns)
+        missing = self._outside_fov(raw, missing)
         long_gap = gaps > self.max_gap_ns
         cuts = np.flatnonzero(long_gap)
         bounds = sorted({0, *cuts.tolist(), len(raw)})
@@ -455,7 +460,44 @@ class VelodyneDecoder:
             frames += self._append(cols)
         self._last_abs_ns = int(abs_ns[-1])
         self._last_host_ns = int(host_ns[-1])
+        self._last_packet_az_cdeg = int(raw.azimuth_cdeg[-1, -1])
         return frames
+
+    #: a gap of fewer packets is a loss wherever it falls; a field-of-view sector is tens of packets wide
+    FOV_MIN_PACKETS = 8
+    #: two gaps are the same sector when both edges agree within this (a few packets' azimuth step)
+    FOV_EDGE_CDEG = 200
+
+    def _outside_fov(self, raw: DataPackets, missing: np.ndarray) -> np.ndarray:
+        """``missing`` less the gaps of a restricted field of view: a sensor set to send only part of its
+        rotation leaves a gap at the same azimuth sector (from the last azimuth before it to the first after)
+        every rotation; lost packets fall anywhere. The first gap of a sector is counted lost until the
+        next rotation shows the same sector; then it is moved from lost to ``outside_fov_packets``."""
+        wide = np.flatnonzero(missing >= self.FOV_MIN_PACKETS)
+        if wide.size == 0:
+            return missing
+        missing = missing.copy()
+        last = self._last_packet_az_cdeg
+        for i in wide.tolist():
+            before = int(raw.azimuth_cdeg[i - 1, -1]) if i > 0 else last
+            if before is None:
+                continue
+            sector = (before, int(raw.azimuth_cdeg[i, 0]))
+            same = [k for k, (known, _) in enumerate(self._gap_sectors)
+                    if all(abs((a - b + 18000) % 36000 - 18000) <= self.FOV_EDGE_CDEG for a, b in zip(known, sector))]
+            n = int(missing[i])
+            if not same:
+                self._gap_sectors = (self._gap_sectors + [(sector, n)])[-8:]  # counted lost for now
+                continue
+            k = same[0]
+            first = self._gap_sectors[k][1]
+            if first:  # the sector's first gap, counted lost then: a field of view after all
+                self.stats.lost_packets -= first
+                self.stats.outside_fov_packets += first
+                self._gap_sectors[k] = (self._gap_sectors[k][0], 0)
+            self.stats.outside_fov_packets += n
+            missing[i] = 0
+        return missing
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:
         if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path

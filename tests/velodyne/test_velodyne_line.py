@@ -412,3 +412,50 @@ def test_decode_to_mcap_names_the_model_and_its_own_elevations(ext, tmp_path):
     assert records and records[0].metadata["model"] == "VLP-32C"
     elevations = json.loads(records[0].metadata["laser_elevation_deg"])
     assert elevations == [float(e) for e in model_named("VLP-32C").elevation_deg] and len(elevations) == 32
+
+
+def test_a_restricted_field_of_view_is_not_lost_packets(ext):
+    """nebula's VLP-32C sends only 270° → 90° (half of each rotation, FOV set on the sensor): the missing half
+    recurs at the same azimuths every rotation, so it is counted outside the field of view, not lost."""
+    import warnings
+
+    from lidarpkt.errors import DroppedPacketsWarning
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        reader = lidarpkt.open(ext("nebula/vlp32/1713492677464078412"))
+        frames = list(reader)
+    assert frames and not [w for w in said if issubclass(w.category, DroppedPacketsWarning)]
+    (decoder,) = reader.decoders.values()
+    assert decoder.stats.lost_packets == 0 and decoder.stats.outside_fov_packets == 300  # 4 gaps of 75 packets
+
+
+def _vlp16_batches(ext):
+    from lidarpkt.sources.pcap_reader import PcapReader
+
+    return [b for b in PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")).batches() if b.payload_size == 1206]
+
+
+def _decode(batches):
+    decoder = VelodyneDecoder()
+    for b in batches:
+        decoder.push(b)
+    decoder.finish()
+    return decoder.stats
+
+
+def test_one_wide_gap_is_lost_and_the_same_sector_every_rotation_is_the_field_of_view(ext):
+    import warnings
+
+    (batch,) = _vlp16_batches(ext)
+    azimuth = batch.payload[:, 2:4].copy().view("<u2").ravel()
+    whole = _decode([batch])
+    once = np.ones(len(batch), bool)
+    once[500:530] = False  # 30 packets gone once: a loss
+    sector = (azimuth >= 9000) & (azimuth < 21000)  # 120° gone every rotation: a field of view
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lost_once = _decode([batch.select(once)])
+        fov = _decode([batch.select(~sector)])
+    assert lost_once.lost_packets - whole.lost_packets == 30 and lost_once.outside_fov_packets == 0
+    assert fov.lost_packets == whole.lost_packets and fov.outside_fov_packets >= np.count_nonzero(sector) - 40
