@@ -75,7 +75,8 @@ def test_no_syntax_or_library_newer_than_requires_python():
 
 # The floors: the core (sources, vendor packages, frames, open) and the writers import no application.
 CORE = ("sources", "velodyne", "ouster", "hesai", "writers", "frame.py", "options.py", "source.py", "parallel.py",
-        "packet.py", "decoder.py", "errors.py", "dropped.py", "kernels.py", "_readahead.py", "_lazy.py", "imu.py")
+        "packet.py", "decoder.py", "errors.py", "dropped.py", "kernels.py", "_readahead.py", "_lazy.py", "imu.py",
+        "rotation.py", "continuity.py", "router.py", "streams.py")
 APPLICATIONS = ("recorder", "analysis", "view", "archive", "cli", "cliargs", "info", "demo", "fixtures")
 
 
@@ -106,6 +107,17 @@ def test_no_core_module_imports_an_application():
                 continue
             bad = sorted(m for m in _imports(path)
                          if m.split(".")[:2] in (["lidarpkt", a] for a in APPLICATIONS))
+            if bad:
+                offenders.append(f"{path.relative_to(REPO_ROOT)}: {', '.join(bad)}")
+    assert not offenders, "\n".join(offenders)
+
+
+def test_no_vendor_package_imports_another_vendor():
+    vendors = ("velodyne", "ouster", "hesai")
+    offenders = []
+    for vendor in vendors:
+        for path in sorted((REPO_ROOT / "lidarpkt" / vendor).rglob("*.py")):
+            bad = sorted(m for m in _imports(path) if m.split(".")[:2] in (["lidarpkt", v] for v in vendors if v != vendor))
             if bad:
                 offenders.append(f"{path.relative_to(REPO_ROOT)}: {', '.join(bad)}")
     assert not offenders, "\n".join(offenders)

@@ -44,7 +44,7 @@ from ..continuity import StreamContinuity
 from ..errors import CalibrationError, SkippedPacketWarning
 from ..frame import Frame, FrameCounters, SensorInfo
 from ..packet import PacketBatch
-from ..velodyne.stream import rotation_is_whole, wrapped
+from ..rotation import rotation_is_whole, wrapped
 from .calibration import HesaiCalibration, load_calibration
 from .decode import HesaiPackets, decode_packets, returns_of
 from .detect import detect_model

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..decoder import INTERRUPTION_S, StreamCounts
 from ..errors import PacketFormatError
-from ..velodyne.stream import wrapped
+from ..rotation import wrapped
 from .decode import decode_packets
 from .detect import detect_model
 from .models import BY_SIZE, HesaiModel

@@ -76,7 +76,8 @@ from .nmea import parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
-from .stream import packets_lost, rotation_is_whole, wrapped
+from ..rotation import rotation_is_whole, wrapped
+from .stream import packets_lost
 from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
@@ -608,7 +609,7 @@ class VelodyneDecoder:
         return [frame]
 
     def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
-        """Whether a frame's columns hold its whole rotation (see :func:`~.stream.rotation_is_whole`)."""
+        """Whether a frame's columns hold its whole rotation (see :func:`~lidarpkt.rotation.rotation_is_whole`)."""
         hz = self._frequency_hz
         fallback = hz * 36000.0 * self.model.sequence_ns * 1e-9 if hz else None
         return rotation_is_whole(azimuth_cdeg, self.cut_cdeg, check_start=check_start, check_end=check_end,

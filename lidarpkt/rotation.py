@@ -1,0 +1,43 @@
+"""Rotations of a spinning sensor cut at an azimuth, from its columns' azimuths (0.01°): where a stream of
+azimuths wraps, and whether a frame's columns hold a whole rotation. Shared by every vendor whose packets
+carry an azimuth (:mod:`lidarpkt.velodyne`, :mod:`lidarpkt.hesai`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+HALF_TURN_CDEG = 18_000
+
+
+def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndarray:
+    """``bool[N]``: True where an azimuth (minus the cut angle, 0.01°) dropped by more than half a
+    turn from the one before it (``previous_cdeg`` for the first; ``None``: the first did not wrap)."""
+    key = np.asarray(key_cdeg)
+    prev = np.concatenate([[key[0] if previous_cdeg is None else previous_cdeg], key[:-1]]) if key.size else key
+    return key < prev - HALF_TURN_CDEG
+
+
+def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start: bool, check_end: bool,
+                      by_block: bool = False, fallback_step_cdeg: float | None = None) -> bool:
+    """Whether the columns of a frame (``azimuth_cdeg``: each column's azimuth, 0.01°) hold its whole
+    rotation. Where the frame did not begin (``check_start``) or end (``check_end``) at a wrap, its
+    first (last) column must lie within one firing interval after (before) the cut angle: the firing
+    before (after) it then belongs to another rotation. The interval is the median azimuth step of
+    the columns (``fallback_step_cdeg`` for a one-column frame; without it such a frame is not
+    whole); with ``by_block`` (frames cut at whole blocks, even columns opening a block) it is two
+    steps, and a block's second column takes its first's place."""
+    if not (check_start or check_end):
+        return True
+    key = (np.asarray(azimuth_cdeg, np.float64) - cut_cdeg) % 36000.0
+    if len(key) >= 2:
+        step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
+    elif fallback_step_cdeg:
+        step = fallback_step_cdeg
+    else:
+        return False
+    if by_block:
+        key[1::2] = key[0::2]
+        step *= 2
+    if check_start and not key[0] < step:
+        return False
+    return not check_end or key[-1] >= 36000.0 - step
