@@ -96,6 +96,13 @@ def _open_frames(path: str, args) -> FrameIterator:
     if args.calibration:
         options["calibration"] = args.calibration
     if getattr(args, "velodyne_model", None):
+        from lidarpkt.velodyne.models import MODELS, model_named
+
+        try:
+            model_named(args.velodyne_model)
+        except LidarpktError as exc:
+            raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
+                             f"{', '.join(m.name for m in MODELS)}") from exc
         options["velodyne_model"] = args.velodyne_model
     return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
 

@@ -285,4 +285,5 @@ def model_named(name: str) -> VelodyneModel:
     for model in MODELS:
         if model.name.replace(" ", "").replace("-", "").lower() == key:
             return model
-    raise UnknownSensorError(f"unknown Velodyne model {name!r}; lidarpkt decodes {', '.join(m.name for m in MODELS)}")
+    raise UnknownSensorError(f"velodyne_model {name!r}: no such Velodyne model; lidarpkt decodes "
+                             f"{', '.join(m.name for m in MODELS)}")

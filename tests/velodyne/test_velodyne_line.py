@@ -459,3 +459,15 @@ def test_one_wide_gap_is_lost_and_the_same_sector_every_rotation_is_the_field_of
         fov = _decode([batch.select(~sector)])
     assert lost_once.lost_packets - whole.lost_packets == 30 and lost_once.outside_fov_packets == 0
     assert fov.lost_packets == whole.lost_packets and fov.outside_fov_packets >= np.count_nonzero(sector) - 40
+
+
+def test_an_unknown_velodyne_model_is_one_line_naming_the_flag(ext, tmp_path, capsys):
+    from lidarpkt.cli import main
+
+    out = tmp_path / "x.mcap"
+    status = main(["decode", str(ext("rust-lidar-utils/velodyne_vlp32.pcap")), "-o", str(out), "--velodyne-model", "VLP-99"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and err[0].startswith("lidarpkt: error: --velodyne-model VLP-99: no such")
+    assert not out.exists()
+    with pytest.raises(UnknownSensorError, match="^velodyne_model 'VLP-99'"):
+        model_named("VLP-99")
