@@ -1,6 +1,6 @@
 """The optional C extension; everything else about the package is in pyproject.toml.
 
-``lidarpkt._native`` (``lidarpkt/native/*.c``, one file per concern) holds the compiled kernels of lidarpkt/kernels.py (the pcap record walk,
+``lidarpkt._native`` (``lidarpkt/native/*.c``, one file per concern) holds the compiled kernels of lidarpkt/core/kernels.py (the pcap record walk,
 row gathers, Ouster and VLP-16 XYZ, the XYZ loops with an AVX2 clone). ``optional=True``: on a machine without a C compiler the install
 still succeeds and lidarpkt runs the pure-NumPy twins of the same kernels (same results, slower).
 ``-ffp-contract=off`` keeps ``r * d + o`` rounded twice, bit-identical to NumPy and ouster-sdk.

@@ -74,7 +74,7 @@ def timed_export(paths: list[Path], out: Path, fmt: str, **options) -> tuple[flo
 def count_pass_cpu(large: Path, segment_bytes: int) -> float:
     """CPU seconds of the count pass a segmented export runs before its units (all segments but the last)."""
     from lidarpkt.archive.ordinals import CountTask, count_segment
-    from lidarpkt.sources.segments import plan_segments
+    from lidarpkt.containers.segments import plan_segments
 
     segments = plan_segments(large, segment_bytes)
     t0 = time.process_time()

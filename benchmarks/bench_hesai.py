@@ -3,7 +3,7 @@
 For each of the seven nebula bags (``../shared/fixtures/external/nebula/hesai``): the bag's packets are
 decoded once into fields, then re-encoded by lidarpkt's encoder ``--rotations`` times over (each copy
 0.4 s later in the packets' own clock, a seamless stream of whole rotations), and pushed in batches of
-8192 packets to a :class:`~lidarpkt.hesai.HesaiDecoder` with the model's calibration; every frame's
+8192 packets to a :class:`~lidarpkt.vendors.hesai.HesaiDecoder` with the model's calibration; every frame's
 ``xyz()`` is computed. Reports frames/s, returns (points)/s and packets/s.
 
 hydra4 0.2.0 (PyPI, the only Python Hesai decoder; XT32 and OT128): ``Hydra(PandarXT32).to_pypcd4``
@@ -30,15 +30,15 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
-from lidarpkt.hesai import (
+from lidarpkt.vendors.hesai import (
     HesaiDecoder,
     decode_packets,
     detect_model,
     encode_packets,
     load_calibration,
 )
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.bags import BagReader
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.bags import BagReader
 
 FOLDERS = {"40p": "Pandar40P", "64": "Pandar64", "qt64": "PandarQT64", "qt128": "PandarQT128", "xt16": "PandarXT16",
            "xt32": "PandarXT32", "xt32m": "PandarXT32M"}

@@ -3,7 +3,7 @@
 Writes a classic pcap of ``--count`` first fragments (More Fragments set, offset 0), each of a
 different datagram (IP ID and source address vary), with ``--fragment-bytes`` of data each, and a
 complete 1206-byte UDP packet after every ``--good-every``-th; then reads it with
-``lidarpkt.sources.pcap_reader.PcapReader`` (``--per-datagram K``: K fragments of each datagram at consecutive
+``lidarpkt.containers.pcap_reader.PcapReader`` (``--per-datagram K``: K fragments of each datagram at consecutive
 offsets, the last never sent: the case where the reassembler's byte bound, not its datagram bound,
 must hold memory; default bounds: 1024 pending datagrams, 64 MB) in a fresh process and
 reports peak RSS, the peak of tracemalloc (``--tracemalloc``, slower), the time, the counts, and
@@ -35,7 +35,7 @@ sys.path.insert(0, str(REPO))
 
 def build(path: Path, count: int, frag_bytes: int, good_every: int, per_datagram: int = 1) -> int:
     """Write the capture; return the number of good packets in it."""
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import frames_for
 
     frag_bytes = max(8, frag_bytes // 8 * 8)
@@ -90,7 +90,7 @@ def read(path: str, use_tracemalloc: bool) -> dict:
     import tracemalloc
     import warnings
 
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     if use_tracemalloc:
         tracemalloc.start()

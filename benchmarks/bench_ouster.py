@@ -37,9 +37,9 @@ CAPTURES = {
 
 def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, int]:
     """Write ``frames`` copies of the capture's single frame; returns (packets, payload bytes)."""
-    from lidarpkt.ouster import decode_packets, encode_packets, load_metadata
-    from lidarpkt.packet import Endpoint, Packet
-    from lidarpkt.sources.pcap_reader import read_batches
+    from lidarpkt.vendors.ouster import decode_packets, encode_packets, load_metadata
+    from lidarpkt.core.packet import Endpoint, Packet
+    from lidarpkt.containers.pcap_reader import read_batches
     from lidarpkt.writers.pcap import write_pcap
 
     md = load_metadata(meta)
@@ -70,7 +70,7 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
 
 def bench_reader(path: Path) -> float:
     """The pcap reader alone (part of the lidarpkt time)."""
-    from lidarpkt.sources.pcap_reader import read_batches
+    from lidarpkt.containers.pcap_reader import read_batches
 
     t = time.perf_counter()
     for _ in read_batches(path):
@@ -80,8 +80,8 @@ def bench_reader(path: Path) -> float:
 
 def bench_lidarpkt(path: Path, meta: Path) -> tuple[float, int]:
     import lidarpkt
-    import lidarpkt.ouster  # noqa: F401  imports outside the timed part
-    import lidarpkt.source  # noqa: F401
+    import lidarpkt.vendors.ouster  # noqa: F401  imports outside the timed part
+    import lidarpkt.pipeline.reader  # noqa: F401
 
     t = time.perf_counter()
     n = sum(1 for _ in lidarpkt.open(path, metadata=meta))

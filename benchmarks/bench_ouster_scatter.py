@@ -34,9 +34,9 @@ CAPTURES = {_LABELS[key]: files for key, files in _BY_PROFILE.items()}
 
 
 def lidar_batch(pcap: str, meta: str):
-    from lidarpkt.ouster import classify, load_metadata
-    from lidarpkt.packet import PacketBatch
-    from lidarpkt.sources.pcap_reader import read_batches
+    from lidarpkt.vendors.ouster import classify, load_metadata
+    from lidarpkt.core.packet import PacketBatch
+    from lidarpkt.containers.pcap_reader import read_batches
 
     md = load_metadata(EXTERNAL / meta)
     batches = [b for b in read_batches(EXTERNAL / pcap) if (m := classify(b, [md])) and m[0] == "lidar"]
@@ -45,8 +45,8 @@ def lidar_batch(pcap: str, meta: str):
 
 def assemble(md, batch, repeat: int, native: bool) -> int:
     """Frames assembled from ``batch``, ``repeat`` times over; returns how many."""
-    from lidarpkt import kernels
-    from lidarpkt.ouster.frames import OusterDecoder
+    from lidarpkt.core import kernels
+    from lidarpkt.vendors.ouster.frames import OusterDecoder
 
     saved = kernels.native
     kernels.native = saved if native else None

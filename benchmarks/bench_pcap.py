@@ -1,4 +1,4 @@
-"""Throughput of lidarpkt.sources.pcap_reader against a bare dpkt loop and ``cat FILE > /dev/null``.
+"""Throughput of lidarpkt.containers.pcap_reader against a bare dpkt loop and ``cat FILE > /dev/null``.
 
 Builds large captures with lidarpkt.writers.pcap from a real one (the VeloView VLP-16
 capture, repeated with shifted times), then times, on each:
@@ -32,7 +32,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from lidarpkt.sources.pcap_reader import PcapReader, read_packets  # noqa: E402
+from lidarpkt.containers.pcap_reader import PcapReader, read_packets  # noqa: E402
 from lidarpkt.writers.pcap import frames_for, write_pcap_records, write_pcapng_records  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))

@@ -28,7 +28,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from lidarpkt.packet import Packet  # noqa: E402
+from lidarpkt.core.packet import Packet  # noqa: E402
 from lidarpkt.recorder.replay import read_capture, replay  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
@@ -94,7 +94,7 @@ def bench_decode(tmp: Path) -> list[dict]:
     """``decode`` of the VeloView capture to MCAP, timed in this process (start-up excluded)."""
     import argparse as _argparse
 
-    from lidarpkt.recorder import decode
+    from lidarpkt.cli import decode
 
     pcap = CAPTURES["vlp16"][0]
     out = []

@@ -44,7 +44,7 @@ EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shar
 
 
 def vlp16_payloads(n: int) -> tuple[list[bytes], list[str]]:
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     real = [p.payload for p in read_packets(EXTERNAL / "veloview/vlp-16-test-90deg-1-50-frames.pcap") if len(p.payload) == 1206]
     out = []
@@ -60,7 +60,7 @@ def ouster_payloads(n: int, meta: Path, low: int = 0) -> list[bytes]:
     """``n`` packets of a continuous synthetic stream of the sensor ``meta`` describes: measurement
     ids round the frame, 97.656 µs per column, frame ids counting up (in the packet header, or per
     column for LEGACY), random pixel values from ``low``. Shared by bench_record_view."""
-    from lidarpkt.ouster import empty_fields, encode_packets, load_metadata
+    from lidarpkt.vendors.ouster import empty_fields, encode_packets, load_metadata
 
     md = load_metadata(meta)
     per = md.columns_per_frame // md.columns_per_packet

@@ -13,7 +13,7 @@ CPU (all threads, % of one core, from /proc while the replay ran and 1 s after).
 
 * ``vlp16-dual``: ``bench_velodyne.build(mode="dual")``, 600 RPM, 1508 packets/s of 1206 B;
 * ``os1-64-legacy``: OS1-64 LEGACY 1024×10 (fixtures/canned/os1-64-legacy.json), 640 packets/s
-  of 12608 B, encoded with lidarpkt.ouster.encode_packets.
+  of 12608 B, encoded with lidarpkt.vendors.ouster.encode_packets.
 
 The numbers depend on the machine and what else runs on it; nothing is asserted here (the
 zero-loss property is asserted by tests/view/test_view_record.py).
@@ -36,7 +36,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from lidarpkt.packet import Packet  # noqa: E402
+from lidarpkt.core.packet import Packet  # noqa: E402
 from bench_record import _cpu_seconds, _free_port  # noqa: E402
 from lidarpkt.recorder.replay import read_capture, replay  # noqa: E402
 
@@ -53,7 +53,7 @@ def vlp16_dual(seconds_of_sensor_time: float, tmp: Path) -> tuple[list[Packet], 
 
 def os1_64_legacy(seconds_of_sensor_time: float, tmp: Path) -> tuple[list[Packet], list[str]]:
     from bench_record_load import ouster_payloads
-    from lidarpkt.ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     md = load_metadata(OUSTER_METADATA)
     per_frame = md.columns_per_frame // md.columns_per_packet

@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import lidarpkt  # noqa: E402
-from lidarpkt.sources.pcap_reader import PcapReader  # noqa: E402
+from lidarpkt.containers.pcap_reader import PcapReader  # noqa: E402
 
 WORK = {
     "none": lambda f: None,

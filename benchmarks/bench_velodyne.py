@@ -31,9 +31,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import lidarpkt  # noqa: E402
-from lidarpkt.packet import Endpoint, Packet  # noqa: E402
+from lidarpkt.core.packet import Endpoint, Packet  # noqa: E402
 from lidarpkt.writers.pcap import write_pcap  # noqa: E402
-from lidarpkt.velodyne import encode_data_packets  # noqa: E402
+from lidarpkt.vendors.velodyne import encode_data_packets  # noqa: E402
 
 PACKET_PERIOD_NS = {"strongest": 1_327_104, "dual": 663_552}  # 12 blocks of one firing pair, or 6 of two returns
 START_NS = 1_700_000_000_000_000_000
@@ -77,8 +77,8 @@ def build(path: Path, seconds: float, seed: int = 0, mode: str = "dual") -> int:
 def build_model(path: Path, model_name: str, seconds: float, mode: str = "strongest", seed: int = 0) -> int:
     """A capture of ``model_name`` turning at 10 Hz in ``mode``: block azimuths from each block's firing time,
     a wall at ~12 m with noise, 5 % of firings without a return (dual: 10 % with a nearer strongest return)."""
-    from lidarpkt.velodyne.layout import packet_layout
-    from lidarpkt.velodyne.models import model_named
+    from lidarpkt.vendors.velodyne.layout import packet_layout
+    from lidarpkt.vendors.velodyne.models import model_named
 
     model = model_named(model_name)
     lay = packet_layout(model, mode)

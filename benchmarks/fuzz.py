@@ -11,19 +11,19 @@ Targets (each checks more than "does not crash"):
   may come out, and the chunked fast path (``batches()``, 4096 records a chunk) must give exactly the
   packets of the record-by-record path (``packets()`` with ``batch_packets=1``).
 - ``reassembly``: the input is a script of fragments (key, offset, more flag, length, timestamp) for a
-  small :class:`~lidarpkt.sources.reassembly.Reassembler`; its pending datagrams and held bytes stay within the
+  small :class:`~lidarpkt.containers.reassembly.Reassembler`; its pending datagrams and held bytes stay within the
   bounds, the held-byte count is the bytes actually held, and every byte of a datagram it returns is a byte
   sent for that key at that offset.
 - ``velodyne``: the input is cut into 1206-byte data packets and a 512-byte position packet, fed in
-  batches to :class:`~lidarpkt.velodyne.VelodyneDecoder`; also ``parse_nmea`` of the text. Frames must
+  batches to :class:`~lidarpkt.vendors.velodyne.VelodyneDecoder`; also ``parse_nmea`` of the text. Frames must
   have consistent shapes; every packet is counted.
 - ``ouster``: the first byte picks a real metadata file (every profile), the rest is cut into lidar
-  packets of its size for :class:`~lidarpkt.ouster.OusterDecoder`; frames must have consistent shapes.
+  packets of its size for :class:`~lidarpkt.vendors.ouster.OusterDecoder`; frames must have consistent shapes.
 - ``metadata``: the input is an Ouster metadata JSON for ``load_metadata``; a metadata it accepts must
   also build a decoder and decode a packet of its own size.
 - ``hesai``: the first byte picks a Pandar model (bits 0-2) and whether the decoder is told it or detects
   it (bit 3), the second the batch length; the rest is cut into packets of the model's size and pushed
-  to :class:`~lidarpkt.hesai.HesaiDecoder` (with a calibration of the model's channels), and described
+  to :class:`~lidarpkt.vendors.hesai.HesaiDecoder` (with a calibration of the model's channels), and described
   by ``describe_stream``. Every packet is counted (decoded, malformed, duplicate or late); frames have
   the model's rows, 1-3 slots and one azimuth and time per column; XYZ is finite.
 - ``bags``: the first byte picks the container (see :func:`bag_files`): an ``.mcap`` file, a ROS 1 ``.bag``,
@@ -95,18 +95,18 @@ def _import_lidarpkt(instrument: bool, target: str = ""):
                 import rosbags.highlevel  # noqa: F401
                 import rosbags.rosbag1  # noqa: F401
                 import rosbags.rosbag2  # noqa: F401
-            import lidarpkt.hesai.frames  # noqa: F401
-            import lidarpkt.sources.bags  # noqa: F401
-            import lidarpkt.ouster  # noqa: F401
-            import lidarpkt.ouster.osf  # noqa: F401
-            import lidarpkt.sources.pcap_reader  # noqa: F401
-            import lidarpkt.sources.reassembly  # noqa: F401
-            import lidarpkt.source  # noqa: F401
-            import lidarpkt.velodyne  # noqa: F401
+            import lidarpkt.vendors.hesai.frames  # noqa: F401
+            import lidarpkt.containers.bags  # noqa: F401
+            import lidarpkt.vendors.ouster  # noqa: F401
+            import lidarpkt.vendors.ouster.osf  # noqa: F401
+            import lidarpkt.containers.pcap_reader  # noqa: F401
+            import lidarpkt.containers.reassembly  # noqa: F401
+            import lidarpkt.pipeline.reader  # noqa: F401
+            import lidarpkt.vendors.velodyne  # noqa: F401
     else:
-        import lidarpkt.ouster  # noqa: F401
-        import lidarpkt.sources.pcap_reader  # noqa: F401
-        import lidarpkt.velodyne  # noqa: F401
+        import lidarpkt.vendors.ouster  # noqa: F401
+        import lidarpkt.containers.pcap_reader  # noqa: F401
+        import lidarpkt.vendors.velodyne  # noqa: F401
 
 
 def _guard(fn):
@@ -127,7 +127,7 @@ def _guard(fn):
 
 # ------------------------------------------------------------------------------------------ targets
 def make_pcap_target():
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.pcap")
 
@@ -153,7 +153,7 @@ def make_pcap_target():
 def make_reassembly_target():
     import atheris
 
-    from lidarpkt.sources.reassembly import FRAGMENT_OVERHEAD, Reassembler
+    from lidarpkt.containers.reassembly import FRAGMENT_OVERHEAD, Reassembler
 
     def pattern(key: int, offset: int, n: int, salt: int) -> bytes:
         return bytes(((key * 131 + salt * 17 + offset + i) * 7) & 0xFF for i in range(n))
@@ -201,8 +201,8 @@ def make_reassembly_target():
 def make_velodyne_target():
     import numpy as np
 
-    from lidarpkt.packet import PacketBatch
-    from lidarpkt.velodyne import VelodyneDecoder, parse_nmea
+    from lidarpkt.core.packet import PacketBatch
+    from lidarpkt.vendors.velodyne import VelodyneDecoder, parse_nmea
 
     def target(data: bytes) -> None:
         if len(data) < 4:
@@ -243,9 +243,9 @@ def make_velodyne_target():
 def make_hesai_target():
     import numpy as np
 
-    from lidarpkt.hesai import HesaiCalibration, HesaiDecoder, describe_stream
-    from lidarpkt.hesai.models import MODELS
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.vendors.hesai import HesaiCalibration, HesaiDecoder, describe_stream
+    from lidarpkt.vendors.hesai.models import MODELS
+    from lidarpkt.core.packet import PacketBatch
 
     def target(data: bytes) -> None:
         if len(data) < 3:
@@ -296,8 +296,8 @@ def _ouster_metadata_files() -> list[str]:
 def make_ouster_target():
     import numpy as np
 
-    from lidarpkt.ouster import OusterDecoder, load_metadata
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
+    from lidarpkt.core.packet import PacketBatch
 
     mds = [load_metadata(f) for f in _ouster_metadata_files()]
 
@@ -330,8 +330,8 @@ def make_ouster_target():
 def make_metadata_target():
     import numpy as np
 
-    from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.vendors.ouster import OusterDecoder, OusterGeometry, load_metadata
+    from lidarpkt.core.packet import PacketBatch
 
     def target(data: bytes) -> None:
         try:
@@ -385,9 +385,9 @@ def bag_input(kind: str, files: dict[str, bytes], opened: str = ".") -> bytes:
 
 
 def _ouster_sized(stream, metadata_text: str) -> bool:
-    """Is an unrouted stream (a ``lidarpkt.source.UnroutedStream``) of the lidar or IMU packet size of this
+    """Is an unrouted stream (a ``lidarpkt.pipeline.reader.UnroutedStream``) of the lidar or IMU packet size of this
     metadata?"""
-    from lidarpkt.ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     try:
         md = load_metadata(metadata_text)
@@ -402,7 +402,7 @@ def make_ouster_ros_target():
 
 def make_osf_target():
     import lidarpkt
-    from lidarpkt.info import describe_capture
+    from lidarpkt.cli.info import describe_capture
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.osf")
 
@@ -447,7 +447,7 @@ def osf_with_crcs(data: bytes) -> bytes:
     names; metadata) made right: the file as it would be if the damage had been written with its CRCs."""
     import zlib
 
-    from lidarpkt.ouster.osf import _root
+    from lidarpkt.vendors.ouster.osf import _root
 
     out = bytearray(data)
 
@@ -480,7 +480,7 @@ def make_bags_target(ouster_routing: bool = False):
     import numpy as np
 
     import lidarpkt
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import LidarpktError
 
     root = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}-bags")
@@ -579,8 +579,8 @@ def _bag_seeds() -> list[bytes]:
     from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.containers.pcap_reader import read_packets
 
     def store(which):
         st = get_typestore(which)
@@ -738,7 +738,7 @@ def seeds(target: str) -> list[bytes]:
     """Starting inputs from the real captures (and generated ones where none is small enough)."""
     out: list[bytes] = []
     if target == "pcap":
-        from lidarpkt.packet import Endpoint, Packet
+        from lidarpkt.core.packet import Endpoint, Packet
         from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
 
         for rel in ("ouster-sdk/VLI-16-one-packet.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap",
@@ -769,7 +769,7 @@ def seeds(target: str) -> list[bytes]:
             raw = rec.read_bytes()
             for k in range(0, 40, 10):
                 out.append(bytes([6, 1]) + raw[k * 1206 : (k + 4) * 1206])
-        from lidarpkt.sources.pcap_reader import read_packets
+        from lidarpkt.containers.pcap_reader import read_packets
 
         cap = REPO / "fixtures/canned/vlp16-dual.pcap"
         if cap.exists():
@@ -783,8 +783,8 @@ def seeds(target: str) -> list[bytes]:
                     break
             out.append(bytes([3, 2]) + b"".join(data) + (pos or bytes(512)))
     elif target == "ouster":
-        from lidarpkt.ouster import load_metadata
-        from lidarpkt.sources.pcap_reader import read_packets
+        from lidarpkt.vendors.ouster import load_metadata
+        from lidarpkt.containers.pcap_reader import read_packets
 
         sources = {  # metadata index -> a capture with its packets
             0: REPO / "fixtures/canned/os1-64-legacy.pcap",
@@ -820,8 +820,8 @@ def seeds(target: str) -> list[bytes]:
     elif target == "bags":
         out += _bag_seeds()
     elif target == "hesai":
-        from lidarpkt.hesai.models import MODELS
-        from lidarpkt.sources.bags import BagReader
+        from lidarpkt.vendors.hesai.models import MODELS
+        from lidarpkt.containers.bags import BagReader
 
         for bag in sorted(glob.glob(str(EXTERNAL / "nebula/hesai/*/*/metadata.yaml"))):
             with warnings.catch_warnings():

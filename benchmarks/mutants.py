@@ -38,25 +38,25 @@ class Mutant:
 
 VELODYNE_CAL_TESTS = ("tests/velodyne/test_velodyne_calibration_corrections.py",)
 MUTANTS = (
-    Mutant("rot_sign", "lidarpkt/velodyne/geometry.py",
+    Mutant("rot_sign", "lidarpkt/vendors/velodyne/geometry.py",
            "np.cos(az[None, :] - r), -np.sin(az[None, :] - r)", "np.cos(az[None, :] + r), -np.sin(az[None, :] + r)",
            VELODYNE_CAL_TESTS, "sign of the VLP-16 azimuth rot_correction"),
-    Mutant("dist_sign", "lidarpkt/velodyne/geometry.py",
+    Mutant("dist_sign", "lidarpkt/vendors/velodyne/geometry.py",
            "            dxy += hit * dc_xy\n            dz += hit * dc_z",
            "            dxy -= hit * dc_xy\n            dz -= hit * dc_z",
            VELODYNE_CAL_TESTS, "sign of the VLP-16 dist_correction"),
-    Mutant("horiz_sign", "lidarpkt/velodyne/geometry.py",
+    Mutant("horiz_sign", "lidarpkt/vendors/velodyne/geometry.py",
            "out[..., 0] -= h * neg_sin_a", "out[..., 0] += h * neg_sin_a",
            VELODYNE_CAL_TESTS, "sign of the VLP-16 horiz_offset_correction (x)"),
-    Mutant("range2_shift", "lidarpkt/ouster/profiles.py",
+    Mutant("range2_shift", "lidarpkt/vendors/ouster/profiles.py",
            'BitField("RANGE2", 32, 15, 3)', 'BitField("RANGE2", 32, 15, 2)',
            ("tests/ouster/test_ouster_words.py",), "up-shift of RANGE2 in FUSA_RNG15_RFL8_NIR8_DUAL"),
     Mutant("plot_reflectivity_reversed", "lidarpkt/analysis/plots.py",
            'ax2.plot(t.range_m, ra.reflectivity, "o"', 'ax2.plot(t.range_m, ra.reflectivity[::-1], "o"',
            ("tests/analysis/test_analysis_plot_data.py",), "reflectivity points of the temporal-CDF figure reversed"),
-    Mutant("fragment_offset_units", "lidarpkt/sources/trains.py",
+    Mutant("fragment_offset_units", "lidarpkt/containers/trains.py",
            '"off": (fb & 0x1FFF) * 8,', '"off": (fb & 0x1FFF),',
-           ("tests/sources/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
+           ("tests/containers/test_reassembly_fast_path.py",), "fast fragment path reads offsets without the × 8"),
 )
 
 

@@ -11,7 +11,7 @@ the project's packages (the ``.pth`` line puts them after mutmut's own)::
     python -m venv /work/venv-mut && /work/venv-mut/bin/pip install "mutmut>=3"
     echo /work/venv/lib/python3.11/site-packages > /work/venv-mut/lib/python3.11/site-packages/zz.pth
     nice -n 19 python benchmarks/mutation.py --mutmut /work/venv-mut/bin/mutmut \\
-        --modules lidarpkt/reassembly.py lidarpkt/velodyne/geometry.py
+        --modules lidarpkt/reassembly.py lidarpkt/vendors/velodyne/geometry.py
 
 It prints, and writes to ``<workdir>/summary.json``, the count of killed, surviving, timed-out and
 skipped mutants per module and the names of the survivors (``mutmut show NAME`` in the work
@@ -33,10 +33,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # the decode modules, smallest first (a run that is stopped early has covered the small ones)
 DECODE_MODULES = [
-    "lidarpkt/velodyne/geometry.py", "lidarpkt/velodyne/calibration.py", "lidarpkt/velodyne/timing.py",
-    "lidarpkt/velodyne/decode.py", "lidarpkt/velodyne/packet.py", "lidarpkt/ouster/geometry.py",
-    "lidarpkt/ouster/crc.py", "lidarpkt/ouster/decode.py", "lidarpkt/sources/reassembly.py",
-    "lidarpkt/ouster/profiles.py", "lidarpkt/ouster/frames.py", "lidarpkt/velodyne/frames.py",
+    "lidarpkt/vendors/velodyne/geometry.py", "lidarpkt/vendors/velodyne/calibration.py", "lidarpkt/vendors/velodyne/timing.py",
+    "lidarpkt/vendors/velodyne/decode.py", "lidarpkt/vendors/velodyne/packet.py", "lidarpkt/vendors/ouster/geometry.py",
+    "lidarpkt/vendors/ouster/crc.py", "lidarpkt/vendors/ouster/decode.py", "lidarpkt/containers/reassembly.py",
+    "lidarpkt/vendors/ouster/profiles.py", "lidarpkt/vendors/ouster/frames.py", "lidarpkt/vendors/velodyne/frames.py",
 ]
 # the tests that exercise them (the others reach the decoders only through these paths)
 DECODE_TESTS = [
@@ -45,8 +45,8 @@ DECODE_TESTS = [
     "tests/velodyne/test_velodyne_properties.py", "tests/velodyne/test_velodyne_nebula.py", "tests/ouster/test_ouster_decode.py",
     "tests/ouster/test_ouster_crosscheck.py", "tests/ouster/test_ouster_frames.py", "tests/ouster/test_ouster_geometry.py",
     "tests/ouster/test_ouster_metadata.py", "tests/ouster/test_ouster_words.py", "tests/ouster/test_ouster_profile_tables.py",
-    "tests/sources/test_reassembly.py", "tests/sources/test_reassembly_fast_path.py", "tests/sources/test_pcap_formats.py",
-    "tests/test_decode_edges.py", "tests/sources/test_reassembly_edges.py",
+    "tests/containers/test_reassembly.py", "tests/containers/test_reassembly_fast_path.py", "tests/containers/test_pcap_formats.py",
+    "tests/test_decode_edges.py", "tests/containers/test_reassembly_edges.py",
     "tests/velodyne/test_velodyne_frames_cuts.py", "tests/ouster/test_ouster_frames_cuts.py",
 ]
 
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-children", type=int, default=1)
     ap.add_argument("--results-only", action="store_true", help="summarise an earlier run in --workdir")
     ap.add_argument("--only", nargs="+", default=(), metavar="GLOB",
-                    help="mutant names to run, e.g. 'lidarpkt.sources.reassembly*' (the rest stay 'not checked')")
+                    help="mutant names to run, e.g. 'lidarpkt.containers.reassembly*' (the rest stay 'not checked')")
     args = ap.parse_args(argv)
     if args.workdir.name != "lidarpkt":
         ap.error("--workdir must end in /lidarpkt (mutmut finds the package by the folder name)")

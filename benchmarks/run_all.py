@@ -61,7 +61,7 @@ REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(REPO))
 
-from lidarpkt import kernels  # noqa: E402
+from lidarpkt.core import kernels  # noqa: E402
 
 ROWS: list[tuple] = []  # (name, ours, reference, ratio, target, met)
 

@@ -4,8 +4,8 @@
 >>> for frame in lidarpkt.open("capture.pcap"):            # doctest: +SKIP
 ...     print(frame.frame_id, frame.range_mm.shape, frame.xyz().shape)
 
-``lidarpkt.open`` is :func:`lidarpkt.source.open_frames`; its keyword options are declared once, in
-:class:`lidarpkt.options.OpenOptions`, and typed for static checkers. The names below are imported on
+``lidarpkt.open`` is :func:`lidarpkt.pipeline.reader.open_frames`; its keyword options are declared once, in
+:class:`lidarpkt.pipeline.options.OpenOptions`, and typed for static checkers. The names below are imported on
 first use, so that ``lidarpkt --help`` and ``--version`` start without NumPy.
 
 Everything lidarpkt installs lives under this one name: :mod:`lidarpkt.recorder` (live capture,
@@ -18,7 +18,7 @@ from __future__ import annotations
 from pkgutil import extend_path
 from typing import TYPE_CHECKING
 
-from ._lazy import lazy_names
+from lidarpkt.core.lazy import lazy_names
 from ._version import __version__
 from .errors import LidarpktError
 
@@ -27,10 +27,10 @@ from .errors import LidarpktError
 __path__ = extend_path(__path__, __name__)
 
 if TYPE_CHECKING:
-    from .frame import Frame, FrameCounters, FrameStack, SensorInfo
-    from .packet import Endpoint, Packet, PacketBatch
-    from .source import open_frames as open  # noqa: A001
-    from .sources.pcap_reader import read_packets
+    from lidarpkt.core.frame import Frame, FrameCounters, FrameStack, SensorInfo
+    from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
+    from lidarpkt.pipeline.reader import open_frames as open  # noqa: A001
+    from lidarpkt.containers.pcap_reader import read_packets
 
 __all__ = [
     "__version__",
@@ -47,15 +47,15 @@ __all__ = [
 ]
 
 _lazy_getattr, __dir__ = lazy_names(__name__, {
-    "Frame": "frame", "FrameCounters": "frame", "FrameStack": "frame", "SensorInfo": "frame",
-    "Endpoint": "packet", "Packet": "packet", "PacketBatch": "packet",
-    "read_packets": "sources.pcap_reader",
+    "Frame": "core.frame", "FrameCounters": "core.frame", "FrameStack": "core.frame", "SensorInfo": "core.frame",
+    "Endpoint": "core.packet", "Packet": "core.packet", "PacketBatch": "core.packet",
+    "read_packets": "containers.pcap_reader",
 }, __all__)
 
 
 def __getattr__(name: str) -> object:
     if name == "open":  # lidarpkt.open is source.open_frames, imported on first use
-        from .source import open_frames
+        from lidarpkt.pipeline.reader import open_frames
 
         globals()["open"] = open_frames
         return open_frames

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pytest
 
-from lidarpkt.packet import Endpoint
+from lidarpkt.core.packet import Endpoint
 
 VELODYNE_SCAN_SCHEMA = (
     "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n" + "=" * 80 + "\nMSG: std_msgs/Header\n"

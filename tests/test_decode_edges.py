@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarpkt.ouster import OusterDecoder, load_metadata
-from lidarpkt.ouster.crc import crc64_xz, footer_crc_ok
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
+from lidarpkt.vendors.ouster.crc import crc64_xz, footer_crc_ok
+from lidarpkt.core.packet import PacketBatch
 
 CAL = Path(__file__).parent / "data" / "calibration" / "vlp16_corrected.yaml"
 
@@ -85,7 +85,7 @@ def test_wrong_size_lidar_packets_are_counted_and_skipped(ext):
 
 
 def test_position_packet_sentences():
-    from lidarpkt.velodyne import decode_position_packets
+    from lidarpkt.vendors.velodyne import decode_position_packets
 
     payload = np.zeros((4, 512), np.uint8)
     nmea = [b"$GPRMC,1*00 \r\n", b"", b"$GPTXT,FIX\x00junk after the NUL\x00more", b"$GP\xc3\xa9\r\n"]
@@ -98,7 +98,7 @@ def test_position_packet_sentences():
 
 
 def test_corrected_distance_of_a_vlp16_frame():
-    from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets, load_calibration
+    from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_data_packets, load_calibration
 
     cal = load_calibration(CAL)
     n = 3
@@ -118,7 +118,7 @@ def test_firing_azimuths_per_packet_mode_and_the_general_path():
     """firing_azimuth_cdeg with a per-packet dual flag equals the one-mode results row by row, and a
     batch holding an invalid block azimuth (> 36000, the general integer path) gives the other
     packets the same azimuths as the fast path."""
-    from lidarpkt.velodyne.timing import firing_azimuth_cdeg
+    from lidarpkt.vendors.velodyne.timing import firing_azimuth_cdeg
 
     n = 40
     az = ((np.arange(n)[:, None] * 480 + np.arange(12)[None, :] * 40 + 35000) % 36000).astype(np.uint16)
@@ -137,7 +137,7 @@ def test_firing_azimuths_per_packet_mode_and_the_general_path():
 
 
 def test_vlp16_packet_fields_have_their_documented_types():
-    from lidarpkt.velodyne import decode_packets, encode_data_packets
+    from lidarpkt.vendors.velodyne import decode_packets, encode_data_packets
 
     payload = encode_data_packets(np.zeros((2, 12), np.int64), np.full((2, 12, 32), 500), np.full((2, 12, 32), 3),
                                   np.array([1000, 2327]), "strongest")
@@ -152,7 +152,7 @@ def test_vlp16_packet_fields_have_their_documented_types():
 
 
 def test_reassembler_limits_must_be_positive():
-    from lidarpkt.sources.reassembly import Reassembler
+    from lidarpkt.containers.reassembly import Reassembler
 
     Reassembler(timeout_ns=1, max_datagrams=1, max_bytes=1)
     for bad in ({"timeout_ns": 0}, {"max_datagrams": 0}, {"max_bytes": 0}):

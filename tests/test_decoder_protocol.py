@@ -1,4 +1,4 @@
-"""The Decoder protocol (lidarpkt/decoder.py): both vendor decoders meet it, and code typed against
+"""The Decoder protocol (lidarpkt/core/decoder.py): both vendor decoders meet it, and code typed against
 it drives either one; the vendor stream counters meet StreamCounter."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ import numpy as np
 
 from lidarpkt import fixtures
 import lidarpkt
-from lidarpkt.decoder import Decoder, StreamCounter, StreamCounts
-from lidarpkt.frame import Frame, SensorInfo
-from lidarpkt.ouster import OusterDecoder, load_metadata
-from lidarpkt.ouster import stream as ouster_stream
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
-from lidarpkt.velodyne import VelodyneDecoder
-from lidarpkt.velodyne import stream as velodyne_stream
+from lidarpkt.core.decoder import Decoder, StreamCounter, StreamCounts
+from lidarpkt.core.frame import Frame, SensorInfo
+from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
+from lidarpkt.vendors.ouster import stream as ouster_stream
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
+from lidarpkt.vendors.velodyne import VelodyneDecoder
+from lidarpkt.vendors.velodyne import stream as velodyne_stream
 
 
 def decode_capture(decoder: Decoder, lidar: list[PacketBatch], auxiliary: list[PacketBatch]) -> list[Frame]:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.frame import Frame, FrameStack, SensorInfo
+from lidarpkt.core.frame import Frame, FrameStack, SensorInfo
 
 from conftest import REPO_ROOT
 

@@ -90,7 +90,7 @@ def test_every_point_output_is_made_of_the_points_rows(case):
         assert las["row"].size == pts.size - np.count_nonzero(repeat)
 
     if f.sensor.vendor == "velodyne":
-        from lidarpkt.velodyne.points import frame_points as velodyne_points
+        from lidarpkt.vendors.velodyne.points import frame_points as velodyne_points
 
         vel = velodyne_points(f)
         assert f.column_valid[vel["column"]].all()

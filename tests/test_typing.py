@@ -1,5 +1,5 @@
 """lidarpkt as a user's type checker sees it: ``lidarpkt.open``'s options are typed keywords, its frames
-are :class:`lidarpkt.frame.Frame`; and the typed keywords are the options ``lidarpkt.open`` takes."""
+are :class:`lidarpkt.core.frame.Frame`; and the typed keywords are the options ``lidarpkt.open`` takes."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import sys
 import typing
 from pathlib import Path
 
-from lidarpkt.options import OpenKeywords, OpenOptions
-from lidarpkt.sources.segments import Segment
+from lidarpkt.pipeline.options import OpenKeywords, OpenOptions
+from lidarpkt.containers.segments import Segment
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -51,7 +51,7 @@ def test_mypy_flags_a_misspelt_option_and_sees_frames(tmp_path):
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert re.search(r'user_script\.py:4: error: Unexpected keyword argument "no_such_option"', out), out
     assert re.search(r'user_script\.py:5: error: Argument "workers" .* incompatible type "str"; expected "int"', out), out
-    assert 'user_script.py:7: note: Revealed type is "lidarpkt.frame.Frame"' in out, out
+    assert 'user_script.py:7: note: Revealed type is "lidarpkt.core.frame.Frame"' in out, out
     assert len(re.findall(r": error:", out)) == 2, out  # the well-typed call passes
 
 

@@ -5,7 +5,7 @@ A capture's *slots* are what is on the wire; a *return kind* is what a study com
 * VLP-16 dual (slots ``("last", "strongest")``): slot 0 is the last return; slot 1 is the
   strongest, except where the last return was also the strongest, where it holds the second
   strongest (the decoder marks those pixels in ``frame.extra["second_strongest"]``, inferring
-  from the signal estimated as reflectivity / range², see :mod:`lidarpkt.velodyne.dual`). So per
+  from the signal estimated as reflectivity / range², see :mod:`lidarpkt.vendors.velodyne.dual`). So per
   firing: ``last`` = slot 0; ``strongest`` = slot 0 where marked, else slot 1;
   ``second_strongest`` = slot 1 where marked, no return where the sensor saw one return (both
   slots equal), and **no sample** elsewhere (the sensor did not report the second strongest).
@@ -28,8 +28,8 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.frame import FrameStack
-from lidarpkt.velodyne.dual import second_strongest_mark
+from lidarpkt.core.frame import FrameStack
+from lidarpkt.vendors.velodyne.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).
 RETURN_KINDS = ("strongest", "last", "second_strongest")
@@ -59,7 +59,7 @@ class ReturnStack(FrameStack):
 def is_vlp16_dual(stack: FrameStack) -> bool:
     """True for a VLP-16 dual-return stack as decoded (slot 1 mixes strongest and second
     strongest), or a Hesai Pandar's in Last+Strongest mode, which fills its slots by the same rule
-    (its decoder marks the second strongest: :mod:`lidarpkt.hesai.models`); False for a stack
+    (its decoder marks the second strongest: :mod:`lidarpkt.vendors.hesai.models`); False for a stack
     already made of selections (:func:`select_returns`)."""
     if getattr(stack, "sources", None) is not None:
         return False
@@ -92,7 +92,7 @@ def second_strongest_marks(stack: FrameStack) -> np.ndarray:
 
     The decoder's mark when the stack carries it (:func:`analysis.stack.load_stack` does);
     for a stack built by hand, the decoder's rule applied to its slots
-    (:func:`lidarpkt.velodyne.dual.second_strongest_mark`: the last return's signal, estimated as
+    (:func:`lidarpkt.vendors.velodyne.dual.second_strongest_mark`: the last return's signal, estimated as
     reflectivity / range², is strictly the higher)."""
     marks = getattr(stack, "second_strongest", None)
     if marks is not None:

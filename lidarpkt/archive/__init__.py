@@ -19,7 +19,7 @@ from typing import Any, Sequence
 from .catalog import CATALOG_COLUMNS, catalog_rows, rows_to_table
 from .export import FORMATS, ExportReport, export_job
 from .manifest import COLUMNS as MANIFEST_COLUMNS
-from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
+from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
 from .plan import parse_size
 from .unit import UnitResult, UnitTask, run_unit

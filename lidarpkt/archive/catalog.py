@@ -1,6 +1,6 @@
 """``catalog(paths)``: one row per (capture file, sensor stream) of an archive, computed in parallel.
 
-Each capture is described by :func:`lidarpkt.info.describe_capture` (what ``lidarpkt info``
+Each capture is described by :func:`lidarpkt.cli.info.describe_capture` (what ``lidarpkt info``
 prints: streams, their kind, mode, times and packet counts) and decoded once with
 :func:`lidarpkt.open` to count frames and lost packets per sensor. An unreadable capture still
 gets a row, with its error.
@@ -13,7 +13,7 @@ import warnings
 from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
-from lidarpkt.streams import StreamKind
+from lidarpkt.core.streams import StreamKind
 
 from .engine import EngineOptions, run_rows
 from .plan import Capture, is_remote, local_path, plan_captures
@@ -76,7 +76,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
 
     Never raises on bad input: an unreadable capture gives one row whose ``error`` says why.
     """
-    from lidarpkt.info import describe_capture
+    from lidarpkt.cli.info import describe_capture
 
     base: dict[str, Any] = {c: None for c in CATALOG_COLUMNS}
     base.update(path=capture.url, size_bytes=capture.size_bytes)
@@ -135,7 +135,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
 
 
 def _load_md(path: str):
-    from lidarpkt.ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     if is_remote(path):
         import fsspec

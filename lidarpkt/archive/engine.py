@@ -165,11 +165,11 @@ def run_rows(
 
 
 class Progress:
-    """The job's progress bar (:class:`lidarpkt.cliargs.Progress`, the bar of every verb): bytes done of
+    """The job's progress bar (:class:`lidarpkt.cli.args.Progress`, the bar of every verb): bytes done of
     the total, with the inputs done (and failed) beside it."""
 
     def __init__(self, total_bytes: int, total_units: int, *, enabled: bool, label: str) -> None:
-        from lidarpkt.cliargs import Progress as Bar
+        from lidarpkt.cli.args import Progress as Bar
 
         self.units_total = total_units
         self.units_done = 0

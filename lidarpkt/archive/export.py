@@ -20,7 +20,7 @@ from lidarpkt.errors import LidarpktError
 from .engine import EngineOptions, Progress, dask_client, run_all
 from .ordinals import CountTask, SegmentCount, count_segment, start_ordinals
 from .manifest import Manifest, OutdirLock, job_fingerprint, make_row
-from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
+from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
 from .plan import PlanError, is_remote, local_path, plan_captures, plan_segments
 from .unit import STAGING, UnitResult, UnitTask, run_unit

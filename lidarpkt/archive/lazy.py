@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 from lidarpkt.errors import LidarpktWarning
 
-from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
+from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
 from .plan import PlanError, parse_size, plan_captures, plan_segments
 

@@ -173,7 +173,7 @@ def run_multireturn_archive(args: Any) -> int:
         raise PlanError(f"--plot {args.plot}: figures are drawn for one capture (-o MAP.npz); "
                         "the folder form writes maps and summary.csv only")
     if "://" not in args.output:  # a local OUTDIR is checked (and made) before the work, removed on an error
-        from lidarpkt import cliargs
+        from lidarpkt.cli import args as cliargs
 
         cliargs.check_folder(args.output, "-o")
     options: dict[str, Any] = {"neighbourhood": args.neighbourhood, "monitor_frame": args.monitor_frame,

@@ -9,9 +9,9 @@ how many frames of each VLP-16 stream and how many packets lie in the segments b
 The count pass (:func:`count_segment`, one picklable task per segment, run on the engine like the
 units) reads each segment with the very reader a unit uses (``lidarpkt.open(path,
 segment=...)``), so the frames it counts are, by construction, the frames that unit writes:
-:class:`~lidarpkt.sources.segments.SegmentOwnership` gives every frame exactly one segment, and
+:class:`~lidarpkt.containers.segments.SegmentOwnership` gives every frame exactly one segment, and
 the whole file's ordinal of a segment's i-th frame of a stream is the sum of the earlier
-segments' frames of that stream plus i (what :mod:`lidarpkt.parallel` does in one process). It
+segments' frames of that stream plus i (what :mod:`lidarpkt.pipeline.parallel` does in one process). It
 reads without Ouster metadata: Ouster packets are then counted as foreign traffic, not decoded
 (their frame ids need no count), so the pass costs reading the packets and decoding the VLP-16 ones.
 Its cost is that of one decode of the VLP-16 data of the segments before the last (a full
@@ -62,9 +62,9 @@ class Ordinals:
             the segment's first frame of that stream; a stream not listed starts at 0.
         packet_index: the whole-file ordinal of the segment's first packet.
         rates: per VLP-16 stream, ``(frequency_hz, columns_per_frame)`` of the stream's
-            :class:`~lidarpkt.frame.SensorInfo` in the whole file: a decoder measures the rate
+            :class:`~lidarpkt.core.frame.SensorInfo` in the whole file: a decoder measures the rate
             from the first packets it reads, and the whole file's are those of the segment where
-            the stream starts (as :mod:`lidarpkt.parallel` keeps the first segment's SensorInfo).
+            the stream starts (as :mod:`lidarpkt.pipeline.parallel` keeps the first segment's SensorInfo).
     """
 
     frame_id: tuple[tuple[str, int], ...] = ()
@@ -125,9 +125,9 @@ def start_ordinals(counts: Sequence[SegmentCount]) -> list[Ordinals | str]:
 
 
 def renumber_from(start: Ordinals | None) -> Any:
-    """The :class:`lidarpkt.parallel.Renumber` that gives a segment unit's frames the whole file's
+    """The :class:`lidarpkt.pipeline.parallel.Renumber` that gives a segment unit's frames the whole file's
     VLP-16 ordinals and rate, from where the segment starts (``start``)."""
-    from lidarpkt.parallel import Renumber
+    from lidarpkt.pipeline.parallel import Renumber
 
     start = start or Ordinals()
     return Renumber(dict(start.frame_id), start.packet_index,

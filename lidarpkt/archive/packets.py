@@ -1,7 +1,7 @@
 """Back to pcap: the raw packets of any capture that holds them, written as a classic pcap
 (``lidarpkt export --format pcap``), for VeloView, ouster-cli, velodyne_decoder, Wireshark.
 
-Every packet the capture's packet reader yields (:func:`lidarpkt.sources.open_packet_source`:
+Every packet the capture's packet reader yields (:func:`lidarpkt.containers.open_packet_source`:
 pcap, pcapng, MCAP, ROS bags), lidar and IMU/position packets alike, goes out in capture order
 with its capture time (nanoseconds) and its UDP payload byte for byte, framed by
 :class:`lidarpkt.writers.pcap.PcapBatchWriter` (Ethernet, IPv4 fragmented at MTU 1500, valid
@@ -39,7 +39,7 @@ from typing import Any, Iterable, Iterator, Sequence
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, UnsupportedContainerError
-from lidarpkt.packet import Endpoint, PacketBatch
+from lidarpkt.core.packet import Endpoint, PacketBatch
 
 __all__ = ["PacketExport", "default_endpoints", "time_ordered", "write_packets_pcap"]
 
@@ -75,9 +75,9 @@ def _is_osf(path: Path) -> bool:
 def default_endpoints(batch: PacketBatch, ouster_metadata: Sequence[Any] = ()) -> tuple[Endpoint, Endpoint]:
     """(source, destination) for a batch whose container kept no addresses: the vendor defaults of the
     module doc, chosen by what the packets are (Ouster: by the metadata when given, else its guess)."""
-    from lidarpkt import ouster
-    from lidarpkt.ouster.metadata import DEFAULT_IMU_PORT, DEFAULT_LIDAR_PORT
-    from lidarpkt.velodyne.stream import stream_kind
+    from lidarpkt.vendors import ouster
+    from lidarpkt.vendors.ouster.metadata import DEFAULT_IMU_PORT, DEFAULT_LIDAR_PORT
+    from lidarpkt.vendors.velodyne.stream import stream_kind
 
     kind = stream_kind(batch.payload_size)
     if kind is not None:
@@ -170,9 +170,9 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
         CaptureFormatError: a bag or MCAP without raw packet topics, or a damaged capture (what
             was read before the damage is in ``out``).
     """
-    from lidarpkt.options import load_ouster_metadata
-    from lidarpkt.sources import open_packet_source
-    from lidarpkt.sources.magic import container_kind
+    from lidarpkt.pipeline.options import load_ouster_metadata
+    from lidarpkt.containers import open_packet_source
+    from lidarpkt.containers.magic import container_kind
     from lidarpkt.writers.pcap import PcapBatchWriter
 
     src_path = Path(path)

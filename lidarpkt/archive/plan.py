@@ -2,7 +2,7 @@
 
 PATHS may be files, directories (walked recursively), rosbag2 folders, or fsspec URLs
 (``file://``, ``s3://`` ...). Nothing here decodes: it lists, stats and (above the segment
-size) asks :func:`lidarpkt.sources.segments.plan_segments` for record-aligned byte ranges.
+size) asks :func:`lidarpkt.containers.segments.plan_segments` for record-aligned byte ranges.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 from lidarpkt.errors import LidarpktError
-from lidarpkt.sources.magic import CAPTURE_SUFFIXES, find_captures
+from lidarpkt.containers.magic import CAPTURE_SUFFIXES, find_captures
 
 if TYPE_CHECKING:
-    from lidarpkt.sources.segments import Segment
+    from lidarpkt.containers.segments import Segment
 
 _SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
                "t": 10**12, "tb": 10**12, "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
@@ -219,13 +219,13 @@ def plan_captures(
 
 def plan_segments(capture: Capture, segment_bytes: int) -> Sequence[Segment | None]:
     """Segments of one capture: ``[None]`` (the whole file) at or below ``segment_bytes``, for
-    remote inputs, rosbag2 folders and files :func:`lidarpkt.sources.segments.plan_segments` keeps
-    whole (MCAP, bags); else its record-aligned :class:`~lidarpkt.sources.segments.Segment` s.
+    remote inputs, rosbag2 folders and files :func:`lidarpkt.containers.segments.plan_segments` keeps
+    whole (MCAP, bags); else its record-aligned :class:`~lidarpkt.containers.segments.Segment` s.
 
     Raises:
         lidarpkt.errors.LidarpktError: the capture cannot be indexed (the job records it as failed).
     """
-    from lidarpkt.sources.segments import plan_segments as _plan
+    from lidarpkt.containers.segments import plan_segments as _plan
 
     if capture.size_bytes <= segment_bytes or is_remote(capture.url) or os.path.isdir(local_path(capture.url)):
         return [None]

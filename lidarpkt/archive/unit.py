@@ -43,7 +43,7 @@ class UnitTask:
         format: a :func:`lidarpkt.writers.open_writer` format name.
         options: writer options as sorted ``(name, value)`` pairs (``layout``, ``frames_per_file``...).
         metadata: Ouster metadata JSONs (paths or URLs).
-        segment: a :class:`lidarpkt.sources.segments.Segment`, or None for the whole file.
+        segment: a :class:`lidarpkt.containers.segments.Segment`, or None for the whole file.
         part: the segment's name (``seg0003``), None for the whole file.
         size_bytes: bytes this unit reads (for progress), the capture's size when whole.
         ordinals: a segment's :class:`~lidarpkt.archive.ordinals.Ordinals` (where its VLP-16

@@ -13,22 +13,22 @@ import os
 import sys
 import warnings
 
-from .errors import LidarpktError, LidarpktWarning
+from lidarpkt.errors import LidarpktError, LidarpktWarning
 
 # verb -> (module implementing it, one-line help). Other verbs are added as one line each.
 VERBS: dict[str, tuple[str, str]] = {
-    "info": ("lidarpkt.info", "say what streams and sensors a capture holds"),
-    "catalog": ("lidarpkt.archive.cli", "one row per capture file and sensor stream of an archive, in parallel"),
-    "export": ("lidarpkt.archive.cli", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
-    "decode": ("lidarpkt.recorder.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
+    "info": ("lidarpkt.cli.info", "say what streams and sensors a capture holds"),
+    "catalog": ("lidarpkt.cli.archive", "one row per capture file and sensor stream of an archive, in parallel"),
+    "export": ("lidarpkt.cli.archive", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
+    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
     "record": ("lidarpkt.recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("lidarpkt.recorder.replay", "send a capture's packets over UDP at the original pace"),
-    "view": ("lidarpkt.view.cli", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
-    "analyze": ("lidarpkt.analysis.cli", "range CDFs, motion compensation and GMMs of chosen raypaths"),
-    "multireturn": ("lidarpkt.analysis.cli", "whole-image multi-return statistics and monitor flags"),
-    "compare-returns": ("lidarpkt.analysis.cli", "compare return slots or captures of one scene in different modes"),
-    "registration-impact": ("lidarpkt.analysis.registration_cli", "pose error multi-return raypaths cause in scan matching, with and without the monitor"),
-    "demo": ("lidarpkt.demo", "the whole pipeline on the bundled fixtures: decode, MCAP, analysis, figures"),
+    "view": ("lidarpkt.cli.view", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
+    "analyze": ("lidarpkt.cli.analysis", "range CDFs, motion compensation and GMMs of chosen raypaths"),
+    "multireturn": ("lidarpkt.cli.analysis", "whole-image multi-return statistics and monitor flags"),
+    "compare-returns": ("lidarpkt.cli.analysis", "compare return slots or captures of one scene in different modes"),
+    "registration-impact": ("lidarpkt.cli.registration", "pose error multi-return raypaths cause in scan matching, with and without the monitor"),
+    "demo": ("lidarpkt.cli.demo", "the whole pipeline on the bundled fixtures: decode, MCAP, analysis, figures"),
 }
 
 
@@ -84,13 +84,13 @@ class _VersionAction(argparse.Action):
 
 
 def _version() -> str:
-    from ._version import __version__
+    from lidarpkt._version import __version__
 
     return __version__
 
 
 def _kernels() -> str:
-    """:func:`lidarpkt.kernels.describe` without importing the extension (and so NumPy)."""
+    """:func:`lidarpkt.core.kernels.describe` without importing the extension (and so NumPy)."""
     import importlib.util
 
     if os.environ.get("LIDARPKT_NATIVE") == "0":
@@ -110,7 +110,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``lidarpkt`` console script. Returns the exit status: 0 done, 1 done with
     losses (``record``), 2 error (one line on stderr, no output left behind), 130 interrupted."""
-    from . import cliargs
+    from . import args as cliargs
 
     argv = cliargs.preparse_json(cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv)))
     verb = next((a for a in argv if not a.startswith("-")), None)

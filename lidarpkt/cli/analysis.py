@@ -18,14 +18,14 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 
 if TYPE_CHECKING:
-    from lidarpkt.frame import FrameStack
+    from lidarpkt.core.frame import FrameStack
 
 # ---------------------------------------------------------------------------- helpers
 
 
 def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...] = ()) -> None:
-    """Every input and output checked before any decoding (lidarpkt.cliargs' one rule for all verbs)."""
-    from lidarpkt import cliargs
+    """Every input and output checked before any decoding (lidarpkt.cli.args' one rule for all verbs)."""
+    from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([p for p in (args.input, getattr(args, "input2", None)) if p])
     cliargs.check_inputs((args.metadata or []) + (getattr(args, "metadata2", None) or []), "--metadata")
@@ -73,7 +73,7 @@ def _fmt(value: float | None, digits: int = 4) -> str:
 
 def _write_json(args: argparse.Namespace, doc: dict) -> None:
     """The document to stdout (``--json``) and/or its file (``-o REPORT.json``, checked before the work)."""
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     written = cliargs.emit_json(args, json.dumps(_clean(doc), allow_nan=False))
     if written:
@@ -81,9 +81,9 @@ def _write_json(args: argparse.Namespace, doc: dict) -> None:
 
 
 def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None, workers: int = 1):
-    from .stack import load_stack, parse_frame_range
+    from lidarpkt.analysis.stack import load_stack, parse_frame_range
 
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([path])
     cliargs.check_inputs(metadata or (), "--metadata")
@@ -95,7 +95,7 @@ def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float
 
 def _check_pixel(stack, row: int, col: int, slot: int) -> None:
     """:func:`analysis.stack.check_pixel`, its message in the CLI's words (the flag, then what to do)."""
-    from .stack import check_pixel
+    from lidarpkt.analysis.stack import check_pixel
 
     try:
         check_pixel(stack, row, col, slot)
@@ -114,7 +114,7 @@ def _check_neighbourhood(n: int) -> None:
 
 def _plots():
     try:
-        from . import plots
+        from lidarpkt.analysis import plots
     except ImportError:  # pragma: no cover - depends on the install
         raise AnalysisError("--plot: needs matplotlib, which is not installed; pip install 'lidarpkt[plot]'") from None
     return plots
@@ -125,7 +125,7 @@ def _source(path: str, stack) -> str:
 
 
 def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_metadata(p)
     cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
@@ -141,7 +141,7 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
 
 def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP, ROS bag or OSF")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_workers(p)
     cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
@@ -161,9 +161,9 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_analyze(args: argparse.Namespace) -> int:
-    from .gmm import parse_method
-    from .raypath import analyze_raypath
-    from .returns import parse_return, resolve
+    from lidarpkt.analysis.gmm import parse_method
+    from lidarpkt.analysis.raypath import analyze_raypath
+    from lidarpkt.analysis.returns import parse_return, resolve
 
     # options and outputs first: a typo should not cost a decode
     pixels = list(args.pixel)
@@ -220,7 +220,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP, ROS bag or OSF; several captures "
                    "or a folder (or --workers/--scheduler): -o is a folder of maps and summary.csv "
                    "(lidarpkt.archive.multireturn_maps)")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="one capture: the statistics and monitor flags, MAP.npz; several: a folder")
@@ -234,7 +234,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
     p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
     p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
-    from .multireturn import MONITOR_METHODS
+    from lidarpkt.analysis.multireturn import MONITOR_METHODS
 
     p.add_argument("--method", choices=MONITOR_METHODS, default=None,
                    help="monitor score: detrend (default) = largest gap of the neighbourhood's ranges about a local "
@@ -257,9 +257,9 @@ def run_multireturn(args: argparse.Namespace) -> int:
 
         return run_multireturn_archive(args)
     args.input = args.input[0]
-    from .gmm import DEFAULT_GAP_M
-    from .multireturn import multireturn_map
-    from .returns import parse_return, sensor_returns
+    from lidarpkt.analysis.gmm import DEFAULT_GAP_M
+    from lidarpkt.analysis.multireturn import multireturn_map
+    from lidarpkt.analysis.returns import parse_return, sensor_returns
 
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
@@ -271,7 +271,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     shown = parse_return(args.slot)
     _check_outputs(args, output_suffixes=(".npz",))
     if args.gmm_map:
-        from lidarpkt import cliargs
+        from lidarpkt.cli import args as cliargs
 
         cliargs.check_output(args.gmm_map, "--gmm-map", (".npz", ".parquet"))
     stack = _load(args.input, args.metadata, args.frames, args.grid)
@@ -311,7 +311,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
 
 
 def _write_gmm_map(stack, path: str, components: int, gap_m: float) -> str:
-    from .gmm_map import fit_gmm_map
+    from lidarpkt.analysis.gmm_map import fit_gmm_map
 
     gm = fit_gmm_map(stack, max_components=components, min_separation_m=gap_m)
     gm.save(path)
@@ -326,7 +326,7 @@ def _write_gmm_map(stack, path: str, components: int, gap_m: float) -> str:
 def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", help="a dual-return capture, or the first of two captures of one scene")
     p.add_argument("input2", metavar="IN2", nargs="?", help="a capture of the same scene in another return mode")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_workers(p)
     cliargs.add_json(p, "the comparison as one JSON document")
@@ -347,7 +347,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
 def _pair_returns(a, b, sel_a, sel_b):
     """The returns of two captures to compare: given ones, else the same kind on both sides
     (``compare-returns STRONGEST.pcap DUAL.pcap`` pairs strongest with strongest)."""
-    from .returns import available_returns
+    from lidarpkt.analysis.returns import available_returns
 
     if sel_a is None and sel_b is None:
         common = [k for k in available_returns(a) if k in available_returns(b)]
@@ -362,9 +362,9 @@ def _pair_returns(a, b, sel_a, sel_b):
 
 
 def run_compare_returns(args: argparse.Namespace) -> int:
-    from .cdf import temporal_cdf
-    from .compare import PairedComparison, compare_slots, compare_stacks, ks_image
-    from .returns import available_returns, parse_return, resolve, sample_mask, select_returns
+    from lidarpkt.analysis.cdf import temporal_cdf
+    from lidarpkt.analysis.compare import PairedComparison, compare_slots, compare_stacks, ks_image
+    from lidarpkt.analysis.returns import available_returns, parse_return, resolve, sample_mask, select_returns
 
     pixels = list(args.pixel)
     sel_a = None if args.slot is None else parse_return(args.slot)

@@ -15,13 +15,13 @@ import sys
 from lidarpkt.errors import LidarpktError
 from lidarpkt.writers.base import write_atomic
 
-from .export import FORMATS
-from lidarpkt.sources.segments import DEFAULT_SEGMENT_BYTES
+from lidarpkt.archive.export import FORMATS
+from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
     p.add_argument("--glob", metavar="PATTERN", help="in folders, only files whose name matches (e.g. '*.pcap')")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_metadata(p, "Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
                             "JSON beside each capture with the same stem. A Hesai Pandar's angle-correction "
@@ -38,7 +38,7 @@ def add_catalog_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH", help="captures, folders (walked recursively) or fsspec URLs")
     p.add_argument("-o", "--output", metavar="CATALOG.parquet",
                    help="write the catalog to this file: Parquet (.parquet) or a JSON list of rows (.json)")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_json(p, "the catalog as a JSON list of rows", file_flag=None)
     _add_engine(p)
@@ -53,7 +53,7 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
                    "packets, from pcapng, MCAP and ROS bags too; a bag's keep the vendor's default ports)")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     p.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
                    help="LAS/LAZ: one file per N frames")
@@ -65,20 +65,20 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
 def _check_engine(args: argparse.Namespace) -> None:
     if args.workers is not None and args.scheduler:
         raise LidarpktError("--workers and --scheduler: give one (--scheduler runs on the cluster's workers)")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([m for m in args.metadata or () if "://" not in m], "--metadata")  # URLs: read by the units
 
 
 def run_catalog(args: argparse.Namespace) -> int:
     """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
-    from . import CATALOG_COLUMNS
-    from .catalog import catalog_rows, rows_to_table
+    from lidarpkt.archive import CATALOG_COLUMNS
+    from lidarpkt.archive.catalog import catalog_rows, rows_to_table
 
     if not args.output and not args.json:
         raise LidarpktError("-o/--output: give -o CATALOG.parquet (or CATALOG.json), or --json to print the catalog")
     _check_engine(args)
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     # checked before the work: a typo must not cost a pass over an archive
     out = cliargs.check_output(args.output, "-o", (".parquet", ".json")) if args.output else None
@@ -104,9 +104,9 @@ def run_catalog(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     """Run the export job; exit status 1 when any input failed (the summary says which and why)."""
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
-    from .export import export_job
+    from lidarpkt.archive.export import export_job
 
     _check_engine(args)
     if "://" not in args.output:  # a local OUTDIR is checked (and made) before the work, removed on an error

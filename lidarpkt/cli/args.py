@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from .errors import InputFileError, OutputError, UsageError
+from lidarpkt.errors import InputFileError, OutputError, UsageError
 
 __all__ = [
     "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
@@ -200,7 +200,7 @@ def emit_json(args: argparse.Namespace, text: str) -> str | None:
     target = json_file(args)
     if not target:
         return None
-    from .writers.base import write_atomic
+    from lidarpkt.writers.base import write_atomic
 
     flag = getattr(args, "_json_file_flag", "-o")
     try:

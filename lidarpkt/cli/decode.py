@@ -9,7 +9,7 @@
     ``header.stamp`` is the sensor time of their first column.
 
 ``lidarpkt decode IN -o OUT.npz``
-    the frames put on their fixed azimuth grid (:meth:`lidarpkt.frame.Frame.on_grid`) and
+    the frames put on their fixed azimuth grid (:meth:`lidarpkt.core.frame.Frame.on_grid`) and
     stacked (spooled through temporary files beside OUT, so memory stays bounded): ``range_mm [K, R, H, W]``, ``reflectivity``, and for Ouster ``signal``,
     ``near_ir``, ``flags``; per column ``column_valid [K, W]``, ``column_timestamp_ns``,
     ``azimuth_deg``, ``measurement_id``, ``status``; per frame ``frame_id [K]``, ``partial``,
@@ -18,7 +18,7 @@
     ``s1_``, ``s2_`` …; ``sensor_prefixes`` lists the prefixes (``["", "s1_"]``).
 
 A progress bar is drawn on stderr when it is a terminal (not with ``-q``). At the end, what was
-skipped, lost or discarded is said once per input (:mod:`lidarpkt.dropped`).
+skipped, lost or discarded is said once per input (:mod:`lidarpkt.core.dropped`).
 """
 
 from __future__ import annotations
@@ -33,13 +33,13 @@ from typing import TYPE_CHECKING, Any
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 if TYPE_CHECKING:
-    from lidarpkt.frame import FrameIterator
+    from lidarpkt.core.frame import FrameIterator
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
     from lidarpkt.writers import SUFFIXES
 
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
@@ -96,7 +96,7 @@ def _open_frames(path: str, args) -> FrameIterator:
     if args.calibration:
         options["calibration"] = args.calibration
     if getattr(args, "velodyne_model", None):
-        from lidarpkt.velodyne.models import MODELS, model_named
+        from lidarpkt.vendors.velodyne.models import MODELS, model_named
 
         try:
             model_named(args.velodyne_model)
@@ -108,7 +108,7 @@ def _open_frames(path: str, args) -> FrameIterator:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
     from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 def _to_mcap(args, out: Path) -> int:
     """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
     input: what a script writes with the library (the writer reads each input's packets itself)."""
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
 
@@ -173,7 +173,7 @@ def _to_mcap(args, out: Path) -> int:
 def _to_npz(args, out: Path) -> int:
     from lidarpkt.writers import open_writer
 
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
                                 desc="decode")
@@ -217,7 +217,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     writer for all inputs."""
     from lidarpkt.writers import open_writer
 
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     options = _format_options(args, fmt)
     progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),

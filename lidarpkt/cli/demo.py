@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .errors import UsageError
+from lidarpkt.errors import UsageError
 
 CAPTURES = ("vlp16-strongest", "vlp16-last", "vlp16-dual", "os1-64-legacy", "os1-64-dual")
 # Raypaths whose figures are drawn (all are analysed and tabulated).
@@ -32,7 +32,7 @@ FIGURE_RAYPATHS = ("window", "foliage")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from . import cliargs
+    from . import args as cliargs
 
     parser.add_argument("-o", "--output", dest="output", default="demo-out", metavar="DIR",
                         help="folder for MCAP files, figures, summary (demo-out)")
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from lidarpkt import fixtures
     from lidarpkt.analysis import analyze_raypath, available_returns, load_stack, multireturn_map, select_returns
 
-    from . import cliargs
+    from . import args as cliargs
 
     if args.frames is not None and args.frames < 1:
         raise UsageError(f"--frames {args.frames}: not a whole number >= 1; give e.g. --frames 20")
@@ -127,7 +127,7 @@ def _decode_to_mcap(pcap: Path, mcap_path: Path, metadata: Path | None) -> None:
         argv += ["--metadata", str(metadata)]
     status = main(argv)
     if status:
-        from .errors import RecorderError
+        from lidarpkt.errors import RecorderError
 
         raise RecorderError(f"{pcap}: decoding to {mcap_path} failed (exit status {status}, error above); run lidarpkt decode on it to see why")
 

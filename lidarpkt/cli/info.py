@@ -2,8 +2,8 @@
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
-describe it (:func:`lidarpkt.velodyne.describe_stream`, :func:`lidarpkt.ouster.describe_stream`,
-:func:`lidarpkt.hesai.describe_stream`: Hesai Pandar data, model, protocol, return mode, motor speed):
+describe it (:func:`lidarpkt.vendors.velodyne.describe_stream`, :func:`lidarpkt.vendors.ouster.describe_stream`,
+:func:`lidarpkt.vendors.hesai.describe_stream`: Hesai Pandar data, model, protocol, return mode, motor speed):
 VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
 Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
@@ -23,9 +23,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import LidarpktError
-from .packet import Endpoint, PacketBatch
-from .sources.magic import find_captures, is_osf
+from lidarpkt.errors import LidarpktError
+from lidarpkt.core.packet import Endpoint, PacketBatch
+from lidarpkt.containers.magic import find_captures, is_osf
 
 __all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
 
@@ -55,9 +55,9 @@ def _iso(ns: int) -> str:
 def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None, str | None]:
     """(the vendor module's description of the stream, the vendor whose module described it)."""
     # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
-    from .hesai.detect import describe_stream as hesai_stream
-    from .ouster.detect import describe_stream as ouster_stream
-    from .velodyne.detect import describe_stream as velodyne_stream
+    from lidarpkt.vendors.hesai.detect import describe_stream as hesai_stream
+    from lidarpkt.vendors.ouster.detect import describe_stream as ouster_stream
+    from lidarpkt.vendors.velodyne.detect import describe_stream as velodyne_stream
 
     found = velodyne_stream(batch)
     if found is not None:
@@ -70,10 +70,10 @@ def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None,
 
 
 def _stream_kind(batch: PacketBatch, metadata: Sequence[Any]) -> str:
-    """What ``lidarpkt.open``'s router makes of the stream (:class:`lidarpkt.streams.StreamKind`): a
+    """What ``lidarpkt.open``'s router makes of the stream (:class:`lidarpkt.core.streams.StreamKind`): a
     stream of frames (``velodyne_data``, ``ouster_lidar``), an auxiliary one, or ``other``."""
-    from .router import RouteOptions, Router
-    from .streams import StreamKind
+    from lidarpkt.pipeline.router import RouteOptions, Router
+    from lidarpkt.core.streams import StreamKind
 
     match = Router(RouteOptions(metadata)).classify(batch)
     return str(StreamKind.OTHER if match is None else StreamKind.of(match.vendor, match.kind))
@@ -88,7 +88,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
             then ``{"file", "format": "osf", "osf_version", "sensors": [...], "frames", "first_time",
             "last_time", "duration_s", "streams": []}``, each sensor's model, serial, firmware,
             profile, size, frame count, frame ids and receive times).
-        metadata: parsed Ouster metadata (:func:`lidarpkt.ouster.load_metadata`) for the
+        metadata: parsed Ouster metadata (:func:`lidarpkt.vendors.ouster.load_metadata`) for the
             sensors in the capture; used to name Ouster profiles exactly.
 
     Returns:
@@ -97,7 +97,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         "malformed_reasons", "truncated", "first_time", "last_time", "duration_s", "streams": [...]}``;
         each stream: ``src``, ``dst``, ``dst_port``, ``payload_size``, ``packets``, first/last time
         (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` (for people: ``"VLP-16 data"``),
-        ``stream_kind`` (for programs: a :class:`lidarpkt.streams.StreamKind` value, what ``lidarpkt.open``
+        ``stream_kind`` (for programs: a :class:`lidarpkt.core.streams.StreamKind` value, what ``lidarpkt.open``
         routes it as), ``vendor`` (the sensor module that described it, None when none did) and ``details``
         (the sensor module's description, or None when unknown).
 
@@ -124,7 +124,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     if kind != "pcap" and not metadata:
         text = reader.ouster_metadata()  # recorded next to Ouster packets by lidarpkt record / the ROS driver
         if text:
-            from .ouster import load_metadata
+            from lidarpkt.vendors.ouster import load_metadata
 
             metadata = [load_metadata(text)]
     out_streams = []
@@ -202,7 +202,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
 
 def _describe_osf(path: str | os.PathLike[str]) -> dict:
     """:func:`describe_capture` of an OSF file: its version and, per sensor, its frames (no packets, no streams)."""
-    from .ouster.osf import OsfFile
+    from lidarpkt.vendors.ouster.osf import OsfFile
 
     osf = OsfFile(path)
     try:
@@ -235,9 +235,9 @@ def _format_osf(doc: dict) -> str:
 
 
 def _open_reader(path: str | os.PathLike[str]):
-    """(reader, kind): the capture's packet reader (:func:`lidarpkt.sources.open_packet_source`) and its
+    """(reader, kind): the capture's packet reader (:func:`lidarpkt.containers.open_packet_source`) and its
     container kind (``"pcap"`` for pcap/pcapng, else ``"mcap"``, ``"rosbag1"``, ``"rosbag2"``)."""
-    from .sources import container_kind, open_packet_source
+    from lidarpkt.containers import container_kind, open_packet_source
 
     return open_packet_source(path), container_kind(path)
 
@@ -332,7 +332,7 @@ def format_capture(doc: dict) -> str:
 
 def _expand(paths: Sequence[str]) -> list[str]:
     """The files to describe: a directory (other than a rosbag2 folder) stands for every capture under it
-    (:func:`lidarpkt.sources.magic.find_captures`, as the archive jobs find them), in name order."""
+    (:func:`lidarpkt.containers.magic.find_captures`, as the archive jobs find them), in name order."""
     out: list[str] = []
     for path in paths:
         if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
@@ -345,7 +345,7 @@ def _expand(paths: Sequence[str]) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``lidarpkt info``."""
-    from . import cliargs
+    from . import args as cliargs
 
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
@@ -359,8 +359,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
-    from . import cliargs
-    from .ouster import load_metadata
+    from . import args as cliargs
+    from lidarpkt.vendors.ouster import load_metadata
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
     cliargs.check_json(args)

@@ -11,11 +11,11 @@ from lidarpkt.errors import AnalysisError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from .multireturn import MONITOR_METHODS
-    from .registration import ALGORITHMS, MODES
+    from lidarpkt.analysis.multireturn import MONITOR_METHODS
+    from lidarpkt.analysis.registration import ALGORITHMS, MODES
 
     p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP, ROS bag or OSF")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_metadata(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
@@ -40,13 +40,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
-    from .cli import _check_neighbourhood, _check_outputs, _clean, _load, _plots, _source, _status
-    from .gmm import DEFAULT_GAP_M
-    from .multireturn import DEFAULT_MONITOR_METHOD
-    from .registration import ALGORITHMS, MODES, RegistrationSettings, registration_impact
-    from .returns import parse_return
+    from lidarpkt.cli.analysis import _check_neighbourhood, _check_outputs, _clean, _load, _plots, _source, _status
+    from lidarpkt.analysis.gmm import DEFAULT_GAP_M
+    from lidarpkt.analysis.multireturn import DEFAULT_MONITOR_METHOD
+    from lidarpkt.analysis.registration import ALGORITHMS, MODES, RegistrationSettings, registration_impact
+    from lidarpkt.analysis.returns import parse_return
 
     # options first: a typo should not cost a decode
     _check_neighbourhood(args.neighbourhood)
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
                                     voxel_m=args.voxel, threads=args.workers)
     gmm_map = None
     if args.map:
-        from .gmm_map import load_gmm_map
+        from lidarpkt.analysis.gmm_map import load_gmm_map
 
         gmm_map = load_gmm_map(args.map)
     stack = _load(args.input, args.metadata, args.frames, args.grid)
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
 def print_table(impact, source: str) -> None:
     """Median / 95th percentile of the translation (mm) and rotation (deg) errors per condition."""
-    from .registration import CONDITIONS
+    from lidarpkt.analysis.registration import CONDITIONS
 
     rf = impact.removed_fraction
     print(f"{source}: {impact.frames} frames, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "

@@ -19,7 +19,7 @@ import time
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.recorder.record import add_receive_arguments
 
-    from .server import add_ws_argument
+    from lidarpkt.view.server import add_ws_argument
 
     parser.add_argument("source", nargs="?", metavar="SOURCE",
                         help="capture to show (pcap/pcapng, MCAP, ROS bag, OSF); without it, a live sensor")
@@ -28,13 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
     add_receive_arguments(parser)
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.add_quiet(parser, "no status lines")
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
     from lidarpkt.errors import LidarpktError
 
     if args.source is not None:
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if args.source is not None and (args.port or args.bind or args.multicast or args.sensor):
         raise LidarpktError(f"--port/--bind/--multicast/--sensor: not with SOURCE {args.source}; view either a "
                             "capture or a live sensor")
-    from .server import parse_ws
+    from lidarpkt.view.server import parse_ws
 
     parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
@@ -59,8 +59,8 @@ def _deadline(args) -> float:
 
 
 def _view_capture(args, stop: threading.Event) -> int:
-    from .server import start_server
-    from .sources import play_capture
+    from lidarpkt.view.server import start_server
+    from lidarpkt.view.sources import play_capture
 
     deadline = _deadline(args)
     readers = []
@@ -111,11 +111,11 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 def _view_live(args, stop: threading.Event) -> int:
     from lidarpkt.recorder.record import load_ouster_metadata
-    from lidarpkt.sources.udp import UdpSource
+    from lidarpkt.containers.udp import UdpSource
 
-    from .server import start_server
-    from .sources import LiveDecoder
-    from .tap import FrameDropper, FrameTap
+    from lidarpkt.view.server import start_server
+    from lidarpkt.view.sources import LiveDecoder
+    from lidarpkt.view.tap import FrameDropper, FrameTap
 
     mds = load_ouster_metadata(args)
     ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]

@@ -1,7 +1,7 @@
 """Raw lidar packets stored in ROS bags (rosbag2 sqlite3 or MCAP, ROS 1), read through ``rosbags``.
 
 A ROS bag stores messages, not UDP datagrams. Topics whose message type carries raw
-sensor packets are turned into :class:`~lidarpkt.packet.PacketBatch` objects, one per
+sensor packets are turned into :class:`~lidarpkt.core.packet.PacketBatch` objects, one per
 message (every packet of a ``VelodyneScan`` has the same 1206-byte size). Each packet's
 time is its own ROS stamp when the message has one (``VelodynePacket.stamp``), else the
 bag's receive time; source and destination are ``None`` (a bag does not keep them).
@@ -9,7 +9,7 @@ bag's receive time; source and destination are ``None`` (a bag does not keep the
 What is extracted is decided by the message type alone, in :data:`PACKET_EXTRACTORS`:
 a function from one deserialised message to ``(payloads uint8[N, L], timestamp_ns int64[N])``.
 Adding a sensor's packet topic means adding one entry (and, if ROS does not ship the
-type, its ``.msg`` definition to :data:`lidarpkt.sources.rosmsgs.MESSAGE_DEFINITIONS`).
+type, its ``.msg`` definition to :data:`lidarpkt.containers.rosmsgs.MESSAGE_DEFINITIONS`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from typing import Any, Callable, Generator, Iterable, Iterator
 import numpy as np
 
 from ..errors import CaptureFormatError, LidarpktWarning, SkippedPacketWarning, TruncatedCaptureWarning
-from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from ..packet import Packet, PacketBatch
+from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.core.packet import Packet, PacketBatch
 from .filters import check_filters
 from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
 from .magic import MCAP_MAGIC, SQLITE_MAGIC
@@ -168,7 +168,7 @@ def _close_failed_open(reader: Any, exc: BaseException) -> None:
 def _guarded(messages: Iterator, path: Path, scoped: bool = False) -> Iterator:
     """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
     :class:`CaptureFormatError` once every message before it was delivered. ``scoped``: each step inflates
-    a rosbag2's MCAP chunks boundedly (:func:`~lidarpkt.sources.inflate.next_bounded`)."""
+    a rosbag2's MCAP chunks boundedly (:func:`~lidarpkt.containers.inflate.next_bounded`)."""
     it = iter(messages)
     while True:
         try:

@@ -1,8 +1,8 @@
 """From a chunk of records to same-stream batches of UDP payloads.
 
-:class:`ChunkDecoder` takes the records of one chunk (:class:`~lidarpkt.sources.gathers.Chunk`):
+:class:`ChunkDecoder` takes the records of one chunk (:class:`~lidarpkt.containers.gathers.Chunk`):
 plain UDP/IPv4 records and whole fragment trains with array operations, every other record by
-the per-record :class:`~lidarpkt.sources.datagram.RecordParser`; then it applies the filters,
+the per-record :class:`~lidarpkt.containers.datagram.RecordParser`; then it applies the filters,
 numbers the datagrams (their ordinals in the pass), groups them by (source, destination, payload
 size) and copies each group's payloads out in one pass.
 """
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..packet import Endpoint, PacketBatch
+from lidarpkt.core.packet import Endpoint, PacketBatch
 from .datagram import RecordParser, ipv4_headers, ipv4_text, is_ipv4_text, plain_udp
 from .gathers import Chunk, copy_rows, few_groups, field
 from .layouts import IPV4_HEADER, LINKTYPE_NAMES, UDP_HEADER
@@ -32,9 +32,9 @@ class ChunkDecoder(RecordParser):
 
     Args:
         path: the capture (for messages).
-        stats: the reader's :class:`~lidarpkt.sources.pcap_reader.ReadStats`, updated in place.
+        stats: the reader's :class:`~lidarpkt.containers.pcap_reader.ReadStats`, updated in place.
         ports, src_addresses, payload_sizes: the filters (None = keep all).
-        reassembly_args: keyword arguments of :class:`~lidarpkt.sources.reassembly.Reassembler`.
+        reassembly_args: keyword arguments of :class:`~lidarpkt.containers.reassembly.Reassembler`.
     """
 
     def __init__(self, path: str, stats: ReadStats, ports, src_addresses, payload_sizes, reassembly_args: dict) -> None:

@@ -3,7 +3,7 @@
 :func:`ipv4_headers` and :func:`plain_udp` find, with NumPy gathers, the records that hold plain
 UDP/IPv4 at a fixed link offset (the common case). :class:`RecordParser` takes every other record
 one by one: IPv6 (extension headers skipped), three or more VLAN tags, fragments that need the
-:class:`~lidarpkt.sources.reassembly.Reassembler`, damage (counted, never raised).
+:class:`~lidarpkt.containers.reassembly.Reassembler`, damage (counted, never raised).
 
 Length fields are never trusted over the captured bytes: a UDP payload ends at the UDP length,
 bounded by what was captured (early VLP-16 position packets carry an IPv4 total length of 1234 for
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._readahead import warn as _warn  # warnings.warn, or queued when a read-ahead thread runs the reader
+from lidarpkt.core.readahead import warn as _warn  # warnings.warn, or queued when a read-ahead thread runs the reader
 from ..errors import SkippedPacketWarning
 from .gathers import Chunk, field as _field
 from .layouts import (

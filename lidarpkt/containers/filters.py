@@ -1,5 +1,5 @@
 """The keyword options (packet filters first) each packet reader takes, and the one error for the
-others. Shared by :func:`lidarpkt.sources.protocol.open_packet_source` and the readers themselves,
+others. Shared by :func:`lidarpkt.containers.protocol.open_packet_source` and the readers themselves,
 so that a reader made directly refuses the same options in the same words."""
 
 from __future__ import annotations

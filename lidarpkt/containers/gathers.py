@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 from .layouts import ByteOrder, field_info
 
 __all__ = ["Chunk", "gather", "copy_rows", "field", "few_groups"]

@@ -19,7 +19,7 @@ lz4.frame.decompress, zstd's content size from the frame header, a stream copy t
   inside ``with bounded(path):``, where it hands out bounded ones. A user's own rosbags reads, and
   lidarpkt's own between two of its calls, get the stock decompressors.
 
-The MCAP file path (:mod:`lidarpkt.sources.bags`) bounds its chunks with its own reader.
+The MCAP file path (:mod:`lidarpkt.containers.bags`) bounds its chunks with its own reader.
 """
 
 from __future__ import annotations

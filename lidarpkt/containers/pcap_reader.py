@@ -1,4 +1,4 @@
-"""Offline packet source: UDP datagrams from pcap and pcapng captures (``lidarpkt.sources.pcap_reader`` is this module).
+"""Offline packet source: UDP datagrams from pcap and pcapng captures (``lidarpkt.containers.pcap_reader`` is this module).
 
 Formats (detected by magic number, never by file name): classic libpcap in both byte
 orders with microsecond or nanosecond time stamps (and the 24-byte-record "modified"
@@ -7,7 +7,7 @@ time resolution). Link types: Ethernet (with any number of 802.1Q / 802.1ad tags
 Linux cooked SLL and SLL2, raw IPv4/IPv6, BSD loopback (null and loop). Network
 layers: UDP over IPv4 (fragments reassembled) and over IPv6 (extension headers skipped,
 fragments reassembled too). Every header layout is declared once below as a NumPy
-dtype in :mod:`lidarpkt.sources.layouts`; struct formats and field offsets are derived from it
+dtype in :mod:`lidarpkt.containers.layouts`; struct formats and field offsets are derived from it
 (and :mod:`lidarpkt.writers.pcap` packs with the same layouts). The pieces: :mod:`.pcap_walk` and
 :mod:`.pcapng_walk` (record headers to chunks), :mod:`.datagram` and :mod:`.trains` (link/IP/UDP
 layers and fragments), :mod:`.batching` (chunks to batches); this module wires them.
@@ -21,7 +21,7 @@ NumPy gathers; the payloads of plain unfragmented UDP/IPv4 records are cut out i
 copy per stream, and whole in-order IPv4 fragment trains are reassembled with array
 operations too. Only the odd records (reordered, duplicated or lost fragments, IPv6,
 three or more VLAN tags, damage) go through the per-record parser and
-:class:`~lidarpkt.sources.reassembly.Reassembler` (bounded, with a host-time timeout so that a
+:class:`~lidarpkt.containers.reassembly.Reassembler` (bounded, with a host-time timeout so that a
 stale fragment is never merged with a later datagram that reuses its IP ID).
 
 Length fields are never trusted over the captured bytes: a UDP payload ends at the
@@ -52,9 +52,9 @@ from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
-from .._readahead import warn as _warn  # warnings.warn, or queued when a read-ahead thread runs the reader
+from lidarpkt.core.readahead import warn as _warn  # warnings.warn, or queued when a read-ahead thread runs the reader
 from ..errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
-from ..packet import Packet, PacketBatch
+from lidarpkt.core.packet import Packet, PacketBatch
 from .batching import ChunkDecoder
 from .datagram import canonical_address
 from .magic import capture_format, format_from_magic, is_capture
@@ -126,16 +126,16 @@ class PcapReader:
         path: the capture file.
         ports: keep only datagrams whose *destination* port is one of these.
         src_addresses: keep only datagrams from these source addresses (text, as in
-            :class:`~lidarpkt.packet.Endpoint`).
+            :class:`~lidarpkt.core.packet.Endpoint`).
         payload_sizes: keep only datagrams with one of these payload sizes (bytes).
         batch_packets: records per chunk, and so the most packets in one batch.
         reassembly_timeout_ns, max_pending_datagrams, max_pending_bytes: bounds of the
-            fragment reassembler (see :class:`lidarpkt.sources.reassembly.Reassembler`).
+            fragment reassembler (see :class:`lidarpkt.containers.reassembly.Reassembler`).
         segment: read only from this segment's first record, with chunks ending at its end
             (``split_ordinal`` is then the ordinal of the first packet after it, and ``split_offset``
             the file offset of the first record at or after it: the end itself when the end is
             a record boundary of the walk from the segment's start); see
-            :mod:`lidarpkt.sources.segments`. ``lidarpkt.open(path, segment=...)`` uses it.
+            :mod:`lidarpkt.containers.segments`. ``lidarpkt.open(path, segment=...)`` uses it.
 
     Raises:
         CaptureFormatError: when the file is not a pcap/pcapng capture (the message names
@@ -215,7 +215,7 @@ class PcapReader:
             yield from group
 
     def packets(self) -> Iterator[Packet]:
-        """Every datagram as a :class:`~lidarpkt.packet.Packet`, in capture order.
+        """Every datagram as a :class:`~lidarpkt.core.packet.Packet`, in capture order.
 
         A reassembled datagram takes the place (and the time stamp) of its last arriving
         fragment, like a socket would deliver it.
@@ -262,7 +262,7 @@ class PcapReader:
         return self.packets()
 
     def ouster_metadata(self) -> None:
-        """pcap/pcapng files carry no sensor metadata (the :class:`~lidarpkt.sources.PacketSource` protocol)."""
+        """pcap/pcapng files carry no sensor metadata (the :class:`~lidarpkt.containers.PacketSource` protocol)."""
         return None
 
     @property

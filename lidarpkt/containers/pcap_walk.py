@@ -3,7 +3,7 @@
 A run of records with one capture length is recognised in one strided NumPy comparison, mixed
 lengths (VLP-16 data and position packets) record by record in a tight loop; the compiled
 ``kernels.native.walk_pcap`` does both when the extension is built. A walk can start at any record
-offset and end its chunks at a given offset (a :class:`~lidarpkt.sources.segments.Segment`'s).
+offset and end its chunks at a given offset (a :class:`~lidarpkt.containers.segments.Segment`'s).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 from ..errors import CaptureFormatError
 from .gathers import Chunk, field
 from .layouts import (

@@ -3,7 +3,7 @@
 Each section has its own byte order and interfaces, each interface its own link type and time
 resolution. The compiled ``kernels.native.walk_pcapng`` takes runs of enhanced packet blocks; the
 blocks that need a decision are taken one by one here. A walk can start at a packet block (after
-reading its section's header and interface blocks: a :class:`~lidarpkt.sources.segments.Segment`'s
+reading its section's header and interface blocks: a :class:`~lidarpkt.containers.segments.Segment`'s
 ``pcapng_preamble``) and end its chunks at a given offset.
 """
 
@@ -15,7 +15,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 from ..errors import CaptureFormatError
 from .gathers import Chunk
 from .layouts import (
@@ -278,7 +278,7 @@ class PcapngWalk(Walk):
 
     def preamble(self, blocks: BlockReader, offsets: tuple[int, ...]) -> tuple[str, list]:
         """Byte order and interfaces of a pcapng section, from its section header block and interface
-        description blocks at ``offsets`` (as :func:`lidarpkt.sources.segments.plan_segments` found them)."""
+        description blocks at ``offsets`` (as :func:`lidarpkt.containers.segments.plan_segments` found them)."""
         endian = "<"
         ifaces: list[tuple[int, int, int, int, int]] = []
         st = self.stats

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 from typing import Any, Iterator, Protocol, runtime_checkable
 
-from ..packet import Packet, PacketBatch
+from lidarpkt.core.packet import Packet, PacketBatch
 from .filters import BAG_OPTIONS, PCAP_OPTIONS, check_filters
 from .magic import container_kind
 
@@ -14,8 +14,8 @@ __all__ = ["PacketSource", "open_packet_source", "PCAP_OPTIONS", "BAG_OPTIONS"]
 
 @runtime_checkable
 class PacketSource(Protocol):
-    """What every packet reader offers (:class:`~lidarpkt.sources.pcap_reader.PcapReader`,
-    :class:`~lidarpkt.sources.bags.BagReader`).
+    """What every packet reader offers (:class:`~lidarpkt.containers.pcap_reader.PcapReader`,
+    :class:`~lidarpkt.containers.bags.BagReader`).
 
     ``batches()``: same-stream :class:`PacketBatch` es in capture order, ``index`` the ordinal of each
     packet in the pass; ``packets()``: the same datagrams one by one; ``stats``: what the last pass
@@ -38,7 +38,7 @@ def open_packet_source(path: str | os.PathLike[str], **options: Any) -> PacketSo
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``; or
-            ``udp://[ADDRESS]:PORT[,PORT...]`` to receive live (:class:`~lidarpkt.sources.udp.UdpSource`,
+            ``udp://[ADDRESS]:PORT[,PORT...]`` to receive live (:class:`~lidarpkt.containers.udp.UdpSource`,
             whose options are then ``multicast``, ``interface``, ``rcvbuf_bytes``, ``queue_bytes``).
         **options: filters and reader options: pcap/pcapng take ``ports`` (destination ports),
             ``src_addresses``, ``payload_sizes``, ``batch_packets``, the reassembly bounds and

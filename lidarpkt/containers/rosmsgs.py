@@ -1,9 +1,9 @@
 """The ROS message types of lidar packets that rosbags' stock ROS 2 store lacks, declared once: the bag
-and MCAP readers (:mod:`lidarpkt.sources.bags`) read with them when a file carries no definitions of
+and MCAP readers (:mod:`lidarpkt.containers.bags`) read with them when a file carries no definitions of
 its own, and the MCAP writer (:mod:`lidarpkt.writers.mcap.schemas`) writes with them.
 
 Each definition is the driver package's ``.msg`` text. A new packet type is one entry here (and, to
-read it, an extractor in :data:`lidarpkt.sources.bags.PACKET_EXTRACTORS`).
+read it, an extractor in :data:`lidarpkt.containers.bags.PACKET_EXTRACTORS`).
 """
 
 from __future__ import annotations

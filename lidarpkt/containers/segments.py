@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 from ..errors import CaptureFormatError
 from .magic import container_kind
 

@@ -5,7 +5,7 @@ each the end of the previous one in record order, More Fragments on all but the 
 the reassembly timeout, a UDP header whose length fits, and no datagram of that key is pending in
 the general reassembler. Everything else (duplicates, reordering, an ID reused by a stale fragment
 as in duplicate_id.pcap, trains cut by the chunk end) goes through
-:class:`~lidarpkt.sources.reassembly.Reassembler` record by record.
+:class:`~lidarpkt.containers.reassembly.Reassembler` record by record.
 """
 
 from __future__ import annotations

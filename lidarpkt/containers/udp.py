@@ -10,7 +10,7 @@ bounded by a byte budget: when the consumer falls behind by more than ``queue_by
 new datagrams are dropped *and counted* (``queue_overflow``), the socket is never left
 unread.
 
-It is a :class:`~lidarpkt.sources.protocol.PacketSource` like a capture file's reader:
+It is a :class:`~lidarpkt.containers.protocol.PacketSource` like a capture file's reader:
 :meth:`UdpSource.batches` yields same-stream batches as they arrive (until :meth:`~UdpSource.stop`),
 :meth:`UdpSource.poll` the batches received so far, for a loop that has other things to do between
 them (``record``, ``view``). ``open_packet_source("udp://[ADDRESS]:PORT[,PORT...]")`` opens one.
@@ -36,7 +36,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from lidarpkt.errors import PortInUseError, ReceiveError
-from lidarpkt.packet import Endpoint, Packet, PacketBatch
+from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 
 # Linux socket options Python does not name
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
@@ -310,7 +310,7 @@ class UdpSource:
                 yield Packet(t, batch.src, batch.dst, row.tobytes())
 
     def ouster_metadata(self) -> str | None:
-        """None: the network carries no metadata (an Ouster sensor serves it over HTTP: :mod:`lidarpkt.ouster.sensor_http`)."""
+        """None: the network carries no metadata (an Ouster sensor serves it over HTTP: :mod:`lidarpkt.vendors.ouster.sensor_http`)."""
         return None
 
     @property

@@ -1,7 +1,7 @@
 """One stream's place and capture time, packet after packet: which packets are corrupted, where the
 stream restarted, and how many packets a gap may be said to have lost. Written once, for every
-decoder and live counter (:mod:`lidarpkt.velodyne.frames`, :mod:`lidarpkt.velodyne.stream`,
-:mod:`lidarpkt.ouster.frames`, :mod:`lidarpkt.ouster.stream`).
+decoder and live counter (:mod:`lidarpkt.vendors.velodyne.frames`, :mod:`lidarpkt.vendors.velodyne.stream`,
+:mod:`lidarpkt.vendors.ouster.frames`, :mod:`lidarpkt.vendors.ouster.stream`).
 
 A packet's *place* is the sensor's own count of it (a VLP-16's µs past the hour, an Ouster's frame
 and measurement ids), in ticks of a known duration. Between two packets the sensor's step and the
@@ -12,7 +12,7 @@ late, in a burst). A step that disagrees by more is a jump no sensor makes, and 
 packets lost:
 
 * a packet that agrees with neither the packet before it nor the one after is *corrupted*: skipped
-  and counted (its own reason in :mod:`lidarpkt.dropped`), the stream goes on from the packet before;
+  and counted (its own reason in :mod:`lidarpkt.core.dropped`), the stream goes on from the packet before;
 * a jump after which the packets agree with each other again is a *restart* (a power cycle, a clock
   reset, an interruption, two captures back to back): counted, and the stream goes on from the new
   place, losing nothing.

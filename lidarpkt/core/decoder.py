@@ -4,12 +4,12 @@ offers (:class:`StreamCounter`, :class:`StreamCounts`).
 A :class:`Decoder` turns the packet batches of one sensor into frames: the packet source
 (:func:`lidarpkt.open`) makes one per sensor, pushes it the sensor's lidar batches (:meth:`push`)
 and its auxiliary ones (:meth:`push_auxiliary`: Velodyne position packets, Ouster IMU packets),
-and calls :meth:`finish` at the end of the capture. :class:`~lidarpkt.velodyne.VelodyneDecoder`
-and :class:`~lidarpkt.ouster.OusterDecoder` meet it.
+and calls :meth:`finish` at the end of the capture. :class:`~lidarpkt.vendors.velodyne.VelodyneDecoder`
+and :class:`~lidarpkt.vendors.ouster.OusterDecoder` meet it.
 
 A :class:`StreamCounter` is the recorder's live path: no frames, only packets, losses and
 rotations counted from the packets' own counters, one NumPy pass per batch. Each vendor package
-has one (:class:`lidarpkt.velodyne.stream.PacketCounter`, :class:`lidarpkt.ouster.stream.PacketCounter`),
+has one (:class:`lidarpkt.vendors.velodyne.stream.PacketCounter`, :class:`lidarpkt.vendors.ouster.stream.PacketCounter`),
 built on the same packet periods and rotation rules as its decoder.
 """
 
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from .packet import PacketBatch
 
 #: How far a stream's own counters may disagree with the capture clock between two packets; beyond
-#: it a step is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), never packets lost.
+#: it a step is a corrupted packet or a restart (:mod:`lidarpkt.core.continuity`), never packets lost.
 from .continuity import INTERRUPTION_S  # noqa: F401  (re-exported: its historical home)
 
 
@@ -66,7 +66,7 @@ class Decoder(Protocol):
 @dataclass
 class StreamCounts:
     """Counts of one stream: packets seen, lost (gaps), out of order, rotations completed, restarts
-    (``interruptions``) and corrupted packets (see :mod:`lidarpkt.continuity`)."""
+    (``interruptions``) and corrupted packets (see :mod:`lidarpkt.core.continuity`)."""
 
     packets: int = 0
     lost: int = 0

@@ -1,6 +1,6 @@
 """What a read of a capture skipped, lost or discarded, and why: one summary in the same words everywhere.
 
-:class:`lidarpkt.source.FrameReader` warns once at the end of iteration with
+:class:`lidarpkt.pipeline.reader.FrameReader` warns once at the end of iteration with
 :func:`dropped_summary` (a :class:`~lidarpkt.errors.DroppedPacketsWarning`), so every verb that
 decodes, and every Python caller of :func:`lidarpkt.open`, is told the same thing. The container
 readers warn about their own damage (truncated files, malformed records) themselves.
@@ -12,7 +12,7 @@ The reasons, in the words every report uses (:data:`REASONS`):
 - ``duplicate``: a copy of a packet already received, discarded;
 - ``malformed``: wrong layout, flag, CRC or measurement id, skipped;
 - ``corrupted``: their clock or counters jumped further than the capture time allows, off the packets
-  on both sides (:mod:`lidarpkt.continuity`), skipped; never counted as packets lost;
+  on both sides (:mod:`lidarpkt.core.continuity`), skipped; never counted as packets lost;
 - ``mismatched``: do not fit the Ouster metadata given (size, init_id or serial), skipped;
 - ``unrouted``: of no VLP-16 or Ouster stream lidarpkt could identify, not decoded.
 """
@@ -59,7 +59,7 @@ class DropCounts:
 
 
 if [f.name for f in fields(DropCounts)] != list(REASONS):  # a reason is a field, and a field a reason
-    raise ImportError("lidarpkt.dropped: DropCounts fields and REASONS differ")
+    raise ImportError("lidarpkt.core.dropped: DropCounts fields and REASONS differ")
 
 
 def _velodyne(st: Any) -> DropCounts:
@@ -82,7 +82,7 @@ VENDOR_DROPS: dict[str, Callable[[Any], DropCounts]] = {"velodyne": _velodyne, "
 
 
 def dropped_counts(reader: Any) -> DropCounts:
-    """Packets per reason over every decoder of a :class:`~lidarpkt.source.FrameReader` (its ``decoders``:
+    """Packets per reason over every decoder of a :class:`~lidarpkt.pipeline.reader.FrameReader` (its ``decoders``:
     sensor key (vendor, …) → decoder) and its unrouted packets."""
     counts = DropCounts()
     for key, decoder in getattr(reader, "decoders", {}).items():
@@ -111,7 +111,7 @@ def dropped_summary(reader: Any) -> str | None:
 # ------------------------------------------------------------------------------ no sensor found
 def ouster_layouts(size: int) -> list[str]:
     """Ouster lidar layouts (``"PROFILE (H px)"``) whose packets are ``size`` bytes, 16 columns each."""
-    from .ouster.profiles import PROFILES
+    from lidarpkt.vendors.ouster.profiles import PROFILES
 
     return [f"{p.name} ({h} px)" for p in PROFILES.values() for h in (16, 32, 64, 128) if p.packet_size(h, 16) == size]
 
@@ -120,7 +120,7 @@ def no_sensor_hint(path: Any, unrouted_streams: dict[Any, int], metadata: list) 
     """The error when no lidar stream was decoded but one has the size of Ouster lidar packets: the
     metadata is missing (and how to give it), or which packet size and profile of the given metadata
     disagree with the packets. ``None`` when no stream looks like Ouster lidar."""
-    for key, count in unrouted_streams.items():  # keys: lidarpkt.source.UnroutedStream
+    for key, count in unrouted_streams.items():  # keys: lidarpkt.pipeline.reader.UnroutedStream
         size = key.payload_size
         layouts = ouster_layouts(size) if size is not None else []
         if not layouts:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator, Protocol
 
 import numpy as np
 
-from .errors import AnalysisError, CalibrationError, UsageError
+from lidarpkt.errors import AnalysisError, CalibrationError, UsageError
 
 if TYPE_CHECKING:
     from typing_extensions import Self  # typing.Self is Python 3.11+

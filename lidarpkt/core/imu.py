@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import PacketFormatError
+from lidarpkt.errors import PacketFormatError
 
 #: Standard gravity (m/s²): converts accelerations reported in g.
 STANDARD_GRAVITY_MPS2 = 9.80665

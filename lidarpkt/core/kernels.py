@@ -41,7 +41,7 @@ def _load() -> ModuleType | None:
     if os.environ.get("LIDARPKT_NATIVE", "1") == "0":
         return None
     try:
-        from . import _native
+        from lidarpkt import _native
     except ImportError:
         return None
     return _native

@@ -1,6 +1,6 @@
 """Packages whose public names are imported on first use (PEP 562), so that a command imports only
-the modules it needs: ``lidarpkt info`` reads ``lidarpkt.velodyne.detect`` and
-``lidarpkt.ouster.detect``, not the frame assembly, encoders or XYZ beside them."""
+the modules it needs: ``lidarpkt info`` reads ``lidarpkt.vendors.velodyne.detect`` and
+``lidarpkt.vendors.ouster.detect``, not the frame assembly, encoders or XYZ beside them."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def lazy_names(package: str, names: dict[str, str], public: list[str]) -> tuple[
         public: the package's ``__all__``.
 
     ``__getattr__`` imports the submodule of a public name, keeps the value in the package, and
-    also gives the package's submodules (``lidarpkt.ouster.frames``) not imported yet; any other
+    also gives the package's submodules (``lidarpkt.vendors.ouster.frames``) not imported yet; any other
     name raises AttributeError.
     """
 

@@ -141,7 +141,7 @@ def payload_rows(payload: np.ndarray | bytes, size: int | None, what: str) -> np
         lidarpkt.errors.PacketFormatError: not ``uint8`` rows, or rows of another length (``what`` names
             the packets in the message: ``"Ouster IMU packets"``).
     """
-    from .errors import PacketFormatError
+    from lidarpkt.errors import PacketFormatError
 
     if isinstance(payload, (bytes, bytearray, memoryview)):
         payload = np.frombuffer(payload, np.uint8)

@@ -1,6 +1,6 @@
 """Rotations of a spinning sensor cut at an azimuth, from its columns' azimuths (0.01°): where a stream of
 azimuths wraps, and whether a frame's columns hold a whole rotation. Shared by every vendor whose packets
-carry an azimuth (:mod:`lidarpkt.velodyne`, :mod:`lidarpkt.hesai`)."""
+carry an azimuth (:mod:`lidarpkt.vendors.velodyne`, :mod:`lidarpkt.vendors.hesai`)."""
 
 from __future__ import annotations
 

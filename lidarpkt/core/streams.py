@@ -4,14 +4,14 @@ writing raw packets (no decoding).
 :func:`classify_size` names the stream of a payload from its size (and the Ouster metadata when
 given); :class:`VelodyneLoss` and :class:`OusterLoss` count lost packets and rotations from the
 packets themselves, one NumPy pass per batch. The rules are the vendor packages' own
-(:mod:`lidarpkt.velodyne.stream`, :mod:`lidarpkt.ouster.stream`), the ones their decoders use, so
+(:mod:`lidarpkt.vendors.velodyne.stream`, :mod:`lidarpkt.vendors.ouster.stream`), the ones their decoders use, so
 that the recorder and the decoder cannot disagree about packet periods and rotations:
 
 * VLP-16: the device timestamp (µs past the hour) of consecutive data packets advances by exactly
   one packet period (1327.104 µs single return, 663.552 µs dual: manual, "Timing"); a gap of k
   periods means k − 1 packets lost. A rotation ends where the first block's azimuth wraps.
 * Hesai Pandar (sizes only these models send; the content is checked by the counter): the UDP
-  sequence number, else the packet time (:mod:`lidarpkt.hesai.stream`).
+  sequence number, else the packet time (:mod:`lidarpkt.vendors.hesai.stream`).
 * Ouster: the (frame id, measurement id) of each packet's first column gives its place in the
   stream; a jump of k packets means k − 1 lost. A rotation ends where the frame id changes.
 
@@ -23,10 +23,10 @@ from __future__ import annotations
 
 from enum import Enum
 
-from lidarpkt.decoder import INTERRUPTION_S, StreamCounts
-from lidarpkt.hesai import stream as hesai_stream
-from lidarpkt.ouster import stream as ouster_stream
-from lidarpkt.velodyne import stream as velodyne_stream
+from lidarpkt.core.decoder import INTERRUPTION_S, StreamCounts
+from lidarpkt.vendors.hesai import stream as hesai_stream
+from lidarpkt.vendors.ouster import stream as ouster_stream
+from lidarpkt.vendors.velodyne import stream as velodyne_stream
 
 
 class StreamKind(str, Enum):
@@ -48,7 +48,7 @@ class StreamKind(str, Enum):
     @classmethod
     def of(cls, vendor: str, kind: str) -> "StreamKind":
         """The kind of a vendor's stream by the vendor's own name of it (``("velodyne", "data")``, the
-        :class:`lidarpkt.router.Match` fields); :attr:`OTHER` for a pair this table does not name."""
+        :class:`lidarpkt.pipeline.router.Match` fields); :attr:`OTHER` for a pair this table does not name."""
         return _KINDS.get((vendor, kind), cls.OTHER)
 
     @property
@@ -76,7 +76,7 @@ _KINDS = {("velodyne", "data"): VELODYNE_DATA, ("velodyne", "position"): VELODYN
 def classify_size(size: int, ouster_metadata=None) -> StreamKind:
     """Stream kind of a ``size``-byte payload.
 
-    ``ouster_metadata`` (:class:`lidarpkt.ouster.metadata.OusterMetadata`) makes the
+    ``ouster_metadata`` (:class:`lidarpkt.vendors.ouster.metadata.OusterMetadata`) makes the
     non-legacy Ouster profiles recognisable; without it only LEGACY sizes are.
     """
     kind = velodyne_stream.stream_kind(size)
@@ -90,11 +90,11 @@ def classify_size(size: int, ouster_metadata=None) -> StreamKind:
 
 #: The counts of one stream (the vendor counters' own).
 LossCount = StreamCounts
-#: Loss and rotation counting of one VLP-16 data stream: :class:`lidarpkt.velodyne.stream.PacketCounter`.
+#: Loss and rotation counting of one VLP-16 data stream: :class:`lidarpkt.vendors.velodyne.stream.PacketCounter`.
 VelodyneLoss = velodyne_stream.PacketCounter
-#: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.ouster.stream.PacketCounter`.
+#: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.vendors.ouster.stream.PacketCounter`.
 OusterLoss = ouster_stream.PacketCounter
-#: Loss and rotation counting of one Hesai Pandar stream: :class:`lidarpkt.hesai.stream.PacketCounter`.
+#: Loss and rotation counting of one Hesai Pandar stream: :class:`lidarpkt.vendors.hesai.stream.PacketCounter`.
 HesaiLoss = hesai_stream.PacketCounter
 
 __all__ = ["StreamKind", "VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "HESAI_DATA", "OTHER",

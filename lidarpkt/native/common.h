@@ -1,4 +1,4 @@
-/* Shared helpers of the compiled kernels (see lidarpkt/kernels.py), one file per concern:
+/* Shared helpers of the compiled kernels (see lidarpkt/core/kernels.py), one file per concern:
  *   walk.c      pcap / pcapng record walks and row gathers (packet walk)
  *   xyz.c       Ouster XYZ (range * direction + offset)
  *   velodyne.c  VLP-16 columns and XYZ

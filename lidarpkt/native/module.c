@@ -15,6 +15,6 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "lidarpkt._native",
-                                    "Compiled kernels of lidarpkt (optional; see lidarpkt/kernels.py).", -1, methods};
+                                    "Compiled kernels of lidarpkt (optional; see lidarpkt/core/kernels.py).", -1, methods};
 
 PyMODINIT_FUNC PyInit__native(void) { return PyModule_Create(&module); }

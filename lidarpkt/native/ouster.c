@@ -1,7 +1,7 @@
 /* Ouster: the pixels of lidar packets scattered straight into a frame's [H, W] field arrays.
  *
  * A packet holds C columns, each of H pixels of `pixel_bytes` (column-major on the wire); a frame's
- * field arrays are row-major [H, W]. The NumPy twin (lidarpkt/ouster/frames.py) transposes the
+ * field arrays are row-major [H, W]. The NumPy twin (lidarpkt/vendors/ouster/frames.py) transposes the
  * pixel words into word planes [words, H, W] and then extracts each field from its plane; this
  * kernel does both in one pass, so no plane is written or read again.
  *

@@ -203,7 +203,7 @@ done:
 /* velodyne_layout_columns(distance, reflectivity, azimuth, source, azimuth_block, dt, rate, unit, range_out,
  *                         refl_out, az_out)
  *
- * Any model's packets into range-image columns, as lidarpkt.velodyne.decode.layout_pixels (its NumPy twin):
+ * Any model's packets into range-image columns, as lidarpkt.vendors.velodyne.decode.layout_pixels (its NumPy twin):
  * distance uint16 [N, 12, 32], reflectivity uint8 [N, 12, 32], azimuth uint16 [N, 12] (any strides: views
  * of the payloads); source int64 [S, L, C] (channel b * 32 + j of every pixel, rows in frame order),
  * azimuth_block int64 [L, C] and dt float32 [L, C] (the block whose azimuth a row's firing takes, and its

@@ -1,8 +1,8 @@
-"""The keyword options of ``lidarpkt.open`` and :class:`~lidarpkt.source.FrameReader`, declared once.
+"""The keyword options of ``lidarpkt.open`` and :class:`~lidarpkt.pipeline.reader.FrameReader`, declared once.
 
 :class:`OpenOptions` is the one list of the options: their names, types, defaults and documentation.
-``lidarpkt.open`` (:func:`~lidarpkt.source.open_frames`), ``FrameReader`` and the threads over
-segments (:mod:`lidarpkt.parallel`) take them from here: their signatures (``help()``,
+``lidarpkt.open`` (:func:`~lidarpkt.pipeline.reader.open_frames`), ``FrameReader`` and the threads over
+segments (:mod:`lidarpkt.pipeline.parallel`) take them from here: their signatures (``help()``,
 ``inspect.signature``) and the *Args* of their docstrings are made from its fields
 (:func:`with_options`).
 """
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
 if TYPE_CHECKING:
-    from .sources.segments import Segment
+    from lidarpkt.containers.segments import Segment
 
 __all__ = ["OpenOptions", "OpenKeywords", "with_options", "load_ouster_metadata"]
 
@@ -63,8 +63,8 @@ class OpenOptions:
         "when the file has at least 8 MB and the machine 2+ CPUs; ``False`` never; ``True`` always. Same "
         "frames, order, stats, errors and warnings either way.")
     segment: Segment | None = _option(
-        None, "yield only the frames of this :class:`~lidarpkt.sources.segments.Segment` of the capture "
-        "(from :func:`~lidarpkt.sources.segments.plan_segments`); the frames of all segments, in order, are "
+        None, "yield only the frames of this :class:`~lidarpkt.containers.segments.Segment` of the capture "
+        "(from :func:`~lidarpkt.containers.segments.plan_segments`); the frames of all segments, in order, are "
         "the whole file's. VLP-16 ``frame_id`` and ``extra[\"packet_index\"]`` then count from the "
         "segment's start.")
     ports: Iterable[int] | None = _option(None, "pcap/pcapng: keep only packets sent to these UDP destination ports.")
@@ -78,7 +78,7 @@ class OpenOptions:
     workers: int = _option(
         1, "threads that decode (default 1): 2 decodes the frames in a thread of their own beside the "
         "read-ahead, ahead of the caller (any container); 3 or more cut pcap/pcapng captures of at least "
-        "16 MB into segments decoded side by side (:mod:`lidarpkt.parallel`). The frames, their order and "
+        "16 MB into segments decoded side by side (:mod:`lidarpkt.pipeline.parallel`). The frames, their order and "
         "arrays are those of ``workers=1``. ``segment=`` reads in one thread.")
 
     @classmethod
@@ -160,7 +160,7 @@ def load_ouster_metadata(metadata: Any) -> list:
     """
     if metadata is None:
         return []
-    from .ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
     return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]

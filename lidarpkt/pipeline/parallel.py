@@ -12,9 +12,9 @@ Two designs, chosen by N:
   are still in the cache (measured in benchmarks/README.md).
 - **workers >= 3, segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least
   2 x :data:`MIN_SEGMENT_BYTES`): the capture is cut into record-aligned segments
-  (:func:`lidarpkt.sources.segments.plan_segments`, cuts found by re-synchronising on record headers
+  (:func:`lidarpkt.containers.segments.plan_segments`, cuts found by re-synchronising on record headers
   near each cut, so that planning reads almost nothing); each segment is read by its own
-  :class:`~lidarpkt.source.FrameReader` (``segment=``), which yields exactly the frames the segment
+  :class:`~lidarpkt.pipeline.reader.FrameReader` (``segment=``), which yields exactly the frames the segment
   owns, in a pool of ``workers`` threads. The frames of segment k are handed out only after those of
   segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader counts
   from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole file's.
@@ -41,8 +41,8 @@ from typing import Any, Callable, Generator
 
 import numpy as np
 
-from .errors import CaptureFormatError, UnknownSensorError
-from .frame import Frame, FrameIterator
+from lidarpkt.errors import CaptureFormatError, UnknownSensorError
+from lidarpkt.core.frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
@@ -63,17 +63,17 @@ DECODE_THREAD_NAME = "lidarpkt-decode"
 
 
 class PipelinedFrameReader(FrameIterator):
-    """Iterator of :class:`~lidarpkt.frame.Frame`: a single-threaded reader's frames, decoded in a thread
+    """Iterator of :class:`~lidarpkt.core.frame.Frame`: a single-threaded reader's frames, decoded in a thread
     of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
 
-    ``reader`` is that :class:`~lidarpkt.source.FrameReader` (its packets read ahead as ``workers=1``
-    reads them); ``stats`` is its :class:`~lidarpkt.source.SourceStats`, complete once the iteration
+    ``reader`` is that :class:`~lidarpkt.pipeline.reader.FrameReader` (its packets read ahead as ``workers=1``
+    reads them); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once the iteration
     has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
     single-threaded reader raises, after the frames before it.
     """
 
     def __init__(self, reader: Any, max_bytes: int = DECODE_AHEAD_BYTES) -> None:
-        from ._readahead import ReadAhead
+        from lidarpkt.core.readahead import ReadAhead
 
         self.reader = reader
         self.stats = reader.stats
@@ -98,11 +98,11 @@ def _frame_nbytes(frame: Frame) -> int:
 
 
 class ParallelFrameReader(FrameIterator):
-    """Iterator of :class:`~lidarpkt.frame.Frame` decoded by ``workers`` threads over segments of a capture.
+    """Iterator of :class:`~lidarpkt.core.frame.Frame` decoded by ``workers`` threads over segments of a capture.
 
     Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
     same order, with the same arrays, ``frame_id`` and ``extra``. ``stats`` sums the segment readers'
-    :class:`~lidarpkt.source.SourceStats` (its packet counters include the packets each segment reader
+    :class:`~lidarpkt.pipeline.reader.SourceStats` (its packet counters include the packets each segment reader
     read past its end to complete its last frame; ``stats.frames`` is exact). ``close()`` (or ``with``)
     stops the threads after the segments they are decoding. Warnings of the segment readers are
     emitted from the worker threads.
@@ -116,8 +116,8 @@ class ParallelFrameReader(FrameIterator):
     def __init__(self, path: str | os.PathLike[str], segments: list, options: OpenOptions,
                  open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
         """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
-        of ``options.segment`` (a :class:`~lidarpkt.source.FrameReader`); ``stats`` is an empty
-        :class:`~lidarpkt.source.SourceStats` that sums theirs."""
+        of ``options.segment`` (a :class:`~lidarpkt.pipeline.reader.FrameReader`); ``stats`` is an empty
+        :class:`~lidarpkt.pipeline.reader.SourceStats` that sums theirs."""
         self.path = path
         self.segments = segments
         self.workers = int(options.workers)
@@ -308,14 +308,14 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
     """``lidarpkt.open(path, **options)`` when ``options.workers`` > 1: segments for 3 workers or more on a
     capture that can be cut, the pipeline otherwise; ``None`` when a segment was asked for (it is read in
     one thread). ``open_segment`` and ``stats``: see :class:`ParallelFrameReader` (this module does not
-    import :mod:`lidarpkt.source`, which calls it).
+    import :mod:`lidarpkt.pipeline.reader`, which calls it).
 
     Raises:
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
     workers = options.workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        from .errors import UsageError
+        from lidarpkt.errors import UsageError
 
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
     if workers == 1 or options.segment is not None:
@@ -328,7 +328,7 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:
     """The segments ``workers`` threads decode; one segment when the capture is no pcap/pcapng or too small."""
-    from .sources.segments import plan_segments
+    from lidarpkt.containers.segments import plan_segments
 
     try:
         size = os.path.getsize(path)
@@ -346,7 +346,7 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
 
 def _first_record_bytes(path) -> int:
     """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
-    from .sources.magic import PCAP_MAGIC_MODIFIED, PCAP_MAGIC_NS, PCAP_MAGIC_US
+    from lidarpkt.containers.magic import PCAP_MAGIC_MODIFIED, PCAP_MAGIC_NS, PCAP_MAGIC_US
 
     with open(path, "rb") as fh:
         head = fh.read(40)

@@ -19,31 +19,31 @@ from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple
 
 import numpy as np
 
-from .errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
-from ._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from .decoder import Decoder
-from .frame import Frame, FrameIterator
+from lidarpkt.errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
+from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.core.decoder import Decoder
+from lidarpkt.core.frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata, with_options
-from .packet import PacketBatch
+from lidarpkt.core.packet import PacketBatch
 from .router import Router, RouteOptions, source_name as _source_name
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
     from .options import OpenKeywords
-    from ._readahead import ReadAhead
-    from .ouster.osf import OsfReader
+    from lidarpkt.core.readahead import ReadAhead
+    from lidarpkt.vendors.ouster.osf import OsfReader
     from .parallel import ParallelFrameReader, PipelinedFrameReader
 
-from .sources.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
-from .sources.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
-from .sources.protocol import PacketSource, open_packet_source
+from lidarpkt.containers.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
+from lidarpkt.containers.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
+from lidarpkt.containers.protocol import PacketSource, open_packet_source
 
 _MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
 
 
 def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[PacketBatch]:
-    """Packet batches of any supported container, in capture order (see :func:`lidarpkt.sources.open_packet_source`)."""
+    """Packet batches of any supported container, in capture order (see :func:`lidarpkt.containers.open_packet_source`)."""
     return open_packet_source(path, **filters).batches()
 
 
@@ -89,7 +89,7 @@ class FrameReader(FrameIterator):
 
     Read-ahead (``read_ahead``): for pcap/pcapng captures of at least
     :data:`READ_AHEAD_MIN_BYTES`, the packets are read by a background thread into a queue
-    bounded in bytes (:data:`lidarpkt._readahead.DEFAULT_MAX_BYTES`) while this thread routes
+    bounded in bytes (:data:`lidarpkt.core.readahead.DEFAULT_MAX_BYTES`) while this thread routes
     and decodes; file reads and NumPy copies release the GIL, so the two overlap on two cores.
     Frames, their order and ``stats`` are those of the unthreaded path; the reader's errors
     are raised and its warnings re-emitted (same category and message) here, at the same point
@@ -118,7 +118,7 @@ class FrameReader(FrameIterator):
         self._ownership = None
         filters = opts.filters()  # None: the reader's default
         if segment is not None:
-            from .sources.segments import SegmentOwnership
+            from lidarpkt.containers.segments import SegmentOwnership
 
             if segment.container not in ("pcap", "pcapng") and segment.count != 1:
                 raise UnsupportedContainerError(f"{self.path}: a {segment.container} file is read whole (one segment)")
@@ -129,7 +129,7 @@ class FrameReader(FrameIterator):
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
-        from .hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
+        from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
 
         hesai_cal = is_hesai_calibration(opts.calibration)
         metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
@@ -164,7 +164,7 @@ class FrameReader(FrameIterator):
     def _batches(self) -> Iterator[PacketBatch]:
         if not self.read_ahead:
             return self.reader.batches()
-        from ._readahead import ReadAhead
+        from lidarpkt.core.readahead import ReadAhead
 
         self._read_ahead = ReadAhead(self.reader.batches)
         return self._read_ahead
@@ -206,7 +206,7 @@ class FrameReader(FrameIterator):
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
             raise UnknownSensorError(self._no_sensor_message())
-        from .dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
+        from lidarpkt.core.dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
 
         if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets or self.stats.hesai_data_packets):
             wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
@@ -218,7 +218,7 @@ class FrameReader(FrameIterator):
             warn(DroppedPacketsWarning(summary), stacklevel=3)
 
     def _route(self, batch: PacketBatch, post_end: bool = False) -> list[Frame]:
-        """Route a batch through the one router (:mod:`lidarpkt.router`): its sensor's decoder; reading a
+        """Route a batch through the one router (:mod:`lidarpkt.pipeline.router`): its sensor's decoder; reading a
         segment, nothing for a sensor whose frames of the segment are complete."""
         router = self.router
         match = router.classify(batch)
@@ -284,7 +284,7 @@ class FrameReader(FrameIterator):
             seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
             return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
-        from .dropped import no_sensor_hint
+        from lidarpkt.core.dropped import no_sensor_hint
 
         wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
         if wrong:
@@ -298,11 +298,11 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
                 ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader | OsfReader:
     """Frames from a capture; this is ``lidarpkt.open``.
 
-    Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.frame.Frame` objects in the order
+    Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.core.frame.Frame` objects in the order
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
     ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
-    frames) gives a :class:`~lidarpkt.ouster.osf.OsfReader` of its stored frames (see
-    :func:`~lidarpkt.ouster.osf.open_osf` for the options it takes).
+    frames) gives a :class:`~lidarpkt.vendors.ouster.osf.OsfReader` of its stored frames (see
+    :func:`~lidarpkt.vendors.ouster.osf.open_osf` for the options it takes).
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
@@ -317,7 +317,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
     """
     opts = OpenOptions.from_keywords("open_frames", dict(options))
     if is_osf(path):  # ouster-sdk's frame files: frames, not packets
-        from .ouster.osf import open_osf
+        from lidarpkt.vendors.ouster.osf import open_osf
 
         return open_osf(path, opts)
     if opts.workers != 1:
@@ -330,7 +330,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
 
 
 def _segment_reader(path: str | os.PathLike[str], options: OpenOptions) -> FrameReader:
-    """The reader of one segment for :mod:`lidarpkt.parallel` (which does not import this module)."""
+    """The reader of one segment for :mod:`lidarpkt.pipeline.parallel` (which does not import this module)."""
     return FrameReader(path, **options.keywords())
 
 
@@ -340,7 +340,7 @@ READ_AHEAD_MIN_BYTES = 8 << 20  # smaller captures are read in the caller's thre
 def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     """Read ahead in a thread? pcap/pcapng only (a bag reader's embedded metadata is looked up as its
     batches arrive); by default when the file has at least READ_AHEAD_MIN_BYTES and there are 2+ CPUs."""
-    from .sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     if not isinstance(reader, PcapReader) or read_ahead is False:
         return False
@@ -356,7 +356,7 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
 def _split_hesai(metadata: Any) -> tuple[Any, Any]:
     """(the Ouster metadata, the Hesai calibration) of the ``metadata`` option: an archive job's
     ``--metadata`` may name a Pandar's angle-correction CSV, its sensor description as the JSON is an Ouster's."""
-    from .hesai.calibration import is_hesai_calibration
+    from lidarpkt.vendors.hesai.calibration import is_hesai_calibration
 
     items = metadata if isinstance(metadata, (list, tuple)) else [metadata] if metadata is not None else []
     hesai = [m for m in items if is_hesai_calibration(m)]
@@ -385,7 +385,7 @@ def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
     metadata = getattr(decoder, "metadata", None)
     if metadata is None:
         return False
-    from .ouster import decode_packets
+    from lidarpkt.vendors.ouster import decode_packets
 
     fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
     return int(fields.frame_id[0]) == frame.frame_id

@@ -6,7 +6,7 @@ whose classifier looks at the batch (its payload, size and ports, and the Ouster
 answers with a :class:`Match`: the vendor's name of the stream, whether frames are made of it (lidar)
 or it is auxiliary (Velodyne position, Ouster IMU), what tells its sensors apart beyond the source
 address, and how to make the decoder of a new sensor. A new vendor is one entry. Decoders are used
-only through the :class:`~lidarpkt.decoder.Decoder` protocol.
+only through the :class:`~lidarpkt.core.decoder.Decoder` protocol.
 
 A sensor is its vendor, its source address and the match's ``sensor`` key; it gets its decoder on its
 first packet, up to ``max_sensors`` of them (each holds up to a frame: a capture of thousands of source
@@ -19,11 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from .packet import PacketBatch
+from lidarpkt.core.packet import PacketBatch
 
 if TYPE_CHECKING:  # the router is imported by `info` too, which must not load the frame assembly
-    from .decoder import Decoder
-    from .frame import Frame
+    from lidarpkt.core.decoder import Decoder
+    from lidarpkt.core.frame import Frame
 
 MAX_SENSORS = 64  # the default limit of sensors decoded from one source, files and live alike
 
@@ -76,7 +76,7 @@ class Vendor:
 def _ouster(batch: PacketBatch, options: RouteOptions) -> Match | None:
     if not options.ouster_metadata:
         return None
-    from . import ouster
+    from lidarpkt.vendors import ouster
 
     found = ouster.classify(batch, options.ouster_metadata)
     if found is None:
@@ -87,7 +87,7 @@ def _ouster(batch: PacketBatch, options: RouteOptions) -> Match | None:
 
 
 def _velodyne(batch: PacketBatch, options: RouteOptions) -> Match | None:
-    from . import velodyne
+    from lidarpkt.vendors import velodyne
 
     kind = velodyne.classify(batch)
     if kind is None:
@@ -97,7 +97,7 @@ def _velodyne(batch: PacketBatch, options: RouteOptions) -> Match | None:
 
 
 def _hesai(batch: PacketBatch, options: RouteOptions) -> Match | None:
-    from . import hesai
+    from lidarpkt.vendors import hesai
 
     model = hesai.classify(batch)  # sizes only Pandars send, then their header or block start bytes
     if model is None:

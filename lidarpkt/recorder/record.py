@@ -1,6 +1,6 @@
 """``lidarpkt record``: capture a live sensor (and a serial GPS) to MCAP without losing a packet.
 
-The live packet source (:mod:`lidarpkt.sources.udp`) reads the sockets in its thread; this loop polls it,
+The live packet source (:mod:`lidarpkt.containers.udp`) reads the sockets in its thread; this loop polls it,
 writes the packets through :class:`lidarpkt.writers.mcap.packets.PacketSink`, counts loss, prints a status
 line each second and a summary at the end. It stops on Ctrl-C, SIGTERM, ``--duration`` or
 ``--frames`` and closes the file with its summary and index. Killed outright, it leaves a
@@ -22,13 +22,13 @@ from lidarpkt.errors import LidarpktError, RecorderError
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 
-from lidarpkt.sources.udp import UdpSource
+from lidarpkt.containers.udp import UdpSource
 from lidarpkt.writers.mcap.packets import PacketSink
 
 
 def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
     """The flags of the live receive path, shared by ``record`` and ``view``."""
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     parser.add_argument("--port", type=cliargs.port_type("--port"), action="append", metavar="PORT",
                         help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
@@ -50,11 +50,11 @@ def load_ouster_metadata(args: argparse.Namespace) -> list:
     Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`~lidarpkt.errors.SensorConnectionError` (a sensor
     that does not answer; the message names the host and the URL tried).
     """
-    from lidarpkt.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata import load_metadata
 
     mds = [load_metadata(path) for path in (args.metadata or [])]
     if getattr(args, "sensor", None):
-        from lidarpkt.ouster.sensor_http import fetch_metadata, parse_sensor
+        from lidarpkt.vendors.ouster.sensor_http import fetch_metadata, parse_sensor
 
         host, port = parse_sensor(args.sensor)
         mds.append(fetch_metadata(host, port))
@@ -62,7 +62,7 @@ def load_ouster_metadata(args: argparse.Namespace) -> list:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
     from lidarpkt.view.server import add_ws_argument
 
     add_receive_arguments(parser)
@@ -82,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--view", action="store_true",
                         help="serve a Foxglove live view while recording (see --ws); it never costs a packet")
     add_ws_argument(parser)
-    from .decode import add_frame_arguments
+    from lidarpkt.cli.decode import add_frame_arguments
 
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
     cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
@@ -90,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs(args.metadata or (), "--metadata")
     cliargs.check_output(args.output, "-o", (".mcap",), keep_on_error=True)  # a recording is kept up to a failure
@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
                                 "add --points")
         from lidarpkt.writers.mcap.frames import SensorFrames
 
-        from .decode import frame_options
+        from lidarpkt.cli.decode import frame_options
 
         sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
     mds = load_ouster_metadata(args)
@@ -223,7 +223,7 @@ def _loop(args, capture: UdpSource, writer: McapWriter, sink: PacketSink, gps, s
         summary.update(frames.summary())
     if not args.quiet:
         print(("\n" if sys.stderr.isatty() else "") + _summary_text(summary, sink), file=sys.stderr)
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     cliargs.emit_json(args, json.dumps(summary, indent=2))
     return 0 if summary["lost_total"] == 0 else 1
@@ -268,7 +268,7 @@ def _summary(capture, writer, sink, gps, elapsed: float, reason: str | None) -> 
         "lost_gaps": sink.lost,
         "out_of_order": sink.out_of_order,
         "interruptions": sum(r.count.interruptions for r in sink.streams.values()),
-        # packets whose own counters jumped off both neighbours (lidarpkt.continuity): recorded, not counted
+        # packets whose own counters jumped off both neighbours (lidarpkt.core.continuity): recorded, not counted
         "corrupted": sum(r.count.corrupted for r in sink.streams.values()),
         "kernel_drops": s.kernel_dropped,
         "queue_overflow": s.queue_overflow,

@@ -24,15 +24,15 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from lidarpkt.errors import LidarpktError, RecorderError
-from lidarpkt.packet import Packet
+from lidarpkt.core.packet import Packet
 
-from lidarpkt import streams
+from lidarpkt.core import streams
 
 DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
     parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
@@ -87,7 +87,7 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
         a, sep, b = item.partition(":")
         if not sep or not a.isdigit() or not b.isdigit():
             raise RecorderError(f"--port-map {item}: expected SRC:DST port numbers; write e.g. --port-map 8308:9308")
-        from lidarpkt.cliargs import port as port_number
+        from lidarpkt.cli.args import port as port_number
 
         out[port_number(a, "--port-map")] = port_number(b, "--port-map")
     return out
@@ -96,8 +96,8 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
 def read_capture(path: str) -> Iterator[Packet]:
     """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
     ordered by host receive time)."""
-    from lidarpkt.sources import open_packet_source
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers import open_packet_source
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     reader = open_packet_source(path)
     if isinstance(reader, PcapReader):
@@ -120,8 +120,8 @@ def read_capture(path: str) -> Iterator[Packet]:
 def embedded_metadata(path: str, look_ahead: int = 64):
     """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
     for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
-    from lidarpkt.ouster.metadata import load_metadata
-    from lidarpkt.sources.protocol import embedded_ouster_metadata
+    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.containers.protocol import embedded_ouster_metadata
 
     text = embedded_ouster_metadata(path, look_ahead)
     return load_metadata(text) if text else None
@@ -132,7 +132,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
            clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
     """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
 
-    ``ouster_metadata``: one :class:`~lidarpkt.ouster.metadata.OusterMetadata` or a list (one per
+    ``ouster_metadata``: one :class:`~lidarpkt.vendors.ouster.metadata.OusterMetadata` or a list (one per
     sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible.
     Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
@@ -197,8 +197,8 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
 
 def _ouster_lidar_by_header(p: Packet) -> bool:
     """Whether one payload reads as an Ouster lidar packet the way ``lidarpkt info`` guesses without metadata."""
-    from lidarpkt import ouster
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.vendors import ouster
+    from lidarpkt.core.packet import PacketBatch
 
     payload = np.frombuffer(p.payload, np.uint8)[None, :]
     batch = PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
@@ -214,14 +214,14 @@ def _sigterm_as_interrupt(signum, _frame) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt import cliargs
+    from lidarpkt.cli import args as cliargs
 
     host, port = parse_host_port(args.to)
     port_map = parse_port_map(args.port_map)
     cliargs.check_inputs([args.file])
     cliargs.check_inputs(args.metadata or (), "--metadata")
     if args.metadata:
-        from lidarpkt.ouster.metadata import load_metadata
+        from lidarpkt.vendors.ouster.metadata import load_metadata
 
         mds = [load_metadata(path) for path in args.metadata]
     else:
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
     if args.http:
         if not mds:
             raise RecorderError(f"--http {args.http}: there is no Ouster metadata to serve; give --metadata M.json")
-        from lidarpkt.ouster.sensor_http import MetadataHttpServer, parse_sensor
+        from lidarpkt.vendors.ouster.sensor_http import MetadataHttpServer, parse_sensor
 
         http_host, http_port = parse_sensor(args.http, "--http")
         http = MetadataHttpServer(json.dumps(mds[0].raw), http_host, http_port)
@@ -273,9 +273,9 @@ def _ptc_server(args):
         return None
     if not args.calibration:
         raise RecorderError(f"--ptc {args.ptc}: there is no calibration to serve; give --calibration PandarXT32.csv")
-    from lidarpkt import cliargs
-    from lidarpkt.hesai.calibration import load_calibration
-    from lidarpkt.hesai.ptc import GET_LIDAR_CALIBRATION, PTC_PORT, PtcServer
+    from lidarpkt.cli import args as cliargs
+    from lidarpkt.vendors.hesai.calibration import load_calibration
+    from lidarpkt.vendors.hesai.ptc import GET_LIDAR_CALIBRATION, PTC_PORT, PtcServer
 
     cliargs.check_inputs([args.calibration], "--calibration")
     load_calibration(args.calibration)  # a CalibrationError now, not in the client

@@ -4,7 +4,7 @@
 * :mod:`lidarpkt.view.server` — :class:`ViewServer`, the channels of each sensor;
 * :mod:`lidarpkt.view.sources` — a capture at its own pace, live batches to frames;
 * :mod:`lidarpkt.view.tap` — decoding off the recorder's receive path;
-* :mod:`lidarpkt.view.cli` — the ``lidarpkt view`` verb.
+* :mod:`lidarpkt.cli.view` — the ``lidarpkt view`` verb.
 
 Needs the ``view`` extra (``pip install 'lidarpkt[view]'``, foxglove-sdk); importing this
 package does not import foxglove-sdk.

@@ -46,7 +46,7 @@ def point_fields() -> list:
     """The ``PackedElementField`` list of :data:`POINT_DTYPE`."""
     from foxglove.messages import PackedElementField
 
-    from lidarpkt.sources.layouts import field_info, field_names
+    from lidarpkt.containers.layouts import field_info, field_names
 
     types = _numeric_types()
     return [PackedElementField(name=name, offset=field_info(POINT_DTYPE, name)[1], type=types[POINT_DTYPE[name]])

@@ -3,7 +3,7 @@
 * :func:`play_capture`: ``lidarpkt.open``'s frames, released at the pace of their sensor
   timestamps divided by ``rate`` (optionally looping).
 * :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
-  routed to one frame decoder per sensor by ``lidarpkt.open``'s own router (:mod:`lidarpkt.router`):
+  routed to one frame decoder per sensor by ``lidarpkt.open``'s own router (:mod:`lidarpkt.pipeline.router`):
   VLP-16 streams by their packets, Ouster streams by the metadata given.
 
 Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
@@ -19,10 +19,10 @@ import threading
 import time
 from typing import Iterator
 
-from lidarpkt.decoder import Decoder
-from lidarpkt.frame import Frame
-from lidarpkt.packet import PacketBatch
-from lidarpkt.router import MAX_SENSORS, RouteOptions, Router
+from lidarpkt.core.decoder import Decoder
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.pipeline.router import MAX_SENSORS, RouteOptions, Router
 
 
 def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1.0, loop: bool = False,
@@ -33,7 +33,7 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
     A frame is yielded once ``(its timestamp_ns − the first's) / rate`` seconds have passed since
     the start of the round; ``loop`` starts again at the end until ``stop`` is set (``stop`` also
     ends the wait between frames). ``on_reader(reader)`` sees each round's
-    :class:`lidarpkt.source.FrameReader` (for its packet counts); ``before_first(frame)`` is
+    :class:`lidarpkt.pipeline.reader.FrameReader` (for its packet counts); ``before_first(frame)`` is
     called with the very first frame before the clock starts (to wait for a viewer).
 
     Raises what ``lidarpkt.open`` raises; :class:`lidarpkt.errors.LidarpktError` if ``rate`` ≤ 0.
@@ -71,10 +71,10 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
 
 class LiveDecoder:
     """Packet batches (one stream and payload size each, arrival order) → frames, per sensor, through the
-    one router of files and live sources (:class:`lidarpkt.router.Router`).
+    one router of files and live sources (:class:`lidarpkt.pipeline.router.Router`).
 
     Args:
-        ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of each Ouster sensor
+        ouster_metadata: :class:`lidarpkt.vendors.ouster.metadata.OusterMetadata` of each Ouster sensor
             (none for VLP-16 only).
         max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
             counted in :attr:`unrouted_packets`.

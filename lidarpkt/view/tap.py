@@ -17,8 +17,8 @@ import queue
 import threading
 from typing import Callable, Iterable
 
-from lidarpkt.frame import Frame
-from lidarpkt.packet import PacketBatch
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.packet import PacketBatch
 
 from .sources import LiveDecoder
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..sources.layouts import field_names
+from lidarpkt.containers.layouts import field_names
 from .base import BaseWriter
 
 FIELDS = ("x", "y", "z", "intensity", "ring", "time")

@@ -33,7 +33,7 @@ near_ir                 uint16     Ouster ambient near-IR of the pixel (null for
 ======================  =========  =================================================================
 
 ``layout="frames"``: one row per frame with its scalars (``sensor``, ``frame_id``,
-``frame_timestamp_ns``, ``partial``, the :class:`~lidarpkt.frame.FrameCounters` fields,
+``frame_timestamp_ns``, ``partial``, the :class:`~lidarpkt.core.frame.FrameCounters` fields,
 ``return_labels``, the shape ``returns``/``rows``/``columns``), each per-pixel array flattened in
 C order into a list column (``range_mm`` ``[R*H*W]`` …, ``near_ir`` and ``pixel_time_offset_ns``
 ``[H*W]``), each per-column array as a list ``[W]``, ``extra`` as ``(name, dtype, shape, bytes)``
@@ -117,7 +117,7 @@ def _calibration_json(sensor) -> str | None:
 
 
 def _counters_cls():
-    from lidarpkt.frame import FrameCounters
+    from lidarpkt.core.frame import FrameCounters
 
     return FrameCounters
 
@@ -268,7 +268,7 @@ class ParquetWriter(BaseWriter):
 
 # ------------------------------------------------------------------------------ reading back
 def _sensor_from(row: dict[str, Any]):
-    from lidarpkt.frame import SensorInfo
+    from lidarpkt.core.frame import SensorInfo
 
     info = json.loads(row["sensor_json"])
     for key in ("beam_altitude_deg", "beam_azimuth_deg"):
@@ -279,12 +279,12 @@ def _sensor_from(row: dict[str, Any]):
     metadata = json.loads(row["metadata_json"]) if row.get("metadata_json") else {}
     sensor = SensorInfo(**info, metadata=metadata)
     if sensor.vendor == "ouster" and metadata:
-        from lidarpkt.ouster.metadata import load_metadata
+        from lidarpkt.vendors.ouster.metadata import load_metadata
 
         sensor.geometry = load_metadata(metadata).sensor_info().geometry
     elif sensor.vendor == "velodyne":
-        from lidarpkt.velodyne.calibration import VelodyneCalibration
-        from lidarpkt.velodyne.geometry import VelodyneGeometry
+        from lidarpkt.vendors.velodyne.calibration import VelodyneCalibration
+        from lidarpkt.vendors.velodyne.geometry import VelodyneGeometry
 
         cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
         sensor.geometry = VelodyneGeometry(None if cal is None else VelodyneCalibration(**cal))
@@ -300,7 +300,7 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
     """
     import pyarrow.dataset as ds
 
-    from lidarpkt.frame import Frame, FrameCounters
+    from lidarpkt.core.frame import Frame, FrameCounters
 
     dataset = ds.dataset(str(path), format="parquet", partitioning="hive")
     if "range_mm" not in dataset.schema.names or "sensor_json" not in dataset.schema.names:

@@ -9,11 +9,11 @@ of each layer, reused by both writers:
   larger than the MTU);
 - :func:`link_frame` adds the link layer (Ethernet with optional stacked VLAN tags,
   Linux SLL, SLL2, raw IP, BSD loopback);
-- :func:`frames_for` does all three for one :class:`~lidarpkt.packet.Packet`;
+- :func:`frames_for` does all three for one :class:`~lidarpkt.core.packet.Packet`;
 - :func:`write_pcap_records` / :func:`write_pcapng_records` write already-built frames
   (so that tests can reorder, duplicate or damage fragments), and :func:`write_pcap` /
   :func:`write_pcapng` write packets;
-- :func:`batch_frames` frames a whole :class:`~lidarpkt.packet.PacketBatch` at once in NumPy
+- :func:`batch_frames` frames a whole :class:`~lidarpkt.core.packet.PacketBatch` at once in NumPy
   (the same bytes :func:`frames_for` makes packet by packet), and :class:`PcapBatchWriter`
   writes batches of any source as one pcap in capture order (``lidarpkt export --format pcap``).
 
@@ -32,9 +32,9 @@ from typing import BinaryIO, Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from ..errors import PacketFormatError
-from ..packet import Endpoint, Packet, PacketBatch
-from ..sources.magic import PCAP_MAGIC_NS, PCAP_MAGIC_US, PCAPNG_BOM, PCAPNG_SHB
-from ..sources.layouts import (
+from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
+from lidarpkt.containers.magic import PCAP_MAGIC_NS, PCAP_MAGIC_US, PCAPNG_BOM, PCAPNG_SHB
+from lidarpkt.containers.layouts import (
     ETHERNET_HEADER,
     IPV4_HEADER,
     IPV6_FRAGMENT_HEADER,
@@ -59,7 +59,7 @@ from ..sources.layouts import (
     internet_checksum,
 )
 
-# every header is packed with the layout the reader parses it with (lidarpkt.sources.layouts)
+# every header is packed with the layout the reader parses it with (lidarpkt.containers.layouts)
 _IPV4 = header_struct(IPV4_HEADER)
 _IPV6 = header_struct(IPV6_HEADER)
 _IPV6_FRAG = header_struct(IPV6_FRAGMENT_HEADER)
@@ -295,7 +295,7 @@ def write_pcap(path: str | os.PathLike[str], packets: Iterable[Packet], *, link:
 
     Args:
         path: output file (overwritten).
-        packets: :class:`~lidarpkt.packet.Packet` objects with src/dst endpoints; IPv4 or IPv6
+        packets: :class:`~lidarpkt.core.packet.Packet` objects with src/dst endpoints; IPv4 or IPv6
             is taken from the address text.
         link: ``"ethernet"``, ``"linux_sll"``, ``"linux_sll2"``, ``"raw"`` or ``"null"``.
         nanosecond: nanosecond time stamps (magic a1b23c4d) instead of microseconds.
@@ -386,7 +386,7 @@ class PcapBatchWriter:
     """Packet batches of any source (pcap, pcapng, MCAP, ROS bag) written as one classic pcap.
 
     The packets come out in capture order: batches of several streams interleave (their
-    ``index`` says where each packet stood, :class:`~lidarpkt.packet.PacketBatch`), and a batch
+    ``index`` says where each packet stood, :class:`~lidarpkt.core.packet.PacketBatch`), and a batch
     is held until the next batch's first index shows which packets can no longer be preceded.
     Each datagram is framed as :func:`write_pcap` frames it (Ethernet, IPv4 fragmented at
     ``mtu``, UDP checksum), ``ident`` counting packets from 1, with its capture time in

@@ -242,7 +242,7 @@ def test_compare_returns_picks_slots_of_two_captures(canned, tmp_path, capsys):
 
 @pytest.mark.parametrize("name", ["vlp16-dual", "os1-64-dual"])
 def test_analyze_mcap_input_gives_the_same_document_as_the_pcap(canned, tmp_path, capsys, name):
-    importlib.import_module("lidarpkt.recorder.decode")
+    importlib.import_module("lidarpkt.cli.decode")
     pcap, truth = canned(name)
     meta = ["--metadata", str(pcap.with_suffix(".json"))] if name.startswith("os1") else []
     mcap = tmp_path / "x.mcap"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarpkt.frame import FrameStack, SensorInfo
+from lidarpkt.core.frame import FrameStack, SensorInfo
 
 
 def make_stack(range_mm, valid=None, labels=None, shift=None, reflectivity=None, vendor=None) -> FrameStack:

@@ -258,7 +258,7 @@ def test_every_format_through_the_unit_reads_back_with_its_own_reader(archive, t
             assert r["frames"] == _expected_points(r["input"], _sidecar(r["input"]))[0]
             packets = topics.get("/velodyne_packets", 0) + topics.get("/ouster/lidar_packets", 0)
             assert packets >= r["frames"] > 0  # decode's output: the raw packets too (VelodyneScan: one per frame)
-            from lidarpkt.recorder.decode import decode_captures
+            from lidarpkt.cli.decode import decode_captures
 
             ref = tmp_path / f"decode-{r['capture']}.mcap"
             decode_captures([r["input"]], ref, **({"metadata": _sidecar(r["input"])} if _sidecar(r["input"]) else {}))

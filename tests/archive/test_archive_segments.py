@@ -125,7 +125,7 @@ def test_count_pass_gives_each_segment_the_whole_file_ordinals(captures, index):
 
     import lidarpkt
     from lidarpkt.archive.ordinals import renumber_from
-    from lidarpkt.sources.segments import plan_segments
+    from lidarpkt.containers.segments import plan_segments
 
     path = captures[index]
     segments = plan_segments(path, 150_000)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from lidarpkt.info import describe_capture, format_capture
-from lidarpkt.packet import Endpoint, Packet
+from lidarpkt.cli.info import describe_capture, format_capture
+from lidarpkt.core.packet import Endpoint, Packet
 from lidarpkt.writers.pcap import frames_for, write_pcap_records
 from conftest import external
 
@@ -194,7 +194,7 @@ def test_damaged_capture_is_reported(tmp_path):
 def test_generated_pcapng_dual_mode_and_gps_locked(tmp_path):
     """Packets patched by hand after the VLP-16 manual's layout (return mode byte 1204, product 1205;
     position: µs timestamp at 198, PPS status at 202, NMEA from 206), in a VLAN-tagged ns pcapng."""
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
     from lidarpkt.writers.pcap import Interface, write_pcapng
 
     data = [p for p in read_packets(external("rust-lidar-utils/velodyne_example.pcap"))][:20]

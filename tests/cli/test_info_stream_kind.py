@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lidarpkt.info import describe_capture
-from lidarpkt.ouster import load_metadata
-from lidarpkt.streams import StreamKind
+from lidarpkt.cli.info import describe_capture
+from lidarpkt.vendors.ouster import load_metadata
+from lidarpkt.core.streams import StreamKind
 from conftest import external
 
 
@@ -38,7 +38,7 @@ def test_info_and_archive_jobs_find_the_same_captures(tmp_path):
     folder is one capture; a capture is known by its suffix or its first bytes; other files are left out)."""
     from conftest import external_root
     from lidarpkt.archive.plan import expand_paths
-    from lidarpkt.info import _expand
+    from lidarpkt.cli.info import _expand
 
     root = external_root()
     (tmp_path / "notes.txt").write_text("not a capture")

@@ -24,7 +24,7 @@ import pytest
 import lidarpkt
 from conftest import external
 from lidarpkt.errors import DroppedPacketsWarning
-from lidarpkt.frame import FrameStack, default_grid_deg, destagger, restagger
+from lidarpkt.core.frame import FrameStack, default_grid_deg, destagger, restagger
 
 REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
@@ -109,7 +109,7 @@ def test_destagger_has_one_home_and_round_trips():
 def _looped_capture(tmp_path: Path) -> Path:
     """The capture twice over, host times running on: what `replay --loop` into `record` gives;
     the second copy's sensor times go back, so its packets arrive after their frames were released."""
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
     from lidarpkt.writers.pcap import write_pcap
 
     packets = list(read_packets(external(VLP10)))
@@ -168,7 +168,7 @@ def test_help_and_version_import_no_verb_module_nor_numpy(argv):
     names = _imported(*argv)
     heavy = {n for n in names if n.split(".")[0] in ("numpy", "scipy", "matplotlib", "mcap", "dask", "tqdm", "rosbags")
              or n.startswith(("lidarpkt.recorder", "lidarpkt.analysis"))}
-    verbs = {n for n in names if n in ("lidarpkt.info", "lidarpkt.demo", "lidarpkt.source", "lidarpkt.sources.pcap_reader")}
+    verbs = {n for n in names if n in ("lidarpkt.cli.info", "lidarpkt.cli.demo", "lidarpkt.pipeline.reader", "lidarpkt.containers.pcap_reader")}
     assert not heavy and not verbs, sorted(heavy | verbs)
 
 
@@ -178,15 +178,15 @@ def test_info_imports_only_what_it_needs():
              or n.startswith(("lidarpkt.recorder", "lidarpkt.analysis"))}
     assert not heavy, sorted(heavy)
     # (importlib.import_module of the verb module itself is not timed; what it imports is)
-    assert "lidarpkt.sources.pcap_reader" in names and "numpy" in names
+    assert "lidarpkt.containers.pcap_reader" in names and "numpy" in names
 
 
 # what ``info`` must not import (issue 16: the CLI starts at once): the frame assembly, encoders, XYZ
 # and calibration of both sensor packages, the version lookup (``--version`` only) and importlib.abc
 # and tempfile (pulled in by importlib.resources: ~10-40 ms each on this machine)
-NOT_FOR_INFO = ("lidarpkt.ouster.frames", "lidarpkt.ouster.encode", "lidarpkt.ouster.geometry", "lidarpkt.frame",
-                "lidarpkt.velodyne.frames", "lidarpkt.velodyne.encode", "lidarpkt.velodyne.geometry",
-                "lidarpkt.velodyne.calibration", "lidarpkt.velodyne.points", "lidarpkt.source", "importlib.metadata",
+NOT_FOR_INFO = ("lidarpkt.vendors.ouster.frames", "lidarpkt.vendors.ouster.encode", "lidarpkt.vendors.ouster.geometry", "lidarpkt.core.frame",
+                "lidarpkt.vendors.velodyne.frames", "lidarpkt.vendors.velodyne.encode", "lidarpkt.vendors.velodyne.geometry",
+                "lidarpkt.vendors.velodyne.calibration", "lidarpkt.vendors.velodyne.points", "lidarpkt.pipeline.reader", "importlib.metadata",
                 "importlib.abc", "tempfile")
 
 
@@ -195,13 +195,13 @@ NOT_FOR_INFO = ("lidarpkt.ouster.frames", "lidarpkt.ouster.encode", "lidarpkt.ou
                                    "ouster-sdk/OS-2-32-U0_v2.0.0_1024x10.json")])
 def test_info_imports_only_the_detect_modules_of_the_sensor_packages(argv):
     names = _imported("info", *[str(external(a)) if "/" in a else a for a in argv])
-    assert "lidarpkt.velodyne.detect" in names and "lidarpkt.ouster.detect" in names  # it did describe the streams
+    assert "lidarpkt.vendors.velodyne.detect" in names and "lidarpkt.vendors.ouster.detect" in names  # it did describe the streams
     assert not set(NOT_FOR_INFO) & names, sorted(set(NOT_FOR_INFO) & names)
 
 
 def test_the_sensor_packages_still_give_every_public_name_and_submodule():
-    import lidarpkt.ouster as ouster
-    import lidarpkt.velodyne as velodyne
+    import lidarpkt.vendors.ouster as ouster
+    import lidarpkt.vendors.velodyne as velodyne
 
     for package in (ouster, velodyne):
         for name in package.__all__:
@@ -211,7 +211,7 @@ def test_the_sensor_packages_still_give_every_public_name_and_submodule():
             package.no_such_name  # noqa: B018
     assert ouster.frames.OusterDecoder is ouster.OusterDecoder and velodyne.geometry.VelodyneGeometry
     star: dict = {}
-    exec("from lidarpkt.velodyne import *", star)  # the star import follows __all__
+    exec("from lidarpkt.vendors.velodyne import *", star)  # the star import follows __all__
     assert set(velodyne.__all__) <= set(star)
 
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.sources.bags import BagReader
+from lidarpkt.containers.bags import BagReader
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
 from reference_tools import velodyne_scan_mcap
 
 NEBULA = "nebula/vlp16/1673400471837873222"
@@ -146,7 +146,7 @@ def test_ros1_bag_written_by_rosbags(tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
 
     store = get_typestore(Stores.ROS1_NOETIC)
     types = {}

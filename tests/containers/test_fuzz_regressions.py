@@ -18,9 +18,9 @@ import pytest
 
 from conftest import external
 from lidarpkt.errors import MetadataError
-from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.reassembly import FRAGMENT_OVERHEAD, Reassembler
+from lidarpkt.vendors.ouster import OusterDecoder, OusterGeometry, load_metadata
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.reassembly import FRAGMENT_OVERHEAD, Reassembler
 from reference_tools import velodyne_scan_mcap
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "fuzz"
@@ -120,7 +120,7 @@ def test_bag_whose_first_line_is_not_text_closes_its_file(tmp_path):
     in test_hostile_input's MCAP cut test). Now a CaptureFormatError and the file is closed."""
     import gc
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "cut.mcap"
@@ -142,9 +142,9 @@ def test_mcap_with_a_corrupt_compressed_chunk_warns_instead_of_raising_zstd_erro
     45.7 % of the file set to 0, inside a zstd chunk: zstandard's ZstdError ('Data corruption
     detected') came out raw. Now the messages before the chunk, then a TruncatedCaptureWarning."""
     from lidarpkt import fixtures
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import TruncatedCaptureWarning
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
     payloads = [p.payload for p in pk]
@@ -192,11 +192,11 @@ def test_a_capture_from_hundreds_of_source_addresses_does_not_multiply_the_geome
     corrections): 2000 sources took 1.2 GB. The read-only tables are now shared."""
     from lidarpkt import fixtures
     import lidarpkt
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import write_pcap
-    from lidarpkt.velodyne import VelodyneDecoder
+    from lidarpkt.vendors.velodyne import VelodyneDecoder
 
-    good = next(p for p in lidarpkt.sources.pcap_reader.read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206)
+    good = next(p for p in lidarpkt.containers.pcap_reader.read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206)
     pk = [Packet(1_600_000_000_000_000_000 + i * 1000, Endpoint(f"10.0.{i >> 8}.{i & 255}", 2368),
                  Endpoint("10.0.0.1", 2368), good.payload) for i in range(300)]
     write_pcap(tmp_path / "many.pcap", pk)
@@ -221,11 +221,11 @@ def test_a_capture_from_thousands_of_sources_decodes_at_most_max_sensors(tmp_pat
     one SkippedPacketWarning, and the list of unrouted streams stays short."""
     import lidarpkt
     from lidarpkt.errors import SkippedPacketWarning
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import write_pcap
 
     meta = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json")
-    src = next(p for p in lidarpkt.sources.pcap_reader.read_packets(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap"))
+    src = next(p for p in lidarpkt.containers.pcap_reader.read_packets(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap"))
                if len(p.payload) == 24832)
     pk = [Packet(1_600_000_000_000_000_000 + i * 1000, Endpoint(f"10.0.{i >> 8}.{i & 255}", 7502),
                  Endpoint("10.0.0.1", 7502), src.payload) for i in range(100)]
@@ -260,9 +260,9 @@ def test_mcap_with_a_huge_record_length_warns_instead_of_raising_memory_error(tm
     reader's ``read(length)`` asked for exabytes up front (MemoryError). The same with the top byte
     of each length field set: every one must end in a warning after a prefix of the packets."""
     from lidarpkt import fixtures
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import TruncatedCaptureWarning
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
     payloads = [p.payload for p in pk]
@@ -312,7 +312,7 @@ def _velodyne_packet_rosbag2(folder, n: int = 12) -> Path:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     typ = "velodyne_msgs/msg/VelodynePacket"
@@ -337,7 +337,7 @@ def test_rosbag2_whose_second_db3_is_damaged_closes_it_while_the_error_is_kept(t
     import shutil
     import sqlite3
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import CaptureFormatError
 
     db = _velodyne_packet_rosbag2(tmp_path / "bag")
@@ -386,9 +386,9 @@ def test_rosbag2_that_fails_to_open_leaves_no_file_open(tmp_path, damage):
     CaptureFormatError, and the file is closed before it is raised."""
     import gc
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import CaptureFormatError
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     from lidarpkt import fixtures
 
@@ -430,9 +430,9 @@ def test_mcap_chunk_record_length_of_2_63_or_more_warns_instead_of_overflow_erro
     from mcap_ros2.writer import Writer
 
     from lidarpkt import fixtures
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import TruncatedCaptureWarning
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
     from reference_tools import VELODYNE_SCAN_SCHEMA
 
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:6]
@@ -503,9 +503,9 @@ def test_bag_ouster_metadata_message_that_is_no_json_object_is_skipped_with_a_wa
     packets of the same bag are decoded."""
     import lidarpkt
     from lidarpkt import fixtures
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import SkippedPacketWarning
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     if text == "METADATA_FILE":
         text = str(external("ouster-sdk/OS-1-32-G_v2.1.1_1024x10.json"))
@@ -527,9 +527,9 @@ def test_bag_time_beyond_int64_is_a_capture_format_error(tmp_path, container):
     times are uint64, packet times int64 ns, and the packet's bag time raised a raw OverflowError in NumPy
     (and the MCAP file stayed open while that error was kept). Now the packets before, then a
     CaptureFormatError naming the topic and the time, and no file of the bag left open."""
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
     from lidarpkt.errors import CaptureFormatError
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     from lidarpkt import fixtures
 
@@ -572,7 +572,7 @@ def test_bag_without_packet_topics_gives_no_batches_not_key_error(tmp_path, cont
     import lidarpkt
     from rosbags.typesys import Stores, get_typestore
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     if container == "rosbag2":
         from rosbags.rosbag2 import Writer
@@ -606,7 +606,7 @@ def test_ros1_bag_whose_own_definition_renames_a_field_is_a_capture_format_error
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.sources.bags import MESSAGE_DEFINITIONS, BagReader
+    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
     from lidarpkt.errors import CaptureFormatError
 
     store = get_typestore(Stores.ROS1_NOETIC)
@@ -659,7 +659,7 @@ def _mcap_with_second_chunk_replaced(path, compression: str, body: bytes, declar
     record replaced by one holding ``body`` (compressed as ``compression``) that declares ``declared``
     uncompressed bytes; return the 30 payloads."""
     from lidarpkt import fixtures
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:30]
     raw = velodyne_scan_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk], chunk_size=6_000)
@@ -694,7 +694,7 @@ def _zero_bomb(compression: str, size: int) -> bytes:
 
 _READ_AND_REPORT_PEAK = r"""
 import sys, warnings
-from lidarpkt.sources.bags import BagReader
+from lidarpkt.containers.bags import BagReader
 from lidarpkt.errors import LidarpktError
 n, outcome = 0, "ok"
 with warnings.catch_warnings(record=True) as caught:
@@ -729,7 +729,7 @@ def test_mcap_chunk_that_inflates_past_its_declared_size_is_not_inflated(tmp_pat
 
 
 def test_mcap_chunk_declaring_more_than_the_limit_is_a_capture_format_error(tmp_path):
-    from lidarpkt.sources.bags import MAX_MCAP_CHUNK_BYTES, BagReader
+    from lidarpkt.containers.bags import MAX_MCAP_CHUNK_BYTES, BagReader
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "big.mcap"

@@ -3,9 +3,9 @@ ones, impossible field values, random text. Only ``lidarpkt.errors`` exceptions 
 ``LidarpktWarning``s may come out, every good packet around a bad one is still decoded (compared
 with the decode of the clean input), and memory stays bounded.
 
-What other files already cover (not repeated here): tests/sources/test_pcap_fuzz.py (mutated, junk-filled
+What other files already cover (not repeated here): tests/containers/test_pcap_fuzz.py (mutated, junk-filled
 pcap/pcapng captures never raise anything else; vector vs record-by-record reassembly),
-tests/sources/test_reassembly.py (reassembler properties), tests/ouster/test_ouster_frames.py (damaged real Ouster
+tests/containers/test_reassembly.py (reassembler properties), tests/ouster/test_ouster_frames.py (damaged real Ouster
 packets never crash), tests/velodyne/test_velodyne_properties.py and tests/ouster/test_ouster_decode.py (byte round
 trips of any bytes).
 """
@@ -25,8 +25,8 @@ from hypothesis import strategies as st
 import lidarpkt
 from conftest import external
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning, NMEAError, TruncatedCaptureWarning
-from lidarpkt.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.sources.pcap_reader import PcapReader
+from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
+from lidarpkt.containers.pcap_reader import PcapReader
 from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
 from reference_tools import velodyne_scan_mcap
 
@@ -241,7 +241,7 @@ def test_orphan_fragment_flood_keeps_the_pending_state_capped(tmp_path):
 def _vlp16_packets(name="vlp16-strongest"):
     from lidarpkt import fixtures
 
-    return list(lidarpkt.sources.pcap_reader.read_packets(fixtures.canned(name)))
+    return list(lidarpkt.containers.pcap_reader.read_packets(fixtures.canned(name)))
 
 
 def _frame_columns(frames):
@@ -325,7 +325,7 @@ def test_vlp16_bad_packets_among_good_ones_leave_the_good_ones_decoded(tmp_path,
               st.integers(0, 80), st.characters()),
 ))
 def test_nmea_parser_takes_any_text(sentence):
-    from lidarpkt.velodyne import parse_nmea
+    from lidarpkt.vendors.velodyne import parse_nmea
 
     try:
         fix = parse_nmea(sentence)
@@ -340,7 +340,7 @@ def test_nmea_parser_takes_any_text(sentence):
 @settings(max_examples=80, deadline=None)
 @given(st.lists(st.binary(min_size=512, max_size=512), min_size=1, max_size=4), st.booleans())
 def test_position_packets_of_any_bytes_are_counted_never_raised(blobs, host_time):
-    from lidarpkt.velodyne import VelodyneDecoder
+    from lidarpkt.vendors.velodyne import VelodyneDecoder
 
     dec = VelodyneDecoder()
     times = [1_600_000_000_000_000_000 + i for i in range(len(blobs))] if host_time else None
@@ -362,7 +362,7 @@ _OUSTER = {}
 
 def _synthetic_stream(md, frames=2, seed=0):
     """``frames`` whole frames of valid columns with random pixels, in ``md``'s layout (CRC written)."""
-    from lidarpkt.ouster import empty_fields, encode_packets
+    from lidarpkt.vendors.ouster import empty_fields, encode_packets
 
     per = md.columns_per_frame // md.columns_per_packet
     n = frames * per
@@ -382,7 +382,7 @@ def _synthetic_stream(md, frames=2, seed=0):
 
 def _ouster_stream(which):
     if which not in _OUSTER:
-        from lidarpkt.ouster import load_metadata
+        from lidarpkt.vendors.ouster import load_metadata
         from test_ouster_cases import lidar_streams
 
         pcap, jsons = _OUSTER_CASES[which]
@@ -400,7 +400,7 @@ def _damage_ouster(md, row: np.ndarray, how: int) -> np.ndarray | None:
     """A copy of one packet the decoder must skip, or None when this profile has no such check.
     Fields are changed through decode/encode, so that the CRC (where the firmware writes one) stays
     right and the intended fault is the only one."""
-    from lidarpkt.ouster import decode_packets, encode_packets
+    from lidarpkt.vendors.ouster import decode_packets, encode_packets
 
     if how == 1:
         if md.footer_kind != "crc":
@@ -426,7 +426,7 @@ def test_ouster_bad_packets_among_good_ones_leave_the_good_ones_decoded(which, d
     """Every profile: packets with an impossible measurement id, a failed CRC, a foreign init_id or a
     wrong size, among real packets: the frames are exactly those of the same stream with those packets
     lost, and every packet is counted."""
-    from lidarpkt.ouster import OusterDecoder
+    from lidarpkt.vendors.ouster import OusterDecoder
 
     md, batch = _ouster_stream(which)
     n = len(batch)
@@ -488,7 +488,7 @@ def test_metadata_with_any_value_in_any_field_loads_or_names_the_field(data):
     import json
 
     from lidarpkt.errors import MetadataError
-    from lidarpkt.ouster import OusterDecoder, OusterGeometry, load_metadata
+    from lidarpkt.vendors.ouster import OusterDecoder, OusterGeometry, load_metadata
 
     name = data.draw(st.sampled_from(["ouster-sdk/empty_pcap.json", "ouster-sdk/OS-1-64_sensor_config_reduced.json",
                                       "ouster-sdk/crc_test.json"]))
@@ -537,7 +537,7 @@ def _small_mcap() -> tuple[bytes, list[bytes], list[int]]:
 
 
 def _bag_packets(path):
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

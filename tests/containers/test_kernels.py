@@ -24,14 +24,14 @@ from hypothesis import strategies as st
 
 from lidarpkt import fixtures
 import lidarpkt
-import lidarpkt.sources.pcap_reader as pcap_module
-from lidarpkt.sources import gathers
+import lidarpkt.containers.pcap_reader as pcap_module
+from lidarpkt.containers import gathers
 from conftest import external, external_root
-from lidarpkt import kernels
+from lidarpkt.core import kernels
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
-from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.sources.pcap_reader import PcapReader, capture_format
-from lidarpkt.sources.pcap_walk import MAX_RECORD_BYTES
+from lidarpkt.core.packet import Endpoint, Packet
+from lidarpkt.containers.pcap_reader import PcapReader, capture_format
+from lidarpkt.containers.pcap_walk import MAX_RECORD_BYTES
 from lidarpkt.writers.pcap import frames_for, pcap_bytes
 from test_ouster_cases import CAPTURES as OUSTER_CAPTURES
 
@@ -212,7 +212,7 @@ def test_version_says_which_implementation_runs():
 
 
 def test_environment_switch_in_a_fresh_interpreter():
-    code = "from lidarpkt import kernels; print(kernels.native); print(kernels.describe())"
+    code = "from lidarpkt.core import kernels; print(kernels.native); print(kernels.describe())"
     assert _python(code, LIDARPKT_NATIVE="0").splitlines() == ["None", "pure NumPy (disabled by LIDARPKT_NATIVE=0)"]
     if NATIVE is not None:  # and any other value leaves the extension on
         out = _python(code, LIDARPKT_NATIVE="1").splitlines()

@@ -11,14 +11,14 @@ import pytest
 
 import lidarpkt
 from conftest import external
-from lidarpkt.continuity import CAPTURE_RESOLUTION_S, StreamContinuity
-from lidarpkt.dropped import dropped_counts
+from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S, StreamContinuity
+from lidarpkt.core.dropped import dropped_counts
 from lidarpkt.errors import LidarpktError
-from lidarpkt.ouster import load_metadata
-from lidarpkt.ouster.stream import PacketCounter as OusterCounter
-from lidarpkt.sources.pcap_reader import PcapReader
-from lidarpkt.velodyne.models import VLP16
-from lidarpkt.velodyne.stream import PacketCounter as VelodyneCounter
+from lidarpkt.vendors.ouster import load_metadata
+from lidarpkt.vendors.ouster.stream import PacketCounter as OusterCounter
+from lidarpkt.containers.pcap_reader import PcapReader
+from lidarpkt.vendors.velodyne.models import VLP16
+from lidarpkt.vendors.velodyne.stream import PacketCounter as VelodyneCounter
 
 VLP = "veloview/vlp-16-test-90deg-1-50-frames.pcap"
 OUSTER = "ouster-sdk/OS-1-32-G_v2.1.1_1024x10"  # LEGACY: the frame id is in the columns, no CRC to redo
@@ -92,7 +92,7 @@ def test_the_live_counter_counts_the_moved_packet_as_corrupted():
 def test_the_recorder_records_the_moved_packet_and_reports_it_corrupted(tmp_path):
     """The recorder's live path (PacketSink, as `lidarpkt record` feeds it, capture times included):
     every packet is recorded, the moved one is reported corrupted, no gap is claimed for it beyond its slot."""
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.core.packet import PacketBatch
     from lidarpkt.writers.mcap.packets import PacketSink
     from lidarpkt.writers.mcap.writer import McapWriter
 

@@ -221,7 +221,7 @@ def _run_case(case: Case, tmp_path_factory) -> list[dict] | str:
     if case.name in _RESULTS:
         return _RESULTS[case.name]
     work = tmp_path_factory.mktemp(case.name)
-    code = ("import sys; sys.path[:0] = ['tests', 'tests/sources']; import test_mutated_captures as m; "
+    code = ("import sys; sys.path[:0] = ['tests', 'tests/containers']; import test_mutated_captures as m; "
             "m._child(sys.argv[1:])")
     env = dict(os.environ, LIDARPKT_EXTERNAL_FIXTURES=str(external_root()), PYTHONPATH=str(REPO))
     try:

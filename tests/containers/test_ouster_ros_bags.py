@@ -10,8 +10,8 @@ import pytest
 
 import lidarpkt
 from conftest import external
-from lidarpkt.sources.bags import BagReader
-from lidarpkt.sources.bags import is_ouster_metadata_topic
+from lidarpkt.containers.bags import BagReader
+from lidarpkt.containers.bags import is_ouster_metadata_topic
 
 BAG = "ouster-sdk/512x10_raw.bag"  # ouster-ros ROS 1: /os_node0/{lidar,imu}_packets, /os_node0/metadata
 

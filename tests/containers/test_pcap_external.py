@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import CaptureFormatError
-from lidarpkt.packet import Endpoint
-from lidarpkt.sources.pcap_reader import PcapReader, is_capture, read_batches, read_packets
+from lidarpkt.core.packet import Endpoint
+from lidarpkt.containers.pcap_reader import PcapReader, is_capture, read_batches, read_packets
 from conftest import external
 from reference_tools import ouster_sdk_pcap_packets
 

@@ -1,7 +1,7 @@
 """Generated captures for the cases no real capture covers (SOURCES.md oddity 12).
 
 Each file is written with lidarpkt.writers.pcap from real payloads, read back with
-lidarpkt.sources.pcap_reader, and also read by readers we did not write: dpkt (container and
+lidarpkt.containers.pcap_reader, and also read by readers we did not write: dpkt (container and
 headers) and ouster-sdk's libpcap/libtins reader (container, link layers, VLAN,
 IPv6 and fragment reassembly).
 """
@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
-from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.sources.pcap_reader import PcapReader, read_batches, read_packets
+from lidarpkt.core.packet import Endpoint, Packet
+from lidarpkt.containers.pcap_reader import PcapReader, read_batches, read_packets
 from lidarpkt.writers.pcap import (
     Interface,
     frames_for,
@@ -502,7 +502,7 @@ def test_ipv4_options_fast_and_fragment_paths(tmp_path, real_packets):
 
 
 def test_chunks_are_bounded_in_bytes(tmp_path, monkeypatch, real_packets):
-    import lidarpkt.sources.pcap_reader as pcap_module
+    import lidarpkt.containers.pcap_reader as pcap_module
 
     vlp = [p for p in real_packets if len(p.payload) == 1206]
     path = tmp_path / "c.pcap"
@@ -585,7 +585,7 @@ def test_pipes_are_refused_clearly(tmp_path):
 def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_packets):
     """Records and pcapng blocks that straddle the read blocks (incl. a big-endian section header)
     give exactly what one whole-file read gives."""
-    import lidarpkt.sources.pcap_reader as pcap_module
+    import lidarpkt.containers.pcap_reader as pcap_module
 
     mixed = real_packets + _v6(real_packets[:6])
     files = {"a.pcap": None, "b.pcapng": None}
@@ -612,7 +612,7 @@ def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_pac
 def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
     """A capture truncated by another process while it is read: no crash (no mmap SIGBUS), the records
     read so far, then a TruncatedCaptureWarning."""
-    import lidarpkt.sources.pcap_reader as pcap_module
+    import lidarpkt.containers.pcap_reader as pcap_module
 
     vlp = [p for p in real_packets if len(p.payload) < 1400]
     path = tmp_path / "s.pcap"

@@ -10,8 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
-from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.sources.pcap_reader import PcapReader
+from lidarpkt.core.packet import Endpoint, Packet
+from lidarpkt.containers.pcap_reader import PcapReader
 from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
 
 _PACKETS = [
@@ -142,7 +142,7 @@ _ORIGINALS, _TRAINS = list(_ORIGINALS), list(_TRAINS)
 def test_vector_reassembly_equals_record_by_record(tmp_path, data):
     """Whatever the order, loss and duplication of fragments, the array fast path for whole fragment
     trains gives exactly what the record-by-record reassembler gives (batch_packets=1 never lets a
-    train complete inside a chunk, so everything goes through lidarpkt.sources.reassembly)."""
+    train complete inside a chunk, so everything goes through lidarpkt.containers.reassembly)."""
     from lidarpkt.writers.pcap import write_pcap_records
 
     records = []

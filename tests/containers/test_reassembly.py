@@ -1,4 +1,4 @@
-"""lidarpkt.sources.reassembly on its own: orders, duplicates, overlaps, timeouts, bounds (RFC 791 semantics)."""
+"""lidarpkt.containers.reassembly on its own: orders, duplicates, overlaps, timeouts, bounds (RFC 791 semantics)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarpkt.sources.reassembly import Reassembler
+from lidarpkt.containers.reassembly import Reassembler
 
 PAYLOAD = bytes(range(256)) * 33  # 8448 bytes, like an Ouster RNG15 packet
 

@@ -1,9 +1,9 @@
-"""lidarpkt.sources.reassembly at its boundaries: the timeout and size limits exactly, counters that add up
+"""lidarpkt.containers.reassembly at its boundaries: the timeout and size limits exactly, counters that add up
 over several datagrams, and a late fragment landing inside the prefix already walked."""
 
 from __future__ import annotations
 
-from lidarpkt.sources.reassembly import Reassembler
+from lidarpkt.containers.reassembly import Reassembler
 
 PAYLOAD = bytes(range(256)) * 20  # 5120 bytes
 
@@ -51,7 +51,7 @@ def test_a_late_piece_inside_the_walked_prefix_extends_it():
 
 
 def test_byte_bound_keeps_the_datagram_just_added_and_is_inclusive():
-    from lidarpkt.sources.reassembly import FRAGMENT_OVERHEAD
+    from lidarpkt.containers.reassembly import FRAGMENT_OVERHEAD
 
     piece = 1000 + FRAGMENT_OVERHEAD
     r = Reassembler(max_bytes=3 * piece)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from lidarpkt.sources.pcap_reader import PcapReader
+from lidarpkt.containers.pcap_reader import PcapReader
 from lidarpkt.writers.pcap import write_pcap
 
 
@@ -34,7 +34,7 @@ def test_a_reused_ip_id_goes_through_the_general_path(ext):
 
 def test_written_fragments_take_the_vectorised_path(ext, tmp_path):
     """Our own writer's fragments (MTU 1500 → 1480-byte pieces, offsets in 8-byte units)."""
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     packets = [p for p in read_packets(ext("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap")) if len(p.payload) == 8448]
     path = tmp_path / "f.pcap"

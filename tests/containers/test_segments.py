@@ -1,4 +1,4 @@
-"""Segments of a capture (lidarpkt.sources.segments): the frames of all segments are the whole file's.
+"""Segments of a capture (lidarpkt.containers.segments): the frames of all segments are the whole file's.
 
 Every external capture and canned fixture is cut small (boundaries mid-frame, beside VLP-16
 position and Ouster IMU packets, next to the 12-fragment trains of the canned OS1-64 datagrams); the
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.pcap import write_pcapng
-from lidarpkt.sources import Segment, plan_segments
-from lidarpkt.sources.segments import _continues_fragment
+from lidarpkt.containers import Segment, plan_segments
+from lidarpkt.containers.segments import _continues_fragment
 
 from conftest import REPO_ROOT, external
 
@@ -232,7 +232,7 @@ def test_resynchronised_cuts_are_the_walked_cuts(name, segment_bytes):
 def _nested_capture(path: Path, ethertype: int) -> None:
     """UDP datagrams whose payloads are runs of 23 plausible 44-byte pcap records that end exactly where
     the payload does (a capture carried inside a capture), with ``ethertype`` in each inner record."""
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import write_pcap
 
     inner = struct.pack("<IIII", 1_700_000_000, 5, 28, 28) + bytes(12) + struct.pack(">H", ethertype) + bytes(14)
@@ -254,7 +254,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
     falls inside a datagram. The reader of the segment before it walks on past its end, sees that, and
     lidarpkt.open(workers=3) raises a CaptureFormatError naming workers=1 before yielding any frame
     of the segment after the cut."""
-    from lidarpkt import parallel
+    from lidarpkt.pipeline import parallel
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "nested.pcap"

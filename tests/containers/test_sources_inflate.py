@@ -1,4 +1,4 @@
-"""Bounded inflation of ROS bags (lidarpkt.sources.inflate): compressed ROS 1 chunks (bz2, lz4) and rosbag2
+"""Bounded inflation of ROS bags (lidarpkt.containers.inflate): compressed ROS 1 chunks (bz2, lz4) and rosbag2
 zstd messages read as before, and a zero "bomb" of a few hundred bytes is refused without inflating it
 (the peak memory of a child process that reads it, VmHWM, is measured)."""
 
@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarpkt.sources.bags import MESSAGE_DEFINITIONS, BagReader
+from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
 from lidarpkt.errors import CaptureFormatError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_packets
-from lidarpkt.sources.inflate import MAX_INFLATED_BYTES, inflate_bounded
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_packets
+from lidarpkt.containers.inflate import MAX_INFLATED_BYTES, inflate_bounded
 
 from conftest import REPO_ROOT
 
@@ -137,7 +137,7 @@ def _zero_bomb(compression: str, size: int) -> bytes:
 
 _READ_AND_REPORT_PEAK = r"""
 import sys
-from lidarpkt.sources.bags import BagReader
+from lidarpkt.containers.bags import BagReader
 from lidarpkt.errors import LidarpktError
 n, outcome = 0, "ok"
 try:
@@ -324,8 +324,8 @@ def test_rosbag2_mcap_storage_without_summary_is_bounded_while_opening(tmp_path)
 
 _READ_FILE_BOMB = r"""
 import os, sys
-import lidarpkt.sources.inflate as inflate
-from lidarpkt.sources.bags import BagReader
+import lidarpkt.containers.inflate as inflate
+from lidarpkt.containers.bags import BagReader
 from lidarpkt.errors import CaptureFormatError
 inflate.MAX_INFLATED_BYTES = int(sys.argv[2])  # the floor of the file limit, small so the test writes little
 inflate._DISK_MARGIN_BYTES = int(sys.argv[3])

@@ -10,12 +10,12 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import LidarpktError, UnsupportedContainerError, UnsupportedFilterError
-from lidarpkt.packet import Packet
-from lidarpkt.sources.pcap_reader import PcapReader, read_packets
+from lidarpkt.core.packet import Packet
+from lidarpkt.containers.pcap_reader import PcapReader, read_packets
 from lidarpkt.writers.pcap import frames_for, write_pcap, write_pcap_records, write_pcapng
-from lidarpkt.sources import PacketSource, container_kind, open_packet_source
-from lidarpkt.sources.bags import BagReader
-from lidarpkt.sources.magic import PCAP_MAGIC_BYTES, format_from_magic
+from lidarpkt.containers import PacketSource, container_kind, open_packet_source
+from lidarpkt.containers.bags import BagReader
+from lidarpkt.containers.magic import PCAP_MAGIC_BYTES, format_from_magic
 
 from conftest import REPO_ROOT, external
 from reference_tools import velodyne_scan_mcap
@@ -159,8 +159,8 @@ def test_open_takes_typed_keyword_options_with_the_readers_defaults():
     import inspect
     import pydoc
 
-    from lidarpkt.options import OpenOptions
-    from lidarpkt.source import FrameReader, open_frames
+    from lidarpkt.pipeline.options import OpenOptions
+    from lidarpkt.pipeline.reader import FrameReader, open_frames
 
     assert lidarpkt.open is open_frames
     sig = inspect.signature(lidarpkt.open)

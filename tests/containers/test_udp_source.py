@@ -1,4 +1,4 @@
-"""Live UDP reception as a packet source (``lidarpkt.sources.udp``): opened like a capture file
+"""Live UDP reception as a packet source (``lidarpkt.containers.udp``): opened like a capture file
 (``open_packet_source("udp://...")``), its batches decoded by the same router as ``lidarpkt.open``'s."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UsageError
-from lidarpkt.sources import open_packet_source
-from lidarpkt.sources.pcap_reader import read_packets
-from lidarpkt.sources.udp import UdpSource, parse_udp_url
+from lidarpkt.containers import open_packet_source
+from lidarpkt.containers.pcap_reader import read_packets
+from lidarpkt.containers.udp import UdpSource, parse_udp_url
 from lidarpkt.view.sources import LiveDecoder
 from conftest import REPO_ROOT
 

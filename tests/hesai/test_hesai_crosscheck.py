@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarpkt.hesai import HesaiDecoder, load_calibration
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.hesai import HesaiDecoder, load_calibration
+from lidarpkt.core.packet import PacketBatch
 
 
 @pytest.mark.crosscheck
@@ -21,7 +21,7 @@ def test_hydra4_points_are_our_last_returns(ext):
     from hydra4.decoders.pandar_xt32 import PandarXT32
     from hydra4.msgs import pandar_msgs__msg__PandarPacket
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batch = next(iter(BagReader(glob.glob(str(ext("nebula/hesai/xt32")) + "/*/")[0]).batches()))
     csv = ext("nebula/hesai/PandarXT32.csv")

@@ -1,5 +1,5 @@
 """Hostile copies of the Pandar bags' packets: damaged bytes, wrong sizes, impossible fields, a damaged
-PandarScan. Each gives counted skips (the decoder's stats, ``lidarpkt.dropped``) or one clear
+PandarScan. Each gives counted skips (the decoder's stats, ``lidarpkt.core.dropped``) or one clear
 ``lidarpkt.errors`` exception, never another exception."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.dropped import dropped_counts
+from lidarpkt.core.dropped import dropped_counts
 from lidarpkt.errors import CaptureFormatError, LidarpktError, SkippedPacketWarning
-from lidarpkt.hesai import HesaiCalibration, HesaiDecoder, detect_model
-from lidarpkt.hesai.models import MODELS
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.bags import MESSAGE_DEFINITIONS, BagReader
+from lidarpkt.vendors.hesai import HesaiCalibration, HesaiDecoder, detect_model
+from lidarpkt.vendors.hesai.models import MODELS
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
 
 FOLDERS = ["40p", "64", "qt64", "qt128", "xt16", "xt32", "xt32m"]
 
@@ -101,7 +101,7 @@ def test_duplicates_and_late_packets_are_dropped_and_counted(ext):
     assert dec.stats.decoded_packets == 150 and _accounted(dec, len(again) + 100)
     counts = {"late": 10, "duplicate": 5}
 
-    # what lidarpkt.dropped reads: the router's sensor keys (vendor, ...) and their decoders' stats
+    # what lidarpkt.core.dropped reads: the router's sensor keys (vendor, ...) and their decoders' stats
     reader = types.SimpleNamespace(decoders={("hesai", None, "PandarXT32"): dec})
     assert {k: v for k, v in dropped_counts(reader).items() if k in counts} == counts
 
@@ -172,7 +172,7 @@ def test_random_bytes_of_every_size_never_crash(model):
 
 def test_a_udp_sequence_jump_claims_no_more_lost_packets_than_the_capture_time_holds(ext):
     """A sequence number moved 500,000 on (below the restart threshold) in a 0.1 s stretch of packets: the
-    losses claimed are bounded by the capture time between the packets around it (lidarpkt.continuity)."""
+    losses claimed are bounded by the capture time between the packets around it (lidarpkt.core.continuity)."""
     batch = _bag_batch(ext, "xt32")
     model = detect_model(batch.payload)
     layout = model.layout
@@ -184,8 +184,8 @@ def test_a_udp_sequence_jump_claims_no_more_lost_packets_than_the_capture_time_h
     packets["tail"]["udp_sequence"][len(packets) // 2:] += 500_000  # every later packet agrees: a jump, not one bad packet
     hostile = _decoder(model)
     hostile.push(PacketBatch.from_payloads(payload, batch.timestamp_ns, first_index=0))
-    from lidarpkt.continuity import CAPTURE_RESOLUTION_S
-    from lidarpkt.hesai.decode import decode_packets
+    from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S
+    from lidarpkt.vendors.hesai.decode import decode_packets
 
     span_ns = int(batch.timestamp_ns[-1] - batch.timestamp_ns[0])  # capture time of the whole batch
     period_ns = float(np.median(np.diff(decode_packets(batch.payload, model).timestamp_ns)))  # the sensor's

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import CalibrationError
-from lidarpkt.hesai import (
+from lidarpkt.vendors.hesai import (
     HesaiDecoder,
     encode_packets,
     load_calibration,
     model_named,
     parse_calibration,
 )
-from lidarpkt.hesai.models import MODELS
-from lidarpkt.hesai.timing import QT64_CHANNEL_NS, firing_offsets_ns
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.hesai.models import MODELS
+from lidarpkt.vendors.hesai.timing import QT64_CHANNEL_NS, firing_offsets_ns
+from lidarpkt.core.packet import PacketBatch
 
 T0 = 1_700_000_000_000_000_000
 
@@ -117,7 +117,7 @@ def test_xyz_is_nebulas_frame():
 
 
 def test_the_decoder_is_a_decoder_and_names_its_sensor():
-    from lidarpkt.decoder import Decoder
+    from lidarpkt.core.decoder import Decoder
     from lidarpkt.errors import UnknownSensorError
 
     assert isinstance(HesaiDecoder(), Decoder)

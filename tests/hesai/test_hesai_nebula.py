@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.hesai import model_named
+from lidarpkt.vendors.hesai import model_named
 
 # folder, bag, pcd, model, calibration, nebula's min/max range (m), the return labels the packets name
 BAGS = [

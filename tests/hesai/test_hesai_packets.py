@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import PacketFormatError
-from lidarpkt.hesai import HesaiDecoder, decode_packets, detect_model, encode_packets
-from lidarpkt.hesai.models import MODELS, RETURN_MODES, model_named
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.hesai import HesaiDecoder, decode_packets, detect_model, encode_packets
+from lidarpkt.vendors.hesai.models import MODELS, RETURN_MODES, model_named
+from lidarpkt.core.packet import PacketBatch
 
 MODES_BY_COUNT = {1: [0x33, 0x34, 0x37, 0x38], 2: [0x39, 0x3A, 0x3B, 0x3C, 0x3E], 3: [0x3D]}
 CASES = [(m.name, mode, size) for m in MODELS for n in m.returns for mode in MODES_BY_COUNT[n] for size in m.sizes]
@@ -87,7 +87,7 @@ def test_utc_time_is_the_calendars():
 
 def test_the_xt32_bag_first_packet_time(ext):
     """Tail bytes of the bag's first packet, read by hand: year 0x77 (1900 + 119), July 25, 03:19:29, 619 165 µs."""
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batch = next(iter(BagReader(ext("nebula/hesai/xt32/1673400677802009732")).batches()))
     raw = decode_packets(batch.payload, model_named("PandarXT32"))
@@ -100,7 +100,7 @@ def test_the_xt32_bag_first_packet_time(ext):
 def test_real_packets_survive_decode_encode_decode(ext, folder):
     import glob
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     bag = glob.glob(str(ext(f"nebula/hesai/{folder}")) + "/*/")[0]
     batch = next(iter(BagReader(bag).batches()))

@@ -16,9 +16,9 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import CalibrationError
-from lidarpkt.hesai import HesaiDecoder, load_calibration
-from lidarpkt.hesai.ptc import GET_LIDAR_CALIBRATION, PtcError, PtcServer, fetch_calibration, ptc_request
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.hesai import HesaiDecoder, load_calibration
+from lidarpkt.vendors.hesai.ptc import GET_LIDAR_CALIBRATION, PtcError, PtcServer, fetch_calibration, ptc_request
+from lidarpkt.core.packet import PacketBatch
 
 
 def test_calibration_read_over_ptc_is_the_file(ext):

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt import parallel
-from lidarpkt.hesai import decode_packets, detect_model, encode_packets
-from lidarpkt.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.sources.bags import BagReader
+from lidarpkt.pipeline import parallel
+from lidarpkt.vendors.hesai import decode_packets, detect_model, encode_packets
+from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
+from lidarpkt.containers.bags import BagReader
 from lidarpkt.writers.pcap import write_pcap
 
 

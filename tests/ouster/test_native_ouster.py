@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarpkt import kernels
-from lidarpkt.ouster.decode import packet_view, read_pixel_field
-from lidarpkt.ouster.fieldplan import SLOT_FIELDS, extract, new_fields, packet_layout, scatter_steps
-from lidarpkt.ouster.frames import _NATIVE_PIXEL_BYTES, OusterDecoder
-from lidarpkt.ouster.profiles import PROFILES
+from lidarpkt.core import kernels
+from lidarpkt.vendors.ouster.decode import packet_view, read_pixel_field
+from lidarpkt.vendors.ouster.fieldplan import SLOT_FIELDS, extract, new_fields, packet_layout, scatter_steps
+from lidarpkt.vendors.ouster.frames import _NATIVE_PIXEL_BYTES, OusterDecoder
+from lidarpkt.vendors.ouster.profiles import PROFILES
 from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
 
 # the kernel's widest pixel is 16 bytes; the 20-byte profiles (FIVE_WORD_PIXEL, RGB16 dual) take the NumPy twin

@@ -126,7 +126,7 @@ def test_empty_osf_gives_no_frame():
 
 
 def test_osf_is_no_packet_source():
-    from lidarpkt.sources import open_packet_source
+    from lidarpkt.containers import open_packet_source
 
     with pytest.raises(UnsupportedContainerError, match="holds decoded frames, not packets"):
         open_packet_source(external("ouster-sdk/single_scan_016.osf"))
@@ -307,7 +307,7 @@ def test_hostile_sizes_allocate_nothing_they_claim(tmp_path):
     huge_chunk = bytearray(data)
     struct.pack_into("<I", huge_chunk, start, 0xFFFFFFF0)
     cases["chunk size"] = bytes(huge_chunk)
-    from lidarpkt.ouster.osf import _root
+    from lidarpkt.vendors.ouster.osf import _root
 
     block = bytes(data[start:end - 4])
     chunk = _root(block, "Chunk")
@@ -343,7 +343,7 @@ def test_png_unfilter_matches_pillow():
 
     from PIL import Image
 
-    from lidarpkt.ouster.osf import _png_inflate_unfilter
+    from lidarpkt.vendors.ouster.osf import _png_inflate_unfilter
 
     data = external("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.osf").read_bytes()
     pos, checked, filters = 0, 0, set()
@@ -376,7 +376,7 @@ def _chunks(png: bytes, kind: bytes):
 def test_64_bit_field_image_round_trip():
     """A 64-bit field as ouster-sdk stores it (16-bit RGBA PNG, low bytes first in each pixel; rows with each
     filter) decodes to its values: the path Pillow cannot take."""
-    from lidarpkt.ouster.osf import _decode_image
+    from lidarpkt.vendors.ouster.osf import _decode_image
 
     rng = np.random.default_rng(7)
     h, w = 6, 40
@@ -420,7 +420,7 @@ def _built(messages_for, share_buffers=False):
     """An OSF file of the OS-0-32 sensor's metadata with the frame messages ``messages_for(h, w, shift)`` gives."""
     from osf_builder import osf_file
 
-    from lidarpkt.ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     text = external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json").read_text()
     md = load_metadata(text)
@@ -440,7 +440,7 @@ def test_osf_written_here_reads_as_ouster_sdk_reads_it(tmp_path):
     1-D field, a ZPNG 64-bit field): ouster-sdk's reader and lidarpkt's give the same arrays."""
     from osf_builder import Custom, png_rgba, zpng
 
-    from lidarpkt.frame import destagger
+    from lidarpkt.core.frame import destagger
 
     rng = np.random.default_rng(3)
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 
 from conftest import external
-from lidarpkt.ouster import OusterDecoder, classify, load_metadata
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
+from lidarpkt.vendors.ouster import OusterDecoder, classify, load_metadata
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
 
 # (capture, metadata files, published digest or None)
 CAPTURES = [

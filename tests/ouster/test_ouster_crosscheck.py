@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from conftest import external
-from lidarpkt.ouster import OusterMetadata, decode_imu, load_metadata
-from lidarpkt.sources.pcap_reader import read_batches
+from lidarpkt.vendors.ouster import OusterMetadata, decode_imu, load_metadata
+from lidarpkt.containers.pcap_reader import read_batches
 from test_ouster_cases import CAPTURES, decode_frames
 
 pytestmark = pytest.mark.crosscheck
@@ -126,7 +126,7 @@ def test_metadata_matches_ouster_sdk(meta):
 def test_packet_header_fields_match_ouster_sdk(pcap, jsons):
     """Header fields (frame id, init_id, serial, countdowns, alert flags) as the SDK's PacketFormat reads them."""
     core = pytest.importorskip("ouster.sdk.core")
-    from lidarpkt.ouster import decode_packets
+    from lidarpkt.vendors.ouster import decode_packets
     from test_ouster_cases import lidar_streams
 
     checked = 0
@@ -177,9 +177,9 @@ def test_imu_fields_match_ouster_sdk(pcap, meta):
 def test_every_pixel_field_of_every_packet_matches_packet_format(pcap, jsons):
     """All channel fields the SDK's PacketFormat knows (WINDOW and RAW32 words included), packet by packet."""
     core = pytest.importorskip("ouster.sdk.core")
-    from lidarpkt.ouster import decode_packets
-    from lidarpkt.ouster.decode import packet_view, read_pixel_field
-    from lidarpkt.ouster.digest import raw_word_fields
+    from lidarpkt.vendors.ouster import decode_packets
+    from lidarpkt.vendors.ouster.decode import packet_view, read_pixel_field
+    from lidarpkt.vendors.ouster.digest import raw_word_fields
     from test_ouster_cases import lidar_streams
 
     checked = set()

@@ -7,8 +7,8 @@ import pytest
 
 from conftest import external
 from lidarpkt.errors import PacketFormatError, SensorMismatchError
-from lidarpkt.ouster import decode_packets, empty_fields, encode_packets, load_metadata
-from lidarpkt.ouster.digest import PacketDigest, compare_digest, frame_digest
+from lidarpkt.vendors.ouster import decode_packets, empty_fields, encode_packets, load_metadata
+from lidarpkt.vendors.ouster.digest import PacketDigest, compare_digest, frame_digest
 from test_ouster_cases import CAPTURES, DIGESTED, IDS, all_packets_of_size, decode_frames, load_digest, lidar_streams
 
 
@@ -167,7 +167,7 @@ def test_synthetic_packets_get_a_valid_crc_for_firmware_that_writes_one():
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
 
-from lidarpkt.ouster.profiles import PROFILES  # noqa: E402
+from lidarpkt.vendors.ouster.profiles import PROFILES  # noqa: E402
 
 _PROFILE_ROWS = [(name, rows) for name in PROFILES for rows in (16, 32)]
 
@@ -219,8 +219,8 @@ def test_fields_survive_encode_then_decode(layout, rnd):
 
 # ----------------------------------------------------------------------------- IMU
 
-from lidarpkt.ouster import decode_imu, encode_imu  # noqa: E402
-from lidarpkt.sources.pcap_reader import read_batches  # noqa: E402
+from lidarpkt.vendors.ouster import decode_imu, encode_imu  # noqa: E402
+from lidarpkt.containers.pcap_reader import read_batches  # noqa: E402
 
 
 IMU_CAPTURES = [  # SOURCES.md: the captures that hold 48-byte IMU packets

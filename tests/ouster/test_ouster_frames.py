@@ -11,7 +11,7 @@ import pytest
 import lidarpkt
 from conftest import external
 from lidarpkt.errors import SensorMismatchError, SkippedPacketWarning
-from lidarpkt.ouster import (
+from lidarpkt.vendors.ouster import (
     OusterDecoder,
     classify,
     decode_packets,
@@ -19,8 +19,8 @@ from lidarpkt.ouster import (
     encode_packets,
     load_metadata,
 )
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
 from test_ouster_cases import decode_frames, lidar_streams
 
 DUAL = ("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", ["ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"])
@@ -326,7 +326,7 @@ def test_describe_without_metadata_lists_every_layout_of_the_size():
 
 # ----------------------------------------------------------------------------- frames → packets
 
-from lidarpkt.ouster import encode_frame  # noqa: E402
+from lidarpkt.vendors.ouster import encode_frame  # noqa: E402
 from test_ouster_cases import CAPTURES  # noqa: E402
 
 # captures whose packets carry nothing a Frame does not hold (no reserved bits set, zero or CRC
@@ -431,7 +431,7 @@ def test_48_byte_junk_is_not_an_ouster_imu():
 )
 def test_layouts_without_a_real_capture(profile, rows, mode):
     """Channel counts and modes no external capture has: every pixel lands at (row, measurement id)."""
-    from lidarpkt.ouster import empty_fields
+    from lidarpkt.vendors.ouster import empty_fields
 
     doc = {
         "beam_altitude_angles": np.linspace(20, -20, rows).tolist(),

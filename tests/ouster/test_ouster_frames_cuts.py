@@ -18,12 +18,12 @@ import pytest
 
 from conftest import under_mutmut
 
-from lidarpkt import kernels
+from lidarpkt.core import kernels
 from lidarpkt.errors import SensorMismatchError, SkippedPacketWarning
-from lidarpkt.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
-from lidarpkt.ouster.imu import decode_imu
-from lidarpkt.imu import ImuSamples
-from lidarpkt.packet import PacketBatch
+from lidarpkt.vendors.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
+from lidarpkt.vendors.ouster.imu import decode_imu
+from lidarpkt.core.imu import ImuSamples
+from lidarpkt.core.packet import PacketBatch
 from test_ouster_cases import all_packets_of_size, lidar_streams
 
 DUAL = ("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap", ["ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json"])
@@ -162,7 +162,7 @@ def test_frame_fields_keep_their_documented_types(assembly):
 def test_the_last_16_released_frames_are_remembered(assembly):
     """Frames 1-18, one packet each: when frame 1 comes back, only frames 3-18 are remembered (16):
     it starts a new frame; a packet of frame 3 is late. (Frame 1 comes back with two packets: a jump
-    of 1.7 s back is a restart only when the packet after it agrees, lidarpkt.continuity.)"""
+    of 1.7 s back is a restart only when the packet after it agrees, lidarpkt.core.continuity.)"""
     md, p = dual()
     dec = OusterDecoder(md)
     frames = []

@@ -11,14 +11,14 @@ import pytest
 from conftest import external
 from test_ouster_cases import decode_frames, lidar_streams
 
-from lidarpkt import kernels
-from lidarpkt.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
-from lidarpkt.ouster.encode import empty_fields, encode_frame
-from lidarpkt.ouster.imu import imu_samples
-from lidarpkt.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER, read_bits
-from lidarpkt.ouster.zone import decode_zone_packets
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
+from lidarpkt.core import kernels
+from lidarpkt.vendors.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
+from lidarpkt.vendors.ouster.encode import empty_fields, encode_frame
+from lidarpkt.vendors.ouster.imu import imu_samples
+from lidarpkt.vendors.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER, read_bits
+from lidarpkt.vendors.ouster.zone import decode_zone_packets
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
 
 SDK = "ouster-sdk/"
 SHOT = (SDK + "shot_limiting_test.pcap", [SDK + "shot_limiting_test.json"])
@@ -461,7 +461,7 @@ def test_wrong_sizes_and_junk_give_clear_errors_or_counts():
     from hypothesis import given, settings, strategies as st
 
     from lidarpkt.errors import PacketFormatError
-    from lidarpkt.ouster.imu import decode_imu_nmea
+    from lidarpkt.vendors.ouster.imu import decode_imu_nmea
 
     md = load_metadata(external(IMU_ZM[1]))
     with pytest.raises(PacketFormatError, match="452 bytes"):

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from conftest import external
-from lidarpkt.frame import FrameStack
-from lidarpkt.ouster import OusterDecoder, encode_frame, load_metadata
-from lidarpkt.packet import PacketBatch
+from lidarpkt.core.frame import FrameStack
+from lidarpkt.vendors.ouster import OusterDecoder, encode_frame, load_metadata
+from lidarpkt.core.packet import PacketBatch
 from test_ouster_cases import decode_frames
 
 REDUCED = "ouster-sdk/OS-1-64_sensor_config_reduced.json"
@@ -80,7 +80,7 @@ def test_lookup_tables_are_shared_by_opens_of_one_calibration():
     import dataclasses
 
     import lidarpkt
-    from lidarpkt.ouster.geometry import OusterGeometry
+    from lidarpkt.vendors.ouster.geometry import OusterGeometry
 
     pcap, meta = external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.pcap"), external("ouster-sdk/OS-0-32-U1_v2.2.0_1024x10.json")
     a, b = (next(iter(lidarpkt.open(pcap, metadata=meta))).sensor.geometry for _ in range(2))

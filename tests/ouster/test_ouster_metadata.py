@@ -10,8 +10,8 @@ import pytest
 
 from conftest import external
 from lidarpkt.errors import MetadataError
-from lidarpkt.ouster import load_metadata
-from lidarpkt.ouster.profiles import PROFILES
+from lidarpkt.vendors.ouster import load_metadata
+from lidarpkt.vendors.ouster.profiles import PROFILES
 
 
 def test_reduced_legacy_file_gets_the_documented_defaults():

@@ -1,4 +1,4 @@
-"""The bit-field table helpers of lidarpkt.ouster.profiles, called directly (they run at import,
+"""The bit-field table helpers of lidarpkt.vendors.ouster.profiles, called directly (they run at import,
 where only a direct call can show a broken one): reserved-bit splitting, the cover check, the
 field types and lookups."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import MetadataError, PacketFormatError
-from lidarpkt.ouster import profiles as P
+from lidarpkt.vendors.ouster import profiles as P
 
 
 def pieces(fields):
@@ -102,7 +102,7 @@ def test_read_bits_keeps_leading_axes_and_the_field_type():
 
 
 def test_selected_packet_fields_are_the_rows_of_every_field(ext):
-    from lidarpkt.ouster import decode_packets
+    from lidarpkt.vendors.ouster import decode_packets
     from test_ouster_cases import lidar_streams
 
     for pcap, jsons in (("ouster-sdk/crc_test.pcap", ["ouster-sdk/crc_test.json"]),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from test_ouster_cases import CAPTURES, lidar_streams
 
-from lidarpkt.ouster import decode_packets
+from lidarpkt.vendors.ouster import decode_packets
 
 # ------------------------------------------------------------------ the manual's layouts
 PIXEL = {

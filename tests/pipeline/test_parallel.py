@@ -21,9 +21,9 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UsageError
-from lidarpkt import parallel
+from lidarpkt.pipeline import parallel
 from lidarpkt.errors import UnknownSensorError
-from lidarpkt.source import FrameReader
+from lidarpkt.pipeline.reader import FrameReader
 
 from conftest import REPO_ROOT, external
 from test_segments import ARRAYS, CANNED_NAMES, OUSTER_EXTERNAL, VELODYNE_EXTERNAL
@@ -145,7 +145,7 @@ def test_small_capture_and_segment_option():
     """A capture too small to cut takes the pipeline even with 3 workers; a segment is read in one thread."""
     path = CANNED / "vlp16-strongest.pcap"
     assert isinstance(lidarpkt.open(path, workers=3), parallel.PipelinedFrameReader)  # below the segment floor
-    seg = lidarpkt.sources.segments.plan_segments(path, 1 << 30)[0]
+    seg = lidarpkt.containers.segments.plan_segments(path, 1 << 30)[0]
     assert isinstance(lidarpkt.open(path, workers=2, segment=seg), FrameReader)
 
 
@@ -192,7 +192,7 @@ def test_the_pipeline_warns_in_the_callers_thread(tmp_path):
 
 
 def test_no_sensor_in_any_segment_raises(tmp_path, small_segments):
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import write_pcap
 
     path = tmp_path / "other.pcap"
@@ -224,15 +224,15 @@ def test_decode_and_analyze_take_workers(tmp_path, small_segments):
 
 
 def test_parallel_does_not_import_source():
-    """No import circle: the threads over segments get their reader factory from lidarpkt.source, which
-    imports lidarpkt.parallel, never the other way round (checked in a fresh interpreter)."""
+    """No import circle: the threads over segments get their reader factory from lidarpkt.pipeline.reader, which
+    imports lidarpkt.pipeline.parallel, never the other way round (checked in a fresh interpreter)."""
     import subprocess
 
-    code = ("import sys, lidarpkt.parallel; "
-            "print(sorted(m for m in sys.modules if m in ('lidarpkt.source', 'lidarpkt.options')))")
+    code = ("import sys, lidarpkt.pipeline.parallel; "
+            "print(sorted(m for m in sys.modules if m in ('lidarpkt.pipeline.reader', 'lidarpkt.pipeline.options')))")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
     assert res.returncode == 0, res.stderr[-2000:]
-    assert res.stdout.split() == ["['lidarpkt.options']"]
+    assert res.stdout.split() == ["['lidarpkt.pipeline.options']"]
 
 
 def test_damage_mid_file_stops_three_workers_where_it_stops_one(tmp_path, small_segments):

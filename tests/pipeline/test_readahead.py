@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt._readahead import THREAD_NAME, ReadAhead
+from lidarpkt.core.readahead import THREAD_NAME, ReadAhead
 from lidarpkt.errors import CaptureFormatError, DroppedPacketsWarning, SkippedPacketWarning, TruncatedCaptureWarning
-from lidarpkt.packet import Endpoint, Packet
-from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.core.packet import Endpoint, Packet
+from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.pcap import write_pcap, write_pcapng
 
 OUSTER = [
@@ -98,7 +98,7 @@ def test_vlp16_frames_are_identical_with_read_ahead(ext, pcap, batch_packets):
 
 
 def _vlp16_capture(path, n=3000, seed=1) -> None:
-    from lidarpkt.velodyne import encode_data_packets
+    from lidarpkt.vendors.velodyne import encode_data_packets
 
     rng = np.random.default_rng(seed)
     t_ns = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 1_327_104
@@ -244,7 +244,7 @@ def longer_than_the_queue(tmp_path_factory):
     """A capture of more payload than the read-ahead queue holds (16 MB), so that the thread is still
     reading, blocked on the full queue, when the first frame comes out (with a shorter one, the
     compiled pcap walk could read it all before that, and the thread would be gone already)."""
-    from lidarpkt._readahead import DEFAULT_MAX_BYTES
+    from lidarpkt.core.readahead import DEFAULT_MAX_BYTES
 
     path = tmp_path_factory.mktemp("readahead") / "vlp16.pcap"
     n = DEFAULT_MAX_BYTES // 1206 + 4000

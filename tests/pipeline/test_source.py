@@ -5,7 +5,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UnknownSensorError, UnsupportedContainerError
-from lidarpkt.source import container_kind
+from lidarpkt.pipeline.reader import container_kind
 
 
 def test_veloview_test_through_open(ext):

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import PortInUseError
-from lidarpkt.ouster.metadata import load_metadata
-from lidarpkt.sources.pcap_reader import read_batches, read_packets
-from lidarpkt import streams
-from lidarpkt.sources.udp import UdpSource
+from lidarpkt.vendors.ouster.metadata import load_metadata
+from lidarpkt.containers.pcap_reader import read_batches, read_packets
+from lidarpkt.core import streams
+from lidarpkt.containers.udp import UdpSource
 from conftest import external
 
 
@@ -119,7 +119,7 @@ def test_one_read_is_bounded_so_a_flood_cannot_keep_the_thread_from_stopping():
     """A sender that never pauses (another program, a replay at --max) kept the receive thread in
     its read loop, deaf to stop(): one read takes at most READ_BATCH datagrams, then the thread
     looks at the stop flag again; the backlog is still all read, in order."""
-    from lidarpkt.sources.udp import READ_BATCH
+    from lidarpkt.containers.udp import READ_BATCH
 
     port = _free_port()
     n = READ_BATCH + 10
@@ -184,7 +184,7 @@ def test_velodyne_dropped_and_repeated_packets_are_counted_exactly():
 
 
 def test_velodyne_dual_mode_period_from_the_real_dual_bag():
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
     payload = np.concatenate([b.payload for b in batches])
@@ -249,7 +249,7 @@ def test_a_sensor_restart_is_an_interruption_not_a_loss():
 
 def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
     """velodyne_vlp32.pcap is an HDL-32E (SOURCES.md: packets every 552-553 µs)."""
-    from lidarpkt.packet import PacketBatch
+    from lidarpkt.core.packet import PacketBatch
     from lidarpkt.writers.mcap.writer import McapWriter
     from lidarpkt.writers.mcap.packets import PacketSink
 

@@ -168,7 +168,7 @@ def test_npz_of_two_sensors_has_the_first_bare_and_the_second_prefixed(tmp_path)
 def test_frames_are_logged_at_the_host_time_of_their_last_packet(tmp_path):
     """The OS1 capture's clock counts from boot (SOURCES.md: fw 2.0, no PTP) while the pcap holds
     2021 host times: frame messages must sit among their packets, not in 1970."""
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
 
     out = tmp_path / "t.mcap"
     r = _decode(external(OS1), "--metadata", external(OS1_JSON), "-o", out, "--topics", "packets,points", "-q")

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from lidarpkt.sources.udp import UdpSource
+from lidarpkt.containers.udp import UdpSource
 from lidarpkt.recorder.replay import read_capture, replay
 from conftest import external
 from test_replay_record import REPO, Recorder, _free_ports, _messages, _recorded_payloads
@@ -72,7 +72,7 @@ def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
     packets = list(read_capture(str(pcap)))
     lidar_port, imu_port = _free_ports(2)
     rec = Recorder(tmp_path, [lidar_port, imu_port], "--metadata", str(meta), "-q")
-    from lidarpkt.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata import load_metadata
 
     md = load_metadata(meta)
     replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, ouster_metadata=md)
@@ -155,7 +155,7 @@ def test_duration_stop_with_status_lines_and_summary(tmp_path):
 def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(tmp_path):
     import warnings
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     mnt = tmp_path / "small"
     mnt.mkdir()

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarpkt.packet import Packet
+from lidarpkt.core.packet import Packet
 from lidarpkt.recorder.replay import read_capture, replay
 from conftest import end_process, external, start_process
 
@@ -255,7 +255,7 @@ def test_frames_from_the_recording_equal_frames_from_the_capture(tmp_path):
 def test_sigkill_leaves_the_packets_before_the_last_chunk_readable(tmp_path):
     import warnings
 
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")  # about 2.5 s, 20 Hz
     packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]
@@ -387,7 +387,7 @@ def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_re
     """Issue 14: without --metadata the non-legacy lidar packets went to 7502 (mapped), not --to,
     although `lidarpkt info` calls the stream Ouster lidar; now both recognise it by its header."""
     pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy
-    from lidarpkt.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata import load_metadata
 
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
     lidar, other = _free_ports(2)

@@ -9,11 +9,11 @@ import pytest
 
 from lidarpkt import fixtures
 from conftest import external
-from lidarpkt.ouster import OusterDecoder, load_metadata
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
-from lidarpkt.velodyne import VelodyneDecoder
-from lidarpkt.velodyne.clock import DAY_NS, HOUR_NS, in_nearest_hour_ns, on_nearest_day_ns
+from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
+from lidarpkt.vendors.velodyne import VelodyneDecoder
+from lidarpkt.vendors.velodyne.clock import DAY_NS, HOUR_NS, in_nearest_hour_ns, on_nearest_day_ns
 from lidarpkt.recorder.gps import sentence_time_ns
 from lidarpkt.writers.mcap.writer import McapWriter
 from lidarpkt.writers.mcap.packets import PacketSink, velodyne_sensor_time_ns
@@ -64,7 +64,7 @@ def test_velodyne_recorder_and_decoder_agree(tmp_path, rel, drop):
 
 
 def test_velodyne_dual_recorder_and_decoder_agree(tmp_path):
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
     batch = _drop(PacketBatch.from_payloads(np.concatenate([b.payload for b in batches]),

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt import kernels
-from lidarpkt.velodyne.geometry import VelodyneGeometry, _trig_tables
+from lidarpkt.core import kernels
+from lidarpkt.vendors.velodyne.geometry import VelodyneGeometry, _trig_tables
 
 from conftest import REPO_ROOT, external
 
@@ -125,8 +125,8 @@ def test_native_columns_give_the_frames_of_numpy(name, monkeypatch):
 
 @pytest.mark.parametrize("slots", [1, 2])
 def test_native_columns_views_copies_and_row_orders(slots, monkeypatch):
-    from lidarpkt.velodyne.decode import column_pixels, decode_packets
-    from lidarpkt.velodyne.timing import firing_azimuth_cdeg
+    from lidarpkt.vendors.velodyne.decode import column_pixels, decode_packets
+    from lidarpkt.vendors.velodyne.timing import firing_azimuth_cdeg
 
     payload = np.random.default_rng(slots).integers(0, 256, (37, 1206), dtype=np.uint8)
     raw = decode_packets(payload)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import CalibrationError, NMEAError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, load_calibration, parse_nmea, stock_calibration
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, load_calibration, parse_nmea, stock_calibration
 
 MANUAL_ELEVATION = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], float)
 
@@ -54,7 +54,7 @@ def test_yaml_calibration_points_match_velodyne_decoder(ext, name):
     _, ref = vd.ScanDecoder(cfg).decode(packets, True)
     dec = VelodyneDecoder(calibration=ext(name))
     frames = dec.push(PacketBatch.from_payloads(payload)) + dec.finish()
-    from lidarpkt.velodyne import frame_points
+    from lidarpkt.vendors.velodyne import frame_points
 
     ours = np.concatenate([frame_points(f) for f in frames])
     assert len(ours) == len(ref)
@@ -91,8 +91,8 @@ def test_bad_calibration_files(tmp_path):
 # ------------------------------------------------------------------ NMEA
 def test_real_gprmc_sentence(ext):
     """The $GPRMC sentence of the HDL-32E capture's position packets (a real GPS)."""
-    from lidarpkt.sources.pcap_reader import PcapReader
-    from lidarpkt.velodyne import decode_position_packets
+    from lidarpkt.containers.pcap_reader import PcapReader
+    from lidarpkt.vendors.velodyne import decode_position_packets
 
     batch = next(b for b in PcapReader(ext("rust-lidar-utils/velodyne_vlp32.pcap")).batches() if b.payload_size == 512)
     sentence = decode_position_packets(batch.payload).sentences()[0]

@@ -16,8 +16,8 @@ import pytest
 from test_velodyne_crosscheck import assert_same_points, synthetic_packets
 
 from lidarpkt.errors import CalibrationError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, frame_points, load_calibration
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, frame_points, load_calibration
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "calibration"
 YAML = DATA / "vlp16_corrected.yaml"
@@ -58,7 +58,7 @@ def test_one_firing_by_the_formulas():
     az = np.full((1, 12), 9000)  # 90.00°
     dist = np.zeros((1, 12, 32), np.int64)
     dist[0, 0, 0] = 5000  # laser 0 of the first firing of block 0: 10.000 m
-    from lidarpkt.velodyne import encode_data_packets
+    from lidarpkt.vendors.velodyne import encode_data_packets
 
     payload = encode_data_packets(az, dist, np.full((1, 12, 32), 7), np.array([1000]), "strongest")
     dec = VelodyneDecoder(calibration=YAML)
@@ -106,7 +106,7 @@ def test_einride_recording_matches(ext, ours):
 
 @pytest_crosscheck
 def test_rust_lidar_utils_capture_matches(ext):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_example.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches), calibration=YAML) > 30000
@@ -114,7 +114,7 @@ def test_rust_lidar_utils_capture_matches(ext):
 
 @pytest_crosscheck
 def test_veloview_capture_matches(ext):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])
@@ -183,7 +183,7 @@ def _yaml(tmp_path, lasers, head="", name="c.yaml"):
 
 
 def test_yaml_defaults_resolution_and_errors(tmp_path):
-    from lidarpkt.velodyne import stock_calibration
+    from lidarpkt.vendors.velodyne import stock_calibration
 
     assert stock_calibration().source == "stock"
     plain = [f"laser_id: {i}, vert_correction: 0.01" for i in range(16)]
@@ -213,7 +213,7 @@ def test_yaml_defaults_resolution_and_errors(tmp_path):
 def test_frame_without_firing_azimuths_is_named():
     from dataclasses import replace
 
-    from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets
+    from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_data_packets
 
     payload = encode_data_packets(np.zeros((1, 12), np.int64), np.full((1, 12, 32), 500), np.zeros((1, 12, 32), np.int64),
                                   np.array([1000]), "strongest")

@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets, frame_points
-from lidarpkt.velodyne.timing import SEQUENCE_NS
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_data_packets, frame_points
+from lidarpkt.vendors.velodyne.timing import SEQUENCE_NS
 
 pytestmark = pytest.mark.crosscheck
 
@@ -73,14 +73,14 @@ def assert_same_points(batch: PacketBatch, *, product_id_override: int | None = 
 
 # ------------------------------------------------------------------ real captures
 def test_strongest_capture_matches(ext):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_example.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches)) > 30000
 
 
 def test_early_unit_0x21_capture_matches(ext):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     batches = [b for b in PcapReader(ext("rust-lidar-utils/velodyne_vlp16.pcap")).batches() if b.payload_size == 1206]
     assert assert_same_points(PacketBatch.concatenate(batches), product_id_override=0x22) > 15000
@@ -88,8 +88,8 @@ def test_early_unit_0x21_capture_matches(ext):
 
 def test_veloview_20hz_capture_matches(ext):
     """1902 packets at 20 Hz, including one whose block azimuth reads 36000 (= 0°)."""
-    from lidarpkt.sources.pcap_reader import PcapReader
-    from lidarpkt.velodyne import decode_packets
+    from lidarpkt.containers.pcap_reader import PcapReader
+    from lidarpkt.vendors.velodyne import decode_packets
 
     path = ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     batch = PacketBatch.concatenate([b for b in PcapReader(path).batches() if b.payload_size == 1206])
@@ -105,7 +105,7 @@ def test_einride_recording_matches(ext):
 
 
 def test_dual_bag_matches(ext):
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
     assert assert_same_points(batch) > 55000

@@ -1,4 +1,4 @@
-"""The VLP-16 dual-return mark (lidarpkt.velodyne.dual): which firings' slot 1 holds the second
+"""The VLP-16 dual-return mark (lidarpkt.vendors.velodyne.dual): which firings' slot 1 holds the second
 strongest return, inferred from the signal estimated as reflectivity / range² (issue 17 §2).
 
 Checked by hand-made cases (the model, the tie rule, int64 exactness at the longest range), on the
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.velodyne.dual import second_strongest_mark, signal_order_undecided
+from lidarpkt.vendors.velodyne.dual import second_strongest_mark, signal_order_undecided
 
 
 def _pairs(*rows):

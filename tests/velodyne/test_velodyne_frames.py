@@ -10,9 +10,9 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import SkippedPacketWarning
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne.detect import data_kind
-from lidarpkt.velodyne import (
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne.detect import data_kind
+from lidarpkt.vendors.velodyne import (
     VelodyneDecoder,
     classify,
     describe_stream,
@@ -46,7 +46,7 @@ def decode_all(batches, **options):
 
 
 def pcap_batches(path):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     return list(PcapReader(path).batches())
 
@@ -417,7 +417,7 @@ def test_calibration_through_lidarpkt_open(ext):
 
 
 def _nmea(body: str) -> str:
-    from lidarpkt.velodyne.nmea import checksum
+    from lidarpkt.vendors.velodyne.nmea import checksum
 
     return f"${body}*{checksum(body):02X}"
 

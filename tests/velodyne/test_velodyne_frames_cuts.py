@@ -17,10 +17,10 @@ import pytest
 from conftest import under_mutmut
 
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets, encode_position_packets
-from lidarpkt.velodyne.calibration import VelodyneCalibration, stock_calibration
-from lidarpkt.velodyne.models import VLP16
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_data_packets, encode_position_packets
+from lidarpkt.vendors.velodyne.calibration import VelodyneCalibration, stock_calibration
+from lidarpkt.vendors.velodyne.models import VLP16
 
 HOUR0_NS = 1_699_999_200 * 10**9  # a top of the hour: packet time = this + µs past the hour
 T0_US = 1_000_000
@@ -308,7 +308,7 @@ def test_warnings_name_the_source_and_point_at_the_caller():
 
 
 def _nmea(body: str) -> str:
-    from lidarpkt.velodyne.nmea import checksum
+    from lidarpkt.vendors.velodyne.nmea import checksum
 
     return f"${body}*{checksum(body):02X}"
 
@@ -375,7 +375,7 @@ def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():
     frame after it carried frequency_hz None, product_id None and 1808 columns per frame."""
     import lidarpkt
     from conftest import external
-    from lidarpkt.velodyne.frames import VelodyneDecoder
+    from lidarpkt.vendors.velodyne.frames import VelodyneDecoder
 
     path = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     reference = next(iter(lidarpkt.open(path))).sensor
@@ -383,7 +383,7 @@ def test_sensor_info_asked_before_any_packet_is_not_kept_for_the_frames():
     before = early.sensor_info()
     assert before.frequency_hz is None and before.product_id is None
     frames = []
-    from lidarpkt.sources.pcap_reader import read_batches
+    from lidarpkt.containers.pcap_reader import read_batches
 
     for batch in read_batches(path):
         frames += early.push(batch)

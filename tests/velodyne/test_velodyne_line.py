@@ -13,10 +13,10 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import CalibrationError, UnknownSensorError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import VelodyneDecoder, encode_data_packets, frame_points
-from lidarpkt.velodyne.layout import packet_layout
-from lidarpkt.velodyne.models import MODELS, model_named
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_data_packets, frame_points
+from lidarpkt.vendors.velodyne.layout import packet_layout
+from lidarpkt.vendors.velodyne.models import MODELS, model_named
 
 pytestmark = pytest.mark.crosscheck
 
@@ -32,7 +32,7 @@ HDL64_CAL = {"HDL-64E S2": "nebula/HDL64e_s2.yaml", "HDL-64E S3": "nebula/HDL64e
 
 
 def data_packets(path) -> PacketBatch:
-    from lidarpkt.sources import open_packet_source
+    from lidarpkt.containers import open_packet_source
 
     return PacketBatch.concatenate([b for b in open_packet_source(path).batches() if b.payload_size == 1206])
 
@@ -101,7 +101,7 @@ def test_real_capture_with_every_return_redrawn_matches_velodyne_decoder(ext, mo
 
 @pytest.mark.parametrize("model", sorted(REAL))
 def test_info_names_the_model_of_each_real_capture(ext, model):
-    from lidarpkt.velodyne.detect import describe_stream
+    from lidarpkt.vendors.velodyne.detect import describe_stream
 
     desc = describe_stream(data_packets(ext(REAL[model])))
     assert desc["kind"] == f"{model} data" and desc["model"] == model
@@ -151,7 +151,7 @@ def test_hand_built_packets_of_every_model_and_mode_match_velodyne_decoder(ext, 
                                                      else mode}
     if mode == "dual":  # the dual mark (velodyne/dual.py) on every model: slot 1 second strongest where the
         # last return's signal (reflectivity / range²) is the higher
-        from lidarpkt.velodyne.dual import second_strongest_mark
+        from lidarpkt.vendors.velodyne.dual import second_strongest_mark
 
         for f in frames:
             mark = f.extra["second_strongest"]
@@ -226,7 +226,7 @@ def test_parquet_export_of_the_vlp32c_bag_holds_one_row_per_return(ext, tmp_path
 @pytest.mark.parametrize("model, mode", [("VLS-128", "strongest"), ("VLS-128", "dual"), ("VLP-32C", "dual"),
                                          ("HDL-32E", "strongest"), ("HDL-64E S3", "dual")])
 def test_compiled_columns_and_xyz_give_the_numpy_twins_bytes(ext, monkeypatch, model, mode):
-    from lidarpkt import kernels
+    from lidarpkt.core import kernels
 
     if kernels.native is None:
         pytest.skip("the C extension is not built (LIDARPKT_NATIVE=0 or no compiler)")
@@ -253,8 +253,8 @@ def test_hdl64e_calibration_from_its_status_cycle(ext, tmp_path, model, mode):
     YAML, rounded to the block's units): velodyne_decoder's ``hdl64e`` reads the same calibration from
     them, and both decode the packets to the same points; lidarpkt without any calibration given."""
     vd = pytest.importorskip("velodyne_decoder")
-    from lidarpkt.velodyne.calibration import load_calibration
-    from lidarpkt.velodyne.hdl64e import encode_unit_parameters, status_bytes
+    from lidarpkt.vendors.velodyne.calibration import load_calibration
+    from lidarpkt.vendors.velodyne.hdl64e import encode_unit_parameters, status_bytes
 
     s3 = model.endswith("S3")
     block = encode_unit_parameters(load_calibration(ext(HDL64_CAL[model]), model_named(model)), s3=s3)
@@ -290,8 +290,8 @@ def test_hdl64e_calibration_from_its_status_cycle(ext, tmp_path, model, mode):
 
 # ------------------------------------------------------------------ position packets
 def test_hdl32e_position_packets_give_gyro_temperature_and_acceleration(ext):
-    from lidarpkt.sources.pcap_reader import read_batches
-    from lidarpkt.velodyne import encode_position_packets, hdl32e_inertial
+    from lidarpkt.containers.pcap_reader import read_batches
+    from lidarpkt.vendors.velodyne import encode_position_packets, hdl32e_inertial
 
     pos = next(b for b in read_batches(ext(REAL["HDL-32E"])) if b.payload_size == 512)
     imu = hdl32e_inertial(pos.payload)
@@ -337,7 +337,7 @@ def test_where_nebula_differs_it_is_the_azimuth_alone(ext, model, message, pcd, 
     nebula by its own table. By the manuals' "Precision Azimuth Calculation", ours stands."""
     from scipy.spatial import cKDTree
 
-    batch = [b for b in __import__("lidarpkt.sources", fromlist=["x"]).open_packet_source(ext(REAL[model])).batches()
+    batch = [b for b in __import__("lidarpkt.containers", fromlist=["x"]).open_packet_source(ext(REAL[model])).batches()
              if b.payload_size == 1206][message]
     neb = _pcd_xyz(ext(pcd))
     ours, _ = our_points(batch, calibration=ext(calibration))
@@ -360,7 +360,7 @@ def test_where_nebula_differs_it_is_the_azimuth_alone(ext, model, message, pcd, 
 def test_encoded_frames_are_the_packets_again(ext, model, mode):
     """encode_frames(decode(packets)) == packets, byte for byte (but the HDL-64E's status bytes, which the
     frames do not carry, and the VLS-128's unused dual blocks 8-11)."""
-    from lidarpkt.velodyne import encode_frames
+    from lidarpkt.vendors.velodyne import encode_frames
 
     batch = hand_built(model, mode, n=50, seed=7)
     cal = ext(HDL64_CAL[model]) if model in HDL64_CAL else None
@@ -378,7 +378,7 @@ def test_cli_says_in_one_line_which_option_picks_a_vlp32a_or_b(tmp_path):
     import subprocess
     import sys
 
-    from lidarpkt.packet import Endpoint, Packet
+    from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.writers.pcap import write_pcap
 
     batch = hand_built("VLP-32A", "strongest", n=300)
@@ -431,7 +431,7 @@ def test_a_restricted_field_of_view_is_not_lost_packets(ext):
 
 
 def _vlp16_batches(ext):
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     return [b for b in PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")).batches() if b.payload_size == 1206]
 

@@ -10,11 +10,11 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import PacketFormatError, UnknownSensorError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
-from lidarpkt.velodyne import VelodyneDecoder, stock_calibration
-from lidarpkt.velodyne.detect import describe_stream
-from lidarpkt.velodyne.models import MODELS, VLP16, model_for_product, model_named
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
+from lidarpkt.vendors.velodyne import VelodyneDecoder, stock_calibration
+from lidarpkt.vendors.velodyne.detect import describe_stream
+from lidarpkt.vendors.velodyne.models import MODELS, VLP16, model_for_product, model_named
 
 
 def test_vlp16_row_has_the_manuals_numbers():
@@ -142,7 +142,7 @@ def test_decoder_reads_the_table():
 
 def test_decoder_takes_a_model_by_row_or_name_and_checks_the_calibration():
     from lidarpkt.errors import CalibrationError
-    from lidarpkt.velodyne import VelodyneCalibration
+    from lidarpkt.vendors.velodyne import VelodyneCalibration
 
     assert VelodyneDecoder(model="VLP-16").model is VLP16
     assert VelodyneDecoder(model="VLP-32C").model.lasers == 32

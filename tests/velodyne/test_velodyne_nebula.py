@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 import lidarpkt
-from lidarpkt.velodyne import frame_points
+from lidarpkt.vendors.velodyne import frame_points
 
 PCD_DTYPE = np.dtype([
     ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1"), ("return_type", "u1"), ("channel", "<u2"),

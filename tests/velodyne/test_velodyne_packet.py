@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import LidarpktError, NMEAError, PacketFormatError
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import (
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import (
     DATA_PACKET_SIZE,
     POSITION_PACKET_SIZE,
     decode_packets,
@@ -21,7 +21,7 @@ from lidarpkt.velodyne import (
     encode_data_packets,
     encode_position_packets,
 )
-from lidarpkt.velodyne.timing import FIRING_OFFSET_NS, firing_azimuth_cdeg, firing_offset_ns
+from lidarpkt.vendors.velodyne.timing import FIRING_OFFSET_NS, firing_azimuth_cdeg, firing_offset_ns
 
 
 def manual_data_packet(azimuths, dist, refl, timestamp_us, mode_byte, product_byte) -> bytes:
@@ -37,7 +37,7 @@ def manual_data_packet(azimuths, dist, refl, timestamp_us, mode_byte, product_by
 
 
 def _real_payloads(ext, name: str, size: int) -> np.ndarray:
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     rows = [b.payload for b in PcapReader(ext(name)).batches() if b.payload_size == size]
     return np.concatenate(rows)
@@ -148,7 +148,7 @@ def test_roundtrip_pcap_payloads(ext, name):
 
 
 def test_roundtrip_dual_bag_payloads(ext):
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
     assert batch.payload.shape == (603, DATA_PACKET_SIZE)
@@ -157,7 +157,7 @@ def test_roundtrip_dual_bag_payloads(ext):
 
 # ------------------------------------------------------------------ what the real captures say
 def test_factory_bytes_of_real_captures(ext):
-    from lidarpkt.sources.bags import BagReader
+    from lidarpkt.containers.bags import BagReader
 
     ex = decode_packets(_real_payloads(ext, "rust-lidar-utils/velodyne_example.pcap", DATA_PACKET_SIZE))
     assert set(ex.return_mode.tolist()) == {0x37} and set(ex.product_id.tolist()) == {0x22}
@@ -206,8 +206,8 @@ def test_azimuth_interpolation_within_a_block():
 # ------------------------------------------------------------------ frames → packets
 def test_frames_encode_back_to_the_real_payloads(ext):
     """decode → frames → encode_frames gives every byte back (einride strongest, nebula dual)."""
-    from lidarpkt.sources.bags import BagReader
-    from lidarpkt.velodyne import VelodyneDecoder, encode_frames
+    from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_frames
 
     payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, DATA_PACKET_SIZE)
     host = 1_525_349_000_000_000_000 + np.arange(1000, dtype=np.int64) * 1_327_104
@@ -225,7 +225,7 @@ def test_frames_encode_back_to_the_real_payloads(ext):
 def test_position_timestamps_run_on_the_data_packets_clock(ext):
     """Byte 198 of a position packet is the sensor's µs past the hour: in the VeloView capture each
     position packet's stamp lies within 3 ms of the data packets captured next to it."""
-    from lidarpkt.sources.pcap_reader import PcapReader
+    from lidarpkt.containers.pcap_reader import PcapReader
 
     batches = list(PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap")).batches())
     data = PacketBatch.concatenate([b for b in batches if b.payload_size == DATA_PACKET_SIZE])

@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import (
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import (
     VelodyneDecoder,
     decode_packets,
     decode_position_packets,
@@ -101,7 +101,7 @@ _VALID = encode_data_packets((np.arange(8)[:, None] * 480 + np.arange(12) * 40) 
 def test_damaged_packets_never_raise_a_traceback(data_edits, pos_edits):
     import warnings
 
-    from lidarpkt.velodyne import classify, describe_stream
+    from lidarpkt.vendors.velodyne import classify, describe_stream
 
     data = _VALID.copy().reshape(-1)
     for at, value in data_edits:

@@ -14,9 +14,9 @@ import pytest
 from lidarpkt import fixtures
 import lidarpkt
 from lidarpkt.fixtures import generate as gen
-from lidarpkt.ouster import OusterDecoder, load_metadata
-from lidarpkt.packet import PacketBatch
-from lidarpkt.sources.pcap_reader import read_batches
+from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.containers.pcap_reader import read_batches
 
 ROTATIONS = 50
 

@@ -1,4 +1,4 @@
-"""The Ouster HTTP API, both sides (lidarpkt.ouster.sensor_http), on loopback with real sockets:
+"""The Ouster HTTP API, both sides (lidarpkt.vendors.ouster.sensor_http), on loopback with real sockets:
 ``replay --http`` serves the metadata at /api/v1/sensor/metadata exactly as given; a sensor that
 does not answer (nothing listening, a wrong path, not JSON) is a one-line error naming the host and
 the URL tried, exit 2, and no output file. ``--metadata`` is repeatable in record and replay."""
@@ -16,7 +16,7 @@ import threading
 import pytest
 
 from lidarpkt.errors import SensorConnectionError, UsageError
-from lidarpkt.ouster.sensor_http import MetadataHttpServer, fetch_metadata, fetch_metadata_text, parse_sensor
+from lidarpkt.vendors.ouster.sensor_http import MetadataHttpServer, fetch_metadata, fetch_metadata_text, parse_sensor
 from test_view_capture import CANNED
 from test_view_live import free_udp_ports
 from view_client import LidarpktProcess
@@ -151,7 +151,7 @@ def test_replay_takes_metadata_once_per_sensor(tmp_path):
     from lidarpkt.recorder.replay import read_capture
 
     capture = CANNED / "os1-64-dual.pcap"
-    from lidarpkt.ouster import load_metadata
+    from lidarpkt.vendors.ouster import load_metadata
 
     imu = load_metadata(str(CANNED / "os1-64-dual.json")).imu_port
     lidar_size = {len(p.payload) for p in read_capture(str(capture))} - {48}

@@ -88,7 +88,7 @@ def test_ouster_live_with_metadata_over_http(tmp_path, capture, metadata):
         capture, metadata = external(capture), external(metadata)
     frames = list(lidarpkt.open(capture, metadata=str(metadata)))
     lidar, imu = free_udp_ports(2)
-    md = lidarpkt.ouster.load_metadata(str(metadata))
+    md = lidarpkt.vendors.ouster.load_metadata(str(metadata))
     with LidarpktProcess(tmp_path / "http.log", "replay", str(capture), "--metadata", str(metadata),
                          "--http", "127.0.0.1:0", "--start-after-fetch", "1.5", "--to", f"127.0.0.1:{lidar}",
                          "--port-map", f"{md.imu_port}:{imu}", ready="serving the sensor metadata") as replay:

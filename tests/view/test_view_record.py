@@ -122,7 +122,7 @@ def test_record_points_ouster_with_metadata_from_the_sensor(tmp_path):
     metadata = external("ouster-sdk/OS-1-64_sensor_config_reduced.json")
     frames = list(lidarpkt.open(capture, metadata=str(metadata)))
     lidar, imu = free_udp_ports(2)
-    md = lidarpkt.ouster.load_metadata(str(metadata))
+    md = lidarpkt.vendors.ouster.load_metadata(str(metadata))
     out, report = tmp_path / "os.mcap", tmp_path / "os.json"
     with LidarpktProcess(tmp_path / "http.log", "replay", str(capture), "--metadata", str(metadata),
                          "--http", "127.0.0.1:0", "--start-after-fetch", "1.5", "--to", f"127.0.0.1:{lidar}",

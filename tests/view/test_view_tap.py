@@ -14,7 +14,7 @@ import lidarpkt
 from lidarpkt.view.sources import LiveDecoder, play_capture
 from lidarpkt.view.tap import FrameDropper, FrameTap
 from lidarpkt.recorder.replay import read_capture
-from lidarpkt.sources.udp import batch_from_packets
+from lidarpkt.containers.udp import batch_from_packets
 from test_view_capture import CANNED
 
 
@@ -38,7 +38,7 @@ def same_frames(got, want) -> None:
 @pytest.mark.parametrize("capture, metadata", [(CANNED / "vlp16-dual.pcap", None),
                                                (CANNED / "os1-64-dual.pcap", CANNED / "os1-64-dual.json")])
 def test_live_decoder_equals_lidarpkt_open(capture, metadata, size):
-    md = [lidarpkt.ouster.load_metadata(str(metadata))] if metadata else []
+    md = [lidarpkt.vendors.ouster.load_metadata(str(metadata))] if metadata else []
     decoder = LiveDecoder(md)
     got = [f for b in batches_of(capture, size) for f in decoder.push(b)] + decoder.finish()
     same_frames(got, list(lidarpkt.open(capture, metadata=str(metadata) if metadata else None)))

@@ -11,7 +11,7 @@ import pytest
 
 import lidarpkt
 from conftest import external
-from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.mcap import schemas
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")

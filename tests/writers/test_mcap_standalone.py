@@ -73,7 +73,7 @@ def test_veloview_capture_gives_every_packet_message(tmp_path):
     position packet (counted here from the capture by the pcap reader) and one VelodyneScan per rotation of
     its 1902 data packets."""
     import lidarpkt
-    from lidarpkt.sources.pcap_reader import read_packets
+    from lidarpkt.containers.pcap_reader import read_packets
     from lidarpkt.writers import open_writer
 
     cap = external(CASES[0][0])

@@ -13,7 +13,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import DiskFullError, TruncatedCaptureWarning
-from lidarpkt.sources.pcap_reader import read_packets
+from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 from conftest import external
@@ -240,7 +240,7 @@ def test_chunks_close_by_time_and_a_cut_file_reads_back_up_to_its_last_chunk(tmp
     w.close()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        from lidarpkt.sources.bags import BagReader
+        from lidarpkt.containers.bags import BagReader
 
         batches = list(BagReader(tmp_path / "killed.mcap").batches())
     got = [b.payload[0].tobytes() for b in batches]
@@ -308,7 +308,7 @@ def test_disk_full_is_a_clear_error_and_the_file_stays_readable(tmp_path):
             for i in range(1000):
                 w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(rng.bytes(4000)), i)
         with pytest.warns(TruncatedCaptureWarning):
-            from lidarpkt.sources.bags import BagReader
+            from lidarpkt.containers.bags import BagReader
 
             got = list(BagReader(mnt / "full.mcap").batches())
         assert len(got) > 10

@@ -93,7 +93,7 @@ def test_npz_read_by_numpy_equals_frames_on_grid(tmp_path, case):
 
 
 def test_base_import_needs_no_export_library():
-    code = ("import sys, lidarpkt, lidarpkt.writers, lidarpkt.writers.mcap.frames, lidarpkt.recorder.decode\n"
+    code = ("import sys, lidarpkt, lidarpkt.writers, lidarpkt.writers.mcap.frames, lidarpkt.cli.decode\n"
             "heavy = {'pyarrow', 'laspy', 'plyfile', 'pypcd4', 'duckdb'} & set(sys.modules)\n"
             "print(sorted(heavy))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT, timeout=60)
@@ -145,7 +145,7 @@ def test_a_missing_export_library_names_the_extra(tmp_path):
 
 
 def test_decode_python_api_has_the_cli_defaults(tmp_path):
-    from lidarpkt.recorder.decode import decode_captures
+    from lidarpkt.cli.decode import decode_captures
 
     cap = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "os1-64-dual.pcap"
     md = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "os1-64-dual.json"

@@ -13,8 +13,8 @@ import pytest
 from conftest import external
 from lidarpkt.cli import main
 from lidarpkt.errors import UnsupportedContainerError
-from lidarpkt.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.sources import open_packet_source
+from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
+from lidarpkt.containers import open_packet_source
 from lidarpkt.writers.pcap import PcapBatchWriter, write_pcap
 from reference_tools import ouster_sdk_pcap_packets
 

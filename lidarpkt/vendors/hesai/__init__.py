@@ -14,7 +14,7 @@ frame: x = r·cos(el)·sin(az), y = r·cos(el)·cos(az), z = r·sin(el)), ``enco
 
 from __future__ import annotations
 
-from .._lazy import lazy_names
+from lidarpkt.core.lazy import lazy_names
 
 _LAZY: dict[str, str] = {
     "HesaiCalibration": "calibration",

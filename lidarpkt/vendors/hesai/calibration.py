@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from lidarpkt.errors import CalibrationError
 
 
 @dataclass(frozen=True, eq=False)

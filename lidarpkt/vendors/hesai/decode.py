@@ -1,7 +1,7 @@
 """Raw fields of a batch of Hesai Pandar packets of one model, in the manual's units, one NumPy pass.
 
 :func:`decode_packets` views ``uint8[N, L]`` payloads through the model's layout
-(:mod:`lidarpkt.hesai.packet`) and returns :class:`HesaiPackets`: per-packet tail fields, per-block
+(:mod:`lidarpkt.vendors.hesai.packet`) and returns :class:`HesaiPackets`: per-packet tail fields, per-block
 azimuths, per-unit distances and reflectivities, and :attr:`HesaiPackets.valid`, the packets whose
 start bytes, azimuths, return mode, distance unit and UTC time are possible (the decoder skips and
 counts the others).

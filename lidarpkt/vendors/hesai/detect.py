@@ -1,6 +1,6 @@
 """Which Pandar model sent a stream, from its packets alone: payload size, then the bytes.
 
-The size names the candidates (:data:`lidarpkt.hesai.models.BY_SIZE`); the content decides:
+The size names the candidates (:data:`lidarpkt.vendors.hesai.models.BY_SIZE`); the content decides:
 a 12-byte header starts EE FF and gives the protocol version, lasers and blocks; the Pandar64's
 8-byte header starts EE FF and gives lasers and blocks; the Pandar40P has no header, each of its
 blocks starts FF EE. A stream is that model when most of its first packets say so.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..packet import PacketBatch
+from lidarpkt.core.packet import PacketBatch
 from .models import BY_SIZE, RETURN_MODE_NAMES, HesaiModel
 
 _LOOK = 16  # packets looked at

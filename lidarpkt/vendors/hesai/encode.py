@@ -1,7 +1,7 @@
-"""The inverse of :func:`lidarpkt.hesai.decode_packets`: Pandar packets from their fields.
+"""The inverse of :func:`lidarpkt.vendors.hesai.decode_packets`: Pandar packets from their fields.
 
-For round-trip tests and generated captures: every field :class:`~lidarpkt.hesai.decode.HesaiPackets`
-holds goes back to its bytes through the same layouts (:mod:`lidarpkt.hesai.packet`); the header's
+For round-trip tests and generated captures: every field :class:`~lidarpkt.vendors.hesai.decode.HesaiPackets`
+holds goes back to its bytes through the same layouts (:mod:`lidarpkt.vendors.hesai.packet`); the header's
 start bytes, protocol version, lasers, blocks and return count follow from the model and mode.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import PacketFormatError
+from lidarpkt.errors import PacketFormatError
 from .decode import returns_of
 from .models import HesaiModel
 from .packet import SOB, SOP

@@ -2,7 +2,7 @@
 
 Columns. One column per firing: a packet of B blocks in a mode of n returns per firing holds B / n
 columns (blocks k·n … k·n + n − 1 are the n returns of column k). Return slot r of a column is
-block k·n + r, labelled as the return mode says (:data:`lidarpkt.hesai.models.RETURN_MODES`,
+block k·n + r, labelled as the return mode says (:data:`lidarpkt.vendors.hesai.models.RETURN_MODES`,
 :meth:`HesaiModel.labels`); frames have as many slots as the mode has returns.
 
 Rows. Row 0 is the channel of highest elevation in the calibration (the angle-correction CSV),
@@ -11,17 +11,17 @@ and ``beam_altitude_deg`` is NaN.
 
 Per column: ``azimuth_deg`` is the block azimuth (0.01°); ``column_timestamp_ns`` the time of the
 column's first firing: the packet time (UTC second + µs of its tail) plus the earliest firing
-offset of the column's channels (:mod:`lidarpkt.hesai.timing`); ``pixel_time_offset_ns``
+offset of the column's channels (:mod:`lidarpkt.vendors.hesai.timing`); ``pixel_time_offset_ns``
 (``int64[H, W]``) each channel's firing after it.
 
 ``frame.extra``: ``packet_index`` (``int64[W]``, ordinal of the column's packet in the source),
 ``motor_speed_rpm`` (``uint16[W]``), and in Last+Strongest / First+Strongest modes
 ``second_strongest`` (``bool[H, W]``): slot 1 holds the second strongest return because slot 0 is the
-strongest (its reflectivity is higher; see :mod:`lidarpkt.hesai.models` for the rule).
+strongest (its reflectivity is higher; see :mod:`lidarpkt.vendors.hesai.models` for the rule).
 
 Cuts. A frame ends before the first column whose azimuth (minus the cut angle) wrapped past 0; a
 return-mode change, a stretch of more than ``max_gap_s`` without packets, or ``max_frame_columns``
-columns without a wrap end it too. ``partial`` as for the VLP-16 (:mod:`lidarpkt.velodyne.frames`):
+columns without a wrap end it too. ``partial`` as for the VLP-16 (:mod:`lidarpkt.vendors.velodyne.frames`):
 a frame that does not begin (end) at a wrap is whole only if its first (last) column lies within
 one firing interval after (before) the cut angle.
 
@@ -39,12 +39,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._readahead import warn
-from ..continuity import StreamContinuity
-from ..errors import CalibrationError, SkippedPacketWarning
-from ..frame import Frame, FrameCounters, SensorInfo
-from ..packet import PacketBatch
-from ..rotation import rotation_is_whole, wrapped
+from lidarpkt.core.readahead import warn
+from lidarpkt.core.continuity import StreamContinuity
+from lidarpkt.errors import CalibrationError, SkippedPacketWarning
+from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.core.rotation import rotation_is_whole, wrapped
 from .calibration import HesaiCalibration, load_calibration
 from .decode import HesaiPackets, decode_packets, returns_of
 from .detect import detect_model
@@ -80,13 +80,13 @@ _COLUMN_KEYS = ("range_mm", "reflectivity", "azimuth_cdeg", "timestamp_ns", "tim
 
 
 class HesaiDecoder:
-    """Frames of one Pandar from its packets (a :class:`lidarpkt.decoder.Decoder`).
+    """Frames of one Pandar from its packets (a :class:`lidarpkt.core.decoder.Decoder`).
 
     Args:
-        model: a :class:`~lidarpkt.hesai.models.HesaiModel` or its name; by default detected from the
+        model: a :class:`~lidarpkt.vendors.hesai.models.HesaiModel` or its name; by default detected from the
             first packets.
         calibration: the sensor's angle-correction CSV (path) or a loaded
-            :class:`~lidarpkt.hesai.calibration.HesaiCalibration`; without one frames have no XYZ.
+            :class:`~lidarpkt.vendors.hesai.calibration.HesaiCalibration`; without one frames have no XYZ.
         cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
         source: a name for reports.
         max_gap_s: a stretch longer than this without packets ends the frame.
@@ -233,7 +233,7 @@ class HesaiDecoder:
     def _count_lost(self, raw: HesaiPackets, host_ns: np.ndarray) -> None:
         """Packets lost between these and the ones before, by the UDP sequence number where the model sends
         one, else by the sensor's time steps; never more than the capture time between them can hold
-        (:meth:`lidarpkt.continuity.StreamContinuity.bound_lost`)."""
+        (:meth:`lidarpkt.core.continuity.StreamContinuity.bound_lost`)."""
         dt = np.diff(raw.timestamp_ns).astype(np.float64)
         if dt.size:
             med = float(np.median(dt))
@@ -348,7 +348,7 @@ class HesaiDecoder:
             return info
         model = self.model
         if model is None:
-            from ..errors import UnknownSensorError
+            from lidarpkt.errors import UnknownSensorError
 
             raise UnknownSensorError(f"{self.source or 'Hesai stream'}: no packet yet to tell the Pandar model")
         rows = self._row_channel

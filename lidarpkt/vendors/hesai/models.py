@@ -1,9 +1,9 @@
 """The Hesai Pandar models lidarpkt decodes, as data: one frozen :class:`HesaiModel` per model.
 
-A model is a row of :data:`MODELS`: its packet layout (:mod:`lidarpkt.hesai.packet`), the payload
+A model is a row of :data:`MODELS`: its packet layout (:mod:`lidarpkt.vendors.hesai.packet`), the payload
 sizes it sends, what its header says (protocol version, lasers, blocks), its distance unit, the
-year its UTC field counts from, its firing timing (:mod:`lidarpkt.hesai.timing`) and its range
-limits. Detection (:mod:`lidarpkt.hesai.detect`), decoding, frames, the encoder and ``info`` read
+year its UTC field counts from, its firing timing (:mod:`lidarpkt.vendors.hesai.timing`) and its range
+limits. Detection (:mod:`lidarpkt.vendors.hesai.detect`), decoding, frames, the encoder and ``info`` read
 their facts here.
 
 Return modes (:data:`RETURN_MODES`): the tail's return-mode byte names the returns of a firing, in
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import UnknownSensorError
+from lidarpkt.errors import UnknownSensorError
 from . import packet as P
 
 #: return-mode byte → labels of its return slots, in block order
@@ -56,7 +56,7 @@ class HesaiModel:
 
     Attributes:
         name: ``"PandarXT32"``.
-        layout: the packet's NumPy dtype (:mod:`lidarpkt.hesai.packet`).
+        layout: the packet's NumPy dtype (:mod:`lidarpkt.vendors.hesai.packet`).
         sizes: the UDP payload sizes it sends (the first is what the encoder writes); bytes past the
             layout are optional fields lidarpkt does not read.
         channels: lasers (units per block).
@@ -66,7 +66,7 @@ class HesaiModel:
         year_offset: the UTC year byte counts from this year (1900 or 2000).
         returns: the return counts its modes have (1, 2; the XT32M also 3).
         first_last_swapped: in First+Last mode the first block holds the last return.
-        timing: key of its firing-time tables (:func:`lidarpkt.hesai.timing.firing_offsets_ns`).
+        timing: key of its firing-time tables (:func:`lidarpkt.vendors.hesai.timing.firing_offsets_ns`).
         min_range_m, max_range_m: the range the manual specifies (nebula's limits for the model).
         grid_resolution_deg: azimuth between firings at 10 Hz, degrees.
     """

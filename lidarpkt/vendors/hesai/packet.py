@@ -1,6 +1,6 @@
 """The Hesai Pandar packet layouts, declared once as NumPy structured dtypes.
 
-Every other module of :mod:`lidarpkt.hesai` views payloads through these dtypes; none hard-codes a
+Every other module of :mod:`lidarpkt.vendors.hesai` views payloads through these dtypes; none hard-codes a
 byte offset. All multi-byte fields are little-endian. Field names follow the Hesai user manuals
 ("Point Cloud Data Packet"); every layout has the same field names, so that decoding is one code path:
 
@@ -11,7 +11,7 @@ byte offset. All multi-byte fields are little-endian. Field names follow the Hes
 * ``blocks[B]``: (Pandar40P: ``sob``, bytes FF EE) ``azimuth`` (0.01°) and ``units[C]`` of
   ``distance`` (``dis_unit`` mm; 4 mm on the 40P, which has no header) and ``reflectivity``
   (0-255), and on the 4-byte units of the QT and XT families ``confidence`` (reserved on most).
-* ``tail``: ``return_mode`` (0x33-0x3E, :data:`lidarpkt.hesai.models.RETURN_MODES`),
+* ``tail``: ``return_mode`` (0x33-0x3E, :data:`lidarpkt.vendors.hesai.models.RETURN_MODES`),
   ``motor_speed`` (rpm), ``utc`` (year, month, day, hour, minute, second; the year counted from
   the model's ``year_offset``), ``timestamp_us`` (µs past the UTC second), ``factory_information``
   (0x42 on the units here), and ``udp_sequence`` where the protocol has one. The PandarQT128 adds a
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import PacketFormatError
+from lidarpkt.errors import PacketFormatError
 
 SOP = 0xFFEE  # header start: bytes EE FF read as u16 little-endian
 SOB = 0xEEFF  # Pandar40P block start: bytes FF EE

@@ -4,7 +4,7 @@ server that answers as a sensor does (``lidarpkt replay --ptc``, tests).
 A request and its response have the same 8-byte header (Hesai "TCP API Reference"; nebula's
 ``HesaiHwInterface::send_receive``): bytes 0x47 0x74, the command, a status (0 in a request; in a
 response 0 = done, else the sensor's error code), the payload length (u32 big-endian), then the
-payload. Command 0x05 returns the angle-correction CSV (:mod:`lidarpkt.hesai.calibration`).
+payload. Command 0x05 returns the angle-correction CSV (:mod:`lidarpkt.vendors.hesai.calibration`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import socket
 import struct
 import threading
 
-from ..errors import CalibrationError, LidarpktError
+from lidarpkt.errors import CalibrationError, LidarpktError
 from .calibration import HesaiCalibration, parse_calibration
 
 PTC_PORT = 9347

@@ -1,9 +1,9 @@
-"""A Pandar stream's packets counted, for the recorder's live path (a :class:`lidarpkt.decoder.StreamCounter`).
+"""A Pandar stream's packets counted, for the recorder's live path (a :class:`lidarpkt.core.decoder.StreamCounter`).
 
-The rules are the decoder's (:mod:`lidarpkt.hesai.frames`): a packet is lost where the UDP sequence
+The rules are the decoder's (:mod:`lidarpkt.vendors.hesai.frames`): a packet is lost where the UDP sequence
 number skips (models whose protocol has one), else where the packet time advances by more than one
 packet period (the median step); a step back or a repeat is out of order, never loss; a jump of more
-than :data:`~lidarpkt.decoder.INTERRUPTION_S` is an interruption; a rotation ends where the first
+than :data:`~lidarpkt.core.decoder.INTERRUPTION_S` is an interruption; a rotation ends where the first
 block's azimuth wraps.
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..decoder import INTERRUPTION_S, StreamCounts
-from ..errors import PacketFormatError
-from ..rotation import wrapped
+from lidarpkt.core.decoder import INTERRUPTION_S, StreamCounts
+from lidarpkt.errors import PacketFormatError
+from lidarpkt.core.rotation import wrapped
 from .decode import decode_packets
 from .detect import detect_model
 from .models import BY_SIZE, HesaiModel
@@ -40,7 +40,7 @@ class PacketCounter:
 
     def update(self, payload: np.ndarray, host_ns: np.ndarray | None = None) -> np.ndarray:
         """Count ``uint8[N, L]`` payloads; returns ``bool[N]``, True where a packet starts a new rotation.
-        ``host_ns`` (the :class:`~lidarpkt.decoder.StreamCounter` protocol's capture times) is not used yet:
+        ``host_ns`` (the :class:`~lidarpkt.core.decoder.StreamCounter` protocol's capture times) is not used yet:
         losses are not bounded by capture time here as the Pandar decoder bounds them.
 
         Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of no Pandar model."""

@@ -24,9 +24,9 @@ frames, read by ``lidarpkt.open``).
 
 from __future__ import annotations
 
-from .._lazy import lazy_names
+from lidarpkt.core.lazy import lazy_names
 
-# public name -> its module, imported on first use (lidarpkt/_lazy.py)
+# public name -> its module, imported on first use (lidarpkt/core/lazy.py)
 _LAZY: dict[str, str] = {
     "crc64_xz": "crc",
     "OusterPacketFields": "decode",

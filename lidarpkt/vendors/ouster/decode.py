@@ -2,7 +2,7 @@
 
 A batch is ``uint8[N, packet_size]``; it is viewed through the profile's structured dtype
 (no copy), column-header fields are dtype fields, and each pixel field is one shift and mask
-on a 32-bit word column of all N × C × H pixels (see :mod:`lidarpkt.ouster.profiles`).
+on a 32-bit word column of all N × C × H pixels (see :mod:`lidarpkt.vendors.ouster.profiles`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import PacketFormatError, SensorMismatchError
+from lidarpkt.errors import PacketFormatError, SensorMismatchError
 from .crc import footer_crc_ok
 from .profiles import LEGACY_STATUS_VALID, BitField, Profile, read_bits
 
@@ -169,7 +169,7 @@ def decode_packets(
 
     Args:
         payload: ``uint8[N, packet_size]`` (or one packet ``uint8[packet_size]``).
-        metadata: the sensor's :class:`~lidarpkt.ouster.metadata.OusterMetadata`.
+        metadata: the sensor's :class:`~lidarpkt.vendors.ouster.metadata.OusterMetadata`.
         verify_crc: check the CRC-64/XZ in the footer; default: when the firmware writes one
             (``metadata.footer_kind == "crc"``).
         fields: pixel fields to decode (default all, reserved bits included).

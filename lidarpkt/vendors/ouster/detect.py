@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..packet import PacketBatch
+from lidarpkt.core.packet import PacketBatch
 from .crc import footer_crc_ok
 from .decode import decode_packets
 from .imu import decode_imu, imu_samples

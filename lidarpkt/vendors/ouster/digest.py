@@ -2,7 +2,7 @@
 
 The ``*_digest.json`` files published with ouster-sdk's test captures hold, per key, the MD5 of
 the field values of every lidar packet (packet part) and of every frame (frame part). Here they
-are computed from our own decode (fields derived from :mod:`lidarpkt.ouster.profiles`), so that
+are computed from our own decode (fields derived from :mod:`lidarpkt.vendors.ouster.profiles`), so that
 comparing them with the published files checks every bit of our decoding. See
 ``fixtures/external/SOURCES.md`` ("How the Ouster digest files are computed").
 """
@@ -14,8 +14,8 @@ from typing import Iterable
 
 import numpy as np
 
-from ..errors import UsageError
-from ..frame import Frame
+from lidarpkt.errors import UsageError
+from lidarpkt.core.frame import Frame
 from .decode import OusterPacketFields, read_pixel_field
 from .profiles import BitField, Profile
 

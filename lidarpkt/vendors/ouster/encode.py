@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import PacketFormatError
+from lidarpkt.errors import PacketFormatError
 from .crc import crc64_xz
 from .decode import OusterPacketFields
 from .fieldplan import plane_attr
@@ -128,7 +128,7 @@ ENCODER_COUNTS_PER_TURN = 90112  # LEGACY encoder ticks per revolution
 
 
 def frame_fields(frame, metadata, *, all_packets: bool = False, init_id: int | None = None) -> OusterPacketFields:
-    """The packet fields that carry ``frame`` (a :class:`~lidarpkt.frame.Frame` of this sensor's layout).
+    """The packet fields that carry ``frame`` (a :class:`~lidarpkt.core.frame.Frame` of this sensor's layout).
 
     One packet per ``columns_per_packet`` columns inside ``column_window``; by default only
     packets with at least one valid column (``all_packets`` emits the whole window). Column

@@ -1,5 +1,5 @@
 """Where a frame's pixel fields come from: the extraction plan of a profile, shared by both paths
-of the Ouster frame assembly (:mod:`lidarpkt.ouster.frames`).
+of the Ouster frame assembly (:mod:`lidarpkt.vendors.ouster.frames`).
 
 The compiled ``ouster_scatter`` takes the plan as ``int64[F, 4]`` steps (:func:`scatter_steps`)
 and the frame's ``[H, W]`` arrays (:func:`new_fields`); its NumPy twin applies the same steps to

@@ -1,4 +1,4 @@
-"""Ouster frame assembly: packets of one sensor → :class:`~lidarpkt.frame.Frame` objects.
+"""Ouster frame assembly: packets of one sensor → :class:`~lidarpkt.core.frame.Frame` objects.
 
 Conventions (those of ouster-sdk's scan batcher):
 
@@ -13,7 +13,7 @@ Conventions (those of ouster-sdk's scan batcher):
 * Packets of an already released frame are dropped and counted as late; a packet whose first
   measurement id already arrived in its frame is a duplicate (dropped, counted). A packet whose
   frame or measurement id jumps further than the capture time allows, off the packets on both
-  sides, is skipped and counted as corrupted (:mod:`lidarpkt.continuity`); a frame's holes never
+  sides, is skipped and counted as corrupted (:mod:`lidarpkt.core.continuity`); a frame's holes never
   count more lost packets than its capture time holds.
 * ``Frame.azimuth_deg[c] = 360 · (1 − c / W) mod 360``: the nominal encoder angle of column c in
   ouster-sdk's sensor-frame convention (the angle its XYZ table uses; it decreases with c).
@@ -33,7 +33,7 @@ Conventions (those of ouster-sdk's scan batcher):
   lost packets and do not make a frame partial.
 * The last 16 released frames are remembered to recognise late packets; a packet of an older
   frame starts a new (partial) frame.
-* IMU packets carry no sensor identity: :func:`~lidarpkt.ouster.classify` gives them to the
+* IMU packets carry no sensor identity: :func:`~lidarpkt.vendors.ouster.classify` gives them to the
   metadata whose IMU port they were sent to (the first metadata when several share the port).
 """
 
@@ -44,14 +44,14 @@ from dataclasses import dataclass, fields as dc_fields
 
 import numpy as np
 
-from .. import kernels
-from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from ..continuity import CAPTURE_RESOLUTION_S, packets_spanned
-from ..errors import SensorMismatchError, SkippedPacketWarning
-from ..frame import Frame, FrameCounters, SensorInfo
-from ..packet import PacketBatch
+from lidarpkt.core import kernels
+from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S, packets_spanned
+from lidarpkt.errors import SensorMismatchError, SkippedPacketWarning
+from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
-from ..imu import ImuSamples
+from lidarpkt.core.imu import ImuSamples
 from .imu import imu_samples
 from .zone import OusterZoneStates, decode_zone_packets
 from .metadata import OusterMetadata
@@ -210,7 +210,7 @@ def _zero_missing(arrays, received: np.ndarray) -> None:
 
 
 class OusterDecoder:
-    """Frames of one Ouster sensor from its lidar (and IMU) packets (a :class:`lidarpkt.decoder.Decoder`).
+    """Frames of one Ouster sensor from its lidar (and IMU) packets (a :class:`lidarpkt.core.decoder.Decoder`).
 
     Args:
         metadata: the sensor's :class:`OusterMetadata`.
@@ -466,12 +466,12 @@ class OusterDecoder:
         return out
 
     def sensor_info(self, mode: str | None = None) -> SensorInfo:
-        """The sensor's :class:`~lidarpkt.frame.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
+        """The sensor's :class:`~lidarpkt.core.frame.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
         return self.sensor
 
     # ------------------------------------------------------------------ IMU
     def push_auxiliary(self, batch: PacketBatch) -> None:
-        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_imu` (:meth:`push_zone` for zone packets)."""
+        """The :class:`~lidarpkt.core.decoder.Decoder` name of :meth:`push_imu` (:meth:`push_zone` for zone packets)."""
         if batch.payload_size == self.metadata.zone_packet_size and batch.payload_size != self.metadata.imu_packet_size:
             self.push_zone(batch)
         else:
@@ -503,7 +503,7 @@ class OusterDecoder:
                 self.stats.imu_dropped += drop
 
     def imu_samples(self) -> ImuSamples:
-        """The IMU samples kept so far (:class:`~lidarpkt.imu.ImuSamples`, m/s², rad/s), in arrival order."""
+        """The IMU samples kept so far (:class:`~lidarpkt.core.imu.ImuSamples`, m/s², rad/s), in arrival order."""
         return ImuSamples.concatenate(list(self._imu)) if self._imu else ImuSamples.empty(self.source)
 
     # ------------------------------------------------------------------ zone monitoring

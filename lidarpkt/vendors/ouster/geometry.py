@@ -18,11 +18,11 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 
 
 class OusterGeometry:
-    """XYZ of Ouster frames (implements :class:`lidarpkt.frame.Geometry`)."""
+    """XYZ of Ouster frames (implements :class:`lidarpkt.core.frame.Geometry`)."""
 
     def __init__(self, metadata) -> None:
         self.metadata = metadata

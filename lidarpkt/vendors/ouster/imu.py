@@ -1,14 +1,14 @@
 """Ouster IMU packets, both profiles of the metadata's ``udp_profile_imu``.
 
-* LEGACY (48 bytes, :data:`~lidarpkt.ouster.profiles.IMU_DTYPE`): system, accelerometer and
+* LEGACY (48 bytes, :data:`~lidarpkt.vendors.ouster.profiles.IMU_DTYPE`): system, accelerometer and
   gyroscope timestamps (uint64, ns), linear acceleration x/y/z (float32, g), angular velocity
   x/y/z (float32, deg/s). :func:`decode_imu` / :func:`encode_imu`.
-* ACCEL32_GYRO32_NMEA (firmware 3.x, :func:`~lidarpkt.ouster.profiles.imu_packet_dtype`): the
+* ACCEL32_GYRO32_NMEA (firmware 3.x, :func:`~lidarpkt.vendors.ouster.profiles.imu_packet_dtype`): the
   lidar packet header, an NMEA block (timestamp and the last sentence received), then
   ``imu_measurements_per_packet`` measurements (timestamp, measurement id, status, acceleration
   in m/s², angular velocity in rad/s), the footer. :func:`decode_imu_nmea`.
 
-:func:`imu_samples` gives either as :class:`lidarpkt.imu.ImuSamples` in SI units. Axes are those
+:func:`imu_samples` gives either as :class:`lidarpkt.core.imu.ImuSamples` in SI units. Axes are those
 of the IMU frame (``imu_to_sensor_transform`` of the metadata).
 """
 
@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import PacketFormatError
-from ..imu import STANDARD_GRAVITY_MPS2, ImuSamples
-from ..packet import payload_rows
+from lidarpkt.errors import PacketFormatError
+from lidarpkt.core.imu import STANDARD_GRAVITY_MPS2, ImuSamples
+from lidarpkt.core.packet import payload_rows
 from .profiles import (
     HEADER_TYPES,
     IMU_DTYPE,
@@ -89,7 +89,7 @@ def decode_imu_nmea(payload: np.ndarray, measurements: int, header_type: str = "
 
 
 def imu_samples(payload: np.ndarray, metadata, source: str | None = None) -> ImuSamples:
-    """IMU packets of the sensor of ``metadata`` → :class:`~lidarpkt.imu.ImuSamples` (m/s², rad/s, ns).
+    """IMU packets of the sensor of ``metadata`` → :class:`~lidarpkt.core.imu.ImuSamples` (m/s², rad/s, ns).
 
     LEGACY: one sample per packet, at its gyroscope timestamp (ouster-sdk's ``ImuPacket.timestamp``);
     g × 9.80665 and deg/s × π/180; ``extra``: ``sys_timestamp_ns``, ``accel_timestamp_ns``,

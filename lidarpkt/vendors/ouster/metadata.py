@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MetadataError
+from lidarpkt.errors import MetadataError
 from .profiles import (
     HEADER_TYPES,
     IMU_PACKET_SIZE,
@@ -75,7 +75,7 @@ class OusterMetadata:
     """Everything needed to decode one Ouster sensor's packets, parsed from its metadata JSON.
 
     Attributes:
-        profile: the lidar :class:`~lidarpkt.ouster.profiles.Profile`.
+        profile: the lidar :class:`~lidarpkt.vendors.ouster.profiles.Profile`.
         pixels_per_column: H (beams); columns_per_packet: 16 usually; columns_per_frame: W.
         column_window: ``(first, last)`` measurement ids the sensor sends, inclusive
             (``first > last`` when the window wraps through 0).
@@ -212,8 +212,8 @@ class OusterMetadata:
         return (ids >= first) | (ids <= last)
 
     def sensor_info(self, source: str | None = None):
-        """A :class:`~lidarpkt.frame.SensorInfo` for frames of this sensor, with its XYZ geometry."""
-        from ..frame import SensorInfo
+        """A :class:`~lidarpkt.core.frame.SensorInfo` for frames of this sensor, with its XYZ geometry."""
+        from lidarpkt.core.frame import SensorInfo
         from .geometry import OusterGeometry
 
         mode = {1: "single", 2: "dual"}[self.profile.returns]

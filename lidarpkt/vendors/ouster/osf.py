@@ -20,7 +20,7 @@ bits, either PNG (8-bit grey, 16-bit grey, 8-bit RGBA or 16-bit RGBA for 8/16/32
 standard channel's image is destaggered) or ZPNG (zstd over byte deltas, staggered as is).
 
 Frames come out as ouster-sdk's ``OsfFrameSetSource`` gives them (by receive time across the
-sensors' streams), as :class:`~lidarpkt.frame.Frame` s like those decoded from the sensor's packets
+sensors' streams), as :class:`~lidarpkt.core.frame.Frame` s like those decoded from the sensor's packets
 (columns by measurement id): ``range_mm``, ``reflectivity``, ``signal``, ``flags`` (``[R, H, W]``, R = 2
 when the file stores the second return), ``near_ir``; ``column_timestamp_ns``, ``measurement_id``,
 ``status``; ``column_valid`` = status bit 0. Every other field the file stores is in ``frame.extra``
@@ -50,8 +50,8 @@ from typing import Any, Generator, Iterator
 
 import numpy as np
 
-from ..errors import CaptureFormatError, LidarpktError
-from ..frame import Frame, FrameCounters, FrameIterator, restagger
+from lidarpkt.errors import CaptureFormatError, LidarpktError
+from lidarpkt.core.frame import Frame, FrameCounters, FrameIterator, restagger
 
 # --------------------------------------------------------------------------- the schema, declared once
 # Each table: field name -> (slot, kind, default). The slot is the field's place in the .fbs table
@@ -544,7 +544,7 @@ class OsfFile:
 
 
 def decode_frame(buf: bytes, stream: OsfStream) -> Frame:
-    """One ``LidarScanMsg`` (size-prefixed) of ``stream`` as a :class:`~lidarpkt.frame.Frame` (see the module).
+    """One ``LidarScanMsg`` (size-prefixed) of ``stream`` as a :class:`~lidarpkt.core.frame.Frame` (see the module).
 
     Raises:
         _Damaged: the message or one of its fields is damaged.
@@ -701,7 +701,7 @@ class OsfReader(FrameIterator):
     """
 
     def __init__(self, path: str | os.PathLike[str], *, include_partial: bool = False) -> None:
-        from ..source import SourceStats
+        from lidarpkt.pipeline.reader import SourceStats
 
         self.path = Path(path)
         self.file = OsfFile(path)
@@ -721,7 +721,7 @@ class OsfReader(FrameIterator):
             self.file.close()
 
     def sensors(self) -> list:
-        """The :class:`~lidarpkt.frame.SensorInfo` of each sensor the file holds."""
+        """The :class:`~lidarpkt.core.frame.SensorInfo` of each sensor the file holds."""
         return [s.sensor for s in self.file.streams]
 
     def close(self) -> None:
@@ -733,8 +733,8 @@ _PACKET_OPTIONS = ("ports", "src_addresses", "payload_sizes", "topics", "batch_p
 
 
 def open_osf(path: str | os.PathLike[str], options: Any) -> Any:
-    """``lidarpkt.open`` of an OSF file, given its :class:`~lidarpkt.options.OpenOptions`: an :class:`OsfReader`
-    (``workers`` ≥ 2: decoded in a thread ahead of the caller, :class:`~lidarpkt.parallel.PipelinedFrameReader`).
+    """``lidarpkt.open`` of an OSF file, given its :class:`~lidarpkt.pipeline.options.OpenOptions`: an :class:`OsfReader`
+    (``workers`` ≥ 2: decoded in a thread ahead of the caller, :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader`).
 
     The file carries its sensors' metadata: ``metadata`` is not used, nor are the options of packet decoding
     (``calibration``, ``verify_crc``...); ``include_partial`` applies.
@@ -745,7 +745,7 @@ def open_osf(path: str | os.PathLike[str], options: Any) -> Any:
         UsageError: ``workers`` is not a whole number >= 1.
         CaptureFormatError: see :class:`OsfFile`.
     """
-    from ..errors import UnsupportedContainerError, UnsupportedFilterError, UsageError
+    from lidarpkt.errors import UnsupportedContainerError, UnsupportedFilterError, UsageError
 
     given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
     if given:
@@ -759,7 +759,7 @@ def open_osf(path: str | os.PathLike[str], options: Any) -> Any:
     reader = OsfReader(path, include_partial=options.include_partial)
     if workers == 1:
         return reader
-    from ..parallel import PipelinedFrameReader
+    from lidarpkt.pipeline.parallel import PipelinedFrameReader
 
     return PipelinedFrameReader(reader)
 

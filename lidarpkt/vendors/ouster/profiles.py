@@ -25,7 +25,7 @@ from functools import cache, lru_cache
 
 import numpy as np
 
-from ..errors import MetadataError, PacketFormatError
+from lidarpkt.errors import MetadataError, PacketFormatError
 
 # --------------------------------------------------------------------------- bit fields
 
@@ -577,7 +577,7 @@ def write_bits(data: np.ndarray, field: BitField, value: np.ndarray) -> None:
 
 def _to_raw(value: np.ndarray, field: BitField) -> np.ndarray:
     """The wire value of ``value``; :class:`PacketFormatError` if it does not fit the field exactly."""
-    from ..errors import PacketFormatError
+    from lidarpkt.errors import PacketFormatError
 
     v = value.astype(np.uint64)
     if field.upshift and np.any(v & np.uint64((1 << field.upshift) - 1)):

@@ -1,7 +1,7 @@
 """The Ouster sensor's HTTP API, both sides: fetch a sensor's metadata, or serve it as a sensor would.
 
 * :func:`fetch_metadata` — ``GET http://HOST[:PORT]/api/v1/sensor/metadata`` (urllib, with a
-  timeout), parsed into :class:`~lidarpkt.ouster.metadata.OusterMetadata`; what
+  timeout), parsed into :class:`~lidarpkt.vendors.ouster.metadata.OusterMetadata`; what
   ``record --sensor`` and ``view --sensor`` use instead of a JSON file.
 * :class:`MetadataHttpServer` — serves one metadata JSON at that path (``http.server`` in a
   thread): ``replay --http`` runs it beside the UDP stream, so the whole live flow is testable

@@ -1,11 +1,11 @@
 """An Ouster lidar stream's packets counted: what a payload size is, how many packets a gap lost,
-where a frame ends. The recorder's live path (:mod:`lidarpkt.streams`) uses :class:`PacketCounter`;
-:class:`~lidarpkt.ouster.OusterDecoder` ends a frame at the same place (a change of frame id) and
+where a frame ends. The recorder's live path (:mod:`lidarpkt.core.streams`) uses :class:`PacketCounter`;
+:class:`~lidarpkt.vendors.ouster.OusterDecoder` ends a frame at the same place (a change of frame id) and
 places packets by the same measurement ids.
 
 The (frame id, measurement id) of each packet's first column gives its place in the stream; a jump
 of k packets means k − 1 lost. A step back (or a repeat) is out of order, never loss; a step the
-capture time cannot explain is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), counted
+capture time cannot explain is a corrupted packet or a restart (:mod:`lidarpkt.core.continuity`), counted
 on its own, and losses are never more than the capture time can hold.
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..continuity import StreamContinuity
-from ..decoder import StreamCounts
+from lidarpkt.core.continuity import StreamContinuity
+from lidarpkt.core.decoder import StreamCounts
 from .metadata import OusterMetadata
 from .profiles import IMU_PACKET_SIZE, LEGACY, read_bits
 
@@ -65,7 +65,7 @@ def packet_places(frame_id: np.ndarray, first_measurement_id: np.ndarray, metada
 
 
 def stream_continuity(metadata: OusterMetadata) -> StreamContinuity:
-    """The :class:`~lidarpkt.continuity.StreamContinuity` of a stream of :func:`packet_places`."""
+    """The :class:`~lidarpkt.core.continuity.StreamContinuity` of a stream of :func:`packet_places`."""
     return StreamContinuity(packet_period_ns(metadata), frame_id_modulus(metadata) * window_packets(metadata))
 
 
@@ -86,7 +86,7 @@ class PacketCounter:
     def update(self, payload: np.ndarray, host_ns: np.ndarray | None = None) -> np.ndarray:
         """Count ``uint8[N, L]`` lidar payloads captured at ``host_ns`` (``int64[N]`` ns, 0 or ``None``:
         unknown); returns ``bool[N]``, True where the frame id changes. Corrupted packets (see
-        :mod:`lidarpkt.continuity`) are counted and take no part in losses or frames."""
+        :mod:`lidarpkt.core.continuity`) are counted and take no part in losses or frames."""
         n = payload.shape[0]
         self.count.packets += n
         new_frame = np.zeros(n, bool)

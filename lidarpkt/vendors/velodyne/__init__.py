@@ -22,9 +22,9 @@ VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_deco
 
 from __future__ import annotations
 
-from .._lazy import lazy_names
+from lidarpkt.core.lazy import lazy_names
 
-# public name -> its module, imported on first use (lidarpkt/_lazy.py)
+# public name -> its module, imported on first use (lidarpkt/core/lazy.py)
 _LAZY: dict[str, str] = {
     "VelodyneCalibration": "calibration",
     "load_calibration": "calibration",

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from lidarpkt.errors import CalibrationError
 from .models import VLP16, VelodyneModel
 
 

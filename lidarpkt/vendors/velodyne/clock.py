@@ -3,7 +3,7 @@
 A VLP-16 stamps each packet with the µs past the top of the hour (manual, "Timestamp"); the hour
 comes from a reference (GPS time, the capture clock, the previous packet). $GPGGA carries a time
 of day and no date; the day comes from a reference the same way. The decoder
-(:mod:`lidarpkt.velodyne.frames`), detection, the recorder's sink and its GPS reader all use these
+(:mod:`lidarpkt.vendors.velodyne.frames`), detection, the recorder's sink and its GPS reader all use these
 functions, so that they cannot disagree about which hour or day a stamp is in.
 """
 
@@ -43,7 +43,7 @@ def on_nearest_day_ns(time_of_day_ns: int, reference_ns: int) -> int:
 
 
 def fix_time_ns(fix, reference_ns: int | None) -> int | None:
-    """UTC of an :class:`~lidarpkt.velodyne.nmea.NMEAFix`, ns since the epoch: its date and time
+    """UTC of an :class:`~lidarpkt.vendors.velodyne.nmea.NMEAFix`, ns since the epoch: its date and time
     ($GPRMC), else its time of day on the day nearest ``reference_ns`` ($GPGGA), else ``None``
     (no time in the sentence, or a time of day and no reference)."""
     if fix.utc_ns is not None:

@@ -1,8 +1,8 @@
 """Batch decoding of VLP-16 payloads into raw field arrays, in the manual's units.
 
 One NumPy pass per batch: the payload array is viewed through the dtypes of
-:mod:`lidarpkt.velodyne.packet` and each field is copied out as a whole column.
-Frame assembly (:mod:`lidarpkt.velodyne.frames`) and the encoder work from these arrays.
+:mod:`lidarpkt.vendors.velodyne.packet` and each field is copied out as a whole column.
+Frame assembly (:mod:`lidarpkt.vendors.velodyne.frames`) and the encoder work from these arrays.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import kernels
+from lidarpkt.core import kernels
 
 from .packet import BLOCK_FLAG, as_data_packets, as_position_packets
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import UnknownSensorError
-from ..packet import PacketBatch
+from lidarpkt.errors import UnknownSensorError
+from lidarpkt.core.packet import PacketBatch
 from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
 from .models import (AMBIGUOUS_PRODUCTS, BANK_FLAGS, HDL32E, HDL32E_PACKET_PERIOD_US, HDL64E_S2, HDL64E_S3, MODELS,
@@ -102,7 +102,7 @@ def position_kind(batch: PacketBatch) -> str | None:
 def classify(batch: PacketBatch) -> str | None:
     """``"data"`` or ``"position"`` for Velodyne packet streams (any model), ``None`` for anything else.
 
-    The size says which stream it could be (:func:`lidarpkt.velodyne.stream.stream_kind`, the recorder's
+    The size says which stream it could be (:func:`lidarpkt.vendors.velodyne.stream.stream_kind`, the recorder's
     cheap test); the content decides."""
     kind = stream_kind(batch.payload_size)
     if kind == "data":

@@ -1,4 +1,4 @@
-"""The inverse of :mod:`lidarpkt.velodyne.decode`: raw field arrays → VLP-16 payloads.
+"""The inverse of :mod:`lidarpkt.vendors.velodyne.decode`: raw field arrays → VLP-16 payloads.
 
 Used by the fixture generator for synthetic strongest/last/dual captures and by the
 round-trip tests (``encode(decode(payload)) == payload`` for every real payload).
@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
 
-from ..errors import NMEAError, PacketFormatError
+from lidarpkt.errors import NMEAError, PacketFormatError
 
 if TYPE_CHECKING:
-    from ..frame import Frame
+    from lidarpkt.core.frame import Frame
 from .packet import (
     BLOCK_FLAG,
     BLOCKS_PER_PACKET,
@@ -166,10 +166,10 @@ def encode_position_packets(
 
 
 def encode_frames(frames: "Iterable[Frame]") -> np.ndarray:
-    """Data packets that decode to ``frames`` (the inverse of :class:`~lidarpkt.velodyne.VelodyneDecoder`).
+    """Data packets that decode to ``frames`` (the inverse of :class:`~lidarpkt.vendors.velodyne.VelodyneDecoder`).
 
     Any model: the 16-laser Pucks as below; the others through their layout table
-    (:mod:`lidarpkt.velodyne.layout`): every block of a column takes the azimuth of the column's
+    (:mod:`lidarpkt.vendors.velodyne.layout`): every block of a column takes the azimuth of the column's
     first firing (laser 0), the timestamp is the first column's time less the model's column offset;
     the HDL-64E's status bytes are written as zeros, the VLS-128's unused dual blocks as zero blocks.
 

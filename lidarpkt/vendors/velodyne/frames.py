@@ -10,7 +10,7 @@ return), slot 1 block 2k+1: the strongest return, or — when the strongest retu
 the last — the second strongest. Such pixels are marked in ``frame.extra["second_strongest"]``
 (``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has the
 strictly higher signal at the detector, estimated from the packet as reflectivity / range²
-(:func:`lidarpkt.velodyne.dual.second_strongest_mark`, which documents the model, the tie rule
+(:func:`lidarpkt.vendors.velodyne.dual.second_strongest_mark`, which documents the model, the tie rule
 and what the mark cannot know). Where the sensor saw one return both slots hold it, as the
 sensor sends it.
 
@@ -43,7 +43,7 @@ packets older than the last packet of an earlier batch, are dropped and counted
 (``duplicate_packets``, ``late_packets``). A packet whose time jumps further than the capture time
 allows, off the packets on both sides, is skipped (``corrupted_packets``); a jump the packets after
 it agree with restarts the stream (``restarts``: the frame is cut, nothing lost or late); a gap never
-counts more lost packets than the capture time holds (:mod:`lidarpkt.continuity`).
+counts more lost packets than the capture time holds (:mod:`lidarpkt.core.continuity`).
 
 VeloView. VeloView (2014, ``vlp-16.test``) splits frames where a *block* azimuth wraps, so
 the second firing sequence of the block that crosses 0° stays in the old frame. With
@@ -60,11 +60,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..continuity import StreamContinuity
-from ..errors import CalibrationError, SkippedPacketWarning
-from .._readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from ..frame import Frame, FrameCounters, SensorInfo
-from ..packet import PacketBatch
+from lidarpkt.core.continuity import StreamContinuity
+from lidarpkt.errors import CalibrationError, SkippedPacketWarning
+from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.packet import PacketBatch
 from .clock import HOUR_US, SensorClock, fix_time_ns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, flags_ok, layout_pixels
 from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
@@ -76,7 +76,7 @@ from .nmea import parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
-from ..rotation import rotation_is_whole, wrapped
+from lidarpkt.core.rotation import rotation_is_whole, wrapped
 from .stream import packets_lost
 from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
 
@@ -148,10 +148,10 @@ class _Columns:
 
 class VelodyneDecoder:
     """Frames of one VLP-16 (one source address) from its data and position packets
-    (a :class:`lidarpkt.decoder.Decoder`).
+    (a :class:`lidarpkt.core.decoder.Decoder`).
 
     Args:
-        calibration: a :class:`~lidarpkt.velodyne.calibration.VelodyneCalibration`, a path to a ROS
+        calibration: a :class:`~lidarpkt.vendors.velodyne.calibration.VelodyneCalibration`, a path to a ROS
             YAML / VeloView XML, or ``None`` for the stock calibration.
         cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
         source: a name for reports (``"192.168.1.201:2368"``).
@@ -163,7 +163,7 @@ class VelodyneDecoder:
         max_frame_columns: a frame still without a wrap after this many columns (8192 ≈ 0.45 s; a
             rotation at the slowest 5 Hz has 3617) is released as partial, so that a sensor that stops
             turning cannot grow memory without bound (counted in ``stats.overlong_frames``).
-        model: the sensor's row of the model table (:mod:`lidarpkt.velodyne.models`) or its name;
+        model: the sensor's row of the model table (:mod:`lidarpkt.vendors.velodyne.models`) or its name;
             the VLP-16, the only row today, by default.
 
     Raises:
@@ -225,7 +225,7 @@ class VelodyneDecoder:
         """Take ``model`` and its calibration (the one given, else the packets' own for the HDL-64E, else stock)."""
         self.model = model
         if not model.default_calibration and self._calibration_arg is None:
-            self.geometry = None  # read from the packets' status cycle (lidarpkt.velodyne.hdl64e)
+            self.geometry = None  # read from the packets' status cycle (lidarpkt.vendors.velodyne.hdl64e)
             self.calibration = None
             self._row_laser = np.arange(model.lasers)
             self._status = StatusCycle()
@@ -292,7 +292,7 @@ class VelodyneDecoder:
     # ------------------------------------------------------------------ time
     def absolute_time_ns(self, timestamp_us: np.ndarray, host_ns: np.ndarray) -> np.ndarray:
         """``int64[N]`` ns since the epoch for hour-relative packet times, updating the decoder's clock
-        (see :class:`~lidarpkt.velodyne.clock.SensorClock`: GPS, else capture time, else the previous packet)."""
+        (see :class:`~lidarpkt.vendors.velodyne.clock.SensorClock`: GPS, else capture time, else the previous packet)."""
         return self.clock.absolute_ns(timestamp_us, host_ns)
 
     # ------------------------------------------------------------------ position packets
@@ -323,7 +323,7 @@ class VelodyneDecoder:
             self.stats.gps_fixes_ignored += 1
 
     def push_auxiliary(self, batch: PacketBatch) -> None:
-        """The :class:`~lidarpkt.decoder.Decoder` name of :meth:`push_position`."""
+        """The :class:`~lidarpkt.core.decoder.Decoder` name of :meth:`push_position`."""
         self.push_position(batch)
 
     # ------------------------------------------------------------------ data packets
@@ -609,7 +609,7 @@ class VelodyneDecoder:
         return [frame]
 
     def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
-        """Whether a frame's columns hold its whole rotation (see :func:`~lidarpkt.rotation.rotation_is_whole`)."""
+        """Whether a frame's columns hold its whole rotation (see :func:`~lidarpkt.core.rotation.rotation_is_whole`)."""
         hz = self._frequency_hz
         fallback = hz * 36000.0 * self.model.sequence_ns * 1e-9 if hz else None
         return rotation_is_whole(azimuth_cdeg, self.cut_cdeg, check_start=check_start, check_end=check_end,

@@ -20,8 +20,8 @@ import functools
 
 import numpy as np
 
-from .. import kernels
-from ..errors import CalibrationError
+from lidarpkt.core import kernels
+from lidarpkt.errors import CalibrationError
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel
 
@@ -44,7 +44,7 @@ def _trig_tables(rot: tuple[float, ...] | None) -> tuple[np.ndarray, np.ndarray]
 
 
 class VelodyneGeometry:
-    """XYZ of VLP-16 frames for one calibration (the ``Geometry`` of :class:`~lidarpkt.frame.Frame`).
+    """XYZ of VLP-16 frames for one calibration (the ``Geometry`` of :class:`~lidarpkt.core.frame.Frame`).
 
     Raises :class:`CalibrationError` for a frame without per-firing azimuths.
     """

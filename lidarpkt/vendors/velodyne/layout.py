@@ -1,6 +1,6 @@
 """Where each firing of a model sits in a packet: the per-block, per-channel tables a model row implies.
 
-For a model (:mod:`lidarpkt.velodyne.models`) and a return mode, :func:`packet_layout` gives, for
+For a model (:mod:`lidarpkt.vendors.velodyne.models`) and a return mode, :func:`packet_layout` gives, for
 each of the 12 × 32 channels of a packet: its frame column inside the packet, its laser id, its
 return slot (dual: 0 = last, 1 = strongest), the block whose azimuth it takes, its firing time after
 the packet timestamp, and the delay after the firing the block azimuth was measured at (for the

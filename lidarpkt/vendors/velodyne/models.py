@@ -7,7 +7,7 @@ lasers fill it, and that is all a row says: how many lasers, how many blocks mak
 0xCCFF, 0xBBFF) or how many columns one block holds (2 on the 16-laser Pucks), the firing time of
 each laser inside its column, the column period, the distance unit, the dual-return block layout,
 and the stock calibration (elevation and azimuth offset per laser, beam-origin offsets).
-:mod:`lidarpkt.velodyne.layout` derives every per-block, per-channel table from a row.
+:mod:`lidarpkt.vendors.velodyne.layout` derives every per-block, per-channel table from a row.
 
 Sources: the user manuals' "Data Packet Format", "Laser Angles" / "Laser ID" and "Firing Timing"
 tables (VLP-16 / Puck LITE, Puck Hi-Res, HDL-32E, VLP-32C, VLS-128 / Alpha Prime, HDL-64E S2 and
@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..errors import PacketFormatError, UnknownSensorError
+from lidarpkt.errors import PacketFormatError, UnknownSensorError
 
 #: Return mode bytes of the 1206-byte packet family (byte 1204).
 RETURN_MODES = {0x37: "strongest", 0x38: "last", 0x39: "dual"}
@@ -35,7 +35,7 @@ HDL32E_PACKET_PERIOD_US = 12 * 46.080
 #: Block flags (bytes FF EE, FF DD, ... read as u16 LE): the laser bank a block holds.
 BANK_FLAGS = (0xEEFF, 0xDDFF, 0xCCFF, 0xBBFF)
 
-# The packet family's layout (lidarpkt.velodyne.packet declares the bytes): a model's firings fill it.
+# The packet family's layout (lidarpkt.vendors.velodyne.packet declares the bytes): a model's firings fill it.
 _BLOCKS_PER_PACKET = 12
 _CHANNELS_PER_BLOCK = 32
 

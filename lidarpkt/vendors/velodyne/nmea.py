@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import NMEAError
+from lidarpkt.errors import NMEAError
 
 
 @dataclass(frozen=True)

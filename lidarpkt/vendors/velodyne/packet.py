@@ -1,6 +1,6 @@
 """The VLP-16 packet layouts, declared once as NumPy structured dtypes.
 
-Everything else in :mod:`lidarpkt.velodyne` (decoding, encoding, classification) views
+Everything else in :mod:`lidarpkt.vendors.velodyne` (decoding, encoding, classification) views
 payloads through these dtypes; no other module hard-codes a byte offset.
 
 Data packet (VLP-16 user manual, "Data Packet Format"), 1206 bytes::
@@ -25,14 +25,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import PacketFormatError
+from lidarpkt.errors import PacketFormatError
 from .models import RETURN_MODES, VLP16
 
 DATA_PACKET_SIZE = 1206
 POSITION_PACKET_SIZE = 512
 BLOCKS_PER_PACKET = 12
 CHANNELS_PER_BLOCK = 32
-# The VLP-16's facts under their old names (lidarpkt.velodyne.models holds them, per model)
+# The VLP-16's facts under their old names (lidarpkt.vendors.velodyne.models holds them, per model)
 LASERS = VLP16.lasers
 
 BLOCK_FLAG = 0xEEFF  # bytes FF EE read as u16 little-endian

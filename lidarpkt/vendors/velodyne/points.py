@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import UsageError
-from ..frame import Frame
+from lidarpkt.errors import UsageError
+from lidarpkt.core.frame import Frame
 from .geometry import VelodyneGeometry
 
 POINT_DTYPE = np.dtype([

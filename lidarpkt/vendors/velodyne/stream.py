@@ -1,6 +1,6 @@
 """A VLP-16 stream's packets counted: what a payload size is, how many packets a gap lost, where a
-rotation ends. The decoder (:mod:`lidarpkt.velodyne.frames`) and the recorder's live path
-(:class:`PacketCounter`, through :mod:`lidarpkt.streams`) both use these rules, so that they cannot
+rotation ends. The decoder (:mod:`lidarpkt.vendors.velodyne.frames`) and the recorder's live path
+(:class:`PacketCounter`, through :mod:`lidarpkt.core.streams`) both use these rules, so that they cannot
 disagree about packet periods and rotations.
 
 * Packet period: the model table's (:meth:`VelodyneModel.packet_period_us`: 1327.104 µs in the
@@ -12,7 +12,7 @@ disagree about packet periods and rotations.
   not begin or end at a wrap is whole when it reaches the cut within one firing interval
   (:func:`rotation_is_whole`).
 * A step back (or a repeat) is out of order, never loss; a step the capture time cannot explain
-  is a corrupted packet or a restart (:mod:`lidarpkt.continuity`), counted on its own, and losses
+  is a corrupted packet or a restart (:mod:`lidarpkt.core.continuity`), counted on its own, and losses
   are never more than the capture time can hold.
 """
 
@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..continuity import StreamContinuity
-from ..decoder import StreamCounts
-from ..rotation import wrapped
+from lidarpkt.core.continuity import StreamContinuity
+from lidarpkt.core.decoder import StreamCounts
+from lidarpkt.core.rotation import wrapped
 from .clock import HOUR_US
 from .models import VLP16
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, as_data_packets
@@ -61,7 +61,7 @@ class PacketCounter:
         unknown); returns ``bool[N]``, True where a packet is the first of a new rotation (its first
         block's azimuth wrapped from the previous packet's). ``count.frames`` counts the rotations
         completed: the wraps between any two consecutive blocks. Corrupted packets (see
-        :mod:`lidarpkt.continuity`) are counted and take no part in losses or rotations.
+        :mod:`lidarpkt.core.continuity`) are counted and take no part in losses or rotations.
 
         Raises :class:`~lidarpkt.errors.PacketFormatError` for payloads of another size.
         """

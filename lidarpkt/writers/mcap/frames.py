@@ -214,7 +214,7 @@ class McapFrameWriter(BaseWriter):
     Raises:
         OutputError: an unknown topic group; ``packets`` without a capture; the output cannot be
             written. MetadataError: ``metadata`` is no Ouster metadata. What reading the capture
-            raises (:func:`lidarpkt.sources.open_packet_source`), from :meth:`add_capture`.
+            raises (:func:`lidarpkt.containers.open_packet_source`), from :meth:`add_capture`.
     """
 
     suffix = ".mcap"
@@ -225,7 +225,7 @@ class McapFrameWriter(BaseWriter):
                  metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
-        from lidarpkt.options import load_ouster_metadata
+        from lidarpkt.pipeline.options import load_ouster_metadata
 
         from .writer import McapWriter
 
@@ -268,9 +268,9 @@ class McapFrameWriter(BaseWriter):
         """The capture whose frames come next: its packets are written (``packets`` topic) and its clock
         offsets and span measured (unless given to the constructor). ``progress(bytes_read)`` is called
         as its packets are read."""
-        from lidarpkt.sources import open_packet_source
-        from lidarpkt.sources.magic import is_osf
-        from lidarpkt.sources.protocol import embedded_ouster_metadata
+        from lidarpkt.containers import open_packet_source
+        from lidarpkt.containers.magic import is_osf
+        from lidarpkt.containers.protocol import embedded_ouster_metadata
 
         from .packets import PacketSink, capture_times
 
@@ -279,7 +279,7 @@ class McapFrameWriter(BaseWriter):
         mds = self.ouster_metadata
         if is_osf(capture):  # decoded frames, no packets: the span they were received in
             if not self._given_times:
-                from lidarpkt.ouster.osf import receive_span
+                from lidarpkt.vendors.ouster.osf import receive_span
 
                 self.set_capture_times({}, *receive_span(capture))
             return
@@ -288,7 +288,7 @@ class McapFrameWriter(BaseWriter):
         if "packets" not in self.groups:
             return
         if not mds:
-            from lidarpkt.options import load_ouster_metadata
+            from lidarpkt.pipeline.options import load_ouster_metadata
 
             embedded = embedded_ouster_metadata(capture)
             mds = load_ouster_metadata(embedded) if embedded else []

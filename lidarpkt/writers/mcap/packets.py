@@ -28,12 +28,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from lidarpkt import streams
-from lidarpkt.decoder import StreamCounter
-from lidarpkt.packet import PacketBatch
-from lidarpkt.velodyne import packet as vlp
-from lidarpkt.velodyne.clock import in_nearest_hour_ns
-from lidarpkt.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
+from lidarpkt.core import streams
+from lidarpkt.core.decoder import StreamCounter
+from lidarpkt.core.packet import PacketBatch
+from lidarpkt.vendors.velodyne import packet as vlp
+from lidarpkt.vendors.velodyne.clock import in_nearest_hour_ns
+from lidarpkt.vendors.velodyne.models import HDL32E_PACKET_PERIOD_US, PRODUCT_NAMES
 
 from . import schemas
 from .writer import McapWriter
@@ -42,7 +42,7 @@ from .writer import McapWriter
 def velodyne_sensor_time_ns(timestamp_us: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
     """Sensor time (ns since the epoch) of VLP-16 packets: their µs past the hour, in the hour
     nearest their host receive time (the convention of velodyne_decoder; ±30 min), as the decoder
-    resolves it (:func:`lidarpkt.velodyne.clock.in_nearest_hour_ns`)."""
+    resolves it (:func:`lidarpkt.vendors.velodyne.clock.in_nearest_hour_ns`)."""
     return in_nearest_hour_ns(timestamp_us, host_time_ns)
 
 
@@ -63,7 +63,7 @@ class PacketSink:
 
     Args:
         writer: the MCAP output.
-        ouster_metadata: :class:`lidarpkt.ouster.metadata.OusterMetadata` of the Ouster sensor,
+        ouster_metadata: :class:`lidarpkt.vendors.ouster.metadata.OusterMetadata` of the Ouster sensor,
             if any (needed for non-legacy profiles and for Ouster loss accounting), or a list of
             them, one per sensor: a batch uses the one whose lidar or IMU port is its
             destination port, else the first.
@@ -110,8 +110,8 @@ class PacketSink:
 
     def _describe_velodyne(self, batch: PacketBatch, src: str) -> None:
         from lidarpkt.errors import LidarpktError
-        from lidarpkt.velodyne.decode import decode_packets
-        from lidarpkt.velodyne.detect import describe_stream, detect_model
+        from lidarpkt.vendors.velodyne.decode import decode_packets
+        from lidarpkt.vendors.velodyne.detect import describe_stream, detect_model
 
         p = vlp.as_data_packets(batch.payload[:1])[0]
         mode = vlp.RETURN_MODES.get(int(p["return_mode"]), f"0x{int(p['return_mode']):02x}")
@@ -197,14 +197,14 @@ class PacketSink:
         and the zone states of zone-monitoring packets (their port, size and header say so) as JSON."""
         if md is None:
             return
-        from lidarpkt.ouster.detect import classify
+        from lidarpkt.vendors.ouster.detect import classify
 
         match = classify(batch, [md]) if kind in (streams.OUSTER_IMU, streams.OTHER) else None
         if match is None:
             return
         host = batch.timestamp_ns
         if match[0] == "imu" and batch.payload_size == md.imu_packet_size:
-            from lidarpkt.ouster.imu import imu_samples
+            from lidarpkt.vendors.ouster.imu import imu_samples
 
             samples = imu_samples(batch.payload, md, str(batch.src))
             times = host[samples.extra["packet_index"]].tolist()
@@ -212,7 +212,7 @@ class PacketSink:
                 self.writer.write(schemas.OUSTER_IMU_SAMPLES, data, t)
             self.decoded_messages += len(samples)
         elif match[0] == "zone":
-            from lidarpkt.ouster.zone import decode_zone_packets
+            from lidarpkt.vendors.ouster.zone import decode_zone_packets
 
             states = decode_zone_packets(batch.payload, md.header_type or "STANDARD")
             string_t = schemas.typestore().types[schemas.STRING]
@@ -227,7 +227,7 @@ class PacketSink:
             self._describe_velodyne(batch, rep.src)
         tracker = self._trackers.get(key)
         if tracker is None:
-            from lidarpkt.velodyne.detect import data_kind
+            from lidarpkt.vendors.velodyne.detect import data_kind
 
             kind = data_kind(batch)
             period = None if kind is None else {"vlp16": vlp.SINGLE_PACKET_PERIOD_US, "hdl32e": HDL32E_PACKET_PERIOD_US}.get(kind)
@@ -316,10 +316,10 @@ def capture_times(path: str | os.PathLike[str], ouster_metadata: Sequence[Any] =
     kept inside the capture's span (its first and last packet). ``ouster_metadata``: loaded Ouster
     metadata, one per sensor (the capture's own ``/ouster/metadata`` serves when none is given).
 
-    Raises what :func:`lidarpkt.sources.open_packet_source` raises.
+    Raises what :func:`lidarpkt.containers.open_packet_source` raises.
     """
-    from lidarpkt.options import load_ouster_metadata
-    from lidarpkt.sources import open_packet_source
+    from lidarpkt.pipeline.options import load_ouster_metadata
+    from lidarpkt.containers import open_packet_source
 
     mds = list(ouster_metadata)
     offsets: dict[str, int] = {}

@@ -1,7 +1,7 @@
 """Frames as ROS 2 messages: organised ``sensor_msgs/PointCloud2`` and ``sensor_msgs/Image``.
 
 One point cloud per return slot. The cloud is organised: ``height`` = H rows (row 0 = the
-top beam, as in :class:`lidarpkt.frame.Frame`), ``width`` = W columns; Ouster clouds and
+top beam, as in :class:`lidarpkt.core.frame.Frame`), ``width`` = W columns; Ouster clouds and
 images are destaggered (as ouster-ros publishes them), VLP-16 ones keep the firing order.
 Pixels without a return (range 0, or a column no packet delivered) have NaN x, y, z, and the
 cloud's ``is_dense`` is false (the ROS convention for an organised cloud: viewers skip them
@@ -45,7 +45,7 @@ FRAME_IDS = {"velodyne": "velodyne", "ouster": "os_sensor"}
 def point_fields() -> list:
     """The ``sensor_msgs/msg/PointField`` list of :data:`POINT_DTYPE`."""
     pf = schemas.typestore().types["sensor_msgs/msg/PointField"]
-    from lidarpkt.sources.layouts import field_info, field_names
+    from lidarpkt.containers.layouts import field_info, field_names
 
     return [pf(name=name, offset=field_info(POINT_DTYPE, name)[1], datatype=_DATATYPE[POINT_DTYPE[name]],
                count=1) for name in field_names(POINT_DTYPE)]

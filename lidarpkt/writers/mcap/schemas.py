@@ -55,7 +55,7 @@ import numpy as np
 from lidarpkt.errors import CaptureFormatError, PacketFormatError
 # the message types rosbags' store lacks (the drivers' packet types) and the store built with them: one
 # table for the readers and this writer
-from lidarpkt.sources.rosmsgs import MESSAGE_DEFINITIONS, typestore  # noqa: F401 (public here too)
+from lidarpkt.containers.rosmsgs import MESSAGE_DEFINITIONS, typestore  # noqa: F401 (public here too)
 
 VELODYNE_SCAN = "velodyne_msgs/msg/VelodyneScan"
 PACKET_MSG = "ouster_sensor_msgs/msg/PacketMsg"
@@ -264,7 +264,7 @@ def decode_stamped_packet(data: bytes) -> tuple[int, bytes]:
 
 
 def encode_imu_samples(samples, frame_id: str) -> list[bytes]:
-    """One ``sensor_msgs/msg/Imu`` (CDR) per sample of :class:`lidarpkt.imu.ImuSamples`: ``header.stamp`` = the
+    """One ``sensor_msgs/msg/Imu`` (CDR) per sample of :class:`lidarpkt.core.imu.ImuSamples`: ``header.stamp`` = the
     sample's time, angular velocity (rad/s) and linear acceleration (m/s²) as given, covariances unknown (0), and
     no orientation (``orientation_covariance[0] = -1``, REP 145)."""
     store = typestore()

@@ -1,0 +1,1 @@
+"""One folder per sensor family: ``velodyne``, ``ouster``, ``hesai``."""
