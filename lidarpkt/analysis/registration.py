@@ -28,7 +28,8 @@ from typing import Sequence, cast
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import Frame, FrameStack
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameStack
 
 from .gmm import DEFAULT_GAP_M
 from .multireturn import DEFAULT_MONITOR_METHOD, MONITOR_METHODS, image_statistics, monitor_score

@@ -28,7 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 from lidarpkt.vendors.velodyne.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).

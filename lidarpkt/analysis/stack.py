@@ -1,4 +1,4 @@
-"""Getting a :class:`~lidarpkt.core.frame.FrameStack` ready for the analysis: loading, frame
+"""Getting a :class:`~lidarpkt.core.sequence.FrameStack` ready for the analysis: loading, frame
 selection, pixel checks, and the neighbourhood geometry every spatial computation shares.
 
 Pixel coordinates are always the stack's own (row, column): for Ouster that is the
@@ -17,7 +17,8 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError, LidarpktWarning
-from lidarpkt.core.frame import FrameStack, default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.grid import default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.sequence import FrameStack
 
 _MAX_PARTIAL_FALLBACK = 8
 

@@ -62,7 +62,7 @@ class Ordinals:
             the segment's first frame of that stream; a stream not listed starts at 0.
         packet_index: the whole-file ordinal of the segment's first packet.
         rates: per VLP-16 stream, ``(frequency_hz, columns_per_frame)`` of the stream's
-            :class:`~lidarpkt.core.frame.SensorInfo` in the whole file: a decoder measures the rate
+            :class:`~lidarpkt.core.sensor.SensorInfo` in the whole file: a decoder measures the rate
             from the first packets it reads, and the whole file's are those of the segment where
             the stream starts (as :mod:`lidarpkt.pipeline.parallel` keeps the first segment's SensorInfo).
     """

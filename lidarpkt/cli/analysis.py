@@ -18,7 +18,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameStack
+    from lidarpkt.core.sequence import FrameStack
 
 # ---------------------------------------------------------------------------- helpers
 

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameIterator
+    from lidarpkt.core.sequence import FrameIterator
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 

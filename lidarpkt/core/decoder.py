@@ -21,8 +21,9 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 if TYPE_CHECKING:
     import numpy as np
 
-    from .frame import Frame, SensorInfo
+    from .frame import Frame
     from .packet import PacketBatch
+    from .sensor import SensorInfo
 
 #: How far a stream's own counters may disagree with the capture clock between two packets; beyond
 #: it a step is a corrupted packet or a restart (:mod:`lidarpkt.core.continuity`), never packets lost.

@@ -42,7 +42,8 @@ from typing import Any, Callable, Generator
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, UnknownSensorError
-from lidarpkt.core.frame import Frame, FrameIterator
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",

@@ -22,7 +22,8 @@ import numpy as np
 from lidarpkt.errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.decoder import Decoder
-from lidarpkt.core.frame import Frame, FrameIterator
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameIterator
 from .options import OpenOptions, load_ouster_metadata, with_options
 from lidarpkt.core.packet import PacketBatch
 from .router import Router, RouteOptions, source_name as _source_name

@@ -268,7 +268,7 @@ class ParquetWriter(BaseWriter):
 
 # ------------------------------------------------------------------------------ reading back
 def _sensor_from(row: dict[str, Any]):
-    from lidarpkt.core.frame import SensorInfo
+    from lidarpkt.core.sensor import SensorInfo
 
     info = json.loads(row["sensor_json"])
     for key in ("beam_altitude_deg", "beam_azimuth_deg"):

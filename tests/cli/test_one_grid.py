@@ -24,7 +24,8 @@ import pytest
 import lidarpkt
 from conftest import external
 from lidarpkt.errors import DroppedPacketsWarning
-from lidarpkt.core.frame import FrameStack, default_grid_deg, destagger, restagger
+from lidarpkt.core.sequence import FrameStack
+from lidarpkt.core.grid import default_grid_deg, destagger, restagger
 
 REPO = Path(__file__).resolve().parents[2]
 VLP20 = "veloview/vlp-16-test-90deg-1-50-frames.pcap"

@@ -92,7 +92,7 @@ def test_whole_frames_fill_the_default_grid(ext, folder, bag, model, columns):
     """The XT and QT send their firings on the grid (0.18°, 0.4°, 0.6° steps): every column is its own
     bin. The Pandar64's azimuths wander by up to ±0.04° about 0.2° steps (and a rotation holds 1799 or 1800
     firings): a few share a bin, fewer than 2 %."""
-    from lidarpkt.core.frame import FrameStack
+    from lidarpkt.core.sequence import FrameStack
 
     frames = [f for f in lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}")) if not f.partial]
     stack = FrameStack.from_frames(frames)

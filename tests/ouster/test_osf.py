@@ -440,7 +440,7 @@ def test_osf_written_here_reads_as_ouster_sdk_reads_it(tmp_path):
     1-D field, a ZPNG 64-bit field): ouster-sdk's reader and lidarpkt's give the same arrays."""
     from osf_builder import Custom, png_rgba, zpng
 
-    from lidarpkt.core.frame import destagger
+    from lidarpkt.core.grid import destagger
 
     rng = np.random.default_rng(3)
 

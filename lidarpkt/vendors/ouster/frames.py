@@ -48,7 +48,8 @@ from lidarpkt.core import kernels
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S, packets_spanned
 from lidarpkt.errors import SensorMismatchError, SkippedPacketWarning
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from .decode import OusterPacketFields, decode_packets, packet_view
 from lidarpkt.core.imu import ImuSamples
@@ -466,7 +467,7 @@ class OusterDecoder:
         return out
 
     def sensor_info(self, mode: str | None = None) -> SensorInfo:
-        """The sensor's :class:`~lidarpkt.core.frame.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
+        """The sensor's :class:`~lidarpkt.core.sensor.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
         return self.sensor
 
     # ------------------------------------------------------------------ IMU

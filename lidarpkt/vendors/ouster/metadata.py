@@ -212,8 +212,8 @@ class OusterMetadata:
         return (ids >= first) | (ids <= last)
 
     def sensor_info(self, source: str | None = None):
-        """A :class:`~lidarpkt.core.frame.SensorInfo` for frames of this sensor, with its XYZ geometry."""
-        from lidarpkt.core.frame import SensorInfo
+        """A :class:`~lidarpkt.core.sensor.SensorInfo` for frames of this sensor, with its XYZ geometry."""
+        from lidarpkt.core.sensor import SensorInfo
         from .geometry import OusterGeometry
 
         mode = {1: "single", 2: "dual"}[self.profile.returns]

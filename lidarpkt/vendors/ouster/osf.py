@@ -51,7 +51,9 @@ from typing import Any, Generator, Iterator
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, LidarpktError
-from lidarpkt.core.frame import Frame, FrameCounters, FrameIterator, restagger
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sequence import FrameIterator
+from lidarpkt.core.grid import restagger
 
 # --------------------------------------------------------------------------- the schema, declared once
 # Each table: field name -> (slot, kind, default). The slot is the field's place in the .fbs table
@@ -721,7 +723,7 @@ class OsfReader(FrameIterator):
             self.file.close()
 
     def sensors(self) -> list:
-        """The :class:`~lidarpkt.core.frame.SensorInfo` of each sensor the file holds."""
+        """The :class:`~lidarpkt.core.sensor.SensorInfo` of each sensor the file holds."""
         return [s.sensor for s in self.file.streams]
 
     def close(self) -> None:

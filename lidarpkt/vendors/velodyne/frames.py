@@ -63,7 +63,8 @@ import numpy as np
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from .clock import HOUR_US, SensorClock, fix_time_ns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, flags_ok, layout_pixels
