@@ -447,7 +447,7 @@ def osf_with_crcs(data: bytes) -> bytes:
     names; metadata) made right: the file as it would be if the damage had been written with its CRCs."""
     import zlib
 
-    from lidarpkt.vendors.ouster.osf import _root
+    from lidarpkt.containers.osf.format import root_table
 
     out = bytearray(data)
 
@@ -464,7 +464,7 @@ def osf_with_crcs(data: bytes) -> bytes:
     if pos is None:
         return bytes(out)
     try:
-        meta = int(_root(bytes(out[: pos - 4]), "Header").metadata_offset)
+        meta = int(root_table(bytes(out[: pos - 4]), "Header").metadata_offset)
     except Exception:  # not a header the reader would take: nothing more to repair
         return bytes(out)
     while pos is not None and pos < meta:

@@ -303,7 +303,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
     ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
     frames) gives a :class:`~lidarpkt.vendors.ouster.osf.OsfReader` of its stored frames (see
-    :func:`~lidarpkt.vendors.ouster.osf.open_osf` for the options it takes).
+    :func:`_open_frame_file` for the options it takes).
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
@@ -318,9 +318,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
     """
     opts = OpenOptions.from_keywords("open_frames", dict(options))
     if is_osf(path):  # ouster-sdk's frame files: frames, not packets
-        from lidarpkt.vendors.ouster.osf import open_osf
-
-        return open_osf(path, opts)
+        return _open_frame_file(path, opts)
     if opts.workers != 1:
         from .parallel import open_parallel
 
@@ -328,6 +326,43 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         if reader is not None:
             return reader
     return FrameReader(path, **dataclasses.replace(opts, workers=1).keywords())  # one thread after all
+
+
+_PACKET_OPTIONS = ("ports", "src_addresses", "payload_sizes", "topics", "batch_packets", "source")
+
+
+def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions) -> OsfReader | PipelinedFrameReader:
+    """``lidarpkt.open`` of a file of decoded frames (OSF): its reader (``workers`` ≥ 2: decoded in a thread
+    ahead of the caller, :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader`).
+
+    The file carries its sensors' metadata: ``metadata`` is not used, nor are the options of packet decoding
+    (``calibration``, ``verify_crc``...); ``include_partial`` applies.
+
+    Raises:
+        UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): the file holds no packets.
+        UnsupportedContainerError: a ``segment`` of a file cut in several: the file is read whole.
+        UsageError: ``workers`` is not a whole number >= 1.
+        CaptureFormatError: the file is damaged.
+    """
+    from lidarpkt.errors import UnsupportedFilterError, UsageError
+    from lidarpkt.vendors.ouster.osf import OsfReader
+
+    what = f"an {container_kind(path).upper()} file"
+    given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
+    if given:
+        raise UnsupportedFilterError(f"{path}: {', '.join(n + '=' for n in given)} cannot filter {what}: it holds "
+                                     "decoded frames, not packets")
+    if options.segment is not None and options.segment.count != 1:
+        raise UnsupportedContainerError(f"{path}: {what} is read whole (one segment)")
+    workers = options.workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    reader = OsfReader(path, SourceStats(), include_partial=options.include_partial)
+    if workers == 1:
+        return reader
+    from .parallel import PipelinedFrameReader
+
+    return PipelinedFrameReader(reader)
 
 
 def _segment_reader(path: str | os.PathLike[str], options: OpenOptions) -> FrameReader:
