@@ -40,7 +40,7 @@ _LAZY: dict[str, str] = {
     "encode_data_packets": "encode",
     "encode_frames": "encode",
     "encode_position_packets": "encode",
-    "DecoderStats": "frames",
+    "DecoderStats": "accounting",
     "VelodyneDecoder": "frames",
     "VelodyneGeometry": "geometry",
     "MODELS": "models",
