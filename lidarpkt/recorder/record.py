@@ -50,7 +50,7 @@ def load_ouster_metadata(args: argparse.Namespace) -> list:
     Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`~lidarpkt.errors.SensorConnectionError` (a sensor
     that does not answer; the message names the host and the URL tried).
     """
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
     mds = [load_metadata(path) for path in (args.metadata or [])]
     if getattr(args, "sensor", None):

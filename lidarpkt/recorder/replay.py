@@ -120,7 +120,7 @@ def read_capture(path: str) -> Iterator[Packet]:
 def embedded_metadata(path: str, look_ahead: int = 64):
     """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
     for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
     from lidarpkt.containers.protocol import embedded_ouster_metadata
 
     text = embedded_ouster_metadata(path, look_ahead)
@@ -221,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
     cliargs.check_inputs([args.file])
     cliargs.check_inputs(args.metadata or (), "--metadata")
     if args.metadata:
-        from lidarpkt.vendors.ouster.metadata import load_metadata
+        from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
         mds = [load_metadata(path) for path in args.metadata]
     else:

@@ -279,7 +279,7 @@ def _sensor_from(row: dict[str, Any]):
     metadata = json.loads(row["metadata_json"]) if row.get("metadata_json") else {}
     sensor = SensorInfo(**info, metadata=metadata)
     if sensor.vendor == "ouster" and metadata:
-        from lidarpkt.vendors.ouster.metadata import load_metadata
+        from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
         sensor.geometry = load_metadata(metadata).sensor_info().geometry
     elif sensor.vendor == "velodyne":

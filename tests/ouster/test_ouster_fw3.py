@@ -15,7 +15,8 @@ from lidarpkt.core import kernels
 from lidarpkt.vendors.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
 from lidarpkt.vendors.ouster.encode import empty_fields, encode_frame
 from lidarpkt.vendors.ouster.imu import imu_samples
-from lidarpkt.vendors.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER, read_bits
+from lidarpkt.vendors.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER
+from lidarpkt.vendors.ouster.bitfield import read_bits
 from lidarpkt.vendors.ouster.zone import decode_zone_packets
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.pcap_reader import read_batches

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import PortInUseError
-from lidarpkt.vendors.ouster.metadata import load_metadata
+from lidarpkt.vendors.ouster.metadata_json import load_metadata
 from lidarpkt.containers.pcap_reader import read_batches, read_packets
 from lidarpkt.core import streams
 from lidarpkt.containers.udp import UdpSource

@@ -72,7 +72,7 @@ def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
     packets = list(read_capture(str(pcap)))
     lidar_port, imu_port = _free_ports(2)
     rec = Recorder(tmp_path, [lidar_port, imu_port], "--metadata", str(meta), "-q")
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
     md = load_metadata(meta)
     replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, ouster_metadata=md)

@@ -387,7 +387,7 @@ def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_re
     """Issue 14: without --metadata the non-legacy lidar packets went to 7502 (mapped), not --to,
     although `lidarpkt info` calls the stream Ouster lidar; now both recognise it by its header."""
     pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
     lidar, other = _free_ports(2)

@@ -6,8 +6,9 @@ RNG15_RFL8_WIN8, FIVE_WORD_PIXEL, under a STANDARD or FUSA packet header (``head
 deprecated FUSA_RNG15_RFL8_NIR8_DUAL name too). IMU profiles LEGACY and ACCEL32_GYRO32_NMEA;
 zone-monitoring packets.
 
-Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
-layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
+Modules: :mod:`.bitfield` (bit-field tables, read and written in NumPy), :mod:`.profiles` (every lidar
+packet layout, once), :mod:`.auxiliary` (the IMU and zone-monitoring layouts), :mod:`.metadata` (the
+parsed metadata), :mod:`.metadata_json` (reading its JSON: both layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
 :mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`; :mod:`.fieldplan` where
 a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
@@ -49,9 +50,9 @@ _LAZY: dict[str, str] = {
     "OusterMetadata": "metadata",
     "OsfFile": "osf",
     "OsfReader": "osf",
-    "load_metadata": "metadata",
+    "load_metadata": "metadata_json",
     "PROFILES": "profiles",
-    "BitField": "profiles",
+    "BitField": "bitfield",
     "Profile": "profiles",
     "get_profile": "profiles",
     "with_header": "profiles",

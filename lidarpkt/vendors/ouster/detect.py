@@ -17,14 +17,9 @@ from .crc import footer_crc_ok
 from .decode import decode_packets
 from .imu import decode_imu, imu_samples
 from .metadata import OusterMetadata
-from .profiles import (
-    HEADER_BYTES,
-    HEADER_TYPES,
-    IMU_PACKET_SIZE,
-    PROFILES,
-    Profile,
-    read_bits,
-)
+from .profiles import HEADER_BYTES, HEADER_TYPES, PROFILES, Profile
+from lidarpkt.vendors.ouster.auxiliary import IMU_PACKET_SIZE
+from lidarpkt.vendors.ouster.bitfield import read_bits
 from .zone import decode_zone_packets
 
 _GUESS_ROWS = (16, 32, 64, 128)

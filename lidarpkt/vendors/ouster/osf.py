@@ -2,7 +2,7 @@
 :class:`OsfReader`. The file itself (blocks, chunks, the field images) is read by
 :mod:`lidarpkt.containers.osf`; this module gives its stored fields their Ouster meaning.
 
-Each sensor entry holds the sensor's metadata JSON (:func:`~lidarpkt.vendors.ouster.metadata.load_metadata`). A
+Each sensor entry holds the sensor's metadata JSON (:func:`~lidarpkt.vendors.ouster.metadata_json.load_metadata`). A
 frame message (``LidarScanMsg``) carries per-column arrays (timestamp, measurement id, status), per-packet
 ones (packet timestamp, alert flags), frame scalars (frame id, frame status, countdowns) and its fields.
 
@@ -38,7 +38,8 @@ from lidarpkt.core.frame import Frame, FrameCounters
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.errors import CaptureFormatError, LidarpktError
-from .metadata import OusterMetadata, load_metadata
+from .metadata import OusterMetadata
+from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
 # Frame attribute of each standard channel, by return slot (the rest go to Frame.extra)
 _FRAME_ATTRS = {"RANGE": ("range_mm", 0), "RANGE2": ("range_mm", 1), "REFLECTIVITY": ("reflectivity", 0),

@@ -16,7 +16,9 @@ import numpy as np
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.core.decoder import StreamCounts
 from .metadata import OusterMetadata
-from .profiles import IMU_PACKET_SIZE, LEGACY, read_bits
+from lidarpkt.vendors.ouster.auxiliary import IMU_PACKET_SIZE
+from .profiles import LEGACY
+from lidarpkt.vendors.ouster.bitfield import read_bits
 
 # LEGACY lidar packets of 16, 32, 64, 128 beams: recognisable without metadata
 LEGACY_SIZES = frozenset(LEGACY.packet_size(h) for h in (16, 32, 64, 128))
