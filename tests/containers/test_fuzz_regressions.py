@@ -729,7 +729,8 @@ def test_mcap_chunk_that_inflates_past_its_declared_size_is_not_inflated(tmp_pat
 
 
 def test_mcap_chunk_declaring_more_than_the_limit_is_a_capture_format_error(tmp_path):
-    from lidarpkt.containers.bags import MAX_MCAP_CHUNK_BYTES, BagReader
+    from lidarpkt.containers.bags import BagReader
+    from lidarpkt.containers.mcap_records import MAX_MCAP_CHUNK_BYTES
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "big.mcap"
