@@ -79,7 +79,8 @@ from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from lidarpkt.core.rotation import rotation_is_whole, wrapped
-from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
+from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, packet_rate_cdeg_s_vlp16,
+                     rotation_frequency_hz)
 
 DUAL = RETURN_MODE_CODES["dual"]
 #: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
@@ -366,11 +367,9 @@ class VelodyneDecoder(PacketAccounting):
         dual = mode == "dual"
         per_packet = self.model.columns_per_packet(mode)
         slots, seqs = (2 if dual else 1), self.model.sequences_per_block
-        if dual:
-            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, True, slice(0, None, 2))  # [n, 6, 32]
-        else:
-            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, False)  # [n, 12, 32]
-        rng, refl, az_px = column_pixels(raw, fa, self._row_laser, slots, seqs)
+        rate = packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, dual)
+        dt = firing_dt_s(dual)[::slots]  # dual: one block of each pair (the pair shares its firings)
+        rng, refl, az_px = column_pixels(raw, rate, dt, self._row_laser, slots, seqs)
         return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
                                   self._last_az_cdeg)
 
@@ -385,8 +384,10 @@ class VelodyneDecoder(PacketAccounting):
         return rate
 
     def _append(self, cols: Columns) -> list[Frame]:
-        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
+        # azimuths are in [0, 36000): with no cut angle the key is the azimuth itself
+        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0 if self.cut_cdeg else cols.azimuth_cdeg
         if self.cut_on_block:
+            key = key.copy()
             key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
         cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
@@ -474,10 +475,20 @@ class VelodyneDecoder(PacketAccounting):
                 self._sensors[mode] = info
         return info
 
+    def _row_offsets_ns(self) -> np.ndarray:
+        """``int64[L]``: each row's firing delay after its column's first firing, ns (the model's laser offsets)."""
+        cached = getattr(self, "_offsets", None)
+        if cached is None or cached[0] is not self.model or cached[1] is not self._row_laser:
+            offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
+            cached = self._offsets = (self.model, self._row_laser, offsets)
+        return cached[2]
+
     def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
-        offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
-        toff = np.where(cols.valid[None, :], offsets[:, None], 0)
+        toff = np.empty((len(self._row_laser), len(cols)), np.int64)
+        toff[...] = self._row_offsets_ns()[:, None]  # a row's offset in every column; 0 in columns no packet delivered
+        if not cols.valid.all():
+            toff[:, ~cols.valid] = 0
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
             extra["second_strongest"] = second_strongest_mark(cols.range_mm, cols.reflectivity)
