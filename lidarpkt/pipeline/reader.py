@@ -405,7 +405,7 @@ def _split_hesai(metadata: Any) -> tuple[Any, Any]:
 def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
     """A batch past a segment's end as views of 1, 32, 64, 128... packets: the first alone (as
     ``SegmentOwnership.split_first_post`` asks), and the reader stops pushing as soon as the segment's last
-    frame is complete instead of decoding (and copying) the rest of a batch of up to 8192 packets."""
+    frame is complete instead of decoding (and copying) the rest of a batch of up to 2048 packets."""
     n, start, step = len(batch), 0, 1
     while start < n:
         yield batch if (start, step) == (0, 1) and n == 1 else batch.select(slice(start, min(n, start + step)))

@@ -83,6 +83,8 @@ from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, p
                      rotation_frequency_hz)
 
 DUAL = RETURN_MODE_CODES["dual"]
+#: Packets turned into columns at a time (see ``_push_run``).
+PIECE_PACKETS = 1024
 #: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
 MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
@@ -349,8 +351,12 @@ class VelodyneDecoder(PacketAccounting):
             else:
                 miss = missing[a:b]
             self.stats.lost_packets += int(miss.sum())
-            cols = self._columns(raw.select(slice(a, b)), abs_ns[a:b], index[a:b], miss, mode)
-            frames += self._append(cols)
+            # columns made a piece at a time: a frame holds views of its piece's arrays, so memory follows the
+            # piece (about 13 VLP-16 rotations), not the batch (the reader's chunk of up to 8 MB)
+            for lo in range(a, b, PIECE_PACKETS):
+                hi = min(b, lo + PIECE_PACKETS)
+                cols = self._columns(raw.select(slice(lo, hi)), abs_ns[lo:hi], index[lo:hi], miss[lo - a:hi - a], mode)
+                frames += self._append(cols)
         self._last_abs_ns = int(abs_ns[-1])
         self._last_host_ns = int(host_ns[-1])
         self._last_packet_az_cdeg = int(raw.azimuth_cdeg[-1, -1])
@@ -480,15 +486,18 @@ class VelodyneDecoder(PacketAccounting):
         cached = getattr(self, "_offsets", None)
         if cached is None or cached[0] is not self.model or cached[1] is not self._row_laser:
             offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
+            offsets.flags.writeable = False
             cached = self._offsets = (self.model, self._row_laser, offsets)
         return cached[2]
 
     def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
-        toff = np.empty((len(self._row_laser), len(cols)), np.int64)
-        toff[...] = self._row_offsets_ns()[:, None]  # a row's offset in every column; 0 in columns no packet delivered
+        # a row's offset in every column, 0 in columns no packet delivered; read-only, and with every column
+        # delivered a broadcast view of the rows' offsets (no [16, W] int64 image written per frame)
+        toff = np.broadcast_to(self._row_offsets_ns()[:, None], (len(self._row_laser), len(cols)))
         if not cols.valid.all():
-            toff[:, ~cols.valid] = 0
+            toff = np.where(cols.valid, toff, 0)
+            toff.flags.writeable = False
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
             extra["second_strongest"] = second_strongest_mark(cols.range_mm, cols.reflectivity)
