@@ -233,9 +233,9 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
-    parser.add_argument("--workers", type=positive_int_type("--workers"), default=1, metavar="N",
-                        help="decode in N threads (default 1): 2 decodes beside the reading, ahead of the "
-                             "output; 3 or more cut a pcap/pcapng capture into segments")
+    parser.add_argument("--workers", type=positive_int_type("--workers"), default=None, metavar="N",
+                        help="decode in N processes side by side (1: in this one); a pcap/pcapng capture is cut "
+                             "into segments (default: the CPUs, at most 4, for a capture of 64 MB or more, else 1)")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

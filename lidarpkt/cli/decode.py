@@ -104,7 +104,7 @@ def _open_frames(path: str, args) -> FrameIterator:
             raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
                              f"{', '.join(m.name for m in MODELS)}") from exc
         options["velodyne_model"] = args.velodyne_model
-    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
+    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", None), **options)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,30 +1,29 @@
-"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes in N threads beside the caller's.
+"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes with N workers beside the caller's thread.
 
-Two designs, chosen by N:
-
-- **workers=2, a pipeline** (:class:`PipelinedFrameReader`, any container): one thread reads the
-  packets (the read-ahead of ``workers=1``) and a second decodes them into frames, up to
-  :data:`DECODE_AHEAD_BYTES` of frames ahead of the caller, whose own work on each frame (XYZ, a
-  writer, an analysis) then overlaps the decoding of the next ones. The frames are those of the
+- **Segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least 2 x :data:`MIN_SEGMENT_BYTES`):
+  the capture is cut into record-aligned segments (:func:`lidarpkt.containers.segments.plan_segments`,
+  cuts found by re-synchronising on record headers near each cut, so that planning reads almost
+  nothing); each segment is read by its own :class:`~lidarpkt.pipeline.reader.FrameReader`
+  (``segment=``), which yields exactly the frames the segment owns. The workers are forked processes
+  (:mod:`lidarpkt.pipeline.processes`: no GIL shared with the caller, frames handed back through shared
+  memory in one copy), or threads where this process cannot fork (a daemonic worker of its own, a
+  platform without ``fork``; then only for N >= 3). The frames of segment k are handed out only after
+  those of segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader
+  counts from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole
+  file's. The reader of each segment checks the cut after it (its walk of the records must meet it)
+  and stops the capture where damage stops the single-threaded reader. Memory stays flat in the
+  capture's length: each worker holds at most its ring of frames (processes) or its segment
+  (threads), each segment at most :data:`MAX_SEGMENT_BYTES` of packets and about
+  :data:`MAX_SEGMENT_FRAME_BYTES` of frames.
+- **A pipeline** (:class:`PipelinedFrameReader`, the containers that cannot be cut: MCAP, bags, OSF,
+  and small captures): one thread reads the packets (the read-ahead of ``workers=1``) and a second
+  decodes them into frames, up to :data:`DECODE_AHEAD_BYTES` of frames ahead of the caller, whose own
+  work on each frame then overlaps the decoding of the next ones. The frames are those of the
   single-threaded reader itself (same object code, same order), and its warnings reach the caller's
-  thread at the point of the stream where they arose. On 2 cores this beats cutting the capture:
-  nothing is read or decoded twice, no reader is set up per segment, and frames are used while they
-  are still in the cache (measured in benchmarks/README.md).
-- **workers >= 3, segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least
-  2 x :data:`MIN_SEGMENT_BYTES`): the capture is cut into record-aligned segments
-  (:func:`lidarpkt.containers.segments.plan_segments`, cuts found by re-synchronising on record headers
-  near each cut, so that planning reads almost nothing); each segment is read by its own
-  :class:`~lidarpkt.pipeline.reader.FrameReader` (``segment=``), which yields exactly the frames the segment
-  owns, in a pool of ``workers`` threads. The frames of segment k are handed out only after those of
-  segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader counts
-  from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole file's.
-  The reader of each segment checks the cut after it (its walk of the records must meet it) and
-  stops the capture where damage stops the single-threaded reader. Threads, not processes: the
-  decode kernels and the large NumPy operations release the GIL, and frames then need no copy
-  between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of CPU: about what pickling
-  and unpickling it would cost). Memory stays flat in the capture's length: at most ``workers``
-  segments are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and
-  about :data:`MAX_SEGMENT_FRAME_BYTES` of frames. Captures that cannot be cut take the pipeline.
+  thread at the point of the stream where they arose.
+
+``workers=None`` (the default) is :func:`default_workers`: several processes for a large pcap/pcapng,
+one thread otherwise.
 """
 
 from __future__ import annotations
@@ -46,7 +45,8 @@ from lidarpkt.core.frame import Frame
 from lidarpkt.core.sequence import FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
-__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
+__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "default_workers",
+           "PARALLEL_MIN_BYTES", "MIN_SEGMENT_BYTES",
            "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
@@ -54,6 +54,8 @@ __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_para
 # instructions for VLP-16 dual, where 1 MB of capture costs ~27M; ~20M for OS-2-128, 6M per MB). So
 # segments hold many frames, but no more than MAX_SEGMENT_FRAME_BYTES of decoded frames each.
 
+PARALLEL_MIN_BYTES = 64 << 20  # workers=None: captures at least this large are decoded by several processes
+MAX_DEFAULT_WORKERS = 4
 MIN_SEGMENT_BYTES = 8 << 20
 MAX_SEGMENT_BYTES = 64 << 20
 MAX_SEGMENT_FRAME_BYTES = 56 << 20
@@ -99,14 +101,15 @@ def _frame_nbytes(frame: Frame) -> int:
 
 
 class ParallelFrameReader(FrameIterator):
-    """Iterator of :class:`~lidarpkt.core.frame.Frame` decoded by ``workers`` threads over segments of a capture.
+    """Iterator of :class:`~lidarpkt.core.frame.Frame` decoded by ``workers`` processes (or threads) over segments
+    of a capture.
 
     Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
     same order, with the same arrays, ``frame_id`` and ``extra``. ``stats`` sums the segment readers'
     :class:`~lidarpkt.pipeline.reader.SourceStats` (its packet counters include the packets each segment reader
     read past its end to complete its last frame; ``stats.frames`` is exact). ``close()`` (or ``with``)
-    stops the threads after the segments they are decoding. Warnings of the segment readers are
-    emitted from the worker threads.
+    stops the workers (processes are ended, threads finish the segment in hand). Warnings of the segment
+    readers are re-emitted in the caller's thread (processes) or emitted from the worker threads.
 
     Raises (while iterating): what ``lidarpkt.open`` raises, at the point of the stream where the
     single-threaded reader would (the frames of the segments before it are yielded first).
@@ -115,13 +118,16 @@ class ParallelFrameReader(FrameIterator):
     _iter: Generator[Frame, None, None]  # closed by close()
 
     def __init__(self, path: str | os.PathLike[str], segments: list, options: OpenOptions,
-                 open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
+                 open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any,
+                 processes: bool = False) -> None:
         """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
         of ``options.segment`` (a :class:`~lidarpkt.pipeline.reader.FrameReader`); ``stats`` is an empty
-        :class:`~lidarpkt.pipeline.reader.SourceStats` that sums theirs."""
+        :class:`~lidarpkt.pipeline.reader.SourceStats` that sums theirs; ``processes``: the segments are
+        decoded by forked processes (:mod:`lidarpkt.pipeline.processes`) instead of threads."""
         self.path = path
         self.segments = segments
-        self.workers = int(options.workers)
+        self.workers = int(options.workers or 1)
+        self.processes = bool(processes)
         self._include_partial = options.include_partial
         # the workers are the threads; the metadata is parsed once, not per segment
         self._options = dataclasses.replace(options, workers=1, include_partial=True, read_ahead=False,
@@ -129,21 +135,35 @@ class ParallelFrameReader(FrameIterator):
         self._open_segment = open_segment
         self.stats = stats
         self._stop = threading.Event()
-        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
-        # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the threads)
+        self._pool: ThreadPoolExecutor | None = None
+        self._runner = None
+        if self.processes:
+            from .processes import ProcessRunner
+
+            self._runner = ProcessRunner(segments, self.workers, self._read_segment)
+        else:
+            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
+        # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the workers)
         self._iter = ParallelFrameReader._frames(weakref.proxy(self))
 
     def close(self) -> None:
-        """Stop: pending segments are cancelled, running ones stop at their next frame. Idempotent."""
+        """Stop: pending segments are cancelled, running ones stop at their next frame (worker processes
+        are ended). Idempotent."""
         self._stop.set()
         self._iter.close()
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._end(wait=True)
 
     def __del__(self) -> None:
         stop = getattr(self, "_stop", None)
         if stop is not None:
             stop.set()
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._end(wait=False)
+
+    def _end(self, wait: bool) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=wait, cancel_futures=True)
+        if self._runner is not None:
+            self._runner.close()
 
     # ------------------------------------------------------------------ work
     def _read_segment(self, segment, out: queue.SimpleQueue) -> None:
@@ -174,7 +194,7 @@ class ParallelFrameReader(FrameIterator):
                  bool(getattr(read_stats, "truncated", False))))
 
     def _frames(self) -> Generator[Frame, None, None]:
-        pending: deque[tuple[Any, queue.SimpleQueue]] = deque()
+        pending: deque[tuple[Any, Any]] = deque()  # (segment, its items' get()): a queue or a process channel
         todo = iter(self.segments)
         renumber = Renumber()
         unknown: list[str] = []
@@ -182,10 +202,15 @@ class ParallelFrameReader(FrameIterator):
 
         def submit() -> None:
             seg = next(todo, None)
-            if seg is not None:
-                q: queue.SimpleQueue = queue.SimpleQueue()
-                self._pool.submit(self._read_segment, seg, q)
-                pending.append((seg, q))
+            if seg is None:
+                return
+            if self._runner is not None:  # the worker processes have their segments already
+                pending.append((seg, self._runner.start(seg)))
+                return
+            q: queue.SimpleQueue = queue.SimpleQueue()
+            assert self._pool is not None
+            self._pool.submit(self._read_segment, seg, q)
+            pending.append((seg, q))
 
         try:
             for _ in range(self.workers):
@@ -194,7 +219,7 @@ class ParallelFrameReader(FrameIterator):
                 seg, q = pending[0]
                 while True:
                     item = q.get()
-                    if type(item) is tuple and item and item[0] is _END:
+                    if not isinstance(item, Frame):  # the end of the segment
                         break
                     frame = renumber.frame(item)
                     if frame.partial and not self._include_partial:
@@ -215,8 +240,11 @@ class ParallelFrameReader(FrameIterator):
                     break  # the whole-file reader stops at the same damage: no later segment counts
                 submit()
         finally:
-            self._stop.set()
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            try:
+                self._stop.set()
+                self._end(wait=False)
+            except ReferenceError:  # the reader was dropped, and its __del__ has stopped the workers
+                pass
         if unknown and len(unknown) == segments_read:
             raise UnknownSensorError(unknown[0])
 
@@ -315,16 +343,38 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
     workers = options.workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         from lidarpkt.errors import UsageError
 
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    from .processes import can_fork
+
+    processes = can_fork()
+    if workers is None:
+        workers = default_workers(path, processes)
+        options = dataclasses.replace(options, workers=workers)
     if workers == 1 or options.segment is not None:
         return None
-    segments = plan(path, workers) if workers >= 3 else []
+    segments = plan(path, workers) if processes or workers >= 3 else []
     if segments:
-        return ParallelFrameReader(path, segments, options, open_segment, stats)
+        return ParallelFrameReader(path, segments, options, open_segment, stats, processes=processes)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
+
+
+def default_workers(path: str | os.PathLike[str], processes: bool) -> int:
+    """``lidarpkt.open``'s ``workers=None``: the CPUs this process may use (at most :data:`MAX_DEFAULT_WORKERS`)
+    for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES` when workers can be forked, else 1 (a smaller
+    capture decodes in about the time it takes to set workers up; bags and OSF cannot be cut)."""
+    from lidarpkt.containers.magic import container_kind
+    from lidarpkt.errors import LidarpktError
+
+    try:
+        big = os.path.isfile(path) and os.path.getsize(path) >= PARALLEL_MIN_BYTES
+        cuttable = big and container_kind(path) == "pcap"  # pcap or pcapng
+    except (OSError, LidarpktError):  # the reader opened next says what is wrong with the file
+        return 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return min(cpus, MAX_DEFAULT_WORKERS) if cuttable and processes and cpus > 1 else 1
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:

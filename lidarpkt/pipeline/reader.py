@@ -108,11 +108,11 @@ class FrameReader(FrameIterator):
             {options}
 
         Raises:
-            ValueError: ``workers`` is not 1 (``lidarpkt.open(path, workers=N)`` decodes in N threads).
+            ValueError: ``workers`` is neither 1 nor None (``lidarpkt.open(path, workers=N)`` decodes in N).
             And what :func:`open_frames` raises on opening.
         """
         opts = OpenOptions.from_keywords("FrameReader", options)
-        if opts.workers != 1:
+        if opts.workers not in (None, 1):
             raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
         self.segment = segment = opts.segment
@@ -355,10 +355,10 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions) -> OsfR
     if options.segment is not None and options.segment.count != 1:
         raise UnsupportedContainerError(f"{path}: {what} is read whole (one segment)")
     workers = options.workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
     reader = OsfReader(path, SourceStats(), include_partial=options.include_partial)
-    if workers == 1:
+    if workers in (None, 1):
         return reader
     from .parallel import PipelinedFrameReader
 

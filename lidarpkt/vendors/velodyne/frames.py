@@ -481,20 +481,23 @@ class VelodyneDecoder(PacketAccounting):
                 self._sensors[mode] = info
         return info
 
-    def _row_offsets_ns(self) -> np.ndarray:
-        """``int64[L]``: each row's firing delay after its column's first firing, ns (the model's laser offsets)."""
+    def _row_offsets_ns(self, width: int) -> np.ndarray:
+        """``int64[L, width]``, read-only: each row's firing delay after its column's first firing, ns (the
+        model's laser offsets), in every column; a view of an image kept for the widest frame so far."""
         cached = getattr(self, "_offsets", None)
-        if cached is None or cached[0] is not self.model or cached[1] is not self._row_laser:
+        if cached is None or cached[0] is not self.model or cached[1] is not self._row_laser or cached[2].shape[1] < width:
             offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
-            offsets.flags.writeable = False
-            cached = self._offsets = (self.model, self._row_laser, offsets)
-        return cached[2]
+            image = np.empty((len(offsets), max(width, 4096)), np.int64)
+            image[...] = offsets[:, None]
+            image.flags.writeable = False
+            cached = self._offsets = (self.model, self._row_laser, image)
+        return cached[2][:, :width]
 
     def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
         # a row's offset in every column, 0 in columns no packet delivered; read-only, and with every column
-        # delivered a broadcast view of the rows' offsets (no [16, W] int64 image written per frame)
-        toff = np.broadcast_to(self._row_offsets_ns()[:, None], (len(self._row_laser), len(cols)))
+        # delivered a view of the decoder's image of them (no [16, W] int64 image written per frame)
+        toff = self._row_offsets_ns(len(cols))
         if not cols.valid.all():
             toff = np.where(cols.valid, toff, 0)
             toff.flags.writeable = False
