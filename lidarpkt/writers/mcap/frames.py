@@ -227,7 +227,7 @@ class McapFrameWriter(BaseWriter):
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
         from lidarpkt.pipeline.options import load_ouster_metadata
 
-        from .writer import McapWriter
+        from .writer import FRAMES_COMPRESSION, McapWriter
 
         super().__init__(out, capture=capture, part=part)
         groups = set(topics)
@@ -242,7 +242,10 @@ class McapFrameWriter(BaseWriter):
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
-        self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        # frames: the fast codec; no fsync (an output decoding makes again, as the other writers' files)
+        compression = FRAMES_COMPRESSION if groups & {"points", "images"} else "zstd"
+        self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes, compression=compression,
+                               sync=False)
         self.groups = groups
         self.topics = FrameTopics(self.mcap, groups, sensors)
         self.clock_offsets = dict(clock_offsets or {})

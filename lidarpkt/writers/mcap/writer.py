@@ -37,6 +37,14 @@ if TYPE_CHECKING:
 
 LIBRARY = "lidarpkt recorder"
 
+#: Chunk compression of a file that holds frames (point clouds, images), chosen for speed: lz4 (its fast level,
+#: the default of the mcap library's lz4 codec). The library writes zstd at level 3 only, about 170 MB/s on this
+#: project's benchmark machine (one core), where the organised clouds of a 60 s VLP-16 dual capture are about
+#: 1 GB (5-6 s of compression); lz4 compresses the same at about 600 MB/s into chunks 10-25 % larger than
+#: zstd's (``benchmarks/README.md``). Files of packets alone keep zstd: raw packets shrink more, and arrive at
+#: packet rate.
+FRAMES_COMPRESSION = "lz4"
+
 
 class McapWriter:
     """Writes ROS 2 MCAP, chunked by time, optionally rotated.
@@ -50,6 +58,9 @@ class McapWriter:
         rotate_bytes / rotate_seconds: start a new file once the current one is this large /
             old (checked between chunks). ``None`` = never.
         clock: wall clock in seconds (tests pass a fake one).
+        sync: flush each finished file to the disk (``fsync``) before going on: a recording's closed files
+            survive a power loss. ``False`` for an output that can be made again (``lidarpkt decode``), as the
+            other writers leave it to the system.
 
     Raises:
         OutputError: the file cannot be created (with the reason).
@@ -67,6 +78,7 @@ class McapWriter:
         rotate_bytes: int | None = None,
         rotate_seconds: float | None = None,
         clock: Callable[[], float] = time.monotonic,
+        sync: bool = True,
     ) -> None:
         from mcap.writer import CompressionType
 
@@ -78,6 +90,7 @@ class McapWriter:
         self.rotate_bytes = rotate_bytes
         self.rotate_seconds = rotate_seconds
         self._clock = clock
+        self._sync = bool(sync)
         self.files: list[Path] = []
         self.messages_written = 0
         self._bytes_closed_files = 0
@@ -225,7 +238,8 @@ class McapWriter:
         def finish() -> None:
             self._writer.finish()
             fh.flush()
-            os.fsync(fh.fileno())
+            if self._sync:
+                os.fsync(fh.fileno())
 
         self._guard(finish)
         self._bytes_closed_files += fh.tell()
