@@ -33,10 +33,9 @@ import queue
 import threading
 import weakref
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 import dataclasses
 from dataclasses import fields
-from typing import Any, Callable, Generator
+from typing import TYPE_CHECKING, Any, Callable, Generator
 
 import numpy as np
 
@@ -44,6 +43,9 @@ from lidarpkt.errors import CaptureFormatError, UnknownSensorError
 from lidarpkt.core.frame import Frame
 from lidarpkt.core.sequence import FrameIterator
 from .options import OpenOptions, load_ouster_metadata
+
+if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "default_workers",
            "PARALLEL_MIN_BYTES", "MIN_SEGMENT_BYTES",
@@ -142,6 +144,8 @@ class ParallelFrameReader(FrameIterator):
 
             self._runner = ProcessRunner(segments, self.workers, self._read_segment)
         else:
+            from concurrent.futures import ThreadPoolExecutor  # imported when used: logging, its start-up cost
+
             self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
         # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the workers)
         self._iter = ParallelFrameReader._frames(weakref.proxy(self))
@@ -347,21 +351,21 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
         from lidarpkt.errors import UsageError
 
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
-    from .processes import can_fork
-
-    processes = can_fork()
     if workers is None:
-        workers = default_workers(path, processes)
+        workers = default_workers(path)
         options = dataclasses.replace(options, workers=workers)
     if workers == 1 or options.segment is not None:
         return None
+    from .processes import can_fork  # imported when used: multiprocessing's start-up cost
+
+    processes = can_fork()
     segments = plan(path, workers) if processes or workers >= 3 else []
     if segments:
         return ParallelFrameReader(path, segments, options, open_segment, stats, processes=processes)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
 
 
-def default_workers(path: str | os.PathLike[str], processes: bool) -> int:
+def default_workers(path: str | os.PathLike[str]) -> int:
     """``lidarpkt.open``'s ``workers=None``: the CPUs this process may use (at most :data:`MAX_DEFAULT_WORKERS`)
     for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES` when workers can be forked, else 1 (a smaller
     capture decodes in about the time it takes to set workers up; bags and OSF cannot be cut)."""
@@ -373,8 +377,12 @@ def default_workers(path: str | os.PathLike[str], processes: bool) -> int:
         cuttable = big and container_kind(path) == "pcap"  # pcap or pcapng
     except (OSError, LidarpktError):  # the reader opened next says what is wrong with the file
         return 1
+    if not cuttable:
+        return 1
+    from .processes import can_fork
+
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return min(cpus, MAX_DEFAULT_WORKERS) if cuttable and processes and cpus > 1 else 1
+    return min(cpus, MAX_DEFAULT_WORKERS) if cpus > 1 and can_fork() else 1
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:
