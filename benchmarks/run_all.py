@@ -56,6 +56,7 @@ from lidarpkt.core import kernels  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 ROWS: list[tuple] = []  # (name, ours, reference, ratio, target, met)
+ARGS = argparse.Namespace(repeat=3)  # the command line's, set by main
 
 
 def machine() -> str:
@@ -140,11 +141,18 @@ def compare(name: str, ours: Run, ref: Run, *, at_least: float | None = None, at
     row(name, ours.text(), ref.text(), text, target, met)
 
 
-def same_work(name: str, ours: Run, ref: Run, keys=("frames", "points")) -> str:
+def same_work(ours: Run, ref: Run, keys=("frames", "points")) -> str:
     """A note when the two sides did not produce the same frames / points (each reference cuts its own edges)."""
     differ = [f"{k} {ours.result.get(k)} vs {ref.result.get(k)}" for k in keys
               if k in ref.result and ours.result.get(k) != ref.result.get(k)]
     return f" [{', '.join(differ)}]" if differ else ""
+
+
+def versus(label: str, path: Path, ours: tuple, ref: tuple, at_least: float, keys=("frames", "points")) -> None:
+    """lidarpkt's workload ``ours`` against the reference's ``ref`` (``workloads.py`` arguments) on ``path``."""
+    a, b = Run("lidarpkt", *ours), Run("reference", *ref)
+    alternate(ARGS.repeat, a, b)
+    compare(f"{label} ({path.stat().st_size / 1e6:.0f} MB){same_work(a, b, keys)}", a, b, at_least=at_least)
 
 
 # ------------------------------------------------------------------------------------ captures
@@ -181,18 +189,14 @@ def velodyne(args, work: Path) -> None:
     print(f"\nVelodyne: frames + XYZ vs velodyne_decoder (load {load()})")
     for mode in ("strongest", "dual"):
         path = vlp_capture(args, work, mode)
-        ours, ref = Run("lidarpkt", "velodyne", path), Run("velodyne_decoder", "velodyne_decoder", path, "vlp16")
-        alternate(args.repeat, ours, ref)
-        compare(f"VLP-16 {mode} {args.vlp_seconds:.0f} s{same_work('', ours, ref)}", ours, ref, at_least=4.0)
+        versus(f"VLP-16 {mode} {args.vlp_seconds:.0f} s", path, ("velodyne", path),
+               ("velodyne_decoder", path, "vlp16"), 4.0)
     for model, _, copies in bv.REAL_CAPTURES:
         path = bv.real_capture(work, model, EXTERNAL)
         if path is None:
             print(f"  {model}: external fixtures missing ({EXTERNAL})")
             continue
-        ours, ref = Run("lidarpkt", "velodyne", path), Run("velodyne_decoder", "velodyne_decoder", path, "auto")
-        alternate(args.repeat, ours, ref)
-        compare(f"{model} real × {copies} ({path.stat().st_size / 1e6:.0f} MB){same_work('', ours, ref)}", ours, ref,
-                at_least=4.0)
+        versus(f"{model} real × {copies}", path, ("velodyne", path), ("velodyne_decoder", path, "auto"), 4.0)
 
 
 def ouster(args, work: Path) -> None:
@@ -202,10 +206,7 @@ def ouster(args, work: Path) -> None:
         if path is None:
             print(f"  {label}: external fixtures missing ({meta.parent})")
             continue
-        ours, ref = Run("lidarpkt", "ouster", path, meta), Run("ouster-sdk", "ouster_sdk", path, meta)
-        alternate(args.repeat, ours, ref)
-        compare(f"{label} ({path.stat().st_size / 1e6:.0f} MB){same_work('', ours, ref, ('frames',))}", ours, ref,
-                at_least=1.5)
+        versus(label, path, ("ouster", path, meta), ("ouster_sdk", path, meta), 1.5, ("frames",))
 
 
 def xyz(args, work: Path) -> None:
@@ -274,9 +275,7 @@ def osf(args, work: Path) -> None:
         path = EXTERNAL / "ouster-sdk" / name
         if not path.exists():
             continue
-        ours, ref = Run("lidarpkt", "osf", path), Run("ouster-sdk", "osf_sdk", path)
-        alternate(args.repeat, ours, ref)
-        compare(f"{name}{same_work('', ours, ref, ('frames',))}", ours, ref, at_least=1.0)
+        versus(name, path, ("osf", path), ("osf_sdk", path), 1.0, ("frames",))
 
 
 # ------------------------------------------------------------------------------------ the other steps (in process)
@@ -438,6 +437,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workdir", type=Path, help="keep the built captures here (default: a temporary directory)")
     ap.add_argument("--only", default=",".join(TABLE))
     args = ap.parse_args(argv)
+    global ARGS
+    ARGS = args
     steps = {**TABLE, "pcap": pcap, "memory-large": memory_large, "analysis": analysis, "record": record, "start": start}
     only = [s.strip() for s in args.only.split(",") if s.strip()]
     unknown = set(only) - set(steps)

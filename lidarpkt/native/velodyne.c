@@ -123,6 +123,20 @@ done:
  * summed in float32 in lidarpkt.vendors.velodyne.timing.firing_azimuths's order (rate * dt, + azimuth,
  * + 36000, + 0.5, truncated): one firing-azimuth tile per packet in L1, then spread over the rows.
  */
+/* floor(rate * dt + az + 36000 + 0.5) summed in float32 in the twin's order (rate * dt, + az, + 36000, + 0.5,
+ * truncated) less 36000, then the floor modulo 36000 by three subtractions: exact for sums below 4 * 36000;
+ * outside [0, 36000) the caller redoes the pixel with azimuth_mod (no valid azimuth gets there) */
+static inline int32_t firing_azimuth(float rate, float dt, float az) {
+    float v = rate * dt;
+    v += az;
+    v += 36000.0f;
+    v += 0.5f;
+    int32_t r = (int32_t)v - 36000;
+    r = r >= 36000 ? r - 36000 : r;
+    r = r >= 36000 ? r - 36000 : r;
+    return r >= 36000 ? r - 36000 : r;
+}
+
 /* The firing azimuths of one packet: tile[bb * 32 + k] for the blocks' azimuths az[bb] (bps of them) */
 MULTIVERSION
 static void firing_tile(const float *restrict dt, float rate, const float *restrict az, Py_ssize_t bps,
@@ -131,17 +145,7 @@ static void firing_tile(const float *restrict dt, float rate, const float *restr
         const float *d = dt + bb * 32;
         int32_t *out = tile + bb * 32;
         float a = az[bb];
-        for (int k = 0; k < 32; k++) {
-            float v = rate * d[k];
-            v += a;
-            v += 36000.0f;
-            v += 0.5f;
-            /* floor(v) mod 36000 for 36000 <= v < 4 * 36000: conditional subtractions, no division */
-            int32_t r = (int32_t)v - 36000;
-            r = r >= 36000 ? r - 36000 : r;
-            r = r >= 36000 ? r - 36000 : r;
-            out[k] = r >= 36000 ? r - 36000 : r;
-        }
+        for (int k = 0; k < 32; k++) out[k] = firing_azimuth(rate, d[k], a);  /* in [0, 36000) for 16-bit azimuths */
     }
 }
 
@@ -274,20 +278,6 @@ static void strided_pixels(const char *dp, Py_ssize_t dstride, const char *rp, P
         ro[p * c] = unit * (uint32_t)load_u16(dp + p * dstride);
         fo[p * c] = (uint8_t)rp[p * rstride];
     }
-}
-
-/* floor(rate * dt + az + 36000 + 0.5) summed in float32 in the twin's order (rate * dt, + az, + 36000, + 0.5,
- * truncated) less 36000, then the floor modulo 36000 by three subtractions: exact for sums below 4 * 36000;
- * outside [0, 36000) the caller redoes the pixel with azimuth_mod (no valid azimuth gets there) */
-static inline int32_t firing_azimuth(float rate, float dt, float az) {
-    float v = rate * dt;
-    v += az;
-    v += 36000.0f;
-    v += 0.5f;
-    int32_t r = (int32_t)v - 36000;
-    r = r >= 36000 ? r - 36000 : r;
-    r = r >= 36000 ? r - 36000 : r;
-    return r >= 36000 ? r - 36000 : r;
 }
 
 /* One pixel's firing azimuth in m packets: out[p] = firing_azimuth(rate[p], dt, az[p]) (rate and the pixel's
