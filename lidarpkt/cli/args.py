@@ -235,7 +235,7 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
     parser.add_argument("--workers", type=positive_int_type("--workers"), default=None, metavar="N",
                         help="decode in N processes side by side (1: in this one); a pcap/pcapng capture is cut "
-                             "into segments (default: the CPUs, at most 4, for a capture of 64 MB or more, else 1)")
+                             "into segments (default: the idle CPUs, at most 4, for a capture of 64 MB or more, else 1)")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

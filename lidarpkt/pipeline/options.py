@@ -79,9 +79,9 @@ class OpenOptions:
         None, "decoders working side by side: 1 decodes in this thread; N > 1 cuts a pcap/pcapng capture of at "
         "least 16 MB into segments decoded by N forked processes (threads where processes cannot be forked), other "
         "containers decoding in a thread of their own beside the read-ahead (:mod:`lidarpkt.pipeline.parallel`). "
-        "``None`` (default): N, the CPUs available (at most 4), for a pcap/pcapng of at least 64 MB on a machine "
-        "with 2+ CPUs, else 1. The frames, their order and arrays are those of ``workers=1``. ``segment=`` reads in "
-        "one thread.")
+        "``None`` (default): for a pcap/pcapng of at least 64 MB, N = the CPUs idle now (the CPUs less the load "
+        "average, at most 4) when two or more are, else 1. The frames, their order and arrays are those of "
+        "``workers=1``. ``segment=`` reads in one thread.")
 
     @classmethod
     def from_keywords(cls, caller: str, options: dict[str, Any]) -> "OpenOptions":

@@ -359,16 +359,23 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
     from .processes import can_fork  # imported when used: multiprocessing's start-up cost
 
     processes = can_fork()
-    segments = plan(path, workers) if processes or workers >= 3 else []
+    if processes:
+        from .processes import RING_BYTES
+
+        segments = plan(path, workers, RING_BYTES)
+    else:
+        segments = plan(path, workers) if workers >= 3 else []
     if segments:
         return ParallelFrameReader(path, segments, options, open_segment, stats, processes=processes)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
 
 
 def default_workers(path: str | os.PathLike[str]) -> int:
-    """``lidarpkt.open``'s ``workers=None``: the CPUs this process may use (at most :data:`MAX_DEFAULT_WORKERS`)
-    for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES` when workers can be forked, else 1 (a smaller
-    capture decodes in about the time it takes to set workers up; bags and OSF cannot be cut)."""
+    """``lidarpkt.open``'s ``workers=None``: for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES`, the CPUs this
+    process may use that are idle now (the CPUs less the load average, at most :data:`MAX_DEFAULT_WORKERS`) when
+    workers can be forked and two or more are idle, else 1. A smaller capture decodes in about the time it takes
+    to set workers up, bags and OSF cannot be cut, and on cores other processes keep busy the workers only add
+    their copies and segment boundaries (measured in ``benchmarks/README.md``)."""
     from lidarpkt.containers.magic import container_kind
     from lidarpkt.errors import LidarpktError
 
@@ -382,11 +389,21 @@ def default_workers(path: str | os.PathLike[str]) -> int:
     from .processes import can_fork
 
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return min(cpus, MAX_DEFAULT_WORKERS) if cpus > 1 and can_fork() else 1
+    idle = min(cpus, MAX_DEFAULT_WORKERS, int(cpus - _load_average() + 0.5))
+    return idle if idle >= 2 and can_fork() else 1
 
 
-def plan(path: str | os.PathLike[str], workers: int) -> list:
-    """The segments ``workers`` threads decode; one segment when the capture is no pcap/pcapng or too small."""
+def _load_average() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:  # not available: assume the machine is idle
+        return 0.0
+
+
+def plan(path: str | os.PathLike[str], workers: int, frame_bytes: int | None = None) -> list:
+    """The segments ``workers`` decode; one segment when the capture is no pcap/pcapng or too small.
+    ``frame_bytes``: the frames a worker may hold at once (a process's ring; default
+    :data:`MAX_SEGMENT_FRAME_BYTES`), which bounds a segment's frames."""
     from lidarpkt.containers.segments import plan_segments
 
     try:
@@ -395,23 +412,26 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
         return []
     if workers < 2 or os.path.isdir(path) or size < 2 * MIN_SEGMENT_BYTES:
         return []
-    # frame bytes per capture byte: VLP-16 dual 3.4 (1206-byte packets), Ouster 0.9-1.2 (3 kB and more)
-    expansion = 3.5 if _first_record_bytes(path) < 2000 else 1.25
-    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int(MAX_SEGMENT_FRAME_BYTES / expansion)))
+    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int((frame_bytes or MAX_SEGMENT_FRAME_BYTES) / _expansion(path))))
     seg_bytes = min(most, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
     segments = plan_segments(path, seg_bytes, walk=False)  # each cut is checked by the segment before it
     return segments if len(segments) > 1 else []
 
 
-def _first_record_bytes(path) -> int:
-    """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
+def _expansion(path) -> float:
+    """Frame bytes per capture byte, from a classic pcap's first record: 2.5 for datagrams that fit a record (a
+    Velodyne packet: 7 bytes of frame for each 3-byte return, its columns' arrays besides), 1.0 for an IPv4
+    fragment or a large record (an Ouster packet: its pixels as they come, field by field); 2.5 when unknown."""
     from lidarpkt.containers.magic import PCAP_MAGIC_MODIFIED, PCAP_MAGIC_NS, PCAP_MAGIC_US
 
     with open(path, "rb") as fh:
-        head = fh.read(40)
-    if len(head) < 40:
-        return 1500
+        head = fh.read(24 + 16 + 22)
+    if len(head) < 62:
+        return 2.5
     for order in ("little", "big"):
         if int.from_bytes(head[:4], order) in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
-            return int.from_bytes(head[32:36], order)
-    return 1500  # pcapng, damage
+            caplen = int.from_bytes(head[32:36], order)
+            ethernet = int.from_bytes(head[20:24], order) == 1 and head[52:54] == b"\x08\x00"  # link type, IPv4
+            fragment = ethernet and int.from_bytes(head[60:62], "big") & 0x3FFF != 0  # more fragments, or an offset
+            return 1.0 if fragment or caplen >= 2000 else 2.5
+    return 2.5  # pcapng, damage

@@ -47,6 +47,7 @@ RING_BYTES = 32 << 20
 _ALIGN = 64  # each array starts on a cache line
 _PIPE_BYTES = 1 << 20  # the descriptors a worker may send ahead (F_SETPIPE_SZ; Linux's default maximum)
 _WAIT_S = 0.0005  # a worker polls the ring this often while it is full
+_FRAMES_PER_MESSAGE = 16  # frames described in one message at most (sooner when the caller waits for them)
 # the control words of a ring, int64: bytes released by the caller (monotonic), and whether the caller
 # is waiting for the worker's next message
 _RELEASED, _WAITING = 0, 1
@@ -67,7 +68,9 @@ class _Ring:
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self.data = mmap.mmap(-1, size)
+        # the pages made here, once (MAP_POPULATE where there is one): the worker and the caller then map them
+        # without each faulting in zeroed pages of its own
+        self.data = mmap.mmap(-1, size, flags=mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0))
         self._control_map = mmap.mmap(-1, mmap.PAGESIZE)
         self.control = np.frombuffer(self._control_map, np.int64, 2)
 
@@ -83,6 +86,8 @@ class _Sender:
         self.head = 0  # bytes allocated since the start (monotonic); position head % size
         self.sensors: dict[int, Any] = {}  # id → SensorInfo sent (kept alive: the id stays unique)
         self._last: Frame | None = None
+        self._images: dict[int, tuple[np.ndarray, bool]] = {}  # id → (read-only image, whether its rows are constant)
+        self._pending: list[tuple] = []  # frames described but not sent: one message for several
 
     def put(self, item: Any) -> None:
         """A frame, or the end-of-segment tuple of :meth:`ParallelFrameReader._read_segment`."""
@@ -91,6 +96,8 @@ class _Sender:
             # kept until the next frame is made: freed first, its arrays at the top of the heap would be handed
             # back to the system and faulted in again for the next frame
             self._last = item
+            if len(self._pending) >= _FRAMES_PER_MESSAGE or self.ring.control[_WAITING]:
+                self._flush()
         else:
             self._send(("end", _picklable_end(item)))
 
@@ -100,7 +107,13 @@ class _Sender:
         caught.clear()
 
     def _send(self, message: Any) -> None:
+        self._flush()  # the frames before it first
         self.conn.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _flush(self) -> None:
+        if self._pending:
+            frames, self._pending = self._pending, []
+            self.conn.send_bytes(pickle.dumps(("frames", frames), protocol=pickle.HIGHEST_PROTOCOL))
 
     def _frame(self, frame: Frame) -> None:
         sensor = frame.sensor
@@ -108,20 +121,32 @@ class _Sender:
             self.sensors[id(sensor)] = sensor
             self._send(("sensor", (id(sensor), sensor)))
         arrays: list[np.ndarray] = []
-        fields, extra = _describe(frame, arrays)
+        fields, extra = _describe(frame, arrays, self._constant_rows)
         total = sum(_padded(a.nbytes) for a in arrays)
         start = self._allocate(total)
         if start is None:  # the caller waits for this frame and holds the ring: the bytes themselves
-            self._send(("copy", (id(sensor), fields, extra, [np.ascontiguousarray(a) for a in arrays])))
+            self._pending.append(("copy", id(sensor), fields, extra, [np.ascontiguousarray(a) for a in arrays]))
+            self._flush()
             return
         base, pos, places = start % self.ring.size, 0, []
         for a in arrays:
             dst = np.frombuffer(self.ring.data, a.dtype, a.size, base + pos).reshape(a.shape)
             np.copyto(dst, a)
-            places.append(pos)
+            places.append((pos, a.dtype.str, a.shape))
             pos += _padded(a.nbytes)
-        self._send(("frame", (id(sensor), fields, extra, [(p, a.dtype.str, a.shape) for p, a in zip(places, arrays)],
-                              start, self.head)))
+        self._pending.append(("frame", id(sensor), fields, extra, places, start, self.head))
+
+    def _constant_rows(self, v: np.ndarray) -> bool:
+        """Whether ``v`` is a read-only 2-D view of a read-only image whose every row holds one value (checked once
+        per image)."""
+        base = v.base
+        if v.flags.writeable or v.ndim != 2 or not isinstance(base, np.ndarray) or base.flags.writeable or base.ndim != 2:
+            return False
+        known = self._images.get(id(base))
+        if known is None:
+            known = (base, bool(base.size) and bool((base == base[:, :1]).all()))
+            self._images[id(base)] = known
+        return known[1]
 
     def _allocate(self, nbytes: int) -> int | None:
         """The monotonic offset of ``nbytes`` of ring (contiguous: a block that would wrap starts over at 0, the
@@ -132,6 +157,9 @@ class _Sender:
         skip = size - self.head % size if self.head % size + nbytes > size else 0
         need = skip + nbytes
         while self.head + need - int(control[_RELEASED]) > size:
+            if self._pending:  # the caller cannot drop frames it has not been sent
+                self._flush()
+                continue
             if control[_WAITING]:
                 return None
             time.sleep(_WAIT_S)
@@ -140,23 +168,34 @@ class _Sender:
         return start
 
 
-def _describe(frame: Frame, arrays: list[np.ndarray]) -> tuple[dict, dict]:
+def _describe(frame: Frame, arrays: list[np.ndarray], constant_rows: Callable[[np.ndarray], bool]) -> tuple[dict, dict]:
     """(fields, extra) of ``frame`` for the caller: every array replaced by its index in ``arrays`` (a
     broadcast array by its compact form and shape), the other values as they are; the sensor left out."""
 
     def place(v: Any) -> Any:
         if not isinstance(v, np.ndarray):
             return v
-        if 0 in v.strides and v.size:  # a read-only broadcast (Velodyne pixel time offsets): its one row
+        if 0 in v.strides and v.size:  # a read-only broadcast: its compact form
             compact = v[tuple(slice(0, 1) if s == 0 else slice(None) for s in v.strides)]
             arrays.append(np.ascontiguousarray(compact))
             return _Array(len(arrays) - 1, v.shape, False)
+        if constant_rows(v):  # a view of a read-only image of constant rows (Velodyne pixel time offsets)
+            return _Rows(tuple(v[:, 0].tolist()), v.dtype.str, v.shape[1])
         arrays.append(v)
         return _Array(len(arrays) - 1, None, bool(v.flags.writeable))
 
     fields = {f.name: place(getattr(frame, f.name)) for f in dataclasses.fields(frame) if f.name not in ("sensor", "extra")}
     extra = {k: place(v) for k, v in frame.extra.items()}
     return fields, extra
+
+
+@dataclasses.dataclass(frozen=True)
+class _Rows:
+    """A read-only ``[len(values), width]`` array whose row r holds ``values[r]``."""
+
+    values: tuple
+    dtype: str
+    width: int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,10 +250,17 @@ class _Channel:
         self.sensors: dict[int, Any] = {}
         self.live: deque[list] = deque()  # [start, end, released] of the frames in the ring, in ring order
         self.lock = threading.Lock()  # releases come from whichever thread drops a frame
+        self.queued: deque[tuple] = deque()  # frames received, not asked for yet
 
     def get(self) -> Any:
         """The next frame or end-of-segment tuple; warnings on the way are re-emitted here."""
         while True:
+            if self.queued:
+                item = self.queued.popleft()
+                if item[0] == "frame":
+                    return self._frame(*item[1:])
+                _, sensor, fields, extra, arrays = item  # "copy"
+                return _build(self.sensors[sensor], fields, extra, arrays)
             control = self.ring.control
             control[_WAITING] = 1
             try:
@@ -225,12 +271,9 @@ class _Channel:
             finally:
                 control[_WAITING] = 0
             kind, body = pickle.loads(data)
-            if kind == "frame":
-                return self._frame(*body)
-            if kind == "copy":
-                sensor, fields, extra, arrays = body
-                return _build(self.sensors[sensor], fields, extra, arrays)
-            if kind == "sensor":
+            if kind == "frames":
+                self.queued.extend(body)
+            elif kind == "sensor":
                 self.sensors[body[0]] = body[1]
             elif kind == "warning":
                 warn(body[0](body[1]), stacklevel=2)
@@ -240,8 +283,7 @@ class _Channel:
     def _frame(self, sensor: int, fields: dict, extra: dict, places: list, start: int, end: int) -> Frame:
         size = self.ring.size
         block = np.frombuffer(self.ring.data, np.uint8, end - start if places else 0, start % size if places else 0)
-        arrays = [block[p:p + int(np.prod(shape)) * np.dtype(dt).itemsize].view(dt).reshape(shape)
-                  for p, dt, shape in places]
+        arrays = [np.ndarray(shape, dt, block, p) for p, dt, shape in places]
         entry = [start, end, False]
         with self.lock:
             self.live.append(entry)
@@ -260,6 +302,8 @@ class _Channel:
 
 def _build(sensor: Any, fields: dict, extra: dict, arrays: list[np.ndarray]) -> Frame:
     def value(v: Any) -> Any:
+        if isinstance(v, _Rows):
+            return _rows_image(v)
         if not isinstance(v, _Array):
             return v
         a = arrays[v.index]
@@ -271,6 +315,23 @@ def _build(sensor: Any, fields: dict, extra: dict, arrays: list[np.ndarray]) -> 
 
     return Frame(sensor=sensor, extra={k: value(v) for k, v in extra.items()},
                  **{k: value(v) for k, v in fields.items()})
+
+
+_IMAGES: dict[tuple, np.ndarray] = {}  # (values, dtype) → a read-only image of those rows, the widest asked for
+
+
+def _rows_image(rows: _Rows) -> np.ndarray:
+    """A read-only view of a kept image of constant rows (as the decoder's own frames share one)."""
+    key = (rows.values, rows.dtype)
+    image = _IMAGES.get(key)
+    if image is None or image.shape[1] < rows.width:
+        if len(_IMAGES) > 64:
+            _IMAGES.clear()
+        image = np.empty((len(rows.values), max(rows.width, 4096)), rows.dtype)
+        image[...] = np.asarray(rows.values, rows.dtype)[:, None]
+        image.flags.writeable = False
+        _IMAGES[key] = image
+    return image[:, :rows.width]
 
 
 class ProcessRunner:

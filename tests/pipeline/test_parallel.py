@@ -114,11 +114,13 @@ def test_frames_kept_or_dropped_through_a_small_ring(ring, small_segments, monke
 
 
 def test_default_workers_by_capture_size(small_segments, monkeypatch):
-    """workers=None: one thread for a small capture, processes (up to 4, no more than the CPUs) for a large
-    pcap; one thread in a daemonic process (a Dask worker) or when the capture is a bag."""
+    """workers=None: one thread for a small capture, processes (up to 4, no more than the idle CPUs) for a large
+    pcap; one thread when fewer than two CPUs are idle, in a daemonic process (a Dask worker) or when the capture
+    is a bag."""
     path, md = _capture("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10")
     assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
     monkeypatch.setattr(parallel, "PARALLEL_MIN_BYTES", 100_000)
+    monkeypatch.setattr(parallel, "_load_average", lambda: 0.0)  # an idle machine
     reader = lidarpkt.open(path, metadata=md)
     cpus = len(os.sched_getaffinity(0))
     if cpus > 1:
@@ -126,6 +128,9 @@ def test_default_workers_by_capture_size(small_segments, monkeypatch):
         assert reader.workers == min(cpus, parallel.MAX_DEFAULT_WORKERS)
         _assert_same(_frames(path, md, read_ahead=False), list(reader), "default")
     reader.close()
+    monkeypatch.setattr(parallel, "_load_average", lambda: cpus - 1.0)  # one CPU idle: one thread
+    assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
+    monkeypatch.setattr(parallel, "_load_average", lambda: 0.0)
     monkeypatch.setattr(processes, "can_fork", lambda: False)
     assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
     monkeypatch.setattr(processes, "can_fork", lambda: True)
