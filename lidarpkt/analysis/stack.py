@@ -86,7 +86,7 @@ def load_stack(
         sel = "" if frames is None else f" in frames {'' if a is None else a}:{'' if b is None else b}"
         raise AnalysisError(
             f"{path}: no frames{sel} to analyse ({n_complete} complete, {len(partial)} partial found; "
-            "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
+            "check the capture, the --frames range and, for a sensor decoded with its file, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
     return stack_frames(picked, res)

@@ -75,6 +75,7 @@ class Ordinals:
 def count_segment(task: CountTask) -> SegmentCount:
     """The VLP-16 frames (per stream) and packets of one segment; bad input is the result's ``error``."""
     import lidarpkt
+    from lidarpkt.vendors import registry
 
     frames: dict[str, int] = {}
     rates: dict[str, tuple[float | None, int]] = {}
@@ -85,7 +86,7 @@ def count_segment(task: CountTask) -> SegmentCount:
             warnings.simplefilter("ignore", LidarpktWarning)  # the unit reports them
             reader = lidarpkt.open(local_path(task.input), segment=task.segment)
             for frame in reader:
-                if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the start
+                if registry.vendor(frame.sensor.vendor).frame_ids_counted:  # frame ids counted from the start
                     source = str(frame.sensor.source)
                     frames[source] = frames.get(source, 0) + 1
                     rates.setdefault(source, (frame.sensor.frequency_hz, frame.sensor.columns_per_frame))

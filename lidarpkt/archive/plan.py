@@ -204,7 +204,7 @@ def plan_captures(
     given = tuple(os.fspath(m) for m in metadata)
     for m in given:
         if not is_remote(m) and not os.path.isfile(local_path(m)):
-            raise PlanError(f"--metadata {m}: no such file; give the Ouster sensor's metadata JSON")
+            raise PlanError(f"--metadata {m}: no such file; give the sensor's file")
     entries = expand_paths(paths, glob=glob)
     names = _unique_names([e[0] for e in entries])
     captures = []

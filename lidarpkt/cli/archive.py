@@ -23,9 +23,9 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
     p.add_argument("--glob", metavar="PATTERN", help="in folders, only files whose name matches (e.g. '*.pcap')")
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p, "Ouster metadata JSON for every input (repeatable, one per sensor); by default the "
-                            "JSON beside each capture with the same stem. A Hesai Pandar's angle-correction "
-                            "CSV here gives its XYZ")
+    cliargs.add_metadata(p, "a sensor's file for every input (its metadata or calibration, of any vendor, told "
+                            "apart by its content; repeatable, one per sensor); by default the JSON beside each "
+                            "capture with the same stem")
     p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
                    help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
     p.add_argument("--scheduler", metavar="ADDR",

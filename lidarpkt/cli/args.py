@@ -223,8 +223,9 @@ def add_plot(parser: argparse.ArgumentParser, help: str = "write the figures (PN
 def add_metadata(parser: argparse.ArgumentParser, help: str | None = None) -> None:
     """``--metadata M.json``, repeatable: one per Ouster sensor (VLP-16 needs none)."""
     parser.add_argument("--metadata", action="append", default=None, metavar="M.json",
-                        help=help or "Ouster metadata JSON of a sensor in the input; repeat for several sensors "
-                                     "(VLP-16 needs none; MCAP files recorded by lidarpkt carry it)")
+                        help=help or "a sensor's file (its metadata or calibration, of any vendor, told apart by "
+                                     "its content); repeat, one per sensor (sensors whose packets say enough need "
+                                     "none; MCAP files recorded by lidarpkt carry it)")
 
 
 def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and no status lines") -> None:

@@ -23,11 +23,13 @@ skipped, lost or discarded is said once per input (:mod:`lidarpkt.core.dropped`)
 
 from __future__ import annotations
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 import argparse
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
@@ -42,15 +44,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.cli import args as cliargs
     from lidarpkt.writers import SUFFIXES
 
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
+    parser.add_argument("inputs", nargs="+", metavar="IN", help=f"captures ({CAPTURES_TEXT}; a bag or MCAP of raw "
+                        "packet topics)")
     cliargs.add_output(parser, SUFFIXES,
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
     cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
-                        "Pandar's angle-correction CSV")
-    parser.add_argument("--velodyne-model", metavar="NAME",
-                        help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
+    parser.add_argument("--calibration", metavar="FILE", help="another spelling of --metadata: a sensor's file, told "
+                        "apart by its content")
+    parser.add_argument("--model", "--velodyne-model", dest="model", metavar="NAME",
+                        help="the sensor model when its packets cannot say it (two models sharing a factory byte); "
+                             "the second spelling is the older one")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG",
@@ -70,8 +74,8 @@ def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
     that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
     parser.add_argument("--frame-id", action="append", metavar="NAME",
                         help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
-                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
-                             "os_sensor)")
+                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: the vendor's ROS "
+                             "driver's)")
     parser.add_argument("--base-frame", metavar="NAME",
                         help="MCAP: write each sensor's mount on this frame to /tf_static")
     parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
@@ -92,19 +96,29 @@ def _bytes_read(reader) -> int | None:
 def _open_frames(path: str, args) -> FrameIterator:
     import lidarpkt
 
-    options: dict[str, Any] = {}
-    if args.calibration:
-        options["calibration"] = args.calibration
-    if getattr(args, "velodyne_model", None):
-        from lidarpkt.vendors.velodyne.models import MODELS, model_named
+    return lidarpkt.open(path, metadata=_sensor_files(args), model=_model(args), workers=getattr(args, "workers", 1))
 
-        try:
-            model_named(args.velodyne_model)
-        except LidarpktError as exc:
-            raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
-                             f"{', '.join(m.name for m in MODELS)}") from exc
-        options["velodyne_model"] = args.velodyne_model
-    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
+
+def _sensor_files(args) -> list[str] | None:
+    """The ``metadata`` option of the flags: every ``--metadata`` file, and ``--calibration`` (another spelling)."""
+    files = [*(args.metadata or []), *([args.calibration] if getattr(args, "calibration", None) else [])]
+    return files or None
+
+
+def _model(args) -> str | None:
+    """The ``model`` option of the flags, checked before any work.
+
+    Raises:
+        UsageError: naming the flag and the models there are.
+    """
+    from lidarpkt.vendors import registry
+
+    name = getattr(args, "model", None)
+    try:
+        registry.check_model(name)
+    except UsageError as exc:
+        raise UsageError(f"--model {name}: {str(exc).split(': ', 1)[1]}") from None
+    return name
 
 
 def run(args: argparse.Namespace) -> int:
@@ -149,7 +163,7 @@ def _to_mcap(args, out: Path) -> int:
     progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
                                 desc="decode")
     counts = {"frames": 0, "done_before": 0}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=_sensor_files(args),
                      calibration=args.calibration, **frame_options(args)) as writer:
         for path in args.inputs:
             before = counts["done_before"]

@@ -26,7 +26,6 @@ from typing import Any
 
 from lidarpkt.errors import UsageError
 
-CAPTURES = ("vlp16-strongest", "vlp16-last", "vlp16-dual", "os1-64-legacy", "os1-64-dual")
 # Raypaths whose figures are drawn (all are analysed and tabulated).
 FIGURE_RAYPATHS = ("window", "foliage")
 
@@ -37,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", dest="output", default="demo-out", metavar="DIR",
                         help="folder for MCAP files, figures, summary (demo-out)")
     parser.add_argument("--frames", type=int, metavar="N",
-                        help="frames per capture (default: 50 VLP-16, 30 Ouster, the fixtures' full length)")
+                        help="frames per capture (default: the fixtures' full length)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene's per-firing draws (0)")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures (no matplotlib needed)")
     parser.add_argument("--no-mcap", action="store_true", help="skip writing MCAP files")
@@ -54,13 +53,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--frames {args.frames}: not a whole number >= 1; give e.g. --frames 20")
     out = cliargs.check_folder(args.output, "-o")  # checked (and made) before minutes of work
     plots = None if args.no_plots else _plots_module()
-    progress = cliargs.Progress(getattr(args, "quiet", False), total=len(CAPTURES), unit="capture", desc="demo")
+    progress = cliargs.Progress(getattr(args, "quiet", False), total=len(fixtures.CAPTURES), unit="capture",
+                                desc="demo")
     started = time.monotonic()
     rows: list[dict[str, Any]] = []
     captures: dict[str, Any] = {}
     stacks = {}
 
-    for name in CAPTURES:
+    for name in fixtures.CAPTURES:
         t0 = time.monotonic()
         pcap = fixtures.ensure(name, frames=args.frames, seed=args.seed)
         truth = fixtures.load_truth(pcap)
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"captures": captures, "raypaths": rows, "seconds": round(time.monotonic() - started, 2)}
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
     n_png = len(list(out.glob("*.png")))
-    print(f"\n{len(CAPTURES)} captures analysed in {summary['seconds']:.1f} s; "
+    print(f"\n{len(fixtures.CAPTURES)} captures analysed in {summary['seconds']:.1f} s; "
           f"{'MCAP files, ' if not args.no_mcap else ''}{n_png} figures and summary.json in {out}/")
     return 0
 
@@ -133,20 +133,23 @@ def _decode_to_mcap(pcap: Path, mcap_path: Path, metadata: Path | None) -> None:
 
 
 def _mode_comparison_figures(plots, stacks, fixtures, out: Path, args) -> None:
-    """Strongest vs last (VLP-16) temporal CDFs of the figure raypaths: how the mode changes what a raypath reports."""
+    """Strongest vs last temporal CDFs of the figure raypaths, from the captures of one sensor in each return
+    mode (:data:`lidarpkt.fixtures.MODE_CAPTURES`): how the mode changes what a raypath reports."""
     from lidarpkt.analysis import temporal_cdf
 
-    truth = fixtures.load_truth(fixtures.ensure("vlp16-strongest", frames=args.frames, seed=args.seed))
+    modes = fixtures.MODE_CAPTURES
+    truth = fixtures.load_truth(fixtures.ensure(modes["strongest"], frames=args.frames, seed=args.seed))
+    model = stacks[modes["strongest"]].sensor.model
     for raypath in FIGURE_RAYPATHS:
         row, col = truth["raypaths"][raypath]["pixel"][0]
         cdfs = {
-            "strongest": temporal_cdf(stacks["vlp16-strongest"], row, col, 0),
-            "last": temporal_cdf(stacks["vlp16-last"], row, col, 0),
-            "dual: last": temporal_cdf(stacks["vlp16-dual"], row, col, 0),
-            "dual: strongest": temporal_cdf(stacks["vlp16-dual"], row, col, 1),
+            "strongest": temporal_cdf(stacks[modes["strongest"]], row, col, 0),
+            "last": temporal_cdf(stacks[modes["last"]], row, col, 0),
+            "dual: last": temporal_cdf(stacks[modes["dual"]], row, col, 0),
+            "dual: strongest": temporal_cdf(stacks[modes["dual"]], row, col, 1),
         }
-        fig = plots.plot_mode_cdfs(cdfs, row, col, f"VLP-16 {raypath}")
-        plots.save(fig, out / f"vlp16-{raypath}-modes.png")
+        fig = plots.plot_mode_cdfs(cdfs, row, col, f"{model} {raypath}")
+        plots.save(fig, out / f"{fixtures.MODE_FIGURE_PREFIX}-{raypath}-modes.png")
 
 
 def _print_table(rows: list[dict[str, Any]]) -> None:

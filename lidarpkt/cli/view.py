@@ -10,6 +10,8 @@ flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multi
 
 from __future__ import annotations
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 import argparse
 import sys
 import threading
@@ -22,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.view.server import add_ws_argument
 
     parser.add_argument("source", nargs="?", metavar="SOURCE",
-                        help="capture to show (pcap/pcapng, MCAP, ROS bag, OSF); without it, a live sensor")
+                        help=f"capture to show ({CAPTURES_TEXT}); without it, a live sensor")
     add_ws_argument(parser)
     parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
@@ -110,15 +112,15 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 
 def _view_live(args, stop: threading.Event) -> int:
-    from lidarpkt.recorder.record import load_ouster_metadata
+    from lidarpkt.recorder.record import load_sensor_files
     from lidarpkt.containers.udp import UdpSource
 
     from lidarpkt.view.server import start_server
     from lidarpkt.view.sources import LiveDecoder
     from lidarpkt.view.tap import FrameDropper, FrameTap
 
-    mds = load_ouster_metadata(args)
-    ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
+    files = load_sensor_files(args)
+    ports = args.port or [p for f in files for p in f.ports]
     capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                          rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
     server = tap = dropper = None
@@ -130,7 +132,7 @@ def _view_live(args, stop: threading.Event) -> int:
             view.frames_dropped = n
 
         dropper = FrameDropper(server.publish, on_drop=dropped)
-        tap = FrameTap(LiveDecoder(mds), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
+        tap = FrameTap(LiveDecoder(files), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
         print(f"lidarpkt view: listening on {capture.bind_address} port(s) {', '.join(map(str, capture.ports))}",
               file=sys.stderr, flush=True)
         capture.start()

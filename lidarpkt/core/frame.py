@@ -200,7 +200,8 @@ class Frame:
 
         ``resolution_deg`` defaults to :func:`default_grid_deg` of the sensor, the one grid that
         ``FrameStack.from_frames``, ``lidarpkt decode -o x.npz`` and ``lidarpkt analyze`` use. A
-        frame whose columns already are that grid (Ouster) is returned unchanged.
+        frame whose columns already are that grid (columns by measurement id, as Ouster's) is returned
+        unchanged.
         """
         res = resolution_deg if resolution_deg is not None else default_grid_deg(self.sensor)
         if res is None:
@@ -209,7 +210,7 @@ class Frame:
         if abs(n_bins * res - 360.0) > 1e-9:
             raise AnalysisError(f"grid resolution {res}° does not divide 360°")
         w = self.shape[2]
-        if self.sensor.vendor == "ouster" and n_bins == w:
+        if self.measurement_id is not None and n_bins == w:  # its columns are the encoder's: the grid itself
             return self
 
         valid_cols = np.flatnonzero(self.column_valid)

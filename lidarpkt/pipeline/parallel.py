@@ -44,7 +44,8 @@ import numpy as np
 from lidarpkt.errors import CaptureFormatError, UnknownSensorError
 from lidarpkt.core.frame import Frame
 from lidarpkt.core.sequence import FrameIterator
-from .options import OpenOptions, load_ouster_metadata
+from lidarpkt.vendors import registry
+from .options import OpenOptions
 
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
            "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
@@ -123,9 +124,9 @@ class ParallelFrameReader(FrameIterator):
         self.segments = segments
         self.workers = int(options.workers)
         self._include_partial = options.include_partial
-        # the workers are the threads; the metadata is parsed once, not per segment
+        # the workers are the threads; the sensor files are read once, not per segment
         self._options = dataclasses.replace(options, workers=1, include_partial=True, read_ahead=False,
-                                            metadata=load_ouster_metadata(options.metadata) or None)
+                                            metadata=registry.load_sensor_files(options.metadata) or None)
         self._open_segment = open_segment
         self.stats = stats
         self._stop = threading.Event()
@@ -262,7 +263,7 @@ class Renumber:
     def frame(self, frame: Frame) -> Frame:
         """``frame`` of the current segment with the whole file's ordinals and SensorInfo."""
         frame.sensor = self._sensor(frame.sensor)
-        if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the stream's start
+        if registry.vendor(frame.sensor.vendor).frame_ids_counted:  # frame ids counted from the stream's start
             key = str(frame.sensor.source)
             frame.frame_id = self.next_frame_id.get(key, 0)
             self.next_frame_id[key] = frame.frame_id + 1

@@ -22,14 +22,15 @@ from __future__ import annotations
 import queue
 import time
 
-from lidarpkt.writers.mcap import schemas
+from lidarpkt.containers import rosmsgs
+
 
 
 class LiveFrames:
     """Off-path frame decoding for points and view (see the module doc).
 
     Args:
-        ouster_metadata: metadata of each Ouster sensor (list, possibly empty).
+        metadata: the sensor files of the sensors (list, possibly empty), as ``lidarpkt.open`` takes them.
         points: encode PointCloud2 messages for the MCAP.
         ws: ``--ws HOST:PORT`` of the view server, ``None`` for no view.
         queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
@@ -40,7 +41,7 @@ class LiveFrames:
         lidarpkt.view.server.ViewError: the view server cannot start.
     """
 
-    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20,
+    def __init__(self, metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20,
                  sensors=None) -> None:
         from lidarpkt.view.sources import LiveDecoder
         from lidarpkt.view.tap import FrameDropper, FrameTap
@@ -68,7 +69,7 @@ class LiveFrames:
             self.dropper = FrameDropper(view.publish, on_drop=dropped)
             consumers.append(self.dropper)
         on_batch = (lambda b: view.count_packets(str(b.src), len(b))) if self.view is not None else None
-        self.tap = FrameTap(LiveDecoder(ouster_metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
+        self.tap = FrameTap(LiveDecoder(metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
 
     def _encode_points(self, frame) -> None:  # runs in the tap's thread
         # decode's own frames → messages (FrameTopics: each new sensor's latched mount, then its clouds),
@@ -134,7 +135,7 @@ class _QueuedMessages:
         self.out = out
 
     def write_message(self, topic, message, log_time_ns: int) -> None:
-        self.out.put((topic, schemas.encode(topic.msgtype, message), log_time_ns, None))
+        self.out.put((topic, rosmsgs.encode(topic.msgtype, message), log_time_ns, None))
 
     def write_latched(self, topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
         self.out.put((topic, data, log_time_ns, key))

@@ -19,6 +19,8 @@ import time
 
 from lidarpkt.errors import LidarpktError, RecorderError
 
+from lidarpkt.containers import rosmsgs
+
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.writer import McapWriter
 
@@ -44,21 +46,22 @@ def add_receive_arguments(parser: argparse.ArgumentParser) -> None:
                         help="payload megabytes allowed to wait for the writer before drops are counted (256)")
 
 
-def load_ouster_metadata(args: argparse.Namespace) -> list:
-    """The Ouster metadata of ``--metadata`` (each) and of ``--sensor`` (fetched over HTTP).
+def load_sensor_files(args: argparse.Namespace) -> list:
+    """The sensor files of ``--metadata`` (each, as :func:`lidarpkt.vendors.registry.load_sensor_files` loads
+    them) and of ``--sensor`` (fetched over HTTP).
 
     Raises :class:`lidarpkt.errors.MetadataError` (a file) or :class:`~lidarpkt.errors.SensorConnectionError` (a sensor
     that does not answer; the message names the host and the URL tried).
     """
-    from lidarpkt.vendors.ouster.metadata_json import load_metadata
+    from lidarpkt.vendors import registry
 
-    mds = [load_metadata(path) for path in (args.metadata or [])]
+    files = registry.load_sensor_files(args.metadata or [])
     if getattr(args, "sensor", None):
         from lidarpkt.vendors.ouster.sensor_http import fetch_metadata, parse_sensor
 
         host, port = parse_sensor(args.sensor)
-        mds.append(fetch_metadata(host, port))
-    return mds
+        files += registry.load_sensor_files([fetch_metadata(host, port)])
+    return files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -107,12 +110,12 @@ def run(args: argparse.Namespace) -> int:
         from lidarpkt.cli.decode import frame_options
 
         sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
-    mds = load_ouster_metadata(args)
+    files = load_sensor_files(args)
     # a second Ctrl-C: stop now (the file still gets its index)
     stop = cliargs.StopSignals(second_interrupt_raises=True).install()
     capture = gps = writer = frames = None
     try:
-        ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
+        ports = args.port or [p for f in files for p in f.ports]
         capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
                              rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
         if args.gps:  # opened before the file, so that a wrong port leaves no empty recording
@@ -123,11 +126,11 @@ def run(args: argparse.Namespace) -> int:
         if args.points or args.view:  # before the file: a view that cannot serve leaves no empty recording
             from .frames import LiveFrames
 
-            frames = LiveFrames(mds, points=args.points, ws=args.ws if args.view else None, sensors=sensors)
+            frames = LiveFrames(files, points=args.points, ws=args.ws if args.view else None, sensors=sensors)
         writer = McapWriter(args.output, chunk_seconds=args.chunk_seconds,
                             rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
                             rotate_seconds=args.rotate_time)
-        sink = PacketSink(writer, ouster_metadata=mds or None, log_time_ns=time.time_ns())
+        sink = PacketSink(writer, metadata=files, log_time_ns=time.time_ns())
         granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
         # printed even with --quiet: it says the recorder is ready (scripts wait for it)
         print(f"lidarpkt record: listening on {capture.bind_address} port(s) "
@@ -235,12 +238,12 @@ def _notice(text: str) -> None:
 
 
 def _write_gps(writer: McapWriter, gps) -> None:
-    store = schemas.typestore()
+    store = rosmsgs.typestore()
     from .gps import sentence_time_ns
 
     for host_ns, sentence in gps.drain():
         stamp = sentence_time_ns(sentence, host_ns)  # the GPS's own time where it says it
-        msg = store.types[schemas.NMEA_SENTENCE](header=schemas.header(stamp, "gps"), sentence=sentence)
+        msg = store.types[schemas.NMEA_SENTENCE](header=rosmsgs.header(stamp, "gps"), sentence=sentence)
         writer.write_message(schemas.NMEA, msg, host_ns)
 
 

@@ -1,9 +1,10 @@
 """``lidarpkt replay``: send a capture's payloads over UDP at the original pace (a sensor simulator).
 
-The lidar data stream (VLP-16 data packets, Ouster lidar packets) goes to ``--to HOST:PORT``;
-the other streams (VLP-16 position, Ouster IMU, anything else) go to their original
+The lidar data streams (the streams frames are made of: the vendor registry's classifier says which)
+go to ``--to HOST:PORT``; the other streams (position, IMU, anything else) go to their original
 destination port on HOST, or where ``--port-map SRC:DST`` sends them. Containers that keep
-no ports (ROS bags, MCAP) send position packets to 8308 and IMU packets to 7503.
+no ports (ROS bags, MCAP) send each stream to its vendor's factory port (a VLP-16's position packets to
+8308, an Ouster's IMU packets to 7503, or the port its sensor file names).
 
 Pacing follows the capture's own receive times divided by ``--rate``; ``--max`` sends as
 fast as the socket takes them. The sender sleeps only when it is more than a millisecond
@@ -23,12 +24,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from lidarpkt.core.packet import Packet, PacketBatch
 from lidarpkt.errors import LidarpktError, RecorderError
-from lidarpkt.core.packet import Packet
-
-from lidarpkt.core import streams
-
-DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
-    cliargs.add_metadata(parser, "Ouster metadata JSON, to recognise the lidar packets exactly (without it they are "
+    cliargs.add_metadata(parser, "a sensor's file, to recognise its packets exactly (without it they are "
                                  "recognised as `lidarpkt info` does; MCAP files carry their own); repeat, one per "
                                  "sensor")
     parser.add_argument("--http", metavar="HOST:PORT",
@@ -96,10 +93,10 @@ def parse_port_map(items: Iterable[str]) -> dict[int, int]:
 def read_capture(path: str) -> Iterator[Packet]:
     """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
     ordered by host receive time)."""
-    from lidarpkt.containers import open_packet_source
     from lidarpkt.containers.pcap_reader import PcapReader
+    from lidarpkt.vendors.registry import open_packets
 
-    reader = open_packet_source(path)
+    reader = open_packets(path)
     if isinstance(reader, PcapReader):
         yield from reader.packets()
         return
@@ -117,31 +114,31 @@ def read_capture(path: str) -> Iterator[Packet]:
         yield Packet(int(b.timestamp_ns[r]), b.src, b.dst, b.payload[r].tobytes())
 
 
-def embedded_metadata(path: str, look_ahead: int = 64):
-    """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
-    for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
-    from lidarpkt.vendors.ouster.metadata_json import load_metadata
-    from lidarpkt.containers.protocol import embedded_ouster_metadata
+def recorded_sensor_file(path: str, look_ahead: int = 64):
+    """The sensor file recorded in an MCAP file or bag (a driver's), loaded (a
+    :class:`~lidarpkt.vendors.registry.SensorFile`); ``None`` for pcaps and files without one. Looks at the
+    first ``look_ahead`` messages only."""
+    from lidarpkt.containers import protocol
+    from lidarpkt.vendors import registry
 
-    text = embedded_ouster_metadata(path, look_ahead)
-    return load_metadata(text) if text else None
+    text = protocol.recorded_sensor_file(path, registry.bag_messages(), look_ahead)
+    return registry.load_sensor_files([text])[0] if text else None
 
 
 def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
-           port_map: dict[int, int] | None = None, ouster_metadata=None,
+           port_map: dict[int, int] | None = None, metadata=None,
            clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
-    """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
+    """Send ``packets`` to ``host``: the lidar streams to ``port``, others to their (mapped) ports.
 
-    ``ouster_metadata``: one :class:`~lidarpkt.vendors.ouster.metadata.OusterMetadata` or a list (one per
-    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible.
+    ``metadata``: the sensor files, as ``lidarpkt.open`` takes them, to recognise packets that are
+    recognised only with them (an Ouster profile). ``rate`` None = as fast as possible.
     Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
+    from lidarpkt.vendors import registry
+
     port_map = port_map or {}
-    if isinstance(ouster_metadata, (list, tuple)):
-        mds = list(ouster_metadata) or [None]
-    else:
-        mds = [ouster_metadata]
+    setup = registry.setup(registry.load_sensor_files(metadata))
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
@@ -160,17 +157,17 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             orig = p.dst.port if p.dst is not None else None
             out_port = kind_port.get((size, orig))
             if out_port is None:
-                kinds = [streams.classify_size(size, md) for md in mds]
-                kind = next((k for k in kinds if k != streams.OTHER), streams.OTHER)
-                if kind == streams.OTHER and mds == [None] and _ouster_lidar_by_header(p):
-                    kind = streams.OUSTER_LIDAR  # as `lidarpkt info` recognises it without metadata
-                if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR, streams.HESAI_DATA):
+                match = registry.classify(_one_packet(p), setup)  # as `lidarpkt info` recognises it
+                if match is not None and match.lidar:
                     out_port = port
                 else:
-                    base = orig if orig is not None else DEFAULT_PORTS.get(kind, port)
+                    if orig is not None:
+                        base = orig
+                    else:
+                        base = registry.vendor(match.vendor).endpoints(match)[1].port if match is not None else port
                     out_port = port_map.get(base, base)
                 kind_port[(size, orig)] = out_port
-                if kind == streams.OTHER:
+                if match is None:
                     unknown_keys.add((size, orig))
             if (size, orig) in unknown_keys:
                 stats.unknown += 1
@@ -195,18 +192,9 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     return stats
 
 
-def _ouster_lidar_by_header(p: Packet) -> bool:
-    """Whether one payload reads as an Ouster lidar packet the way ``lidarpkt info`` guesses without metadata."""
-    from lidarpkt.vendors import ouster
-    from lidarpkt.core.packet import PacketBatch
-
+def _one_packet(p: Packet) -> PacketBatch:
     payload = np.frombuffer(p.payload, np.uint8)[None, :]
-    batch = PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
-    try:
-        found = ouster.describe_stream(batch)
-    except Exception:  # a guess: a payload it cannot read is no Ouster lidar packet
-        return False
-    return bool(found) and found.get("kind") == "Ouster lidar"
+    return PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
 
 
 def _sigterm_as_interrupt(signum, _frame) -> None:
@@ -220,12 +208,12 @@ def run(args: argparse.Namespace) -> int:
     port_map = parse_port_map(args.port_map)
     cliargs.check_inputs([args.file])
     cliargs.check_inputs(args.metadata or (), "--metadata")
-    if args.metadata:
-        from lidarpkt.vendors.ouster.metadata_json import load_metadata
+    from lidarpkt.vendors import registry
 
-        mds = [load_metadata(path) for path in args.metadata]
-    else:
-        mds = [md] if (md := embedded_metadata(args.file)) is not None else []
+    files = registry.load_sensor_files(args.metadata or [])
+    if not files:
+        files = [f] if (f := recorded_sensor_file(args.file)) is not None else []
+    mds = [f.loaded for f in files if f.vendor == "ouster"]  # what --http serves
     if not args.max and not args.rate > 0:
         raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
     http = None
@@ -255,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:
                 return 0
             time.sleep(args.start_after_fetch)
-        return _replay_rounds(args, host, port, port_map, mds)
+        return _replay_rounds(args, host, port, port_map, files)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -294,13 +282,13 @@ def _ptc_server(args):
     return server
 
 
-def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: list) -> int:
+def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], files: list) -> int:
     rate = None if args.max else args.rate
     rounds = itertools.count() if args.loop else range(1)
     total = ReplayStats(per_port={})
     try:
         for _ in rounds:
-            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=mds)
+            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, metadata=files)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
@@ -320,6 +308,6 @@ def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: li
               f"{total.seconds:.2f} s: {ports}", file=sys.stderr)
         if total.unknown:
             print(f"lidarpkt replay: note: {total.unknown} packets of no known stream went to their original "
-                  "(or mapped) ports; if one is an Ouster lidar stream, give its --metadata to send it to --to",
+                  "(or mapped) ports; if one is a lidar stream, give its sensor's --metadata to send it to --to",
                   file=sys.stderr)
     return 0

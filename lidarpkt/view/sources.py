@@ -4,12 +4,13 @@
   timestamps divided by ``rate`` (optionally looping).
 * :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
   routed to one frame decoder per sensor by ``lidarpkt.open``'s own router (:mod:`lidarpkt.pipeline.router`):
-  VLP-16 streams by their packets, Ouster streams by the metadata given.
+  streams by their packets, and by the sensor files given where a sensor needs its file.
 
-Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
-as the ROS driver stamps them; position packets are counted but not used for it: a GPS fix
-arriving mid-stream whose time disagrees with the host clock (no NTP, or a replayed capture)
-would move the decoder's clock back and every later packet would be dropped as late.
+Auxiliary packets a vendor does not decode live (``Vendor.live_auxiliary``) are counted, not decoded:
+live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour), as the
+ROS driver stamps them, and a GPS fix arriving mid-stream whose time disagrees with the host clock (no
+NTP, or a replayed capture) would move the decoder's clock back and every later packet would be
+dropped as late.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from typing import Iterator
 from lidarpkt.core.decoder import Decoder
 from lidarpkt.core.frame import Frame
 from lidarpkt.core.packet import PacketBatch
-from lidarpkt.pipeline.router import MAX_SENSORS, RouteOptions, Router
+from lidarpkt.pipeline.router import MAX_SENSORS, Router
+from lidarpkt.vendors import registry
 
 
 def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1.0, loop: bool = False,
@@ -74,19 +76,19 @@ class LiveDecoder:
     one router of files and live sources (:class:`lidarpkt.pipeline.router.Router`).
 
     Args:
-        ouster_metadata: :class:`lidarpkt.vendors.ouster.metadata.OusterMetadata` of each Ouster sensor
-            (none for VLP-16 only).
+        metadata: the sensor files of the sensors, as ``lidarpkt.open`` takes them (paths or loaded).
         max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
             counted in :attr:`unrouted_packets`.
 
-    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on. VLP-16 position
-    packets are counted in :attr:`position_packets`, not decoded (module doc).
+    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on. Auxiliary
+    packets of the vendors that do not decode them live are counted in :attr:`auxiliary_packets`, not
+    decoded (module doc).
     """
 
-    def __init__(self, ouster_metadata=(), *, max_sensors: int = MAX_SENSORS) -> None:
-        self.ouster_metadata = list(ouster_metadata or ())
-        self.router = Router(RouteOptions(self.ouster_metadata), max_sensors=max_sensors,
-                             unused_auxiliary=frozenset({"velodyne"}))
+    def __init__(self, metadata=(), *, max_sensors: int = MAX_SENSORS) -> None:
+        self.sensor_files = registry.load_sensor_files(list(metadata or ()))
+        self.router = Router(registry.setup(self.sensor_files), max_sensors=max_sensors,
+                             unused_auxiliary=frozenset(v.name for v in registry.VENDORS if not v.live_auxiliary))
         self.unrouted_packets = 0
 
     @property
@@ -94,9 +96,9 @@ class LiveDecoder:
         return self.router.decoders
 
     @property
-    def position_packets(self) -> int:
-        """VLP-16 position packets seen (not used for the time: module doc)."""
-        return self.router.packets.get(("velodyne", "position"), 0)
+    def auxiliary_packets(self) -> int:
+        """Auxiliary packets seen (decoded, or counted only: module doc)."""
+        return sum(n for kind, n in self.router.packets.items() if not kind.lidar)
 
     def push(self, batch: PacketBatch) -> list[Frame]:
         """Decode one batch; returns the frames it completed."""

@@ -39,7 +39,7 @@ from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.errors import CaptureFormatError, LidarpktError
 from .metadata import OusterMetadata
-from lidarpkt.vendors.ouster.metadata_json import load_metadata
+from .metadata_json import load_metadata
 
 # Frame attribute of each standard channel, by return slot (the rest go to Frame.extra)
 _FRAME_ATTRS = {"RANGE": ("range_mm", 0), "RANGE2": ("range_mm", 1), "REFLECTIVITY": ("reflectivity", 0),

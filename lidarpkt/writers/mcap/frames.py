@@ -26,8 +26,9 @@ import numpy as np
 from lidarpkt.errors import OutputError
 
 from ..base import BaseWriter
+from lidarpkt.containers import rosmsgs
 from . import schemas
-from .pointcloud import FRAME_IDS, image_messages, pointcloud_messages
+from .pointcloud import default_frame_id, image_messages, pointcloud_messages
 
 TOPIC_GROUPS = ("packets", "points", "images")
 Mount = tuple[float, float, float, float, float, float]
@@ -110,7 +111,7 @@ class SensorFrames:
             name = self._ordered[self._unkeyed]
             self._unkeyed += 1
         if name is None:
-            base = FRAME_IDS.get(sensor.vendor, sensor.vendor)
+            base = default_frame_id(sensor.vendor)
             same = sum(1 for k in self._assigned if k[0] == sensor.vendor)
             name = base if same == 0 else f"{base}_{same}"
         if name in self._assigned.values():
@@ -126,9 +127,9 @@ class SensorFrames:
         index = list(self._assigned).index(self.key(sensor))
         x, y, z, roll, pitch, yaw = self.mounts[index] if index < len(self.mounts) else (0.0,) * 6
         qx, qy, qz, qw = mount_quaternion(roll, pitch, yaw)
-        t = schemas.typestore().types
+        t = rosmsgs.typestore().types
         stamped = t["geometry_msgs/msg/TransformStamped"](
-            header=schemas.header(stamp_ns, self.base_frame), child_frame_id=name,
+            header=rosmsgs.header(stamp_ns, self.base_frame), child_frame_id=name,
             transform=t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
                 rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
@@ -165,7 +166,7 @@ class FrameTopics:
         if self.sensors.is_new(frame.sensor):
             tf = self.sensors.transform(frame.sensor, log_time_ns if tf_time_ns is None else tf_time_ns)
             if tf is not None:
-                self.mcap.write_latched(schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf),
+                self.mcap.write_latched(schemas.TF_STATIC, rosmsgs.encode(schemas.TF_MESSAGE, tf),
                                         log_time_ns if tf_time_ns is None else tf_time_ns,
                                         key=self.sensors.frame_id(frame.sensor))
         name = self.sensors.frame_id(frame.sensor)
@@ -201,11 +202,11 @@ class McapFrameWriter(BaseWriter):
         part: see :func:`lidarpkt.writers.open_writer`.
         topics: groups among ``packets``, ``points``, ``images``.
         frame_ids, base_frame, mounts: see :class:`SensorFrames`.
-        metadata: the Ouster metadata of the capture's sensors, as ``lidarpkt.open`` takes it (paths,
-            dicts or loaded, one per sensor): which packets are Ouster packets, and their clocks. The
-            capture's own ``/ouster/metadata`` serves when none is given.
-        calibration: the VLP-16 calibration file the frames were decoded with, recorded in the file's
-            metadata (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
+        metadata: the sensor files of the capture's sensors, as ``lidarpkt.open`` takes them (paths or
+            loaded, one per sensor): what their packets are, and their clocks. A file the capture records
+            serves when none of its vendor's is given.
+        calibration: the calibration file the frames were decoded with, recorded in the file's metadata
+            (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
         clock_offsets, start_ns, end_ns: host − sensor time (ns) per source address, the capture's
             first and last packet host times (see :func:`frame_log_time`), to use instead of measuring
             them from ``capture``.
@@ -213,7 +214,7 @@ class McapFrameWriter(BaseWriter):
 
     Raises:
         OutputError: an unknown topic group; ``packets`` without a capture; the output cannot be
-            written. MetadataError: ``metadata`` is no Ouster metadata. What reading the capture
+            written. MetadataError: a file of ``metadata`` is of no kind lidarpkt reads. What reading the capture
             raises (:func:`lidarpkt.containers.open_packet_source`), from :meth:`add_capture`.
     """
 
@@ -225,7 +226,7 @@ class McapFrameWriter(BaseWriter):
                  metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
-        from lidarpkt.pipeline.options import load_ouster_metadata
+        from lidarpkt.vendors import registry
 
         from .writer import McapWriter
 
@@ -238,7 +239,7 @@ class McapFrameWriter(BaseWriter):
             raise OutputError(f"topics=packets: the packets are read from the capture, and capture={capture} is "
                               "no file; give capture=<the capture's path>")
         sensors = SensorFrames(frame_ids, base_frame, mounts)
-        self.ouster_metadata = load_ouster_metadata(metadata)
+        self.sensor_files = registry.load_sensor_files(metadata)
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
@@ -252,7 +253,7 @@ class McapFrameWriter(BaseWriter):
         self._input: str | None = None if capture is None else str(capture)
         self._described: set[tuple] = set()
         self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
-        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written beside them
+        self.decoded_messages = 0  # messages decoded from the packets (IMU samples...) written beside them
         if self.calibration is not None:
             self._add_calibration_record(self.calibration)
 
@@ -268,33 +269,31 @@ class McapFrameWriter(BaseWriter):
         """The capture whose frames come next: its packets are written (``packets`` topic) and its clock
         offsets and span measured (unless given to the constructor). ``progress(bytes_read)`` is called
         as its packets are read."""
-        from lidarpkt.containers import open_packet_source
-        from lidarpkt.containers.magic import is_osf
-        from lidarpkt.containers.protocol import embedded_ouster_metadata
+        from lidarpkt.containers.protocol import recorded_sensor_file
+        from lidarpkt.vendors import registry
 
         from .packets import PacketSink, capture_times
 
         self._pending_capture = None
         self._input = str(capture)
-        mds = self.ouster_metadata
-        if is_osf(capture):  # decoded frames, no packets: the span they were received in
+        files = list(self.sensor_files)
+        frame_files = registry.frame_files(capture)
+        if frame_files is not None:  # decoded frames, no packets: the span they were received in
             if not self._given_times:
-                from lidarpkt.vendors.ouster.osf import receive_span
-
-                self.set_capture_times({}, *receive_span(capture))
+                self.set_capture_times({}, *frame_files.receive_span(capture))
             return
         if not self._given_times:
-            self.set_capture_times(*capture_times(capture, mds))
+            self.set_capture_times(*capture_times(capture, files))
         if "packets" not in self.groups:
             return
-        if not mds:
-            from lidarpkt.pipeline.options import load_ouster_metadata
-
-            embedded = embedded_ouster_metadata(capture)
-            mds = load_ouster_metadata(embedded) if embedded else []
+        recorded = recorded_sensor_file(capture, registry.bag_messages())
+        if recorded:
+            f = registry.load_sensor_files([recorded])[0]
+            if not any(g.vendor == f.vendor for g in files):
+                files.append(f)
         before = self.mcap.messages_written
-        sink = PacketSink(self.mcap, ouster_metadata=mds, log_time_ns=self.start_ns)
-        reader = open_packet_source(capture)
+        sink = PacketSink(self.mcap, metadata=files, log_time_ns=self.start_ns)
+        reader = registry.open_packets(capture)
         for batch in reader.batches():
             sink.push(batch)
             if progress is not None:
