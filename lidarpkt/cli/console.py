@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["Progress", "StopSignals", "show_progress"]
+__all__ = ["JobBars", "Progress", "StopSignals", "show_progress"]
 
 
 def show_progress(quiet: bool) -> bool:
@@ -99,3 +99,27 @@ class StopSignals:
 
     def __exit__(self, *exc) -> None:
         self.restore()
+
+
+class JobBars:
+    """The ``progress`` callback of the archive jobs (:class:`lidarpkt.archive.engine.JobProgress`): one bar
+    per pass, bytes of the units done, the units done (and failed) beside it. Off with ``-q`` or off a
+    terminal."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.bar: Progress | None = None
+        self.label: str | None = None
+
+    def __call__(self, state) -> None:
+        if self.bar is None or state.label != self.label:
+            self.close()
+            self.bar, self.label = Progress(self.quiet, total=state.bytes_total, desc=state.label), state.label
+        self.bar.update(state.bytes_done, state.status())
+        if state.finished:
+            self.close()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None

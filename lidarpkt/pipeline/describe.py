@@ -1,33 +1,29 @@
-"""``lidarpkt info FILE... [--json] [-o OUT.json] [--metadata M.json ...]``: what streams and sensors a capture holds.
+"""What streams and sensors a capture holds (:func:`describe_capture`), and its text report
+(:func:`format_capture`): what ``lidarpkt info`` prints and ``lidarpkt catalog`` tabulates.
 
 One line per stream (source address:port → destination port, one payload size): packet
 count, size, first/last host time, duration, and what it is, as the sensor modules
 describe it (:func:`lidarpkt.vendors.velodyne.describe_stream`, :func:`lidarpkt.vendors.ouster.describe_stream`,
 :func:`lidarpkt.vendors.hesai.describe_stream`: Hesai Pandar data, model, protocol, return mode, motor speed):
 VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
-Ouster lidar (profile from ``--metadata``, else a guess from size and header) or IMU, or
+Ouster lidar (profile from the metadata given, else a guess from size and header) or IMU, or
 unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
-records. ``--json`` prints the same as one JSON document (one capture object, or
-``{"captures": [...]}`` for several files) on stdout; ``-o OUT.json`` writes it to a file.
+records.
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
-import json
 import os
-import sys
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
 
-from lidarpkt.errors import LidarpktError
 from lidarpkt.core.packet import Endpoint, PacketBatch
-from lidarpkt.containers.magic import find_captures, is_osf
+from lidarpkt.containers.magic import is_osf
 
-__all__ = ["describe_capture", "format_capture", "add_arguments", "run"]
+__all__ = ["describe_capture", "format_capture"]
 
 # a stream is described from its first packets only, so that info stays bounded in memory
 DESCRIBE_MAX_BYTES = 64 * 1024 * 1024
@@ -328,57 +324,3 @@ def format_capture(doc: dict) -> str:
     if doc["truncated"]:
         lines.append(f"  TRUNCATED: {doc['truncated_reason']}")
     return "\n".join(lines)
-
-
-def _expand(paths: Sequence[str]) -> list[str]:
-    """The files to describe: a directory (other than a rosbag2 folder) stands for every capture under it
-    (:func:`lidarpkt.containers.magic.find_captures`, as the archive jobs find them), in name order."""
-    out: list[str] = []
-    for path in paths:
-        if os.path.isdir(path) and not os.path.exists(os.path.join(path, "metadata.yaml")):
-            found = find_captures(path)
-            out.extend(found if found else [path])  # an empty folder still gets its error
-        else:
-            out.append(path)
-    return out
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of ``lidarpkt info``."""
-    from . import args as cliargs
-
-    parser.add_argument(
-        "files", nargs="+", metavar="FILE",
-        help="pcap/pcapng capture(s), MCAP files, ROS bags or OSF files; a directory stands for every capture under it",
-    )
-    cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
-    cliargs.add_metadata(parser, "Ouster metadata JSON of a sensor in the capture (names profiles exactly); "
-                                 "repeat for several sensors")
-    cliargs.add_quiet(parser, "accepted by every verb; info draws no progress bar or status line anyway")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
-    from . import args as cliargs
-    from lidarpkt.vendors.ouster import load_metadata
-
-    cliargs.check_inputs(args.metadata or (), "--metadata")
-    cliargs.check_json(args)
-    metadata = [load_metadata(m) for m in args.metadata or ()]
-    docs = []
-    status = 0
-    for path in _expand(args.files):
-        try:
-            if not os.path.exists(path):
-                cliargs.check_inputs([path])
-            docs.append(describe_capture(path, metadata))
-        except LidarpktError as exc:
-            status = 2
-            docs.append({"file": os.fspath(path), "error": str(exc)})
-            print(cliargs.error_line(exc), file=sys.stderr)
-    if cliargs.wants_json(args):
-        doc = docs[0] if len(docs) == 1 else {"captures": docs}
-        cliargs.emit_json(args, json.dumps(doc, indent=2))
-    elif any("error" not in d for d in docs):
-        print("\n\n".join(format_capture(d) for d in docs if "error" not in d))
-    return status
