@@ -97,3 +97,41 @@ def test_no_syntax_or_library_newer_than_requires_python():
     r = subprocess.run([vermin, "--no-tips", "--violations", "--eval-annotations", f"-t={wanted}-",
                         str(REPO_ROOT / "lidarpkt")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _runtime_dependencies() -> list[str]:
+    """The distribution names of ``[project].dependencies`` in pyproject.toml."""
+    import tomllib
+
+    with open(REPO_ROOT / "pyproject.toml", "rb") as fh:
+        deps = tomllib.load(fh)["project"]["dependencies"]
+    return [re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0] for d in deps]
+
+
+def _imported_top_level_names() -> set[str]:
+    """Every top-level module name an ``import`` statement of lidarpkt/ names (inside functions too)."""
+    names: set[str] = set()
+    for path in (REPO_ROOT / "lidarpkt").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names.add(node.module.split(".")[0])
+    return names
+
+
+def test_every_runtime_dependency_is_imported_by_the_package():
+    """A package only the tests use belongs to the ``test`` extra, not to every user's install."""
+    pytest.importorskip("tomllib", reason="Python 3.11's tomllib reads pyproject.toml")
+    by_distribution: dict[str, set[str]] = {}
+    for module, dists in importlib.metadata.packages_distributions().items():
+        for dist in dists:
+            by_distribution.setdefault(re.sub(r"[-_.]+", "-", dist).lower(), set()).add(module)
+    imported = _imported_top_level_names()
+    unused = []
+    for dep in _runtime_dependencies():
+        modules = by_distribution.get(re.sub(r"[-_.]+", "-", dep).lower())
+        assert modules, f"{dep}: not installed, so its modules are unknown (pip install -e .)"
+        if not modules & imported:
+            unused.append(f"{dep} (modules {sorted(modules)})")
+    assert not unused, "runtime dependencies no module of lidarpkt/ imports: " + ", ".join(unused)
