@@ -402,7 +402,7 @@ def make_ouster_ros_target():
 
 def make_osf_target():
     import lidarpkt
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.osf")
 

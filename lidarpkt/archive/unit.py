@@ -43,6 +43,7 @@ class UnitTask:
         format: a :func:`lidarpkt.writers.open_writer` format name.
         options: writer options as sorted ``(name, value)`` pairs (``layout``, ``frames_per_file``...).
         metadata: Ouster metadata JSONs (paths or URLs).
+        open_options: other keyword options of ``lidarpkt.open``, as sorted ``(name, value)`` pairs.
         segment: a :class:`lidarpkt.containers.segments.Segment`, or None for the whole file.
         part: the segment's name (``seg0003``), None for the whole file.
         size_bytes: bytes this unit reads (for progress), the capture's size when whole.
@@ -62,6 +63,7 @@ class UnitTask:
     part: str | None = None
     size_bytes: int = 0
     ordinals: Any = None
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -176,12 +178,12 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
 
 def _open_frames(path: str, task: UnitTask, metadata: list[str]) -> Any:
     """The FrameReader of the task's capture (of its segment, when it has one); ``metadata``: local paths."""
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
 
-    options: dict[str, Any] = {}
+    options: dict[str, Any] = dict(task.open_options)
     if task.segment is not None:
         options["segment"] = task.segment
-    return lidarpkt.open(path, metadata=metadata or None, **options)
+    return open_frames(path, metadata=metadata or None, **options)
 
 
 def _write_pcap(path: str, target: Path, metadata: list[str]) -> list[Path]:
@@ -250,7 +252,8 @@ def run_unit(task: UnitTask) -> UnitResult:
                 else:
                     reader = _open_frames(local, task, metadata)
                     if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
-                        options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
+                        options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None,
+                                   "calibration": dict(task.open_options).get("calibration")}
                     else:
                         options = {"capture": task.capture, **options}
                     writer = open_writer(task.format, target, part=task.part, **options)

@@ -27,7 +27,7 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
@@ -46,11 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     cliargs.add_output(parser, SUFFIXES,
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
                             "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
-    cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
-                        "Pandar's angle-correction CSV")
-    parser.add_argument("--velodyne-model", metavar="NAME",
-                        help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
+    cliargs.add_sensor_options(parser)
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
     parser.add_argument("--grid", type=float, metavar="DEG",
@@ -90,21 +86,10 @@ def _bytes_read(reader) -> int | None:
 
 
 def _open_frames(path: str, args) -> FrameIterator:
-    import lidarpkt
+    from lidarpkt.cli import args as cliargs
+    from lidarpkt.pipeline.reader import open_frames
 
-    options: dict[str, Any] = {}
-    if args.calibration:
-        options["calibration"] = args.calibration
-    if getattr(args, "velodyne_model", None):
-        from lidarpkt.vendors.velodyne.models import MODELS, model_named
-
-        try:
-            model_named(args.velodyne_model)
-        except LidarpktError as exc:
-            raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
-                             f"{', '.join(m.name for m in MODELS)}") from exc
-        options["velodyne_model"] = args.velodyne_model
-    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
+    return open_frames(path, workers=getattr(args, "workers", 1), **cliargs.sensor_options(args))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,9 +98,7 @@ def run(args: argparse.Namespace) -> int:
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
-    cliargs.check_inputs(args.metadata or (), "--metadata")
-    if args.calibration:
-        cliargs.check_inputs([args.calibration], "--calibration")
+    cliargs.sensor_options(args)  # the sensor files and model checked before any work
     if args.grid is not None and not args.grid > 0:
         raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
                          "e.g. --grid 0.2")
@@ -137,6 +120,7 @@ def _to_mcap(args, out: Path) -> int:
     """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
     input: what a script writes with the library (the writer reads each input's packets itself)."""
     from lidarpkt.cli import args as cliargs
+    from lidarpkt.cli import console
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
 
@@ -146,11 +130,12 @@ def _to_mcap(args, out: Path) -> int:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
     frames_too = bool(groups & {"points", "images"})
     sizes = {p: Path(p).stat().st_size if Path(p).is_file() else 0 for p in args.inputs}
-    progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
+    progress = console.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
                                 desc="decode")
     counts = {"frames": 0, "done_before": 0}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
-                     calibration=args.calibration, **frame_options(args)) as writer:
+    sensor = cliargs.sensor_options(args)
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=sensor.get("metadata"),
+                     calibration=sensor.get("calibration"), **frame_options(args)) as writer:
         for path in args.inputs:
             before = counts["done_before"]
             writer.add_capture(path, progress=lambda b, before=before: progress.update(
@@ -171,11 +156,10 @@ def _to_mcap(args, out: Path) -> int:
 
 # ------------------------------------------------------------------------------ NPZ
 def _to_npz(args, out: Path) -> int:
+    from lidarpkt.cli import console
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
+    progress = console.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
                                 desc="decode")
     n = 0
     done_before = 0
@@ -215,12 +199,11 @@ def _format_options(args, fmt: str) -> dict:
 def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     """Folder formats get one writer per input (files named by capture), one-file formats one
     writer for all inputs."""
+    from lidarpkt.cli import console
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
     options = _format_options(args, fmt)
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
+    progress = console.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
                                 desc="decode")
     counts = {"frames": 0, "done_before": 0}
     written: list[Path] = []
@@ -258,7 +241,7 @@ def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathL
     """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
 
     ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
-    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    (list of paths of any vendor's sensor description files), ``model``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
     ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
     ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
     :class:`~lidarpkt.errors.OutputError` for an unknown option.

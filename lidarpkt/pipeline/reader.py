@@ -129,20 +129,12 @@ class FrameReader(FrameIterator):
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self.stats = SourceStats()
-        from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
-
-        hesai_cal = is_hesai_calibration(opts.calibration)
-        metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
-        self._decoder_options: dict[str, dict[str, Any]] = {
-            "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                         "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
-            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
-            "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
+        metadata, self._decoder_options = decoder_options(opts)
         self._source_filter = opts.source
         self._include_partial = opts.include_partial
         # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
         too_many = weakref.WeakMethod(self._too_many_sensors)
-        self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
+        self.router = Router(RouteOptions(metadata, self._decoder_options),
                              max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
@@ -351,6 +343,24 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     except OSError:
         return False
     return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
+
+
+def decoder_options(opts: OpenOptions) -> tuple[list, dict[str, dict[str, Any]]]:
+    """(the loaded Ouster metadata, each vendor's decoder options) of the options of ``lidarpkt.open``:
+    what its router is given, for files and live packets alike.
+
+    Raises:
+        lidarpkt.errors.MetadataError: a ``metadata`` file that is no Ouster metadata.
+    """
+    from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
+
+    hesai_cal = is_hesai_calibration(opts.calibration)
+    metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
+    return load_ouster_metadata(metadata), {
+        "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
+                     "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
+        "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
+        "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
 
 
 def _split_hesai(metadata: Any) -> tuple[Any, Any]:

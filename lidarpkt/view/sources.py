@@ -38,8 +38,8 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
 
     Raises what ``lidarpkt.open`` raises; :class:`lidarpkt.errors.LidarpktError` if ``rate`` ≤ 0.
     """
-    import lidarpkt
     from lidarpkt.errors import LidarpktError
+    from lidarpkt.pipeline.reader import open_frames
 
     if not rate > 0:
         raise LidarpktError(f"--rate must be positive, got {rate}")
@@ -48,7 +48,7 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
         t0 = None
         start = time.monotonic()
         frames = 0
-        with lidarpkt.open(path, metadata=metadata, **options) as reader:
+        with open_frames(path, metadata=metadata, **options) as reader:
             if on_reader is not None:
                 on_reader(reader)
             for frame in reader:
@@ -78,14 +78,19 @@ class LiveDecoder:
             (none for VLP-16 only).
         max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
             counted in :attr:`unrouted_packets`.
+        options: the decoders' options of ``lidarpkt.open`` (``calibration``, ``velodyne_model``, ...).
 
     Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on. VLP-16 position
     packets are counted in :attr:`position_packets`, not decoded (module doc).
     """
 
-    def __init__(self, ouster_metadata=(), *, max_sensors: int = MAX_SENSORS) -> None:
+    def __init__(self, ouster_metadata=(), *, max_sensors: int = MAX_SENSORS, **options) -> None:
+        from lidarpkt.pipeline.options import OpenOptions
+        from lidarpkt.pipeline.reader import decoder_options
+
         self.ouster_metadata = list(ouster_metadata or ())
-        self.router = Router(RouteOptions(self.ouster_metadata), max_sensors=max_sensors,
+        _, by_vendor = decoder_options(OpenOptions.from_keywords("LiveDecoder", options))
+        self.router = Router(RouteOptions(self.ouster_metadata, by_vendor), max_sensors=max_sensors,
                              unused_auxiliary=frozenset({"velodyne"}))
         self.unrouted_packets = 0
 
