@@ -5,7 +5,7 @@ capture's own pace (``--rate``, ``--loop``) once a client has subscribed, and th
 serving after the end until interrupted. Without SOURCE it receives a live sensor with the
 flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multicast``,
 ``--metadata``, ``--sensor``); decoding and publishing run off the receive path (see
-:mod:`lidarpkt.view.tap`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
+:mod:`lidarpkt.pipeline.live`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
 """
 
 from __future__ import annotations
@@ -113,9 +113,9 @@ def _view_live(args, stop: threading.Event) -> int:
     from lidarpkt.recorder.record import load_ouster_metadata
     from lidarpkt.containers.udp import UdpSource
 
+    from lidarpkt.pipeline.live import FrameTap, LiveDecoder
     from lidarpkt.view.server import start_server
-    from lidarpkt.view.sources import LiveDecoder
-    from lidarpkt.view.tap import FrameDropper, FrameTap
+    from lidarpkt.view.tap import FrameDropper
 
     mds = load_ouster_metadata(args)
     ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]

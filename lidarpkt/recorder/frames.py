@@ -1,7 +1,7 @@
 """Frames while recording: ``record --points`` and ``record --view``, decoded off the receive path.
 
 :class:`LiveFrames` gets the batches the recorder has just written (:meth:`LiveFrames.offer`
-never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
+never waits) and decodes them in a :class:`lidarpkt.pipeline.live.FrameTap` thread. Each frame
 then goes, as chosen, to
 
 * ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`)
@@ -42,8 +42,7 @@ class LiveFrames:
 
     def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20,
                  sensors=None) -> None:
-        from lidarpkt.view.sources import LiveDecoder
-        from lidarpkt.view.tap import FrameDropper, FrameTap
+        from lidarpkt.pipeline.live import FrameTap, LiveDecoder
         from lidarpkt.writers.mcap.frames import FrameTopics, SensorFrames
 
         self.sensors = sensors or SensorFrames()
@@ -58,6 +57,7 @@ class LiveFrames:
             consumers.append(self._encode_points)
         if ws is not None:
             from lidarpkt.view.server import start_server
+            from lidarpkt.view.tap import FrameDropper
 
             self.view = start_server(ws, verb="record")
             view = self.view

@@ -1,4 +1,4 @@
-"""Decoding off the receive path (lidarpkt.view.tap, lidarpkt.view.sources.LiveDecoder), with real
+"""Decoding off the receive path (lidarpkt.pipeline.live: FrameTap, LiveDecoder; lidarpkt.view.tap), with real
 threads: the caller never waits, what cannot be decoded or shown is dropped *and counted*, and the
 frames that are decoded equal ``lidarpkt.open``'s whatever the batching."""
 
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.view.sources import LiveDecoder, play_capture
-from lidarpkt.view.tap import FrameDropper, FrameTap
+from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+from lidarpkt.view.sources import play_capture
+from lidarpkt.view.tap import FrameDropper
 from lidarpkt.recorder.replay import read_capture
 from lidarpkt.containers.udp import batch_from_packets
 from test_view_capture import CANNED
