@@ -144,14 +144,16 @@ class FrameReader(FrameIterator):
         self.router = self.driver.router
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter = cast("Generator[Frame, None, None]", FrameReader._frames(weakref.proxy(self)))  # frames only
+        self._iter: Generator[Frame, None, None] = cast("Generator[Frame, None, None]",
+                                                        FrameReader._frames(weakref.proxy(self)))  # frames only
 
-    def items(self) -> Generator[Frame | Packets, None, None]:
+    def items(self, decode: bool = True) -> Generator[Frame | Packets, None, None]:
         """The pass as it goes, instead of iterating the reader: each batch read, as :class:`Packets` (with
         what the router made of it), then the frames that batch completed; the last frames at the end.
-        Call it before the first ``next()``; ``close()`` stops it as it stops the frames."""
+        ``decode=False``: the batches alone, classified but not decoded (no frames, no error for a capture
+        without a sensor). Call it before the first ``next()``; ``close()`` stops it as it stops the frames."""
         self._iter.close()  # not started: nothing is lost
-        items = FrameReader._frames(weakref.proxy(self), packets=True)
+        items = FrameReader._frames(weakref.proxy(self), packets=True, decode=decode)
         self._iter = cast("Generator[Frame, None, None]", items)  # close() ends whichever generator runs
         return items
 
@@ -185,7 +187,7 @@ class FrameReader(FrameIterator):
     def _ouster_metadata(self) -> list:
         return list(self.router.options.ouster_metadata)
 
-    def _frames(self, packets: bool = False) -> Generator[Frame | Packets, None, None]:
+    def _frames(self, packets: bool = False, decode: bool = True) -> Generator[Frame | Packets, None, None]:
         embedded = self.reader.ouster_metadata
         batches = self._batches()
         ownership = self._ownership
@@ -196,7 +198,7 @@ class FrameReader(FrameIterator):
                     self.router.options = RouteOptions(load_ouster_metadata(embedded()), self._decoder_options)
                 split = getattr(self.reader, "split_ordinal", None)
                 post_end = split is not None and int(batch.index[0]) >= split
-                match, frames = self.driver.route(batch, post_end)
+                match, frames = self.driver.route(batch, post_end) if decode else (self.driver.classify(batch), [])
                 if packets:
                     yield Packets(batch, match)  # items(): the batch before its frames
                 yield from FrameReader._emit(self, frames)  # self: the weak proxy
@@ -204,6 +206,8 @@ class FrameReader(FrameIterator):
                     break  # a segment: nothing further belongs to it
         finally:
             getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+        if not decode:
+            return
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
@@ -301,6 +305,14 @@ class Driver:
         if match.vendor not in self.unused_auxiliary:
             route.decoder.push_auxiliary(batch)
         return match, []
+
+    def classify(self, batch: PacketBatch) -> Match | None:
+        """What the router makes of a batch (``None`` too when ``source`` leaves it out), without counting
+        or decoding it."""
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            return None
+        return self.router.classify(batch)
 
     def finish(self) -> list[Frame]:
         """The frames still being assembled in every decoder (the last, partial ones)."""
