@@ -45,8 +45,8 @@ from lidarpkt.errors import CaptureFormatError, UnknownSensorError
 from lidarpkt.core.frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
-__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_workers", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
-           "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
+__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_workers", "open_parallel", "plan",
+           "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
@@ -67,8 +67,9 @@ class PipelinedFrameReader(FrameIterator):
     of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
 
     ``reader`` is that :class:`~lidarpkt.pipeline.reader.FrameReader` (its packets read ahead as ``workers=1``
-    reads them); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once the iteration
-    has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
+    reads them; in a pass with packets, :func:`lidarpkt.pipeline.passes.open_pass`, its batches come through
+    in order with the frames); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once
+    the iteration has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
     single-threaded reader raises, after the frames before it.
     """
 

@@ -44,9 +44,9 @@ class Capture:
 
     @property
     def metadata(self) -> list:
-        """The loaded Ouster metadata the packets are recognised with (:class:`~lidarpkt.vendors.ouster.metadata.
-        OusterMetadata`, one per sensor): those given, else the one the capture records (known once the pass has
-        read its first batch); empty for other sensors."""
+        """The loaded sensor metadata the packets are recognised with (Ouster metadata, one per sensor): those
+        given, else the one the capture records (known once the pass has read its first batch); empty when the
+        sensors need none."""
         router = getattr(self._frames, "router", None)
         return list(router.options.ouster_metadata) if router is not None else []
 
