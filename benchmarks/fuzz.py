@@ -739,7 +739,8 @@ def seeds(target: str) -> list[bytes]:
     out: list[bytes] = []
     if target == "pcap":
         from lidarpkt.core.packet import Endpoint, Packet
-        from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+        from lidarpkt.writers.framing import frames_for
+        from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 
         for rel in ("ouster-sdk/VLI-16-one-packet.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap",
                     "ouster-sdk/duplicate_id.pcap", "ouster-sdk/empty_pcap.pcap", "ouster-sdk/same_ports_nonlegacy.pcap",

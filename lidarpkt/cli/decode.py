@@ -27,13 +27,12 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
-
+from typing import TYPE_CHECKING, Any
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameIterator
+    from lidarpkt.writers.feed import Feed
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
@@ -80,16 +79,21 @@ def frame_options(args: argparse.Namespace) -> dict:
     return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
-def _bytes_read(reader) -> int | None:
-    stats = getattr(getattr(reader, "reader", None), "stats", None)
-    return getattr(stats, "bytes_read", None)
-
-
-def _open_frames(path: str, args) -> FrameIterator:
+def _open_options(args) -> dict[str, Any]:
+    """The ``lidarpkt.open`` options of the flags."""
     from lidarpkt.cli import args as cliargs
-    from lidarpkt.pipeline.reader import open_frames
 
-    return open_frames(path, workers=getattr(args, "workers", 1), **cliargs.sensor_options(args))
+    return {"workers": getattr(args, "workers", 1), **cliargs.sensor_options(args)}
+
+
+def _feed(args) -> tuple[Feed, Any]:
+    """The pass of every input (:class:`lidarpkt.writers.feed.Feed`) and its progress bar (bytes of the inputs)."""
+    from lidarpkt.cli import console
+    from lidarpkt.writers.feed import Feed
+
+    total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
+    progress = console.Progress(args.quiet, total=total, desc="decode")
+    return Feed(progress=lambda done, frames: progress.update(done, f"{frames} frames")), progress
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,10 +121,8 @@ def run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path) -> int:
-    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
-    input: what a script writes with the library (the writer reads each input's packets itself)."""
-    from lidarpkt.cli import args as cliargs
-    from lidarpkt.cli import console
+    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames in one pass
+    (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
 
@@ -128,55 +130,36 @@ def _to_mcap(args, out: Path) -> int:
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
-    frames_too = bool(groups & {"points", "images"})
-    sizes = {p: Path(p).stat().st_size if Path(p).is_file() else 0 for p in args.inputs}
-    progress = console.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
-    sensor = cliargs.sensor_options(args)
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=sensor.get("metadata"),
-                     calibration=sensor.get("calibration"), **frame_options(args)) as writer:
+    options = _open_options(args)
+    feed, progress = _feed(args)
+    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, calibration=options.get("calibration"),
+                     **frame_options(args)) as writer:
         for path in args.inputs:
-            before = counts["done_before"]
-            writer.add_capture(path, progress=lambda b, before=before: progress.update(
-                before + b, f"{counts['frames']} frames"))
-            if "packets" in groups:
-                counts["done_before"] += sizes[path]
-            if frames_too:
-                _write_frames(writer, path, args, progress, counts)
+            feed.write(path, [writer], **options)
     writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({feed.frames} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 
 # ------------------------------------------------------------------------------ NPZ
 def _to_npz(args, out: Path) -> int:
-    from lidarpkt.cli import console
     from lidarpkt.writers import open_writer
 
-    progress = console.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    n = 0
-    done_before = 0
+    options = _open_options(args)
+    feed, progress = _feed(args)
     with open_writer("npz", out, grid=args.grid, compress=args.compress) as writer:
         for path in args.inputs:
-            reader = _open_frames(path, args)
-            for frame in reader:
-                writer.write(frame)
-                n += 1
-                b = _bytes_read(reader)
-                progress.update(None if b is None else done_before + b, f"{n} frames")
-            done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+            feed.write(path, [writer], **options)
         progress.close()
-        if not n:
+        if not feed.frames:
             raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
 
 
@@ -199,40 +182,28 @@ def _format_options(args, fmt: str) -> dict:
 def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     """Folder formats get one writer per input (files named by capture), one-file formats one
     writer for all inputs."""
-    from lidarpkt.cli import console
     from lidarpkt.writers import open_writer
 
     options = _format_options(args, fmt)
-    progress = console.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
+    open_options = _open_options(args)
+    feed, progress = _feed(args)
     written: list[Path] = []
     if per_input:
         for path in args.inputs:
             with open_writer(fmt, out, capture=path, **options) as writer:
-                _write_frames(writer, path, args, progress, counts)
+                feed.write(path, [writer], **open_options)
             written += writer.close()
     else:
         with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
             for path in args.inputs:
-                _write_frames(writer, path, args, progress, counts)
+                feed.write(path, [writer], **open_options)
         written = writer.close()
     progress.close()
-    if not counts["frames"]:
+    if not feed.frames:
         raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames in {len(written)} file(s) under {out}", file=sys.stderr)
     return 0
-
-
-def _write_frames(writer, path: str, args, progress, counts: dict) -> None:
-    reader = _open_frames(path, args)
-    for frame in reader:
-        writer.write(frame)
-        counts["frames"] += 1
-        b = _bytes_read(reader)
-        progress.update(None if b is None else counts["done_before"] + b, f"{counts['frames']} frames")
-    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
 
 
 # ------------------------------------------------------------------------------ Python API

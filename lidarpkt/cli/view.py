@@ -5,7 +5,7 @@ capture's own pace (``--rate``, ``--loop``) once a client has subscribed, and th
 serving after the end until interrupted. Without SOURCE it receives a live sensor with the
 flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multicast``,
 ``--metadata``, ``--sensor``); decoding and publishing run off the receive path (see
-:mod:`lidarpkt.view.tap`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
+:mod:`lidarpkt.pipeline.live`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
 """
 
 from __future__ import annotations
@@ -112,8 +112,8 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 def _view_live(args, stop: threading.Event) -> int:
     from lidarpkt.containers.udp import UdpSource
-    from lidarpkt.view.sources import LiveDecoder
-    from lidarpkt.view.tap import FrameDropper, FrameTap
+    from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+    from lidarpkt.view.tap import FrameDropper
 
     from .live import live_sensors, receive_options, start_view
 

@@ -1,7 +1,7 @@
 """Frames while recording: ``record --points`` and ``record --view``, decoded off the receive path.
 
 :class:`LiveFrames` gets the batches the recorder has just written (:meth:`LiveFrames.offer`
-never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
+never waits) and decodes them in a :class:`lidarpkt.pipeline.live.FrameTap` thread. Each frame
 then goes, as chosen, to
 
 * ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`)
@@ -41,8 +41,8 @@ class LiveFrames:
 
     def __init__(self, ouster_metadata: list, *, points: bool, view=None, queue_bytes: int = 64 << 20,
                  sensors=None, decoder_options: dict | None = None) -> None:
-        from lidarpkt.view.sources import LiveDecoder
-        from lidarpkt.view.tap import FrameDropper, FrameTap
+        from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+        from lidarpkt.view.tap import FrameDropper
         from lidarpkt.writers.mcap.frames import FrameTopics, SensorFrames
 
         self.sensors = sensors or SensorFrames()

@@ -11,7 +11,8 @@ import pytest
 
 from lidarpkt.pipeline.describe import describe_capture, format_capture
 from lidarpkt.core.packet import Endpoint, Packet
-from lidarpkt.writers.pcap import frames_for, write_pcap_records
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import write_pcap_records
 from conftest import external
 
 
