@@ -93,7 +93,7 @@ def test_the_one_classifier_names_every_external_captures_streams_as_info_did():
     One difference, deliberate: the zone-monitoring stream of ``imu_zm_no_lidar.pcap`` with its metadata is
     ``ouster_zone``, what ``lidarpkt.open`` routes it as; the former enum of stream kinds had none for it
     (``other``)."""
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     pinned = json.loads(PINNED.read_text())
     root = external_root()

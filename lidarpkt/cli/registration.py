@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="CAPTURE", help=f"capture of a stationary sensor: {CAPTURES_TEXT}")
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p)
+    cliargs.add_sensor_options(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None, help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         from lidarpkt.analysis.gmm_map import load_gmm_map
 
         gmm_map = load_gmm_map(args.map)
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args)
     map_range = None
     if gmm_map is not None:
         map_range = gmm_map.map_range_mm(stack)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
 if TYPE_CHECKING:
     from lidarpkt.containers.segments import Segment
+    from lidarpkt.core.vendor import DecodeSetup
 
 __all__ = ["OpenOptions", "OpenKeywords", "with_options", "DECODING_OPTIONS"]
 
@@ -103,6 +104,20 @@ class OpenOptions:
     def decoding(self) -> dict[str, Any]:
         """The options the vendors' decoders take (each those it knows), by name."""
         return {name: getattr(self, name) for name in DECODING_OPTIONS}
+
+    def sensor_setup(self) -> tuple[list, DecodeSetup]:
+        """(the sensor files of ``metadata``, loaded; the vendors' :class:`~lidarpkt.core.vendor.DecodeSetup`):
+        what the router of files and live packets alike is given.
+
+        Raises:
+            lidarpkt.errors.MetadataError: a ``metadata`` file of no kind lidarpkt reads (or that its vendor
+                cannot read); UsageError: a ``model`` no vendor has.
+        """
+        from lidarpkt.vendors import registry
+
+        registry.check_model(self.model)
+        files = registry.load_sensor_files(self.metadata)
+        return files, registry.setup(files, self.decoding())
 
     def filters(self) -> dict[str, Any]:
         """The options the packet reader takes (``None``: the reader's default)."""

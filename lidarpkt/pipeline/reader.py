@@ -15,7 +15,7 @@ import dataclasses
 import os
 import weakref
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generator, Iterator
+from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple, cast
 
 import numpy as np
 
@@ -27,17 +27,18 @@ from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.core.streams import OTHER_STREAMS, SourceStats, UnroutedStream
+from lidarpkt.core.vendor import DecodeSetup, Match
 from lidarpkt.errors import (DroppedPacketsWarning, MetadataError, SkippedPacketWarning, UnknownSensorError,
                              UnsupportedContainerError, UnusedSensorFileWarning)
 from lidarpkt.vendors import registry
 from .options import OpenOptions, with_options
-from .router import Router, source_name as _source_name
+from .router import MAX_SENSORS, Router, source_name as _source_name
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
     from lidarpkt.core.readahead import ReadAhead
-    from lidarpkt.core.vendor import FrameFiles, Match
+    from lidarpkt.core.vendor import FrameFiles
     from .options import OpenKeywords
 
 _MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
@@ -87,23 +88,31 @@ class FrameReader(FrameIterator):
             if segment.count > 1:
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
-        self.sensor_files = registry.load_sensor_files(opts.metadata)  # before opening: a bad file says so first
+        self.sensor_files, setup = opts.sensor_setup()  # before opening: a bad file says so first
         self.reader: PacketSource = registry.open_packets(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
-        self.stats = SourceStats()
         self._decoding = opts.decoding()
         self._recorded_wanted = True  # a sensor file recorded in the capture is still to be looked for
-        self._source_filter = opts.source
         self._include_partial = opts.include_partial
-        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
-        too_many = weakref.WeakMethod(self._too_many_sensors)
-        self.router = Router(registry.setup(self.sensor_files, self._decoding), max_sensors=opts.max_sensors,
-                             on_limit=lambda: (too_many() or (lambda: None))())
-        self._used_files: set[int] = set()  # id() of the loaded sensor files decoders were given
+        self.driver = Driver(str(self.path), setup, max_sensors=opts.max_sensors, source=opts.source,
+                             ownership=self._ownership, sensor_files=self.sensor_files)
+        self.stats = self.driver.stats
+        self.router = self.driver.router
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
+        self._iter: Generator[Frame, None, None] = cast("Generator[Frame, None, None]",
+                                                        FrameReader._frames(weakref.proxy(self)))  # frames only
+
+    def items(self, decode: bool = True) -> Generator[Frame | Packets, None, None]:
+        """The pass as it goes, instead of iterating the reader: each batch read, as :class:`Packets` (with
+        what the router made of it), then the frames that batch completed; the last frames at the end.
+        ``decode=False``: the batches alone, classified but not decoded (no frames, no error for a capture
+        without a sensor). Call it before the first ``next()``; ``close()`` stops it as it stops the frames."""
+        self._iter.close()  # not started: nothing is lost
+        items = FrameReader._frames(weakref.proxy(self), packets=True, decode=decode)
+        self._iter = cast("Generator[Frame, None, None]", items)  # close() ends whichever generator runs
+        return items
 
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
@@ -131,6 +140,10 @@ class FrameReader(FrameIterator):
         """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
         return self.router.decoders
 
+    def drop_counts(self) -> DropCounts:
+        """Packets dropped so far, by reason (each vendor's reasons, :attr:`~lidarpkt.core.vendor.Vendor.drops`)."""
+        return self.driver.drop_counts()
+
     def _take_recorded_file(self) -> None:
         """A sensor file recorded inside the capture (an MCAP's, a bag's) serves when none of its vendor's was
         given."""
@@ -143,66 +156,146 @@ class FrameReader(FrameIterator):
             self.sensor_files.append(recorded)
             self.router.setup = registry.setup(self.sensor_files, self._decoding)
 
-    def _frames(self) -> Generator[Frame, None, None]:
+    def _frames(self, packets: bool = False, decode: bool = True) -> Generator[Frame | Packets, None, None]:
         batches = self._batches()
         ownership = self._ownership
         try:
             for batch in batches:
                 if self._recorded_wanted:
                     self._take_recorded_file()
-                self.stats.batches += 1
-                self.stats.packets += len(batch)
-                src = batch.src.address if batch.src is not None else None
-                if self._source_filter is not None and src != self._source_filter:
-                    if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
-                        self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
-                    continue
                 split = getattr(self.reader, "split_ordinal", None)
                 post_end = split is not None and int(batch.index[0]) >= split
-                yield from FrameReader._emit(self, self._route(batch, post_end))  # self: the weak proxy
+                match, frames = self.driver.route(batch, post_end) if decode else (self.driver.classify(batch), [])
+                if packets:
+                    yield Packets(batch, match)  # items(): the batch before its frames
+                yield from FrameReader._emit(self, frames)  # self: the weak proxy
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
             getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+        if not decode:
+            return
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
-            raise UnknownSensorError(self._no_sensor_message())
+            raise UnknownSensorError(self.driver.no_sensor_message())
         if not self.stats.lidar_packets:
             wrong = registry.undecoded_hint(self.path, self.stats.unrouted_streams, self.router.setup)
             if wrong:  # a vendor's lidar packets without (fitting) sensor file: say so, not "no frames"
                 raise UnknownSensorError(wrong)
         if self.segment is None:
-            for f in self.sensor_files:
-                if id(f.loaded) not in self._used_files:
-                    warn(UnusedSensorFileWarning(
-                        f"{f.name}: {f.what}, but no stream of {self.path} fits it: not used"), stacklevel=3)
-        summary = self._dropped_summary()  # what was skipped, lost or discarded: said once
+            for f in self.driver.unused_files():
+                warn(UnusedSensorFileWarning(f"{f.name}: {f.what}, but no stream of {self.path} fits it: not used"),
+                     stacklevel=3)
+        summary = self.driver.dropped_summary()  # what was skipped, lost or discarded: said once
         if summary:
             warn(DroppedPacketsWarning(summary), stacklevel=3)
 
-    def _route(self, batch: PacketBatch, post_end: bool = False) -> list[Frame]:
-        """Route a batch through the one router (:mod:`lidarpkt.pipeline.router`): its sensor's decoder; reading a
-        segment, nothing for a sensor whose frames of the segment are complete."""
+    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
+        for frame in frames:
+            if frame.partial and not self._include_partial:
+                continue
+            self.stats.frames += 1
+            yield frame
+
+
+class Packets(NamedTuple):
+    """A batch of a pass (:meth:`FrameReader.items`) and what the router made of it: ``stream`` is the
+    vendor's :class:`~lidarpkt.core.vendor.Match` (``.stream``, ``.vendor``, ``.kind``, ``.lidar``; ``.make``
+    ``None`` when the vendor recognises the stream but cannot decode it), ``None`` when no vendor recognised
+    the batch or ``source=`` left its source out."""
+
+    batch: PacketBatch
+    stream: Match | None
+
+
+class Driver:
+    """The one driver from packet batches to decoders, for capture files (:class:`FrameReader`) and live
+    sources (:class:`lidarpkt.pipeline.live.LiveDecoder`): each batch is routed by the router
+    (:mod:`lidarpkt.pipeline.router`) to its sensor's decoder and counted in :attr:`stats`
+    (:class:`SourceStats`); streams no vendor recognises, and sensors beyond ``max_sensors`` (said once, a
+    :class:`~lidarpkt.errors.SkippedPacketWarning`), are counted as unrouted; ``source`` keeps one source.
+
+    Args:
+        name: what warnings and errors name (the capture's path, the live address).
+        setup: the sensor files and decoding options the vendors' classifiers and decoders are given.
+        max_sensors: most sensors given a decoder.
+        source: decode only the packets of this source IP address (``None``: all).
+        ownership: reading a segment, its :class:`~lidarpkt.containers.segments.SegmentOwnership`.
+        unused_auxiliary: vendors whose auxiliary batches are counted, not handed to their decoders.
+        sensor_files: the sensor files given (:func:`lidarpkt.vendors.registry.load_sensor_files`), whose use it
+            follows (:meth:`unused_files`).
+    """
+
+    def __init__(self, name: str, setup: DecodeSetup, *, max_sensors: int = MAX_SENSORS, source: str | None = None,
+                 ownership: Any = None, unused_auxiliary: frozenset[str] = frozenset(),
+                 sensor_files: list | None = None) -> None:
+        self.name = name
+        self.stats = SourceStats()
+        self._source_filter = source
+        self._ownership = ownership
+        self.unused_auxiliary = unused_auxiliary
+        self.sensor_files = sensor_files if sensor_files is not None else []
+        self._used_files: set[int] = set()  # id() of the loaded sensor files decoders were given
+        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
+        too_many = weakref.WeakMethod(self._too_many_sensors)
+        self.router = Router(setup, max_sensors=max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
+
+    @property
+    def decoders(self) -> dict[tuple, Decoder]:
+        """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
+        return self.router.decoders
+
+    def route(self, batch: PacketBatch, post_end: bool = False) -> tuple[Match | None, list[Frame]]:
+        """Count a batch and route it through the one router (:mod:`lidarpkt.pipeline.router`) to its sensor's
+        decoder: (what the router made of it, the frames it completed). Reading a segment, nothing for a sensor
+        whose frames of the segment are complete."""
+        self.stats.batches += 1
+        self.stats.packets += len(batch)
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
+                self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
+            return None, []
         router = self.router
         match = router.classify(batch)
-        if match is None or match.make is None:
-            return self._unrouted(batch)
+        if match is None or match.make is None:  # no vendor's, or one its vendor cannot decode (no sensor file)
+            return match, self._unrouted(batch)
         key = router.key(batch, match)
         if self._ownership is not None and self._ownership.state(key, post_end).closed:
-            return []
+            return match, []
         if key not in router.decoders:
             self._check_files(match)
         route = router.route_match(batch, match)
         if route.decoder is None:
-            return self._unrouted(batch)
+            return match, self._unrouted(batch)
         self._used_files.update(id(f) for f in match.sensor_files)
         self.stats.routed[match.stream] = self.stats.routed.get(match.stream, 0) + len(batch)
         if match.lidar:
-            return self._push(route.key, route.decoder, batch, post_end)
-        route.decoder.push_auxiliary(batch)
-        return []
+            return match, self._push(route.key, route.decoder, batch, post_end)
+        if match.vendor not in self.unused_auxiliary:
+            route.decoder.push_auxiliary(batch)
+        return match, []
+
+    def classify(self, batch: PacketBatch) -> Match | None:
+        """What the router makes of a batch (``None`` too when ``source`` leaves it out), without counting
+        or decoding it."""
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            return None
+        return self.router.classify(batch)
+
+    def finish(self) -> list[Frame]:
+        """The frames still being assembled in every decoder (the last, partial ones)."""
+        out: list[Frame] = []
+        for decoder in self.decoders.values():
+            out += decoder.finish()
+        return out
+
+    def unused_files(self) -> list:
+        """The sensor files given that no decoder was given (they fit no stream routed so far)."""
+        return [f for f in self.sensor_files if id(f.loaded) not in self._used_files]
 
     def _check_files(self, match: Match) -> None:
         """A new sensor whose vendor needs a sensor file for its XYZ, while the files given are all of other
@@ -218,9 +311,24 @@ class FrameReader(FrameIterator):
         if any(f.vendor == match.vendor or id(f.loaded) in self._used_files for f in self.sensor_files):
             return
         given = "; ".join(f"{f.name} is a {f.what}" for f in self.sensor_files)
-        raise MetadataError(f"{self.path}: {given}, but its {registry.vendor(match.vendor).title} stream "
+        raise MetadataError(f"{self.name}: {given}, but its {registry.vendor(match.vendor).title} stream "
                             f"({match.kind}) takes a {kind.what}: give the sensor's own file (metadata=... / "
                             "--metadata)")
+
+    def drop_counts(self) -> DropCounts:
+        """Packets dropped so far, by reason, over every decoder (each vendor's reasons) and the unrouted ones."""
+        counts = DropCounts()
+        for key, decoder in self.decoders.items():
+            counts += registry.vendor(key[0]).drops(decoder.stats)
+        counts.unrouted += self.stats.unrouted_packets
+        return counts
+
+    def dropped_summary(self) -> str | None:
+        """The end-of-read summary line (``None`` when nothing was dropped)."""
+        text = format_dropped(self.drop_counts(), self.stats.packets)
+        if not text:
+            return None
+        return f"{self.name}: {text}; the frames hold what arrived (counts per decoder in .decoders[...].stats)"
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
@@ -249,45 +357,25 @@ class FrameReader(FrameIterator):
         OS-128), so a capture with thousands of source addresses (400 one-packet Ouster sources took
         660 MB) must not get one each. Said once."""
         warn(SkippedPacketWarning(
-            f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
+            f"{self.name}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
             "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
             "source=..., or raise max_sensors=...)"), stacklevel=7)
 
-    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
-        for frame in frames:
-            if frame.partial and not self._include_partial:
-                continue
-            self.stats.frames += 1
-            yield frame
-
-    def _no_sensor_message(self) -> str:
+    def no_sensor_message(self) -> str:
+        """Why no sensor was decoded: the sources ``source`` left out, or the streams seen (and a hint)."""
         if not self.stats.unrouted_streams and self.stats.filtered_sources:
             seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
-            return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
+            return f"{self.name}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
-        wrong = registry.undecoded_hint(self.path, self.stats.unrouted_streams, self.router.setup)
+        setup = self.router.setup
+        wrong = registry.undecoded_hint(self.name, self.stats.unrouted_streams, setup)
         if wrong:
             return wrong
         needed = [v.sensor_files.what for v in registry.VENDORS if v.sensor_files is not None
-                  and v.sensor_files.needed_for == "decoding" and not self.router.setup.files(v.name)]
+                  and v.sensor_files.needed_for == "decoding" and not setup.files(v.name)]
         hint = (f" Some sensors are decoded only with their sensor file: pass the {' or the '.join(needed)} "
                 "(metadata=... / --metadata)." if needed else "")
-        return f"{self.path}: no stream of a sensor lidarpkt decodes ({registry.names()}) found among {streams}.{hint}"
-
-    def drop_counts(self) -> DropCounts:
-        """Packets dropped so far, by reason, over every decoder (each vendor's reasons) and the unrouted ones."""
-        counts = DropCounts()
-        for key, decoder in self.decoders.items():
-            counts += registry.vendor(key[0]).drops(decoder.stats)
-        counts.unrouted += self.stats.unrouted_packets
-        return counts
-
-    def _dropped_summary(self) -> str | None:
-        """The end-of-read summary line (``None`` when nothing was dropped)."""
-        text = format_dropped(self.drop_counts(), self.stats.packets)
-        if not text:
-            return None
-        return f"{self.path}: {text}; the frames hold what arrived (counts per decoder in .decoders[...].stats)"
+        return f"{self.name}: no stream of a sensor lidarpkt decodes ({registry.names()}) found among {streams}.{hint}"
 
 
 @with_options
@@ -335,7 +423,7 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: 
     ≥ 2: decoded in a thread ahead of the caller, :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader`).
 
     The file carries its sensors' metadata: ``metadata`` is not used, nor are the options of packet decoding
-    (``calibration``, ``verify_crc``...); ``include_partial`` applies.
+    (``model``, ``verify_crc``...); ``include_partial`` applies.
 
     Raises:
         UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): the file holds no packets.
@@ -405,4 +493,3 @@ def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
         return bool(np.isin(int(batch.index[0]), index))
     holds = getattr(decoder, "holds_packet", None)
     return bool(holds(frame, batch)) if holds is not None else False
-

@@ -1,5 +1,5 @@
 """From packet batches to one decoder per sensor: the one router of files (``lidarpkt.open``) and live
-sources (``record --points``, ``view``).
+sources (``record --points``, ``view``), driven by :class:`lidarpkt.pipeline.reader.Driver`.
 
 Each batch is recognised by the vendor registry's one classifier (:func:`lidarpkt.vendors.registry.classify`):
 its :class:`~lidarpkt.core.vendor.Match` says which vendor's stream it is, whether frames are made of it
@@ -24,7 +24,6 @@ from lidarpkt.vendors import registry
 
 if TYPE_CHECKING:  # the router is imported by `info` too, which must not load the frame assembly
     from lidarpkt.core.decoder import Decoder
-    from lidarpkt.core.frame import Frame
     from lidarpkt.core.streams import StreamKind
 
 MAX_SENSORS = 64  # the default limit of sensors decoded from one source, files and live alike
@@ -52,7 +51,6 @@ class Router:
         setup: the sensor files and decoding options the vendors' classifiers and decoders are given.
         max_sensors: most sensors given a decoder.
         on_limit: called once, when the first sensor beyond ``max_sensors`` is seen.
-        unused_auxiliary: vendors whose auxiliary batches :meth:`push` counts without decoding them.
 
     Attributes:
         decoders: sensor key → its decoder, in order of first packet.
@@ -60,11 +58,10 @@ class Router:
     """
 
     def __init__(self, setup: DecodeSetup, *, max_sensors: int = MAX_SENSORS,
-                 on_limit: Callable[[], None] | None = None, unused_auxiliary: frozenset[str] = frozenset()) -> None:
+                 on_limit: Callable[[], None] | None = None) -> None:
         self.setup = setup
         self.max_sensors = int(max_sensors)
         self.on_limit = on_limit
-        self.unused_auxiliary = frozenset(unused_auxiliary)
         self.decoders: dict[tuple, Decoder] = {}
         self.packets: dict[StreamKind, int] = {}
         self._named: set[tuple] = set()
@@ -115,23 +112,3 @@ class Router:
         name = source_name(batch)
         if decoder.source != name:
             decoder.source = name
-
-    def push(self, batch: PacketBatch) -> list[Frame] | None:
-        """Route and decode one batch: the frames it completed, or ``None`` when it is unrouted (no vendor
-        can decode it, or its sensor is beyond the limit). Auxiliary batches of the vendors in
-        ``unused_auxiliary`` are counted, not handed to their decoders."""
-        route = self.route(batch)
-        if route is None or route.decoder is None:
-            return None
-        if route.match.lidar:
-            return route.decoder.push(batch)
-        if route.match.vendor not in self.unused_auxiliary:
-            route.decoder.push_auxiliary(batch)
-        return []
-
-    def finish(self) -> list[Frame]:
-        """The frames still being assembled in every decoder (the last, partial ones)."""
-        out: list[Frame] = []
-        for decoder in self.decoders.values():
-            out += decoder.finish()
-        return out

@@ -1,16 +1,6 @@
-"""Where the view's frames come from: a capture played at its own pace, or live packet batches.
-
-* :func:`play_capture`: ``lidarpkt.open``'s frames, released at the pace of their sensor
-  timestamps divided by ``rate`` (optionally looping).
-* :class:`LiveDecoder`: packet batches as they arrive from the network (any stream mix)
-  routed to one frame decoder per sensor by ``lidarpkt.open``'s own router (:mod:`lidarpkt.pipeline.router`):
-  streams by their packets, and by the sensor files given where a sensor needs its file.
-
-Auxiliary packets a vendor does not decode live (``Vendor.live_auxiliary``) are counted, not decoded:
-live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour), as the
-ROS driver stamps them, and a GPS fix arriving mid-stream whose time disagrees with the host clock (no
-NTP, or a replayed capture) would move the decoder's clock back and every later packet would be
-dropped as late.
+"""Where the view's frames come from: a capture played at its own pace (:func:`play_capture`:
+``lidarpkt.open``'s frames, released at the pace of their sensor timestamps divided by ``rate``,
+optionally looping). Live packets become frames in the pipeline (:mod:`lidarpkt.pipeline.live`).
 """
 
 from __future__ import annotations
@@ -20,11 +10,7 @@ import threading
 import time
 from typing import Iterator
 
-from lidarpkt.core.decoder import Decoder
 from lidarpkt.core.frame import Frame
-from lidarpkt.core.packet import PacketBatch
-from lidarpkt.pipeline.router import MAX_SENSORS, Router
-from lidarpkt.vendors import registry
 
 
 def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1.0, loop: bool = False,
@@ -40,8 +26,8 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
 
     Raises what ``lidarpkt.open`` raises; :class:`lidarpkt.errors.LidarpktError` if ``rate`` ≤ 0.
     """
-    import lidarpkt
     from lidarpkt.errors import LidarpktError
+    from lidarpkt.pipeline.reader import open_frames
 
     if not rate > 0:
         raise LidarpktError(f"--rate must be positive, got {rate}")
@@ -50,7 +36,7 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
         t0 = None
         start = time.monotonic()
         frames = 0
-        with lidarpkt.open(path, metadata=metadata, **options) as reader:
+        with open_frames(path, metadata=metadata, **options) as reader:
             if on_reader is not None:
                 on_reader(reader)
             for frame in reader:
@@ -69,45 +55,3 @@ def play_capture(path: str | os.PathLike[str], *, metadata=None, rate: float = 1
                 yield frame
         if not loop or frames == 0:
             return
-
-
-class LiveDecoder:
-    """Packet batches (one stream and payload size each, arrival order) → frames, per sensor, through the
-    one router of files and live sources (:class:`lidarpkt.pipeline.router.Router`).
-
-    Args:
-        metadata: the sensor files of the sensors, as ``lidarpkt.open`` takes them (paths or loaded).
-        max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
-            counted in :attr:`unrouted_packets`.
-
-    Packets of no known stream are counted in :attr:`unrouted_packets`, never raised on. Auxiliary
-    packets of the vendors that do not decode them live are counted in :attr:`auxiliary_packets`, not
-    decoded (module doc).
-    """
-
-    def __init__(self, metadata=(), *, max_sensors: int = MAX_SENSORS) -> None:
-        self.sensor_files = registry.load_sensor_files(list(metadata or ()))
-        self.router = Router(registry.setup(self.sensor_files), max_sensors=max_sensors,
-                             unused_auxiliary=frozenset(v.name for v in registry.VENDORS if not v.live_auxiliary))
-        self.unrouted_packets = 0
-
-    @property
-    def decoders(self) -> dict[tuple, Decoder]:
-        return self.router.decoders
-
-    @property
-    def auxiliary_packets(self) -> int:
-        """Auxiliary packets seen (decoded, or counted only: module doc)."""
-        return sum(n for kind, n in self.router.packets.items() if not kind.lidar)
-
-    def push(self, batch: PacketBatch) -> list[Frame]:
-        """Decode one batch; returns the frames it completed."""
-        frames = self.router.push(batch)
-        if frames is None:
-            self.unrouted_packets += len(batch)
-            return []
-        return frames
-
-    def finish(self) -> list[Frame]:
-        """The frames still being assembled (the last, partial ones)."""
-        return self.router.finish()

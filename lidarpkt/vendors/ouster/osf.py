@@ -242,7 +242,7 @@ class OsfReader(FrameIterator):
     """The frames of an OSF file (``lidarpkt.open("x.osf")``); ``file`` is its :class:`OsfFile`.
 
     ``stats`` counts the frames (its ``frames``: the caller's counts, ``lidarpkt.open``'s
-    :class:`~lidarpkt.pipeline.reader.SourceStats`); ``decoders`` is empty (no packets are decoded).
+    :class:`~lidarpkt.core.streams.SourceStats`); ``decoders`` is empty (no packets are decoded).
     ``include_partial``: also the frames with a column of the column window not valid (left out by
     default, as from packets).
 

@@ -18,15 +18,15 @@ Sensor descriptions go into MCAP metadata records named ``lidarpkt.sensor``, wit
 of each sensor file given (an Ouster's metadata JSON on ``/ouster/metadata``); messages a vendor decodes
 beside the packets (IMU samples) are written too.
 
-:func:`capture_times` measures what frames need to be logged at the host time of a capture:
-each sensor's clock offset and the capture's first and last packet times.
+:class:`CaptureTimes` measures, from the batches of a capture as they are handed, what frames need
+to be logged at the host time of a capture: each sensor's clock offset and the capture's first and
+last packet times.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -222,44 +222,48 @@ class PacketSink:
         return out
 
 
-def capture_times(path: str | os.PathLike[str], metadata: Any = (),
-                  look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
-    """(clock offsets, first and last packet host time in ns) of one capture.
+class CaptureTimes:
+    """What frames need to be logged at the host time of a capture, measured from its packet batches as one
+    pass hands them (:meth:`add`, in capture order): each lidar source's clock offset and the capture's first
+    and last packet host times.
 
-    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
-    among the first ``look_ahead`` batches (the vendor's :attr:`~lidarpkt.core.vendor.Vendor.sensor_time_ns`;
-    sources whose packets carry no time it reads have none). Some sensors' clocks count from boot, others
-    from the hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
-    kept inside the capture's span (its first and last packet). ``metadata``: the sensor files, as
-    ``lidarpkt.open`` takes them (a file the capture records serves when none of its vendor's is given).
-
-    Raises what :func:`lidarpkt.containers.open_packet_source` raises.
+    The offset of each lidar source (:attr:`offsets`, by source name) is host receive time minus sensor time
+    (ns) on its first packet among the first :data:`LOOK_AHEAD` batches (the vendor's
+    :attr:`~lidarpkt.core.vendor.Vendor.sensor_time_ns`; sources whose packets carry no time it reads have
+    none). Some sensors' clocks count from boot, others from the hour: frames are logged at sensor time + this
+    offset, i.e. when their last packet was received, kept inside the capture's span (:attr:`start_ns`,
+    :attr:`end_ns`: its first and last packet, final once the last batch has been added).
     """
-    files = registry.load_sensor_files(list(metadata) if isinstance(metadata, (list, tuple)) else metadata)
-    setup = registry.setup(files)
-    recorded_wanted = True
-    offsets: dict[str, int] = {}
-    start = end = None
-    reader = registry.open_packets(path)
-    for k, batch in enumerate(reader.batches()):
+
+    LOOK_AHEAD = 64  # batches among which the offsets are measured
+
+    def __init__(self) -> None:
+        self.offsets: dict[str, int] = {}
+        self.start_ns: int | None = None
+        self.end_ns: int | None = None
+        self.batches = 0
+
+    @property
+    def offsets_final(self) -> bool:
+        """No later batch can add an offset."""
+        return self.batches >= self.LOOK_AHEAD
+
+    def add(self, batch: PacketBatch, sensor_files: Sequence[registry.SensorFile] = ()) -> None:
+        """Measure one batch; ``sensor_files``: the loaded sensor files of the sensors
+        (:func:`lidarpkt.vendors.registry.load_sensor_files`), for the streams recognised only with them."""
+        k = self.batches
+        self.batches += 1
         if len(batch) == 0:
-            continue
+            return
         t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
-        start = t0 if start is None else min(start, t0)
-        end = t1 if end is None else max(end, t1)
+        self.start_ns = t0 if self.start_ns is None else min(self.start_ns, t0)
+        self.end_ns = t1 if self.end_ns is None else max(self.end_ns, t1)
         src = str(batch.src) if batch.src is not None else "unknown source"
-        if k >= look_ahead or src in offsets:
-            continue
-        if recorded_wanted and reader.recorded_sensor_file():
-            recorded_wanted = False
-            recorded = registry.load_sensor_files([reader.recorded_sensor_file()])[0]
-            if not setup.files(recorded.vendor):
-                files.append(recorded)
-                setup = registry.setup(files)
-        match = registry.classify(batch, setup)
+        if k >= self.LOOK_AHEAD or src in self.offsets:
+            return
+        match = registry.classify(batch, registry.setup(sensor_files))
         if match is None:
-            continue
+            return
         sensor_ns = registry.vendor(match.vendor).sensor_time_ns(batch, match)
         if sensor_ns is not None:
-            offsets[src] = int(batch.timestamp_ns[0]) - sensor_ns
-    return offsets, start, end
+            self.offsets[src] = int(batch.timestamp_ns[0]) - sensor_ns
