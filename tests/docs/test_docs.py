@@ -3,7 +3,8 @@
 - It builds with every warning an error (a broken cross-reference, a missing page or image, a name the
   API reference cannot import), with the command README gives.
 - The CLI reference holds every verb and every flag of the parser the ``lidarpkt`` command uses.
-- The API reference holds every public name (``__all__``) of ``lidarpkt`` and its documented packages.
+- The API reference holds every public name (``__all__``, else every public class and function defined
+  there) of ``lidarpkt`` and its documented packages.
 - Every example on every page runs (``doc_examples``), on the bundled fixtures or the external captures.
 - No page names a file of the repository or of the external captures that does not exist.
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import fcntl
 import html
+import os
 import re
 import subprocess
 import sys
@@ -25,13 +27,18 @@ import pytest
 from conftest import REPO_ROOT, external
 from doc_examples import DOCS, clone_like, run_page
 
+sys.path.insert(0, str(DOCS / "_ext"))
+from lidarpkt_docs import _MISSING, import_name  # noqa: E402
+
 sphinx = pytest.importorskip("sphinx", reason="the docs extra is not installed: pip install '.[docs]'")
 
 #: the packages the API reference documents (docs/reference/api/): every name of their __all__
 DOCUMENTED = ("lidarpkt", "lidarpkt.errors", "lidarpkt.containers", "lidarpkt.writers", "lidarpkt.archive",
               "lidarpkt.analysis", "lidarpkt.view", "lidarpkt.fixtures")
-#: the pages (README.draft.md is README.md to be; benchmarks/README.md says how to run the benchmarks)
-PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts)
+#: README.md as it will be, until it replaces README.md (then README.md itself is checked)
+README = DOCS / "README.draft.md" if (DOCS / "README.draft.md").exists() else REPO_ROOT / "README.md"
+#: the pages, and the other texts that name files (benchmarks/README.md says how to run the benchmarks)
+PAGES = sorted({p for p in DOCS.rglob("*.md") if "_build" not in p.parts} | {README})
 TEXTS = PAGES + [REPO_ROOT / "benchmarks" / "README.md"]
 BUILD_COMMAND = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html"]
 
@@ -39,7 +46,9 @@ BUILD_COMMAND = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b
 @pytest.fixture(scope="session")
 def site(tmp_path_factory) -> Path:
     """The built site (HTML), built once for every worker of the session; fails the test on a warning."""
-    shared = tmp_path_factory.getbasetemp().parent  # the same folder for every xdist worker of the run
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the run's folder, the same for every xdist worker of the run
     out = shared / "docs-site"
     with open(shared / "docs-site.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -56,7 +65,7 @@ def site(tmp_path_factory) -> Path:
 
 def test_the_site_builds_with_warnings_as_errors(site):
     for page in PAGES:
-        if page.name == "README.draft.md":
+        if page == README:
             continue
         built = site / page.relative_to(DOCS).with_suffix(".html")
         assert built.is_file(), f"{page.relative_to(REPO_ROOT)} was not built"
@@ -75,6 +84,16 @@ def _sub_parsers(parser: argparse.ArgumentParser) -> dict[str, argparse.Argument
     return {}
 
 
+def _documented_actions(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    """The actions ``--help`` shows, but ``-h/--help`` itself (every verb has it; the page says so)."""
+    return [a for a in parser._actions
+            if a.help is not argparse.SUPPRESS and not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))]
+
+
+def _mentions(text: str, flag: str) -> bool:
+    return re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", text) is not None
+
+
 def test_the_cli_reference_has_every_verb_and_flag_of_the_parser(site):
     from lidarpkt.cli import build_parser
 
@@ -91,12 +110,12 @@ def test_the_cli_reference_has_every_verb_and_flag_of_the_parser(site):
     for k, (verb, start) in enumerate(order):
         end = order[k + 1][1] if k + 1 < len(order) else len(page)
         section = html.unescape(re.sub(r"<[^>]+>", " ", page[start:end]))
-        for action in verbs[verb]._actions:
+        for action in _documented_actions(verbs[verb]):
             for flag in action.option_strings or [action.metavar or action.dest]:
-                if flag not in section:
+                if not _mentions(section, flag):
                     missing.append(f"{verb} {flag}")
     top = _text(site / "reference" / "cli.html")
-    missing += [f for a in parser._actions for f in a.option_strings if f not in top]
+    missing += [f for a in _documented_actions(parser) for f in a.option_strings if not _mentions(top, f)]
     assert not missing, f"flags the parser has and reference/cli.html lacks: {missing}"
 
 
@@ -107,8 +126,8 @@ def test_the_api_reference_has_every_public_name(site):
 
     with open(site / "objects.inv", "rb") as fh:
         inventory = InventoryFile.load(fh, "", lambda base, uri: uri)
-    documented = {name for entries in inventory.data.values() for name in entries} if hasattr(inventory, "data") \
-        else {name for entries in inventory.values() for name in entries}
+    entries = inventory.data if hasattr(inventory, "data") else inventory  # Sphinx 9: a dict
+    documented = {name for kind, names in entries.items() if kind.startswith("py:") for name in names}
     by_identity = {}
     for name in documented:
         module, _, attr = name.rpartition(".")
@@ -120,7 +139,9 @@ def test_the_api_reference_has_every_public_name(site):
     missing = []
     for package in DOCUMENTED:
         module = importlib.import_module(package)
-        for name in module.__all__:
+        names = getattr(module, "__all__", None) or [n for n, v in vars(module).items()
+                                                      if not n.startswith("_") and getattr(v, "__module__", None) == package]
+        for name in names:
             if f"{package}.{name}" in documented:
                 continue
             obj = getattr(module, name)
@@ -129,9 +150,33 @@ def test_the_api_reference_has_every_public_name(site):
                     continue
             missing.append(f"{package}.{name}")
     assert not missing, f"public names the API reference does not document: {missing}"
+    stale = sorted(n for n in documented if n.startswith("lidarpkt.") and not _exists(n))
+    assert not stale, f"the API reference documents names the code does not have: {stale}"
 
 
-@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(DOCS)) for p in PAGES])
+def _exists(name: str) -> bool:
+    """``name`` imports, or is a field its class declares (a dataclass field without a default)."""
+    if import_name(name) is not _MISSING:
+        return True
+    parent, _, attr = name.rpartition(".")
+    owner = import_name(parent)
+    return isinstance(owner, type) and any(attr in getattr(c, "__annotations__", {}) for c in owner.__mro__)
+
+
+def test_the_readme_is_short_links_into_the_site_and_keeps_the_ci_commands():
+    text = README.read_text()
+    assert len(text.splitlines()) <= 150
+    for marker in ("<!-- main-command -->", "<!-- test-command -->"):
+        command = text.split(marker, 1)[1].split("```sh\n", 1)[1].split("\n", 1)[0]
+        assert command.startswith("python3 -m venv .venv && . .venv/bin/activate && pip install '.[")
+    test_command = text.split("<!-- test-command -->", 1)[1]
+    assert "docs]'" in test_command.split("\n```", 2)[1] or ",docs" in test_command.split("\n```", 2)[1]
+    assert " ".join(BUILD_COMMAND[2:5]) in text  # the command that builds the site
+    linked = set(re.findall(r"\]\((docs/[\w/.-]+\.md)\)", text))
+    assert {"docs/getting-started.md", "docs/reference/cli.md", "docs/reference/api/index.md"} <= linked
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(REPO_ROOT)) for p in PAGES])
 def test_every_example_of_the_page_runs(page, tmp_path):
     for relpath in sorted(set(re.findall(r"\.\./shared/fixtures/external/([\w./-]+\w)", page.read_text()))):
         external(relpath)  # skips (fails in CI) when the captures the page uses are absent
