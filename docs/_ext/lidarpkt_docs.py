@@ -17,6 +17,7 @@ import argparse
 import importlib
 import inspect
 import re
+import sys
 from typing import Any
 
 from docutils import nodes
@@ -62,15 +63,35 @@ def cli_parser() -> argparse.ArgumentParser:
 
 
 def import_name(path: str) -> Any:
-    """The object at dotted ``path`` (a module, then attributes), or ``_MISSING``."""
+    """The object at dotted ``path``, or ``_MISSING``: attributes first, a submodule imported only where
+    its package has no attribute of that name (so that ``lidarpkt.fixtures.canned``, a function, is not
+    shadowed by importing the package-data folder ``canned/`` as a namespace package)."""
     parts = path.split(".")
-    for i in range(len(parts), 0, -1):
-        try:
-            obj: Any = importlib.import_module(".".join(parts[:i]))
-        except ImportError:
+    try:
+        obj: Any = importlib.import_module(parts[0])
+    except Exception:  # noqa: BLE001 - a module that fails to import is not a target
+        return _MISSING
+    for i, attr in enumerate(parts[1:], start=2):
+        value = getattr(obj, attr, _MISSING)
+        if value is _MISSING and inspect.ismodule(obj):
+            try:
+                value = importlib.import_module(".".join(parts[:i]))
+            except Exception:  # noqa: BLE001
+                value = _MISSING
+        if value is _MISSING:
+            return _through_loaded_module(parts)
+        obj = value
+    return obj
+
+
+def _through_loaded_module(parts: list[str]) -> Any:
+    """``a.b.c.D`` through the loaded module ``a.b.c`` where the package's attribute ``c`` is something
+    else (``lidarpkt.archive.export``: the function, and the module that defines it)."""
+    for i in range(len(parts) - 1, 1, -1):
+        module = sys.modules.get(".".join(parts[:i]))
+        if module is None:
             continue
-        except Exception:  # noqa: BLE001 - a module that fails to import is not a target
-            return _MISSING
+        obj: Any = module
         for attr in parts[i:]:
             obj = getattr(obj, attr, _MISSING)
             if obj is _MISSING:

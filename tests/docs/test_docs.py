@@ -130,12 +130,9 @@ def test_the_api_reference_has_every_public_name(site):
     documented = {name for kind, names in entries.items() if kind.startswith("py:") for name in names}
     by_identity = {}
     for name in documented:
-        module, _, attr = name.rpartition(".")
-        try:
-            obj = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError, ValueError):
-            continue
-        by_identity[id(obj)] = name
+        obj = import_name(name)
+        if obj is not _MISSING:
+            by_identity[id(obj)] = name
     missing = []
     for package in DOCUMENTED:
         module = importlib.import_module(package)
