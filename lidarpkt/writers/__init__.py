@@ -18,6 +18,13 @@ format       output              content                                        
 ``pcd``      folder              one binary PCD per frame (the same fields)                    ``cloud``
 ===========  ==================  ============================================================  ===========
 
+Writers never open their inputs: :func:`write_captures` (:mod:`lidarpkt.writers.feed`) reads each
+capture once and hands every writer its frames, and its raw packets with their capture times to a
+writer that takes them (the MCAP writer's ``packets`` topic; see :mod:`lidarpkt.writers.base`):
+
+>>> with open_writer("mcap", "out.mcap", topics=("packets", "points")) as w:    # doctest: +SKIP
+...     write_captures(["drive1.pcap"], [w], workers=2)
+
 Writing packets (not frames) to pcap/pcapng is :mod:`lidarpkt.writers.pcap`. To add a format:
 a module with a :class:`~lidarpkt.writers.base.BaseWriter` subclass and a row in :data:`FORMATS`.
 The format libraries (pyarrow, laspy, plyfile, pypcd4: the ``export`` extra) are imported only
@@ -35,7 +42,7 @@ from typing import Any
 
 from lidarpkt.errors import OutputError
 
-from .base import AtomicFiles, BaseWriter, FrameWriter
+from .base import AtomicFiles, BaseWriter, FrameWriter, PacketWriter
 
 
 @dataclass(frozen=True)
@@ -112,5 +119,13 @@ def open_writer(fmt: str, out: str | os.PathLike[str], *, capture: str | os.Path
     return cls(out, capture=capture, part=part, **format_options)
 
 
-__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "SUFFIXES", "format_from_suffix",
-           "open_writer"]
+__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "PacketWriter", "SUFFIXES",
+           "format_from_suffix", "open_writer", "write_captures", "Feed"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("write_captures", "Feed"):  # the pass loads the pipeline: only when asked
+        from . import feed
+
+        return getattr(feed, name)
+    raise AttributeError(name)
