@@ -209,10 +209,30 @@ class FormatsDirective(SphinxDirective):
         return container.children
 
 
+class AllNamesDirective(SphinxDirective):
+    """``lidarpkt-all MODULE``: an autodoc entry for every name of the module's ``__all__``, for packages
+    whose names are imported on first use (a module ``__getattr__``), which ``automodule`` does not list."""
+
+    required_arguments = 1
+
+    def run(self) -> list[nodes.Node]:
+        module_name = self.arguments[0]
+        module = importlib.import_module(module_name)
+        lines: list[str] = []
+        for name in module.__all__:
+            obj = getattr(module, name)
+            kind = "autoclass" if inspect.isclass(obj) else "autofunction" if callable(obj) else "autodata"
+            lines += [f".. {kind}:: {module_name}.{name}"] + (["   :members:"] if kind == "autoclass" else []) + [""]
+        container = nodes.container()
+        nested_parse_with_titles(self.state, StringList(lines, source=f"{module_name}.__all__"), container)
+        return container.children
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("lidarpkt-formats", FormatsDirective)
+    app.add_directive("lidarpkt-all", AllNamesDirective)
     app.connect("missing-reference", missing_reference)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
 
 
-__all__ = ["FormatsDirective", "cli_parser", "import_name", "missing_reference", "setup"]
+__all__ = ["AllNamesDirective", "FormatsDirective", "cli_parser", "import_name", "missing_reference", "setup"]
