@@ -21,6 +21,7 @@ import sys
 from typing import Any
 
 from docutils import nodes
+from docutils.parsers.rst import directives
 from docutils.statemachine import StringList
 from sphinx.application import Sphinx
 from sphinx.util import logging
@@ -210,22 +211,55 @@ class FormatsDirective(SphinxDirective):
 
 
 class AllNamesDirective(SphinxDirective):
-    """``lidarpkt-all MODULE``: an autodoc entry for every name of the module's ``__all__``, for packages
-    whose names are imported on first use (a module ``__getattr__``), which ``automodule`` does not list."""
+    """``lidarpkt-all MODULE``: an entry for every name of the module's ``__all__`` (but ``:skip:``),
+    for packages whose names are imported on first use (a module ``__getattr__``) or from their
+    submodules, which ``automodule`` does not list. Classes and functions by autodoc; data with the
+    ``#:`` comment of the module that defines it."""
 
     required_arguments = 1
+    option_spec = {"skip": directives.unchanged}
 
     def run(self) -> list[nodes.Node]:
         module_name = self.arguments[0]
         module = importlib.import_module(module_name)
+        skip = set(self.options.get("skip", "").split())
         lines: list[str] = []
         for name in module.__all__:
+            if name in skip:
+                continue
             obj = getattr(module, name)
-            kind = "autoclass" if inspect.isclass(obj) else "autofunction" if callable(obj) else "autodata"
-            lines += [f".. {kind}:: {module_name}.{name}"] + (["   :members:"] if kind == "autoclass" else []) + [""]
+            if inspect.isclass(obj):
+                lines += [f".. autoclass:: {module_name}.{name}", "   :members:", ""]
+            elif callable(obj):
+                lines += [f".. autofunction:: {module_name}.{name}", ""]
+            else:
+                lines += [f".. py:data:: {name}", f"   :module: {module_name}", f"   :value: {_short_repr(obj)}", ""]
+                lines += [f"   {line}" for line in _attribute_doc(module_name, name, obj)] + [""]
         container = nodes.container()
         nested_parse_with_titles(self.state, StringList(lines, source=f"{module_name}.__all__"), container)
         return container.children
+
+
+def _short_repr(obj: Any, width: int = 100) -> str:
+    text = repr(obj)
+    return text if len(text) <= width else text[: width - 4] + " ..."
+
+
+def _attribute_doc(package: str, name: str, obj: Any) -> list[str]:
+    """The ``#:`` comment (or docstring after the assignment) of ``name`` in the module of ``package``
+    that defines it, or no line."""
+    from sphinx.pycode import ModuleAnalyzer
+
+    for modname, mod in sorted(sys.modules.items()):
+        if not (modname == package or modname.startswith(package + ".")) or vars(mod).get(name, _MISSING) is not obj:
+            continue
+        try:
+            docs = ModuleAnalyzer.for_module(modname).find_attr_docs()
+        except Exception:  # noqa: BLE001 - no source to analyse
+            continue
+        if docs.get(("", name)):
+            return [line for line in docs[("", name)] if line.strip()]
+    return []
 
 
 def setup(app: Sphinx) -> dict[str, Any]:
