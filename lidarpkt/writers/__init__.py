@@ -6,17 +6,17 @@
 ...         w.write(frame)
 >>> w.close()          # the complete files written: [PosixPath('out.npz')]
 
-==========  ==================  ==========================================================  =========
-format      output              content                                                     module
-==========  ==================  ==========================================================  =========
-``mcap``    one file            ROS 2 MCAP: raw packets, PointCloud2, images, /tf_static     ``mcap``
-``npz``     one file            frames on the azimuth grid, stacked per sensor                ``npz``
-``parquet`` dataset folder      one row per return (``layout="points"``) or per frame         ``parquet``
-``las``     file, or folder     LAS 1.4 points, GPS time, return number / number of returns   ``las``
-``laz``     file, or folder     the same, LAZ-compressed (lazrs)                              ``las``
-``ply``     folder              one binary PLY per frame (x y z intensity ring time return)   ``cloud``
-``pcd``     folder              one binary PCD per frame (the same fields)                    ``cloud``
-==========  ==================  ==========================================================  =========
+===========  ==================  ============================================================  ===========
+format       output              content                                                       module
+===========  ==================  ============================================================  ===========
+``mcap``     one file            ROS 2 MCAP: raw packets, PointCloud2, images, /tf_static      ``mcap``
+``npz``      one file            frames on the azimuth grid, stacked per sensor                ``npz``
+``parquet``  dataset folder      one row per return (``layout="points"``) or per frame         ``parquet``
+``las``      file, or folder     LAS 1.4 points, GPS time, return number / number of returns   ``las``
+``laz``      file, or folder     the same, LAZ-compressed (lazrs)                              ``las``
+``ply``      folder              one binary PLY per frame (x y z intensity ring time return)   ``cloud``
+``pcd``      folder              one binary PCD per frame (the same fields)                    ``cloud``
+===========  ==================  ============================================================  ===========
 
 Writers never open their inputs: :func:`write_captures` (:mod:`lidarpkt.writers.feed`) reads each
 capture once and hands every writer its frames, and its raw packets with their capture times to a
