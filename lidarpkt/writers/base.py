@@ -128,6 +128,16 @@ class BaseWriter:
         stem = Path(self.capture).stem if self.capture else "frames"
         return f"{_safe(stem)}_{sensor_tag(frame.sensor)}_{frame.frame_id:06d}{suffix}"
 
+    def group_file(self, frame: Any, frames_per_file: int, suffix: str) -> tuple[tuple[str, int], Path]:
+        """(key, path) of the file holding ``frame`` when each file holds ``frames_per_file`` frames of one
+        sensor: ``OUT/CAPTURESTEM_SENSOR_FFFFFF[.PART]SUFFIX``, F the first frame id of its group (grouped by
+        frame id, so that the grouping does not depend on how the capture was segmented)."""
+        start = frame.frame_id // frames_per_file * frames_per_file
+        stem = _safe(Path(self.capture).stem) if self.capture else "frames"
+        tag = sensor_tag(frame.sensor)
+        name = f"{stem}_{tag}_{start:06d}" + (f".{_safe(self.part)}" if self.part else "")
+        return (tag, start), self.out / (name + suffix)
+
     def out_dir(self) -> Path:
         """``out`` as a folder (created if missing; its parent must exist)."""
         if not self.out.exists():
