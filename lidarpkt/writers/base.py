@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
@@ -43,7 +44,8 @@ class AtomicFiles:
         self.committed: list[Path] = []
 
     def temporary(self, final: str | os.PathLike[str]) -> Path:
-        """A new temporary path in ``final``'s folder (the folder must exist)."""
+        """A new temporary path in ``final``'s folder (the folder must exist): a file's, or a folder's
+        (a rosbag2), which :meth:`commit` renames as a whole."""
         final = Path(final)
         if not final.parent.is_dir():
             raise OutputError(f"{final}: the folder {final.parent} does not exist; create it or choose another")
@@ -52,7 +54,8 @@ class AtomicFiles:
         return tmp
 
     def commit(self, tmp: Path) -> Path:
-        """Rename a complete temporary to its final name (replacing an older file of that name)."""
+        """Rename a complete temporary to its final name (replacing an older file of that name, or an
+        empty folder)."""
         final = self._pending.pop(tmp)
         try:
             os.replace(tmp, final)
@@ -62,10 +65,13 @@ class AtomicFiles:
         return final
 
     def abort(self) -> None:
-        """Remove every temporary not yet committed."""
+        """Remove every temporary not yet committed (a temporary folder with what it holds)."""
         for tmp in list(self._pending):
             try:
-                tmp.unlink()
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp)
+                else:
+                    tmp.unlink()
             except FileNotFoundError:
                 pass
             except OSError:
