@@ -44,15 +44,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
     cliargs.add_output(parser, SUFFIXES,
-                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
-                            "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
+                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, OUT.csv, "
+                            "OUT.ply / OUT.pcd / OUT.kitti (folders of one file per frame), OUT.rrd (Rerun), "
+                            "OUT.bag (ROS 1), OUT.rosbag2 (a rosbag2 folder): the suffix chooses the format")
     cliargs.add_metadata(parser)
     parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
                         "Pandar's angle-correction CSV")
     parser.add_argument("--velodyne-model", metavar="NAME",
                         help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
-                        help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
+                        help=f"MCAP and ROS bags: comma-separated groups among {', '.join(TOPIC_GROUPS)} "
+                             "(packets,points)")
+    parser.add_argument("--storage", choices=("sqlite3", "mcap"),
+                        help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
     parser.add_argument("--grid", type=float, metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
@@ -60,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", choices=("points", "frames"),
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
-                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
+                        help="LAS/LAZ/CSV: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
 
@@ -122,10 +126,10 @@ def run(args: argparse.Namespace) -> int:
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
-    if fmt in ("mcap", "npz"):
+    if fmt == "npz" or FORMATS[fmt].packets:
         _format_options(args, fmt)  # rejects the flags of other formats
-    if fmt == "mcap":
-        return _to_mcap(args, out)
+    if FORMATS[fmt].packets:  # MCAP, ROS bags: the capture's packets too
+        return _to_mcap(args, out, fmt)
     if fmt == "npz":
         return _to_npz(args, out)
     # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
@@ -133,9 +137,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- MCAP
-def _to_mcap(args, out: Path) -> int:
-    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
-    input: what a script writes with the library (the writer reads each input's packets itself)."""
+def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
+    """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames
+    of each input: what a script writes with the library (the writer reads each input's packets itself)."""
     from lidarpkt.cli import args as cliargs
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
@@ -149,8 +153,8 @@ def _to_mcap(args, out: Path) -> int:
     progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
                                 desc="decode")
     counts = {"frames": 0, "done_before": 0}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
-                     calibration=args.calibration, **frame_options(args)) as writer:
+    with open_writer(fmt, out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
+                     calibration=args.calibration, **frame_options(args), **_format_options(args, fmt)) as writer:
         for path in args.inputs:
             before = counts["done_before"]
             writer.add_capture(path, progress=lambda b, before=before: progress.update(
@@ -165,8 +169,13 @@ def _to_mcap(args, out: Path) -> int:
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({counts['frames']} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
+
+
+def _size_bytes(path: Path) -> int:
+    """A file's size, or the sum of a folder's files (a rosbag2)."""
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else os.path.getsize(path)
 
 
 # ------------------------------------------------------------------------------ NPZ
@@ -199,10 +208,16 @@ def _to_npz(args, out: Path) -> int:
 # ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
 def _format_options(args, fmt: str) -> dict:
     """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    from lidarpkt.writers import accepted_options
+
     if args.layout is not None and fmt != "parquet":
         raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
-    if args.frames_per_file is not None and fmt not in ("las", "laz"):
-        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
+    if args.frames_per_file is not None and "frames_per_file" not in accepted_options(fmt):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ/CSV outputs (-o OUT.las)")
+    if getattr(args, "storage", None) is not None:
+        if "storage" not in accepted_options(fmt):
+            raise RecorderError(f"--storage {args.storage}: only rosbag2 outputs have storages (-o OUT.rosbag2)")
+        return {"storage": args.storage}
     if fmt == "parquet":
         return {"layout": args.layout or "points"}
     if args.frames_per_file is not None:
@@ -232,6 +247,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     else:
         with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
             for path in args.inputs:
+                writer.capture = Path(path).name  # the input of the frames that follow (CSV's capture column)
                 _write_frames(writer, path, args, progress, counts)
         written = writer.close()
     progress.close()

@@ -74,7 +74,7 @@ class CsvWriter(BaseWriter):
         self._points_schema = self.schema.remove(0)
         self._open: dict[Any, tuple[Any, Any, Path, Any]] = {}  # sensor -> (group key, CSV writer, temporary, file)
 
-    def _writer_for(self, frame):
+    def _writer_for(self, frame) -> Any:
         import pyarrow.csv as pcsv
 
         sensor: Any = None
