@@ -4,7 +4,8 @@
 (a rosbag2 folder; ``--storage sqlite3``, the default, or ``--storage mcap``), or ``export --format
 rosbag1|rosbag2``, or from Python::
 
-    with open_writer("rosbag2", "drive.rosbag2", capture="drive.pcap", storage="mcap") as w:
+    with open_writer("rosbag2", "drive.rosbag2", capture="drive.pcap", storage="mcap",
+                     topics=("packets", "points")) as w:   # what decode writes
         for frame in lidarpkt.open("drive.pcap"):
             w.write(frame)
 
@@ -243,12 +244,14 @@ def write_rosbag2_metadata(folder: Path, storage: str, files: list[str], counts:
 class _BagWriter(McapFrameWriter):
     """The MCAP writer's messages (packets, clouds, images, ``/tf_static``) in a bag; see the module doc.
 
-    Args: as :class:`~lidarpkt.writers.mcap.frames.McapFrameWriter`'s (``out`` is the bag), but
-    ``topics`` defaults to ``packets`` and ``points``: a bag is first what the drivers replay.
+    Args: as :class:`~lidarpkt.writers.mcap.frames.McapFrameWriter`'s (``out`` is the bag; no chunk
+    size), with its defaults: ``topics=("packets", "points")`` and ``capture=<the capture's path>``
+    give what ``decode`` writes (the drivers' packets, replayable), the default ``("points",)`` the
+    clouds of the frames given.
     """
 
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
-                 topics: Iterable[str] = ("packets", "points"), frame_ids: Sequence[str] | str | None = None,
+                 topics: Iterable[str] = ("points",), frame_ids: Sequence[str] | str | None = None,
                  base_frame: str | None = None, mounts: Iterable[Mount | str] | None = None,
                  metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
@@ -281,7 +284,7 @@ class Rosbag2Writer(_BagWriter):
     suffix = ".rosbag2"
 
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
-                 storage: str = "sqlite3", topics: Iterable[str] = ("packets", "points"),
+                 storage: str = "sqlite3", topics: Iterable[str] = ("points",),
                  frame_ids: Sequence[str] | str | None = None, base_frame: str | None = None,
                  mounts: Iterable[Mount | str] | None = None, metadata: Any = None,
                  calibration: str | os.PathLike[str] | None = None, clock_offsets: dict[str, int] | None = None,
