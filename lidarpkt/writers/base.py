@@ -134,6 +134,21 @@ class BaseWriter:
         stem = Path(self.capture).stem if self.capture else "frames"
         return f"{_safe(stem)}_{sensor_tag(frame.sensor)}_{frame.frame_id:06d}{suffix}"
 
+    def one_file_or_groups(self, frames_per_file: int | None) -> int | None:
+        """Set up a format that writes one file (``out``; its folder must exist) or, with ``frames_per_file``
+        N, a folder ``out`` of files of N frames each (:meth:`group_file`; made if missing). Returns N.
+
+        Raises :class:`~lidarpkt.errors.OutputError`: N below 1, a folder that does not exist."""
+        if frames_per_file is not None and int(frames_per_file) < 1:
+            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
+        if frames_per_file is None:
+            self.path = self.single_file()
+            if not self.path.parent.is_dir():
+                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
+            return None
+        self.out_dir()
+        return int(frames_per_file)
+
     def group_file(self, frame: Any, frames_per_file: int, suffix: str) -> tuple[tuple[str, int], Path]:
         """(key, path) of the file holding ``frame`` when each file holds ``frames_per_file`` frames of one
         sensor: ``OUT/CAPTURESTEM_SENSOR_FFFFFF[.PART]SUFFIX``, F the first frame id of its group (grouped by

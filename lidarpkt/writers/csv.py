@@ -30,8 +30,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-from lidarpkt.errors import OutputError
-
 from .base import BaseWriter
 
 
@@ -61,15 +59,7 @@ class CsvWriter(BaseWriter):
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
                  frames_per_file: int | None = None) -> None:
         super().__init__(out, capture=capture, part=part)
-        if frames_per_file is not None and int(frames_per_file) < 1:
-            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
-        self.frames_per_file = None if frames_per_file is None else int(frames_per_file)
-        if self.frames_per_file is None:
-            self.path = self.single_file()
-            if not self.path.parent.is_dir():
-                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
-        else:
-            self.out_dir()
+        self.frames_per_file = self.one_file_or_groups(frames_per_file)
         self.schema = csv_schema()
         self._points_schema = self.schema.remove(0)
         self._open: dict[Any, tuple[Any, Any, Path, Any]] = {}  # sensor -> (group key, CSV writer, temporary, file)

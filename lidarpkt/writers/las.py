@@ -99,15 +99,7 @@ class LasWriter(BaseWriter):
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
                  frames_per_file: int | None = None) -> None:
         super().__init__(out, capture=capture, part=part)
-        if frames_per_file is not None and int(frames_per_file) < 1:
-            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
-        self.frames_per_file = None if frames_per_file is None else int(frames_per_file)
-        if self.frames_per_file is None:
-            self.path = self.single_file()
-            if not self.path.parent.is_dir():
-                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
-        else:
-            self.out_dir()
+        self.frames_per_file = self.one_file_or_groups(frames_per_file)
         self._open: dict[Any, tuple[Any, Path]] = {}  # group key -> (laspy writer, temporary path)
         self._sensors: dict[tuple, int] = {}
 

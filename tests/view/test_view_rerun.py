@@ -14,7 +14,6 @@ skip fails: ``.ci/run`` installs Chromium).
 from __future__ import annotations
 
 import io
-import shutil
 import time
 from pathlib import Path
 
@@ -22,15 +21,14 @@ import numpy as np
 import pytest
 
 import lidarpkt
+from test_view_foxglove_studio import CHROMIUM_ARGS, INSTALL, _chromium  # Debian's Chromium, software WebGL
 from view_client import LidarpktProcess
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk is not installed (pip install '.[rerun]')")
 pytest.importorskip("datafusion", reason="Rerun's dataframe API needs datafusion (pip install '.[test]')")
 
 CANNED = Path(__file__).resolve().parents[2] / "lidarpkt" / "fixtures" / "canned"
-CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]  # WebGL, no GPU
 BUDGET_S = 150  # from the page's start to the cloud drawn (the viewer's WebAssembly in software GL, a loaded machine)
-INSTALL = "apt-get install chromium (Debian's) and pip install playwright (the test extra; no browser download)"
 
 
 def _read_rrd(path: Path):
@@ -70,14 +68,6 @@ def _panel_colour_fraction(png: bytes) -> float:
     cols = np.flatnonzero(black[first:last + 1].mean(axis=0) > 0.3)
     panel = rgb[first:last + 1, cols.min():cols.max() + 1]
     return float((panel.max(axis=2) - panel.min(axis=2) > 80).mean())
-
-
-def _chromium() -> str:
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    pytest.skip(f"Debian's chromium is not installed; {INSTALL}")
 
 
 @pytest.mark.timeout(400)

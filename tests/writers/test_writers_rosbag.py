@@ -23,6 +23,7 @@ import lidarpkt
 from conftest import REPO_ROOT
 from lidarpkt.errors import OutputError
 from lidarpkt.writers import open_writer
+from test_writers_mcap import _decode  # decode as the CLI runs it, in this process
 from writers_cases import CASES, capture, case, load  # noqa: F401 - the parametrised fixture
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")
@@ -33,16 +34,6 @@ ROS1_MD5 = {  # ROS 1's own sums of the standard messages (roslib's, as `rosmsg 
     "sensor_msgs/PointCloud2": "1158d486dd51d683ce2f1be655c3c181", "sensor_msgs/Imu": "6a62c6daae103f4ff57a132d6f95cec2",
     "tf2_msgs/TFMessage": "94810edda583a504dfda3829e70d7eec", "std_msgs/String": "992ce8a1687cec8c8bd883ec73ca41d1",
     "velodyne_msgs/VelodyneScan": "50804fc9533a0e579e6322c04ae70566"}
-
-
-def _decode(*argv) -> int:
-    from lidarpkt.cli import main
-
-    saved = warnings.showwarning
-    try:
-        return main(["decode", *map(str, argv), "-q"])
-    finally:
-        warnings.showwarning = saved
 
 
 def _md_args(md) -> list:
