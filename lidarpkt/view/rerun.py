@@ -59,6 +59,18 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _check_free(port: int, target: str) -> None:
+    """Raise :class:`RerunViewError` if ``port`` is taken: the SDK's gRPC server would fail later, on its
+    own thread, where no caller hears of it."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("0.0.0.0", port))
+        except OSError as exc:
+            raise RerunViewError(f"--rerun {target}: port {port} is in use ({exc.strerror or exc}); give "
+                                 "web:PORT with a free PORT and PORT + 1, or web:0") from None
+
+
 def _rerun():
     try:
         import rerun
@@ -99,6 +111,9 @@ class RerunView:
         except (RuntimeError, OSError, ValueError) as exc:  # the SDK's own errors: a port in use, a bad address
             self.recording.disconnect()
             raise RerunViewError(f"--rerun {target}: cannot serve or connect there ({exc})") from None
+        except BaseException:
+            self.recording.disconnect()
+            raise
         self.frames = RerunFrames(self.recording, color=color)
         self._lock = threading.Lock()
         self._sensors: dict[str, _Counts] = {}  # by source address
@@ -114,6 +129,8 @@ class RerunView:
                 raise RerunViewError(f"--rerun {target}: give web or web:PORT (PORT 0-65534, 0: any free port)")
             web = int(port_text) or _free_port()
             grpc = _free_port() if port_text == "0" else web + 1 if target.startswith("web:") else DEFAULT_GRPC_PORT
+            for port in (web, grpc):
+                _check_free(port, target)
             grpc_url = self.recording.serve_grpc(grpc_port=grpc)
             rr.serve_web_viewer(web_port=web, open_browser=False, connect_to=grpc_url)
             self.url = f"http://localhost:{web}/?url={grpc_url.replace('127.0.0.1', 'localhost')}"
@@ -181,10 +198,13 @@ class RerunView:
         if self._closed:
             return
         self._closed = True
-        self.recording.flush()
-        if grace_s > 0 and self.url is not None:
-            time.sleep(grace_s)
-        self.recording.disconnect()
+        try:
+            self.recording.flush()
+            if grace_s > 0 and self.url is not None:
+                time.sleep(grace_s)
+            self.recording.disconnect()
+        except RuntimeError as exc:  # the SDK's sink failed on its own thread (a server that could not start)
+            raise RerunViewError(f"--rerun {self.target}: sending to Rerun failed ({exc})") from None
         if self._tmp is not None:
             self._files.commit(self._tmp)
 

@@ -151,3 +151,12 @@ def test_bad_rerun_target_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["view", str(CANNED / "vlp16-dual.pcap"), "--rerun", str(tmp_path / "no" / "x.rrd")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+    import socket
+
+    with socket.socket() as taken:  # the gRPC port (web:PORT's PORT + 1) held by another server
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["view", str(CANNED / "vlp16-dual.pcap"), "--rerun", f"web:{port - 1}", "--duration", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is in use" in err[0] and err[0].endswith("give web:PORT with a free PORT and PORT + 1, or web:0"), err
