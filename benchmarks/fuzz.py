@@ -402,7 +402,7 @@ def make_ouster_ros_target():
 
 def make_osf_target():
     import lidarpkt
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.osf")
 
@@ -739,7 +739,8 @@ def seeds(target: str) -> list[bytes]:
     out: list[bytes] = []
     if target == "pcap":
         from lidarpkt.core.packet import Endpoint, Packet
-        from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+        from lidarpkt.writers.framing import frames_for
+        from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 
         for rel in ("ouster-sdk/VLI-16-one-packet.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap",
                     "ouster-sdk/duplicate_id.pcap", "ouster-sdk/empty_pcap.pcap", "ouster-sdk/same_ports_nonlegacy.pcap",

@@ -14,18 +14,19 @@ segment, run in this process (``workers=1``, without Dask), on a local Dask clus
 from __future__ import annotations
 
 import os
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from .catalog import CATALOG_COLUMNS, catalog_rows, rows_to_table
 from .export import FORMATS, ExportReport, export_job
 from .manifest import COLUMNS as MANIFEST_COLUMNS
 from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
+from .engine import JobProgress, ProgressCallback
 from .plan import parse_size
 from .unit import UnitResult, UnitTask, run_unit
 
 __all__ = ["catalog", "export", "to_dask", "multireturn_maps", "run_unit", "UnitTask", "UnitResult",
-           "FORMATS", "DEFAULT_SEGMENT_BYTES", "parse_size", "ExportReport"]
+           "FORMATS", "DEFAULT_SEGMENT_BYTES", "parse_size", "ExportReport", "JobProgress"]
 
 _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "part": "string", "status": "string",
                    "frames": "int64", "points": "int64", "lost_packets": "int64", "skipped_packets": "int64",
@@ -35,7 +36,7 @@ _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "par
 
 def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
             metadata: Sequence[str | os.PathLike[str]] = (), workers: int | None = None,
-            scheduler: str | None = None, client: Any = None):
+            scheduler: str | None = None, client: Any = None, open_options: Mapping[str, Any] | None = None):
     """One row per (capture file, sensor stream) under ``paths``, as a ``pyarrow.Table``.
 
     Columns (:data:`CATALOG_COLUMNS`): ``path``, ``size_bytes``, ``container``, ``stream``,
@@ -50,11 +51,13 @@ def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture).
         workers, scheduler, client: the engine, as for :func:`export` (default: a local cluster of
             the CPU count; ``workers=1`` runs in this process).
+        open_options: as for :func:`export`.
 
     Raises:
         lidarpkt.archive.plan.PlanError: a PATH does not exist or holds no capture.
     """
-    rows = catalog_rows(paths, glob=glob, metadata=metadata, workers=workers, scheduler=scheduler, client=client)
+    rows = catalog_rows(paths, glob=glob, metadata=metadata, workers=workers, scheduler=scheduler, client=client,
+                        open_options=open_options)
     return rows_to_table(rows, CATALOG_COLUMNS)
 
 
@@ -62,7 +65,8 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
            layout: str | None = None, frames_per_file: int | None = None, storage: str | None = None,
            metadata: Sequence[str | os.PathLike[str]] = (), glob: str | None = None,
            segment_bytes: int | str = DEFAULT_SEGMENT_BYTES, workers: int | None = None,
-           scheduler: str | None = None, client: Any = None, progress: bool = False):
+           scheduler: str | None = None, client: Any = None, progress: ProgressCallback | None = None,
+           open_options: Mapping[str, Any] | None = None):
     """Export every capture under ``paths`` to the folder ``out`` in ``format``; returns the manifest.
 
     Args:
@@ -79,7 +83,10 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         workers: processes of a local Dask cluster (default: the CPU count); 1 runs here without Dask.
         scheduler: address of an existing Dask scheduler (``tcp://host:8786``), or ``DASK_SCHEDULER_ADDRESS``.
         client: a ``distributed.Client`` to run on (wins over the two above).
-        progress: draw a progress bar on stderr.
+        progress: called with a :class:`~lidarpkt.archive.engine.JobProgress` as the job advances (after
+            each unit, and at the end of each pass), e.g. to draw a progress bar.
+        open_options: further keyword options of ``lidarpkt.open`` for every capture (``calibration``,
+            ``velodyne_model``, ...).
 
     Returns:
         a ``pyarrow.Table`` of this job's manifest rows (one per input and segment): ``status``
@@ -91,7 +98,7 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
     """
     report = export_job(paths, out, format=format, layout=layout, frames_per_file=frames_per_file, storage=storage,
                         metadata=metadata, glob=glob, segment_bytes=segment_bytes, workers=workers,
-                        scheduler=scheduler, client=client, progress=progress)
+                        scheduler=scheduler, client=client, progress=progress, open_options=open_options)
     return manifest_table(report.rows)
 
 

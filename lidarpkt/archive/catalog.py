@@ -1,6 +1,6 @@
 """``catalog(paths)``: one row per (capture file, sensor stream) of an archive, computed in parallel.
 
-Each capture is described by :func:`lidarpkt.cli.info.describe_capture` (what ``lidarpkt info``
+Each capture is described by :func:`lidarpkt.pipeline.describe.describe_capture` (what ``lidarpkt info``
 prints: streams, their kind, mode, times and packet counts) and decoded once with
 :func:`lidarpkt.open` to count frames and lost packets per sensor. An unreadable capture still
 gets a row, with its error.
@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 from lidarpkt.core.streams import StreamKind
 
-from .engine import EngineOptions, run_rows
+from .engine import EngineOptions, ProgressCallback, run_rows
 from .plan import Capture, is_remote, local_path, plan_captures
 
 # column -> pyarrow type name; the order of the table and of the JSON objects
@@ -36,16 +36,16 @@ def _mode(details: dict[str, Any]) -> str | None:
     return mode if isinstance(mode, str) else "/".join(mode)
 
 
-def _count_frames(path: str, metadata: Sequence[Any]) -> tuple[dict[str, dict[str, Any]], str | None]:
+def _count_frames(path: str, metadata: Sequence[Any], open_options: dict[str, Any]) -> tuple[dict[str, dict[str, Any]], str | None]:
     """Frames, partial frames, lost and skipped packets and model per source, and the decode error."""
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
 
     per: dict[str, dict[str, Any]] = {}
     error = None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LidarpktWarning)  # counted by the reader; the row says them
-            with lidarpkt.open(path, metadata=list(metadata) or None) as reader:
+            with open_frames(path, metadata=list(metadata) or None, **open_options) as reader:
                 for frame in reader:
                     s = per.setdefault(frame.sensor.source or "unknown source", {
                         "frames": 0, "partial_frames": 0, "lost_packets": 0, "skipped_packets": 0,
@@ -76,7 +76,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
 
     Never raises on bad input: an unreadable capture gives one row whose ``error`` says why.
     """
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     base: dict[str, Any] = {c: None for c in CATALOG_COLUMNS}
     base.update(path=capture.url, size_bytes=capture.size_bytes)
@@ -97,7 +97,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
             msg = str(exc) if isinstance(exc, LidarpktError) else f"{capture.url}: cannot read ({exc.strerror or exc})"
             return [{**base, "error": msg}]
         # the loaded metadata: a remote JSON is no local path. An OSF file's frames are counted by describe_capture.
-        per_source, error = _count_frames(path, md) if doc["format"] != "osf" else ({}, None)
+        per_source, error = _count_frames(path, md, dict(capture.open_options)) if doc["format"] != "osf" else ({}, None)
     finally:
         if scratch:
             import shutil
@@ -155,10 +155,11 @@ def catalog_rows(
     workers: int | None = None,
     scheduler: str | None = None,
     client: Any = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
+    open_options: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """The catalog as a list of row dicts (columns :data:`CATALOG_COLUMNS`), in the order of the inputs."""
-    captures = plan_captures(paths, glob=glob, metadata=metadata)
+    captures = plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options)
     return run_rows(catalog_capture, captures, [c.size_bytes for c in captures],
                     EngineOptions(workers=workers, scheduler=scheduler, client=client), label="catalog",
                     progress=progress, lost=_lost_capture)

@@ -13,12 +13,12 @@ import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError
 from lidarpkt.writers import FORMATS as WRITER_FORMATS, accepted_options
 
-from .engine import EngineOptions, Progress, dask_client, run_all
+from .engine import EngineOptions, Progress, ProgressCallback, dask_client, run_all
 from .ordinals import CountTask, SegmentCount, count_segment, start_ordinals
 from .manifest import Manifest, OutdirLock, job_fingerprint, make_row
 from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
@@ -91,12 +91,12 @@ def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int 
 
 def plan_units(paths: Sequence[str | os.PathLike[str]], out: str, fmt: str, options: tuple, *,
                glob: str | None = None, metadata: Sequence[str] = (), segment_bytes: int = DEFAULT_SEGMENT_BYTES,
-               ) -> tuple[list[UnitTask], dict[str, int], list[tuple[UnitTask, str]]]:
+               open_options: Mapping[str, Any] | None = None) -> tuple[list[UnitTask], dict[str, int], list[tuple[UnitTask, str]]]:
     """(tasks, capture mtime by key, tasks that failed while planning with their error)."""
     tasks, mtimes, failed = [], {}, []
-    for cap in plan_captures(paths, glob=glob, metadata=metadata):
+    for cap in plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options):
         base: dict[str, Any] = dict(input=cap.url, capture=cap.name, output=out, format=fmt, options=options,
-                                    metadata=cap.metadata)
+                                    metadata=cap.metadata, open_options=cap.open_options)
         try:
             segments = [None] if fmt in WHOLE_FILE_FORMATS else plan_segments(cap, segment_bytes)
         except LidarpktError as exc:  # cannot be indexed: recorded as this input's failure
@@ -141,7 +141,8 @@ def export_job(
     scheduler: str | None = None,
     client: Any = None,
     retries: int | None = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
+    open_options: Mapping[str, Any] | None = None,
 ) -> ExportReport:
     """Export every capture under ``paths`` to ``out`` (a folder, local or fsspec URL) in ``format``.
 
@@ -163,7 +164,8 @@ def export_job(
         manifest = Manifest(out)
         job = job_fingerprint(format, options)
         tasks, mtimes, failed = plan_units(paths, out, format, options, glob=glob,
-                                           metadata=[os.fspath(m) for m in metadata], segment_bytes=seg_bytes)
+                                           metadata=[os.fspath(m) for m in metadata], segment_bytes=seg_bytes,
+                                           open_options=open_options)
         report = ExportReport()
         todo = _not_done(manifest, tasks, mtimes, job, report)
         for task, error in failed:
@@ -176,7 +178,7 @@ def export_job(
         try:
             with _one_client(engine, todo) as engine:  # one cluster for both passes
                 todo, unknown = _with_ordinals(todo, tasks, engine, progress=progress)
-                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), enabled=progress,
+                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), callback=progress,
                                label=f"export {format}")
                 record = _Recorder(manifest, report, bar, mtimes, job)
                 for task in unknown:
@@ -208,7 +210,7 @@ def _one_client(engine: EngineOptions, todo: list[UnitTask]) -> Iterator[EngineO
 
 
 def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOptions, *,
-                   progress: bool = False) -> tuple[list[UnitTask], list[UnitTask]]:
+                   progress: ProgressCallback | None = None) -> tuple[list[UnitTask], list[UnitTask]]:
     """(tasks to run, tasks that cannot run): each segment after a capture's first gets its whole-file
     ordinals, counted in the segments before it (:mod:`.ordinals`); a segment whose ordinals cannot
     be known (an earlier segment is damaged: the whole-file reader stops there too) is returned
@@ -220,9 +222,9 @@ def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOp
     if not need:
         return todo, []
     counts: dict[tuple[str, int], SegmentCount] = {}
-    jobs = [CountTask(t.key, t.input, t.segment) for t in tasks
+    jobs = [CountTask(t.key, t.input, t.segment, t.open_options) for t in tasks
             if t.segment is not None and t.segment.index <= need.get(t.input, -1)]
-    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), enabled=progress, label="count frames")
+    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), callback=progress, label="count frames")
 
     def got(job: CountTask, count: SegmentCount) -> None:
         counts[(job.input, job.segment.index)] = count
@@ -259,7 +261,7 @@ def _not_done(manifest: Manifest, tasks: list[UnitTask], mtimes: dict[str, int],
 
 
 class _Recorder:
-    """Called in the driver as each unit finishes: its manifest row, the report, the progress bar."""
+    """Called in the driver as each unit finishes: its manifest row, the report, the progress."""
 
     def __init__(self, manifest: Manifest, report: ExportReport, bar: Progress, mtimes: dict[str, int],
                  job: str) -> None:

@@ -28,7 +28,8 @@ def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...]
     from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([p for p in (args.input, getattr(args, "input2", None)) if p])
-    cliargs.check_inputs((args.metadata or []) + (getattr(args, "metadata2", None) or []), "--metadata")
+    cliargs.sensor_options(args)
+    cliargs.check_inputs(getattr(args, "metadata2", None) or (), "--metadata2")
     if output_suffixes:
         cliargs.check_output(args.output, "-o", output_suffixes)
     if hasattr(args, "json"):
@@ -80,17 +81,23 @@ def _write_json(args: argparse.Namespace, doc: dict) -> None:
         _status(args, f"wrote {written}")
 
 
-def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None, workers: int = 1):
+def _load(path: str, args: argparse.Namespace, workers: int = 1, metadata: list[str] | None = None):
+    """The stack of ``path`` with the verb's sensor options (``metadata``: IN2's own, ``--metadata2``),
+    ``--frames`` and ``--grid``."""
     from lidarpkt.analysis.stack import load_stack, parse_frame_range
 
     from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([path])
-    cliargs.check_inputs(metadata or (), "--metadata")
+    options = cliargs.sensor_options(args)
+    if metadata:
+        options["metadata"] = metadata
+    grid = args.grid
     if grid is not None and grid <= 0:
         raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
+    frames = getattr(args, "frames", None)
     rng = parse_frame_range(frames) if frames else None
-    return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid, workers=workers)
+    return load_stack(path, frames=rng, resolution_deg=grid, workers=workers, **options)
 
 
 def _check_pixel(stack, row: int, col: int, slot: int) -> None:
@@ -127,7 +134,7 @@ def _source(path: str, stack) -> str:
 def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p)
+    cliargs.add_sensor_options(p)
     cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
@@ -174,7 +181,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     selection = parse_return(args.slot)
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    stack = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
+    stack = _load(args.input, args, args.workers)
     stack, slot = resolve(stack, selection)
     for r, c in pixels:
         _check_pixel(stack, r, c, slot)
@@ -253,7 +260,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
 def run_multireturn(args: argparse.Namespace) -> int:
     if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers is not None or args.scheduler:
         # an archive: one map per capture, in parallel
-        from lidarpkt.archive.multireturn import run_multireturn_archive
+        from lidarpkt.cli.archive import run_multireturn_archive
 
         return run_multireturn_archive(args)
     args.input = args.input[0]
@@ -274,7 +281,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         from lidarpkt.cli import args as cliargs
 
         cliargs.check_output(args.gmm_map, "--gmm-map", (".npz", ".parquet"))
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args)
     stack = sensor_returns(stack)  # the returns as the sensor defines them
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
@@ -373,7 +380,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         raise AnalysisError(f"--plot {args.plot}: compare-returns writes several figures; give a folder")
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    a = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
+    a = _load(args.input, args, args.workers)
     for r, c in pixels:  # before any heavy work
         _check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
@@ -404,7 +411,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
                                               f"returns, per raypath — {src_a}", "fraction of frames", a, vmax=1.0),
                          "two_returns.png"))
     else:
-        b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid, args.workers)
+        b = _load(args.input2, args, args.workers, metadata=args.metadata2)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
         sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)

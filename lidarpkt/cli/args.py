@@ -9,7 +9,9 @@ Every verb builds its options from these helpers, so a flag means the same thing
                        ``.parquet`` or ``.json``). Where ``-o`` names another output (record's MCAP),
                        ``--report FILE.json`` writes the JSON. ``--json -o F.json`` does both.
 ``--plot DIR``         always a folder for figures (created if missing; its parent must exist).
-``--metadata M.json``  repeatable, one per Ouster sensor.
+``--metadata FILE``    repeatable, one per sensor: any vendor's description file, told apart by content
+                       (``--calibration FILE`` is a second spelling); ``--model NAME`` where packets
+                       cannot tell the model (:func:`add_sensor_options`, :func:`sensor_options`).
 ``-q/--quiet``         no progress bar and no status lines.
 ``--workers N``        parallelism of the verbs that decode.
 ``--pixel ROW,COL``    a raypath; repeatable where several make sense.
@@ -32,14 +34,15 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
-from lidarpkt.errors import InputFileError, OutputError, UsageError
+from lidarpkt.errors import InputFileError, LidarpktError, OutputError, UsageError
 
 __all__ = [
-    "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
+    "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_sensor_options",
+    "sensor_options", "add_quiet", "add_workers", "add_pixel",
     "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
-    "discard_outputs", "error_line", "show_progress", "Progress", "StopSignals",
+    "discard_outputs", "error_line",
 ]
 
 JSON_STDOUT = "-"
@@ -220,13 +223,6 @@ def add_plot(parser: argparse.ArgumentParser, help: str = "write the figures (PN
     parser.add_argument("--plot", metavar="DIR", help=help)
 
 
-def add_metadata(parser: argparse.ArgumentParser, help: str | None = None) -> None:
-    """``--metadata M.json``, repeatable: one per Ouster sensor (VLP-16 needs none)."""
-    parser.add_argument("--metadata", action="append", default=None, metavar="M.json",
-                        help=help or "Ouster metadata JSON of a sensor in the input; repeat for several sensors "
-                                     "(VLP-16 needs none; MCAP files recorded by lidarpkt carry it)")
-
-
 def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and no status lines") -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help=help)
 
@@ -258,6 +254,101 @@ def preparse_pixel(argv: list[str]) -> list[str]:
         out.append(a)
         i += 1
     return out
+
+
+# ------------------------------------------------------------------------------ sensor options
+_SENSOR_FILES = "an Ouster metadata JSON, a Hesai angle-correction CSV or a Velodyne calibration YAML/XML"
+
+
+class _SensorFile(argparse.Action):
+    """``--metadata FILE`` and ``--calibration FILE``: one list of files, each remembered with the flag that
+    named it (the errors name the flag the user wrote)."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        files = list(getattr(namespace, "metadata", None) or [])
+        namespace.metadata = files + [value]
+        flags = dict(getattr(namespace, "_sensor_flags", None) or {})
+        flags.setdefault(value, option_string or "--metadata")
+        namespace._sensor_flags = flags
+
+
+def add_sensor_options(parser: argparse.ArgumentParser, help: str | None = None) -> None:
+    """The sensor options of every verb that opens a capture: ``--metadata FILE`` (repeatable, one per
+    sensor, any vendor's description file; ``--calibration FILE`` is a second spelling) and ``--model
+    NAME``. :func:`sensor_options` turns them into the library's options."""
+    parser.add_argument("--metadata", action=_SensorFile, default=None, metavar="FILE",
+                        help=help or f"a sensor's description file: {_SENSOR_FILES} (told apart by content); "
+                                     "repeat, one per sensor (VLP-16s need none; MCAP files recorded by lidarpkt "
+                                     "carry theirs)")
+    parser.add_argument("--calibration", action=_SensorFile, dest="metadata", metavar="FILE",
+                        help="a second spelling of --metadata (the same files, told apart by content)")
+    parser.add_argument("--model", "--velodyne-model", dest="model", metavar="NAME",
+                        help="the sensor model where its packets cannot tell it (VLP-32A or VLP-32B, Puck LITE, "
+                             "HDL-64E S2); --velodyne-model is its former spelling")
+    parser.set_defaults(_sensor_flags={})
+
+
+def _sensor_file_kind(path: str) -> str | None:
+    """``"ouster"`` (metadata JSON), ``"hesai"`` (angle-correction CSV) or ``"velodyne"`` (calibration
+    YAML/XML), by the file's first bytes; None for any other file."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096).decode("utf-8", errors="replace").lstrip("\ufeff \t\r\n")
+    except OSError:
+        return None
+    first = head.splitlines()[0].lower() if head else ""
+    if head.startswith("{"):
+        return "ouster"
+    if head.startswith("<"):
+        return "velodyne"
+    if "elevation" in first and "azimuth" in first and "," in first:
+        return "hesai"
+    if "lasers:" in head or "num_lasers:" in head:
+        return "velodyne"
+    return None
+
+
+def sensor_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The sensor options of the command line (:func:`add_sensor_options`) as the keyword options of
+    ``lidarpkt.open``: each file checked (it exists, its kind told by content) and the model name known,
+    before any work. Ouster metadata JSONs go to ``metadata``, a Hesai CSV or a Velodyne YAML/XML to
+    ``calibration``, the model to ``velodyne_model``.
+
+    Raises:
+        lidarpkt.errors.InputFileError: a file that does not exist.
+        lidarpkt.errors.UsageError: a file of no known kind, two calibration files, an unknown model.
+    """
+    flags = getattr(args, "_sensor_flags", None) or {}
+    ouster: list[str] = []
+    calibrations: list[str] = []
+    for path in getattr(args, "metadata", None) or ():
+        flag = flags.get(path, "--metadata")
+        if "://" in path:  # a URL (archive jobs): read where the capture is read
+            ouster.append(path)
+            continue
+        check_inputs([path], flag)
+        kind = _sensor_file_kind(path)
+        if kind is None:
+            raise UsageError(f"{flag} {path}: not a sensor description file; give {_SENSOR_FILES}")
+        (ouster if kind == "ouster" else calibrations).append(path)
+    if len(calibrations) > 1:
+        raise UsageError(f"{flags.get(calibrations[1], '--metadata')} {calibrations[1]}: one calibration file (Hesai "
+                         f"CSV or Velodyne YAML/XML) per run, {calibrations[0]} is given already; run once per sensor")
+    options: dict[str, Any] = {}
+    if ouster:
+        options["metadata"] = ouster
+    if calibrations:
+        options["calibration"] = calibrations[0]
+    model = getattr(args, "model", None)
+    if model:
+        from lidarpkt.vendors.velodyne.models import MODELS, model_named
+
+        try:
+            model_named(model)
+        except LidarpktError as exc:
+            raise UsageError(f"--model {model}: no such model; give one of {', '.join(m.name for m in MODELS)}") from exc
+        options["velodyne_model"] = model
+    return options
 
 
 # ------------------------------------------------------------------------------ checks
@@ -364,95 +455,3 @@ def error_line(exc: BaseException) -> str:
     """The one line the CLI prints for an error."""
     text = " ".join(str(exc).split())  # one line whatever the message held
     return f"lidarpkt: error: {text}"
-
-
-# ------------------------------------------------------------------------------ progress
-def show_progress(quiet: bool) -> bool:
-    """Progress bars only on a terminal and without ``-q``."""
-    return not quiet and sys.stderr.isatty()
-
-
-class Progress:
-    """The progress bar of every verb (tqdm on stderr): bytes of the input read when known, else a
-    count, with a status text (``"52 frames"``) beside it. Off with ``-q`` or off a terminal."""
-
-    def __init__(self, quiet: bool, *, total: int | None = None, unit: str = "B", desc: str = "") -> None:
-        from tqdm import tqdm
-
-        enabled = show_progress(quiet)
-        try:  # a terminal that reports no size (a bare pty) would get no bar at all from tqdm
-            size = os.get_terminal_size(sys.stderr.fileno())
-            sized = size.columns > 0 and size.lines > 0
-        except OSError:
-            sized = False
-        self.bar = tqdm(total=total or None, unit=unit, unit_scale=True, unit_divisor=1024 if unit == "B" else 1000,
-                        desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=sized,
-                        ncols=None if sized else 80, nrows=None if sized else 24, leave=False, mininterval=0.1)
-
-    def update(self, done: int | None, status: str = "") -> None:
-        """``done``: how far (bytes or items) from the start, ``None`` if unknown; ``status``: text after the bar."""
-        if self.bar.disable:
-            return
-        if done is not None and done != self.bar.n:
-            self.bar.update(done - self.bar.n)
-        if status:
-            self.bar.set_postfix_str(status, refresh=False)
-
-    def close(self) -> None:
-        self.bar.close()
-
-    def __enter__(self) -> "Progress":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-class StopSignals:
-    """SIGINT and SIGTERM ask a long-running verb (``record``, ``view``) to stop: it finishes cleanly
-    (closes its files with their index, says its summary) instead of dying mid-write.
-
-    ``with StopSignals() as stop:`` (or :meth:`install` … :meth:`restore`) installs the handlers (in the main thread only: elsewhere signals
-    cannot be handled) and puts the previous ones back at the end. ``stop.event`` is set and
-    ``stop.reason`` names the signal on the first one; with ``second_interrupt_raises``, a second
-    Ctrl-C raises :class:`KeyboardInterrupt` (stop now)."""
-
-    def __init__(self, *, second_interrupt_raises: bool = False) -> None:
-        import threading
-
-        self.event = threading.Event()
-        self.reason: str | None = None
-        self.second_interrupt_raises = second_interrupt_raises
-        self._previous: dict = {}
-
-    def __call__(self, signum, _frame) -> None:
-        import signal
-
-        if self.reason is not None and self.second_interrupt_raises and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        self.reason = signal.Signals(signum).name
-        self.event.set()
-
-    def install(self) -> "StopSignals":
-        """Handle SIGINT and SIGTERM from now on (main thread only); returns self."""
-        import signal
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self)
-        return self
-
-    def restore(self) -> None:
-        """Put the previous handlers back. Idempotent."""
-        import signal
-
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous.clear()
-
-    def __enter__(self) -> "StopSignals":
-        return self.install()
-
-    def __exit__(self, *exc) -> None:
-        self.restore()

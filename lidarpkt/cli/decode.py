@@ -29,11 +29,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameIterator
+    from lidarpkt.writers.feed import Feed
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
@@ -47,11 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, OUT.csv, "
                             "OUT.ply / OUT.pcd / OUT.kitti (folders of one file per frame), OUT.rrd (Rerun), "
                             "OUT.bag (ROS 1), OUT.rosbag2 (a rosbag2 folder): the suffix chooses the format")
-    cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
-                        "Pandar's angle-correction CSV")
-    parser.add_argument("--velodyne-model", metavar="NAME",
-                        help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
+    cliargs.add_sensor_options(parser)
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
                         help=f"MCAP and ROS bags: comma-separated groups among {', '.join(TOPIC_GROUPS)} "
                              "(packets,points)")
@@ -88,47 +83,39 @@ def frame_options(args: argparse.Namespace) -> dict:
     return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
-def _bytes_read(reader) -> int | None:
-    stats = getattr(getattr(reader, "reader", None), "stats", None)
-    return getattr(stats, "bytes_read", None)
+def _open_options(args) -> dict[str, Any]:
+    """The ``lidarpkt.open`` options of the flags."""
+    from lidarpkt.cli import args as cliargs
+
+    return {"workers": getattr(args, "workers", 1), **cliargs.sensor_options(args)}
 
 
-def _open_frames(path: str, args) -> FrameIterator:
-    import lidarpkt
+def _feed(args) -> tuple[Feed, Any]:
+    """The pass of every input (:class:`lidarpkt.writers.feed.Feed`) and its progress bar (bytes of the inputs)."""
+    from lidarpkt.cli import console
+    from lidarpkt.writers.feed import Feed
 
-    options: dict[str, Any] = {}
-    if args.calibration:
-        options["calibration"] = args.calibration
-    if getattr(args, "velodyne_model", None):
-        from lidarpkt.vendors.velodyne.models import MODELS, model_named
-
-        try:
-            model_named(args.velodyne_model)
-        except LidarpktError as exc:
-            raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
-                             f"{', '.join(m.name for m in MODELS)}") from exc
-        options["velodyne_model"] = args.velodyne_model
-    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
+    total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
+    progress = console.Progress(args.quiet, total=total, desc="decode")
+    return Feed(progress=lambda done, frames: progress.update(done, f"{frames} frames")), progress
 
 
 def run(args: argparse.Namespace) -> int:
     from lidarpkt.cli import args as cliargs
-    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix
+    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix, takes_packets
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
-    cliargs.check_inputs(args.metadata or (), "--metadata")
-    if args.calibration:
-        cliargs.check_inputs([args.calibration], "--calibration")
+    cliargs.sensor_options(args)  # the sensor files and model checked before any work
     if args.grid is not None and not args.grid > 0:
         raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
                          "e.g. --grid 0.2")
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
-    if fmt == "npz" or FORMATS[fmt].packets:
+    if fmt == "npz" or takes_packets(fmt):
         _format_options(args, fmt)  # rejects the flags of other formats
-    if FORMATS[fmt].packets:  # MCAP, ROS bags: the capture's packets too
+    if takes_packets(fmt):  # MCAP, ROS bags: the capture's packets too
         return _to_mcap(args, out, fmt)
     if fmt == "npz":
         return _to_npz(args, out)
@@ -138,9 +125,8 @@ def run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- MCAP
 def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
-    """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames
-    of each input: what a script writes with the library (the writer reads each input's packets itself)."""
-    from lidarpkt.cli import args as cliargs
+    """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames
+    in one pass (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
 
@@ -148,28 +134,19 @@ def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
-    frames_too = bool(groups & {"points", "images"})
-    sizes = {p: Path(p).stat().st_size if Path(p).is_file() else 0 for p in args.inputs}
-    progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
-    with open_writer(fmt, out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
-                     calibration=args.calibration, **frame_options(args), **_format_options(args, fmt)) as writer:
+    options = _open_options(args)
+    feed, progress = _feed(args)
+    with open_writer(fmt, out, capture=args.inputs[0], topics=groups, calibration=options.get("calibration"),
+                     **frame_options(args), **_format_options(args, fmt)) as writer:
         for path in args.inputs:
-            before = counts["done_before"]
-            writer.add_capture(path, progress=lambda b, before=before: progress.update(
-                before + b, f"{counts['frames']} frames"))
-            if "packets" in groups:
-                counts["done_before"] += sizes[path]
-            if frames_too:
-                _write_frames(writer, path, args, progress, counts)
+            feed.write(path, [writer], **options)
     writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({counts['frames']} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({feed.frames} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 
@@ -182,26 +159,16 @@ def _size_bytes(path: Path) -> int:
 def _to_npz(args, out: Path) -> int:
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    n = 0
-    done_before = 0
+    options = _open_options(args)
+    feed, progress = _feed(args)
     with open_writer("npz", out, grid=args.grid, compress=args.compress) as writer:
         for path in args.inputs:
-            reader = _open_frames(path, args)
-            for frame in reader:
-                writer.write(frame)
-                n += 1
-                b = _bytes_read(reader)
-                progress.update(None if b is None else done_before + b, f"{n} frames")
-            done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+            feed.write(path, [writer], **options)
         progress.close()
-        if not n:
+        if not feed.frames:
             raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
 
 
@@ -232,40 +199,27 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     writer for all inputs."""
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
     options = _format_options(args, fmt)
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
+    open_options = _open_options(args)
+    feed, progress = _feed(args)
     written: list[Path] = []
     if per_input:
         for path in args.inputs:
             with open_writer(fmt, out, capture=path, **options) as writer:
-                _write_frames(writer, path, args, progress, counts)
+                feed.write(path, [writer], **open_options)
             written += writer.close()
     else:
         with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
             for path in args.inputs:
                 writer.capture = Path(path).name  # the input of the frames that follow (CSV's capture column)
-                _write_frames(writer, path, args, progress, counts)
+                feed.write(path, [writer], **open_options)
         written = writer.close()
     progress.close()
-    if not counts["frames"]:
+    if not feed.frames:
         raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames in {len(written)} file(s) under {out}", file=sys.stderr)
     return 0
-
-
-def _write_frames(writer, path: str, args, progress, counts: dict) -> None:
-    reader = _open_frames(path, args)
-    for frame in reader:
-        writer.write(frame)
-        counts["frames"] += 1
-        b = _bytes_read(reader)
-        progress.update(None if b is None else counts["done_before"] + b, f"{counts['frames']} frames")
-    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
 
 
 # ------------------------------------------------------------------------------ Python API
@@ -274,8 +228,8 @@ def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathL
     """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
 
     ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
-    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
-    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    (list of paths of any vendor's sensor description files), ``model``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    ``layout``, ``frames_per_file``, ``storage``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
     ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
     :class:`~lidarpkt.errors.OutputError` for an unknown option.
     """

@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP, ROS bag or OSF")
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p)
+    cliargs.add_sensor_options(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None, help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         from lidarpkt.analysis.gmm_map import load_gmm_map
 
         gmm_map = load_gmm_map(args.map)
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args)
     map_range = None
     if gmm_map is not None:
         map_range = gmm_map.map_range_mm(stack)

@@ -45,8 +45,8 @@ from lidarpkt.errors import CaptureFormatError, UnknownSensorError
 from lidarpkt.core.frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata
 
-__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
-           "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
+__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_workers", "open_parallel", "plan",
+           "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
@@ -67,8 +67,9 @@ class PipelinedFrameReader(FrameIterator):
     of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
 
     ``reader`` is that :class:`~lidarpkt.pipeline.reader.FrameReader` (its packets read ahead as ``workers=1``
-    reads them); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once the iteration
-    has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
+    reads them; in a pass with packets, :func:`lidarpkt.pipeline.passes.open_pass`, its batches come through
+    in order with the frames); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once
+    the iteration has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
     single-threaded reader raises, after the frames before it.
     """
 
@@ -92,7 +93,11 @@ class PipelinedFrameReader(FrameIterator):
 
 
 def _frame_nbytes(frame: Frame) -> int:
-    """Bytes of a frame's arrays (what it counts against :data:`DECODE_AHEAD_BYTES`)."""
+    """Bytes of a frame's arrays (what it counts against :data:`DECODE_AHEAD_BYTES`); of a pass's packet batch
+    (:class:`~lidarpkt.pipeline.reader.Packets`), its payload."""
+    batch = getattr(frame, "batch", None)
+    if batch is not None:
+        return int(batch.payload.nbytes)
     total = sum(v.nbytes for v in vars(frame).values() if isinstance(v, np.ndarray))
     return total + sum(v.nbytes for v in frame.extra.values() if isinstance(v, np.ndarray))
 
@@ -313,17 +318,26 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
     Raises:
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
-    workers = options.workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        from lidarpkt.errors import UsageError
-
-        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    workers = check_workers(options.workers)
     if workers == 1 or options.segment is not None:
         return None
     segments = plan(path, workers) if workers >= 3 else []
     if segments:
         return ParallelFrameReader(path, segments, options, open_segment, stats)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
+
+
+def check_workers(workers: Any) -> int:
+    """``workers`` when it is a whole number >= 1.
+
+    Raises:
+        lidarpkt.errors.UsageError: it is not.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        from lidarpkt.errors import UsageError
+
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    return workers
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:

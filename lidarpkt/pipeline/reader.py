@@ -15,7 +15,7 @@ import os
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple
+from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple, cast
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from lidarpkt.core.decoder import Decoder
 from lidarpkt.core.frame import Frame, FrameIterator
 from .options import OpenOptions, load_ouster_metadata, with_options
 from lidarpkt.core.packet import PacketBatch
-from .router import Router, RouteOptions, source_name as _source_name
+from .router import MAX_SENSORS, Match, Router, RouteOptions, source_name as _source_name
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
@@ -128,25 +128,26 @@ class FrameReader(FrameIterator):
         self.reader: PacketSource = open_packet_source(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
-        self.stats = SourceStats()
-        from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
-
-        hesai_cal = is_hesai_calibration(opts.calibration)
-        metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
-        self._decoder_options: dict[str, dict[str, Any]] = {
-            "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                         "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
-            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
-            "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
-        self._source_filter = opts.source
+        metadata, self._decoder_options = decoder_options(opts)
         self._include_partial = opts.include_partial
-        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
-        too_many = weakref.WeakMethod(self._too_many_sensors)
-        self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
-                             max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
+        self.driver = Driver(str(self.path), RouteOptions(metadata, self._decoder_options),
+                             max_sensors=opts.max_sensors, source=opts.source, ownership=self._ownership)
+        self.stats = self.driver.stats
+        self.router = self.driver.router
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
+        self._iter: Generator[Frame, None, None] = cast("Generator[Frame, None, None]",
+                                                        FrameReader._frames(weakref.proxy(self)))  # frames only
+
+    def items(self, decode: bool = True) -> Generator[Frame | Packets, None, None]:
+        """The pass as it goes, instead of iterating the reader: each batch read, as :class:`Packets` (with
+        what the router made of it), then the frames that batch completed; the last frames at the end.
+        ``decode=False``: the batches alone, classified but not decoded (no frames, no error for a capture
+        without a sensor). Call it before the first ``next()``; ``close()`` stops it as it stops the frames."""
+        self._iter.close()  # not started: nothing is lost
+        items = FrameReader._frames(weakref.proxy(self), packets=True, decode=decode)
+        self._iter = cast("Generator[Frame, None, None]", items)  # close() ends whichever generator runs
+        return items
 
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
@@ -178,7 +179,7 @@ class FrameReader(FrameIterator):
     def _ouster_metadata(self) -> list:
         return list(self.router.options.ouster_metadata)
 
-    def _frames(self) -> Generator[Frame, None, None]:
+    def _frames(self, packets: bool = False, decode: bool = True) -> Generator[Frame | Packets, None, None]:
         embedded = self.reader.ouster_metadata
         batches = self._batches()
         ownership = self._ownership
@@ -187,25 +188,23 @@ class FrameReader(FrameIterator):
                 if not self.router.options.ouster_metadata:
                     # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
                     self.router.options = RouteOptions(load_ouster_metadata(embedded()), self._decoder_options)
-                self.stats.batches += 1
-                self.stats.packets += len(batch)
-                src = batch.src.address if batch.src is not None else None
-                if self._source_filter is not None and src != self._source_filter:
-                    if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
-                        self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
-                    continue
                 split = getattr(self.reader, "split_ordinal", None)
                 post_end = split is not None and int(batch.index[0]) >= split
-                yield from FrameReader._emit(self, self._route(batch, post_end))  # self: the weak proxy
+                match, frames = self.driver.route(batch, post_end) if decode else (self.driver.classify(batch), [])
+                if packets:
+                    yield Packets(batch, match)  # items(): the batch before its frames
+                yield from FrameReader._emit(self, frames)  # self: the weak proxy
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
             getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+        if not decode:
+            return
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
-            raise UnknownSensorError(self._no_sensor_message())
+            raise UnknownSensorError(self.driver.no_sensor_message())
         from lidarpkt.core.dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
 
         if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets or self.stats.hesai_data_packets):
@@ -217,19 +216,76 @@ class FrameReader(FrameIterator):
         if summary:
             warn(DroppedPacketsWarning(summary), stacklevel=3)
 
-    def _route(self, batch: PacketBatch, post_end: bool = False) -> list[Frame]:
-        """Route a batch through the one router (:mod:`lidarpkt.pipeline.router`): its sensor's decoder; reading a
-        segment, nothing for a sensor whose frames of the segment are complete."""
+    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
+        for frame in frames:
+            if frame.partial and not self._include_partial:
+                continue
+            self.stats.frames += 1
+            yield frame
+
+
+class Packets(NamedTuple):
+    """A batch of a pass (:meth:`FrameReader.items`) and what the router made of it: ``stream`` is the
+    vendor's :class:`~lidarpkt.pipeline.router.Match` (``.vendor``, ``.kind``, ``.lidar``), ``None`` when no
+    vendor recognised the batch or ``source=`` left its source out."""
+
+    batch: PacketBatch
+    stream: Match | None
+
+
+class Driver:
+    """The one driver from packet batches to decoders, for capture files (:class:`FrameReader`) and live
+    sources (:class:`lidarpkt.pipeline.live.LiveDecoder`): each batch is routed by the router
+    (:mod:`lidarpkt.pipeline.router`) to its sensor's decoder and counted in :attr:`stats`
+    (:class:`SourceStats`); streams no vendor recognises, and sensors beyond ``max_sensors`` (said once, a
+    :class:`~lidarpkt.errors.SkippedPacketWarning`), are counted as unrouted; ``source`` keeps one source.
+
+    Args:
+        name: what warnings and errors name (the capture's path, the live address).
+        options: the router's :class:`~lidarpkt.pipeline.router.RouteOptions`.
+        max_sensors: most sensors given a decoder.
+        source: decode only the packets of this source IP address (``None``: all).
+        ownership: reading a segment, its :class:`~lidarpkt.containers.segments.SegmentOwnership`.
+        unused_auxiliary: vendors whose auxiliary batches are counted, not handed to their decoders.
+    """
+
+    def __init__(self, name: str, options: RouteOptions, *, max_sensors: int = MAX_SENSORS, source: str | None = None,
+                 ownership: Any = None, unused_auxiliary: frozenset[str] = frozenset()) -> None:
+        self.name = name
+        self.stats = SourceStats()
+        self._source_filter = source
+        self._ownership = ownership
+        self.unused_auxiliary = unused_auxiliary
+        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
+        too_many = weakref.WeakMethod(self._too_many_sensors)
+        self.router = Router(options, max_sensors=max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
+
+    @property
+    def decoders(self) -> dict[tuple, Decoder]:
+        """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
+        return self.router.decoders
+
+    def route(self, batch: PacketBatch, post_end: bool = False) -> tuple[Match | None, list[Frame]]:
+        """Count a batch and route it through the one router (:mod:`lidarpkt.pipeline.router`) to its sensor's
+        decoder: (what the router made of it, the frames it completed). Reading a segment, nothing for a sensor
+        whose frames of the segment are complete."""
+        self.stats.batches += 1
+        self.stats.packets += len(batch)
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
+                self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
+            return None, []
         router = self.router
         match = router.classify(batch)
         if match is None:
-            return self._unrouted(batch)
+            return None, self._unrouted(batch)
         key = router.key(batch, match)
         if self._ownership is not None and self._ownership.state(key, post_end).closed:
-            return []
+            return match, []
         route = router.route_match(batch, match)
         if route.decoder is None:
-            return self._unrouted(batch)
+            return match, self._unrouted(batch)
         name = f"{match.vendor}_{match.kind}_packets"
         if hasattr(self.stats, name):
             setattr(self.stats, name, getattr(self.stats, name) + len(batch))
@@ -237,9 +293,25 @@ class FrameReader(FrameIterator):
             other = self.stats.other_sensor_packets
             other[f"{match.vendor} {match.kind}"] = other.get(f"{match.vendor} {match.kind}", 0) + len(batch)
         if match.lidar:
-            return self._push(route.key, route.decoder, batch, post_end)
-        route.decoder.push_auxiliary(batch)
-        return []
+            return match, self._push(route.key, route.decoder, batch, post_end)
+        if match.vendor not in self.unused_auxiliary:
+            route.decoder.push_auxiliary(batch)
+        return match, []
+
+    def classify(self, batch: PacketBatch) -> Match | None:
+        """What the router makes of a batch (``None`` too when ``source`` leaves it out), without counting
+        or decoding it."""
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            return None
+        return self.router.classify(batch)
+
+    def finish(self) -> list[Frame]:
+        """The frames still being assembled in every decoder (the last, partial ones)."""
+        out: list[Frame] = []
+        for decoder in self.decoders.values():
+            out += decoder.finish()
+        return out
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
@@ -268,29 +340,24 @@ class FrameReader(FrameIterator):
         OS-128), so a capture with thousands of source addresses (400 one-packet Ouster sources took
         660 MB) must not get one each. Said once."""
         warn(SkippedPacketWarning(
-            f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
+            f"{self.name}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
             "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
             "source=..., or raise max_sensors=...)"), stacklevel=7)
 
-    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
-        for frame in frames:
-            if frame.partial and not self._include_partial:
-                continue
-            self.stats.frames += 1
-            yield frame
-
-    def _no_sensor_message(self) -> str:
+    def no_sensor_message(self) -> str:
+        """Why no sensor was decoded: the sources ``source`` left out, or the streams seen (and a hint)."""
         if not self.stats.unrouted_streams and self.stats.filtered_sources:
             seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
-            return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
+            return f"{self.name}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
         from lidarpkt.core.dropped import no_sensor_hint
 
-        wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
+        metadata = list(self.router.options.ouster_metadata)
+        wrong = no_sensor_hint(self.name, self.stats.unrouted_streams, metadata)
         if wrong:
             return wrong
-        hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
-        return f"{self.path}: no VLP-16 or Ouster stream (nor a Hesai Pandar one) found among {streams}.{hint}"
+        hint = "" if metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
+        return f"{self.name}: no VLP-16 or Ouster stream (nor a Hesai Pandar one) found among {streams}.{hint}"
 
 
 @with_options
@@ -351,6 +418,24 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     except OSError:
         return False
     return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
+
+
+def decoder_options(opts: OpenOptions) -> tuple[list, dict[str, dict[str, Any]]]:
+    """(the loaded Ouster metadata, each vendor's decoder options) of the options of ``lidarpkt.open``:
+    what its router is given, for files and live packets alike.
+
+    Raises:
+        lidarpkt.errors.MetadataError: a ``metadata`` file that is no Ouster metadata.
+    """
+    from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
+
+    hesai_cal = is_hesai_calibration(opts.calibration)
+    metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
+    return load_ouster_metadata(metadata), {
+        "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
+                     "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
+        "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
+        "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
 
 
 def _split_hesai(metadata: Any) -> tuple[Any, Any]:

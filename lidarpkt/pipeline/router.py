@@ -1,5 +1,5 @@
 """From packet batches to one decoder per sensor: the one router of files (``lidarpkt.open``) and live
-sources (``record --points``, ``view``).
+sources (``record --points``, ``view``), driven by :class:`lidarpkt.pipeline.reader.Driver`.
 
 Each batch is recognised by the vendors' registry (:data:`VENDORS`): an entry per vendor, in order,
 whose classifier looks at the batch (its payload, size and ports, and the Ouster metadata given) and
@@ -23,7 +23,6 @@ from lidarpkt.core.packet import PacketBatch
 
 if TYPE_CHECKING:  # the router is imported by `info` too, which must not load the frame assembly
     from lidarpkt.core.decoder import Decoder
-    from lidarpkt.core.frame import Frame
 
 MAX_SENSORS = 64  # the default limit of sensors decoded from one source, files and live alike
 
@@ -134,7 +133,6 @@ class Router:
         max_sensors: most sensors given a decoder.
         on_limit: called once, when the first sensor beyond ``max_sensors`` is seen.
         vendors: the registry (default :data:`VENDORS`).
-        unused_auxiliary: vendors whose auxiliary batches :meth:`push` counts without decoding them.
 
     Attributes:
         decoders: sensor key → its decoder, in order of first packet.
@@ -142,13 +140,11 @@ class Router:
     """
 
     def __init__(self, options: RouteOptions, *, max_sensors: int = MAX_SENSORS,
-                 on_limit: Callable[[], None] | None = None, vendors: Sequence[Vendor] = VENDORS,
-                 unused_auxiliary: frozenset[str] = frozenset()) -> None:
+                 on_limit: Callable[[], None] | None = None, vendors: Sequence[Vendor] = VENDORS) -> None:
         self.options = options
         self.max_sensors = int(max_sensors)
         self.on_limit = on_limit
         self.vendors = tuple(vendors)
-        self.unused_auxiliary = frozenset(unused_auxiliary)
         self.decoders: dict[tuple, Decoder] = {}
         self.packets: dict[tuple[str, str], int] = {}
         self._named: set[tuple] = set()
@@ -205,23 +201,3 @@ class Router:
             metadata = getattr(decoder, "metadata", None)
             if metadata is not None:  # Ouster: the SensorInfo carries the name
                 decoder.sensor = metadata.sensor_info(name)  # type: ignore[attr-defined]
-
-    def push(self, batch: PacketBatch) -> list[Frame] | None:
-        """Route and decode one batch: the frames it completed, or ``None`` when it is unrouted (no vendor
-        recognises it, or its sensor is beyond the limit). Auxiliary batches of the vendors in
-        ``unused_auxiliary`` are counted, not handed to their decoders."""
-        route = self.route(batch)
-        if route is None or route.decoder is None:
-            return None
-        if route.match.lidar:
-            return route.decoder.push(batch)
-        if route.match.vendor not in self.unused_auxiliary:
-            route.decoder.push_auxiliary(batch)
-        return []
-
-    def finish(self) -> list[Frame]:
-        """The frames still being assembled in every decoder (the last, partial ones)."""
-        out: list[Frame] = []
-        for decoder in self.decoders.values():
-            out += decoder.finish()
-        return out

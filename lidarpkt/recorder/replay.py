@@ -1,22 +1,19 @@
-"""``lidarpkt replay``: send a capture's payloads over UDP at the original pace (a sensor simulator).
+"""Replaying a capture: its payloads sent over UDP at the original pace (a sensor simulator).
 
-The lidar data stream (VLP-16 data packets, Ouster lidar packets) goes to ``--to HOST:PORT``;
+The lidar data stream (VLP-16 data packets, Ouster lidar packets) goes to ``host:port``;
 the other streams (VLP-16 position, Ouster IMU, anything else) go to their original
-destination port on HOST, or where ``--port-map SRC:DST`` sends them. Containers that keep
+destination port on HOST, or where ``port_map`` sends them. Containers that keep
 no ports (ROS bags, MCAP) send position packets to 8308 and IMU packets to 7503.
 
-Pacing follows the capture's own receive times divided by ``--rate``; ``--max`` sends as
+Pacing follows the capture's own receive times divided by ``rate``; ``rate=None`` sends as
 fast as the socket takes them. The sender sleeps only when it is more than a millisecond
 ahead, so at high rates packets leave in short bursts that keep the average pace exact.
 """
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
 import socket
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
@@ -31,33 +28,6 @@ from lidarpkt.core import streams
 DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from lidarpkt.cli import args as cliargs
-
-    parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
-    parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
-    pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, default=1.0, metavar="F", help="speed factor (1 = real time)")
-    pace.add_argument("--max", action="store_true", help="send as fast as possible")
-    parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
-    parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
-                        help="send packets captured to port SRC to port DST instead (repeatable)")
-    cliargs.add_metadata(parser, "Ouster metadata JSON, to recognise the lidar packets exactly (without it they are "
-                                 "recognised as `lidarpkt info` does; MCAP files carry their own); repeat, one per "
-                                 "sensor")
-    parser.add_argument("--http", metavar="HOST:PORT",
-                        help="also serve the (first) --metadata at GET /api/v1/sensor/metadata there, as the "
-                             "sensor does (for record/view --sensor)")
-    parser.add_argument("--ptc", metavar="HOST:PORT",
-                        help="also answer Hesai PTC commands there (a Pandar's TCP port 9347), serving --calibration "
-                             "for 'get calibration' (0x05), as the sensor does")
-    parser.add_argument("--calibration", metavar="FILE", help="the Hesai angle-correction CSV --ptc serves")
-    parser.add_argument("--start-after-fetch", type=float, metavar="S",
-                        help="with --http or --ptc: send nothing until the metadata (calibration) has been fetched, "
-                             "then start S seconds later (the client opens its sockets after fetching)")
-    cliargs.add_quiet(parser, "no summary")
-
-
 @dataclass
 class ReplayStats:
     """What a replay sent: packets, bytes, per destination port, and how long it took."""
@@ -68,29 +38,6 @@ class ReplayStats:
     per_port: dict[int, int] = field(default_factory=dict)  # destination port -> packets
     unknown: int = 0  # packets of no known stream (sent to their original or mapped port)
     interrupted: bool = False  # stopped by Ctrl-C or SIGTERM before the end
-
-
-def parse_host_port(text: str) -> tuple[str, int]:
-    """``"HOST:PORT"`` (``[v6]:PORT`` too) → (host, port). Raises :class:`RecorderError`."""
-    host, sep, port = text.rpartition(":")
-    if not sep or not port.isdigit() or not host:
-        raise RecorderError(f"--to {text}: expected HOST:PORT; write e.g. --to 127.0.0.1:2368")
-    if not 1 <= int(port) <= 65535:
-        raise RecorderError(f"--to {text}: port {port} is out of range; a UDP port is in 1-65535")
-    return host.strip("[]"), int(port)
-
-
-def parse_port_map(items: Iterable[str]) -> dict[int, int]:
-    """``["8308:9308", …]`` → {8308: 9308}. Raises :class:`RecorderError`."""
-    out = {}
-    for item in items:
-        a, sep, b = item.partition(":")
-        if not sep or not a.isdigit() or not b.isdigit():
-            raise RecorderError(f"--port-map {item}: expected SRC:DST port numbers; write e.g. --port-map 8308:9308")
-        from lidarpkt.cli.args import port as port_number
-
-        out[port_number(a, "--port-map")] = port_number(b, "--port-map")
-    return out
 
 
 def read_capture(path: str) -> Iterator[Packet]:
@@ -209,98 +156,20 @@ def _ouster_lidar_by_header(p: Packet) -> bool:
     return bool(found) and found.get("kind") == "Ouster lidar"
 
 
-def _sigterm_as_interrupt(signum, _frame) -> None:
-    raise KeyboardInterrupt
+def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0, loop: bool = False,
+                   port_map: dict[int, int] | None = None, ouster_metadata=None) -> ReplayStats:
+    """Send the packets of the capture ``path`` to ``host`` (:func:`replay`), once or, with ``loop``, again
+    and again until interrupted (Ctrl-C, or SIGTERM raised as ``KeyboardInterrupt``); returns the
+    totals of every round.
 
-
-def run(args: argparse.Namespace) -> int:
-    from lidarpkt.cli import args as cliargs
-
-    host, port = parse_host_port(args.to)
-    port_map = parse_port_map(args.port_map)
-    cliargs.check_inputs([args.file])
-    cliargs.check_inputs(args.metadata or (), "--metadata")
-    if args.metadata:
-        from lidarpkt.vendors.ouster.metadata import load_metadata
-
-        mds = [load_metadata(path) for path in args.metadata]
-    else:
-        mds = [md] if (md := embedded_metadata(args.file)) is not None else []
-    if not args.max and not args.rate > 0:
-        raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
-    http = None
-    if args.http:
-        if not mds:
-            raise RecorderError(f"--http {args.http}: there is no Ouster metadata to serve; give --metadata M.json")
-        from lidarpkt.vendors.ouster.sensor_http import MetadataHttpServer, parse_sensor
-
-        http_host, http_port = parse_sensor(args.http, "--http")
-        http = MetadataHttpServer(json.dumps(mds[0].raw), http_host, http_port)
-        # printed even with --quiet: scripts wait for it before starting the client
-        print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
-              "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
-    ptc = _ptc_server(args)
-    if args.start_after_fetch is not None and http is None and ptc is None:
-        raise RecorderError("--start-after-fetch: it needs --http HOST:PORT or --ptc HOST:PORT; give both or neither")
-    import signal
-    import threading
-
-    previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
-    try:
-        if args.start_after_fetch is not None:
-            try:
-                (http.fetched if http is not None else ptc.served).wait()
-            except KeyboardInterrupt:
-                return 0
-            time.sleep(args.start_after_fetch)
-        return _replay_rounds(args, host, port, port_map, mds)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-        if http is not None:
-            http.close()
-        if ptc is not None:
-            ptc.close()
-
-
-def _ptc_server(args):
-    """The PTC server of ``--ptc`` serving ``--calibration`` (a Hesai CSV, checked first), or None."""
-    if args.calibration and not args.ptc:
-        raise RecorderError(f"--calibration {args.calibration}: replay serves it over --ptc HOST:PORT; give both")
-    if not args.ptc:
-        return None
-    if not args.calibration:
-        raise RecorderError(f"--ptc {args.ptc}: there is no calibration to serve; give --calibration PandarXT32.csv")
-    from lidarpkt.cli import args as cliargs
-    from lidarpkt.vendors.hesai.calibration import load_calibration
-    from lidarpkt.vendors.hesai.ptc import GET_LIDAR_CALIBRATION, PTC_PORT, PtcServer
-
-    cliargs.check_inputs([args.calibration], "--calibration")
-    load_calibration(args.calibration)  # a CalibrationError now, not in the client
-    host, sep, port_text = args.ptc.rpartition(":")
-    if not sep:
-        host, port_text = args.ptc, str(PTC_PORT)
-    if not host or not port_text.isdigit() or int(port_text) > 65535:
-        raise RecorderError(f"--ptc {args.ptc!r}: expected HOST or HOST:PORT, e.g. 127.0.0.1:9347 (0: any free port)")
-    host, port = host.strip("[]"), int(port_text)
-    try:
-        server = PtcServer({GET_LIDAR_CALIBRATION: open(args.calibration, "rb").read()}, host, port)
-    except OSError as exc:
-        raise RecorderError(f"--ptc {args.ptc}: cannot listen there ({exc.strerror or exc}); choose another port") from None
-    # printed even with --quiet: scripts wait for it before starting the client
-    print(f"lidarpkt replay: serving the Hesai calibration over PTC at {host}:{server.port}", file=sys.stderr, flush=True)
-    return server
-
-
-def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: list) -> int:
-    rate = None if args.max else args.rate
-    rounds = itertools.count() if args.loop else range(1)
+    Raises:
+        lidarpkt.errors.LidarpktError: the capture holds no UDP packet; what :func:`replay` raises.
+    """
+    rounds = itertools.count() if loop else range(1)
     total = ReplayStats(per_port={})
     try:
         for _ in rounds:
-            s = replay(read_capture(args.file), host, port, rate=rate, port_map=port_map, ouster_metadata=mds)
+            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, ouster_metadata=ouster_metadata)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
@@ -311,15 +180,7 @@ def _replay_rounds(args, host: str, port: int, port_map: dict[int, int], mds: li
                 total.interrupted = True
                 break
             if s.packets == 0:
-                raise LidarpktError(f"{args.file}: holds no UDP packets to replay; check it with lidarpkt info")
+                raise LidarpktError(f"{path}: holds no UDP packets to replay; check it with lidarpkt info")
     except KeyboardInterrupt:  # between two rounds (opening the capture again): interrupted all the same
         total.interrupted = True
-    if not args.quiet:
-        ports = ", ".join(f"{v} to port {k}" for k, v in sorted(total.per_port.items()))
-        print(f"lidarpkt replay: {'interrupted; ' if total.interrupted else ''}sent {total.packets} packets ({total.bytes / 1e6:.1f} MB) to {host} in "
-              f"{total.seconds:.2f} s: {ports}", file=sys.stderr)
-        if total.unknown:
-            print(f"lidarpkt replay: note: {total.unknown} packets of no known stream went to their original "
-                  "(or mapped) ports; if one is an Ouster lidar stream, give its --metadata to send it to --to",
-                  file=sys.stderr)
-    return 0
+    return total

@@ -23,6 +23,13 @@ format      output              content                                         
 ``rosbag2`` folder (rosbag2)    rosbag2 (``storage="sqlite3"`` or ``"mcap"``), the same       ``rosbag``
 ==========  ==================  ==========================================================  =========
 
+Writers never open their inputs: :func:`write_captures` (:mod:`lidarpkt.writers.feed`) reads each
+capture once and hands every writer its frames, and its raw packets with their capture times to a
+writer that takes them (the MCAP and ROS bag writers' ``packets`` topic; see :mod:`lidarpkt.writers.base`):
+
+>>> with open_writer("mcap", "out.mcap", topics=("packets", "points")) as w:    # doctest: +SKIP
+...     write_captures(["drive1.pcap"], [w], workers=2)
+
 Writing packets (not frames) to pcap/pcapng is :mod:`lidarpkt.writers.pcap`. To add a format:
 a module with a :class:`~lidarpkt.writers.base.BaseWriter` subclass and a row in :data:`FORMATS`.
 The format libraries (pyarrow, laspy, plyfile, pypcd4: the ``export`` extra; rerun-sdk: the
@@ -40,7 +47,7 @@ from typing import Any
 
 from lidarpkt.errors import OutputError
 
-from .base import AtomicFiles, BaseWriter, FrameWriter
+from .base import AtomicFiles, BaseWriter, FrameWriter, PacketWriter
 
 
 @dataclass(frozen=True)
@@ -54,11 +61,10 @@ class Format:
     requires: tuple[str, ...] = ()  # import names of the libraries it needs
     extra: str = "export"  # the lidarpkt extra that installs them
     whole_capture: bool = False  # one recording of the whole capture: the archives never cut it into segments
-    packets: bool = False  # also the capture's raw packets: takes ``capture=`` (its path) and ``metadata=``
 
 
 FORMATS: dict[str, Format] = {f.name: f for f in (
-    Format("mcap", (".mcap",), "mcap.frames:McapFrameWriter", False, whole_capture=True, packets=True),
+    Format("mcap", (".mcap",), "mcap.frames:McapFrameWriter", False, whole_capture=True),
     Format("npz", (".npz",), "npz:NpzWriter", False),
     Format("parquet", (".parquet",), "parquet:ParquetWriter", True, ("pyarrow",)),
     Format("las", (".las",), "las:LasWriter", False, ("laspy",)),
@@ -68,8 +74,8 @@ FORMATS: dict[str, Format] = {f.name: f for f in (
     Format("csv", (".csv",), "csv:CsvWriter", False, ("pyarrow",)),
     Format("kitti", (".kitti",), "kitti:KittiWriter", True, whole_capture=True),
     Format("rrd", (".rrd",), "rerun:RrdWriter", False, ("rerun",), "rerun", whole_capture=True),
-    Format("rosbag1", (".bag",), "rosbag:Rosbag1Writer", False, whole_capture=True, packets=True),
-    Format("rosbag2", (".rosbag2",), "rosbag:Rosbag2Writer", False, whole_capture=True, packets=True),
+    Format("rosbag1", (".bag",), "rosbag:Rosbag1Writer", False, whole_capture=True),
+    Format("rosbag2", (".rosbag2",), "rosbag:Rosbag2Writer", False, whole_capture=True),
 )}
 
 
@@ -137,5 +143,19 @@ def accepted_options(fmt: str) -> set[str]:
     return set(inspect.signature(_writer_class(FORMATS[fmt])).parameters) - {"out", "capture", "part"}
 
 
-__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "SUFFIXES", "format_from_suffix",
-           "accepted_options", "open_writer"]
+def takes_packets(fmt: str) -> bool:
+    """Whether format ``fmt``'s writer takes the capture's packets (``wants_packets``: MCAP, ROS bags), as
+    ``decode`` writes them: with the ``packets`` topic. Raises KeyError for an unknown format."""
+    return bool(getattr(_writer_class(FORMATS[fmt]), "wants_packets", False))
+
+
+__all__ = ["AtomicFiles", "BaseWriter", "FORMATS", "Format", "FrameWriter", "PacketWriter", "SUFFIXES",
+           "accepted_options", "format_from_suffix", "open_writer", "takes_packets", "write_captures", "Feed"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("write_captures", "Feed"):  # the pass loads the pipeline: only when asked
+        from . import feed
+
+        return getattr(feed, name)
+    raise AttributeError(name)

@@ -4,10 +4,8 @@
 (a rosbag2 folder; ``--storage sqlite3``, the default, or ``--storage mcap``), or ``export --format
 rosbag1|rosbag2``, or from Python::
 
-    with open_writer("rosbag2", "drive.rosbag2", capture="drive.pcap", storage="mcap",
-                     topics=("packets", "points")) as w:   # what decode writes
-        for frame in lidarpkt.open("drive.pcap"):
-            w.write(frame)
+    with open_writer("rosbag2", "drive.rosbag2", storage="mcap", topics=("packets", "points")) as w:
+        write_captures(["drive.pcap"], [w])     # one pass: the packets and the frames (what decode writes)
 
 A bag holds what lidarpkt's MCAP output holds (:mod:`lidarpkt.writers.mcap.frames`; the topics,
 message types and QoS are listed in :mod:`lidarpkt.writers.mcap.schemas`): the capture's raw packets
@@ -245,9 +243,9 @@ class _BagWriter(McapFrameWriter):
     """The MCAP writer's messages (packets, clouds, images, ``/tf_static``) in a bag; see the module doc.
 
     Args: as :class:`~lidarpkt.writers.mcap.frames.McapFrameWriter`'s (``out`` is the bag; no chunk
-    size), with its defaults: ``topics=("packets", "points")`` and ``capture=<the capture's path>``
-    give what ``decode`` writes (the drivers' packets, replayable), the default ``("points",)`` the
-    clouds of the frames given.
+    size), with its defaults: ``topics=("packets", "points")`` fed by a pass
+    (:func:`lidarpkt.writers.write_captures`) gives what ``decode`` writes (the drivers' packets,
+    replayable); the default ``("points",)`` the clouds of the frames given.
     """
 
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from lidarpkt.cli.info import describe_capture, format_capture
+from lidarpkt.pipeline.describe import describe_capture, format_capture
 from lidarpkt.core.packet import Endpoint, Packet
-from lidarpkt.writers.pcap import frames_for, write_pcap_records
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import write_pcap_records
 from conftest import external
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lidarpkt.cli.info import describe_capture
+from lidarpkt.pipeline.describe import describe_capture
 from lidarpkt.vendors.ouster import load_metadata
 from lidarpkt.core.streams import StreamKind
 from conftest import external

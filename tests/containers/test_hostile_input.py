@@ -27,7 +27,8 @@ from conftest import external
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning, NMEAError, TruncatedCaptureWarning
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 from lidarpkt.containers.pcap_reader import PcapReader
-from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 from reference_tools import velodyne_scan_mcap
 
 FIXTURE_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -209,7 +210,7 @@ def test_orphan_fragment_flood_keeps_the_pending_state_capped(tmp_path):
     """30 000 orphan first fragments (distinct IP IDs from 4 senders) with a good packet after every
     1000th: every good packet comes out, and the reader's pending reassembly state never exceeds its
     bounds while reading (benchmarks/bench_orphans.py measures millions, with peak RSS)."""
-    from lidarpkt.writers.pcap import ip_packets, link_frame, udp_datagram
+    from lidarpkt.writers.framing import ip_packets, link_frame, udp_datagram
 
     good = []
     records = []

@@ -12,7 +12,8 @@ import lidarpkt
 from lidarpkt.errors import LidarpktError, UnsupportedContainerError, UnsupportedFilterError
 from lidarpkt.core.packet import Packet
 from lidarpkt.containers.pcap_reader import PcapReader, read_packets
-from lidarpkt.writers.pcap import frames_for, write_pcap, write_pcap_records, write_pcapng
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import write_pcap, write_pcap_records, write_pcapng
 from lidarpkt.containers import PacketSource, container_kind, open_packet_source
 from lidarpkt.containers.bags import BagReader
 from lidarpkt.containers.magic import PCAP_MAGIC_BYTES, format_from_magic

@@ -15,7 +15,7 @@ from lidarpkt.errors import UsageError
 from lidarpkt.containers import open_packet_source
 from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.containers.udp import UdpSource, parse_udp_url
-from lidarpkt.view.sources import LiveDecoder
+from lidarpkt.pipeline.live import LiveDecoder
 from conftest import REPO_ROOT
 
 CAPTURE = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-strongest.pcap"

@@ -465,9 +465,9 @@ def test_an_unknown_velodyne_model_is_one_line_naming_the_flag(ext, tmp_path, ca
     from lidarpkt.cli import main
 
     out = tmp_path / "x.mcap"
-    status = main(["decode", str(ext("rust-lidar-utils/velodyne_vlp32.pcap")), "-o", str(out), "--velodyne-model", "VLP-99"])
+    status = main(["decode", str(ext("rust-lidar-utils/velodyne_vlp32.pcap")), "-o", str(out), "--model", "VLP-99"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert status == 2 and len(err) == 1 and err[0].startswith("lidarpkt: error: --velodyne-model VLP-99: no such")
+    assert status == 2 and len(err) == 1 and err[0].startswith("lidarpkt: error: --model VLP-99: no such")
     assert not out.exists()
     with pytest.raises(UnknownSensorError, match="^velodyne_model 'VLP-99'"):
         model_named("VLP-99")

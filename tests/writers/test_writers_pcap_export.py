@@ -182,3 +182,27 @@ def test_an_osf_file_gets_one_clear_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "OSF file" in err and "Traceback" not in err
     assert not list((tmp_path / "out").glob("*.pcap"))
+
+
+def test_write_pcap_frames_interleaved_streams_together_as_the_one_packet_builder_does(tmp_path):
+    """write_pcap frames the packets of each stream of a window together (the NumPy builder on many rows):
+    its records are those of frames_for (the same builder on one row) packet by packet, the IP identification
+    counting packets from 1 in capture order, across windows; read back, every payload is in its place."""
+    from lidarpkt.containers.pcap_reader import read_packets
+    from lidarpkt.writers import framing
+    from lidarpkt.writers.pcap import pcap_bytes
+
+    rng = np.random.default_rng(7)
+    ends = [(Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368), 1206),
+            (Endpoint("192.168.1.201", 8308), Endpoint("255.255.255.255", 8308), 512),
+            (Endpoint("10.0.0.2", 7502), Endpoint("10.0.0.1", 7502), 3300),  # fragmented
+            (Endpoint("fe80::2", 7503), Endpoint("fe80::1", 7503), 2000)]  # IPv6, fragmented
+    kinds = rng.integers(0, len(ends), framing.WINDOW_PACKETS + 500)
+    packets = [Packet(1_700_000_000_000_000_000 + i * 50_000, ends[k][0], ends[k][1],
+                      rng.integers(0, 256, ends[k][2], dtype=np.uint8).tobytes()) for i, k in enumerate(kinds)]
+    write_pcap(tmp_path / "x.pcap", packets)
+    one_by_one = [(p.timestamp_ns, f) for i, p in enumerate(packets)
+                  for f in framing.frames_for(p, ident=(i + 1) & 0xFFFF)]
+    assert (tmp_path / "x.pcap").read_bytes() == pcap_bytes(one_by_one)
+    back = list(read_packets(tmp_path / "x.pcap"))
+    assert [(p.timestamp_ns, p.payload) for p in back] == [(p.timestamp_ns, p.payload) for p in packets]

@@ -78,7 +78,17 @@ def load_calibration(calibration: HesaiCalibration | str | os.PathLike[str]) -> 
 
 
 def is_hesai_calibration(calibration: object) -> bool:
-    """Whether the ``calibration`` option is meant for a Hesai sensor: a :class:`HesaiCalibration` or a ``.csv`` path."""
+    """Whether the ``calibration`` option is meant for a Hesai sensor: a :class:`HesaiCalibration`, a ``.csv``
+    path, or a file whose first line is an angle-correction header (``Channel,Elevation,Azimuth``)."""
     if isinstance(calibration, HesaiCalibration):
         return True
-    return isinstance(calibration, (str, os.PathLike)) and str(calibration).lower().endswith(".csv")
+    if not isinstance(calibration, (str, os.PathLike)) or "://" in str(calibration):
+        return False
+    if str(calibration).lower().endswith(".csv"):
+        return True
+    try:
+        with open(calibration, encoding="utf-8", errors="replace") as fh:
+            head = fh.readline(256).lstrip("\ufeff").lower()
+    except OSError:
+        return False
+    return "," in head and "elevation" in head and "azimuth" in head

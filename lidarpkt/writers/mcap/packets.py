@@ -15,14 +15,14 @@ and writes them to a :class:`~lidarpkt.writers.mcap.writer.McapWriter`:
 Sensor descriptions go into MCAP metadata records named ``lidarpkt.sensor``; the Ouster
 metadata JSON also goes to the latched ``/ouster/metadata`` topic.
 
-:func:`capture_times` measures what frames need to be logged at the host time of a capture:
-each sensor's clock offset and the capture's first and last packet times.
+:class:`CaptureTimes` measures, from the batches of a capture as they are handed, what frames need
+to be logged at the host time of a capture: each sensor's clock offset and the capture's first and
+last packet times.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -306,37 +306,46 @@ def metadata_for(batch: PacketBatch, ouster_metadata: Sequence[Any]):
     return ouster_metadata[0] if ouster_metadata else None
 
 
-def capture_times(path: str | os.PathLike[str], ouster_metadata: Sequence[Any] = (),
-                  look_ahead: int = 64) -> tuple[dict[str, int], int | None, int | None]:
-    """(clock offsets, first and last packet host time in ns) of one capture.
+class CaptureTimes:
+    """What frames need to be logged at the host time of a capture, measured from its packet batches as one
+    pass hands them (:meth:`add`, in capture order): each lidar source's clock offset and the capture's first
+    and last packet host times.
 
-    The offset of each lidar source is host receive time minus sensor time (ns) on its first packet
-    among the first ``look_ahead`` batches. Ouster clocks often count from boot, VLP-16 ones from the
-    hour: frames are logged at sensor time + this offset, i.e. when their last packet was received,
-    kept inside the capture's span (its first and last packet). ``ouster_metadata``: loaded Ouster
-    metadata, one per sensor (the capture's own ``/ouster/metadata`` serves when none is given).
-
-    Raises what :func:`lidarpkt.containers.open_packet_source` raises.
+    The offset of each lidar source (:attr:`offsets`, by source name) is host receive time minus sensor time
+    (ns) on its first packet among the first :data:`LOOK_AHEAD` batches. Ouster clocks often count from boot,
+    VLP-16 ones from the hour: frames are logged at sensor time + this offset, i.e. when their last packet was
+    received, kept inside the capture's span (:attr:`start_ns`, :attr:`end_ns`: its first and last packet,
+    final once the last batch has been added).
     """
-    from lidarpkt.pipeline.options import load_ouster_metadata
-    from lidarpkt.containers import open_packet_source
 
-    mds = list(ouster_metadata)
-    offsets: dict[str, int] = {}
-    start = end = None
-    reader = open_packet_source(path)
-    for k, batch in enumerate(reader.batches()):
+    LOOK_AHEAD = 64  # batches among which the offsets are measured
+
+    def __init__(self) -> None:
+        self.offsets: dict[str, int] = {}
+        self.start_ns: int | None = None
+        self.end_ns: int | None = None
+        self.batches = 0
+
+    @property
+    def offsets_final(self) -> bool:
+        """No later batch can add an offset."""
+        return self.batches >= self.LOOK_AHEAD
+
+    def add(self, batch: PacketBatch, ouster_metadata: Sequence[Any] = ()) -> None:
+        """Measure one batch; ``ouster_metadata``: loaded Ouster metadata, one per sensor (which batches are
+        Ouster lidar packets, and their layout)."""
+        k = self.batches
+        self.batches += 1
         if len(batch) == 0:
-            continue
+            return
         t0, t1 = int(batch.timestamp_ns.min()), int(batch.timestamp_ns.max())
-        start = t0 if start is None else min(start, t0)
-        end = t1 if end is None else max(end, t1)
+        self.start_ns = t0 if self.start_ns is None else min(self.start_ns, t0)
+        self.end_ns = t1 if self.end_ns is None else max(self.end_ns, t1)
         src = str(batch.src) if batch.src is not None else "unknown source"
-        if k >= look_ahead or src in offsets:
-            continue
-        if not mds and reader.ouster_metadata():
-            mds = load_ouster_metadata(reader.ouster_metadata())
-        md = metadata_for(batch, mds)
+        offsets = self.offsets
+        if k >= self.LOOK_AHEAD or src in offsets:
+            return
+        md = metadata_for(batch, ouster_metadata)
         kind = streams.classify_size(batch.payload_size, md)
         host = int(batch.timestamp_ns[0])
         if kind == streams.VELODYNE_DATA:
@@ -346,4 +355,3 @@ def capture_times(path: str | os.PathLike[str], ouster_metadata: Sequence[Any] =
             dtype = md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet)
             first = np.ascontiguousarray(batch.payload[:1]).view(dtype)[0, 0]["columns"][0]
             offsets[src] = host - int(first["timestamp_ns"])
-    return offsets, start, end
