@@ -78,10 +78,12 @@ def test_nebula_bag_opens_by_directory_or_db3_and_decodes_dual(ext):
     ("nebula/vls128/1614315746471294674", 2193),  # serialization_format: "" (rosbag2 of 2020)
     ("nebula/hesai/qt128/1730273789074637152", None),  # storage_identifier: ""
 ])
-def test_old_rosbag2_metadata_with_empty_fields_opens_with_the_evident_default(ext, bag, packets):
+def test_old_rosbag2_metadata_with_empty_fields_opens_with_the_evident_default(ext, bag, packets, tmp_path,
+                                                                             monkeypatch):
     import glob
     import tempfile
 
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # this test's own: other workers make their own copies
     before = set(glob.glob(f"{tempfile.gettempdir()}/lidarpkt-bag-*"))
     reader = BagReader(ext(bag))
     with pytest.warns(LidarpktWarning, match="metadata.yaml names no") as said:
