@@ -62,7 +62,7 @@ def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
 
 
 def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str], *, format: str = "parquet",  # noqa: A002
-           layout: str | None = None, frames_per_file: int | None = None,
+           layout: str | None = None, frames_per_file: int | None = None, storage: str | None = None,
            metadata: Sequence[str | os.PathLike[str]] = (), glob: str | None = None,
            segment_bytes: int | str = DEFAULT_SEGMENT_BYTES, workers: int | None = None,
            scheduler: str | None = None, client: Any = None, progress: ProgressCallback | None = None,
@@ -74,7 +74,8 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         out: the output folder (local path or fsspec URL); it holds the outputs and ``_manifest.jsonl``.
         format: one of :data:`FORMATS`.
         layout: Parquet: ``"points"`` (one row per return, the default) or ``"frames"``.
-        frames_per_file: LAS/LAZ: one file per N frames instead of one per capture.
+        frames_per_file: LAS/LAZ/CSV: one file per N frames instead of one per capture.
+        storage: rosbag2: ``"sqlite3"`` (the default) or ``"mcap"``.
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture, same stem).
         glob: in folders, only file names matching this pattern.
         segment_bytes: captures above this size (bytes, or ``"256MB"``; default 256 MiB) are cut
@@ -94,7 +95,7 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         PlanError, ExportBusyError, EngineError (all :class:`lidarpkt.errors.LidarpktError`); a
         damaged input is not an exception but a ``failed`` row.
     """
-    report = export_job(paths, out, format=format, layout=layout, frames_per_file=frames_per_file,
+    report = export_job(paths, out, format=format, layout=layout, frames_per_file=frames_per_file, storage=storage,
                         metadata=metadata, glob=glob, segment_bytes=segment_bytes, workers=workers,
                         scheduler=scheduler, client=client, progress=progress, open_options=open_options)
     return manifest_table(report.rows)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError
+from lidarpkt.writers import FORMATS as WRITER_FORMATS, accepted_options
 
 from .engine import EngineOptions, Progress, ProgressCallback, dask_client, run_all
 from .ordinals import CountTask, SegmentCount, count_segment, start_ordinals
@@ -25,13 +26,15 @@ from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 from .plan import PlanError, is_remote, local_path, plan_captures, plan_segments
 from .unit import STAGING, UnitResult, UnitTask, run_unit
 
-FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap", "pcap")
+# the writers' formats (lidarpkt.writers.FORMATS), and pcap: the capture's raw packets (:mod:`.packets`)
+FORMATS = (*WRITER_FORMATS, "pcap")
 # MCAP is ``lidarpkt decode IN -o OUT.mcap``'s output: one recording of the capture (raw packets,
 # clouds, log times, one summary and index), which a reader opens as one file; segments would
-# split one recording into several, so it runs whole files. pcap is the capture's raw packets
-# (:mod:`.packets`), one file per capture too. Every other format runs segments (PLY/PCD: one
-# file per frame, named by the whole-file frame id a segment knows: .ordinals).
-WHOLE_FILE_FORMATS = ("mcap", "pcap")
+# split one recording into several, so it runs whole files, as the other formats that say so
+# (ROS bags, Rerun recordings, KITTI sequences: ``Format.whole_capture``). pcap is one file per
+# capture too. Every other format runs segments (PLY/PCD: one file per frame, named by the
+# whole-file frame id a segment knows: .ordinals).
+WHOLE_FILE_FORMATS = (*(name for name, spec in WRITER_FORMATS.items() if spec.whole_capture), "pcap")
 
 
 @dataclass
@@ -56,7 +59,7 @@ class ExportReport:
 
 
 def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int | None = None,
-                   **extra: Any) -> tuple[tuple[str, Any], ...]:
+                   storage: str | None = None, **extra: Any) -> tuple[tuple[str, Any], ...]:
     """The writer options of a job as sorted pairs (only the ones given), checked against the format.
 
     Raises:
@@ -72,11 +75,17 @@ def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int 
             raise PlanError(f"--layout {layout}: only --format parquet has layouts (points, frames)")
         opts["layout"] = layout
     if frames_per_file is not None:
-        if fmt not in ("las", "laz"):
-            raise PlanError(f"--frames-per-file {frames_per_file}: only --format las/laz split files by frames")
+        if fmt == "pcap" or "frames_per_file" not in accepted_options(fmt):
+            raise PlanError(f"--frames-per-file {frames_per_file}: only --format las/laz/csv split files by frames")
         if frames_per_file < 1:
             raise PlanError(f"--frames-per-file {frames_per_file}: give 1 or more frames")
         opts["frames_per_file"] = int(frames_per_file)
+    if storage is not None:
+        if fmt == "pcap" or "storage" not in accepted_options(fmt):
+            raise PlanError(f"--storage {storage}: only --format rosbag2 has storages (sqlite3, mcap)")
+        if storage not in ("sqlite3", "mcap"):
+            raise PlanError(f"--storage {storage}: choose sqlite3 or mcap")
+        opts["storage"] = storage
     return tuple(sorted(opts.items()))
 
 
@@ -124,6 +133,7 @@ def export_job(
     format: str = "parquet",  # noqa: A002 - the verb's flag name
     layout: str | None = None,
     frames_per_file: int | None = None,
+    storage: str | None = None,
     metadata: Sequence[str | os.PathLike[str]] = (),
     glob: str | None = None,
     segment_bytes: int | str = DEFAULT_SEGMENT_BYTES,
@@ -143,7 +153,7 @@ def export_job(
         EngineError: the engine cannot start.
     """
     out = os.fspath(out)
-    options = writer_options(format, layout=layout, frames_per_file=frames_per_file)
+    options = writer_options(format, layout=layout, frames_per_file=frames_per_file, storage=storage)
     seg_bytes = parse_size_arg(segment_bytes)
     _prepare_outdir(out)
     engine = EngineOptions(workers=workers, scheduler=scheduler, client=client,

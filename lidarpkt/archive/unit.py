@@ -114,9 +114,10 @@ class _Counts:
 
 def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) -> Path:
     """Where a unit's writer writes, inside its staging folder: the staging root for Parquet (a
-    dataset partitioned by capture: OUTDIR is the dataset); ``CAPTURE_STEM.FMT`` for one-file
-    formats (npz, mcap, las/laz); a folder ``CAPTURE_STEM/`` for the formats that write a folder
-    (ply, pcd, las/laz with ``frames_per_file``)."""
+    dataset partitioned by capture: OUTDIR is the dataset); ``CAPTURE_STEM.SUFFIX`` for one-file
+    formats (npz, mcap, las/laz, csv, rrd, bag; and the rosbag2 folder, one output as well); a
+    folder ``CAPTURE_STEM/`` for the formats that write a folder (ply, pcd, kitti, las/laz/csv with
+    ``frames_per_file``)."""
     from lidarpkt.writers import FORMATS
 
     stem = Path(capture).stem
@@ -126,7 +127,7 @@ def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) 
         return stage / f"{stem}.pcap"
     spec = FORMATS.get(fmt)
     if spec is not None and not spec.directory and not options.get("frames_per_file"):
-        return stage / f"{stem}.{fmt}"
+        return stage / f"{stem}{spec.suffixes[0]}"  # .mcap, .npz, .las, .bag, .rosbag2 ...
     return stage / stem
 
 
@@ -153,7 +154,10 @@ def _fetch_input(url: str, scratch: list[str]) -> str:
 
 
 def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
-    """Move complete files from the staging folder to their place under OUTDIR."""
+    """Move complete files from the staging folder to their place under OUTDIR (a folder output, a
+    rosbag2, file by file)."""
+    files = [p for f in files for p in (sorted(x for x in Path(f).rglob("*") if x.is_file()) if Path(f).is_dir()
+                                        else [Path(f)])]
     rels = []
     remote = is_remote(task.output)
     if remote:
@@ -220,7 +224,7 @@ def run_unit(task: UnitTask) -> UnitResult:
         a :class:`UnitResult`; ``error`` says what was wrong with the input or the output, and
         ``outputs`` are then the files of the frames decoded before the damage (possibly none).
     """
-    from lidarpkt.writers import open_writer
+    from lidarpkt.writers import open_writer, takes_packets
 
     start, cpu_start = time.perf_counter(), time.process_time()
     counts = _Counts()
@@ -248,7 +252,7 @@ def run_unit(task: UnitTask) -> UnitResult:
                 if task.format == "pcap":  # the raw packets back in a pcap
                     outputs = _publish(_write_pcap(local, target, metadata), stage, task)
                 else:
-                    if task.format == "mcap":  # decode's output: the capture's raw packets (of the one pass), clouds
+                    if takes_packets(task.format):  # decode's output: the capture's raw packets (of the one pass), clouds
                         from lidarpkt.writers.mcap.frames import calibration_file
 
                         options = {"topics": DECODE_TOPICS, "capture": local, **options,

@@ -3,8 +3,9 @@
 to the command line.
 
 ``lidarpkt catalog PATHS... -o catalog.parquet|catalog.json [--json] [--glob G] [--workers N | --scheduler ADDR]``
-``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap|pcap [--layout points|frames]
-[--frames-per-file N] [--segment-size S] [--metadata FILE]... [--model NAME] [--workers N | --scheduler ADDR] [-q]``
+``lidarpkt export PATHS... -o OUTDIR --format parquet|las|laz|ply|pcd|npz|mcap|csv|kitti|rrd|rosbag1|rosbag2|pcap
+[--layout points|frames] [--frames-per-file N] [--storage sqlite3|mcap] [--segment-size S] [--metadata FILE]...
+[--model NAME] [--workers N | --scheduler ADDR] [-q]``
 """
 
 from __future__ import annotations
@@ -55,7 +56,9 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
     p.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
-                   help="LAS/LAZ: one file per N frames")
+                   help="LAS/LAZ/CSV: one file per N frames")
+    p.add_argument("--storage", choices=("sqlite3", "mcap"),
+                   help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
     p.add_argument("--segment-size", metavar="S", help="captures larger than this are cut into segments run in "
                    "parallel: bytes, or 256MB, 1GB, 512MiB (default 256MiB)")
     _add_engine(p)
@@ -113,7 +116,7 @@ def run_export(args: argparse.Namespace) -> int:
     bars = JobBars(args.quiet)
     try:
         report = export_job(args.paths, args.output, format=args.format, layout=args.layout,
-                            frames_per_file=args.frames_per_file, glob=args.glob,
+                            frames_per_file=args.frames_per_file, storage=args.storage, glob=args.glob,
                             segment_bytes=args.segment_size or DEFAULT_SEGMENT_BYTES, workers=args.workers,
                             scheduler=args.scheduler, progress=bars, **sensor)
     finally:

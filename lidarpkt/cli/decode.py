@@ -39,15 +39,21 @@ TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.T
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.cli import args as cliargs
+    from lidarpkt.containers.magic import CAPTURES_TEXT
     from lidarpkt.writers import SUFFIXES
 
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
+    parser.add_argument("inputs", nargs="+", metavar="IN", help=f"captures ({CAPTURES_TEXT}; bags and MCAP with raw "
+                                                                "packet topics)")
     cliargs.add_output(parser, SUFFIXES,
-                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
-                            "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
+                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, OUT.csv, "
+                            "OUT.ply / OUT.pcd / OUT.kitti (folders of one file per frame), OUT.rrd (Rerun), "
+                            "OUT.bag (ROS 1), OUT.rosbag2 (a rosbag2 folder): the suffix chooses the format")
     cliargs.add_sensor_options(parser)
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
-                        help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
+                        help=f"MCAP and ROS bags: comma-separated groups among {', '.join(TOPIC_GROUPS)} "
+                             "(packets,points)")
+    parser.add_argument("--storage", choices=("sqlite3", "mcap"),
+                        help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
     parser.add_argument("--grid", type=float, metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
@@ -55,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", choices=("points", "frames"),
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
-                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
+                        help="LAS/LAZ/CSV: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
 
@@ -98,7 +104,7 @@ def _feed(args) -> tuple[Feed, Any]:
 
 def run(args: argparse.Namespace) -> int:
     from lidarpkt.cli import args as cliargs
-    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix
+    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix, takes_packets
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
@@ -109,10 +115,10 @@ def run(args: argparse.Namespace) -> int:
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
-    if fmt in ("mcap", "npz"):
+    if fmt == "npz" or takes_packets(fmt):
         _format_options(args, fmt)  # rejects the flags of other formats
-    if fmt == "mcap":
-        return _to_mcap(args, out)
+    if takes_packets(fmt):  # MCAP, ROS bags: the capture's packets too
+        return _to_mcap(args, out, fmt)
     if fmt == "npz":
         return _to_npz(args, out)
     # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
@@ -120,9 +126,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- MCAP
-def _to_mcap(args, out: Path) -> int:
-    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames in one pass
-    (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
+def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
+    """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames
+    in one pass (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
     from lidarpkt.writers import open_writer
     from lidarpkt.writers.mcap.frames import TOPIC_GROUPS, calibration_file
 
@@ -132,8 +138,9 @@ def _to_mcap(args, out: Path) -> int:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
     options = _open_options(args)
     feed, progress = _feed(args)
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, calibration=calibration_file(options.get("metadata", ())),
-                     **frame_options(args)) as writer:
+    with open_writer(fmt, out, capture=args.inputs[0], topics=groups,
+                     calibration=calibration_file(options.get("metadata", ())),
+                     **frame_options(args), **_format_options(args, fmt)) as writer:
         for path in args.inputs:
             feed.write(path, [writer], **options)
     writer.close()
@@ -142,8 +149,13 @@ def _to_mcap(args, out: Path) -> int:
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({feed.frames} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({feed.frames} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
+
+
+def _size_bytes(path: Path) -> int:
+    """A file's size, or the sum of a folder's files (a rosbag2)."""
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else os.path.getsize(path)
 
 
 # ------------------------------------------------------------------------------ NPZ
@@ -166,10 +178,16 @@ def _to_npz(args, out: Path) -> int:
 # ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
 def _format_options(args, fmt: str) -> dict:
     """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    from lidarpkt.writers import accepted_options
+
     if args.layout is not None and fmt != "parquet":
         raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
-    if args.frames_per_file is not None and fmt not in ("las", "laz"):
-        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
+    if args.frames_per_file is not None and "frames_per_file" not in accepted_options(fmt):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ/CSV outputs (-o OUT.las)")
+    if getattr(args, "storage", None) is not None:
+        if "storage" not in accepted_options(fmt):
+            raise RecorderError(f"--storage {args.storage}: only rosbag2 outputs have storages (-o OUT.rosbag2)")
+        return {"storage": args.storage}
     if fmt == "parquet":
         return {"layout": args.layout or "points"}
     if args.frames_per_file is not None:
@@ -196,6 +214,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     else:
         with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
             for path in args.inputs:
+                writer.capture = Path(path).name  # the input of the frames that follow (CSV's capture column)
                 feed.write(path, [writer], **open_options)
         written = writer.close()
     progress.close()
@@ -213,7 +232,7 @@ def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathL
 
     ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
     (list of paths of any vendor's sensor description files), ``model``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
-    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    ``layout``, ``frames_per_file``, ``storage``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
     ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
     :class:`~lidarpkt.errors.OutputError` for an unknown option.
     """

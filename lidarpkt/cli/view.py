@@ -25,6 +25,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", nargs="?", metavar="SOURCE",
                         help=f"capture to show ({CAPTURES_TEXT}); without it, a live sensor")
     add_ws_argument(parser)
+    parser.add_argument("--rerun", nargs="?", const="web", metavar="TARGET",
+                        help="show it in Rerun's viewer instead of Foxglove: web (the default: Rerun's web viewer "
+                             "served on http://localhost:9090, data on port 9876; web:PORT, web:0 = any free "
+                             "ports), spawn (the native viewer), a rerun+http:// address, or FILE.rrd (needs "
+                             "pip install 'lidarpkt[rerun]')")
+    parser.add_argument("--color", choices=("range", "reflectivity"), default="range",
+                        help="--rerun: colour the points by range (default) or reflectivity")
     parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
     add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
@@ -63,7 +70,6 @@ def _view_capture(args, stop: threading.Event) -> int:
     from lidarpkt.view.sources import play_capture
 
     from . import args as cliargs
-    from .live import start_view
 
     deadline = _deadline(args)
     readers = []
@@ -75,7 +81,7 @@ def _view_capture(args, stop: threading.Event) -> int:
         counted[0] = 0
 
     def wait_for_client(first) -> None:
-        servers.append(start_view(args.ws))
+        servers.append(_start(args))
         servers[0].sensor_name(first)  # advertise its channels, then wait until somebody looks
         if not args.quiet:
             print("lidarpkt view: waiting for a client to subscribe", file=sys.stderr, flush=True)
@@ -117,14 +123,14 @@ def _view_live(args, stop: threading.Event) -> int:
     from lidarpkt.pipeline.live import FrameTap, LiveDecoder
     from lidarpkt.view.tap import FrameDropper
 
-    from .live import live_sensors, receive_options, start_view
+    from .live import live_sensors, receive_options
 
     files, decoder_options = live_sensors(args)
     ports = args.port or [p for f in files for p in f.ports]
     capture = UdpSource(ports, **receive_options(args))
     server = tap = dropper = None
     try:
-        server = start_view(args.ws)
+        server = _start(args)
         view = server
 
         def dropped(n: int) -> None:
@@ -156,6 +162,17 @@ def _view_live(args, stop: threading.Event) -> int:
             server.close()
     _report_errors(tap, dropper)
     return 0
+
+
+def _start(args):
+    """The Foxglove server on ``--ws``, or with ``--rerun`` the Rerun view (:mod:`lidarpkt.view.rerun`)."""
+    if getattr(args, "rerun", None):
+        from lidarpkt.view.rerun import start_rerun
+
+        return start_rerun(args.rerun, color=args.color)
+    from .live import start_view
+
+    return start_view(args.ws)
 
 
 def _report_errors(tap, dropper) -> None:

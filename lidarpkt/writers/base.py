@@ -34,6 +34,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
@@ -86,7 +87,8 @@ class AtomicFiles:
         self.committed: list[Path] = []
 
     def temporary(self, final: str | os.PathLike[str]) -> Path:
-        """A new temporary path in ``final``'s folder (the folder must exist)."""
+        """A new temporary path in ``final``'s folder (the folder must exist): a file's, or a folder's
+        (a rosbag2), which :meth:`commit` renames as a whole."""
         final = Path(final)
         if not final.parent.is_dir():
             raise OutputError(f"{final}: the folder {final.parent} does not exist; create it or choose another")
@@ -95,7 +97,8 @@ class AtomicFiles:
         return tmp
 
     def commit(self, tmp: Path) -> Path:
-        """Rename a complete temporary to its final name (replacing an older file of that name)."""
+        """Rename a complete temporary to its final name (replacing an older file of that name, or an
+        empty folder)."""
         final = self._pending.pop(tmp)
         try:
             os.replace(tmp, final)
@@ -105,10 +108,13 @@ class AtomicFiles:
         return final
 
     def abort(self) -> None:
-        """Remove every temporary not yet committed."""
+        """Remove every temporary not yet committed (a temporary folder with what it holds)."""
         for tmp in list(self._pending):
             try:
-                tmp.unlink()
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp)
+                else:
+                    tmp.unlink()
             except FileNotFoundError:
                 pass
             except OSError:
@@ -174,6 +180,31 @@ class BaseWriter:
         """``CAPTURESTEM_SENSOR_FRAMEID.SUFFIX``: the same whatever the segmentation."""
         stem = Path(self.capture).stem if self.capture else "frames"
         return f"{_safe(stem)}_{sensor_tag(frame.sensor)}_{frame.frame_id:06d}{suffix}"
+
+    def one_file_or_groups(self, frames_per_file: int | None) -> int | None:
+        """Set up a format that writes one file (``out``; its folder must exist) or, with ``frames_per_file``
+        N, a folder ``out`` of files of N frames each (:meth:`group_file`; made if missing). Returns N.
+
+        Raises :class:`~lidarpkt.errors.OutputError`: N below 1, a folder that does not exist."""
+        if frames_per_file is not None and int(frames_per_file) < 1:
+            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
+        if frames_per_file is None:
+            self.path = self.single_file()
+            if not self.path.parent.is_dir():
+                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
+            return None
+        self.out_dir()
+        return int(frames_per_file)
+
+    def group_file(self, frame: Any, frames_per_file: int, suffix: str) -> tuple[tuple[str, int], Path]:
+        """(key, path) of the file holding ``frame`` when each file holds ``frames_per_file`` frames of one
+        sensor: ``OUT/CAPTURESTEM_SENSOR_FFFFFF[.PART]SUFFIX``, F the first frame id of its group (grouped by
+        frame id, so that the grouping does not depend on how the capture was segmented)."""
+        start = frame.frame_id // frames_per_file * frames_per_file
+        stem = _safe(Path(self.capture).stem) if self.capture else "frames"
+        tag = sensor_tag(frame.sensor)
+        name = f"{stem}_{tag}_{start:06d}" + (f".{_safe(self.part)}" if self.part else "")
+        return (tag, start), self.out / (name + suffix)
 
     def out_dir(self) -> Path:
         """``out`` as a folder (created if missing; its parent must exist)."""

@@ -155,6 +155,29 @@ def frame_points(frame) -> dict[str, np.ndarray]:
     return out
 
 
+def points_record_batch(frame, schema):
+    """One frame's points as a ``pyarrow.RecordBatch`` of ``schema`` (:func:`points_schema`, or one of its
+    columns' subset): the columns of :func:`frame_points`, ``sensor`` and ``return_label`` as
+    dictionaries, and nulls for the columns the frame has not (``signal``, ``near_ir``)."""
+    import pyarrow as pa
+
+    cols = frame_points(frame)
+    n = cols["frame_id"].size
+    arrays = []
+    for fld in schema:
+        if fld.name == "sensor":
+            arrays.append(pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)),
+                                                         pa.array([sensor_name(frame.sensor)])))
+        elif fld.name == "return_label":
+            arrays.append(pa.DictionaryArray.from_arrays(pa.array(cols["return_slot"].astype(np.int8)),
+                                                         pa.array(list(frame.return_labels), pa.string())))
+        elif fld.name in cols:
+            arrays.append(pa.array(cols[fld.name], fld.type))
+        else:
+            arrays.append(pa.nulls(n, fld.type))
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
 class ParquetWriter(BaseWriter):
     """A Parquet dataset of the capture's frames (see the module doc).
 
@@ -197,7 +220,7 @@ class ParquetWriter(BaseWriter):
 
     def _write(self, frame) -> None:
         if self.layout == "points":
-            batch = self._points_batch(frame)
+            batch = points_record_batch(frame, self.schema)
             self._pending_size += batch.num_rows
             self.points_written += batch.num_rows
             limit = self.row_group_rows
@@ -217,25 +240,6 @@ class ParquetWriter(BaseWriter):
         table = pa.Table.from_batches(self._pending, schema=self.schema)
         self._open().write_table(table, row_group_size=max(table.num_rows, 1))
         self._pending, self._pending_size = [], 0
-
-    def _points_batch(self, frame):
-        import pyarrow as pa
-
-        cols = frame_points(frame)
-        n = cols["frame_id"].size
-        arrays = []
-        for fld in self.schema:
-            if fld.name == "sensor":
-                arrays.append(pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)),
-                                                             pa.array([sensor_name(frame.sensor)])))
-            elif fld.name == "return_label":
-                arrays.append(pa.DictionaryArray.from_arrays(pa.array(cols["return_slot"].astype(np.int8)),
-                                                             pa.array(list(frame.return_labels), pa.string())))
-            elif fld.name in cols:
-                arrays.append(pa.array(cols[fld.name], fld.type))
-            else:
-                arrays.append(pa.nulls(n, fld.type))
-        return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
 
     def _finish(self) -> None:
         self._flush()

@@ -266,8 +266,6 @@ class McapFrameWriter(BaseWriter):
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
         from lidarpkt.vendors import registry
 
-        from .writer import McapWriter
-
         super().__init__(out, capture=capture, part=part)
         groups = set(topics)
         if not groups or groups - set(TOPIC_GROUPS):
@@ -277,7 +275,7 @@ class McapFrameWriter(BaseWriter):
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
-        self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        self.mcap = self._open_messages(self._tmp, chunk_bytes)
         self.groups = groups
         self.wants_frames = bool(groups & {"points", "images"})
         self.topics = FrameTopics(self.mcap, groups, sensors)
@@ -297,6 +295,13 @@ class McapFrameWriter(BaseWriter):
         self.decoded_messages = 0  # messages decoded from the packets (IMU samples...) written beside them
         if self.calibration is not None:
             self._add_calibration_record(self.calibration)
+
+    def _open_messages(self, tmp: Path, chunk_bytes: int) -> Any:
+        """Where the messages go: a :class:`~lidarpkt.writers.mcap.writer.McapWriter` on ``tmp``. The ROS bag
+        writers (:mod:`lidarpkt.writers.rosbag`) give their bag files with the same methods instead."""
+        from .writer import McapWriter
+
+        return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
 
     def _add_calibration_record(self, calibration: str) -> None:
         try:

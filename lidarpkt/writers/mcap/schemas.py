@@ -1,7 +1,7 @@
 """The ROS 2 messages lidarpkt writes to MCAP: definitions, topics, QoS, and CDR encoding.
 
 Every message type is declared once, as ``.msg`` text (the messages the ROS drivers use: each vendor's
-are in its registry record, :attr:`lidarpkt.core.vendor.Vendor.ros`; the standard ``std_msgs`` /
+are in its registry record, ``Vendor.ros`` of :mod:`lidarpkt.core.vendor`; the standard ``std_msgs`` /
 ``sensor_msgs`` / ``builtin_interfaces`` ones come from the rosbags type store). The MCAP schema text
 (``ros2msg`` encoding, dependencies appended after ``====`` lines, as rosbag2 writes it) and the CDR
 serialisers are derived from these definitions by rosbags. The messages written at packet rate have
