@@ -3,7 +3,8 @@
 =================  ===========================================================================
 ``magic``          file magic, in one place: which container a file is (:func:`container_kind`)
 ``protocol``       :class:`PacketSource` and :func:`open_packet_source`, used by every caller
-``pcap_reader``    :class:`PcapReader` (``lidarpkt.containers.pcap_reader`` is this module) and :class:`ReadStats`
+``pcap_reader``    :class:`PcapReader`, the pcap/pcapng reader that wires the modules below
+``read_stats``     :class:`ReadStats`: what a pass of the reader found (records, datagrams, damage)
 ``pcap_walk``      classic pcap: blocks of the file, the walk over record headers in chunks
 ``pcapng_walk``    pcapng: the walk over sections, interfaces and packet blocks in chunks
 ``layouts``        link / IPv4 / IPv6 / UDP and container header dtypes, declared once

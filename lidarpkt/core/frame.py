@@ -146,20 +146,20 @@ class Frame:
         order of ``[R, H, W]``: slot, then row, then column (Ouster columns staggered, as sent).
         A dual-return pixel whose two slots repeat one return is two rows. Fields (:func:`points_dtype`):
 
-        ============  ========  ==============================================================
-        field         type      meaning
-        ============  ========  ==============================================================
+        ============  =========  ==============================================================
+        field         type       meaning
+        ============  =========  ==============================================================
         x, y, z       ``dtype``  metres, :meth:`xyz` (float64, or float32 as ``xyz(float32)``)
-        range_mm      uint32    range in millimetres (> 0)
-        reflectivity  uint8     the sensor's reflectivity
-        row           uint16    beam, 0 = the highest elevation
-        column        uint16    column of the frame's arrays
-        return_slot   uint8     index in ``return_labels``
-        timestamp_ns  int64     the return's firing time, ns since the Unix epoch (column time +
-                                ``pixel_time_offset_ns`` where the sensor defines it)
-        signal        uint16    Ouster: signal photons (only when the frame has ``signal``)
-        near_ir       uint16    Ouster: ambient near-IR of the pixel (only when it has ``near_ir``)
-        ============  ========  ==============================================================
+        range_mm      uint32     range in millimetres (> 0)
+        reflectivity  uint8      the sensor's reflectivity
+        row           uint16     beam, 0 = the highest elevation
+        column        uint16     column of the frame's arrays
+        return_slot   uint8      index in ``return_labels``
+        timestamp_ns  int64      the return's firing time, ns since the Unix epoch (column time +
+                                 ``pixel_time_offset_ns`` where the sensor defines it)
+        signal        uint16     Ouster: signal photons (only when the frame has ``signal``)
+        near_ir       uint16     Ouster: ambient near-IR of the pixel (only when it has ``near_ir``)
+        ============  =========  ==============================================================
 
         Raises:
             CalibrationError: the sensor has no calibration.
@@ -200,7 +200,8 @@ class Frame:
 
         ``resolution_deg`` defaults to :func:`default_grid_deg` of the sensor, the one grid that
         ``FrameStack.from_frames``, ``lidarpkt decode -o x.npz`` and ``lidarpkt analyze`` use. A
-        frame whose columns already are that grid (Ouster) is returned unchanged.
+        frame whose columns already are that grid (columns by measurement id, as Ouster's) is returned
+        unchanged.
         """
         res = resolution_deg if resolution_deg is not None else default_grid_deg(self.sensor)
         if res is None:
@@ -209,7 +210,7 @@ class Frame:
         if abs(n_bins * res - 360.0) > 1e-9:
             raise AnalysisError(f"grid resolution {res}° does not divide 360°")
         w = self.shape[2]
-        if self.sensor.vendor == "ouster" and n_bins == w:
+        if self.measurement_id is not None and n_bins == w:  # its columns are the encoder's: the grid itself
             return self
 
         valid_cols = np.flatnonzero(self.column_valid)

@@ -74,16 +74,17 @@ def _grid_bins(pos: np.ndarray, n_bins: int, tolerance: float = 0.1) -> np.ndarr
 def default_grid_deg(sensor: SensorInfo) -> float | None:
     """The azimuth grid (degrees per column) frames of ``sensor`` are put on by default, from its firing rate.
 
-    The sensor's ``grid_resolution_deg``, coarsened for a VLP-16 spinning faster than 10 Hz so that
-    each column still holds a firing: at 20 Hz firing sequences are 0.4° apart, and a 0.2° grid
-    would leave every other column empty (``column_valid`` False although no packet was lost).
-    ``None`` when the sensor has no grid. One grid for :meth:`Frame.on_grid`,
-    :meth:`FrameStack.from_frames`, ``lidarpkt decode -o x.npz`` and the analysis verbs.
+    The sensor's ``grid_resolution_deg``, coarsened where a rotation holds fewer firings than that grid
+    has columns (``columns_per_frame``), so that each column still holds a firing: a VLP-16, whose grid
+    is its firing step at 10 Hz, fires every 0.4° at 20 Hz, and a 0.2° grid would leave every other
+    column empty (``column_valid`` False although no packet was lost). ``None`` when the sensor has no
+    grid. One grid for :meth:`Frame.on_grid`, :meth:`FrameStack.from_frames`, ``lidarpkt decode -o x.npz``
+    and the analysis verbs.
     """
     res = sensor.grid_resolution_deg
-    if res is None or sensor.vendor != "velodyne" or not sensor.frequency_hz:
+    if res is None or not sensor.columns_per_frame:
         return res
-    factor = max(1, int(round(float(sensor.frequency_hz) / 10.0)))
+    factor = max(1, int(round(360.0 / res / sensor.columns_per_frame)))
     while factor > 1 and abs(round(360.0 / (res * factor)) * res * factor - 360.0) > 1e-9:
         factor -= 1  # keep a grid that divides 360°
     return res * factor

@@ -261,7 +261,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
     _nested_capture(path, 0x0800)
     walked, synced = plan_segments(path, 40_000), plan_segments(path, 40_000, walk=False)
     assert walked != synced  # fooled: the first cut is inside a datagram
-    monkeypatch.setattr(parallel, "plan", lambda p, workers: synced)
+    monkeypatch.setattr(parallel, "plan", lambda p, workers, frame_bytes=None: synced)
     reader = lidarpkt.open(path, workers=3)
     with pytest.raises(CaptureFormatError, match=rf"cut the capture at byte {synced[0].end_offset}.*workers=1"):
         list(reader)
@@ -271,7 +271,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
 
 def _modified_pcap(path: Path, packets) -> None:
     """``packets`` as a pcap of the modified format (magic a1b2cd34): 24-byte record headers."""
-    from lidarpkt.writers.pcap import frames_for
+    from lidarpkt.writers.framing import frames_for
 
     out = bytearray(struct.pack("<IHHiIII", 0xA1B2CD34, 2, 4, 0, 0, 65535, 1))
     for p in packets:

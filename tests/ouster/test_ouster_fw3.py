@@ -369,7 +369,7 @@ def test_imu_and_zone_packets_without_lidar_give_no_frame_and_no_error():
         reader = lidarpkt.open(external(IMU_ZM[0]), metadata=str(external(IMU_ZM[1])))
         frames = list(reader)
     assert frames == []
-    assert reader.stats.ouster_imu_packets == 8 and reader.stats.ouster_zone_packets == 1
+    assert reader.stats.packets_of("ouster", "imu") == 8 and reader.stats.packets_of("ouster", "zone") == 1
     (dec,) = reader.decoders.values()
     assert len(dec.imu_samples()) == 64 and dec.stats.zone_packets == 1
     (states,) = dec.zone_states()

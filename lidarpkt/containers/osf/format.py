@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from ..magic import OSF_IDENTIFIER
+
 FORMAT = "OSF"  # the format's name, in messages
 
 # Each table: field name -> (slot, kind, default). The slot is the field's place in the .fbs table
@@ -51,7 +53,7 @@ STRUCTS: dict[str, np.dtype] = {
     "ChannelField": np.dtype([("chan_field", "u1"), ("chan_field_type", "u1")]),
 }
 # file identifiers of the size-prefixed root buffers (bytes 8-12 of the block)
-HEADER_ID, CHUNK_ID, METADATA_ID = b"OSF$", b"OSF!", b"OSF#"
+HEADER_ID, CHUNK_ID, METADATA_ID = OSF_IDENTIFIER, b"OSF!", b"OSF#"
 # MetadataEntry.type of the entries read here
 LIDAR_SENSOR = "ouster/v1/os_sensor/LidarSensor"
 LIDAR_SCAN_STREAM = "ouster/v1/os_sensor/LidarScanStream"

@@ -105,7 +105,8 @@ class FrameFile:
         header = root_table(header_block, "Header", HEADER_ID)
         self.version = int(header.version)
         if self.version < VERSION_2_0:
-            raise Damaged(f"{FORMAT} version {self.version} predates 2.0, which lidarpkt (and ouster-sdk) read")
+            raise Damaged(f"{FORMAT} version {self.version} predates 2.0, the first version lidarpkt (and the format's own "
+                          "reader) read")
         if header.status != HEADER_STATUS_VALID:
             raise Damaged("the header is not marked valid: the recording was not closed (its writer was stopped)")
         self.chunks_start = len(header_block) + 4
@@ -135,7 +136,7 @@ class FrameFile:
                     chunks.setdefault(int(info.stream_id), []).append(int(info.offset))
         if streams and not streaming:
             raise Damaged(f"no streaming index (StreamingInfo): an {FORMAT} of the old standard layout, which "
-                          "ouster-sdk no longer reads either")
+                          "the format's own reader no longer reads either")
         self.sensor_json = sensors
         self.streams: list[FrameStream] = []
         for stream_id, sensor_id in sorted(streams.items()):
@@ -208,7 +209,7 @@ def _channel_fields(msg: FlatTable, h: int, w: int, shift: np.ndarray | None) ->
         name = CHAN_FIELDS.get(chan)
         element = FIELD_TYPES.get(tag)
         if name is None or element is None or element.kind not in "ui":
-            raise Damaged(f"a frame stores the channel {chan} of type {tag}, which ouster-sdk does not define")
+            raise Damaged(f"a frame stores the channel {chan} of type {tag}, which the format does not define")
         if name in out:
             raise Damaged(f"a frame stores the channel {name} twice")
         data = channel.buffer

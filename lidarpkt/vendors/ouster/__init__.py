@@ -13,9 +13,10 @@ parsed metadata), :mod:`.metadata_json` (reading its JSON: both layouts, default
 a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu` (both IMU profiles, :func:`imu_samples` in SI units), :mod:`.zone` (zone-monitoring
-packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
+packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (the
 packet/loss/frame counter the recorder runs live), :mod:`.osf` (ouster-sdk's OSF files of decoded
-frames, read by ``lidarpkt.open``).
+frames, read by ``lidarpkt.open``), :mod:`.ros` (its ROS messages), :mod:`.builder` (a frame being filled),
+:mod:`.vendor` (its registry record, :data:`VENDOR`).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
 >>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP
@@ -29,6 +30,7 @@ from lidarpkt.core.lazy import lazy_names
 
 # public name -> its module, imported on first use (lidarpkt/core/lazy.py)
 _LAZY: dict[str, str] = {
+    "VENDOR": "vendor",
     "crc64_xz": "crc",
     "OusterPacketFields": "decode",
     "decode_packets": "decode",
@@ -59,6 +61,7 @@ _LAZY: dict[str, str] = {
 }
 
 __all__ = [
+    "VENDOR",
     "BitField",
     "OusterDecoder",
     "OusterDecoderStats",

@@ -14,7 +14,7 @@ import numpy as np
 from lidarpkt.errors import PacketFormatError, SensorMismatchError
 from .crc import footer_crc_ok
 from .profiles import LEGACY_STATUS_VALID, Profile
-from lidarpkt.vendors.ouster.bitfield import BitField, read_bits
+from .bitfield import BitField, read_bits
 
 
 @dataclass(eq=False)

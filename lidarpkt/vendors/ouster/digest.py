@@ -17,7 +17,7 @@ import numpy as np
 from lidarpkt.errors import UsageError
 from lidarpkt.core.frame import Frame
 from .decode import OusterPacketFields, read_pixel_field
-from lidarpkt.vendors.ouster.bitfield import BitField
+from .bitfield import BitField
 from .profiles import Profile
 
 

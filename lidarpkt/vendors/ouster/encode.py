@@ -14,7 +14,7 @@ from .crc import crc64_xz
 from .decode import OusterPacketFields
 from .fieldplan import plane_attr
 from .profiles import HEADER_STATUS_FIELDS, Profile
-from lidarpkt.vendors.ouster.bitfield import _to_raw, write_bits
+from .bitfield import _to_raw, write_bits
 
 
 def encode_packets(fields: OusterPacketFields, metadata=None, *, crc: bool | None = None) -> np.ndarray:

@@ -121,7 +121,7 @@ class OusterDecoder:
         if options:
             raise TypeError(f"OusterDecoder: unknown options {sorted(options)}")
         self.metadata = metadata
-        self.source = source
+        self._source = source
         self.verify_crc = verify_crc and metadata.footer_kind == "crc"
         self.soft_id_check = soft_id_check
         self.sensor = metadata.sensor_info(source)
@@ -327,6 +327,22 @@ class OusterDecoder:
             counters=b.counters,
             extra=extra,
         )
+
+    def holds_packet(self, frame: Frame, batch: PacketBatch) -> bool:
+        """Does ``frame`` (one of this decoder's) hold the first packet of ``batch``: is it of the frame's id?"""
+        fields = decode_packets(batch.payload[:1], self.metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
+        return int(fields.frame_id[0]) == frame.frame_id
+
+    @property
+    def source(self) -> str | None:
+        """Where the packets come from, for reports; its :class:`SensorInfo` carries it (a new name is a new one)."""
+        return self._source
+
+    @source.setter
+    def source(self, name: str | None) -> None:
+        if name != self._source:
+            self._source = name
+            self.sensor = self.metadata.sensor_info(name)
 
     def finish(self) -> list[Frame]:
         """The frame still being filled (partial), if any.

@@ -20,8 +20,8 @@ from lidarpkt.errors import PacketFormatError
 from lidarpkt.core.imu import STANDARD_GRAVITY_MPS2, ImuSamples
 from lidarpkt.core.packet import payload_rows
 from .profiles import HEADER_TYPES
-from lidarpkt.vendors.ouster.auxiliary import IMU_DTYPE, IMU_PACKET_SIZE, imu_packet_dtype
-from lidarpkt.vendors.ouster.bitfield import read_bits
+from .auxiliary import IMU_DTYPE, IMU_PACKET_SIZE, imu_packet_dtype
+from .bitfield import read_bits
 
 
 def decode_imu(payload: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.errors import CaptureFormatError, LidarpktError
 from .metadata import OusterMetadata
-from lidarpkt.vendors.ouster.metadata_json import load_metadata
+from .metadata_json import load_metadata
 
 # Frame attribute of each standard channel, by return slot (the rest go to Frame.extra)
 _FRAME_ATTRS = {"RANGE": ("range_mm", 0), "RANGE2": ("range_mm", 1), "REFLECTIVITY": ("reflectivity", 0),
@@ -242,7 +242,7 @@ class OsfReader(FrameIterator):
     """The frames of an OSF file (``lidarpkt.open("x.osf")``); ``file`` is its :class:`OsfFile`.
 
     ``stats`` counts the frames (its ``frames``: the caller's counts, ``lidarpkt.open``'s
-    :class:`~lidarpkt.pipeline.reader.SourceStats`); ``decoders`` is empty (no packets are decoded).
+    :class:`~lidarpkt.core.streams.SourceStats`); ``decoders`` is empty (no packets are decoded).
     ``include_partial``: also the frames with a column of the column window not valid (left out by
     default, as from packets).
 

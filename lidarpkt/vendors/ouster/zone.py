@@ -14,8 +14,8 @@ import numpy as np
 
 from lidarpkt.core.packet import payload_rows
 from .profiles import HEADER_TYPES
-from lidarpkt.vendors.ouster.auxiliary import ZONE_PACKET_DTYPE, ZONE_PACKET_SIZE, ZONE_STATE_FIELDS
-from lidarpkt.vendors.ouster.bitfield import read_bits
+from .auxiliary import ZONE_PACKET_DTYPE, ZONE_PACKET_SIZE, ZONE_STATE_FIELDS
+from .bitfield import read_bits
 
 #: The zone-state fields, reserved bits left out.
 ZONE_FIELD_NAMES = tuple(f.name for f in ZONE_STATE_FIELDS if not f.reserved)

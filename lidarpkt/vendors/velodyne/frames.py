@@ -10,7 +10,7 @@ return), slot 1 block 2k+1: the strongest return, or — when the strongest retu
 the last — the second strongest. Such pixels are marked in ``frame.extra["second_strongest"]``
 (``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has the
 strictly higher signal at the detector, estimated from the packet as reflectivity / range²
-(:func:`lidarpkt.vendors.velodyne.dual.second_strongest_mark`, which documents the model, the tie rule
+(:func:`lidarpkt.core.dual.second_strongest_mark`, which documents the model, the tie rule
 and what the mark cannot know). Where the sensor saw one return both slots hold it, as the
 sensor sends it.
 
@@ -65,16 +65,16 @@ from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the call
 from lidarpkt.core.frame import Frame, FrameCounters
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
-from .clock import HOUR_US, SensorClock, fix_time_ns
+from .clock import HOUR_US, SensorClock
 from .accounting import DecoderStats, PacketAccounting
 from .columns import Columns, finish_columns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, layout_pixels
 from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
 from .layout import packet_layout
-from .dual import second_strongest_mark
+from lidarpkt.core.dual import second_strongest_mark
 from .geometry import VelodyneGeometry
 from .hdl64e import StatusCycle
-from .nmea import parse_sentence_rows
+from lidarpkt.core.nmea import fix_time_ns, parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
@@ -96,7 +96,8 @@ class VelodyneDecoder(PacketAccounting):
 
     Args:
         calibration: a :class:`~lidarpkt.vendors.velodyne.calibration.VelodyneCalibration`, a path to a ROS
-            YAML / VeloView XML, or ``None`` for the stock calibration.
+            YAML / VeloView XML, several of them (the first that is the model's serves), or ``None`` for
+            the stock calibration.
         cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
         source: a name for reports (``"192.168.1.201:2368"``).
         max_gap_s: lost stretches shorter than this become invalid columns; longer ones end the
