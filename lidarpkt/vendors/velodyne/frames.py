@@ -80,7 +80,7 @@ from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from lidarpkt.core.rotation import rotation_is_whole, wrapped
 from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, packet_rate_cdeg_s_vlp16,
-                     rotation_frequency_hz)
+                     rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
 #: Packets turned into columns at a time (see ``_push_run``).
@@ -365,20 +365,16 @@ class VelodyneDecoder(PacketAccounting):
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> Columns:
         if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path
-            rate = self._packet_rates(raw, mode)
-            rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), rate, self._row_laser,
-                                             round(self.model.distance_resolution_m * 1000))
-            per_packet = self.model.columns_per_packet(mode)
-            return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
-                                  self._last_az_cdeg)
-        dual = mode == "dual"
-        per_packet = self.model.columns_per_packet(mode)
-        slots, seqs = (2 if dual else 1), self.model.sequences_per_block
-        rate = packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, dual)
-        dt = firing_dt_s(dual)[::slots]  # dual: one block of each pair (the pair shares its firings)
-        rng, refl, az_px = column_pixels(raw, rate, dt, self._row_laser, slots, seqs)
-        return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
-                                  self._last_az_cdeg)
+            rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), self._packet_rates(raw, mode),
+                                             self._row_laser, round(self.model.distance_resolution_m * 1000))
+        else:
+            dual = mode == "dual"
+            slots = 2 if dual else 1
+            dt = firing_dt_s(dual)[::slots]  # dual: one block of each pair (the pair shares its firings)
+            rng, refl, az_px = column_pixels(raw, packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, dual), dt,
+                                             self._row_laser, slots, self.model.sequences_per_block)
+        return finish_columns(rng, refl, az_px, abs_ns, index, miss, self.model.columns_per_packet(mode), self.model,
+                              self._row_laser, self._last_az_cdeg)
 
     def _packet_rates(self, raw: DataPackets, mode: str) -> np.ndarray:
         """``float32[N]`` rotation rate of each packet, 0.01° per second, as velodyne_decoder measures it."""
@@ -482,23 +478,11 @@ class VelodyneDecoder(PacketAccounting):
                 self._sensors[mode] = info
         return info
 
-    def _row_offsets_ns(self, width: int) -> np.ndarray:
-        """``int64[L, width]``, read-only: each row's firing delay after its column's first firing, ns (the
-        model's laser offsets), in every column; a view of an image kept for the widest frame so far."""
-        cached = getattr(self, "_offsets", None)
-        if cached is None or cached[0] is not self.model or cached[1] is not self._row_laser or cached[2].shape[1] < width:
-            offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
-            image = np.empty((len(offsets), max(width, 4096)), np.int64)
-            image[...] = offsets[:, None]
-            image.flags.writeable = False
-            cached = self._offsets = (self.model, self._row_laser, image)
-        return cached[2][:, :width]
-
     def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
         # a row's offset in every column, 0 in columns no packet delivered; read-only, and with every column
-        # delivered a view of the decoder's image of them (no [16, W] int64 image written per frame)
-        toff = self._row_offsets_ns(len(cols))
+        # delivered a view of a shared image of them (no [16, W] int64 image written per frame)
+        toff = row_offsets_ns(self.model, self._row_laser, len(cols))
         if not cols.valid.all():
             toff = np.where(cols.valid, toff, 0)
             toff.flags.writeable = False

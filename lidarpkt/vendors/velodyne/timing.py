@@ -176,3 +176,23 @@ def interpacket_rate_cdeg_s(first_azimuth_cdeg: np.ndarray, timestamp_us: np.nda
     if prev_az is None:
         rate[0] = rate[1] if n > 1 else 0.0
     return rate.astype(np.float32), int(az[-1]), int(ts[-1])
+
+
+#: (laser offsets, row order) -> the widest read-only image of row offsets made so far (see row_offsets_ns)
+_ROW_OFFSETS: dict[tuple[bytes, bytes], np.ndarray] = {}
+
+
+def row_offsets_ns(model: VelodyneModel, row_laser: np.ndarray, width: int) -> np.ndarray:
+    """``int64[L, width]``, read-only: each row's firing delay after its column's first firing, ns (the model's
+    laser offsets; row ``i`` is laser ``row_laser[i]``), in every column. A view of one image per model and
+    row order, shared by every decoder (a capture of many sensors makes one)."""
+    laser_ns = np.asarray(model.laser_offsets_ns)
+    key = (laser_ns.tobytes(), np.asarray(row_laser).tobytes())
+    image = _ROW_OFFSETS.get(key)
+    if image is None or image.shape[1] < width:
+        offsets = np.rint(laser_ns[row_laser]).astype(np.int64)
+        image = np.empty((len(offsets), max(width, 4096)), np.int64)
+        image[...] = offsets[:, None]
+        image.flags.writeable = False
+        _ROW_OFFSETS[key] = image
+    return image[:, :width]
