@@ -18,7 +18,7 @@ from typing import Literal, overload
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .returns import resolve, sample_mask
 from .stack import check_stack

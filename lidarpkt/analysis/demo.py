@@ -109,22 +109,25 @@ def run_demo(out: str | Path, *, frames: int | None = None, seed: int = 0, plots
 
 
 def _mode_comparison_figures(plots, stacks, out: Path, frames: int | None, seed: int) -> None:
-    """Strongest vs last (VLP-16) temporal CDFs of the figure raypaths: how the mode changes what a raypath reports."""
+    """Strongest vs last temporal CDFs of the figure raypaths, from the captures of one sensor in each return
+    mode (:data:`lidarpkt.fixtures.captures.MODE_CAPTURES`): how the mode changes what a raypath reports."""
     from lidarpkt import fixtures
+    from lidarpkt.fixtures.captures import MODE_CAPTURES, MODE_FIGURE_PREFIX
 
     from .cdf import temporal_cdf
 
-    truth = fixtures.load_truth(fixtures.ensure("vlp16-strongest", frames=frames, seed=seed))
+    truth = fixtures.load_truth(fixtures.ensure(MODE_CAPTURES["strongest"], frames=frames, seed=seed))
+    model = stacks[MODE_CAPTURES["strongest"]].sensor.model
     for raypath in FIGURE_RAYPATHS:
         row, col = truth["raypaths"][raypath]["pixel"][0]
         cdfs = {
-            "strongest": temporal_cdf(stacks["vlp16-strongest"], row, col, 0),
-            "last": temporal_cdf(stacks["vlp16-last"], row, col, 0),
-            "dual: last": temporal_cdf(stacks["vlp16-dual"], row, col, 0),
-            "dual: strongest": temporal_cdf(stacks["vlp16-dual"], row, col, 1),
+            "strongest": temporal_cdf(stacks[MODE_CAPTURES["strongest"]], row, col, 0),
+            "last": temporal_cdf(stacks[MODE_CAPTURES["last"]], row, col, 0),
+            "dual: last": temporal_cdf(stacks[MODE_CAPTURES["dual"]], row, col, 0),
+            "dual: strongest": temporal_cdf(stacks[MODE_CAPTURES["dual"]], row, col, 1),
         }
-        fig = plots.plot_mode_cdfs(cdfs, row, col, f"VLP-16 {raypath}")
-        plots.save(fig, out / f"vlp16-{raypath}-modes.png")
+        fig = plots.plot_mode_cdfs(cdfs, row, col, f"{model} {raypath}")
+        plots.save(fig, out / f"{MODE_FIGURE_PREFIX}-{raypath}-modes.png")
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:

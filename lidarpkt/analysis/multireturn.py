@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .gmm import DEFAULT_GAP_M
 from .returns import sample_mask

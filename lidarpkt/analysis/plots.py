@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .cdf import RangeCDF
 from .compare import PairedComparison

@@ -1,4 +1,4 @@
-"""Getting a :class:`~lidarpkt.core.frame.FrameStack` ready for the analysis: loading, frame
+"""Getting a :class:`~lidarpkt.core.sequence.FrameStack` ready for the analysis: loading, frame
 selection, pixel checks, and the neighbourhood geometry every spatial computation shares.
 
 Pixel coordinates are always the stack's own (row, column): for Ouster that is the
@@ -17,7 +17,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError, LidarpktWarning
-from lidarpkt.core.frame import FrameStack, default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.grid import default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.sequence import FrameStack
 
 _MAX_PARTIAL_FALLBACK = 8
 
@@ -44,7 +45,7 @@ def load_stack(
             :class:`~lidarpkt.errors.LidarpktWarning`.
         resolution_deg: azimuth grid of the stack (VLP-16); default :func:`default_grid_deg`.
         workers: decoding threads (``lidarpkt.open(..., workers=)``); the frames are the same.
-        options: other keyword options of ``lidarpkt.open`` (``calibration``, ``velodyne_model`` ...).
+        options: other keyword options of ``lidarpkt.open`` (``model`` ...).
 
     Raises:
         AnalysisError: no frame left after the selection.
@@ -87,7 +88,7 @@ def load_stack(
         sel = "" if frames is None else f" in frames {'' if a is None else a}:{'' if b is None else b}"
         raise AnalysisError(
             f"{path}: no frames{sel} to analyse ({n_complete} complete, {len(partial)} partial found; "
-            "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
+            "check the capture, the --frames range and, for a sensor decoded with its file, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
     return stack_frames(picked, res)

@@ -85,8 +85,7 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         client: a ``distributed.Client`` to run on (wins over the two above).
         progress: called with a :class:`~lidarpkt.archive.engine.JobProgress` as the job advances (after
             each unit, and at the end of each pass), e.g. to draw a progress bar.
-        open_options: further keyword options of ``lidarpkt.open`` for every capture (``calibration``,
-            ``velodyne_model``, ...).
+        open_options: further keyword options of ``lidarpkt.open`` for every capture (``model``, ...).
 
     Returns:
         a ``pyarrow.Table`` of this job's manifest rows (one per input and segment): ``status``

@@ -253,8 +253,10 @@ def run_unit(task: UnitTask) -> UnitResult:
                     outputs = _publish(_write_pcap(local, target, metadata), stage, task)
                 else:
                     if takes_packets(task.format):  # decode's output: the capture's raw packets (of the one pass), clouds
+                        from lidarpkt.writers.mcap.frames import calibration_file
+
                         options = {"topics": DECODE_TOPICS, "capture": local, **options,
-                                   "calibration": dict(task.open_options).get("calibration")}
+                                   "calibration": calibration_file(metadata)}
                     else:
                         options = {"capture": task.capture, **options}
                     writer = open_writer(task.format, target, part=task.part, **options)

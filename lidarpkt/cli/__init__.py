@@ -56,7 +56,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     filled in, so that ``lidarpkt --help`` imports no verb module (``"*"`` fills them all)."""
     parser = _Parser(
         prog="lidarpkt",
-        description="Decode, record and analyse Velodyne VLP-16 and Ouster OS1 lidar packets.",
+        description="Decode, record and analyse the UDP packets of spinning lidars.",
     )
     # says which implementation runs: the compiled kernels, or why not (their NumPy twins are slower)
     parser.add_argument("--version", action=_VersionAction)

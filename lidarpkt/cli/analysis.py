@@ -7,6 +7,8 @@ Ouster pcaps), stacks its complete frames on one column grid, and reports. Error
 
 from __future__ import annotations
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 import argparse
 import json
 import math
@@ -18,7 +20,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameStack
+    from lidarpkt.core.sequence import FrameStack
 
 # ---------------------------------------------------------------------------- helpers
 
@@ -139,23 +141,25 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None,
-                   help="VLP-16 azimuth grid in degrees (default: from the firing rate, 0.2 at 10 Hz, 0.4 at 20 Hz, "
-                        "as decode -o x.npz and FrameStack.from_frames); Ouster frames keep their columns")
+                   help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's, from "
+                        "its firing rate, as decode -o x.npz and FrameStack.from_frames); frames whose columns are "
+                        "their encoder's keep them")
 
 
 # ---------------------------------------------------------------------------- analyze
 
 
 def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP, ROS bag or OSF")
+    p.add_argument("input", metavar="IN", help=f"capture: {CAPTURES_TEXT}")
     from lidarpkt.cli import args as cliargs
 
     cliargs.add_workers(p)
-    cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
-                                             "repeatable")
+    cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; the column as the frame's: a "
+                                             "measurement id where columns are the encoder's); repeatable")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return: strongest, last or second_strongest, selected per firing as the sensor defines "
-                        "them (VLP-16 dual: slot 1 holds the second strongest where the last was the strongest), "
+                        "them (a last+strongest dual mode: slot 1 holds the second strongest where the last was the "
+                        "strongest), "
                         "or a raw slot index (0, 1); default 0")
     _add_input(p)
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
@@ -224,7 +228,7 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP, ROS bag or OSF; several captures "
+    p.add_argument("input", metavar="IN", nargs="+", help=f"capture: {CAPTURES_TEXT}; several captures "
                    "or a folder (or --workers/--scheduler): -o is a folder of maps and summary.csv "
                    "(lidarpkt.archive.multireturn_maps)")
     from lidarpkt.cli import args as cliargs
@@ -254,7 +258,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
-                        "map's returns (a VLP-16 dual map has last, strongest, second_strongest); default 0")
+                        "map's returns (a last+strongest dual map has last, strongest, second_strongest); default 0")
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
@@ -339,7 +343,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     cliargs.add_json(p, "the comparison as one JSON document")
     cliargs.add_plot(p)
     _add_input(p)
-    p.add_argument("--metadata2", action="append", metavar="M.json", help="Ouster metadata JSON of IN2 (default: --metadata)")
+    p.add_argument("--metadata2", action="append", metavar="FILE", help="a sensor's file of IN2 (default: --metadata)")
     cliargs.add_pixel(p, required=False, help="raypath whose temporal CDFs to compare in detail; repeatable")
     p.add_argument("--return", dest="slot", metavar="RETURN", default=None,
                    help="with IN2: the return of IN to compare: strongest, last, second_strongest (per firing, as "

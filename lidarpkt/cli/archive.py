@@ -27,9 +27,9 @@ from .console import JobBars
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
     p.add_argument("--glob", metavar="PATTERN", help="in folders, only files whose name matches (e.g. '*.pcap')")
-    cliargs.add_sensor_options(p, "a sensor's description file for every input: Ouster metadata JSON (by default "
-                                  "the JSON beside each capture with the same stem), Hesai angle-correction CSV or "
-                                  "Velodyne calibration YAML/XML (told apart by content); repeat, one per sensor")
+    cliargs.add_sensor_options(p, "a sensor's description file for every input, of any vendor, told apart by its "
+                                  "content (by default the JSON beside each capture with the same stem); repeat, one "
+                                  "per sensor")
     p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
                    help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
     p.add_argument("--scheduler", metavar="ADDR",

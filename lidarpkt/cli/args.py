@@ -257,9 +257,6 @@ def preparse_pixel(argv: list[str]) -> list[str]:
 
 
 # ------------------------------------------------------------------------------ sensor options
-_SENSOR_FILES = "an Ouster metadata JSON, a Hesai angle-correction CSV or a Velodyne calibration YAML/XML"
-
-
 class _SensorFile(argparse.Action):
     """``--metadata FILE`` and ``--calibration FILE``: one list of files, each remembered with the flag that
     named it (the errors name the flag the user wrote)."""
@@ -277,78 +274,56 @@ def add_sensor_options(parser: argparse.ArgumentParser, help: str | None = None)
     sensor, any vendor's description file; ``--calibration FILE`` is a second spelling) and ``--model
     NAME``. :func:`sensor_options` turns them into the library's options."""
     parser.add_argument("--metadata", action=_SensorFile, default=None, metavar="FILE",
-                        help=help or f"a sensor's description file: {_SENSOR_FILES} (told apart by content); "
-                                     "repeat, one per sensor (VLP-16s need none; MCAP files recorded by lidarpkt "
-                                     "carry theirs)")
+                        help=help or "a sensor's description file (its metadata or calibration, of any vendor, told "
+                                     "apart by its content); repeat, one per sensor (sensors whose packets say "
+                                     "enough need none; MCAP files recorded by lidarpkt carry theirs)")
     parser.add_argument("--calibration", action=_SensorFile, dest="metadata", metavar="FILE",
                         help="a second spelling of --metadata (the same files, told apart by content)")
     parser.add_argument("--model", "--velodyne-model", dest="model", metavar="NAME",
-                        help="the sensor model where its packets cannot tell it (VLP-32A or VLP-32B, Puck LITE, "
-                             "HDL-64E S2); --velodyne-model is its former spelling")
+                        help="the sensor model where its packets cannot tell it (two models sharing a factory "
+                             "byte); the second spelling is the former one")
     parser.set_defaults(_sensor_flags={})
-
-
-def _sensor_file_kind(path: str) -> str | None:
-    """``"ouster"`` (metadata JSON), ``"hesai"`` (angle-correction CSV) or ``"velodyne"`` (calibration
-    YAML/XML), by the file's first bytes; None for any other file."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096).decode("utf-8", errors="replace").lstrip("\ufeff \t\r\n")
-    except OSError:
-        return None
-    first = head.splitlines()[0].lower() if head else ""
-    if head.startswith("{"):
-        return "ouster"
-    if head.startswith("<"):
-        return "velodyne"
-    if "elevation" in first and "azimuth" in first and "," in first:
-        return "hesai"
-    if "lasers:" in head or "num_lasers:" in head:
-        return "velodyne"
-    return None
 
 
 def sensor_options(args: argparse.Namespace) -> dict[str, Any]:
     """The sensor options of the command line (:func:`add_sensor_options`) as the keyword options of
-    ``lidarpkt.open``: each file checked (it exists, its kind told by content) and the model name known,
-    before any work. Ouster metadata JSONs go to ``metadata``, a Hesai CSV or a Velodyne YAML/XML to
-    ``calibration``, the model to ``velodyne_model``.
+    ``lidarpkt.open``: every file to ``metadata`` (each checked: it exists, and it is a sensor file of some
+    vendor, told apart by its content), the model to ``model`` (a model some vendor has), before any work.
 
     Raises:
         lidarpkt.errors.InputFileError: a file that does not exist.
-        lidarpkt.errors.UsageError: a file of no known kind, two calibration files, an unknown model.
+        lidarpkt.errors.UsageError: a file of no known kind (or that its vendor cannot read), an unknown model;
+            the message names the flag the user wrote.
     """
+    from lidarpkt.vendors import registry
+
     flags = getattr(args, "_sensor_flags", None) or {}
-    ouster: list[str] = []
-    calibrations: list[str] = []
+    files: list[str] = []
     for path in getattr(args, "metadata", None) or ():
         flag = flags.get(path, "--metadata")
-        if "://" in path:  # a URL (archive jobs): read where the capture is read
-            ouster.append(path)
-            continue
-        check_inputs([path], flag)
-        kind = _sensor_file_kind(path)
-        if kind is None:
-            raise UsageError(f"{flag} {path}: not a sensor description file; give {_SENSOR_FILES}")
-        (ouster if kind == "ouster" else calibrations).append(path)
-    if len(calibrations) > 1:
-        raise UsageError(f"{flags.get(calibrations[1], '--metadata')} {calibrations[1]}: one calibration file (Hesai "
-                         f"CSV or Velodyne YAML/XML) per run, {calibrations[0]} is given already; run once per sensor")
+        if "://" not in path:  # a URL (archive jobs) is read where the capture is read
+            check_inputs([path], flag)
+            try:
+                registry.load_sensor_files([path])
+            except LidarpktError as exc:
+                raise UsageError(f"{flag} {_after_name(str(exc), path)}") from None
+        files.append(path)
     options: dict[str, Any] = {}
-    if ouster:
-        options["metadata"] = ouster
-    if calibrations:
-        options["calibration"] = calibrations[0]
+    if files:
+        options["metadata"] = files
     model = getattr(args, "model", None)
     if model:
-        from lidarpkt.vendors.velodyne.models import MODELS, model_named
-
         try:
-            model_named(model)
-        except LidarpktError as exc:
-            raise UsageError(f"--model {model}: no such model; give one of {', '.join(m.name for m in MODELS)}") from exc
-        options["velodyne_model"] = model
+            registry.check_model(model)
+        except UsageError as exc:
+            raise UsageError(f"--model {model}: {str(exc).split(': ', 1)[1]}") from None
+        options["model"] = model
     return options
+
+
+def _after_name(message: str, path: str) -> str:
+    """``"PATH: what"`` of a library message about ``path`` (the path in front once, whatever the message)."""
+    return message if message.startswith(path) else f"{path}: {message}"
 
 
 # ------------------------------------------------------------------------------ checks

@@ -39,9 +39,11 @@ TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.T
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.cli import args as cliargs
+    from lidarpkt.containers.magic import CAPTURES_TEXT
     from lidarpkt.writers import SUFFIXES
 
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
+    parser.add_argument("inputs", nargs="+", metavar="IN", help=f"captures ({CAPTURES_TEXT}; bags and MCAP with raw "
+                                                                "packet topics)")
     cliargs.add_output(parser, SUFFIXES,
                        help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, OUT.csv, "
                             "OUT.ply / OUT.pcd / OUT.kitti (folders of one file per frame), OUT.rrd (Rerun), "
@@ -69,8 +71,8 @@ def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
     that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
     parser.add_argument("--frame-id", action="append", metavar="NAME",
                         help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
-                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
-                             "os_sensor)")
+                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: the vendor's ROS "
+                             "driver's)")
     parser.add_argument("--base-frame", metavar="NAME",
                         help="MCAP: write each sensor's mount on this frame to /tf_static")
     parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
@@ -128,7 +130,7 @@ def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
     """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames
     in one pass (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
     from lidarpkt.writers import open_writer
-    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
+    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS, calibration_file
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
@@ -136,7 +138,8 @@ def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
     options = _open_options(args)
     feed, progress = _feed(args)
-    with open_writer(fmt, out, capture=args.inputs[0], topics=groups, calibration=options.get("calibration"),
+    with open_writer(fmt, out, capture=args.inputs[0], topics=groups,
+                     calibration=calibration_file(options.get("metadata", ())),
                      **frame_options(args), **_format_options(args, fmt)) as writer:
         for path in args.inputs:
             feed.write(path, [writer], **options)

@@ -14,7 +14,7 @@ import os
 import sys
 from typing import Sequence
 
-from lidarpkt.containers.magic import find_captures
+from lidarpkt.containers.magic import CAPTURES_TEXT, find_captures
 from lidarpkt.errors import LidarpktError
 
 __all__ = ["add_arguments", "run"]
@@ -39,25 +39,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
-        help="pcap/pcapng capture(s), MCAP files, ROS bags or OSF files; a directory stands for every capture under it",
+        help=f"captures ({CAPTURES_TEXT}); a directory stands for every capture under it",
     )
     cliargs.add_json(parser, "the descriptions as one JSON document instead of text")
-    cliargs.add_sensor_options(parser, "a sensor's description file (an Ouster metadata JSON names its profile "
-                                       "exactly; a Hesai CSV, a Velodyne YAML/XML are accepted as by every verb); "
-                                       "repeat, one per sensor")
+    cliargs.add_sensor_options(parser, "the sensor file of a sensor in the capture (names what its packets are "
+                                       "exactly); repeat, one per sensor")
     cliargs.add_quiet(parser, "accepted by every verb; info draws no progress bar or status line anyway")
 
 
 def run(args: argparse.Namespace) -> int:
     """Describe each file; exit status 0, or 2 when a file could not be read (the others are still described)."""
     from lidarpkt.pipeline.describe import describe_capture, format_capture
-    from lidarpkt.vendors.ouster import load_metadata
+    from lidarpkt.vendors import registry
 
     from . import args as cliargs
 
     options = cliargs.sensor_options(args)
     cliargs.check_json(args)
-    metadata = [load_metadata(m) for m in options.get("metadata", ())]
+    metadata = registry.load_sensor_files(options.get("metadata", ()))
     docs = []
     status = 0
     for path in _expand(args.files):

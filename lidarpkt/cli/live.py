@@ -15,8 +15,8 @@ __all__ = ["add_receive_arguments", "add_ws_argument", "live_sensors", "receive_
 def add_receive_arguments(parser: argparse.ArgumentParser, metadata_help: str) -> None:
     """The flags of the live receive path, shared by ``record`` and ``view``."""
     parser.add_argument("--port", type=cliargs.port_type("--port"), action="append", metavar="PORT",
-                        help="UDP port to listen on; repeat for several (VLP-16: 2368 data, 8308 position; "
-                             "Ouster: 7502 lidar, 7503 IMU; default with --metadata/--sensor: the ports it names)")
+                        help="UDP port to listen on; repeat for several (default with --metadata/--sensor: the ports "
+                             "its sensor file names; `lidarpkt info` shows a capture's ports)")
     parser.add_argument("--bind", metavar="ADDR", help="local address to listen on (default: all, broadcast included)")
     parser.add_argument("--multicast", metavar="GROUP", help="join this IPv4 multicast group")
     parser.add_argument("--interface", metavar="IF", help="interface (name or address) for --multicast")
@@ -36,23 +36,24 @@ def receive_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def live_sensors(args: argparse.Namespace) -> tuple[list, dict[str, Any]]:
-    """(the Ouster metadata of ``--metadata`` and of ``--sensor`` (fetched over HTTP), loaded; the other
-    sensor options as ``lidarpkt.open`` takes them: calibration, model).
+    """(the sensor files of ``--metadata`` and of ``--sensor`` (fetched over HTTP), loaded by the vendor
+    registry (:func:`lidarpkt.vendors.registry.load_sensor_files`); the other sensor options as
+    ``lidarpkt.open`` takes them: ``model``).
 
     Raises :class:`lidarpkt.errors.MetadataError` (a file), :class:`~lidarpkt.errors.SensorConnectionError`
     (a sensor that does not answer; the message names the host and the URL tried) and what
     :func:`lidarpkt.cli.args.sensor_options` raises.
     """
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors import registry
 
     options = cliargs.sensor_options(args)
-    mds = [load_metadata(path) for path in options.pop("metadata", ())]
+    files = registry.load_sensor_files(options.pop("metadata", ()))
     if getattr(args, "sensor", None):
         from lidarpkt.vendors.ouster.sensor_http import fetch_metadata, parse_sensor
 
         host, port = parse_sensor(args.sensor)
-        mds.append(fetch_metadata(host, port))
-    return mds, options
+        files += registry.load_sensor_files([fetch_metadata(host, port)])
+    return files, options
 
 
 def add_ws_argument(parser: argparse.ArgumentParser) -> None:

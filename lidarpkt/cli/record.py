@@ -25,8 +25,9 @@ from .live import add_receive_arguments, add_ws_argument, live_sensors, receive_
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .decode import add_frame_arguments
 
-    add_receive_arguments(parser, "a sensor's description file (Ouster metadata JSON: stored in the file; Hesai CSV, "
-                                  "Velodyne YAML/XML: the --points frames' geometry); repeat, one per sensor")
+    add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
+                                  "apart by its content): recorded in the file, and what the --points frames are "
+                                  "decoded with; repeat, one per sensor")
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
@@ -68,12 +69,12 @@ def run(args: argparse.Namespace) -> int:
         from .decode import frame_options
 
         sensors = SensorFrames(**frame_options(args))  # checked before anything is opened
-    mds, decoder_options = live_sensors(args)
+    files, decoder_options = live_sensors(args)
     # a second Ctrl-C: stop now (the file still gets its index)
     stop = StopSignals(second_interrupt_raises=True).install()
     try:
         recording = record(
-            args.output, ports=args.port or (), metadata=mds, decoder_options=decoder_options,
+            args.output, ports=args.port or (), metadata=files, decoder_options=decoder_options,
             chunk_seconds=args.chunk_seconds, rotate_bytes=int(args.rotate_size * 1e6) if args.rotate_size else None,
             rotate_seconds=args.rotate_time, gps=args.gps, gps_baud=args.baud, points=args.points, sensors=sensors,
             view=(lambda: start_view(args.ws, verb="record")) if args.view else None, duration_s=args.duration,

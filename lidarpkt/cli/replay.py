@@ -31,10 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
                         help="send packets captured to port SRC to port DST instead (repeatable)")
-    cliargs.add_sensor_options(parser, "a sensor's description file: an Ouster metadata JSON recognises its lidar "
-                                       "packets exactly (without it they are recognised as `lidarpkt info` does; MCAP "
-                                       "files carry their own) and is what --http serves; a Hesai angle-correction CSV "
-                                       "is what --ptc serves; repeat, one per sensor")
+    cliargs.add_sensor_options(parser, "a sensor's description file, to recognise its packets exactly (without it "
+                                       "they are recognised as `lidarpkt info` does; MCAP files carry their own) and "
+                                       "what --http/--ptc serve; repeat, one per sensor")
     parser.add_argument("--http", metavar="HOST:PORT",
                         help="also serve the (first) Ouster --metadata at GET /api/v1/sensor/metadata there, as the "
                              "sensor does (for record/view --sensor)")
@@ -73,18 +72,18 @@ def _sigterm_as_interrupt(signum, _frame) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt.recorder.replay import embedded_metadata, replay_capture
+    from lidarpkt.recorder.replay import recorded_sensor_file, replay_capture
+    from lidarpkt.vendors import registry
 
     host, port = parse_host_port(args.to)
     port_map = parse_port_map(args.port_map)
     cliargs.check_inputs([args.file])
     options = cliargs.sensor_options(args)
-    if options.get("metadata"):
-        from lidarpkt.vendors.ouster.metadata import load_metadata
-
-        mds = [load_metadata(path) for path in options["metadata"]]
-    else:
-        mds = [md] if (md := embedded_metadata(args.file)) is not None else []
+    given = list(options.get("metadata", ()))
+    files = registry.load_sensor_files(given)
+    if not files:
+        files = [f] if (f := recorded_sensor_file(args.file)) is not None else []
+    mds = [f.loaded for f in files if f.vendor == "ouster"]  # what --http serves
     if not args.max and not args.rate > 0:
         raise RecorderError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time) or --max")
     http = None
@@ -98,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         # printed even with --quiet: scripts wait for it before starting the client
         print(f"lidarpkt replay: serving the sensor metadata at http://{http_host}:{http.port}"
               "/api/v1/sensor/metadata", file=sys.stderr, flush=True)
-    ptc = _ptc_server(args, options.get("calibration"))
+    ptc = _ptc_server(args, next((path for path, f in zip(given, files) if f.vendor == "hesai"), None))
     if args.start_after_fetch is not None and http is None and ptc is None:
         raise RecorderError("--start-after-fetch: it needs --http HOST:PORT or --ptc HOST:PORT; give both or neither")
     previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
@@ -112,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 return 0
             time.sleep(args.start_after_fetch)
         total = replay_capture(args.file, host, port, rate=None if args.max else args.rate, loop=args.loop,
-                               port_map=port_map, ouster_metadata=mds)
+                               port_map=port_map, metadata=files)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -126,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
               f"({total.bytes / 1e6:.1f} MB) to {host} in {total.seconds:.2f} s: {ports}", file=sys.stderr)
         if total.unknown:
             print(f"lidarpkt replay: note: {total.unknown} packets of no known stream went to their original "
-                  "(or mapped) ports; if one is an Ouster lidar stream, give its --metadata to send it to --to",
+                  "(or mapped) ports; if one is a lidar stream, give its sensor's --metadata to send it to --to",
                   file=sys.stderr)
     return 0
 

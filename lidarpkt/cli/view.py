@@ -15,13 +15,15 @@ import sys
 import threading
 import time
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from . import args as cliargs
     from .live import add_receive_arguments, add_ws_argument
 
     parser.add_argument("source", nargs="?", metavar="SOURCE",
-                        help="capture to show (pcap/pcapng, MCAP, ROS bag, OSF); without it, a live sensor")
+                        help=f"capture to show ({CAPTURES_TEXT}); without it, a live sensor")
     add_ws_argument(parser)
     parser.add_argument("--rerun", nargs="?", const="web", metavar="TARGET",
                         help="show it in Rerun's viewer instead of Foxglove: web (the default: Rerun's web viewer "
@@ -32,8 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--rerun: colour the points by range (default) or reflectivity")
     parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
-    add_receive_arguments(parser, "a sensor's description file: Ouster metadata JSON, Hesai angle-correction CSV "
-                                  "or Velodyne calibration YAML/XML (told apart by content); repeat, one per sensor")
+    add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
+                                  "apart by its content); repeat, one per sensor")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     cliargs.add_quiet(parser, "no status lines")
 
@@ -125,8 +127,8 @@ def _view_live(args, stop: threading.Event) -> int:
 
     from .live import live_sensors, receive_options
 
-    mds, decoder_options = live_sensors(args)
-    ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
+    files, decoder_options = live_sensors(args)
+    ports = args.port or [p for f in files for p in f.ports]
     capture = UdpSource(ports, **receive_options(args))
     server = tap = dropper = None
     try:
@@ -137,7 +139,7 @@ def _view_live(args, stop: threading.Event) -> int:
             view.frames_dropped = n
 
         dropper = FrameDropper(server.publish, on_drop=dropped)
-        tap = FrameTap(LiveDecoder(mds, **decoder_options), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
+        tap = FrameTap(LiveDecoder(files, **decoder_options), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
         print(f"lidarpkt view: listening on {capture.bind_address} port(s) {', '.join(map(str, capture.ports))}",
               file=sys.stderr, flush=True)
         capture.start()

@@ -14,6 +14,10 @@
 ``reassembly``     :class:`Reassembler`: bounded IPv4/IPv6 fragment reassembly, record by record
 ``batching``       chunks to same-stream batches (filters, ordinals, grouping)
 ``bags``           :class:`BagReader`: MCAP files and ROS 1 / rosbag2 bags
+``rosbag``         ROS 1 / rosbag2 through rosbags: cleanup after damage, old metadata.yaml completed
+``mcap_records``   plain MCAP files record by record, chunks inflated within bounds
+``rosmsgs``        the ROS message definitions lidarpkt reads and writes, and their type stores
+``osf``            OSF files of decoded frames: format, field codecs, reader of the stored fields
 ``segments``       :func:`plan_segments` and the ownership rule of ``lidarpkt.open(segment=...)``
 ``udp``            :class:`UdpSource`: live UDP reception (``record``, ``view``, ``udp://`` sources)
 =================  ===========================================================================

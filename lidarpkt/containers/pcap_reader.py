@@ -223,7 +223,7 @@ class PcapReader:
     def __iter__(self) -> Iterator[Packet]:
         return self.packets()
 
-    def ouster_metadata(self) -> None:
+    def recorded_sensor_file(self) -> None:
         """pcap/pcapng files carry no sensor metadata (the :class:`~lidarpkt.containers.PacketSource` protocol)."""
         return None
 

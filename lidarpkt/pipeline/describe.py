@@ -2,13 +2,11 @@
 (:func:`format_capture`): what ``lidarpkt info`` prints and ``lidarpkt catalog`` tabulates.
 
 One line per stream (source address:port → destination port, one payload size): packet
-count, size, first/last host time, duration, and what it is, as the sensor modules
-describe it (:func:`lidarpkt.vendors.velodyne.describe_stream`, :func:`lidarpkt.vendors.ouster.describe_stream`,
-:func:`lidarpkt.vendors.hesai.describe_stream`: Hesai Pandar data, model, protocol, return mode, motor speed):
-VLP-16 data (return mode, product id) or position (PPS status, NMEA time of the first),
-Ouster lidar (profile from the metadata given, else a guess from size and header) or IMU, or
-unknown. Then the reader's counts: reassembled datagrams, orphaned fragments, malformed
-records.
+count, size, first/last host time, duration, and what it is: the vendor registry's classifier
+names the vendor, whose module describes the stream (``Vendor.describe``: model, return mode,
+profile from the sensor file given, else a guess from the packets...) and words it
+(``Vendor.summary``), or unknown. Then the reader's counts: reassembled datagrams, orphaned
+fragments, malformed records.
 """
 
 from __future__ import annotations
@@ -16,12 +14,14 @@ from __future__ import annotations
 import datetime as _dt
 import os
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lidarpkt.core.packet import Endpoint, PacketBatch
-from lidarpkt.containers.magic import is_osf
+
+if TYPE_CHECKING:
+    from lidarpkt.core.vendor import DecodeSetup, FrameFiles
 
 __all__ = ["describe_capture", "format_capture"]
 
@@ -48,44 +48,31 @@ def _iso(ns: int) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
 
 
-def _describe(batch: PacketBatch, metadata: Sequence[Any]) -> tuple[dict | None, str | None]:
-    """(the vendor module's description of the stream, the vendor whose module described it)."""
-    # the detect modules only: not the frame assembly, encoders or XYZ of either sensor package
-    from lidarpkt.vendors.hesai.detect import describe_stream as hesai_stream
-    from lidarpkt.vendors.ouster.detect import describe_stream as ouster_stream
-    from lidarpkt.vendors.velodyne.detect import describe_stream as velodyne_stream
+def _describe(batch: PacketBatch, setup: DecodeSetup) -> tuple[dict | None, str | None, str]:
+    """(the vendor's description of the stream, the vendor that recognised it, what ``lidarpkt.open``'s router
+    makes of it: a :class:`~lidarpkt.core.streams.StreamKind` text, ``"other"`` when it decodes none)."""
+    from lidarpkt.core.streams import OTHER
+    from lidarpkt.vendors import registry
 
-    found = velodyne_stream(batch)
-    if found is not None:
-        return found, "velodyne"
-    found = hesai_stream(batch)  # sizes no VLP-16 or Ouster profile sends, checked by their bytes
-    if found is not None:
-        return found, "hesai"
-    found = ouster_stream(batch, metadata) if metadata else ouster_stream(batch)
-    return found, None if found is None else "ouster"
+    match = registry.classify(batch, setup)
+    if match is None:
+        return None, None, str(OTHER)
+    details = registry.vendor(match.vendor).describe(batch, setup)
+    return details, match.vendor if details is not None else None, str(match.stream if match.decodable else OTHER)
 
 
-def _stream_kind(batch: PacketBatch, metadata: Sequence[Any]) -> str:
-    """What ``lidarpkt.open``'s router makes of the stream (:class:`lidarpkt.core.streams.StreamKind`): a
-    stream of frames (``velodyne_data``, ``ouster_lidar``), an auxiliary one, or ``other``."""
-    from lidarpkt.pipeline.router import RouteOptions, Router
-    from lidarpkt.core.streams import StreamKind
-
-    match = Router(RouteOptions(metadata)).classify(batch)
-    return str(StreamKind.OTHER if match is None else StreamKind.of(match.vendor, match.kind))
-
-
-def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ()) -> dict:
+def describe_capture(path: str | os.PathLike[str], metadata: Any = ()) -> dict:
     """A JSON-ready description of one capture.
 
     Args:
         path: a pcap/pcapng file (or an MCAP file / ROS bag of raw packets: then the pcap-only
-            counts are absent, and an Ouster metadata recorded in the file is used; or an OSF file:
-            then ``{"file", "format": "osf", "osf_version", "sensors": [...], "frames", "first_time",
-            "last_time", "duration_s", "streams": []}``, each sensor's model, serial, firmware,
-            profile, size, frame count, frame ids and receive times).
-        metadata: parsed Ouster metadata (:func:`lidarpkt.vendors.ouster.load_metadata`) for the
-            sensors in the capture; used to name Ouster profiles exactly.
+            counts are absent, and a sensor file recorded in the file is used; or a file of decoded
+            frames a vendor records, OSF: then ``{"file", "format", "sensors": [...], "frames",
+            "first_time", "last_time", "duration_s", "streams": []}`` and what its vendor adds, each
+            sensor's kind, vendor, model, serial, firmware, profile, size, frame count, frame ids and
+            receive times).
+        metadata: the sensor files of the capture's sensors, as ``lidarpkt.open`` takes them (paths or
+            loaded); they name what the packets are exactly (an Ouster profile...).
 
     Returns:
         ``{"file", "format", "link_types", "records", "udp_packets", "non_udp", "fragments",
@@ -94,14 +81,18 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         each stream: ``src``, ``dst``, ``dst_port``, ``payload_size``, ``packets``, first/last time
         (ISO 8601 UTC and ``*_timestamp_ns``), ``duration_s``, ``kind`` (for people: ``"VLP-16 data"``),
         ``stream_kind`` (for programs: a :class:`lidarpkt.core.streams.StreamKind` value, what ``lidarpkt.open``
-        routes it as), ``vendor`` (the sensor module that described it, None when none did) and ``details``
-        (the sensor module's description, or None when unknown).
+        routes it as), ``vendor`` (the vendor that described it, None when none did) and ``details``
+        (the vendor's description, or None when unknown).
 
     Raises:
         lidarpkt.errors.CaptureFormatError: the file is not a readable capture.
     """
-    if is_osf(path):
-        return _describe_osf(path)
+    from lidarpkt.vendors import registry
+
+    frame_files = registry.frame_files(path)
+    if frame_files is not None:
+        return _describe_frame_file(path, frame_files)
+    files = registry.load_sensor_files(list(metadata) if isinstance(metadata, (list, tuple)) else metadata)
     reader, kind = _open_reader(path)
     streams: dict[tuple, _Stream] = {}
     for batch in reader.batches():
@@ -117,19 +108,18 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
         if room > 0:
             s.kept.append(batch if len(batch) <= room else batch.select(np.arange(room)))
             s.kept_packets += min(room, len(batch))
-    if kind != "pcap" and not metadata:
-        text = reader.ouster_metadata()  # recorded next to Ouster packets by lidarpkt record / the ROS driver
-        if text:
-            from lidarpkt.vendors.ouster import load_metadata
-
-            metadata = [load_metadata(text)]
+    recorded = reader.recorded_sensor_file() if kind != "pcap" else None  # lidarpkt record's, a ROS driver's
+    if recorded:
+        f = registry.load_sensor_files([recorded])[0]
+        if not any(g.vendor == f.vendor for g in files):
+            files.append(f)
+    setup = registry.setup(files)
     out_streams = []
     for s in sorted(streams.values(), key=lambda s: s.first_index):
         batch = PacketBatch.concatenate(s.kept)
         s.kept = []
         try:
-            details, vendor = _describe(batch, metadata)
-            stream_kind = _stream_kind(batch, metadata)
+            details, vendor, stream_kind = _describe(batch, setup)
             error = None
         except Exception as exc:  # a description must never stop info: say what failed
             details, vendor, stream_kind, error = None, None, "other", f"{type(exc).__name__}: {exc}"
@@ -185,7 +175,7 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
             records=bs.get("messages", 0),
             udp_packets=bs.get("packets", 0),
             skipped_topics=dict(bs.get("skipped_topics", {})),
-            ouster_metadata_in_file=reader.ouster_metadata() is not None,
+            sensor_file_in_capture=recorded is not None,
         )
     doc.update(
         first_time=_iso(first) if first is not None else None,
@@ -196,15 +186,12 @@ def describe_capture(path: str | os.PathLike[str], metadata: Sequence[Any] = ())
     return doc
 
 
-def _describe_osf(path: str | os.PathLike[str]) -> dict:
-    """:func:`describe_capture` of an OSF file: its version and, per sensor, its frames (no packets, no streams)."""
-    from lidarpkt.vendors.ouster.osf import OsfFile
+def _describe_frame_file(path: str | os.PathLike[str], files: FrameFiles) -> dict:
+    """:func:`describe_capture` of a file of decoded frames: its vendor's summary, per sensor its frames (no packets,
+    no streams)."""
+    from lidarpkt.containers.magic import container_kind
 
-    osf = OsfFile(path)
-    try:
-        doc: dict[str, Any] = {"file": os.fspath(path), "format": "osf", **osf.describe()}
-    finally:
-        osf.close()
+    doc: dict[str, Any] = {"file": os.fspath(path), "format": container_kind(path), **files.describe(path)}
     firsts = [s["first_timestamp_ns"] for s in doc["sensors"] if s["first_timestamp_ns"] is not None]
     lasts = [s["last_timestamp_ns"] for s in doc["sensors"] if s["last_timestamp_ns"] is not None]
     for s in doc["sensors"]:
@@ -217,25 +204,13 @@ def _describe_osf(path: str | os.PathLike[str]) -> dict:
     return doc
 
 
-def _format_osf(doc: dict) -> str:
-    n = len(doc["sensors"])
-    head = f"{doc['file']}: OSF {doc['osf_version']}, {n} sensor{'s' * (n != 1)}, {doc['frames']} frames"
-    lines = [head + (f", {doc['first_time']} + {doc['duration_s']:.6f} s" if doc["first_time"] else "")]
-    for s in doc["sensors"]:
-        ids = f", frame ids {s['frame_ids'][0]}–{s['frame_ids'][1]}" if s["frame_ids"] else ""
-        lines.append(f"  {s['model']} {s['serial'] or '?'} ({s['firmware'] or 'firmware ?'}): {s['profile']}, "
-                     f"{s['columns_per_frame']} × {s['rows']}, {s['frames']} frames{ids} (decoded frames: no packets)")
-    if not doc["sensors"]:
-        lines.append("  no sensor")
-    return "\n".join(lines)
-
-
 def _open_reader(path: str | os.PathLike[str]):
-    """(reader, kind): the capture's packet reader (:func:`lidarpkt.containers.open_packet_source`) and its
+    """(reader, kind): the capture's packet reader (:func:`lidarpkt.vendors.registry.open_packets`) and its
     container kind (``"pcap"`` for pcap/pcapng, else ``"mcap"``, ``"rosbag1"``, ``"rosbag2"``)."""
-    from lidarpkt.containers import container_kind, open_packet_source
+    from lidarpkt.containers import container_kind
+    from lidarpkt.vendors.registry import open_packets
 
-    return open_packet_source(path), container_kind(path)
+    return open_packets(path), container_kind(path)
 
 
 def _summary(stream: dict) -> str:
@@ -243,57 +218,20 @@ def _summary(stream: dict) -> str:
     kind = stream["kind"]
     if kind == "unknown":
         return "unknown" + (f" (description failed: {stream['describe_error']})" if "describe_error" in stream else "")
-    bits = [kind]
-    if "protocol" in d:  # Hesai
-        bits.append(f"protocol {d['protocol']}")
-    if "return_mode" in d:
-        mode = d["return_mode"]
-        bits.append(mode if isinstance(mode, str) else "/".join(mode))
-    if "product_id" in d:
-        bits.append(f"product 0x{d['product_id']:02x} ({d.get('product_name', '?')})")
-    if d.get("rotation_hz"):
-        bits.append(f"{d['rotation_hz']:.1f} Hz")
-    if "pps_status" in d:
-        bits.append(f"PPS {d['pps_status']}")
-        if d.get("gps_time_first"):
-            bits.append(f"NMEA time {d['gps_time_first']}")
-        elif d.get("nmea_first"):
-            bits.append(f"NMEA {d['nmea_first'][:40]}")
-        else:
-            bits.append("no NMEA sentence")
-    if "profile" in d:
-        candidates = [str(c) for c in d.get("candidates", [])]
-        if d.get("profile_source") == "guess" and len(candidates) > 1:
-            bits.append("profile guessed from size and header: " + " or ".join(candidates))
-        else:
-            source = d.get("profile_source", "?")
-            bits.append(f"{d['profile']} ({'guessed from size and header' if source == 'guess' else source})")
-            if d.get("pixels_per_column"):
-                bits.append(f"{d['pixels_per_column']} px")
-        if "frame_id" in d:
-            bits.append(f"frame ids {d['frame_id'][0]}–{d['frame_id'][1]}")
-        if d.get("crc") and d["crc"] != "absent":
-            bits.append(f"CRC {d['crc']}")
-        if d.get("header_type") == "FUSA":
-            bits.append("FUSA header")
-        for key, what in (("shot_limiting_packets", "shot limiting"), ("thermal_shutdown_packets", "thermal shutdown")):
-            if d.get(key):  # firmware 3.x packet-header status: worth a warning to the user
-                bits.append(f"{what} reported in {d[key]} packets")
-    if kind == "Ouster IMU" and d.get("imu_profile"):
-        bits.append(f"{d['imu_profile']}, {d.get('samples', 0)} samples")
-    if kind == "Ouster zone monitoring":
-        bits.append(f"{d.get('zones_live', 0)} live zones, {d.get('zones_triggered', 0)} triggered")
-    if d.get("note"):
-        bits.append(d["note"])
-    if kind == "Ouster lidar" and d.get("profile_source") == "guess":  # what decode & co will ask for
-        bits.append("no metadata given: decoding needs the sensor's metadata JSON, --metadata M.json")
+    from lidarpkt.vendors import registry
+
+    bits = [kind] + (registry.vendor(stream["vendor"]).summary(d) if stream.get("vendor") else [])
     return ", ".join(str(b) for b in bits)
 
 
 def format_capture(doc: dict) -> str:
     """The text report of one :func:`describe_capture` result."""
-    if doc.get("format") == "osf":
-        return _format_osf(doc)
+    if "sensors" in doc and not doc["streams"]:  # a file of decoded frames
+        from lidarpkt.vendors import registry
+
+        files = registry.frame_files(doc["file"])
+        if files is not None:
+            return files.summary(doc)
     pcap = "link_types" in doc
     if pcap:
         links = ", ".join(f"{k}" for k in doc["link_types"]) or "no records"

@@ -8,10 +8,11 @@
   bounded in bytes: when decoding falls behind, further batches are dropped *for the frames* (counted
   in ``dropped_packets``); the caller, which writes the packets themselves, loses nothing.
 
-Live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour),
-as the ROS driver stamps them; position packets are counted but not used for it: a GPS fix
-arriving mid-stream whose time disagrees with the host clock (no NTP, or a replayed capture)
-would move the decoder's clock back and every later packet would be dropped as late.
+Auxiliary packets a vendor does not decode live (``Vendor.live_auxiliary``) are counted, not decoded:
+live VLP-16 frame times take the hour from the host clock (the sensor gives µs past the hour), as the
+ROS driver stamps them, and a GPS fix arriving mid-stream whose time disagrees with the host clock (no
+NTP, or a replayed capture) would move the decoder's clock back and every later packet would be
+dropped as late.
 """
 
 from __future__ import annotations
@@ -24,8 +25,10 @@ from lidarpkt.core.decoder import Decoder
 from lidarpkt.core.frame import Frame
 from lidarpkt.core.packet import PacketBatch
 
-from .reader import Driver, decoder_options
-from .router import MAX_SENSORS, RouteOptions
+from lidarpkt.vendors import registry
+
+from .reader import Driver
+from .router import MAX_SENSORS
 
 FrameConsumer = Callable[[Frame], None]
 
@@ -35,26 +38,29 @@ class LiveDecoder:
     driver of capture files (:class:`lidarpkt.pipeline.reader.Driver`).
 
     Args:
-        ouster_metadata: :class:`lidarpkt.vendors.ouster.metadata.OusterMetadata` of each Ouster sensor
-            (none for VLP-16 only).
+        metadata: the sensor files of the sensors, as ``lidarpkt.open`` takes them (paths or loaded objects,
+            any vendor's, told apart by content); none for sensors whose packets say enough.
         max_sensors: most sensors decoded (as ``lidarpkt.open``'s ``max_sensors``); packets of more are
             counted in :attr:`unrouted_packets`, with one :class:`~lidarpkt.errors.SkippedPacketWarning`.
         name: what that warning names (the address received on).
-        options: the decoders' options of ``lidarpkt.open`` (``calibration``, ``velodyne_model``, ...).
+        options: the other decoding options of ``lidarpkt.open`` (``model``, ...).
 
     Packets of no known stream are counted in :attr:`unrouted_packets` (and ``stats.unrouted_streams``),
-    never raised on. VLP-16 position packets are counted in :attr:`position_packets`, not decoded
-    (module doc).
+    never raised on. Auxiliary packets of the vendors that do not use them live (``Vendor.live_auxiliary``)
+    are counted in :attr:`auxiliary_packets`, not decoded (module doc).
+
+    Raises what :meth:`lidarpkt.pipeline.options.OpenOptions.sensor_setup` raises (a sensor file of no known kind, an
+    unknown model).
     """
 
-    def __init__(self, ouster_metadata=(), *, max_sensors: int = MAX_SENSORS, name: str = "live packets",
+    def __init__(self, metadata=(), *, max_sensors: int = MAX_SENSORS, name: str = "live packets",
                  **options) -> None:
         from lidarpkt.pipeline.options import OpenOptions
 
-        self.ouster_metadata = list(ouster_metadata or ())
-        _, by_vendor = decoder_options(OpenOptions.from_keywords("LiveDecoder", options))
-        self.driver = Driver(name, RouteOptions(self.ouster_metadata, by_vendor), max_sensors=max_sensors,
-                             unused_auxiliary=frozenset({"velodyne"}))
+        opts = OpenOptions.from_keywords("LiveDecoder", {**options, "metadata": list(metadata or ())})
+        self.sensor_files, setup = opts.sensor_setup()
+        self.driver = Driver(name, setup, max_sensors=max_sensors, sensor_files=self.sensor_files,
+                             unused_auxiliary=frozenset(v.name for v in registry.VENDORS if not v.live_auxiliary))
         self.stats = self.driver.stats
         self.router = self.driver.router
 
@@ -68,9 +74,9 @@ class LiveDecoder:
         return self.stats.unrouted_packets
 
     @property
-    def position_packets(self) -> int:
-        """VLP-16 position packets seen (not used for the time: module doc)."""
-        return self.router.packets.get(("velodyne", "position"), 0)
+    def auxiliary_packets(self) -> int:
+        """Auxiliary packets seen (decoded, or counted only: module doc)."""
+        return sum(n for kind, n in self.router.packets.items() if not kind.lidar)
 
     def push(self, batch: PacketBatch) -> list[Frame]:
         """Decode one batch; returns the frames it completed."""

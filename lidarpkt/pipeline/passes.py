@@ -17,6 +17,7 @@ import dataclasses
 import os
 from typing import TYPE_CHECKING, Any, Iterator
 
+from lidarpkt.containers.magic import FRAME_CONTAINERS
 from lidarpkt.core.frame import Frame
 
 from .options import OpenOptions, with_options
@@ -26,7 +27,7 @@ if TYPE_CHECKING:
     from typing_extensions import Unpack
 
     from .options import OpenKeywords
-    from .reader import SourceStats
+    from lidarpkt.core.streams import SourceStats
 
 
 class Capture:
@@ -34,7 +35,8 @@ class Capture:
 
     Attributes:
         path: the capture as it was given (a path or its text).
-        container: ``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"``, ``"rosbag1"`` or ``"osf"``.
+        container: what :func:`lidarpkt.containers.magic.container_kind` says of it (``"pcap"``, ``"mcap"``...;
+            one of :data:`~lidarpkt.containers.magic.FRAME_CONTAINERS` for a file of decoded frames).
     """
 
     def __init__(self, path: str | os.PathLike[str], container: str, frames: Any) -> None:
@@ -43,12 +45,11 @@ class Capture:
         self._frames = frames  # the FrameReader (or OSF reader) of the pass
 
     @property
-    def metadata(self) -> list:
-        """The loaded sensor metadata the packets are recognised with (Ouster metadata, one per sensor): those
-        given, else the one the capture records (known once the pass has read its first batch); empty when the
-        sensors need none."""
-        router = getattr(self._frames, "router", None)
-        return list(router.options.ouster_metadata) if router is not None else []
+    def sensor_files(self) -> list:
+        """The sensor files the packets are recognised with (:class:`lidarpkt.vendors.registry.SensorFile`, one
+        per sensor): those given, and one the capture records (known once the pass has read its first batch)
+        where none of its vendor's was given; empty when the sensors need none."""
+        return list(getattr(self._frames, "sensor_files", ()))
 
     @property
     def stats(self) -> SourceStats:
@@ -62,13 +63,15 @@ class Capture:
         return getattr(stats, "bytes_read", None)
 
     def receive_span(self) -> tuple[int | None, int | None] | None:
-        """An OSF file's first and last frame receive times (ns), read from the file; ``None`` for captures
-        of packets (their packets' capture times are handed in the pass)."""
-        if self.container != "osf":
+        """A file of decoded frames' first and last frame receive times (ns), read from the file (its vendor's
+        :attr:`~lidarpkt.core.vendor.FrameFiles.receive_span`); ``None`` for captures of packets (their packets'
+        capture times are handed in the pass)."""
+        if self.container not in FRAME_CONTAINERS:
             return None
-        from lidarpkt.vendors.ouster.osf import receive_span
+        from lidarpkt.vendors import registry
 
-        return receive_span(self.path)
+        files = registry.frame_files(self.path)
+        return files.receive_span(self.path) if files is not None else None
 
 
 class CapturePass:
@@ -83,7 +86,7 @@ class CapturePass:
         from .parallel import PipelinedFrameReader, check_workers
 
         container = container_kind(path)
-        if not packets or container == "osf":  # an OSF file holds frames only
+        if not packets or container in FRAME_CONTAINERS:  # a file of decoded frames holds no packets
             self.reader: Any = open_frames(path, **options.keywords())
         else:
             check_workers(options.workers)

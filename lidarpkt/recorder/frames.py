@@ -22,24 +22,25 @@ from __future__ import annotations
 import queue
 import time
 
-from lidarpkt.writers.mcap import schemas
+from lidarpkt.containers import rosmsgs
+
 
 
 class LiveFrames:
     """Off-path frame decoding for points and view (see the module doc).
 
     Args:
-        ouster_metadata: metadata of each Ouster sensor (list, possibly empty).
+        metadata: the sensor files of the sensors (list, possibly empty), as ``lidarpkt.open`` takes them.
         points: encode PointCloud2 messages for the MCAP.
         view: a started view server (:class:`~lidarpkt.view.server.ViewServer`), ``None`` for no view;
             closed with this object.
         queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
         sensors: the frame ids and mounts (:class:`~lidarpkt.writers.mcap.frames.SensorFrames`);
             default: the vendors' frame ids, no ``/tf_static``.
-        decoder_options: the decoders' options (calibrations, models), as ``lidarpkt.open`` takes them.
+        decoder_options: the decoders' other options (``model``), as ``lidarpkt.open`` takes them.
     """
 
-    def __init__(self, ouster_metadata: list, *, points: bool, view=None, queue_bytes: int = 64 << 20,
+    def __init__(self, metadata: list, *, points: bool, view=None, queue_bytes: int = 64 << 20,
                  sensors=None, decoder_options: dict | None = None) -> None:
         from lidarpkt.pipeline.live import FrameTap, LiveDecoder
         from lidarpkt.view.tap import FrameDropper
@@ -62,7 +63,8 @@ class LiveFrames:
             self.dropper = FrameDropper(view.publish, on_drop=dropped)
             consumers.append(self.dropper)
         on_batch = (lambda b: view.count_packets(str(b.src), len(b))) if self.view is not None else None
-        self.tap = FrameTap(LiveDecoder(ouster_metadata, **(decoder_options or {})), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
+        self.tap = FrameTap(LiveDecoder(metadata, **(decoder_options or {})), consumers, on_batch=on_batch,
+                            queue_bytes=queue_bytes)
 
     def _encode_points(self, frame) -> None:  # runs in the tap's thread
         # decode's own frames → messages (FrameTopics: each new sensor's latched mount, then its clouds),
@@ -128,7 +130,7 @@ class _QueuedMessages:
         self.out = out
 
     def write_message(self, topic, message, log_time_ns: int) -> None:
-        self.out.put((topic, schemas.encode(topic.msgtype, message), log_time_ns, None))
+        self.out.put((topic, rosmsgs.encode(topic.msgtype, message), log_time_ns, None))
 
     def write_latched(self, topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
         self.out.put((topic, data, log_time_ns, key))

@@ -15,8 +15,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
+from lidarpkt.containers import rosmsgs
 from lidarpkt.containers.udp import UdpSource
 from lidarpkt.errors import LidarpktError
+from lidarpkt.vendors import registry
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.packets import PacketSink
 from lidarpkt.writers.mcap.writer import McapWriter
@@ -70,13 +72,14 @@ def record(output: str | os.PathLike[str], *, ports: Sequence[int] = (), bind: s
 
     Args:
         output: the MCAP file (``OUT_0000.mcap``, ``OUT_0001.mcap`` ... with ``rotate_*``).
-        ports: UDP ports to listen on; empty: each Ouster sensor's lidar and IMU ports of ``metadata``.
+        ports: UDP ports to listen on; empty: the ports the sensor files of ``metadata`` name.
         bind, multicast, interface: the local address (default all), an IPv4 multicast group to join,
             and the interface (name or address) to join it on.
         rcvbuf_bytes: kernel receive buffer to ask for; queue_bytes: payload bytes allowed to wait for
             the writer before drops are counted.
-        metadata: loaded Ouster metadata of each sensor (stored in the file, and what the live frames use).
-        decoder_options: the live frames' decoder options (calibrations, models), as ``lidarpkt.open`` takes them.
+        metadata: the sensor files of the sensors, as ``lidarpkt.open`` takes them (paths or loaded, any vendor's,
+            told apart by content): stored in the file, and what the live frames use.
+        decoder_options: the live frames' other decoder options (``model``), as ``lidarpkt.open`` takes them.
         chunk_seconds: close an MCAP chunk this often: at most that much is lost if the process is killed.
         rotate_bytes, rotate_seconds: start a new file after this many bytes or seconds.
         gps, gps_baud: serial port (a pyserial URL) and baud rate of an NMEA GPS.
@@ -107,7 +110,8 @@ def record(output: str | os.PathLike[str], *, ports: Sequence[int] = (), bind: s
     notice = on_notice or (lambda text: None)
     capture = gps_reader = writer = frames = None
     try:
-        ports = list(ports) or [p for md in metadata for p in (md.lidar_port, md.imu_port)]
+        files = registry.load_sensor_files(list(metadata))
+        ports = list(ports) or [p for f in files for p in f.ports]
         capture = UdpSource(ports, bind=bind, multicast=multicast, interface=interface,
                             rcvbuf_bytes=rcvbuf_bytes, queue_bytes=queue_bytes)
         if gps:  # opened before the file, so that a wrong port leaves no empty recording
@@ -118,11 +122,11 @@ def record(output: str | os.PathLike[str], *, ports: Sequence[int] = (), bind: s
         if points or view is not None:  # before the file: a view that cannot serve leaves no empty recording
             from .frames import LiveFrames
 
-            frames = LiveFrames(list(metadata), points=points, view=view() if view is not None else None,
+            frames = LiveFrames(files, points=points, view=view() if view is not None else None,
                                 sensors=sensors, decoder_options=decoder_options)
         writer = McapWriter(output, chunk_seconds=chunk_seconds, rotate_bytes=rotate_bytes,
                             rotate_seconds=rotate_seconds)
-        sink = PacketSink(writer, ouster_metadata=list(metadata) or None, log_time_ns=time.time_ns())
+        sink = PacketSink(writer, metadata=files, log_time_ns=time.time_ns())
         if on_listening is not None:
             on_listening(capture)
         capture.start()
@@ -268,10 +272,10 @@ class _Loop:
 
 
 def _write_gps(writer: McapWriter, gps) -> None:
-    store = schemas.typestore()
+    store = rosmsgs.typestore()
     from .gps import sentence_time_ns
 
     for host_ns, sentence in gps.drain():
         stamp = sentence_time_ns(sentence, host_ns)  # the GPS's own time where it says it
-        msg = store.types[schemas.NMEA_SENTENCE](header=schemas.header(stamp, "gps"), sentence=sentence)
+        msg = store.types[schemas.NMEA_SENTENCE](header=rosmsgs.header(stamp, "gps"), sentence=sentence)
         writer.write_message(schemas.NMEA, msg, host_ns)

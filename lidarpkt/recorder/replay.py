@@ -1,9 +1,9 @@
 """Replaying a capture: its payloads sent over UDP at the original pace (a sensor simulator).
 
-The lidar data stream (VLP-16 data packets, Ouster lidar packets) goes to ``host:port``;
-the other streams (VLP-16 position, Ouster IMU, anything else) go to their original
-destination port on HOST, or where ``port_map`` sends them. Containers that keep
-no ports (ROS bags, MCAP) send position packets to 8308 and IMU packets to 7503.
+The lidar data streams (the streams frames are made of: the vendor registry's classifier says which)
+go to ``host:port``; the other streams (auxiliary ones, anything else) go to their original
+destination port on HOST, or where ``port_map`` sends them. Containers that keep no ports (ROS bags,
+MCAP) send each stream to its vendor's port (the factory one, or the one its sensor file names).
 
 Pacing follows the capture's own receive times divided by ``rate``; ``rate=None`` sends as
 fast as the socket takes them. The sender sleeps only when it is more than a millisecond
@@ -20,12 +20,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from lidarpkt.core.packet import Packet, PacketBatch
 from lidarpkt.errors import LidarpktError, RecorderError
-from lidarpkt.core.packet import Packet
-
-from lidarpkt.core import streams
-
-DEFAULT_PORTS = {streams.VELODYNE_POSITION: 8308, streams.OUSTER_IMU: 7503}
 
 
 @dataclass
@@ -43,10 +39,10 @@ class ReplayStats:
 def read_capture(path: str) -> Iterator[Packet]:
     """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
     ordered by host receive time)."""
-    from lidarpkt.containers import open_packet_source
     from lidarpkt.containers.pcap_reader import PcapReader
+    from lidarpkt.vendors.registry import open_packets
 
-    reader = open_packet_source(path)
+    reader = open_packets(path)
     if isinstance(reader, PcapReader):
         yield from reader.packets()
         return
@@ -64,31 +60,31 @@ def read_capture(path: str) -> Iterator[Packet]:
         yield Packet(int(b.timestamp_ns[r]), b.src, b.dst, b.payload[r].tobytes())
 
 
-def embedded_metadata(path: str, look_ahead: int = 64):
-    """The Ouster metadata recorded in an MCAP file or bag (``/ouster/metadata``), parsed; ``None``
-    for pcaps and files without it. Looks at the first ``look_ahead`` messages only."""
-    from lidarpkt.vendors.ouster.metadata import load_metadata
-    from lidarpkt.containers.protocol import embedded_ouster_metadata
+def recorded_sensor_file(path: str, look_ahead: int = 64):
+    """The sensor file recorded in an MCAP file or bag (a driver's), loaded (a
+    :class:`~lidarpkt.vendors.registry.SensorFile`); ``None`` for pcaps and files without one. Looks at the
+    first ``look_ahead`` messages only."""
+    from lidarpkt.containers import protocol
+    from lidarpkt.vendors import registry
 
-    text = embedded_ouster_metadata(path, look_ahead)
-    return load_metadata(text) if text else None
+    text = protocol.recorded_sensor_file(path, registry.bag_messages(), look_ahead)
+    return registry.load_sensor_files([text])[0] if text else None
 
 
 def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
-           port_map: dict[int, int] | None = None, ouster_metadata=None,
+           port_map: dict[int, int] | None = None, metadata=None,
            clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
-    """Send ``packets`` to ``host``: the lidar stream to ``port``, others to their (mapped) ports.
+    """Send ``packets`` to ``host``: the lidar streams to ``port``, others to their (mapped) ports.
 
-    ``ouster_metadata``: one :class:`~lidarpkt.vendors.ouster.metadata.OusterMetadata` or a list (one per
-    sensor), to recognise non-legacy Ouster lidar packets. ``rate`` None = as fast as possible.
+    ``metadata``: the sensor files, as ``lidarpkt.open`` takes them, to recognise packets that are
+    recognised only with them (an Ouster profile). ``rate`` None = as fast as possible.
     Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
+    from lidarpkt.vendors import registry
+
     port_map = port_map or {}
-    if isinstance(ouster_metadata, (list, tuple)):
-        mds = list(ouster_metadata) or [None]
-    else:
-        mds = [ouster_metadata]
+    setup = registry.setup(registry.load_sensor_files(metadata))
     try:
         family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
     except socket.gaierror as exc:
@@ -107,17 +103,17 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
             orig = p.dst.port if p.dst is not None else None
             out_port = kind_port.get((size, orig))
             if out_port is None:
-                kinds = [streams.classify_size(size, md) for md in mds]
-                kind = next((k for k in kinds if k != streams.OTHER), streams.OTHER)
-                if kind == streams.OTHER and mds == [None] and _ouster_lidar_by_header(p):
-                    kind = streams.OUSTER_LIDAR  # as `lidarpkt info` recognises it without metadata
-                if kind in (streams.VELODYNE_DATA, streams.OUSTER_LIDAR, streams.HESAI_DATA):
+                match = registry.classify(_one_packet(p), setup)  # as `lidarpkt info` recognises it
+                if match is not None and match.lidar:
                     out_port = port
                 else:
-                    base = orig if orig is not None else DEFAULT_PORTS.get(kind, port)
+                    if orig is not None:
+                        base = orig
+                    else:
+                        base = registry.vendor(match.vendor).endpoints(match)[1].port if match is not None else port
                     out_port = port_map.get(base, base)
                 kind_port[(size, orig)] = out_port
-                if kind == streams.OTHER:
+                if match is None:
                     unknown_keys.add((size, orig))
             if (size, orig) in unknown_keys:
                 stats.unknown += 1
@@ -142,25 +138,16 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     return stats
 
 
-def _ouster_lidar_by_header(p: Packet) -> bool:
-    """Whether one payload reads as an Ouster lidar packet the way ``lidarpkt info`` guesses without metadata."""
-    from lidarpkt.vendors import ouster
-    from lidarpkt.core.packet import PacketBatch
-
+def _one_packet(p: Packet) -> PacketBatch:
     payload = np.frombuffer(p.payload, np.uint8)[None, :]
-    batch = PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
-    try:
-        found = ouster.describe_stream(batch)
-    except Exception:  # a guess: a payload it cannot read is no Ouster lidar packet
-        return False
-    return bool(found) and found.get("kind") == "Ouster lidar"
+    return PacketBatch(p.src, p.dst, np.array([p.timestamp_ns], np.int64), payload, np.zeros(1, np.int64))
 
 
 def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0, loop: bool = False,
-                   port_map: dict[int, int] | None = None, ouster_metadata=None) -> ReplayStats:
+                   port_map: dict[int, int] | None = None, metadata=None) -> ReplayStats:
     """Send the packets of the capture ``path`` to ``host`` (:func:`replay`), once or, with ``loop``, again
     and again until interrupted (Ctrl-C, or SIGTERM raised as ``KeyboardInterrupt``); returns the
-    totals of every round.
+    totals of every round. ``metadata``: the sensor files, as :func:`replay` takes them.
 
     Raises:
         lidarpkt.errors.LidarpktError: the capture holds no UDP packet; what :func:`replay` raises.
@@ -169,7 +156,7 @@ def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0,
     total = ReplayStats(per_port={})
     try:
         for _ in rounds:
-            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, ouster_metadata=ouster_metadata)
+            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, metadata=metadata)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds

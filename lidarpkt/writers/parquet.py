@@ -106,7 +106,7 @@ def frames_schema():
 
 
 def _calibration_json(sensor) -> str | None:
-    """The VLP-16 calibration the frame's XYZ came from (per-laser corrections), as JSON."""
+    """The calibration the frame's XYZ came from (per-laser corrections, as its geometry keeps them), as JSON."""
     import dataclasses
 
     cal = getattr(sensor.geometry, "calibration", None)
@@ -272,7 +272,7 @@ class ParquetWriter(BaseWriter):
 
 # ------------------------------------------------------------------------------ reading back
 def _sensor_from(row: dict[str, Any]):
-    from lidarpkt.core.frame import SensorInfo
+    from lidarpkt.core.sensor import SensorInfo
 
     info = json.loads(row["sensor_json"])
     for key in ("beam_altitude_deg", "beam_azimuth_deg"):
@@ -282,23 +282,18 @@ def _sensor_from(row: dict[str, Any]):
     info["return_labels"] = tuple(info["return_labels"])
     metadata = json.loads(row["metadata_json"]) if row.get("metadata_json") else {}
     sensor = SensorInfo(**info, metadata=metadata)
-    if sensor.vendor == "ouster" and metadata:
-        from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors import registry
 
-        sensor.geometry = load_metadata(metadata).sensor_info().geometry
-    elif sensor.vendor == "velodyne":
-        from lidarpkt.vendors.velodyne.calibration import VelodyneCalibration
-        from lidarpkt.vendors.velodyne.geometry import VelodyneGeometry
-
-        cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
-        sensor.geometry = VelodyneGeometry(None if cal is None else VelodyneCalibration(**cal))
+    cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
+    sensor.geometry = registry.geometry(sensor, cal)  # its vendor's, from the sensor file or calibration kept
     return sensor
 
 
 def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
     """The :class:`~lidarpkt.Frame` objects of a ``layout="frames"`` dataset folder or file, in
     file order. Arrays, scalars, counters, labels and the sensor description are as written;
-    the sensor's geometry is rebuilt from the Ouster metadata or the VLP-16 calibration.
+    the sensor's geometry is rebuilt by its vendor (:func:`lidarpkt.vendors.registry.geometry`) from the sensor
+    file or the calibration kept.
 
     Raises :class:`~lidarpkt.errors.OutputError` for a file that is not of the frames layout.
     """

@@ -39,6 +39,7 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from lidarpkt.containers import rosmsgs
 from lidarpkt.errors import OutputError
 
 from .mcap import schemas
@@ -55,13 +56,15 @@ def _is_latched(topic: schemas.Topic) -> bool:
 
 @functools.lru_cache(maxsize=1)
 def ros1_typestore() -> Any:
-    """lidarpkt's message types (:func:`lidarpkt.containers.rosmsgs.new_typestore`) with ROS 1's
-    ``std_msgs/Header`` (``seq``, ``stamp``, ``frame_id``): the definitions and MD5 sums of a ROS 1 bag."""
+    """lidarpkt's message types (:func:`lidarpkt.containers.rosmsgs.new_typestore` of every vendor's definitions,
+    :func:`lidarpkt.vendors.registry.ros_definitions`) with ROS 1's ``std_msgs/Header`` (``seq``, ``stamp``,
+    ``frame_id``): the definitions and MD5 sums of a ROS 1 bag."""
     from rosbags.typesys import Stores, get_typestore
 
     from lidarpkt.containers.rosmsgs import new_typestore
+    from lidarpkt.vendors import registry
 
-    store = new_typestore()
+    store = new_typestore(registry.ros_definitions())
     store.FIELDDEFS.pop("std_msgs/msg/Header")
     store.register({"std_msgs/msg/Header": get_typestore(Stores.ROS1_NOETIC).FIELDDEFS["std_msgs/msg/Header"]})
     return store
@@ -98,7 +101,7 @@ class _BagMessages:
         self.messages_written += 1
 
     def write_message(self, topic: schemas.Topic, message: object, log_time_ns: int) -> None:
-        self.write(topic, schemas.encode(topic.msgtype, message), log_time_ns)
+        self.write(topic, rosmsgs.encode(topic.msgtype, message, schemas.typestore()), log_time_ns)
 
     def write_latched(self, topic: schemas.Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
         self.write(topic, data, log_time_ns)  # one file: nothing to repeat; the topic's QoS says latched

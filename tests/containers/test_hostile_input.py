@@ -326,7 +326,7 @@ def test_vlp16_bad_packets_among_good_ones_leave_the_good_ones_decoded(tmp_path,
               st.integers(0, 80), st.characters()),
 ))
 def test_nmea_parser_takes_any_text(sentence):
-    from lidarpkt.vendors.velodyne import parse_nmea
+    from lidarpkt.core.nmea import parse_nmea
 
     try:
         fix = parse_nmea(sentence)
@@ -539,12 +539,13 @@ def _small_mcap() -> tuple[bytes, list[bytes], list[int]]:
 
 def _bag_packets(path):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         got, err = [], None
         try:
-            for b in BagReader(path).batches():
+            for b in BagReader(path, messages=bag_messages()).batches():
                 got += [(int(t), row.tobytes()) for t, row in zip(b.timestamp_ns, b.payload)]
         except LidarpktError as exc:
             err = exc

@@ -32,7 +32,7 @@ def test_udp_url_opens_a_source_whose_batches_decode_like_the_capture():
     data = [p for p in packets if len(p.payload) == 1206]
     port = _free_port()
     source = open_packet_source(f"udp://127.0.0.1:{port}")
-    assert isinstance(source, UdpSource) and source.ouster_metadata() is None
+    assert isinstance(source, UdpSource) and source.recorded_sensor_file() is None
     got = []
     decoder = LiveDecoder()
     frames = []

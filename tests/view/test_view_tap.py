@@ -63,7 +63,7 @@ def test_tap_never_blocks_and_counts_what_it_drops():
     assert tap.dropped_packets > 0
     release.set()
     tap.close()
-    decoded = sum(d.stats.packets for d in tap.decoder.decoders.values()) + tap.decoder.position_packets
+    decoded = sum(d.stats.packets for d in tap.decoder.decoders.values()) + tap.decoder.auxiliary_packets
     assert decoded > 0 and decoded + tap.dropped_packets == sum(len(b) for b in batches)  # each packet: one or other
     assert len(seen) == tap.frames
 

@@ -74,7 +74,7 @@ def test_decode_to_mcap_reads_a_100_mb_capture_once_and_logs_each_message_at_its
     Every packet is a message at its capture time with its bytes; every frame a cloud logged when its last
     packet was received by the clock offset of the first packet (host - sensor time), inside the capture's
     span: arithmetic on the capture as built, not lidarpkt's."""
-    from lidarpkt.writers.mcap.schemas import decode_packet_msg
+    from lidarpkt.vendors.ouster.ros import decode_packet_msg
 
     cap, out = tmp_path / "os2-x64.pcap", tmp_path / "x.mcap"
     built = _repeated_ouster_capture(cap, 64)
@@ -156,7 +156,7 @@ def test_frames_waiting_for_the_span_spill_to_a_file_and_come_back_the_same(tmp_
 
 def test_pending_frames_keep_what_memory_allows_and_spill_the_rest(tmp_path):
     from lidarpkt.writers.mcap.pending import PendingFrames
-    from lidarpkt.writers.mcap.schemas import OUSTER_LIDAR as TOPIC
+    from lidarpkt.vendors.ouster.ros import LIDAR_TOPIC as TOPIC
 
     pending = PendingFrames(tmp_path, memory_bytes=10)
     pending.add(5, "a", [(TOPIC, b"12345678")])

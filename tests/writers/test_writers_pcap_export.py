@@ -14,7 +14,7 @@ from conftest import external
 from lidarpkt.cli import main
 from lidarpkt.errors import UnsupportedContainerError
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.containers import open_packet_source
+from lidarpkt.vendors.registry import open_packets
 from lidarpkt.writers.pcap import PcapBatchWriter, write_pcap
 from reference_tools import ouster_sdk_pcap_packets
 
@@ -25,7 +25,7 @@ OSF = "ouster-sdk/osf_fw_3.2_10scans.osf"
 
 
 def _packets_inside(path) -> list[Packet]:
-    return list(open_packet_source(path).packets())
+    return list(open_packets(path).packets())
 
 
 def _export(tmp_path, src, *extra) -> "Path":  # noqa: F821 - pathlib's, returned
@@ -175,7 +175,7 @@ def test_an_osf_file_gets_one_clear_error(tmp_path, capsys):
     from lidarpkt.archive.packets import write_packets_pcap
 
     osf = external(OSF)
-    with pytest.raises(UnsupportedContainerError, match="OSF file: it holds decoded scans, not the sensor's UDP"):
+    with pytest.raises(UnsupportedContainerError, match="OSF file: it holds decoded frames, not the sensor's UDP"):
         write_packets_pcap(osf, tmp_path / "x.pcap")
     assert not (tmp_path / "x.pcap").exists()
     assert main(["export", str(osf), "-o", str(tmp_path / "out"), "--format", "pcap", "--workers", "1"]) == 1

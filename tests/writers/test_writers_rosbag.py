@@ -119,16 +119,16 @@ def test_rosbag2_read_by_rosbags_gives_the_mcap_messages(tmp_path, case, storage
     mcap = _mcap_messages(tmp_path / "x.mcap")
     assert got == mcap  # topic, type, time and bytes of every message
     assert counts == {t: sum(1 for m in mcap if m[0] == t) for t in {m[0] for m in mcap}}
-    from lidarpkt.writers.mcap import schemas
+    from lidarpkt.core.ros import QOS_SENSOR_DATA
 
     assert all(("durability: 1" in q) == (t in ("/tf_static", "/ouster/metadata")) for t, q in qos.items())
-    assert qos.get("/velodyne_points", schemas.QOS_SENSOR_DATA) == schemas.QOS_SENSOR_DATA
+    assert qos.get("/velodyne_points", QOS_SENSOR_DATA) == QOS_SENSOR_DATA
 
 
 def _packets(path) -> list[tuple[int, bytes]]:
-    from lidarpkt.containers import open_packet_source
+    from lidarpkt.vendors.registry import open_packets
 
-    return sorted((t, row.tobytes()) for b in open_packet_source(path).batches()
+    return sorted((t, row.tobytes()) for b in open_packets(path).batches()
                   for t, row in zip(b.timestamp_ns.tolist(), b.payload))
 
 

@@ -75,20 +75,3 @@ def load_calibration(calibration: HesaiCalibration | str | os.PathLike[str]) -> 
     except (OSError, UnicodeDecodeError) as exc:
         raise CalibrationError(f"{path}: cannot read the Hesai calibration: {exc}") from exc
     return parse_calibration(text, str(path))
-
-
-def is_hesai_calibration(calibration: object) -> bool:
-    """Whether the ``calibration`` option is meant for a Hesai sensor: a :class:`HesaiCalibration`, a ``.csv``
-    path, or a file whose first line is an angle-correction header (``Channel,Elevation,Azimuth``)."""
-    if isinstance(calibration, HesaiCalibration):
-        return True
-    if not isinstance(calibration, (str, os.PathLike)) or "://" in str(calibration):
-        return False
-    if str(calibration).lower().endswith(".csv"):
-        return True
-    try:
-        with open(calibration, encoding="utf-8", errors="replace") as fh:
-            head = fh.readline(256).lstrip("\ufeff").lower()
-    except OSError:
-        return False
-    return "," in head and "elevation" in head and "azimuth" in head

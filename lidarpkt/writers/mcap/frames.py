@@ -23,14 +23,15 @@ from typing import Any, Iterable, Sequence, cast
 
 import numpy as np
 
+from lidarpkt.containers import rosmsgs
+from lidarpkt.core.ros import Topic
 from lidarpkt.errors import OutputError
 
 from ..base import BaseWriter
 from . import schemas
 from .packets import CaptureTimes, PacketSink
 from .pending import PendingFrames
-from .pointcloud import FRAME_IDS, image_messages, pointcloud_messages
-from .schemas import Topic
+from .pointcloud import default_frame_id, image_messages, pointcloud_messages
 from .writer import McapWriter
 
 TOPIC_GROUPS = ("packets", "points", "images")
@@ -46,6 +47,21 @@ def parse_mount(text: str) -> Mount:
     if len(values) != 6 or not all(np.isfinite(values)):
         raise OutputError(f"--mount {text}: give six numbers x,y,z,roll,pitch,yaw (metres, degrees)")
     return values  # type: ignore[return-value]
+
+
+def calibration_file(metadata: Iterable[Any]) -> str | None:
+    """Of the sensor files given (paths, as ``lidarpkt.open`` takes them), the one an MCAP of the frames records
+    as their calibration (``calibration=`` of :class:`McapFrameWriter`): the first whose vendor writes no
+    messages of its own for it (those are recorded with the packets); ``None`` when there is none.
+
+    Raises what :func:`lidarpkt.vendors.registry.load_sensor_files` raises."""
+    from lidarpkt.vendors import registry
+
+    given = [m for m in metadata if isinstance(m, (str, os.PathLike))]
+    for path, f in zip(given, registry.load_sensor_files(given)):
+        if registry.vendor(f.vendor).ros.sensor_file_messages is None:
+            return str(path)
+    return None
 
 
 def mount_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, float, float, float]:
@@ -114,7 +130,7 @@ class SensorFrames:
             name = self._ordered[self._unkeyed]
             self._unkeyed += 1
         if name is None:
-            base = FRAME_IDS.get(sensor.vendor, sensor.vendor)
+            base = default_frame_id(sensor.vendor)
             same = sum(1 for k in self._assigned if k[0] == sensor.vendor)
             name = base if same == 0 else f"{base}_{same}"
         if name in self._assigned.values():
@@ -130,9 +146,9 @@ class SensorFrames:
         index = list(self._assigned).index(self.key(sensor))
         x, y, z, roll, pitch, yaw = self.mounts[index] if index < len(self.mounts) else (0.0,) * 6
         qx, qy, qz, qw = mount_quaternion(roll, pitch, yaw)
-        t = schemas.typestore().types
+        t = rosmsgs.typestore().types
         stamped = t["geometry_msgs/msg/TransformStamped"](
-            header=schemas.header(stamp_ns, self.base_frame), child_frame_id=name,
+            header=rosmsgs.header(stamp_ns, self.base_frame), child_frame_id=name,
             transform=t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
                 rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
@@ -185,7 +201,7 @@ class FrameTopics:
         there is a base frame."""
         tf = self.sensors.transform(sensor, time_ns)
         if tf is not None:
-            self.mcap.write_latched(schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf), time_ns,
+            self.mcap.write_latched(schemas.TF_STATIC, rosmsgs.encode(schemas.TF_MESSAGE, tf), time_ns,
                                     key=self.sensors.frame_id(sensor))
 
     def messages(self, frame) -> list:
@@ -212,7 +228,7 @@ class McapFrameWriter(BaseWriter):
     among the topics (:class:`~lidarpkt.writers.mcap.packets.PacketSink`) and measures its clock offsets and
     span (:class:`~lidarpkt.writers.mcap.packets.CaptureTimes`), the frames' log times; a frame whose log
     time the rest of the capture may still change waits (:class:`~lidarpkt.writers.mcap.pending.PendingFrames`),
-    as do each sensor's mount and the Ouster metadata, logged at the capture's start. Frames written with
+    as do each sensor's mount and the sensor files' latched messages, logged at the capture's start. Frames written with
     :meth:`write` alone, without a pass, are logged at their sensor time (unless the times are given).
 
     Args:
@@ -222,11 +238,11 @@ class McapFrameWriter(BaseWriter):
         part: see :func:`lidarpkt.writers.open_writer`.
         topics: groups among ``packets``, ``points``, ``images``.
         frame_ids, base_frame, mounts: see :class:`SensorFrames`.
-        metadata: the Ouster metadata of the capture's sensors, as ``lidarpkt.open`` takes it (paths,
-            dicts or loaded, one per sensor): which packets are Ouster packets, and their clocks. By
-            default those the pass recognises them with (given to it, or recorded in the capture).
-        calibration: the VLP-16 calibration file the frames were decoded with, recorded in the file's
-            metadata (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
+        metadata: the sensor files of the capture's sensors, as ``lidarpkt.open`` takes them (paths or
+            loaded, one per sensor): what their packets are, and their clocks. By default those the pass
+            recognises them with (given to it, or recorded in the capture).
+        calibration: the calibration file the frames were decoded with, recorded in the file's metadata
+            (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
         clock_offsets, start_ns, end_ns: host − sensor time (ns) per source address, the capture's
             first and last packet host times (see :func:`frame_log_time`), to use instead of measuring
             them from the packets.
@@ -234,8 +250,8 @@ class McapFrameWriter(BaseWriter):
 
     Raises:
         OutputError: an unknown topic group; ``packets`` given frames without a pass (at the first frame,
-            or at :meth:`close`); the output cannot be written. MetadataError: ``metadata`` is no Ouster
-            metadata.
+            or at :meth:`close`); the output cannot be written. MetadataError: a file of ``metadata`` is of
+            no kind lidarpkt reads.
     """
 
     suffix = ".mcap"
@@ -248,14 +264,14 @@ class McapFrameWriter(BaseWriter):
                  metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
-        from lidarpkt.pipeline.options import load_ouster_metadata
+        from lidarpkt.vendors import registry
 
         super().__init__(out, capture=capture, part=part)
         groups = set(topics)
         if not groups or groups - set(TOPIC_GROUPS):
             raise OutputError(f"topics={','.join(sorted(groups))}: choose among {', '.join(TOPIC_GROUPS)}")
         sensors = SensorFrames(frame_ids, base_frame, mounts)
-        self.ouster_metadata = load_ouster_metadata(metadata)
+        self.sensor_files = registry.load_sensor_files(metadata)
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
@@ -276,7 +292,7 @@ class McapFrameWriter(BaseWriter):
         self._pending = PendingFrames(self._tmp.parent, self.pending_bytes)
         self._unmounted: list = []  # sensors whose mount waits for the capture's start
         self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
-        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written beside them
+        self.decoded_messages = 0  # messages decoded from the packets (IMU samples...) written beside them
         if self.calibration is not None:
             self._add_calibration_record(self.calibration)
 
@@ -317,19 +333,19 @@ class McapFrameWriter(BaseWriter):
         """One batch of the capture in hand: its packets written (``packets`` topic), its times measured."""
         if self._capture is None:
             raise OutputError(f"{self.out}: packets come within a capture; call begin_capture(capture) first")
-        mds = self.ouster_metadata or self._capture.metadata
+        files = self.sensor_files or self._capture.sensor_files
         if self._times is not None:
-            self._times.add(batch, mds)
+            self._times.add(batch, files)
             self._settle(final=False)
         if "packets" in self.groups:
             if self._sink is None:
                 self._sink_out = _SinkOutput(self.mcap)
-                self._sink = PacketSink(cast(McapWriter, self._sink_out), ouster_metadata=mds)
+                self._sink = PacketSink(cast(McapWriter, self._sink_out), metadata=files)
             self._sink.push(batch)
 
     def end_capture(self, capture: Any = None) -> None:
         """The capture in hand is complete: the frames waiting for its span are written, and each new sensor's
-        mount and the Ouster metadata at its start."""
+        mount and the sensor files' latched messages at its start."""
         if self._capture is None:
             return
         self._capture = None
@@ -413,7 +429,7 @@ class McapFrameWriter(BaseWriter):
             for topic, msg in self.topics.messages(frame):
                 self.mcap.write_message(topic, msg, t)
         else:
-            self._pending.add(end_ns, source, [(topic, schemas.encode(topic.msgtype, msg))
+            self._pending.add(end_ns, source, [(topic, rosmsgs.encode(topic.msgtype, msg))
                                                for topic, msg in self.topics.messages(frame)])
 
     def _finish(self) -> None:
@@ -432,7 +448,7 @@ class McapFrameWriter(BaseWriter):
 
 class _SinkOutput:
     """What a capture's :class:`~lidarpkt.writers.mcap.packets.PacketSink` writes to: the MCAP file, its
-    messages counted; its latched messages (the Ouster metadata, logged at the capture's start) held until
+    messages counted; its latched messages (the sensor files', logged at the capture's start) held until
     :meth:`release` gives that start."""
 
     def __init__(self, mcap: McapWriter) -> None:
