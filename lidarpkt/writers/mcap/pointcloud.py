@@ -114,10 +114,11 @@ def frame_points(frame, points: np.ndarray | None = None) -> np.ndarray:
     t = t + frame.pixel_time_offset_ns if frame.pixel_time_offset_ns is not None else np.broadcast_to(t, (h, w))
     grid["time"] = (t - t0).astype(np.float64) * 1e-9  # one [H, W] image for every slot
     grid["reflectivity"] = frame.reflectivity
-    ouster_signal = frame.sensor.vendor == "ouster" and frame.signal is not None
-    grid["intensity"] = frame.signal if ouster_signal else frame.reflectivity
+    ros = _frame_topics(frame)
+    intensity = getattr(frame, ros.intensity, None)  # the image the vendor's driver names, where the frame has it
+    grid["intensity"] = frame.reflectivity if intensity is None else intensity
     row = np.arange(h, dtype=np.uint16)[:, None]
-    grid["ring"] = (h - 1 - row) if frame.sensor.vendor == "velodyne" else row
+    grid["ring"] = (h - 1 - row) if ros.ring_from_bottom else row
     grid["range"] = frame.range_mm
     np.copyto(grid["range"], 0, where=~hit)
     return _display(frame, grid)
