@@ -401,11 +401,13 @@ def default_workers(path: str | os.PathLike[str]) -> int:
         return 1
     if not cuttable:
         return 1
-    from .processes import can_fork
-
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     idle = min(cpus, MAX_DEFAULT_WORKERS, int(cpus - _load_average() + 0.5))
-    return idle if idle >= 2 and can_fork() else 1
+    if idle < 2:
+        return 1
+    from .processes import can_fork  # multiprocessing's modules, imported only when workers may be forked
+
+    return idle if can_fork() else 1
 
 
 def _load_average() -> float:
