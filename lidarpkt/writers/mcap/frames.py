@@ -301,7 +301,8 @@ class McapFrameWriter(BaseWriter):
         writers (:mod:`lidarpkt.writers.rosbag`) give their bag files with the same methods instead."""
         from .writer import FRAMES_COMPRESSION, McapWriter
 
-        # frames: the fast codec; no fsync (an output decoding makes again, as the other writers' files)
+        # frames: chunks as FRAMES_COMPRESSION says (speed); no fsync (an output decoding makes again, as the
+        # other writers' files)
         compression = FRAMES_COMPRESSION if self.wants_frames else "zstd"
         return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes, compression=compression,
                           sync=False)
