@@ -94,9 +94,7 @@ def _load(path: str, args: argparse.Namespace, workers: int = 1, metadata: list[
     options = cliargs.sensor_options(args)
     if metadata:
         options["metadata"] = metadata
-    grid = args.grid
-    if grid is not None and grid <= 0:
-        raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
+    grid = args.grid  # its range checked as it was parsed (cliargs.NUMBERS)
     frames = getattr(args, "frames", None)
     rng = parse_frame_range(frames) if frames else None
     return load_stack(path, frames=rng, resolution_deg=grid, workers=workers, **options)
@@ -114,11 +112,6 @@ def _check_pixel(stack, row: int, col: int, slot: int) -> None:
             raise AnalysisError(f"--pixel {row},{col}: outside the {h} x {w} range image of this capture; use ROW in "
                                 f"0..{h - 1} and COL in 0..{w - 1}") from None
         raise AnalysisError(f"--return: {exc}; choose one of its slots") from None
-
-
-def _check_neighbourhood(n: int) -> None:
-    if n < 1 or n % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {n}: not an odd number >= 1; give e.g. 3 or 5 (the paper's)")
 
 
 def _plots():
@@ -140,7 +133,7 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
-    p.add_argument("--grid", metavar="DEG", type=float, default=None,
+    p.add_argument("--grid", metavar="DEG", type=cliargs.number("--grid"), default=None,
                    help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's, from "
                         "its firing rate, as decode -o x.npz and FrameStack.from_frames); frames whose columns are "
                         "their encoder's keep them")
@@ -162,7 +155,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
                         "strongest), "
                         "or a raw slot index (0, 1); default 0")
     _add_input(p)
-    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
+    p.add_argument("--neighbourhood", metavar="N", type=cliargs.number("--neighbourhood"), default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
     p.add_argument("--motion-compensation", action="store_true",
                    help="also compute the motion-compensated CDF (5×5 patch, ±2 px, against frame 0)")
     p.add_argument("--gmm", metavar="em|auto|THRESHOLDS", default="em",
@@ -179,7 +172,6 @@ def run_analyze(args: argparse.Namespace) -> int:
     # options and outputs first: a typo should not cost a decode
     pixels = list(args.pixel)
     gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
-    _check_neighbourhood(args.neighbourhood)
     if args.plot and args.plot.lower().endswith(".png"):
         raise AnalysisError(f"--plot {args.plot}: analyze writes several figures; give a folder")
     selection = parse_return(args.slot)
@@ -236,15 +228,15 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="one capture: the statistics and monitor flags, MAP.npz; several: a folder")
     p.set_defaults(_output_suffixes=(".npz",))
-    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), default=None, metavar="N",
+    p.add_argument("--workers", type=cliargs.number("--workers"), default=None, metavar="N",
                    help="several captures: processes of a local Dask cluster (default: the CPU count)")
     p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
     cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder")
     _add_input(p)
-    p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
-    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
-    p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
-    p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--gap", metavar="M", type=cliargs.number("--gap"), default=None, help="range gap that separates clusters, metres (default 0.1)")
+    p.add_argument("--neighbourhood", metavar="N", type=cliargs.number("--neighbourhood"), default=5, help="monitor neighbourhood N×N, odd (default 5)")
+    p.add_argument("--monitor-frame", metavar="K", type=cliargs.number("--monitor-frame"), default=0, help="frame the monitor looks at (default 0)")
+    p.add_argument("--threshold", metavar="M", type=cliargs.number("--threshold"), default=None, help="monitor flag threshold, metres (default: the gap)")
     from lidarpkt.analysis.multireturn import MONITOR_METHODS
 
     p.add_argument("--method", choices=MONITOR_METHODS, default=None,
@@ -255,7 +247,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbourhood")
     p.add_argument("--gmm-map", metavar="OUT", help="also fit a Gaussian mixture per pixel and return (a probabilistic "
                    "raypath map) and write it: NPZ, or Parquet when OUT ends in .parquet")
-    p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
+    p.add_argument("--gmm-components", metavar="L", type=cliargs.number("--gmm-components"), default=4, help="most mixture components per pixel (default 4)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
                         "map's returns (a last+strongest dual map has last, strongest, second_strongest); default 0")
@@ -275,7 +267,6 @@ def run_multireturn(args: argparse.Namespace) -> int:
     gap = DEFAULT_GAP_M if args.gap is None else args.gap
     if not gap > 0:
         raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
-    _check_neighbourhood(args.neighbourhood)
     if args.gmm_components < 1:
         raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
     method = args.method

@@ -30,7 +30,7 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
     cliargs.add_sensor_options(p, "a sensor's description file for every input, of any vendor, told apart by its "
                                   "content (by default the JSON beside each capture with the same stem); repeat, one "
                                   "per sensor")
-    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
+    p.add_argument("--workers", type=cliargs.number("--workers"), metavar="N",
                    help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="run on an existing Dask cluster (tcp://HOST:8786; default $DASK_SCHEDULER_ADDRESS)")
@@ -55,7 +55,7 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
                    "packets, from pcapng, MCAP and ROS bags too; a bag's keep the vendor's default ports)")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
-    p.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+    p.add_argument("--frames-per-file", type=cliargs.number("--frames-per-file"), metavar="N",
                    help="LAS/LAZ/CSV: one file per N frames")
     p.add_argument("--storage", choices=("sqlite3", "mcap"),
                    help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")

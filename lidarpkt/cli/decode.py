@@ -54,13 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(packets,points)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"),
                         help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
-    parser.add_argument("--grid", type=float, metavar="DEG",
+    parser.add_argument("--grid", type=cliargs.number("--grid"), metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
     add_frame_arguments(parser)
     parser.add_argument("--layout", choices=("points", "frames"),
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
-    parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+    parser.add_argument("--frames-per-file", type=cliargs.number("--frames-per-file"), metavar="N",
                         help="LAS/LAZ/CSV: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
@@ -109,9 +109,6 @@ def run(args: argparse.Namespace) -> int:
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
     cliargs.sensor_options(args)  # the sensor files and model checked before any work
-    if args.grid is not None and not args.grid > 0:
-        raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
-                         "e.g. --grid 0.2")
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)

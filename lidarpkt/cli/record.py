@@ -29,16 +29,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                   "apart by its content): recorded in the file, and what the --points frames are "
                                   "decoded with; repeat, one per sensor")
     stop = parser.add_mutually_exclusive_group()
-    stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
+    stop.add_argument("--duration", type=cliargs.number("--duration"), metavar="S", help="stop after S seconds")
+    stop.add_argument("--frames", type=cliargs.number("--frames"), metavar="N", help="stop after N complete rotations")
     cliargs.add_output(parser, (".mcap",), help="MCAP file to write")
-    parser.add_argument("--rotate-size", type=float, metavar="MB",
+    parser.add_argument("--rotate-size", type=cliargs.number("--rotate-size"), metavar="MB",
                         help="start a new file every MB megabytes (files are then OUT_0000.mcap, OUT_0001.mcap ...)")
-    parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds (as above)")
-    parser.add_argument("--chunk-seconds", type=float, default=0.5, metavar="S",
+    parser.add_argument("--rotate-time", type=cliargs.number("--rotate-time"), metavar="S", help="start a new file every S seconds (as above)")
+    parser.add_argument("--chunk-seconds", type=cliargs.number("--chunk-seconds"), default=0.5, metavar="S",
                         help="close an MCAP chunk every S seconds: at most that much is lost if killed (0.5)")
     parser.add_argument("--gps", metavar="PORT", help="serial port of an NMEA GPS (e.g. /dev/ttyUSB0)")
-    parser.add_argument("--baud", type=int, default=9600, help="GPS baud rate (9600)")
+    parser.add_argument("--baud", type=cliargs.number("--baud"), default=9600, help="GPS baud rate (9600)")
     parser.add_argument("--points", action="store_true",
                         help="also write PointCloud2 frames (decoded off the receive path) to the MCAP")
     parser.add_argument("--view", action="store_true",

@@ -32,11 +32,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pip install 'lidarpkt[rerun]')")
     parser.add_argument("--color", choices=("range", "reflectivity"), default="range",
                         help="--rerun: colour the points by range (default) or reflectivity")
-    parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
+    parser.add_argument("--rate", type=cliargs.number("--rate"), default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
     add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
                                   "apart by its content); repeat, one per sensor")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--duration", type=cliargs.number("--duration"), metavar="S", help="stop after S seconds")
     cliargs.add_quiet(parser, "no status lines")
 
 

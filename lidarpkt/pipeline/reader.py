@@ -402,7 +402,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
         UsageError: ``workers`` is not a whole number >= 1.
     """
-    opts = OpenOptions.from_keywords("open_frames", dict(options))
+    opts = OpenOptions.from_keywords("lidarpkt.open", dict(options))
     frame_files = registry.frame_files(path)
     if frame_files is not None:  # files of decoded frames, not packets
         return _open_frame_file(path, opts, frame_files)
