@@ -151,9 +151,13 @@ def points_of(stack: FrameStack, frame: int, range_mm: np.ndarray) -> np.ndarray
         raise AnalysisError(f"{stack.sensor.model}: no calibration to compute points (give the sensor's file with --metadata)")
     h, w = range_mm.shape
     az_cdeg = (np.rint(np.mod(stack.azimuth_deg[frame], 360.0) * 100.0).astype(np.int64) % 36000).astype(np.uint16)
+    # what every vendor's geometry reads of a frame: its ranges, its columns' azimuths (Hesai, RoboSense)
+    # and its firings' azimuths (Velodyne)
     view = SimpleNamespace(range_mm=np.ascontiguousarray(range_mm[None], np.uint32),
+                           azimuth_deg=np.asarray(stack.azimuth_deg[frame], np.float64),
+                           column_valid=stack.column_valid[frame], sensor=stack.sensor,
                            extra={"azimuth_cdeg": np.broadcast_to(az_cdeg, (h, w))})
-    return geometry.xyz(cast("Frame", view))[0]  # a geometry reads only a frame's range_mm and extra
+    return geometry.xyz(cast("Frame", view))[0]
 
 
 def removal_masks(
