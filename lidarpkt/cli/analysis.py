@@ -254,7 +254,10 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
-    if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers is not None or args.scheduler:
+    from lidarpkt.containers.magic import is_capture_folder
+
+    folder = Path(args.input[0]).is_dir() and not is_capture_folder(args.input[0])  # a bag folder is one capture
+    if len(args.input) > 1 or folder or args.workers is not None or args.scheduler:
         # an archive: one map per capture, in parallel
         from lidarpkt.cli.archive import run_multireturn_archive
 
@@ -264,11 +267,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     from lidarpkt.analysis.multireturn import multireturn_map
     from lidarpkt.analysis.returns import parse_return, sensor_returns
 
-    gap = DEFAULT_GAP_M if args.gap is None else args.gap
-    if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
-    if args.gmm_components < 1:
-        raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap  # the flags' ranges checked as parsed (cliargs.NUMBERS)
     method = args.method
     shown = parse_return(args.slot)
     _check_outputs(args, output_suffixes=(".npz",))

@@ -73,7 +73,8 @@ def _check_engine(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_catalog(args: argparse.Namespace) -> int:
-    """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
+    """Write the catalog (every row, errors too); exit status as export's (:func:`job_status`): 1 when a file
+    failed, its row saying why."""
     from lidarpkt.archive import CATALOG_COLUMNS
     from lidarpkt.archive.catalog import catalog_rows, rows_to_table
 
@@ -98,12 +99,12 @@ def run_catalog(args: argparse.Namespace) -> int:
         write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
     if cliargs.wants_json(args):
         cliargs.emit_json(args, json.dumps(rows, indent=1, default=str))
-    if not args.quiet:
-        files = len({r["path"] for r in rows})
-        bad = len({r["path"] for r in rows if r["error"]})
-        print(f"lidarpkt catalog: {len(rows)} streams in {files} files ({bad} with errors)"
+    files = len({r["path"] for r in rows})
+    bad = len({r["path"] for r in rows if r["error"]})
+    if not args.quiet or bad:
+        print(f"lidarpkt catalog: {_count(len(rows), 'stream')} in {_count(files, 'file')} ({bad} with errors)"
               + (f" in {out or cliargs.json_file(args)}" if out or cliargs.json_file(args) else ""), file=sys.stderr)
-    return 0
+    return job_status(bad)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -123,7 +124,17 @@ def run_export(args: argparse.Namespace) -> int:
         bars.close()
     if not args.quiet or report.failed:
         print("lidarpkt export: " + report.summary(), file=sys.stderr)
-    return 1 if report.failed else 0
+    return job_status(len(report.failed))
+
+
+def job_status(failed_files: int) -> int:
+    """The exit status of the archive verbs (catalog, export, multireturn over several captures): 0 when every
+    file was read, 1 when some file failed (the output holds the others; the summary says which failed)."""
+    return 1 if failed_files else 0
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def run_multireturn_archive(args: argparse.Namespace) -> int:
@@ -157,8 +168,8 @@ def run_multireturn_archive(args: argparse.Namespace) -> int:
                   f"multi-return {_fraction(r['multi_return_fraction'])}, non-return {_fraction(r['nonreturn_fraction'])}")
     for r in failed:
         print(f"lidarpkt multireturn: failed: {r['capture']}: {r['error']}", file=sys.stderr)
-    print(f"wrote {len({r['map'] for r in rows if r['map']})} maps and {Path(args.output) / 'summary.csv'}")
-    return 1 if failed else 0
+    print(f"wrote {_count(len({r['map'] for r in rows if r['map']}), 'map')} and {Path(args.output) / 'summary.csv'}")
+    return job_status(len({r["capture"] for r in failed}))
 
 
 def _fraction(value: float | None) -> str:

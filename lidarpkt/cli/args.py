@@ -70,12 +70,12 @@ NUMBERS: dict[str, Number] = {
     "--rate": Number(0, 1000, low_open=True, example="2"),
     "--duration": Number(0, low_open=True, unit="seconds", example="10"),
     "--start-after-fetch": Number(0, 3600, unit="seconds", example="1"),
-    "--rotate-size": Number(1, 1 << 20, unit="MB", example="512"),
-    "--rotate-time": Number(1, low_open=False, unit="seconds", example="60"),
+    "--rotate-size": Number(0.1, 1 << 20, unit="MB", example="512"),
+    "--rotate-time": Number(0.5, unit="seconds", example="60"),
     "--chunk-seconds": Number(0.01, 60, unit="seconds", example="0.5"),
     "--baud": Number(50, 4_000_000, whole=True, example="9600"),
-    "--rcvbuf": Number(0.0625, 2047, unit="MB", example="32"),
-    "--queue": Number(1, 1 << 16, unit="MB", example="256"),
+    "--rcvbuf": Number(0.001, 2047, unit="MB", example="32"),  # the kernel's option is a C int of bytes
+    "--queue": Number(0.0625, 1 << 16, unit="MB", example="256"),
 }
 
 

@@ -52,12 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     # options first: a typo should not cost a decode
     selection = parse_return(args.slot)
-    gap = DEFAULT_GAP_M if args.gap is None else args.gap
-    if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
-    for flag, value in (("--downsample", args.downsample), ("--max-correspondence", args.max_correspondence), ("--voxel", args.voxel)):
-        if not value > 0:
-            raise AnalysisError(f"{flag} {value}: not a positive number of metres; give e.g. {flag} 0.5")
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap  # the flags' ranges checked as parsed (cliargs.NUMBERS)
     if args.map:
         cliargs.check_inputs([args.map], "--map")
     if args.plot and args.plot.lower().endswith(".png"):
