@@ -75,14 +75,15 @@ def available_returns(stack: FrameStack) -> tuple[str, ...]:
 
 
 def parse_return(text: str | int) -> str | int:
-    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``. Raises AnalysisError
-    for anything else."""
+    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``; any other return label (``"first"``,
+    ``"farthest"``...: the sensors name theirs) as it is, looked up in the capture's slots when used. Raises
+    AnalysisError for anything else."""
     if isinstance(text, (int, np.integer)):
         return int(text)
     t = str(text).strip()
     if t.lstrip("-").isdigit():
         return int(t)
-    if t in RETURN_KINDS:
+    if t in RETURN_KINDS or t.isidentifier():
         return t
     raise AnalysisError(f"--return {text!r}: give a slot index (0, 1) or one of {', '.join(RETURN_KINDS)}")
 

@@ -285,6 +285,9 @@ def run_multireturn(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise AnalysisError(f"-o {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
     s = mr.stats
+    slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
+    if not 0 <= slot < len(s.return_labels):
+        raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
     print(f"{_source(args.input, stack)}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
     for i, label in enumerate(s.return_labels):
         with_ret = int(np.count_nonzero(s.n_returns[i]))
@@ -299,9 +302,6 @@ def run_multireturn(args: argparse.Namespace) -> int:
         _status(args, _write_gmm_map(stack, args.gmm_map, args.gmm_components, gap))
     if args.plot:
         plots = _plots()
-        slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
-        if not 0 <= slot < len(s.return_labels):
-            raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
         figure, roc = Path(args.plot) / "multireturn_map.png", Path(args.plot) / "multireturn_roc.png"
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), figure)
         ev = mr.evaluation[slot]
