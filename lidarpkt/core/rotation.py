@@ -57,3 +57,25 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
     if check_start and not key[0] < step:
         return False
     return not check_end or key[-1] >= 36000.0 - step
+
+
+def rate_disagreement(frame) -> str | None:
+    """What a whole frame's own column times say of its sensor's rotation rate, where it disagrees by more than
+    a third with the rate its :class:`~lidarpkt.core.sensor.SensorInfo` states (a sensor file of another
+    mode, e.g. legacy Ouster metadata of 1024x20 for a 10 Hz capture); ``None`` where they agree or cannot
+    tell (a partial frame, no stated rate, fewer than two timed columns)."""
+    hz = frame.sensor.frequency_hz
+    valid = np.flatnonzero(frame.column_valid)
+    if frame.partial or not hz or valid.size < 2:
+        return None
+    times = frame.column_timestamp_ns[valid]
+    span_ns = float(times.max() - times.min())
+    if span_ns <= 0:
+        return None
+    width = frame.column_valid.size
+    measured_hz = (valid[-1] - valid[0]) / width / (span_ns * 1e-9)
+    if abs(measured_hz - hz) <= hz / 3:
+        return None
+    return (f"{frame.sensor.source or frame.sensor.model}: its sensor file says {hz:g} Hz, but its frames take "
+            f"{1e3 / measured_hz:.0f} ms ({measured_hz:.3g} Hz): the file is of another mode of the sensor; the "
+            "frames' times and points follow the packets, the rest follows the file")
