@@ -20,7 +20,8 @@ VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.cli.info", "say what streams and sensors a capture holds"),
     "catalog": ("lidarpkt.cli.archive", "one row per capture file and sensor stream of an archive, in parallel"),
     "export": ("lidarpkt.cli.archive", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
-    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
+    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP, NPZ, Parquet, LAS/LAZ, PLY, PCD, CSV, KITTI, Rerun or "
+                                     "ROS bags"),
     "record": ("lidarpkt.cli.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("lidarpkt.cli.replay", "send a capture's packets over UDP at the original pace"),
     "view": ("lidarpkt.cli.view", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),

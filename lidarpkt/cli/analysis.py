@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
+from lidarpkt.cli.console import count
 
 if TYPE_CHECKING:
     from lidarpkt.core.sequence import FrameStack
@@ -187,7 +188,7 @@ def run_analyze(args: argparse.Namespace) -> int:
         for r, c in pixels
     ]
     source = _source(args.input, stack)
-    print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
+    print(f"{source}: {count(len(stack), 'frame')} of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
           f"return {stack.return_labels[slot]}")
     print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'GMM':>5}  component means (m) [weights]")
     for ra in results:
@@ -198,7 +199,7 @@ def run_analyze(args: argparse.Namespace) -> int:
               f"{'-' if g is None else g.n_components:>5}  {desc}")
         if ra.motion is not None:
             moved = int(np.count_nonzero(np.any(ra.motion.offsets != 0, axis=1)))
-            print(f"{'':>4} motion compensation: {moved} of {len(stack)} frames moved")
+            print(f"{'':>4} motion compensation: {moved} of {count(len(stack), 'frame')} moved")
     _write_json(args, {"frames": len(stack), "pixels": [ra.to_json() for ra in results]})
     if args.plot:
         plots = _plots()
@@ -229,7 +230,7 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
                    help="one capture: the statistics and monitor flags, MAP.npz; several: a folder")
     p.set_defaults(_output_suffixes=(".npz",))
     p.add_argument("--workers", type=cliargs.number("--workers"), default=None, metavar="N",
-                   help="several captures: processes of a local Dask cluster (default: the CPU count)")
+                   help="use N CPU cores (several captures: N processes of a local Dask cluster; default: every core)")
     p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
     cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder")
     _add_input(p)
@@ -288,7 +289,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
     if not 0 <= slot < len(s.return_labels):
         raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
-    print(f"{_source(args.input, stack)}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
+    print(f"{_source(args.input, stack)}: {count(len(stack), 'frame')} of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
     for i, label in enumerate(s.return_labels):
         with_ret = int(np.count_nonzero(s.n_returns[i]))
         multi = int(np.count_nonzero(s.multi_return[i]))
@@ -395,7 +396,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         doc["frames"] = len(a)
         doc["slots"] = pc.summary()
         s = pc.summary()
-        print(f"{src_a}: {len(a)} frames, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
+        print(f"{src_a}: {count(len(a), 'frame')}, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
               f"{_fmt(s['fraction_identical'])} identical, {s['pairs_one_sided']} with a return on one side only")
         if plots:
             figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))

@@ -22,7 +22,7 @@ from lidarpkt.errors import LidarpktError
 from lidarpkt.writers.base import write_atomic
 
 from . import args as cliargs
-from .console import JobBars
+from .console import JobBars, count
 
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
@@ -31,7 +31,8 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
                                   "content (by default the JSON beside each capture with the same stem); repeat, one "
                                   "per sensor")
     p.add_argument("--workers", type=cliargs.number("--workers"), metavar="N",
-                   help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
+                   help="use N CPU cores (default: every core): N processes of a local Dask cluster, a capture or "
+                        "segment each; 1 runs in this process, without Dask")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="run on an existing Dask cluster (tcp://HOST:8786; default $DASK_SCHEDULER_ADDRESS)")
     cliargs.add_quiet(p, "no progress bar or summary")
@@ -102,7 +103,7 @@ def run_catalog(args: argparse.Namespace) -> int:
     files = len({r["path"] for r in rows})
     bad = len({r["path"] for r in rows if r["error"]})
     if not args.quiet or bad:
-        print(f"lidarpkt catalog: {_count(len(rows), 'stream')} in {_count(files, 'file')} ({bad} with errors)"
+        print(f"lidarpkt catalog: {count(len(rows), 'stream')} in {count(files, 'file')} ({bad} with errors)"
               + (f" in {out or cliargs.json_file(args)}" if out or cliargs.json_file(args) else ""), file=sys.stderr)
     return job_status(bad)
 
@@ -133,9 +134,6 @@ def job_status(failed_files: int) -> int:
     return 1 if failed_files else 0
 
 
-def _count(n: int, noun: str) -> str:
-    return f"{n} {noun}" + ("" if n == 1 else "s")
-
 
 def run_multireturn_archive(args: argparse.Namespace) -> int:
     """The ``lidarpkt multireturn PATHS... -o OUTDIR`` form (several captures, a folder, or an engine
@@ -164,11 +162,11 @@ def run_multireturn_archive(args: argparse.Namespace) -> int:
     failed = [r for r in rows if r["error"]]
     for r in rows:
         if not r["error"]:
-            print(f"{r['capture']} slot {r['slot']} ({r['return_label']}): {r['frames_used']} frames, "
+            print(f"{r['capture']} slot {r['slot']} ({r['return_label']}): {count(r['frames_used'], 'frame')}, "
                   f"multi-return {_fraction(r['multi_return_fraction'])}, non-return {_fraction(r['nonreturn_fraction'])}")
     for r in failed:
         print(f"lidarpkt multireturn: failed: {r['capture']}: {r['error']}", file=sys.stderr)
-    print(f"wrote {_count(len({r['map'] for r in rows if r['map']}), 'map')} and {Path(args.output) / 'summary.csv'}")
+    print(f"wrote {count(len({r['map'] for r in rows if r['map']}), 'map')} and {Path(args.output) / 'summary.csv'}")
     return job_status(len({r["capture"] for r in failed}))
 
 

@@ -13,7 +13,8 @@ Every verb builds its options from these helpers, so a flag means the same thing
                        (``--calibration FILE`` is a second spelling); ``--model NAME`` where packets
                        cannot tell the model (:func:`add_sensor_options`, :func:`sensor_options`).
 ``-q/--quiet``         no progress bar and no status lines.
-``--workers N``        parallelism of the verbs that decode.
+``--workers N``        the CPU cores a verb may use (threads that decode, Dask processes over an
+                       archive, the threads of scan matching: the verb's help says which).
 ``--pixel ROW,COL``    a raypath; repeatable where several make sense.
 ``--port N``           a UDP port, 1–65535.
 
@@ -260,8 +261,8 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
     parser.add_argument("--workers", type=number("--workers"), default=1, metavar="N",
-                        help="decode in N threads (default 1): 2 decodes beside the reading, ahead of the "
-                             "output; 3 or more cut a pcap/pcapng capture into segments")
+                        help="use N CPU cores (default 1): decode in N threads; 2 decodes beside the reading, "
+                             "ahead of the output; 3 or more decode segments of a pcap/pcapng side by side")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
+from lidarpkt.cli.console import count
 
 if TYPE_CHECKING:
     from lidarpkt.writers.feed import Feed
@@ -99,7 +100,7 @@ def _feed(args) -> tuple[Feed, Any]:
 
     total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
     progress = console.Progress(args.quiet, total=total, desc="decode")
-    return Feed(progress=lambda done, frames: progress.update(done, f"{frames} frames")), progress
+    return Feed(progress=lambda done, frames: progress.update(done, count(frames, "frame"))), progress
 
 
 def run(args: argparse.Namespace) -> int:
@@ -146,7 +147,7 @@ def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({feed.frames} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({count(feed.frames, 'frame')}) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 
@@ -168,7 +169,7 @@ def _to_npz(args, out: Path) -> int:
         if not feed.frames:
             raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {feed.frames} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {count(feed.frames, 'frame')} from {count(writer.sensors, 'sensor')} in {out}", file=sys.stderr)
     return 0
 
 
@@ -218,7 +219,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     if not feed.frames:
         raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {feed.frames} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {count(feed.frames, 'frame')} in {count(len(written), 'file')} under {out}", file=sys.stderr)
     return 0
 
 

@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 from lidarpkt.errors import AnalysisError
+from lidarpkt.cli.console import count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-correspondence", metavar="M", type=cliargs.number("--max-correspondence"), default=1.0, help="largest correspondence distance, metres (default 1)")
     p.add_argument("--voxel", metavar="M", type=cliargs.number("--voxel"), default=1.0, help="VGICP voxel size, metres (default 1)")
     p.add_argument("--workers", metavar="N", type=cliargs.number("--workers"), default=1,
-                   help="threads small_gicp uses (default 1)")
+                   help="use N CPU cores (default 1): the threads of the scan matching (small_gicp)")
     cliargs.add_quiet(p, "no table and no status lines")
 
 
@@ -95,7 +96,7 @@ def print_table(impact, source: str) -> None:
     from lidarpkt.analysis.registration import CONDITIONS
 
     rf = impact.removed_fraction
-    print(f"{source}: {impact.frames} frames, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "
+    print(f"{source}: {count(impact.frames, 'frame')}, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "
           f"monitor ({impact.monitor_method}) removes {100 * rf['monitor_removed']:.1f} %, "
           f"multi-return raypaths {100 * rf['multireturn_removed']:.1f} % of the returns")
     head = f"{'algorithm':<20} {'target':<13}" + "".join(f" {c:>24}" for c in CONDITIONS)

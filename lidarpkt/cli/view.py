@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 
+from lidarpkt.cli.console import count
 from lidarpkt.containers.magic import CAPTURES_TEXT
 
 
@@ -108,7 +109,7 @@ def _view_capture(args, stop: threading.Event) -> int:
 
             raise LidarpktError(f"{args.source}: no frame to show; check it with lidarpkt info")
         if not stop.is_set() and time.monotonic() < deadline and not args.quiet:
-            print(f"lidarpkt view: end of {args.source} ({servers[0].frames_published} frames); still serving, "
+            print(f"lidarpkt view: end of {args.source} ({count(servers[0].frames_published, 'frame')}); still serving, "
                   "Ctrl-C to stop", file=sys.stderr, flush=True)
         while not stop.wait(1.0) and time.monotonic() < deadline:
             servers[0].publish_status()
@@ -186,5 +187,5 @@ def _status_line(statuses: list[dict], quiet: bool) -> None:
         return
     for s in statuses:
         print(f"lidarpkt view: {s['sensor']}: {s['packets_per_s']:.0f} pkt/s, {s['frames_per_s']:.1f} frames/s, "
-              f"lost {s['lost_packets']}, {s['frames']} frames, {s['view_frames_dropped']} dropped for the view",
+              f"lost {s['lost_packets']}, {count(s['frames'], 'frame')}, {s['view_frames_dropped']} dropped for the view",
               file=sys.stderr, flush=True)

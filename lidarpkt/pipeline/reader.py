@@ -333,7 +333,7 @@ class Driver:
         text = format_dropped(self.drop_counts(), self.stats.packets)
         if not text:
             return None
-        return f"{self.name}: {text}; the frames hold what arrived (counts per decoder in .decoders[...].stats)"
+        return f"{self.name}: {text}; the frames hold what arrived (each frame's counters say what it lost)"
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""

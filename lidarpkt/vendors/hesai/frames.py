@@ -139,7 +139,8 @@ class HesaiDecoder:
             return
         if cal.channels != model.channels:
             raise CalibrationError(f"{cal.source}: a calibration of {cal.channels} channels for a {model.name}, "
-                                   f"which has {model.channels}; pass the sensor's own angle-correction CSV")
+                                   f"which has {model.channels}; give the sensor's own angle-correction CSV (--metadata FILE; "
+                                   "metadata=... in Python)")
         self._row_channel = np.argsort(-cal.elevation_deg, kind="stable")
         self.geometry = HesaiGeometry(cal, self._row_channel)
 
