@@ -118,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning
     warnings.showwarning = _show_warning
+    args = None
     try:
         parser = build_parser(verb if verb in VERBS else None)
         args = parser.parse_args(argv)
@@ -138,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
         cliargs.discard_outputs(mark)
-        where = exc.filename or "output"
+        where = exc.filename or (f"-o {args.output}" if getattr(args, "output", None) else "output")
         print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
               file=sys.stderr)
         return 2
