@@ -111,7 +111,7 @@ def compare_slots(stack: FrameStack, a: int | str = 0, b: int | str = 1, *, delt
         r = 2
     if not (0 <= a < r and 0 <= b < r) or a == b:
         raise AnalysisError(
-            f"cannot compare slots {a} and {b}: this capture has {r} return slot(s) {list(stack.return_labels)}; "
+            f"cannot compare slots {a} and {b}: this capture has {r} return {'slot' if r == 1 else 'slots'} {list(stack.return_labels)}; "
             "slot comparison needs a dual-return capture (or give a second capture to compare modes)"
         )
     labels = (stack.return_labels[a], stack.return_labels[b])

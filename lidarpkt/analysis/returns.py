@@ -160,7 +160,8 @@ def select_returns(stack: FrameStack, selections: Sequence[str | int]) -> Return
         if isinstance(sel, int):
             if not 0 <= sel < r_count:
                 names = ", ".join(f"{i}={lab}" for i, lab in enumerate(stack.return_labels))
-                raise AnalysisError(f"return slot {sel} does not exist: this capture has {r_count} slot(s) ({names})")
+                raise AnalysisError(f"return slot {sel} does not exist: this capture has {r_count} "
+                                    f"{'slot' if r_count == 1 else 'slots'} ({names}); give one of them (--return)")
             rngs.append(stack.range_mm[:, sel])
             refls.append(stack.reflectivity[:, sel])
             valids.append(None if pv is None else pv[:, sel])

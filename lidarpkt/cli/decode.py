@@ -113,6 +113,13 @@ def run(args: argparse.Namespace) -> int:
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
+    if args.frame_id or args.base_frame or args.mount:
+        if not takes_packets(fmt):
+            raise UsageError("--frame-id/--base-frame/--mount: they place the point clouds of MCAP and ROS bag "
+                             f"outputs; drop them for {fmt} (or write -o OUT.mcap)")
+        from lidarpkt.writers.mcap.frames import SensorFrames
+
+        SensorFrames(**frame_options(args))  # their values checked before any decoding
     if fmt == "npz" or takes_packets(fmt):
         _format_options(args, fmt)  # rejects the flags of other formats
     if takes_packets(fmt):  # MCAP, ROS bags: the capture's packets too
