@@ -110,3 +110,23 @@ def test_every_option_of_open_declares_what_it_takes():
 
     undeclared = {f.name for f in dataclasses.fields(OpenOptions) if f.metadata["allowed"] is None}
     assert undeclared == {"metadata", "segment"}  # files and segments are checked where they are loaded
+
+
+def test_the_archive_recorder_and_receiver_apis_check_their_numbers(tmp_path):
+    from lidarpkt.archive import catalog_rows
+    from lidarpkt.containers.udp import UdpSource
+    from lidarpkt.recorder.record import record
+
+    for workers in (0, "2", 2.5):
+        with pytest.raises(UsageError, match=r"^workers="):
+            catalog_rows([str(external(VLP10))], workers=workers)
+    for options in ({"duration_s": -1}, {"max_frames": 0}, {"rotate_bytes": -1}, {"rotate_seconds": 0},
+                    {"chunk_seconds": 0}):
+        with pytest.raises(UsageError, match=rf"^record\(\): {next(iter(options))}="):
+            record(tmp_path / "r.mcap", ports=[2368], **options)
+    assert not (tmp_path / "r.mcap").exists()  # refused before anything opened
+    for options in ({"rcvbuf_bytes": 5000 << 20}, {"rcvbuf_bytes": -1}, {"queue_bytes": 0}):
+        with pytest.raises(UsageError, match=next(iter(options))):
+            UdpSource([2368], bind="127.0.0.1", **options)
+    with pytest.raises(UsageError, match="ports"):
+        UdpSource([70000], bind="127.0.0.1")
