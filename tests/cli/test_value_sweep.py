@@ -130,3 +130,11 @@ def test_the_archive_recorder_and_receiver_apis_check_their_numbers(tmp_path):
             UdpSource([2368], bind="127.0.0.1", **options)
     with pytest.raises(UsageError, match="ports"):
         UdpSource([70000], bind="127.0.0.1")
+
+
+def test_decode_refuses_placement_flags_its_output_cannot_hold_before_decoding(tmp_path, capsys):
+    vlp = str(external(VLP10))
+    assert main(["decode", vlp, "-o", str(tmp_path / "m.npz"), "--mount", "1,2,3,0,0,0", "--base-frame", "b"]) == 2
+    assert "drop them for npz" in capsys.readouterr().err and not (tmp_path / "m.npz").exists()
+    assert main(["decode", vlp, "-o", str(tmp_path / "m.mcap"), "--mount", "1,2,3", "--base-frame", "b"]) == 2
+    assert "--mount 1,2,3: give six numbers" in capsys.readouterr().err and not (tmp_path / "m.mcap").exists()
