@@ -33,6 +33,8 @@ from lidarpkt.core.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).
 RETURN_KINDS = ("strongest", "last", "second_strongest")
+#: the labels sensors give their return slots (Hesai's first/second, Ouster's by return order), besides the kinds
+SLOT_LABELS = ("first", "second", "farthest", "second_farthest", "nearest", "second_nearest", "second_last")
 
 _LAST_STRONGEST = ("last", "strongest")  # a dual mode whose slot 1 is the strongest or the second strongest
 
@@ -75,17 +77,17 @@ def available_returns(stack: FrameStack) -> tuple[str, ...]:
 
 
 def parse_return(text: str | int) -> str | int:
-    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``; any other return label (``"first"``,
-    ``"farthest"``...: the sensors name theirs) as it is, looked up in the capture's slots when used. Raises
-    AnalysisError for anything else."""
+    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``, a slot label of some sensor
+    (:data:`SLOT_LABELS`: ``"first"``, ``"farthest"``...) as it is, looked up in the capture's slots when used.
+    Raises AnalysisError for anything else."""
     if isinstance(text, (int, np.integer)):
         return int(text)
     t = str(text).strip()
     if t.lstrip("-").isdigit():
         return int(t)
-    if t in RETURN_KINDS or t.isidentifier():
+    if t in RETURN_KINDS or t in SLOT_LABELS:
         return t
-    raise AnalysisError(f"--return {text!r}: give a slot index (0, 1) or one of {', '.join(RETURN_KINDS)}")
+    raise AnalysisError(f"--return {text!r}: give a slot index (0, 1) or one of {', '.join(RETURN_KINDS + SLOT_LABELS)}")
 
 
 def second_strongest_marks(stack: FrameStack) -> np.ndarray:

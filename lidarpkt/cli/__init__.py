@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
         cliargs.discard_outputs(mark)
-        where = exc.filename or (f"-o {args.output}" if getattr(args, "output", None) else "output")
+        output = getattr(args, "output", None)
+        where = exc.filename or (f"-o {output}" if output else "output")
         print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
               file=sys.stderr)
         return 2

@@ -48,8 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_ws_argument(parser)
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
     cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
-    cliargs.add_quiet(parser, "no status line, no notices and no summary: only errors, and the one line that says "
-                              "where it listens and writes (scripts wait for it)")
+    cliargs.add_quiet(parser, "no status line and no summary: only errors, the notices of what happens to the "
+                              "stream (silence, unknown packets kept), and the one line that says where it listens "
+                              "and writes (scripts wait for it)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,8 +83,7 @@ def run(args: argparse.Namespace) -> int:
             rotate_seconds=args.rotate_time, gps=args.gps, gps_baud=args.baud, points=args.points, sensors=sensors,
             view=(lambda: start_view(args.ws, verb="record")) if args.view else None, duration_s=args.duration,
             max_frames=args.frames, should_stop=lambda: stop.reason, on_listening=lambda capture: _listening(capture, args),
-            on_status=None if args.quiet else _status_line, on_notice=None if args.quiet else _notice,
-            **receive_options(args))
+            on_status=None if args.quiet else _status_line, on_notice=_notice, **receive_options(args))
     finally:
         stop.restore()
     summary = recording.summary

@@ -49,7 +49,7 @@ MAX_DATAGRAM = 65535
 #: the values the receiver's options take: the kernel's buffer size is a C int, halved as the kernel doubles it
 PORT = Number(1, 65535, whole=True, example="2368")
 RCVBUF_BYTES = Number(1 << 10, (1 << 31) - 1, whole=True, example=str(32 << 20))
-QUEUE_BYTES = Number(1 << 16, whole=True, example=str(256 << 20))
+QUEUE_BYTES = Number(1, whole=True, example=str(256 << 20))
 READ_BATCH = 1024  # datagrams read from one socket before the thread looks at the stop flag again
 FINAL_READ_S = 1.0  # on stop, how long the kernel's backlog is read at most
 _ANC_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4) + socket.CMSG_SPACE(12)

@@ -95,7 +95,7 @@ class FrameReader(FrameIterator):
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self._decoding = opts.decoding()
         self._recorded_wanted = True  # a sensor file recorded in the capture is still to be looked for
-        self._include_partial, self._rates_checked = opts.include_partial, set()
+        self._include_partial, self._rates_checked = opts.include_partial, set[Any]()
         self.driver = Driver(str(self.path), setup, max_sensors=opts.max_sensors, source=opts.source,
                              ownership=self._ownership, sensor_files=self.sensor_files)
         self.stats = self.driver.stats

@@ -80,7 +80,7 @@ def sender(host: str, port: int) -> tuple[socket.socket, str]:
         raise RecorderError(f"--to {host}: cannot resolve the host ({exc.strerror or exc}); give an address such as 127.0.0.1") from None
     sock = socket.socket(family, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
-    return sock, addr[0]
+    return sock, str(addr[0])
 
 
 def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
@@ -102,7 +102,7 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     if own:
         sock, dest_host = sender(host, port)
     else:
-        dest_host = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0][4][0]
+        dest_host = str(socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0][4][0])
     assert sock is not None
     stats = ReplayStats(per_port={})
     kind_port: dict[tuple[int, int | None], int] = {}

@@ -131,7 +131,7 @@ class Ros1BagMessages(_BagMessages):
         try:
             self._writer.open()
         except WRITE_ERRORS as exc:
-            raise OutputError(f"cannot create the bag {path}: {exc.strerror or exc}") from exc
+            raise OutputError(f"cannot create the bag {path}: {failure_text(exc)}") from exc
 
     def _connect(self, topic: schemas.Topic) -> Any:
         return self._writer.add_connection(topic.name, topic.msgtype, typestore=ros1_typestore(),
@@ -161,7 +161,7 @@ class Rosbag2Sqlite3Messages(_BagMessages):
         try:
             self._writer.open()
         except WRITE_ERRORS as exc:
-            raise OutputError(f"cannot create the bag {folder}: {exc.strerror or exc}") from exc
+            raise OutputError(f"cannot create the bag {folder}: {failure_text(exc)}") from exc
         self._records: dict[str, int] = {}
 
     def _connect(self, topic: schemas.Topic) -> Any:
@@ -188,7 +188,7 @@ class Rosbag2McapMessages(McapWriter):
         try:
             folder.mkdir()
         except WRITE_ERRORS as exc:
-            raise OutputError(f"cannot create the bag {folder}: {exc.strerror or exc}") from exc
+            raise OutputError(f"cannot create the bag {folder}: {failure_text(exc)}") from exc
         self.folder = folder
         self.counts: dict[str, tuple[schemas.Topic, int]] = {}
         self.span: list[int] = []  # first and last log time
