@@ -14,11 +14,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator, Sequence
 
-from lidarpkt.core.checks import Number
+from lidarpkt.core.checks import WORKERS
 from lidarpkt.errors import LidarpktError
-
-#: what ``workers`` takes (``None``: the CPU count); the CLI's ``--workers`` takes the same range
-WORKERS = Number(1, 1024, whole=True, optional=True, example="4")
 
 DEFAULT_RETRIES = 2  # a task whose worker died is re-run by Dask anyway; this covers other transient failures
 
@@ -49,7 +46,8 @@ class EngineOptions:
         return os.environ.get("DASK_SCHEDULER_ADDRESS") or None if self.workers is None else None
 
     def __post_init__(self) -> None:
-        WORKERS.check(self.workers, "workers")  # raises UsageError naming the option and its range
+        if self.workers is not None:  # None: the CPU count
+            WORKERS.check(self.workers, "workers")  # raises UsageError naming the option and its range
 
     def _workers(self) -> int:
         return self.workers or os.cpu_count() or 1

@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from lidarpkt.core.checks import Number
+from lidarpkt.core.checks import PORT, WORKERS, Number
 from lidarpkt.errors import InputFileError, LidarpktError, OutputError, UsageError
 
 __all__ = [
@@ -55,7 +55,7 @@ JSON_STDOUT = "-"
 #: every verb that has it, and is checked the same way (:func:`number`: one line naming the flag and the
 #: range, exit 2). The tests drive each with :meth:`~lidarpkt.core.checks.Number.bad_values`.
 NUMBERS: dict[str, Number] = {
-    "--workers": Number(1, 1024, whole=True, example="2"),
+    "--workers": WORKERS,
     "--frames-per-file": Number(1, whole=True, example="100"),
     "--frames": Number(1, whole=True, example="10"),
     "--seed": Number(0, 2**32 - 1, whole=True, example="0"),
@@ -111,14 +111,8 @@ def _argparse_type(fn, flag: str):
 
 
 def port(text: str, flag: str = "--port") -> int:
-    """A UDP port number, 1–65535. Raises :class:`UsageError`."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise UsageError(f"{flag} {text}: not a port number; give an integer in 1-65535, e.g. {flag} 2368") from None
-    if not 1 <= value <= 65535:
-        raise UsageError(f"{flag} {text}: out of range; a UDP port is in 1-65535 (e.g. {flag} 2368)")
-    return value
+    """A UDP port number, 1–65535 (:data:`lidarpkt.core.checks.PORT`). Raises :class:`UsageError`."""
+    return int(PORT.parse(text, flag))
 
 
 def positive_int(text: str, flag: str) -> int:

@@ -35,7 +35,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from lidarpkt.core.checks import Number
+from lidarpkt.core.checks import PORT, Number
 from lidarpkt.errors import PortInUseError, ReceiveError
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 
@@ -47,7 +47,6 @@ IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)
 
 MAX_DATAGRAM = 65535
 #: the values the receiver's options take: the kernel's buffer size is a C int, halved as the kernel doubles it
-PORT = Number(1, 65535, whole=True, example="2368")
 RCVBUF_BYTES = Number(1 << 10, (1 << 31) - 1, whole=True, example=str(32 << 20))
 QUEUE_BYTES = Number(1, whole=True, example=str(256 << 20))
 READ_BATCH = 1024  # datagrams read from one socket before the thread looks at the stop flag again

@@ -19,7 +19,7 @@ from typing import Any
 
 from lidarpkt.errors import UsageError
 
-__all__ = ["Allowed", "Number", "Switch", "Text", "Several", "option_error"]
+__all__ = ["Allowed", "Number", "Switch", "Text", "Several", "option_error", "WORKERS", "PORT"]
 
 
 def option_error(name: str, value: Any, what: str, example: str, *, flag: bool) -> UsageError:
@@ -180,6 +180,11 @@ class Several(Allowed):
                 raise option_error(name, value, f"holds {v!r}; each item must be {what}", self.example,
                                    flag=False) from None
         return tuple(checked)
+
+
+#: the options several layers take, declared once: the CPU cores a job may use, a UDP port
+WORKERS = Number(1, 1024, whole=True, example="2")
+PORT = Number(1, 65535, whole=True, example="2368")
 
 
 def _fmt(x: float | None) -> str:

@@ -15,7 +15,7 @@ import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
-from lidarpkt.core.checks import Allowed, Number, Several, Switch, Text
+from lidarpkt.core.checks import PORT, WORKERS, Allowed, Number, Several, Switch, Text
 from lidarpkt.errors import UsageError
 
 if TYPE_CHECKING:
@@ -36,8 +36,6 @@ def _option(default: Any, doc: str, allowed: Allowed | None = None) -> Any:
     :meth:`OpenOptions.from_keywords`; ``None``: anything, checked where it is used)."""
     return field(default=default, metadata={"doc": doc, "allowed": allowed})
 
-
-_PORT = Number(1, 65535, whole=True, example="2368")
 
 
 @dataclass(frozen=True)
@@ -82,7 +80,7 @@ class OpenOptions:
         "the whole file's. A ``frame_id`` that counts rotations and ``extra[\"packet_index\"]`` then count "
         "from the segment's start.")
     ports: Iterable[int] | None = _option(None, "pcap/pcapng: keep only packets sent to these UDP destination ports.",
-                                          Several(_PORT, example="[2368]"))
+                                          Several(PORT, example="[2368]"))
     src_addresses: Iterable[str] | None = _option(
         None, "pcap/pcapng: keep only packets from these source addresses.",
         Several(Text(), example="['192.168.1.201']"))
@@ -98,7 +96,7 @@ class OpenOptions:
         1, "threads that decode (default 1): 2 decodes the frames in a thread of their own beside the "
         "read-ahead, ahead of the caller (any container); 3 or more cut pcap/pcapng captures of at least "
         "16 MB into segments decoded side by side (:mod:`lidarpkt.pipeline.parallel`). The frames, their order and "
-        "arrays are those of ``workers=1``. ``segment=`` reads in one thread.", Number(1, 1024, whole=True, example="2"))
+        "arrays are those of ``workers=1``. ``segment=`` reads in one thread.", WORKERS)
 
     @classmethod
     def from_keywords(cls, caller: str, options: dict[str, Any]) -> "OpenOptions":
