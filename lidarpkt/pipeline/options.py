@@ -15,7 +15,7 @@ import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
-from lidarpkt.core.checks import PORT, WORKERS, Allowed, Number, Several, Switch, Text
+from lidarpkt.core.checks import PORT, WORKERS, Allowed, Number, Several, Switch, Text, option_error
 from lidarpkt.errors import UsageError
 
 if TYPE_CHECKING:
@@ -36,6 +36,17 @@ def _option(default: Any, doc: str, allowed: Allowed | None = None) -> Any:
     :meth:`OpenOptions.from_keywords`; ``None``: anything, checked where it is used)."""
     return field(default=default, metadata={"doc": doc, "allowed": allowed})
 
+
+
+class _SegmentOf(Allowed):
+    """A :class:`~lidarpkt.containers.segments.Segment` (from ``plan_segments``), or None."""
+
+    def check(self, value: Any, name: str) -> Any:
+        from lidarpkt.containers.segments import Segment
+
+        if value is None or isinstance(value, Segment):
+            return value
+        raise option_error(name, value, "not a Segment of plan_segments()", "plan_segments(path)[0]", flag=False)
 
 
 @dataclass(frozen=True)
@@ -78,7 +89,7 @@ class OpenOptions:
         None, "yield only the frames of this :class:`~lidarpkt.containers.segments.Segment` of the capture "
         "(from :func:`~lidarpkt.containers.segments.plan_segments`); the frames of all segments, in order, are "
         "the whole file's. A ``frame_id`` that counts rotations and ``extra[\"packet_index\"]`` then count "
-        "from the segment's start.")
+        "from the segment's start.", _SegmentOf())
     ports: Iterable[int] | None = _option(None, "pcap/pcapng: keep only packets sent to these UDP destination ports.",
                                           Several(PORT, example="[2368]"))
     src_addresses: Iterable[str] | None = _option(

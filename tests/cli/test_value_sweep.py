@@ -85,6 +85,7 @@ BAD_OPTIONS = [
     ({"batch_packets": -1}, "batch_packets=-1"),
     ({"model": 16}, "model=16: not a string"),
     ({"topics": [1]}, "topics=[1]"),
+    ({"segment": "x"}, "segment='x': not a Segment"),
 ]
 
 
@@ -109,7 +110,7 @@ def test_every_option_of_open_declares_what_it_takes():
     import dataclasses
 
     undeclared = {f.name for f in dataclasses.fields(OpenOptions) if f.metadata["allowed"] is None}
-    assert undeclared == {"metadata", "segment"}  # files and segments are checked where they are loaded
+    assert undeclared == {"metadata"}  # the sensor files are checked where they are loaded
 
 
 def test_the_archive_recorder_and_receiver_apis_check_their_numbers(tmp_path):
