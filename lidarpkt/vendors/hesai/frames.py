@@ -138,9 +138,11 @@ class HesaiDecoder:
             self._row_channel = np.arange(model.channels)
             return
         if cal.channels != model.channels:
+            rows = (f"channel {cal.channels + 1} has no line" if cal.channels < model.channels else
+                    f"the lines of channels {model.channels + 1}-{cal.channels} are too many")
             raise CalibrationError(f"{cal.source}: a calibration of {cal.channels} channels for a {model.name}, "
-                                   f"which has {model.channels}; give the sensor's own angle-correction CSV (--metadata FILE; "
-                                   "metadata=... in Python)")
+                                   f"which has {model.channels} ({rows}); give the sensor's own angle-correction CSV "
+                                   "(--metadata FILE; metadata=... in Python)")
         self._row_channel = np.argsort(-cal.elevation_deg, kind="stable")
         self.geometry = HesaiGeometry(cal, self._row_channel)
 
