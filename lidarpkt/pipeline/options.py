@@ -62,7 +62,7 @@ class OpenOptions:
         "(an :class:`~lidarpkt.errors.UnusedSensorFileWarning`).")
     model: str | None = _option(
         None, "the sensor model where its packets cannot say it (two models that share a factory byte); by "
-        "default read from the packets.", Text(optional=True, example="'VLP-32C'"))
+        "default read from the packets.", Text(optional=True, example="'MODEL'"))
     cut_angle_deg: float | None = _option(
         None, "cut frames at this azimuth (degrees) instead of at the wrap through 0° (sensors whose frames end "
         "where their azimuth wraps).", Number(0, 360, high_open=True, optional=True, example="90"))
@@ -99,7 +99,7 @@ class OpenOptions:
                                                   Several(Number(1, 65535, whole=True), example="[1206]"))
     topics: Iterable[str] | None = _option(
         None, "bags and MCAP: read only these topics (default: every topic of a known packet type).",
-        Several(Text(), example="['/velodyne_packets']"))
+        Several(Text(), example="['/sensor/packets']"))
     batch_packets: int | None = _option(
         None, "pcap/pcapng: most packets per batch (the reader's default, 8192, when None).",
         Number(1, 1 << 20, whole=True, optional=True, example="8192"))
