@@ -20,7 +20,8 @@ VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.cli.info", "say what streams and sensors a capture holds"),
     "catalog": ("lidarpkt.cli.archive", "one row per capture file and sensor stream of an archive, in parallel"),
     "export": ("lidarpkt.cli.archive", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
-    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
+    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP, NPZ, Parquet, LAS/LAZ, PLY, PCD, CSV, KITTI, Rerun or "
+                                     "ROS bags"),
     "record": ("lidarpkt.cli.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("lidarpkt.cli.replay", "send a capture's packets over UDP at the original pace"),
     "view": ("lidarpkt.cli.view", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
@@ -117,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning
     warnings.showwarning = _show_warning
+    args = None
     try:
         parser = build_parser(verb if verb in VERBS else None)
         args = parser.parse_args(argv)
@@ -137,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
         cliargs.discard_outputs(mark)
-        where = exc.filename or "output"
+        output = getattr(args, "output", None)
+        where = exc.filename or (f"-o {output}" if output else "output")
         print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
               file=sys.stderr)
         return 2

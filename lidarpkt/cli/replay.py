@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
     parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
     pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, default=1.0, metavar="F", help="speed factor (1 = real time)")
+    pace.add_argument("--rate", type=cliargs.number("--rate"), default=1.0, metavar="F", help="speed factor (1 = real time)")
     pace.add_argument("--max", action="store_true", help="send as fast as possible")
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ptc", metavar="HOST:PORT",
                         help="also answer Hesai PTC commands there (a Pandar's TCP port 9347), serving the Hesai "
                              "CSV of --calibration (or --metadata) for 'get calibration' (0x05), as the sensor does")
-    parser.add_argument("--start-after-fetch", type=float, metavar="S",
+    parser.add_argument("--start-after-fetch", type=cliargs.number("--start-after-fetch"), metavar="S",
                         help="with --http or --ptc: send nothing until the metadata (calibration) has been fetched, "
                              "then start S seconds later (the client opens its sockets after fetching)")
     cliargs.add_quiet(parser, "no summary")
@@ -100,9 +100,11 @@ def run(args: argparse.Namespace) -> int:
     ptc = _ptc_server(args, next((path for path, f in zip(given, files) if f.vendor == "hesai"), None))
     if args.start_after_fetch is not None and http is None and ptc is None:
         raise RecorderError("--start-after-fetch: it needs --http HOST:PORT or --ptc HOST:PORT; give both or neither")
-    previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
+    previous = previous_int = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+        # started with SIGINT ignored (``&`` in a script), Ctrl-C must still stop it, as it stops record
+        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         if args.start_after_fetch is not None:
             try:
@@ -115,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
         if http is not None:
             http.close()
         if ptc is not None:

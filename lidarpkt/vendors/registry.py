@@ -184,6 +184,8 @@ def _what_it_is(text: str) -> str:
         except (ValueError, RecursionError):
             return "it starts as JSON"
         return f"a JSON {type(doc).__name__} without the fields of any of them"
+    if any(ord(c) < 9 or 13 < ord(c) < 32 or c == "\ufffd" for c in text[:64]):
+        return "binary data: sensor files are text"
     first = text.lstrip().splitlines()[0]
     if "," in first:
         return f"comma-separated lines that are none of them; it starts with {first[:40]!r}"
