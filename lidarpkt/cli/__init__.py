@@ -10,8 +10,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 import warnings
+from typing import Any
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 
@@ -118,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning
     warnings.showwarning = _show_warning
+    previous_sigint = _interruptible()
     args = None
     try:
         parser = build_parser(verb if verb in VERBS else None)
@@ -147,6 +151,16 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         cliargs.forget_outputs(mark)
         warnings.showwarning = previous_showwarning
+        if previous_sigint is not None:
+            signal.signal(signal.SIGINT, previous_sigint)
+
+
+def _interruptible() -> Any:
+    """Ctrl-C stops every verb, also one started with SIGINT ignored (as a shell's ``&`` in a script starts
+    it): the default handler is put back; returns the disposition to restore (None: nothing changed)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        return None
+    return signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

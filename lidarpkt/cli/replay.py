@@ -100,11 +100,9 @@ def run(args: argparse.Namespace) -> int:
     ptc = _ptc_server(args, next((path for path, f in zip(given, files) if f.vendor == "hesai"), None))
     if args.start_after_fetch is not None and http is None and ptc is None:
         raise RecorderError("--start-after-fetch: it needs --http HOST:PORT or --ptc HOST:PORT; give both or neither")
-    previous = previous_int = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
+    previous = None  # SIGTERM stops the replay like Ctrl-C: the summary is still printed
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
-        # started with SIGINT ignored (``&`` in a script), Ctrl-C must still stop it, as it stops record
-        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         if args.start_after_fetch is not None:
             try:
@@ -117,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-        if previous_int is not None:
-            signal.signal(signal.SIGINT, previous_int)
         if http is not None:
             http.close()
         if ptc is not None:
