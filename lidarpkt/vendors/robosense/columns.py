@@ -68,7 +68,7 @@ class Columns:
         return Columns(**{f.name: np.concatenate([getattr(p, f.name) for p in parts], axis=-1) for f in fields(Columns)})
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # one per model and mode (plan() keeps them): hashed by identity
 class Plan:
     """Where the slots of each column of a packet are (a model in a return mode).
 
@@ -148,6 +148,26 @@ def pixel_azimuths(group_az: np.ndarray, step: np.ndarray, fraction: np.ndarray)
     return ((group_az.astype(np.int32)[..., None] + add) % 36000).astype(np.uint16)
 
 
+@lru_cache(maxsize=32)
+def _step_table(p: Plan) -> np.ndarray:
+    """``uint16[L, (_BLIND_STEP_CDEG + 1) · Cp]``: ``trunc(step · fraction)`` of every laser for every step a
+    group can take (0 to 1°) and column of the packet, so that a batch's pixel azimuths are one gather."""
+    steps = np.arange(_BLIND_STEP_CDEG + 1, dtype=np.float32)
+    add = (steps[:, None, None] * p.fraction[None]).astype(np.int32)  # [steps, Cp, L]
+    return np.ascontiguousarray(add.reshape(-1, add.shape[2]).T).astype(np.uint16)
+
+
+def pixel_azimuth_columns(group_az: np.ndarray, step: np.ndarray, p: Plan) -> np.ndarray:
+    """``uint16[L, N · Cp]``: :func:`pixel_azimuths` of every column of N packets (``group_az``, ``step``:
+    ``[N, G]``), laid out as the frame's rows take them."""
+    cp = p.slot.shape[0]
+    key = (step[:, p.group].astype(np.intp) * cp + np.arange(cp)).reshape(-1)
+    out = _step_table(p)[:, key]
+    out += group_az[:, p.group].reshape(-1).astype(np.uint16)
+    np.subtract(out, 36000, out=out, where=out >= 36000)
+    return out
+
+
 def build_columns(raw: RobosensePackets, index: np.ndarray, model: RobosenseModel, n_returns: int,
                   nominal_cdeg: int) -> Columns:
     """The columns of packets ``raw`` (one mode, time order) with source ordinals ``index``."""
@@ -161,13 +181,13 @@ def build_columns(raw: RobosensePackets, index: np.ndarray, model: RobosenseMode
     reflectivity = np.ascontiguousarray(refl.transpose(2, 3, 0, 1)).reshape(r, lasers, n * cp)
     group_az = raw.azimuth_cdeg[:, p.first_block]  # [N, G]
     steps = group_steps(group_az, nominal_cdeg)
-    pix = pixel_azimuths(group_az[:, p.group], steps[:, p.group], p.fraction[None])  # [N, Cp, L]
+    pix = pixel_azimuth_columns(group_az, steps, p)  # [L, N·Cp]
     first_laser = np.argmin(p.time_table[p.key], axis=1)  # the laser of each column's first firing
-    col_az = pix[:, np.arange(cp), first_laser].astype(np.int32).reshape(-1)
+    col_az = pix[np.tile(first_laser, n), np.arange(n * cp)].astype(np.int32)
     return Columns(
         distance=distance, reflectivity=reflectivity, unit_um=np.repeat(raw.distance_unit_um, cp),
-        pixel_azimuth_cdeg=np.ascontiguousarray(pix.transpose(2, 0, 1)).reshape(lasers, n * cp),
-        azimuth_cdeg=col_az, block_azimuth_cdeg=group_az[:, p.group].astype(np.int32).reshape(-1),
+        pixel_azimuth_cdeg=pix, azimuth_cdeg=col_az,
+        block_azimuth_cdeg=group_az[:, p.group].astype(np.int32).reshape(-1),
         timestamp_ns=(raw.timestamp_ns[:, None] + p.start_ns[None, :]).reshape(-1),
         time_key=np.tile(p.key, n), packet_index=np.repeat(np.asarray(index, np.int64), cp),
     )

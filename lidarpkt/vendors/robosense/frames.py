@@ -470,8 +470,12 @@ class RobosenseDecoder:
         info = self.sensor_info()
         rows = self.calibration.rows() if self.calibration is not None else np.arange(model.lasers)
         n_returns = self._mode[0]
-        distance = cols.distance[:, rows, :]
-        range_mm = (distance.astype(np.uint32) * cols.unit_um.astype(np.uint32) + 500) // 1000
+        unit_um = int(cols.unit_um[0])  # one a frame: a change cuts it
+        # millimetres rounded half up: (raw · 2u/1000 + 1) / 2, u/1000 being whole or half millimetres
+        range_mm = cols.distance[:, rows, :].astype(np.uint32)
+        range_mm *= np.uint32(unit_um // 500)
+        range_mm += np.uint32(1)
+        range_mm >>= np.uint32(1)
         table = plan(model, 1 if model.dual_layout == "ret_id" else n_returns).time_table[:, rows]  # [K, H]
         frame = Frame(
             sensor=info, frame_id=self._frame_id, range_mm=range_mm, reflectivity=cols.reflectivity[:, rows, :],
