@@ -52,7 +52,7 @@ from .detect import FAMILY_NAMES, detect_model, is_difop, model_from_header, mso
 from .difop import DeviceInfo, decode_difop
 from .models import FAMILIES, ROTATION_RPM, RobosenseModel, model_named
 from .sensor import describe_sensor
-from .stream import StreamLoss
+from .stream import StreamLoss, packet_period_ns
 
 
 class DecoderStats:
@@ -202,9 +202,7 @@ class RobosenseDecoder:
         """The frames still held or being filled at the end of the capture (the last one partial unless
         it reaches the cut angle)."""
         frames = self._settle() if not self._settled else []
-        if self._ruby_dual is not None and self._mode is not None:
-            self._append(self._ruby_dual.build(*self._empty_raw(), final=True))
-        frames += self._flush(end="cut")
+        frames += self._cut()
         self._last_key = None
         return frames
 
@@ -226,12 +224,15 @@ class RobosenseDecoder:
                 self._device_changed(info)
 
     def _ready(self) -> bool:
-        if self.device is not None and self._held:
-            return True
+        """Settle now: a DIFOP came, or the packets held span ``difop_wait_s`` (counted in the shortest
+        packet period of the model, so that a packet's damaged time cannot end the wait early)."""
         if not self._held:
             return False
-        first, last = self._held[0][0].timestamp_ns[0], self._held[-1][0].timestamp_ns[-1]
-        return bool(abs(int(last) - int(first)) >= self.difop_wait_ns)
+        if self.device is not None:
+            return True
+        assert self.model is not None
+        held = sum(len(h[0]) for h in self._held)
+        return bool(held * packet_period_ns(self.model, 2) >= self.difop_wait_ns)
 
     def _release(self) -> list[Frame]:
         return self._settle()
@@ -303,7 +304,7 @@ class RobosenseDecoder:
         frames: list[Frame] = []
         for a, b in itertools.pairwise(sorted({0, *np.flatnonzero(restart).tolist(), len(raw)})):
             if restart[a]:  # the clock jumped and went on from there: a new stream, nothing lost or late
-                frames += self._flush(end="cut")
+                frames += self._cut()
                 self._last_key = self._last_ts = self._last_run_ts = None
             frames += self._process_run(raw.select(slice(a, b)), index[a:b], times[a:b], begins[a:b])
         return frames
@@ -328,11 +329,11 @@ class RobosenseDecoder:
             first_ts = int(raw.timestamp_ns[a])
             if self._mode is not None and (mode != self._mode or unit != self._unit_um):
                 self.stats.mode_changes += 1
-                frames += self._flush(end="cut")
+                frames += self._cut()
                 self._last_key = None
             elif self._last_run_ts is not None and first_ts - self._last_run_ts > self.max_gap_ns:
                 self.stats.long_gaps += 1
-                frames += self._flush(end="cut")
+                frames += self._cut()
                 self._last_key = None
             self._mode, self._unit_um = mode, unit
             lost_here = int(lost[a:b].sum())
@@ -365,11 +366,16 @@ class RobosenseDecoder:
         nominal = nominal_step_cdeg(self._rotation_hz, model.group_period_ns(n_returns))
         return build_columns(raw, index, model, n_returns, nominal)
 
-    def _empty_raw(self) -> tuple[RobosensePackets, np.ndarray, int]:
-        model = self.model
-        assert model is not None and self._rotation_hz is not None
-        raw = decode_packets(np.zeros((0, P.PACKET_SIZE), np.uint8), model)
-        return raw, np.zeros(0, np.int64), nominal_step_cdeg(self._rotation_hz, model.block_period_ns)
+    def _cut(self) -> list[Frame]:
+        """End the frame being filled (after the RS-Ruby's dual-return column still waiting for its second return)."""
+        frames: list[Frame] = []
+        if self._ruby_dual is not None and self._mode is not None and self._mode[0] == 2:
+            model = self.model
+            assert model is not None and self._rotation_hz is not None
+            empty = decode_packets(np.zeros((0, P.PACKET_SIZE), np.uint8), model)
+            frames += self._append(self._ruby_dual.build(
+                empty, np.zeros(0, np.int64), nominal_step_cdeg(self._rotation_hz, model.block_period_ns), final=True))
+        return frames + self._flush(end="cut")
 
     def _in_order(self, raw: RobosensePackets, index: np.ndarray, times: np.ndarray, begins: np.ndarray):
         """Packets in time order (those put back counted out of order); duplicates and packets older
