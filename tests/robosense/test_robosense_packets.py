@@ -259,3 +259,30 @@ def test_the_header_names_the_model_and_unnamed_units_fall_back(model):
     assert detect_model(encode_packets(model, **fields)) is model
     unnamed = detect_model(encode_packets(model, **fields, name_model=False))
     assert unnamed.family == model.family and unnamed.layout == model.layout or model.name == "RS-Bpearl-V4"
+
+
+@pytest.mark.parametrize("model,n_returns", MODES, ids=[f"{m.name}-{n}" for m, n in MODES])
+def test_batches_of_any_size_give_the_same_frames(model, n_returns):
+    fields = hand_built(model, n_returns, seed=5)
+    payload = np.concatenate([difop_for(model, n_returns)[None], encode_packets(model, **fields)])
+    times = np.concatenate([[T0 - 1000], fields["timestamp_ns"]])
+
+    def frames(chunk):
+        decoder = RobosenseDecoder()
+        out = []
+        for a in range(0, len(payload), chunk):
+            out += decoder.push(PacketBatch.from_payloads(payload[a:a + chunk], times[a:a + chunk], first_index=a))
+        return out + decoder.finish()
+
+    whole, pieces = frames(len(payload)), frames(7)
+    assert len(whole) == len(pieces)
+    for a, b in zip(whole, pieces):
+        assert np.array_equal(a.range_mm, b.range_mm) and np.array_equal(a.column_timestamp_ns, b.column_timestamp_ns)
+        assert np.array_equal(a.extra["azimuth_cdeg"], b.extra["azimuth_cdeg"]) and a.partial == b.partial
+
+
+def test_drop_reasons_are_lidarpkts():
+    from lidarpkt.core.dropped import REASONS
+
+    decoder = RobosenseDecoder()
+    assert set(decoder.stats.drops()) <= set(REASONS)
