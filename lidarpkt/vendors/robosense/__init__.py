@@ -35,7 +35,7 @@ _LAZY: dict[str, str] = {
     "decode_difop": "difop",
     "encode_difop": "encode",
     "encode_packets": "encode",
-    "DecoderStats": "frames",
+    "DecoderStats": "stream",
     "RobosenseDecoder": "frames",
     "RobosenseGeometry": "geometry",
     "MODELS": "models",

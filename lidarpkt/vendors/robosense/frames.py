@@ -3,8 +3,8 @@ frames cut where the block azimuth wraps.
 
 The sensor first. What the MSOP cannot say, the DIFOP does: the return mode of the RS-LiDAR-16/32,
 RS-Bpearl and Helios families, and the sensor's own calibration. So the decoder holds the first
-packets of a stream until a DIFOP comes (a sensor sends one a second), ``difop_wait_s`` of sensor
-time at most, then settles, once: the model (``model=``, else the MSOP header, else the returns:
+packets of a stream until a DIFOP comes (a sensor sends one a second), ``difop_wait_s`` of packets
+at most, then settles, once: the model (``model=``, else the MSOP header, else the returns:
 :func:`lidarpkt.vendors.robosense.detect.detect_model`), the return mode (the DIFOP's; without one:
 RS-Ruby's ``wave_mode``, block pairs of equal azimuth for dual return, else single return labelled
 ``unknown``) and the calibration (the DIFOP's; without one the angle CSV given as ``calibration``;
@@ -52,42 +52,7 @@ from .detect import FAMILY_NAMES, detect_model, is_difop, model_from_header, mso
 from .difop import DeviceInfo, decode_difop
 from .models import FAMILIES, ROTATION_RPM, RobosenseModel, model_named
 from .sensor import describe_sensor
-from .stream import StreamLoss, packet_period_ns
-
-
-class DecoderStats:
-    """What a :class:`RobosenseDecoder` saw, counted (attributes are counts of packets unless named)."""
-
-    def __init__(self) -> None:
-        self.packets = 0  # MSOP packets pushed
-        self.decoded_packets = 0
-        self.difop_packets = 0
-        self.malformed_size = 0  # batches of a size (or content) no RoboSense model sends
-        self.malformed_fields = 0  # header id, block flags, azimuth, unit, ret_id or time impossible
-        self.difop_malformed = 0  # DIFOPs refused (identifier, tail, return mode or angles impossible)
-        self.duplicate_packets = 0
-        self.out_of_order_packets = 0
-        self.late_packets = 0
-        self.lost_packets = 0
-        self.corrupted_packets = 0
-        self.restarts = 0
-        self.long_gaps = 0  # frames cut by a stretch without packets
-        self.overlong_frames = 0
-        self.mode_changes = 0
-        self.frames = 0
-
-    @property
-    def malformed(self) -> int:
-        """Packets skipped as malformed (MSOP and DIFOP)."""
-        return self.malformed_size + self.malformed_fields + self.difop_malformed
-
-    def drops(self) -> dict[str, int]:
-        """Packets dropped, by the reasons of :data:`lidarpkt.core.dropped.REASONS`."""
-        return {"lost": self.lost_packets, "late": self.late_packets, "duplicate": self.duplicate_packets,
-                "malformed": self.malformed, "corrupted": self.corrupted_packets}
-
-    def __repr__(self) -> str:
-        return f"DecoderStats({', '.join(f'{k}={v}' for k, v in vars(self).items())})"
+from .stream import DecoderStats, StreamLoss, packet_period_ns
 
 
 class RobosenseDecoder:
@@ -103,7 +68,8 @@ class RobosenseDecoder:
         source: a name for reports.
         max_gap_s: a stretch longer than this without packets ends the frame.
         max_frame_columns: a frame without a wrap after this many columns is released as partial.
-        difop_wait_s: sensor time the first packets wait for a DIFOP.
+        difop_wait_s: how long the first packets wait for a DIFOP, counted in packets (as many as the
+            model sends in that time in dual return, its fastest).
 
     Raises:
         UnknownSensorError: a model name not in the table.

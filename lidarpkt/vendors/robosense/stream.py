@@ -1,6 +1,6 @@
 """A RoboSense stream's place, losses and rotations: the rules of the decoder
-(:class:`StreamLoss`) and the recorder's live counter (:class:`PacketCounter`, a
-:class:`lidarpkt.core.decoder.StreamCounter`).
+(:class:`StreamLoss`, its counts :class:`DecoderStats`) and the recorder's live counter
+(:class:`PacketCounter`, a :class:`lidarpkt.core.decoder.StreamCounter`).
 
 A packet's place is its timestamp (µs): a jump the capture time cannot explain is a corrupted packet
 or a restart (:mod:`lidarpkt.core.continuity`), never packets lost. Losses come from the header's
@@ -35,6 +35,41 @@ def packet_period_ns(model: RobosenseModel, n_returns: np.ndarray | int) -> np.n
     else:  # block pairs, or RS-Ruby's one return a block
         dual = model.blocks * model.block_period_ns / 2
     return np.where(np.asarray(n_returns) == 2, float(dual), float(single))
+
+
+class DecoderStats:
+    """What a :class:`RobosenseDecoder` saw, counted (attributes are counts of packets unless named)."""
+
+    def __init__(self) -> None:
+        self.packets = 0  # MSOP packets pushed
+        self.decoded_packets = 0
+        self.difop_packets = 0
+        self.malformed_size = 0  # batches of a size (or content) no RoboSense model sends
+        self.malformed_fields = 0  # header id, block flags, azimuth, unit, ret_id or time impossible
+        self.difop_malformed = 0  # DIFOPs refused (identifier, tail, return mode or angles impossible)
+        self.duplicate_packets = 0
+        self.out_of_order_packets = 0
+        self.late_packets = 0
+        self.lost_packets = 0
+        self.corrupted_packets = 0
+        self.restarts = 0
+        self.long_gaps = 0  # frames cut by a stretch without packets
+        self.overlong_frames = 0
+        self.mode_changes = 0
+        self.frames = 0
+
+    @property
+    def malformed(self) -> int:
+        """Packets skipped as malformed (MSOP and DIFOP)."""
+        return self.malformed_size + self.malformed_fields + self.difop_malformed
+
+    def drops(self) -> dict[str, int]:
+        """Packets dropped, by the reasons of :data:`lidarpkt.core.dropped.REASONS`."""
+        return {"lost": self.lost_packets, "late": self.late_packets, "duplicate": self.duplicate_packets,
+                "malformed": self.malformed, "corrupted": self.corrupted_packets}
+
+    def __repr__(self) -> str:
+        return f"DecoderStats({', '.join(f'{k}={v}' for k, v in vars(self).items())})"
 
 
 class StreamLoss:
