@@ -109,43 +109,42 @@ def test_each_cloud_is_a_frame_with_the_same_returns(request, reading, k):
                    if s - 16 in rank16)
 
 
-@pytest.mark.parametrize("reading", ["detected", "as_16p"])
-def test_angles_differ_by_at_most_what_the_firing_tables_do(request, reading):
+def compared(frames, reading):
+    """For each cloud: nebula's points, ours in its order, and both angles (0.01°), of the slots both
+    read as the same lasers (all of them in the 16P reading, slots 0-15 in the detected one)."""
     for k in range(4):
-        frame = request.getfixturevalue(reading)[k]
-        ref = pcd(PCD_NAMES[k])
+        frame, ref = frames[k], pcd(PCD_NAMES[k])
         pts = nebula_points(frame)
         theta, elevation = angles_cdeg(frame, pts)
-        slot = pts["slot"] if reading == "as_16p" else pts["slot"][pts["slot"] < 16]
         keep = np.ones(len(theta), bool) if reading == "as_16p" else pts["slot"] < 16
+        ref = ref[keep]
+        d_theta = (theta[keep] - ref["azimuth"].astype(np.int64) + 18000) % 36000 - 18000
+        d_el = elevation[keep] - ref["elevation"].astype(np.int64)
+        yield ref, {name: v[keep] for name, v in pts.items()}, d_theta, d_el
+
+
+@pytest.mark.parametrize("reading", ["detected", "as_16p"])
+def test_angles_differ_by_at_most_what_the_firing_tables_do(request, reading):
+    for ref, pts, d_theta, d_el in compared(request.getfixturevalue(reading), reading):
+        slot = pts["slot"]
         # the step to the next block is 19-21 (0.01°, 10 Hz); its share of each slot in both tables
         bound = np.floor(21 * np.abs(LIDARPKT_SHARE[slot] - NEBULA_SHARE[slot])) + 1
-        d_theta = (theta[keep] - ref["azimuth"][keep].astype(np.int64) + 18000) % 36000 - 18000
         assert np.all(np.abs(d_theta) <= bound)
         assert np.count_nonzero(d_theta == 0) > 0.15 * len(d_theta)
-        d_el = elevation[keep] - ref["elevation"][keep].astype(np.int64)
         assert set(np.unique(d_el)) <= {0, 1}
         # only the laser whose CSV value 8.90 nebula reads as 8.89
-        assert np.all(ref["elevation"][keep][d_el == 1] == 889)
+        assert np.all(ref["elevation"][d_el == 1] == 889)
 
 
 @pytest.mark.parametrize("reading", ["detected", "as_16p"])
 def test_xyz_within_1mm_where_the_angles_agree_else_within_the_angle_difference(request, reading):
-    for k in range(4):
-        frame = request.getfixturevalue(reading)[k]
-        ref = pcd(PCD_NAMES[k])
-        pts = nebula_points(frame)
-        theta, elevation = angles_cdeg(frame, pts)
-        keep = np.ones(len(theta), bool) if reading == "as_16p" else pts["slot"] < 16
-        theirs = np.stack([ref["x"], ref["y"], ref["z"]], axis=1)[keep]
-        err = np.linalg.norm(pts["xyz"][keep] - theirs, axis=1)
-        d_theta = np.abs((theta[keep] - ref["azimuth"][keep].astype(np.int64) + 18000) % 36000 - 18000)
-        d_el = np.abs(elevation[keep] - ref["elevation"][keep].astype(np.int64))
+    for ref, pts, d_theta, d_el in compared(request.getfixturevalue(reading), reading):
+        err = np.linalg.norm(pts["xyz"] - np.stack([ref["x"], ref["y"], ref["z"]], axis=1), axis=1)
         same = (d_theta == 0) & (d_el == 0)
         assert same.sum() > 0.15 * len(same)
         assert err[same].max() < 0.001
-        angle_rad = np.radians((d_theta + d_el) / 100.0)
-        assert np.all(err <= ref["distance"][keep] * angle_rad + 0.001)
+        angle_rad = np.radians((np.abs(d_theta) + np.abs(d_el)) / 100.0)
+        assert np.all(err <= ref["distance"] * angle_rad + 0.001)
 
 
 def test_frames_name_the_model_return_mode_and_calibration(detected, as_16p):

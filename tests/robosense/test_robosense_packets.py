@@ -286,3 +286,21 @@ def test_drop_reasons_are_lidarpkts():
 
     decoder = RobosenseDecoder()
     assert set(decoder.stats.drops()) <= set(REASONS)
+
+
+@pytest.mark.parametrize("form", [P.TIME_UTC, P.TIME_YMD], ids=["utc", "year-month-day"])
+def test_time_fields_round_trip(form):
+    from lidarpkt.vendors.robosense.decode import time_ns
+    from lidarpkt.vendors.robosense.encode import set_time
+
+    rng = np.random.default_rng(2)
+    seconds = np.concatenate([[951782400, 951868799, 4107542399], rng.integers(946684800, 8000000000, 3000)])
+    ns = seconds * 1_000_000_000 + rng.integers(0, 1_000_000, seconds.size) * 1000  # leap days, year 2100 ...
+    stamp = np.zeros(ns.size, form)
+    set_time(stamp, ns)
+    back, possible = time_ns(stamp)
+    assert possible.all() and np.array_equal(back, ns)
+    if form is P.TIME_YMD:
+        assert (stamp[0]["month"], stamp[0]["day"], stamp[1]["day"]) == (2, 29, 29)  # 2000-02-29
+        stamp[5]["month"] = 13
+        assert not time_ns(stamp)[1][5]

@@ -22,14 +22,10 @@ _YMD_LIMITS = np.array([255, 12, 31, 23, 59, 60])  # year (from 2000), month, da
 
 
 def civil_seconds(year: np.ndarray, month: np.ndarray, day: np.ndarray) -> np.ndarray:
-    """``int64[N]`` seconds since the epoch at midnight UTC of each date (proleptic Gregorian)."""
-    y = np.asarray(year, np.int64) - (np.asarray(month) <= 2)
-    m = np.asarray(month, np.int64)
-    era = np.floor_divide(y, 400)
-    yoe = y - era * 400
-    doy = (153 * ((m + 9) % 12) + 2) // 5 + np.asarray(day, np.int64) - 1
-    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
-    return (era * 146097 + doe - 719468) * 86400
+    """``int64[N]`` seconds since the epoch at midnight UTC of each date (NumPy's proleptic Gregorian calendar)."""
+    months = (np.asarray(year, np.int64) - 1970) * 12 + np.asarray(month, np.int64) - 1
+    days = months.astype("datetime64[M]").astype("datetime64[D]") + (np.asarray(day, np.int64) - 1)
+    return days.astype("datetime64[s]").astype(np.int64)
 
 
 def time_ns(stamp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -23,20 +23,15 @@ def _utc(stamp: np.ndarray, timestamp_ns: np.ndarray) -> None:
 
 
 def _ymd(stamp: np.ndarray, timestamp_ns: np.ndarray) -> None:
-    ns = np.asarray(timestamp_ns, np.int64)
-    seconds, rest = np.divmod(ns, 1_000_000_000)
-    days, sod = np.divmod(seconds, 86400)
-    z = days + 719468
-    era = np.floor_divide(z, 146097)
-    doe = z - era * 146097
-    yoe = (doe - doe // 1460 + doe // 36524 - doe // 146096) // 365
-    doy = doe - (365 * yoe + yoe // 4 - yoe // 100)
-    mp = (5 * doy + 2) // 153
-    month = np.where(mp < 10, mp + 3, mp - 9)
-    year = yoe + era * 400 + (month <= 2)
+    seconds, rest = np.divmod(np.asarray(timestamp_ns, np.int64), 1_000_000_000)
+    t = seconds.astype("datetime64[s]")
+    month_start = t.astype("datetime64[M]")
+    year = t.astype("datetime64[Y]").astype(np.int64) + 1970
     if np.any((year < 2000) | (year > 2255)):
         raise PacketFormatError("timestamps outside the years 2000-2255 the year-month-day field holds")
-    stamp["year"], stamp["month"], stamp["day"] = year - 2000, month, doy - (153 * mp + 2) // 5 + 1
+    sod = seconds - t.astype("datetime64[D]").astype("datetime64[s]").astype(np.int64)
+    stamp["year"], stamp["month"] = year - 2000, month_start.astype(np.int64) % 12 + 1
+    stamp["day"] = (t.astype("datetime64[D]") - month_start.astype("datetime64[D]")).astype(np.int64) + 1
     stamp["hour"], stamp["minute"], stamp["second"] = sod // 3600, sod // 60 % 60, sod % 60
     stamp["millisecond"], stamp["microsecond"] = rest // 1_000_000, rest // 1000 % 1000
 
