@@ -101,3 +101,14 @@ def test_the_angle_csv_is_told_apart_by_content(tmp_path):
             parse_calibration(text, "x.csv")
     with pytest.raises(CalibrationError, match="cannot read"):
         load_calibration(tmp_path / "absent.csv")
+
+
+def test_the_decoder_and_counter_meet_lidarpkts_protocols():
+    from lidarpkt.core.decoder import Decoder, StreamCounter
+    from lidarpkt.vendors.robosense import RobosenseDecoder
+
+    decoder = RobosenseDecoder(model="RS-Helios")
+    assert isinstance(decoder, Decoder) and isinstance(PacketCounter(), StreamCounter)
+    info = decoder.sensor_info()
+    assert (info.vendor, info.model, info.rows, info.return_labels) == ("robosense", "RS-Helios", 32, ("unknown",))
+    assert decoder.finish() == [] and decoder.stats.packets == 0
