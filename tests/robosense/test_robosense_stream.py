@@ -54,6 +54,10 @@ def test_classify_and_describe():
     assert only["kind"] == "RoboSense DIFOP" and only["calibration"] == "DIFOP (32 lasers)"
     assert only["serial_number"] == "2410bac9d50b" and (only["msop_port"], only["difop_port"]) == (6699, 7788)
     assert DEFAULT_PORTS == {"msop": 6699, "difop": 7788}
+    from lidarpkt.vendors.robosense.stream import default_ports
+
+    ports = default_ports(msgs[3].payload)
+    assert set(ports[msgs[3].is_difop]) == {7788} and set(ports[~msgs[3].is_difop]) == {6699}
 
 
 def test_ros_messages_out_of_the_bag_and_back():
