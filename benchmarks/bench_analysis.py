@@ -24,7 +24,8 @@ from lidarpkt.analysis.gmm_map import fit_gmm_map  # noqa: E402
 from lidarpkt.analysis.motion import estimate_frame_offsets, motion_compensated_cdf  # noqa: E402
 from lidarpkt.analysis.multireturn import detrended_gap_score, image_statistics, multireturn_map, spatial_gap_score  # noqa: E402
 from lidarpkt.analysis.raypath import analyze_raypath  # noqa: E402
-from lidarpkt.core.frame import FrameStack, SensorInfo  # noqa: E402
+from lidarpkt.core.sequence import FrameStack  # noqa: E402
+from lidarpkt.core.sensor import SensorInfo
 
 
 def synthetic_stack(k: int, r: int, h: int, w: int, seed: int = 0) -> FrameStack:

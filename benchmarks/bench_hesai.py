@@ -39,6 +39,7 @@ from lidarpkt.vendors.hesai import (
 )
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 
 FOLDERS = {"40p": "Pandar40P", "64": "Pandar64", "qt64": "PandarQT64", "qt128": "PandarQT128", "xt16": "PandarXT16",
            "xt32": "PandarXT32", "xt32m": "PandarXT32M"}
@@ -48,7 +49,7 @@ BATCH = 8192
 def bag_packets(folder: str) -> PacketBatch:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return PacketBatch.concatenate(list(BagReader(glob.glob(f"{EXTERNAL}/nebula/hesai/{folder}/*/")[0]).batches()))
+        return PacketBatch.concatenate(list(BagReader(glob.glob(f"{EXTERNAL}/nebula/hesai/{folder}/*/")[0], messages=bag_messages()).batches()))
 
 
 def stream(batch: PacketBatch, rotations: int) -> tuple[np.ndarray, np.ndarray]:
@@ -114,7 +115,7 @@ def hydra4_vs_lidarpkt(repeat: int) -> None:
     batches = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        batches = list(BagReader(glob.glob(f"{EXTERNAL}/nebula/hesai/xt32/*/")[0]).batches())
+        batches = list(BagReader(glob.glob(f"{EXTERNAL}/nebula/hesai/xt32/*/")[0], messages=bag_messages()).batches())
     msgs = [pandar_msgs__msg__PandarScan(header=None, packets=[
         pandar_msgs__msg__PandarPacket(stamp=None, data=row, size=len(row)) for row in b.payload]) for b in batches]
     csv = EXTERNAL / "nebula/hesai/PandarXT32.csv"

@@ -36,7 +36,7 @@ sys.path.insert(0, str(REPO))
 def build(path: Path, count: int, frag_bytes: int, good_every: int, per_datagram: int = 1) -> int:
     """Write the capture; return the number of good packets in it."""
     from lidarpkt.core.packet import Endpoint, Packet
-    from lidarpkt.writers.pcap import frames_for
+    from lidarpkt.writers.framing import frames_for
 
     frag_bytes = max(8, frag_bytes // 8 * 8)
     eth = bytes.fromhex("020000000001607688000000") + b"\x08\x00"

@@ -33,7 +33,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from lidarpkt.containers.pcap_reader import PcapReader, read_packets  # noqa: E402
-from lidarpkt.writers.pcap import frames_for, write_pcap_records, write_pcapng_records  # noqa: E402
+from lidarpkt.writers.framing import frames_for  # noqa: E402
+from lidarpkt.writers.pcap import write_pcap_records, write_pcapng_records  # noqa: E402
 
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 

@@ -29,7 +29,7 @@ Targets (each checks more than "does not crash"):
 - ``bags``: the first byte picks the container (see :func:`bag_files`): an ``.mcap`` file, a ROS 1 ``.bag``,
   a rosbag2 sqlite3 bag (opened by its ``.db3`` or its directory) or a rosbag2 directory with MCAP
   storage; for the rosbag2 kinds the input also carries the ``metadata.yaml``. ``BagReader.batches()``
-  is read to the end: batch indices follow on, ``stats["packets"]`` counts them, ``ouster_metadata()`` is
+  is read to the end: batch indices follow on, ``stats["packets"]`` counts them, ``recorded_sensor_file()`` is
   a JSON object or ``None``, no file stays open (also while a lidarpkt error is kept); then
   ``lidarpkt.open`` reads the same bag and routes as many packets.
 - ``ouster-ros``: the ``bags`` target on bags as ouster-ros writes them (seeds: ROS 1 ``ouster_ros/PacketMsg``
@@ -202,7 +202,8 @@ def make_velodyne_target():
     import numpy as np
 
     from lidarpkt.core.packet import PacketBatch
-    from lidarpkt.vendors.velodyne import VelodyneDecoder, parse_nmea
+    from lidarpkt.vendors.velodyne import VelodyneDecoder
+    from lidarpkt.core.nmea import parse_nmea
 
     def target(data: bytes) -> None:
         if len(data) < 4:
@@ -402,7 +403,7 @@ def make_ouster_ros_target():
 
 def make_osf_target():
     import lidarpkt
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     path = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}.osf")
 
@@ -447,7 +448,7 @@ def osf_with_crcs(data: bytes) -> bytes:
     names; metadata) made right: the file as it would be if the damage had been written with its CRCs."""
     import zlib
 
-    from lidarpkt.vendors.ouster.osf import _root
+    from lidarpkt.containers.osf.format import root_table
 
     out = bytearray(data)
 
@@ -464,7 +465,7 @@ def osf_with_crcs(data: bytes) -> bytes:
     if pos is None:
         return bytes(out)
     try:
-        meta = int(_root(bytes(out[: pos - 4]), "Header").metadata_offset)
+        meta = int(root_table(bytes(out[: pos - 4]), "Header").metadata_offset)
     except Exception:  # not a header the reader would take: nothing more to repair
         return bytes(out)
     while pos is not None and pos < meta:
@@ -481,6 +482,7 @@ def make_bags_target(ouster_routing: bool = False):
 
     import lidarpkt
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import LidarpktError
 
     root = os.path.join("/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir(), f"lidarpkt-fuzz-{os.getpid()}-bags")
@@ -505,7 +507,7 @@ def make_bags_target(ouster_routing: bool = False):
             for name, body in files.items():
                 Path(root, name).write_bytes(body)
             path = os.path.normpath(os.path.join(root, opened))
-            reader = BagReader(path)
+            reader = BagReader(path, messages=bag_messages())
             count = 0
             batches = reader.batches()
             try:
@@ -519,9 +521,9 @@ def make_bags_target(ouster_routing: bool = False):
                 batches.close()
             if reader.stats["packets"] != count:
                 raise Finding(f"stats['packets'] = {reader.stats['packets']}, {count} packets yielded")
-            md = reader.ouster_metadata()
+            md = reader.recorded_sensor_file()
             if md is not None and not isinstance(json.loads(md), dict):  # callers hand it to load_metadata
-                raise Finding(f"ouster_metadata() is {md[:40]!r}..., not a JSON object")
+                raise Finding(f"recorded_sensor_file() is {md[:40]!r}..., not a JSON object")
             if count or md is not None:
                 fr = lidarpkt.open(path)
                 try:
@@ -579,13 +581,13 @@ def _bag_seeds() -> list[bytes]:
     from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.vendors.registry import ros_definitions
     from lidarpkt.containers.pcap_reader import read_packets
 
     def store(which):
         st = get_typestore(which)
         extra: dict = {}
-        for name, text in MESSAGE_DEFINITIONS.items():
+        for name, text in ros_definitions().items():
             extra.update(get_types_from_msg(text, name))
         st.register(extra)
         return st
@@ -739,7 +741,8 @@ def seeds(target: str) -> list[bytes]:
     out: list[bytes] = []
     if target == "pcap":
         from lidarpkt.core.packet import Endpoint, Packet
-        from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+        from lidarpkt.writers.framing import frames_for
+        from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 
         for rel in ("ouster-sdk/VLI-16-one-packet.pcap", "ouster-sdk/OS-0-32-U1_v2.2.0_1024x10-single-packet.pcap",
                     "ouster-sdk/duplicate_id.pcap", "ouster-sdk/empty_pcap.pcap", "ouster-sdk/same_ports_nonlegacy.pcap",
@@ -822,11 +825,12 @@ def seeds(target: str) -> list[bytes]:
     elif target == "hesai":
         from lidarpkt.vendors.hesai.models import MODELS
         from lidarpkt.containers.bags import BagReader
+        from lidarpkt.vendors.registry import bag_messages
 
         for bag in sorted(glob.glob(str(EXTERNAL / "nebula/hesai/*/*/metadata.yaml"))):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                batch = next(iter(BagReader(Path(bag).parent).batches()))
+                batch = next(iter(BagReader(Path(bag).parent, messages=bag_messages()).batches()))
             i = next(k for k, m in enumerate(MODELS) if batch.payload_size in m.sizes)
             pick = MODELS[i].sizes.index(batch.payload_size) << 4
             k = max(1, min(4, MAX_LEN["hesai"] // batch.payload_size))

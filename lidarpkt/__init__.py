@@ -27,7 +27,9 @@ from .errors import LidarpktError
 __path__ = extend_path(__path__, __name__)
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import Frame, FrameCounters, FrameStack, SensorInfo
+    from lidarpkt.core.frame import Frame, FrameCounters
+    from lidarpkt.core.sequence import FrameStack
+    from lidarpkt.core.sensor import SensorInfo
     from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
     from lidarpkt.pipeline.reader import open_frames as open  # noqa: A001
     from lidarpkt.containers.pcap_reader import read_packets
@@ -47,7 +49,7 @@ __all__ = [
 ]
 
 _lazy_getattr, __dir__ = lazy_names(__name__, {
-    "Frame": "core.frame", "FrameCounters": "core.frame", "FrameStack": "core.frame", "SensorInfo": "core.frame",
+    "Frame": "core.frame", "FrameCounters": "core.frame", "FrameStack": "core.sequence", "SensorInfo": "core.sensor",
     "Endpoint": "core.packet", "Packet": "core.packet", "PacketBatch": "core.packet",
     "read_packets": "containers.pcap_reader",
 }, __all__)

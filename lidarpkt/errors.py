@@ -54,7 +54,8 @@ class UnknownSensorError(LidarpktError):
 
 
 class MetadataError(LidarpktError):
-    """A sensor metadata file (Ouster JSON) is missing a field or has a wrong one."""
+    """A sensor file given (``metadata=``) is of no kind lidarpkt reads, or its metadata is missing a field or
+    has a wrong one."""
 
 
 class CalibrationError(LidarpktError):
@@ -107,6 +108,10 @@ class SkippedPacketWarning(LidarpktWarning):
 
 class DroppedPacketsWarning(LidarpktWarning):
     """At the end of a capture: packets that were skipped, lost or discarded, and why (one summary)."""
+
+
+class UnusedSensorFileWarning(LidarpktWarning):
+    """A sensor file given (``metadata=``, ``--metadata``) fits no stream of the capture: it was not used."""
 
 
 class UnsupportedFilterError(LidarpktError, TypeError):

@@ -121,14 +121,8 @@ def _sensor_args(files: tuple[str, ...]) -> list[str]:
 
 
 def _open_options(files: tuple[str, ...]) -> dict:
-    metadata = [str(resolve(n)) for n in files if n.endswith(".json")]
-    calibration = [str(resolve(n)) for n in files if not n.endswith(".json")]
-    options: dict = {}
-    if metadata:
-        options["metadata"] = metadata
-    if calibration:
-        options["calibration"] = calibration[0]
-    return options
+    """``lidarpkt.open``'s options of a case's sensor files: every kind goes to ``metadata`` (told apart by content)."""
+    return {"metadata": [str(resolve(n)) for n in files]} if files else {}
 
 
 # --------------------------------------------------------------------------- frames

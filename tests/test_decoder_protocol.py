@@ -10,7 +10,8 @@ import numpy as np
 from lidarpkt import fixtures
 import lidarpkt
 from lidarpkt.core.decoder import Decoder, StreamCounter, StreamCounts
-from lidarpkt.core.frame import Frame, SensorInfo
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
 from lidarpkt.vendors.ouster import stream as ouster_stream
 from lidarpkt.core.packet import PacketBatch

@@ -21,6 +21,8 @@ from scipy.ndimage import uniform_filter
 
 from lidarpkt import fixtures
 import lidarpkt
+from lidarpkt.fixtures import captures, os1, output, vlp16
+from lidarpkt.fixtures import echoes as ec
 from lidarpkt.fixtures import generate as gen
 from lidarpkt.fixtures import scene as sc
 
@@ -45,17 +47,17 @@ def decoded(pcap: str) -> list:
 def reports(sensor: str, frames: int, seed: int, jitter: int) -> dict:
     """The generator's full-frame reports (what it meant to put on the wire)."""
     if sensor == "vlp16":
-        res = gen.vlp16_reports(frames, seed, jitter)
-        for mode in gen.VLP16_MODE_RULE:
+        res = vlp16.vlp16_reports(frames, seed, jitter)
+        for mode in vlp16.VLP16_MODE_RULE:
             r = res[mode]
-            res[mode] = sc.Report(r.labels, r.range_mm[1:-1], r.reflectivity[1:-1], r.signal[1:-1])
+            res[mode] = ec.Report(r.labels, r.range_mm[1:-1], r.reflectivity[1:-1], r.signal[1:-1])
         return res
-    return gen.os1_reports(frames, seed, jitter)
+    return os1.os1_reports(frames, seed, jitter)
 
 
-def report_of(name: str, truth: dict) -> sc.Report:
+def report_of(name: str, truth: dict) -> ec.Report:
     p = truth["parameters"]
-    sensor = gen.SENSOR_OF_CAPTURE[name]
+    sensor = captures.SENSOR_OF_CAPTURE[name]
     res = reports(sensor, p["frames"], p["seed"], p["jitter_px"])
     return res[name.split("-")[-1]]
 
@@ -237,7 +239,7 @@ def test_one_seed_gives_consistent_modes_in_the_decoded_captures():
         assert second.any()
         assert np.all(b.range_mm[0][second] > 0)
         assert np.all(b.signal[1][second] <= b.signal[0][second])
-        assert np.all(np.abs(b.range_mm[1][second].astype(int) - b.range_mm[0][second]) >= sc.ECHO_SEPARATION_MM)
+        assert np.all(np.abs(b.range_mm[1][second].astype(int) - b.range_mm[0][second]) >= ec.ECHO_SEPARATION_MM)
 
 
 def test_first_frames_do_not_depend_on_capture_length():
@@ -300,7 +302,7 @@ def test_vlp16_position_packets_gprmc_at_1hz_pps_locked():
     assert all(len(p) == 1206 for _, p in data) and len(pos) >= 2
     times = [t for t, _, _ in dgrams]
     assert times == sorted(times)
-    hour_start = (gen.START_NS // gen.HOUR_NS) * gen.HOUR_NS
+    hour_start = (output.START_NS // vlp16.HOUR_NS) * vlp16.HOUR_NS
     prev = None
     for t, p in pos:
         assert len(p) == 512
@@ -461,7 +463,7 @@ def test_velodyne_decoder_reads_every_point_of_the_vlp16_captures(name):
     rep = report_of(name, truth)
     k_frames = truth["parameters"]["frames"]
     cfg = vd.Config(model=vd.Model.VLP16)
-    start_s = gen.START_NS / 1e9
+    start_s = output.START_NS / 1e9
     pts = []
     for stamp, cloud in vd.read_pcap(str(pcap), cfg, as_pcl_structs=True):
         t = (stamp.device - start_s) + cloud["time"].astype(np.float64)
@@ -539,7 +541,7 @@ def _brute_force(ranges: list[int], strengths: list[float], rule: str) -> list[i
     """REFERENCE.md's rules read literally, one firing at a time."""
     echoes = sorted(zip(ranges, strengths), key=lambda e: -e[1])  # strongest first
     if not echoes:
-        return [0] * len(sc.REPORT_LABELS[rule])
+        return [0] * len(ec.REPORT_LABELS[rule])
     strongest = echoes[0][0]
     last = max(r for r, _ in echoes)
     second = echoes[1][0] if len(echoes) > 1 else 0
@@ -575,9 +577,9 @@ def test_report_rules_match_the_reference_rules_firing_by_firing():
                     continue
                 seen_r.add(r), seen_s.add(p)
                 det[i, j], rng[i, j], strength[i, j] = True, r, p
-        echoes = sc.Echoes(det, np.where(det, rng, 0), np.where(det, strength, 0.0), np.where(det, 7, 0).astype(np.uint8))
-        for rule in sc.REPORT_LABELS:
-            got = sc.report(echoes, rule).range_mm
+        echoes = ec.Echoes(det, np.where(det, rng, 0), np.where(det, strength, 0.0), np.where(det, 7, 0).astype(np.uint8))
+        for rule in ec.REPORT_LABELS:
+            got = ec.report(echoes, rule).range_mm
             for i in range(n):
                 expect = _brute_force(rng[i][det[i]].tolist(), strength[i][det[i]].tolist(), rule)
                 assert got[:, i].tolist() == expect, (rule, firings[i])
@@ -586,10 +588,10 @@ def test_report_rules_match_the_reference_rules_firing_by_firing():
 
 
 def test_draws_respect_wire_units_limits_and_separation():
-    alt, _, _ = gen.os1_beams()
+    alt, _, _ = os1.os1_beams()
     for name, kw in (("vlp16", {}), ("os1-64", {"beam_altitude_deg": alt})):
         scene = sc.build_scene(name, pad=0, **kw)
-        e = sc.draw_echoes(scene.scatterers, scene.sensor, sc.frame_rng(5, scene.sensor, 0))
+        e = ec.draw_echoes(scene.scatterers, scene.sensor, ec.frame_rng(5, scene.sensor, 0))
         r = e.range_mm[e.detected]
         assert np.all(r % scene.sensor.range_unit_mm == 0)
         assert r.min() >= scene.sensor.min_range_mm and r.max() <= scene.sensor.max_range_mm
@@ -597,7 +599,7 @@ def test_draws_respect_wire_units_limits_and_separation():
         rr = np.where(e.detected, e.range_mm, -10**9)
         gap = np.abs(rr[..., :, None] - rr[..., None, :])
         both = e.detected[..., :, None] & e.detected[..., None, :] & ~np.eye(sc.MAX_SCATTERERS, dtype=bool)
-        assert np.all(gap[both] >= sc.ECHO_SEPARATION_MM)
+        assert np.all(gap[both] >= ec.ECHO_SEPARATION_MM)
         assert np.all(e.strength[~e.detected] == 0) and np.all(e.reflectivity[~e.detected] == 0)
 
 
@@ -607,11 +609,11 @@ def test_bad_generator_input_raises_fixture_errors(tmp_path):
     with pytest.raises(fixtures.FixtureError, match="beam altitudes"):
         sc.build_scene("os1-64")
     scene = sc.build_scene("vlp16", pad=0)
-    echoes = sc.draw_echoes(scene.scatterers[:1, :4], scene.sensor, sc.frame_rng(0, scene.sensor, 0))
+    echoes = ec.draw_echoes(scene.scatterers[:1, :4], scene.sensor, ec.frame_rng(0, scene.sensor, 0))
     with pytest.raises(fixtures.FixtureError, match="unknown report rule"):
-        sc.report(echoes, "first")
+        ec.report(echoes, "first")
     with pytest.raises(fixtures.FixtureError, match="frames must be at least 1"):
-        gen.generate_vlp16(tmp_path, frames=0)
+        vlp16.generate_vlp16(tmp_path, frames=0)
     with pytest.raises(lidarpkt.LidarpktError, match="unknown sensor"):
         gen.generate(tmp_path, sensor="hdl32")
     blocker = tmp_path / "file"
@@ -626,10 +628,10 @@ def test_reported_reflectivity_is_derived_from_the_measured_strength_and_range()
     so does the generator: reflectivity / range² orders the echoes of a firing as their strength does,
     except where the byte's rounding cannot tell them apart (issue 17 §2)."""
     scene = sc.build_scene("vlp16")
-    echoes = sc.draw_echoes(scene.scatterers[scene.pad : scene.pad + 16], scene.sensor, sc.frame_rng(0, scene.sensor, 0))
+    echoes = ec.draw_echoes(scene.scatterers[scene.pad : scene.pad + 16], scene.sensor, ec.frame_rng(0, scene.sensor, 0))
     det = echoes.detected
     r_m = echoes.range_mm[det] / 1000.0
-    exact = echoes.strength[det] * r_m * r_m * 100.0 / sc.SIGNAL_AT_1M  # the inverse of the strength model
+    exact = echoes.strength[det] * r_m * r_m * 100.0 / ec.SIGNAL_AT_1M  # the inverse of the strength model
     got = echoes.reflectivity[det].astype(float)
     inside = exact < 254.5
     assert np.abs(got[inside] - exact[inside]).max() <= 0.5 + 1e-9  # rounded, nothing else
@@ -643,6 +645,6 @@ def test_reported_reflectivity_is_derived_from_the_measured_strength_and_range()
         sig = np.array([v for v in info["samples"]["signal"] if v is not None], float)
         refl = np.array([v for v in info["samples"]["reflectivity"] if v is not None], float)
         ok = (rng > 0) & (sig < 0xFFFF)
-        model = sig[ok] * (rng[ok] / 1000.0) ** 2 * 100.0 / sc.SIGNAL_AT_1M
-        tol = 0.5 + 0.5 * (rng[ok] / 1000.0) ** 2 * 100.0 / sc.SIGNAL_AT_1M + 1e-9  # byte + signal rounding
+        model = sig[ok] * (rng[ok] / 1000.0) ** 2 * 100.0 / ec.SIGNAL_AT_1M
+        tol = 0.5 + 0.5 * (rng[ok] / 1000.0) ** 2 * 100.0 / ec.SIGNAL_AT_1M + 1e-9  # byte + signal rounding
         assert np.all(np.abs(np.minimum(model, 255) - refl[ok]) <= tol), info["description"]

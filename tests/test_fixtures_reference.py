@@ -13,7 +13,7 @@ import pytest
 
 from lidarpkt import fixtures
 import lidarpkt
-from lidarpkt.fixtures import generate as gen
+from lidarpkt.fixtures import output
 
 from test_fixtures import decoded, ipv4_udp_records, report_of  # noqa: E402 (tests dir is on sys.path)
 
@@ -74,7 +74,7 @@ def test_velodyne_decoder_on_the_full_50_frame_dual_capture():
     truth = fixtures.load_truth(pcap)
     rep = report_of("vlp16-dual", truth)
     cfg = vd.Config(model=vd.Model.VLP16)
-    start_s = gen.START_NS / 1e9
+    start_s = output.START_NS / 1e9
     seqs, clouds = [], []
     for stamp, cloud in vd.read_pcap(str(pcap), cfg, as_pcl_structs=True):
         t = (stamp.device - start_s) + cloud["time"].astype(np.float64)

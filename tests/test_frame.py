@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import Frame, FrameStack, SensorInfo
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameStack
+from lidarpkt.core.sensor import SensorInfo
 
 from conftest import REPO_ROOT
 

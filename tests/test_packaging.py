@@ -1,9 +1,12 @@
 """What the installed package is: one import name, its version, its public names, nothing put into the
-import system, and no syntax newer than the Python it says it needs."""
+import system, and no syntax newer than the Python it says it needs. The rules of its inner structure
+(layers, cycles, sizes) are in test_layers.py."""
 
 from __future__ import annotations
 
+import ast
 import importlib.metadata
+import json
 import os
 import re
 import shutil
@@ -18,13 +21,37 @@ import lidarpkt
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_installed_distribution_holds_one_top_level_package_with_py_typed():
-    # the installed wheel's record (a checkout's lidarpkt.egg-info on sys.path lists the sdist instead)
+def _installed() -> importlib.metadata.Distribution:
+    # the installed distribution's record (a checkout's lidarpkt.egg-info on sys.path lists the sdist instead)
     installed = [d for d in importlib.metadata.distributions(name="lidarpkt") if d.read_text("RECORD")]
-    assert installed, "lidarpkt is not installed (pip install .)"
-    files = [str(f) for f in installed[0].files or ()]
-    tops = {f.split("/")[0] for f in files if not f.startswith("..")}  # ../../bin/lidarpkt: the script
-    tops = {t for t in tops if not t.endswith(".dist-info")}
+    assert installed, "lidarpkt is not installed (pip install . or pip install -e .)"
+    return installed[0]
+
+
+def _installed_files(dist: importlib.metadata.Distribution) -> tuple[set[str], list[str]]:
+    """The top-level import names a distribution installs, and its files under them (``lidarpkt/py.typed``).
+
+    A wheel's record lists its files. An editable install (``pip install -e .``) records an import hook
+    instead, whose mapping names each top-level package and the folder it is imported from: its files
+    are the ones in that folder, the compiled extension among them when it was built in place."""
+    direct_url = json.loads(dist.read_text("direct_url.json") or "{}")
+    if not direct_url.get("dir_info", {}).get("editable"):
+        files = [str(f) for f in dist.files or ()]
+        tops = {f.split("/")[0] for f in files if not f.startswith("..")}  # ../../bin/lidarpkt: the script
+        return {t for t in tops if not t.endswith(".dist-info")}, files
+    finders = [f for f in dist.files or () if re.fullmatch(r"__editable__.*_finder\.py", str(f))]
+    assert finders, f"an editable install without setuptools' import hook: {[str(f) for f in dist.files or ()]}"
+    tree = ast.parse(Path(dist.locate_file(finders[0])).read_text())
+    mapping = next(ast.literal_eval(node.value) for node in ast.walk(tree)
+                   if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "MAPPING")
+    files = [f"{top}/{p.relative_to(folder).as_posix()}" for top, folder in mapping.items()
+             for p in Path(folder).rglob("*") if p.is_file() and "__pycache__" not in p.parts]
+    assert set((dist.read_text("top_level.txt") or "").split()) == set(mapping), "top_level.txt and the hook differ"
+    return set(mapping), files
+
+
+def test_the_installed_distribution_holds_one_top_level_package_with_py_typed():
+    tops, files = _installed_files(_installed())
     assert tops == {"lidarpkt"}, tops
     assert "lidarpkt/py.typed" in files
     assert any(re.fullmatch(r"lidarpkt/fixtures/canned/vlp16-dual\.pcap", f) for f in files)  # package data
@@ -33,8 +60,7 @@ def test_the_installed_distribution_holds_one_top_level_package_with_py_typed():
 
 
 def test_version_is_the_distributions():
-    installed = [d for d in importlib.metadata.distributions(name="lidarpkt") if d.read_text("RECORD")]
-    assert installed and lidarpkt.__version__ == installed[0].version
+    assert lidarpkt.__version__ == _installed().version
 
 
 def test_public_names_are_listed_and_resolve():
@@ -73,50 +99,39 @@ def test_no_syntax_or_library_newer_than_requires_python():
     assert r.returncode == 0, r.stdout + r.stderr
 
 
-# The floors: the core (sources, vendor packages, frames, open) and the writers import no application.
-CORE = ("core", "containers", "vendors", "pipeline", "writers", "errors.py")
-APPLICATIONS = ("recorder", "analysis", "view", "archive", "cli", "fixtures")
+def _runtime_dependencies() -> list[str]:
+    """The distribution names of ``[project].dependencies`` in pyproject.toml."""
+    import tomllib
+
+    with open(REPO_ROOT / "pyproject.toml", "rb") as fh:
+        deps = tomllib.load(fh)["project"]["dependencies"]
+    return [re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0] for d in deps]
 
 
-def _imports(path: Path) -> set[str]:
-    import ast
-
-    tree = ast.parse(path.read_text())
-    package = ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
-    out = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            out |= {a.name for a in node.names}
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
-            out |= {base} | {f"{base}.{a.name}" for a in node.names}
-    return out
+def _imported_top_level_names() -> set[str]:
+    """Every top-level module name an ``import`` statement of lidarpkt/ names (inside functions too)."""
+    names: set[str] = set()
+    for path in (REPO_ROOT / "lidarpkt").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names.add(node.module.split(".")[0])
+    return names
 
 
-def test_no_core_module_imports_an_application():
-    offenders = []
-    for name in CORE:
-        target = REPO_ROOT / "lidarpkt" / name
-        for path in ([target] if target.suffix == ".py" else sorted(target.rglob("*.py"))):
-            if not path.exists():
-                continue
-            bad = sorted(m for m in _imports(path)
-                         if m.split(".")[:2] in (["lidarpkt", a] for a in APPLICATIONS))
-            if bad:
-                offenders.append(f"{path.relative_to(REPO_ROOT)}: {', '.join(bad)}")
-    assert not offenders, "\n".join(offenders)
-
-
-def test_no_vendor_package_imports_another_vendor():
-    vendors = ("velodyne", "ouster", "hesai")
-    offenders = []
-    for vendor in vendors:
-        for path in sorted((REPO_ROOT / "lidarpkt" / "vendors" / vendor).rglob("*.py")):
-            bad = sorted(m for m in _imports(path)
-                         if m.split(".")[:3] in (["lidarpkt", "vendors", v] for v in vendors if v != vendor))
-            if bad:
-                offenders.append(f"{path.relative_to(REPO_ROOT)}: {', '.join(bad)}")
-    assert not offenders, "\n".join(offenders)
+def test_every_runtime_dependency_is_imported_by_the_package():
+    """A package only the tests use belongs to the ``test`` extra, not to every user's install."""
+    pytest.importorskip("tomllib", reason="Python 3.11's tomllib reads pyproject.toml")
+    by_distribution: dict[str, set[str]] = {}
+    for module, dists in importlib.metadata.packages_distributions().items():
+        for dist in dists:
+            by_distribution.setdefault(re.sub(r"[-_.]+", "-", dist).lower(), set()).add(module)
+    imported = _imported_top_level_names()
+    unused = []
+    for dep in _runtime_dependencies():
+        modules = by_distribution.get(re.sub(r"[-_.]+", "-", dep).lower())
+        assert modules, f"{dep}: not installed, so its modules are unknown (pip install -e .)"
+        if not modules & imported:
+            unused.append(f"{dep} (modules {sorted(modules)})")
+    assert not unused, "runtime dependencies no module of lidarpkt/ imports: " + ", ".join(unused)

@@ -4,7 +4,7 @@ mixtures, whole-image multi-return statistics and monitor, return-mode compariso
 sensor defines it (:mod:`analysis.returns`), the scan-matching error multi-return raypaths cause
 (:mod:`analysis.registration`), per-pixel mixture maps (:mod:`analysis.gmm_map`), plots.
 
-Input is a :class:`lidarpkt.core.frame.FrameStack` (``load_stack(path)`` makes one from a capture).
+Input is a :class:`lidarpkt.core.sequence.FrameStack` (``load_stack(path)`` makes one from a capture).
 Plots live in :mod:`analysis.plots` (matplotlib, the ``plot`` extra) and are not imported here.
 """
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .returns import resolve, sample_mask
 from .stack import check_pixel, neighbour_columns

@@ -3,7 +3,7 @@
 * Paired (:func:`compare_slots`, and :func:`compare_stacks` with ``paired=True``): frame k of
   one side and frame k of the other are the same firing. Per pixel: how often the two
   reports differ (a range that is not equal, or a return on one side only) and by how much
-  (Δ = |r_a − r_b| over the frames where both returned and differ), with a histogram of Δ.
+  (Δ = ``|r_a − r_b|`` over the frames where both returned and differ), with a histogram of Δ.
 * Distributional (:func:`compare_stacks`): the frames of two captures are different firings,
   so per pixel the two temporal CDFs are compared: Kolmogorov–Smirnov distance sup_r |F_a − F_b|
   (vectorised over the image), difference of median ranges, difference of non-return fractions.
@@ -18,7 +18,7 @@ from typing import Literal, overload
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .returns import resolve, sample_mask
 from .stack import check_stack
@@ -124,7 +124,7 @@ class DistributionComparison:
 
     Attributes:
         labels: the two sides.
-        ks: sup_r |F_a(r) − F_b(r)| of the two temporal CDFs (non-returns in the denominators;
+        ks: ``sup_r |F_a(r) − F_b(r)|`` of the two temporal CDFs (non-returns in the denominators;
             NaN where a side has no sample).
         median_delta_m: median range of b minus median range of a (NaN where a side has no return).
         nonreturn_delta: non-return fraction of b minus that of a.

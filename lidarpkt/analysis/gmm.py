@@ -15,7 +15,7 @@ Three ways to get the components:
 * ``em``: expectation maximisation on the returns for 1..``max_components`` components, the
   number chosen by the Bayesian information criterion BIC = −2 ln L + (3M − 1) ln n.
 
-The Kolmogorov–Smirnov distance sup_r |G(r) − F(r)| says how well the model follows the
+The Kolmogorov–Smirnov distance ``sup_r |G(r) − F(r)|`` says how well the model follows the
 empirical CDF F.
 """
 
@@ -94,7 +94,7 @@ class GaussianMixture:
 
 
 def ks_distance(model: GaussianMixture, cdf: RangeCDF) -> float:
-    """sup_r |G(r) − F(r)| between a model CDF G and an empirical CDF F (both over the same samples).
+    """``sup_r |G(r) − F(r)|`` between a model CDF G and an empirical CDF F (both over the same samples).
 
     F is a step function, so the supremum is reached at a sample, on one side of its step.
     """

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .gmm import DEFAULT_EM_ITERATIONS, DEFAULT_EM_TOL, DEFAULT_GAP_M, DEFAULT_MIN_SIGMA_M
 from .returns import sample_mask

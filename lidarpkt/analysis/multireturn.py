@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .gmm import DEFAULT_GAP_M
 from .returns import sample_mask
@@ -273,12 +273,13 @@ def monitor_score(stack: FrameStack, *, frame: int = 0, n: int = 5, method: str 
     """The multi-return monitor's score (m) of every pixel and slot of one frame, ``float64[R, H, W]``.
 
     Methods (:data:`MONITOR_METHODS`):
-        ``detrend`` (default): :func:`detrended_gap_score`, the smallest over the (n//2 + 1) × n
-            windows holding the pixel of the largest gap about each window's local plane.
-        ``plane``: the same with one plane over the whole n × n neighbourhood.
-        ``gap``: the paper's score (§4.3), the largest gap of the n × n spatial CDF
-            (:func:`spatial_gap_score`).
-        ``row``: the paper's score with each row of the neighbourhood sorted on its own.
+
+    - ``detrend`` (default): :func:`detrended_gap_score`, the smallest over the (n//2 + 1) × n
+      windows holding the pixel of the largest gap about each window's local plane.
+    - ``plane``: the same with one plane over the whole n × n neighbourhood.
+    - ``gap``: the paper's score (§4.3), the largest gap of the n × n spatial CDF
+      (:func:`spatial_gap_score`).
+    - ``row``: the paper's score with each row of the neighbourhood sorted on its own.
 
     Measured with ``python benchmarks/monitor_methods.py`` (frame 0, n = 5, flag at score > 0.1 m;
     truth: ``n_clusters >= 2`` at a 0.1 m gap over the whole stack, raypaths with a return only):

@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .cdf import RangeCDF
 from .compare import PairedComparison
@@ -306,7 +306,7 @@ def plot_roc(ev: MonitorEvaluation, title: str = ""):
 
 
 def plot_delta_histogram(pc: PairedComparison, source: str = ""):
-    """Histogram of Δ = |r_a − r_b| over the frame pairs whose two returns differ."""
+    """Histogram of Δ = ``|r_a − r_b|`` over the frame pairs whose two returns differ."""
     fig = _figure(figsize=(7.5, 4.2), layout="constrained")
     ax = fig.add_subplot()
     e = pc.delta_edges_m

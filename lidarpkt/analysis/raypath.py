@@ -8,7 +8,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 
 from .cdf import RangeCDF, reflectivity_vs_range, spatial_cdf, temporal_cdf
 from .gmm import GaussianMixture, fit_gmm

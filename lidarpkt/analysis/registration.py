@@ -28,7 +28,8 @@ from typing import Sequence, cast
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import Frame, FrameStack
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameStack
 
 from .gmm import DEFAULT_GAP_M
 from .multireturn import DEFAULT_MONITOR_METHOD, MONITOR_METHODS, image_statistics, monitor_score
@@ -147,7 +148,7 @@ def points_of(stack: FrameStack, frame: int, range_mm: np.ndarray) -> np.ndarray
     without a geometry."""
     geometry = stack.sensor.geometry
     if geometry is None:
-        raise AnalysisError(f"{stack.sensor.model}: no calibration to compute points (give --metadata for an Ouster pcap)")
+        raise AnalysisError(f"{stack.sensor.model}: no calibration to compute points (give the sensor's file with --metadata)")
     h, w = range_mm.shape
     az_cdeg = (np.rint(np.mod(stack.azimuth_deg[frame], 360.0) * 100.0).astype(np.int64) % 36000).astype(np.uint16)
     view = SimpleNamespace(range_mm=np.ascontiguousarray(range_mm[None], np.uint32),

@@ -5,7 +5,7 @@ A capture's *slots* are what is on the wire; a *return kind* is what a study com
 * VLP-16 dual (slots ``("last", "strongest")``): slot 0 is the last return; slot 1 is the
   strongest, except where the last return was also the strongest, where it holds the second
   strongest (the decoder marks those pixels in ``frame.extra["second_strongest"]``, inferring
-  from the signal estimated as reflectivity / range², see :mod:`lidarpkt.vendors.velodyne.dual`). So per
+  from the signal estimated as reflectivity / range², see :mod:`lidarpkt.core.dual`). So per
   firing: ``last`` = slot 0; ``strongest`` = slot 0 where marked, else slot 1;
   ``second_strongest`` = slot 1 where marked, no return where the sensor saw one return (both
   slots equal), and **no sample** elsewhere (the sensor did not report the second strongest).
@@ -28,13 +28,13 @@ from typing import Sequence
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
-from lidarpkt.core.frame import FrameStack
-from lidarpkt.vendors.velodyne.dual import second_strongest_mark
+from lidarpkt.core.sequence import FrameStack
+from lidarpkt.core.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).
 RETURN_KINDS = ("strongest", "last", "second_strongest")
 
-_VLP16_DUAL = ("last", "strongest")
+_LAST_STRONGEST = ("last", "strongest")  # a dual mode whose slot 1 is the strongest or the second strongest
 
 
 @dataclass(eq=False)
@@ -56,20 +56,20 @@ class ReturnStack(FrameStack):
     sources: tuple[int | None, ...] | None = None
 
 
-def is_vlp16_dual(stack: FrameStack) -> bool:
-    """True for a VLP-16 dual-return stack as decoded (slot 1 mixes strongest and second
-    strongest), or a Hesai Pandar's in Last+Strongest mode, which fills its slots by the same rule
-    (its decoder marks the second strongest: :mod:`lidarpkt.vendors.hesai.models`); False for a stack
-    already made of selections (:func:`select_returns`)."""
+def _mixes_second_strongest(stack: FrameStack) -> bool:
+    """True for a stack of a Last+Strongest dual mode as decoded (slot 1 mixes strongest and second
+    strongest: a VLP-16's dual mode, a Hesai Pandar's Last+Strongest, whose decoder marks the second
+    strongest by the same rule, :mod:`lidarpkt.vendors.hesai.models`); False for a stack already made of
+    selections (:func:`select_returns`)."""
     if getattr(stack, "sources", None) is not None:
         return False
-    return stack.sensor.vendor in ("velodyne", "hesai") and tuple(stack.return_labels) == _VLP16_DUAL
+    return tuple(stack.return_labels) == _LAST_STRONGEST
 
 
 def available_returns(stack: FrameStack) -> tuple[str, ...]:
     """The return kinds this capture reports, in the order the analysis shows them
     (VLP-16 dual: last, strongest, second_strongest; otherwise its slot labels)."""
-    if is_vlp16_dual(stack):
+    if _mixes_second_strongest(stack):
         return ("last", "strongest", "second_strongest")
     return tuple(stack.return_labels)
 
@@ -92,7 +92,7 @@ def second_strongest_marks(stack: FrameStack) -> np.ndarray:
 
     The decoder's mark when the stack carries it (:func:`analysis.stack.load_stack` does);
     for a stack built by hand, the decoder's rule applied to its slots
-    (:func:`lidarpkt.vendors.velodyne.dual.second_strongest_mark`: the last return's signal, estimated as
+    (:func:`lidarpkt.core.dual.second_strongest_mark`: the last return's signal, estimated as
     reflectivity / range², is strictly the higher)."""
     marks = getattr(stack, "second_strongest", None)
     if marks is not None:
@@ -103,7 +103,7 @@ def second_strongest_marks(stack: FrameStack) -> np.ndarray:
 def _kind(stack: FrameStack, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int | None]:
     """(range_mm [K,H,W], reflectivity [K,H,W], pixel_valid [K,H,W] or None, raw source slot or None)."""
     pv = getattr(stack, "pixel_valid", None)
-    if is_vlp16_dual(stack):
+    if _mixes_second_strongest(stack):
         marked = second_strongest_marks(stack)
         r0, r1 = stack.range_mm[:, 0], stack.range_mm[:, 1]
         f0, f1 = stack.reflectivity[:, 0], stack.reflectivity[:, 1]
@@ -128,7 +128,7 @@ def _kind(stack: FrameStack, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _raw_label(stack: FrameStack, slot: int) -> str:
-    if is_vlp16_dual(stack) and slot == 1:
+    if _mixes_second_strongest(stack) and slot == 1:
         return "strongest_or_second"  # slot 1 as the sensor fills it, not one return kind
     return stack.return_labels[slot]
 
@@ -199,9 +199,9 @@ def resolve(stack: FrameStack, selection: str | int) -> tuple[FrameStack, int]:
         if not 0 <= sel < stack.range_mm.shape[1]:
             select_returns(stack, [sel])  # raises with the list of slots
         return stack, sel
-    if not is_vlp16_dual(stack) and sel in stack.return_labels:
+    if not _mixes_second_strongest(stack) and sel in stack.return_labels:
         return stack, tuple(stack.return_labels).index(sel)
-    if is_vlp16_dual(stack) and sel == "last":
+    if _mixes_second_strongest(stack) and sel == "last":
         return stack, 0
     return select_returns(stack, [sel]), 0
 

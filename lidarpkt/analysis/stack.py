@@ -1,4 +1,4 @@
-"""Getting a :class:`~lidarpkt.core.frame.FrameStack` ready for the analysis: loading, frame
+"""Getting a :class:`~lidarpkt.core.sequence.FrameStack` ready for the analysis: loading, frame
 selection, pixel checks, and the neighbourhood geometry every spatial computation shares.
 
 Pixel coordinates are always the stack's own (row, column): for Ouster that is the
@@ -12,12 +12,13 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from lidarpkt.errors import AnalysisError, LidarpktWarning
-from lidarpkt.core.frame import FrameStack, default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.grid import default_grid_deg, destagger, restagger  # noqa: F401 - one grid, one destagger
+from lidarpkt.core.sequence import FrameStack
 
 _MAX_PARTIAL_FALLBACK = 8
 
@@ -30,6 +31,7 @@ def load_stack(
     include_partial: bool = False,
     resolution_deg: float | None = None,
     workers: int = 1,
+    **options: Any,
 ) -> FrameStack:
     """Decode a capture (pcap/pcapng, MCAP, ROS bag) with :func:`lidarpkt.open` and stack its frames.
 
@@ -43,16 +45,17 @@ def load_stack(
             :class:`~lidarpkt.errors.LidarpktWarning`.
         resolution_deg: azimuth grid of the stack (VLP-16); default :func:`default_grid_deg`.
         workers: decoding threads (``lidarpkt.open(..., workers=)``); the frames are the same.
+        options: other keyword options of ``lidarpkt.open`` (``model`` ...).
 
     Raises:
         AnalysisError: no frame left after the selection.
         lidarpkt.errors.LidarpktError: whatever the decoder raises on bad input.
     """
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
 
     if metadata is not None and not isinstance(metadata, (str, Path)):  # a list of them
         metadata = [str(m) for m in metadata] or None
-    kwargs: dict = {"workers": workers}
+    kwargs: dict = {"workers": workers, **options}
     if metadata is not None:
         kwargs["metadata"] = metadata if isinstance(metadata, list) else str(metadata)
     complete: list = []
@@ -61,7 +64,7 @@ def load_stack(
     if (a is not None and a < 0) or (b is not None and b < 0):
         raise AnalysisError(f"--frames {a}:{b}: use non-negative frame numbers")
     n_complete = 0
-    for f in lidarpkt.open(str(path), **kwargs):
+    for f in open_frames(str(path), **kwargs):
         if include_partial or not f.partial:
             n_complete += 1
             if a is not None and n_complete <= a:
@@ -85,7 +88,7 @@ def load_stack(
         sel = "" if frames is None else f" in frames {'' if a is None else a}:{'' if b is None else b}"
         raise AnalysisError(
             f"{path}: no frames{sel} to analyse ({n_complete} complete, {len(partial)} partial found; "
-            "check the capture, the --frames range and, for an Ouster pcap, --metadata)"
+            "check the capture, the --frames range and, for a sensor decoded with its file, --metadata)"
         )
     res = resolution_deg if resolution_deg is not None else default_grid_deg(picked[0].sensor)
     return stack_frames(picked, res)

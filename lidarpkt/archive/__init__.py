@@ -14,18 +14,19 @@ segment, run in this process (``workers=1``, without Dask), on a local Dask clus
 from __future__ import annotations
 
 import os
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from .catalog import CATALOG_COLUMNS, catalog_rows, rows_to_table
 from .export import FORMATS, ExportReport, export_job
 from .manifest import COLUMNS as MANIFEST_COLUMNS
 from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 
+from .engine import JobProgress, ProgressCallback
 from .plan import parse_size
 from .unit import UnitResult, UnitTask, run_unit
 
 __all__ = ["catalog", "export", "to_dask", "multireturn_maps", "run_unit", "UnitTask", "UnitResult",
-           "FORMATS", "DEFAULT_SEGMENT_BYTES", "parse_size", "ExportReport"]
+           "FORMATS", "DEFAULT_SEGMENT_BYTES", "parse_size", "ExportReport", "JobProgress"]
 
 _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "part": "string", "status": "string",
                    "frames": "int64", "points": "int64", "lost_packets": "int64", "skipped_packets": "int64",
@@ -35,7 +36,7 @@ _MANIFEST_TYPES = {"key": "string", "input": "string", "capture": "string", "par
 
 def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
             metadata: Sequence[str | os.PathLike[str]] = (), workers: int | None = None,
-            scheduler: str | None = None, client: Any = None):
+            scheduler: str | None = None, client: Any = None, open_options: Mapping[str, Any] | None = None):
     """One row per (capture file, sensor stream) under ``paths``, as a ``pyarrow.Table``.
 
     Columns (:data:`CATALOG_COLUMNS`): ``path``, ``size_bytes``, ``container``, ``stream``,
@@ -50,19 +51,22 @@ def catalog(paths: Sequence[str | os.PathLike[str]], *, glob: str | None = None,
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture).
         workers, scheduler, client: the engine, as for :func:`export` (default: a local cluster of
             the CPU count; ``workers=1`` runs in this process).
+        open_options: as for :func:`export`.
 
     Raises:
         lidarpkt.archive.plan.PlanError: a PATH does not exist or holds no capture.
     """
-    rows = catalog_rows(paths, glob=glob, metadata=metadata, workers=workers, scheduler=scheduler, client=client)
+    rows = catalog_rows(paths, glob=glob, metadata=metadata, workers=workers, scheduler=scheduler, client=client,
+                        open_options=open_options)
     return rows_to_table(rows, CATALOG_COLUMNS)
 
 
 def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str], *, format: str = "parquet",  # noqa: A002
-           layout: str | None = None, frames_per_file: int | None = None,
+           layout: str | None = None, frames_per_file: int | None = None, storage: str | None = None,
            metadata: Sequence[str | os.PathLike[str]] = (), glob: str | None = None,
            segment_bytes: int | str = DEFAULT_SEGMENT_BYTES, workers: int | None = None,
-           scheduler: str | None = None, client: Any = None, progress: bool = False):
+           scheduler: str | None = None, client: Any = None, progress: ProgressCallback | None = None,
+           open_options: Mapping[str, Any] | None = None):
     """Export every capture under ``paths`` to the folder ``out`` in ``format``; returns the manifest.
 
     Args:
@@ -70,7 +74,8 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         out: the output folder (local path or fsspec URL); it holds the outputs and ``_manifest.jsonl``.
         format: one of :data:`FORMATS`.
         layout: Parquet: ``"points"`` (one row per return, the default) or ``"frames"``.
-        frames_per_file: LAS/LAZ: one file per N frames instead of one per capture.
+        frames_per_file: LAS/LAZ/CSV: one file per N frames instead of one per capture.
+        storage: rosbag2: ``"sqlite3"`` (the default) or ``"mcap"``.
         metadata: Ouster metadata JSONs for every input (else the JSON beside each capture, same stem).
         glob: in folders, only file names matching this pattern.
         segment_bytes: captures above this size (bytes, or ``"256MB"``; default 256 MiB) are cut
@@ -78,7 +83,9 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         workers: processes of a local Dask cluster (default: the CPU count); 1 runs here without Dask.
         scheduler: address of an existing Dask scheduler (``tcp://host:8786``), or ``DASK_SCHEDULER_ADDRESS``.
         client: a ``distributed.Client`` to run on (wins over the two above).
-        progress: draw a progress bar on stderr.
+        progress: called with a :class:`~lidarpkt.archive.engine.JobProgress` as the job advances (after
+            each unit, and at the end of each pass), e.g. to draw a progress bar.
+        open_options: further keyword options of ``lidarpkt.open`` for every capture (``model``, ...).
 
     Returns:
         a ``pyarrow.Table`` of this job's manifest rows (one per input and segment): ``status``
@@ -88,9 +95,9 @@ def export(paths: Sequence[str | os.PathLike[str]], out: str | os.PathLike[str],
         PlanError, ExportBusyError, EngineError (all :class:`lidarpkt.errors.LidarpktError`); a
         damaged input is not an exception but a ``failed`` row.
     """
-    report = export_job(paths, out, format=format, layout=layout, frames_per_file=frames_per_file,
+    report = export_job(paths, out, format=format, layout=layout, frames_per_file=frames_per_file, storage=storage,
                         metadata=metadata, glob=glob, segment_bytes=segment_bytes, workers=workers,
-                        scheduler=scheduler, client=client, progress=progress)
+                        scheduler=scheduler, client=client, progress=progress, open_options=open_options)
     return manifest_table(report.rows)
 
 

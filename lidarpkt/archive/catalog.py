@@ -1,6 +1,6 @@
 """``catalog(paths)``: one row per (capture file, sensor stream) of an archive, computed in parallel.
 
-Each capture is described by :func:`lidarpkt.cli.info.describe_capture` (what ``lidarpkt info``
+Each capture is described by :func:`lidarpkt.pipeline.describe.describe_capture` (what ``lidarpkt info``
 prints: streams, their kind, mode, times and packet counts) and decoded once with
 :func:`lidarpkt.open` to count frames and lost packets per sensor. An unreadable capture still
 gets a row, with its error.
@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
-from lidarpkt.core.streams import StreamKind
 
-from .engine import EngineOptions, run_rows
-from .plan import Capture, is_remote, local_path, plan_captures
+from .engine import EngineOptions, ProgressCallback, run_rows
+from .plan import Capture, plan_captures
 
 # column -> pyarrow type name; the order of the table and of the JSON objects
 CATALOG_COLUMNS: dict[str, str] = {
@@ -36,16 +35,16 @@ def _mode(details: dict[str, Any]) -> str | None:
     return mode if isinstance(mode, str) else "/".join(mode)
 
 
-def _count_frames(path: str, metadata: Sequence[Any]) -> tuple[dict[str, dict[str, Any]], str | None]:
+def _count_frames(path: str, metadata: Sequence[Any], open_options: dict[str, Any]) -> tuple[dict[str, dict[str, Any]], str | None]:
     """Frames, partial frames, lost and skipped packets and model per source, and the decode error."""
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
 
     per: dict[str, dict[str, Any]] = {}
     error = None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LidarpktWarning)  # counted by the reader; the row says them
-            with lidarpkt.open(path, metadata=list(metadata) or None) as reader:
+            with open_frames(path, metadata=list(metadata) or None, **open_options) as reader:
                 for frame in reader:
                     s = per.setdefault(frame.sensor.source or "unknown source", {
                         "frames": 0, "partial_frames": 0, "lost_packets": 0, "skipped_packets": 0,
@@ -76,28 +75,28 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
 
     Never raises on bad input: an unreadable capture gives one row whose ``error`` says why.
     """
-    from lidarpkt.cli.info import describe_capture
+    from lidarpkt.pipeline.describe import describe_capture
 
     base: dict[str, Any] = {c: None for c in CATALOG_COLUMNS}
     base.update(path=capture.url, size_bytes=capture.size_bytes)
-    scratch: list[str] | None = None
+    scratch: list[str] = []
     try:
-        path = local_path(capture.url)
-        if is_remote(capture.url):
-            from .unit import _fetch_input
+        from lidarpkt.vendors import registry
 
-            scratch = []
-            path = _fetch_input(capture.url, scratch)
+        from .unit import _fetch_input
+
         try:
+            path = _fetch_input(capture.url, scratch)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", LidarpktWarning)
-                md = [_load_md(m) for m in capture.metadata]
+                md = registry.load_sensor_files([_fetch_input(m, scratch) for m in capture.metadata])
                 doc = describe_capture(path, md)
         except (LidarpktError, OSError) as exc:
             msg = str(exc) if isinstance(exc, LidarpktError) else f"{capture.url}: cannot read ({exc.strerror or exc})"
             return [{**base, "error": msg}]
-        # the loaded metadata: a remote JSON is no local path. An OSF file's frames are counted by describe_capture.
-        per_source, error = _count_frames(path, md) if doc["format"] != "osf" else ({}, None)
+        # the loaded sensor files: a remote one is no local path. The frames of a file of decoded
+        # frames are counted by describe_capture.
+        per_source, error = _count_frames(path, md, dict(capture.open_options)) if "sensors" not in doc else ({}, None)
     finally:
         if scratch:
             import shutil
@@ -108,9 +107,9 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
     if doc.get("truncated") and not error:
         base["error"] = f"{capture.url}: truncated: {doc.get('truncated_reason')}"
     rows = []
-    for s in doc.get("sensors", ()):  # an OSF file: decoded frames of each sensor, no packets
-        rows.append({**base, "stream": s["source"], "source": s["source"], "kind": "Ouster frames (OSF)",
-                     "vendor": "ouster", "model": s["model"], "mode": s["profile"], "start_ns": s["first_timestamp_ns"],
+    for s in doc.get("sensors", ()):  # a file of decoded frames: the frames of each sensor, no packets
+        rows.append({**base, "stream": s["source"], "source": s["source"], "kind": s["kind"],
+                     "vendor": s["vendor"], "model": s["model"], "mode": s["profile"], "start_ns": s["first_timestamp_ns"],
                      "end_ns": s["last_timestamp_ns"], "packets": 0, "frames": s["frames"],
                      "partial_frames": s["partial_frames"], "lost_packets": 0, "skipped_packets": 0})
     for s in doc["streams"]:
@@ -118,7 +117,7 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         source = s["src"] or "unknown source"
         # a decoder is per source address (its frames name the port of its first packet, which may be
         # the IMU's): the frames go to the first lidar stream of that address
-        decoded = _take(per_source, source) if StreamKind(s["stream_kind"]).is_lidar else None
+        decoded = _take(per_source, source) if _is_lidar(s["stream_kind"]) else None
         row = dict(base)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
                    vendor=s["vendor"], model=(decoded or {}).get("model") or details.get("product_name") or details.get("model"),
@@ -134,17 +133,16 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
     return rows
 
 
-def _load_md(path: str):
-    from lidarpkt.vendors.ouster import load_metadata
+def _is_lidar(stream_kind: str) -> bool:
+    """Whether ``info``'s ``stream_kind`` text names a stream frames are made of."""
+    from lidarpkt.core.streams import StreamKind
+    from lidarpkt.vendors import registry
 
-    if is_remote(path):
-        import fsspec
-
-        with fsspec.open(path, "rt") as fh:
-            import json
-
-            return load_metadata(json.load(fh))
-    return load_metadata(local_path(path))
+    kind = StreamKind.parse(stream_kind)
+    try:
+        return registry.vendor(kind.vendor).stream(kind.name).lidar
+    except KeyError:  # "other"
+        return False
 
 
 def catalog_rows(
@@ -155,10 +153,11 @@ def catalog_rows(
     workers: int | None = None,
     scheduler: str | None = None,
     client: Any = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
+    open_options: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """The catalog as a list of row dicts (columns :data:`CATALOG_COLUMNS`), in the order of the inputs."""
-    captures = plan_captures(paths, glob=glob, metadata=metadata)
+    captures = plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options)
     return run_rows(catalog_capture, captures, [c.size_bytes for c in captures],
                     EngineOptions(workers=workers, scheduler=scheduler, client=client), label="catalog",
                     progress=progress, lost=_lost_capture)

@@ -3,7 +3,7 @@ processes (``workers=N``), or on an existing Dask cluster (``scheduler=`` / ``DA
 / a ``client=``).
 
 Dask does the scheduling, the retries and the recovery from lost workers; this module only
-submits picklable calls and hands each result back as it arrives, with a progress bar.
+submits picklable calls and hands each result back as it arrives, telling a progress callback.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import uuid
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator, Sequence
 
 from lidarpkt.errors import LidarpktError
@@ -142,15 +142,15 @@ def run_rows(
     options: EngineOptions,
     *,
     label: str,
-    progress: bool,
+    progress: ProgressCallback | None,
     lost: Callable[[Any, str], list[dict]],
 ) -> list[dict]:
     """:func:`run_all` of a function that returns a list of row dicts per task (catalog,
-    multi-return maps): every row, in task order, with the progress bar (a task is failed when
-    one of its rows has an ``error``)."""
+    multi-return maps): every row, in task order, telling ``progress`` as each task ends (a task is
+    failed when one of its rows has an ``error``)."""
     results: dict[int, list[dict]] = {}
     index = {id(t): i for i, t in enumerate(tasks)}
-    bar = Progress(sum(sizes), len(tasks), enabled=progress, label=label)
+    bar = Progress(sum(sizes), len(tasks), callback=progress, label=label)
 
     def record(task: Any, rows: list[dict]) -> None:
         i = index[id(task)]
@@ -164,29 +164,55 @@ def run_rows(
     return [row for i in range(len(tasks)) for row in results[i]]
 
 
-class Progress:
-    """The job's progress bar (:class:`lidarpkt.cli.args.Progress`, the bar of every verb): bytes done of
-    the total, with the inputs done (and failed) beside it."""
+@dataclass(frozen=True)
+class JobProgress:
+    """How far one pass of a job is, as given to a job's ``progress`` callback: after the pass starts,
+    after each unit (capture or segment) and once more when the pass ends (``finished``).
 
-    def __init__(self, total_bytes: int, total_units: int, *, enabled: bool, label: str) -> None:
-        from lidarpkt.cli.args import Progress as Bar
+    Attributes:
+        label: the pass (``"catalog"``, ``"count frames"``, ``"export parquet"`` ...).
+        bytes_done, bytes_total: input bytes of the units done, of all units.
+        units_done, units_total: units done (failed ones included), all units.
+        failed: units that failed.
+        finished: the pass is over.
+    """
 
-        self.units_total = total_units
-        self.units_done = 0
-        self.failed = 0
-        self.bytes_done = 0
-        self.bar = Bar(not enabled, total=total_bytes, desc=label)
-        self.bar.update(0, self._status())
+    label: str
+    bytes_done: int
+    bytes_total: int
+    units_done: int
+    units_total: int
+    failed: int = 0
+    finished: bool = False
 
-    def _status(self) -> str:
+    def status(self) -> str:
+        """``"3/8 units, 1 failed"``."""
         text = f"{self.units_done}/{self.units_total} units"
         return text + (f", {self.failed} failed" if self.failed else "")
 
+
+ProgressCallback = Callable[[JobProgress], None]
+
+
+class Progress:
+    """One pass's progress, told to the job's ``progress`` callback (nothing when it is None)."""
+
+    def __init__(self, total_bytes: int, total_units: int, *, callback: ProgressCallback | None, label: str) -> None:
+        self.callback = callback
+        self.state = JobProgress(label, 0, total_bytes, 0, total_units)
+        self._tell()
+
+    def _tell(self) -> None:
+        if self.callback is not None:
+            self.callback(self.state)
+
     def advance(self, size_bytes: int, *, failed: bool = False) -> None:
-        self.units_done += 1
-        self.failed += int(failed)
-        self.bytes_done += size_bytes
-        self.bar.update(self.bytes_done, self._status())
+        s = self.state
+        self.state = replace(s, bytes_done=s.bytes_done + size_bytes, units_done=s.units_done + 1,
+                             failed=s.failed + int(failed))
+        self._tell()
 
     def close(self) -> None:
-        self.bar.close()
+        if not self.state.finished:
+            self.state = replace(self.state, finished=True)
+            self._tell()

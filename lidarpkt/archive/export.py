@@ -13,11 +13,12 @@ import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError
+from lidarpkt.writers import FORMATS as WRITER_FORMATS, accepted_options
 
-from .engine import EngineOptions, Progress, dask_client, run_all
+from .engine import EngineOptions, Progress, ProgressCallback, dask_client, run_all
 from .ordinals import CountTask, SegmentCount, count_segment, start_ordinals
 from .manifest import Manifest, OutdirLock, job_fingerprint, make_row
 from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
@@ -25,13 +26,15 @@ from lidarpkt.containers.segments import DEFAULT_SEGMENT_BYTES
 from .plan import PlanError, is_remote, local_path, plan_captures, plan_segments
 from .unit import STAGING, UnitResult, UnitTask, run_unit
 
-FORMATS = ("parquet", "las", "laz", "ply", "pcd", "npz", "mcap", "pcap")
+# the writers' formats (lidarpkt.writers.FORMATS), and pcap: the capture's raw packets (:mod:`.packets`)
+FORMATS = (*WRITER_FORMATS, "pcap")
 # MCAP is ``lidarpkt decode IN -o OUT.mcap``'s output: one recording of the capture (raw packets,
 # clouds, log times, one summary and index), which a reader opens as one file; segments would
-# split one recording into several, so it runs whole files. pcap is the capture's raw packets
-# (:mod:`.packets`), one file per capture too. Every other format runs segments (PLY/PCD: one
-# file per frame, named by the whole-file frame id a segment knows: .ordinals).
-WHOLE_FILE_FORMATS = ("mcap", "pcap")
+# split one recording into several, so it runs whole files, as the other formats that say so
+# (ROS bags, Rerun recordings, KITTI sequences: ``Format.whole_capture``). pcap is one file per
+# capture too. Every other format runs segments (PLY/PCD: one file per frame, named by the
+# whole-file frame id a segment knows: .ordinals).
+WHOLE_FILE_FORMATS = (*(name for name, spec in WRITER_FORMATS.items() if spec.whole_capture), "pcap")
 
 
 @dataclass
@@ -56,7 +59,7 @@ class ExportReport:
 
 
 def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int | None = None,
-                   **extra: Any) -> tuple[tuple[str, Any], ...]:
+                   storage: str | None = None, **extra: Any) -> tuple[tuple[str, Any], ...]:
     """The writer options of a job as sorted pairs (only the ones given), checked against the format.
 
     Raises:
@@ -72,22 +75,28 @@ def writer_options(fmt: str, *, layout: str | None = None, frames_per_file: int 
             raise PlanError(f"--layout {layout}: only --format parquet has layouts (points, frames)")
         opts["layout"] = layout
     if frames_per_file is not None:
-        if fmt not in ("las", "laz"):
-            raise PlanError(f"--frames-per-file {frames_per_file}: only --format las/laz split files by frames")
+        if fmt == "pcap" or "frames_per_file" not in accepted_options(fmt):
+            raise PlanError(f"--frames-per-file {frames_per_file}: only --format las/laz/csv split files by frames")
         if frames_per_file < 1:
             raise PlanError(f"--frames-per-file {frames_per_file}: give 1 or more frames")
         opts["frames_per_file"] = int(frames_per_file)
+    if storage is not None:
+        if fmt == "pcap" or "storage" not in accepted_options(fmt):
+            raise PlanError(f"--storage {storage}: only --format rosbag2 has storages (sqlite3, mcap)")
+        if storage not in ("sqlite3", "mcap"):
+            raise PlanError(f"--storage {storage}: choose sqlite3 or mcap")
+        opts["storage"] = storage
     return tuple(sorted(opts.items()))
 
 
 def plan_units(paths: Sequence[str | os.PathLike[str]], out: str, fmt: str, options: tuple, *,
                glob: str | None = None, metadata: Sequence[str] = (), segment_bytes: int = DEFAULT_SEGMENT_BYTES,
-               ) -> tuple[list[UnitTask], dict[str, int], list[tuple[UnitTask, str]]]:
+               open_options: Mapping[str, Any] | None = None) -> tuple[list[UnitTask], dict[str, int], list[tuple[UnitTask, str]]]:
     """(tasks, capture mtime by key, tasks that failed while planning with their error)."""
     tasks, mtimes, failed = [], {}, []
-    for cap in plan_captures(paths, glob=glob, metadata=metadata):
+    for cap in plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options):
         base: dict[str, Any] = dict(input=cap.url, capture=cap.name, output=out, format=fmt, options=options,
-                                    metadata=cap.metadata)
+                                    metadata=cap.metadata, open_options=cap.open_options)
         try:
             segments = [None] if fmt in WHOLE_FILE_FORMATS else plan_segments(cap, segment_bytes)
         except LidarpktError as exc:  # cannot be indexed: recorded as this input's failure
@@ -124,6 +133,7 @@ def export_job(
     format: str = "parquet",  # noqa: A002 - the verb's flag name
     layout: str | None = None,
     frames_per_file: int | None = None,
+    storage: str | None = None,
     metadata: Sequence[str | os.PathLike[str]] = (),
     glob: str | None = None,
     segment_bytes: int | str = DEFAULT_SEGMENT_BYTES,
@@ -131,7 +141,8 @@ def export_job(
     scheduler: str | None = None,
     client: Any = None,
     retries: int | None = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
+    open_options: Mapping[str, Any] | None = None,
 ) -> ExportReport:
     """Export every capture under ``paths`` to ``out`` (a folder, local or fsspec URL) in ``format``.
 
@@ -142,7 +153,7 @@ def export_job(
         EngineError: the engine cannot start.
     """
     out = os.fspath(out)
-    options = writer_options(format, layout=layout, frames_per_file=frames_per_file)
+    options = writer_options(format, layout=layout, frames_per_file=frames_per_file, storage=storage)
     seg_bytes = parse_size_arg(segment_bytes)
     _prepare_outdir(out)
     engine = EngineOptions(workers=workers, scheduler=scheduler, client=client,
@@ -153,7 +164,8 @@ def export_job(
         manifest = Manifest(out)
         job = job_fingerprint(format, options)
         tasks, mtimes, failed = plan_units(paths, out, format, options, glob=glob,
-                                           metadata=[os.fspath(m) for m in metadata], segment_bytes=seg_bytes)
+                                           metadata=[os.fspath(m) for m in metadata], segment_bytes=seg_bytes,
+                                           open_options=open_options)
         report = ExportReport()
         todo = _not_done(manifest, tasks, mtimes, job, report)
         for task, error in failed:
@@ -166,7 +178,7 @@ def export_job(
         try:
             with _one_client(engine, todo) as engine:  # one cluster for both passes
                 todo, unknown = _with_ordinals(todo, tasks, engine, progress=progress)
-                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), enabled=progress,
+                bar = Progress(sum(t.size_bytes for t in todo + unknown), len(todo) + len(unknown), callback=progress,
                                label=f"export {format}")
                 record = _Recorder(manifest, report, bar, mtimes, job)
                 for task in unknown:
@@ -198,7 +210,7 @@ def _one_client(engine: EngineOptions, todo: list[UnitTask]) -> Iterator[EngineO
 
 
 def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOptions, *,
-                   progress: bool = False) -> tuple[list[UnitTask], list[UnitTask]]:
+                   progress: ProgressCallback | None = None) -> tuple[list[UnitTask], list[UnitTask]]:
     """(tasks to run, tasks that cannot run): each segment after a capture's first gets its whole-file
     ordinals, counted in the segments before it (:mod:`.ordinals`); a segment whose ordinals cannot
     be known (an earlier segment is damaged: the whole-file reader stops there too) is returned
@@ -210,9 +222,9 @@ def _with_ordinals(todo: list[UnitTask], tasks: list[UnitTask], engine: EngineOp
     if not need:
         return todo, []
     counts: dict[tuple[str, int], SegmentCount] = {}
-    jobs = [CountTask(t.key, t.input, t.segment) for t in tasks
+    jobs = [CountTask(t.key, t.input, t.segment, t.open_options) for t in tasks
             if t.segment is not None and t.segment.index <= need.get(t.input, -1)]
-    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), enabled=progress, label="count frames")
+    bar = Progress(sum(j.segment.size_bytes for j in jobs), len(jobs), callback=progress, label="count frames")
 
     def got(job: CountTask, count: SegmentCount) -> None:
         counts[(job.input, job.segment.index)] = count
@@ -249,7 +261,7 @@ def _not_done(manifest: Manifest, tasks: list[UnitTask], mtimes: dict[str, int],
 
 
 class _Recorder:
-    """Called in the driver as each unit finishes: its manifest row, the report, the progress bar."""
+    """Called in the driver as each unit finishes: its manifest row, the report, the progress."""
 
     def __init__(self, manifest: Manifest, report: ExportReport, bar: Progress, mtimes: dict[str, int],
                  job: str) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import warnings
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktWarning
 
@@ -34,6 +34,7 @@ class _Part:
     metadata: tuple[str, ...]
     segment: Any = None
     layout: str = "points"
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 def points_arrow_schema():
@@ -104,7 +105,7 @@ def decode_partition(part: _Part, start: Any = None):
     """
     import pyarrow as pa
 
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
 
     from .ordinals import renumber_from
     from .plan import local_path
@@ -115,10 +116,10 @@ def decode_partition(part: _Part, start: Any = None):
     schema = points_arrow_schema() if frames_rows is None else frames_arrow_schema()
     renumber = renumber_from(start) if part.segment is not None else None
     tables = []
-    options = {} if part.segment is None else {"segment": part.segment}
+    options = dict(part.open_options) if part.segment is None else {**dict(part.open_options), "segment": part.segment}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LidarpktWarning)  # counted by the readers; export's manifest lists them
-        with lidarpkt.open(local_path(part.input), metadata=list(part.metadata) or None, **options) as reader:
+        with open_frames(local_path(part.input), metadata=list(part.metadata) or None, **options) as reader:
             for frame in reader:
                 if renumber is not None:
                     frame = renumber.frame(frame)
@@ -136,14 +137,15 @@ def _to_pandas(table):
 
 
 def to_dask(paths: Sequence[str | os.PathLike[str]], *, layout: str = "points", glob: str | None = None,
-            metadata: Sequence[str | os.PathLike[str]] = (), segment_bytes: int | str = DEFAULT_SEGMENT_BYTES):
+            metadata: Sequence[str | os.PathLike[str]] = (), segment_bytes: int | str = DEFAULT_SEGMENT_BYTES,
+            open_options: Mapping[str, Any] | None = None):
     """A lazy ``dask.dataframe.DataFrame`` of every return (``layout="points"``) or every frame
     (``layout="frames"``) in the captures under ``paths``; see the module doc for the columns.
 
     Args:
         paths: files or folders of captures (local paths or ``file://``; remote URLs: export first).
         layout: ``"points"`` or ``"frames"``.
-        glob, metadata, segment_bytes: as for :func:`lidarpkt.archive.export`.
+        glob, metadata, segment_bytes, open_options: as for :func:`lidarpkt.archive.export`.
 
     Raises:
         PlanError: an unknown layout, bad paths, a remote URL; EngineError: Dask is not installed.
@@ -160,16 +162,16 @@ def to_dask(paths: Sequence[str | os.PathLike[str]], *, layout: str = "points", 
     from .ordinals import CountTask, count_segment, start_ordinals
 
     parts = []
-    for cap in plan_captures(paths, glob=glob, metadata=metadata):
+    for cap in plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options):
         if "://" in cap.url and not cap.url.startswith("file://"):
             raise PlanError(f"{cap.url}: to_dask reads local captures; export remote ones to Parquet first")
         segments = plan_segments(cap, parse_size(segment_bytes))
-        counts = [dask.delayed(count_segment, pure=True)(CountTask(f"{cap.name}#{i}", cap.url, s))
+        counts = [dask.delayed(count_segment, pure=True)(CountTask(f"{cap.name}#{i}", cap.url, s, cap.open_options))
                   for i, s in enumerate(segments[:-1]) if s is not None]
         starts = dask.delayed(start_ordinals, pure=True)(counts) if counts else None
         for i, seg in enumerate(segments):
             start = starts[i] if starts is not None and i > 0 else None
-            parts.append(dask.delayed(decode_partition, pure=True)(_Part(cap.url, cap.name, cap.metadata, seg, layout),
+            parts.append(dask.delayed(decode_partition, pure=True)(_Part(cap.url, cap.name, cap.metadata, seg, layout, cap.open_options),
                                                                    start))
     schema = points_arrow_schema() if layout == "points" else frames_arrow_schema()
     meta = _to_pandas(schema.empty_table())

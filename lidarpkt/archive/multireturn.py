@@ -17,11 +17,11 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 
-from .engine import EngineOptions, run_rows
+from .engine import EngineOptions, ProgressCallback, run_rows
 from .plan import PlanError, is_remote, local_path, plan_captures
 
 SUMMARY_COLUMNS = ("capture", "input", "sensor", "model", "return_mode", "slot", "return_label", "frames_used",
@@ -40,6 +40,7 @@ class MapTask:
     frames: tuple[int | None, int | None] | None = None
     grid_deg: float | None = None
     options: tuple[tuple[str, Any], ...] = ()
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 def _save_npz(path: Path, arrays: dict[str, Any]) -> None:
@@ -72,7 +73,7 @@ def map_capture(task: MapTask) -> list[dict[str, Any]]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LidarpktWarning)
             stack = load_stack(local_path(task.input), metadata=list(task.metadata) or None, frames=task.frames,
-                               resolution_deg=task.grid_deg)
+                               resolution_deg=task.grid_deg, **dict(task.open_options))
             stack = sensor_returns(stack)  # as the single-capture verb: the returns as the sensor defines them
             mr = multireturn_map(stack, **dict(task.options))
         rel = f"maps/{Path(task.capture).stem}.npz"
@@ -110,7 +111,8 @@ def multireturn_maps(
     workers: int | None = None,
     scheduler: str | None = None,
     client: Any = None,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
+    open_options: Mapping[str, Any] | None = None,
     **map_options: Any,
 ) -> list[dict[str, Any]]:
     """One multi-return map per capture under ``paths`` in ``out/maps/``, and ``out/summary.csv``.
@@ -118,9 +120,11 @@ def multireturn_maps(
     Args:
         paths: captures or folders of them (local paths or ``file://``).
         out: the output folder (created; its parent must exist).
-        metadata, glob: as for :func:`lidarpkt.archive.export` (Ouster metadata beside each capture by default).
+        metadata, glob, open_options: as for :func:`lidarpkt.archive.export` (Ouster metadata beside each
+            capture by default).
         frames: ``(A, B)``: complete frames A..B-1 of each capture; grid_deg: the VLP-16 azimuth grid.
-        workers, scheduler, client: the engine (default: a local cluster of the CPU count).
+        workers, scheduler, client, progress: the engine (default: a local cluster of the CPU count), and
+            what it tells as it goes (:class:`~lidarpkt.archive.engine.JobProgress`).
         **map_options: :func:`analysis.multireturn.multireturn_map`'s options (``gap_m``,
             ``neighbourhood``, ``monitor_frame``, ``threshold_m``, ``method``).
 
@@ -139,9 +143,9 @@ def multireturn_maps(
     if root.exists() and not root.is_dir():
         raise PlanError(f"-o {out}: a file has this name; give a folder for the maps and the summary")
     root.mkdir(exist_ok=True)
-    captures = plan_captures(paths, glob=glob, metadata=metadata)
-    tasks = [MapTask(c.url, c.name, out, c.metadata, frames, grid_deg, tuple(sorted(map_options.items())))
-             for c in captures]
+    captures = plan_captures(paths, glob=glob, metadata=metadata, open_options=open_options)
+    tasks = [MapTask(c.url, c.name, out, c.metadata, frames, grid_deg, tuple(sorted(map_options.items())),
+                     c.open_options) for c in captures]
     rows = run_rows(map_capture, tasks, [c.size_bytes for c in captures],
                     EngineOptions(workers=workers, scheduler=scheduler, client=client), label="multireturn",
                     progress=progress, lost=_lost_map)
@@ -160,40 +164,3 @@ def multireturn_maps(
 def _lost_map(task: MapTask, why: str) -> list[dict[str, Any]]:
     return [{**{c: None for c in SUMMARY_COLUMNS}, "capture": task.capture, "input": task.input,
              "error": f"{task.input}: {why}"}]
-
-
-def run_multireturn_archive(args: Any) -> int:
-    """The ``lidarpkt multireturn PATHS... -o OUTDIR`` form (several captures, a folder, or an engine
-    flag); exit status 1 when a capture could not be analysed."""
-    import sys
-
-    from lidarpkt.analysis.stack import parse_frame_range
-
-    if args.plot:
-        raise PlanError(f"--plot {args.plot}: figures are drawn for one capture (-o MAP.npz); "
-                        "the folder form writes maps and summary.csv only")
-    if "://" not in args.output:  # a local OUTDIR is checked (and made) before the work, removed on an error
-        from lidarpkt.cli import args as cliargs
-
-        cliargs.check_folder(args.output, "-o")
-    options: dict[str, Any] = {"neighbourhood": args.neighbourhood, "monitor_frame": args.monitor_frame,
-                               "threshold_m": args.threshold, "method": args.method}
-    if args.gap is not None:
-        options["gap_m"] = args.gap
-    rows = multireturn_maps(args.input, args.output, metadata=args.metadata or (), glob=getattr(args, "glob", None),
-                            frames=parse_frame_range(args.frames) if args.frames else None, grid_deg=args.grid,
-                            workers=args.workers, scheduler=args.scheduler,
-                            progress=not getattr(args, "quiet", False), **options)
-    failed = [r for r in rows if r["error"]]
-    for r in rows:
-        if not r["error"]:
-            print(f"{r['capture']} slot {r['slot']} ({r['return_label']}): {r['frames_used']} frames, "
-                  f"multi-return {_fraction(r['multi_return_fraction'])}, non-return {_fraction(r['nonreturn_fraction'])}")
-    for r in failed:
-        print(f"lidarpkt multireturn: failed: {r['capture']}: {r['error']}", file=sys.stderr)
-    print(f"wrote {len({r['map'] for r in rows if r['map']})} maps and {Path(args.output) / 'summary.csv'}")
-    return 1 if failed else 0
-
-
-def _fraction(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.4f}"

@@ -32,11 +32,13 @@ from .plan import local_path
 
 @dataclass(frozen=True)
 class CountTask:
-    """One segment to count (picklable). ``key``: the segment's unit key."""
+    """One segment to count (picklable). ``key``: the segment's unit key; ``open_options``: the job's
+    other keyword options of ``lidarpkt.open`` (``model`` ...), as sorted ``(name, value)`` pairs."""
 
     key: str
     input: str
     segment: Any
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,7 @@ class Ordinals:
             the segment's first frame of that stream; a stream not listed starts at 0.
         packet_index: the whole-file ordinal of the segment's first packet.
         rates: per VLP-16 stream, ``(frequency_hz, columns_per_frame)`` of the stream's
-            :class:`~lidarpkt.core.frame.SensorInfo` in the whole file: a decoder measures the rate
+            :class:`~lidarpkt.core.sensor.SensorInfo` in the whole file: a decoder measures the rate
             from the first packets it reads, and the whole file's are those of the segment where
             the stream starts (as :mod:`lidarpkt.pipeline.parallel` keeps the first segment's SensorInfo).
     """
@@ -74,7 +76,8 @@ class Ordinals:
 
 def count_segment(task: CountTask) -> SegmentCount:
     """The VLP-16 frames (per stream) and packets of one segment; bad input is the result's ``error``."""
-    import lidarpkt
+    from lidarpkt.pipeline.reader import open_frames
+    from lidarpkt.vendors import registry
 
     frames: dict[str, int] = {}
     rates: dict[str, tuple[float | None, int]] = {}
@@ -83,9 +86,9 @@ def count_segment(task: CountTask) -> SegmentCount:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LidarpktWarning)  # the unit reports them
-            reader = lidarpkt.open(local_path(task.input), segment=task.segment)
+            reader = open_frames(local_path(task.input), segment=task.segment, **dict(task.open_options))
             for frame in reader:
-                if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the start
+                if registry.vendor(frame.sensor.vendor).frame_ids_counted:  # frame ids counted from the start
                     source = str(frame.sensor.source)
                     frames[source] = frames.get(source, 0) + 1
                     rates.setdefault(source, (frame.sensor.frequency_hz, frame.sensor.columns_per_frame))

@@ -6,18 +6,11 @@ pcap, pcapng, MCAP, ROS bags), lidar and IMU/position packets alike, goes out in
 with its capture time (nanoseconds) and its UDP payload byte for byte, framed by
 :class:`lidarpkt.writers.pcap.PcapBatchWriter` (Ethernet, IPv4 fragmented at MTU 1500, valid
 checksums). A pcap keeps its packets' addresses and ports. A ROS bag or an MCAP records neither,
-so each stream gets its vendor's factory defaults (:func:`default_endpoints`):
-
-=====================  ===============================  ==========================================
-stream                 source → destination             why
-=====================  ===============================  ==========================================
-VLP-16 data (1206 B)   192.168.1.201:2368 → broadcast   the VLP-16 manual's factory IP and ports;
-VLP-16 position (512)  192.168.1.201:8308 → broadcast   it broadcasts by default
-Ouster lidar / IMU     169.254.0.2 → 169.254.0.1        the metadata's ``udp_port_lidar`` /
-                                                        ``udp_port_imu`` (7502 / 7503 without it);
-                                                        link-local, the sensor's fallback address
-anything else          192.168.1.201:2368 → broadcast   the common lidar default
-=====================  ===============================  ==========================================
+so each stream gets its vendor's factory defaults (:func:`default_endpoints`: the registry record's
+:attr:`~lidarpkt.core.vendor.Vendor.endpoints`, from its sensor file's ports where one is given):
+a VLP-16's data from 192.168.1.201:2368 to broadcast, an Ouster's lidar packets from 169.254.0.2 to
+169.254.0.1 on the metadata's ``udp_port_lidar``...; a stream of no vendor from 192.168.1.201:2368 to
+broadcast, the common lidar default.
 
 A bag's or an MCAP's file order need not be its capture order (a writer may store each topic's
 messages apart, as ``decode`` does with a chunk's IMU packets): their packets go out in the order
@@ -25,7 +18,7 @@ of their capture times (stable: equal times keep the file's order), sorted withi
 :data:`REORDER_WINDOW_NS` of capture time, which bounds the memory; a packet that comes later
 than that in the file keeps its file place. A pcap's record order is its capture order.
 
-An Ouster OSF file holds decoded scans, not packets: :func:`write_packets_pcap` refuses it
+A file of decoded frames (an OSF file) holds no packets: :func:`write_packets_pcap` refuses it
 with one line saying so.
 """
 
@@ -34,25 +27,21 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
 
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, UnsupportedContainerError
 from lidarpkt.core.packet import Endpoint, PacketBatch
 
+if TYPE_CHECKING:
+    from lidarpkt.core.vendor import DecodeSetup
+
 __all__ = ["PacketExport", "default_endpoints", "time_ordered", "write_packets_pcap"]
 
-# VLP-16 user manual, factory settings: sensor 192.168.1.201, data port 2368, position port 8308,
-# destination broadcast
-VELODYNE_SENSOR = "192.168.1.201"
-VELODYNE_DATA_PORT = 2368
-VELODYNE_POSITION_PORT = 8308
-BROADCAST = "255.255.255.255"
-# an Ouster sensor without a DHCP lease takes a link-local address; the host is the other end
-OUSTER_SENSOR = "169.254.0.2"
-OUSTER_HOST = "169.254.0.1"
-OSF_IDENTIFIER = b"OSF$"  # the flatbuffer file identifier at bytes 8-11 of an OSF file
+# the common lidar default (the factory address and port of most sensors), to broadcast
+DEFAULT_SOURCE = Endpoint("192.168.1.201", 2368)
+DEFAULT_DESTINATION = Endpoint("255.255.255.255", 2368)
 REORDER_WINDOW_NS = 2_000_000_000  # a bag's packets are put in time order within this much capture time
 
 
@@ -65,34 +54,15 @@ class PacketExport:
     defaulted: dict[int, str] = field(default_factory=dict)
 
 
-def _is_osf(path: Path) -> bool:
-    if not path.is_file():
-        return False
-    with path.open("rb") as fh:
-        return fh.read(12)[8:12] == OSF_IDENTIFIER
+def default_endpoints(batch: PacketBatch, setup: DecodeSetup | None = None) -> tuple[Endpoint, Endpoint]:
+    """(source, destination) for a batch whose container kept no addresses: its vendor's factory defaults
+    (by the sensor files of ``setup`` where given), the common lidar default for a stream of no vendor."""
+    from lidarpkt.vendors import registry
 
-
-def default_endpoints(batch: PacketBatch, ouster_metadata: Sequence[Any] = ()) -> tuple[Endpoint, Endpoint]:
-    """(source, destination) for a batch whose container kept no addresses: the vendor defaults of the
-    module doc, chosen by what the packets are (Ouster: by the metadata when given, else its guess)."""
-    from lidarpkt.vendors import ouster
-    from lidarpkt.vendors.ouster.metadata import DEFAULT_IMU_PORT, DEFAULT_LIDAR_PORT
-    from lidarpkt.vendors.velodyne.stream import stream_kind
-
-    kind = stream_kind(batch.payload_size)
-    if kind is not None:
-        port = VELODYNE_DATA_PORT if kind == "data" else VELODYNE_POSITION_PORT
-        return Endpoint(VELODYNE_SENSOR, port), Endpoint(BROADCAST, port)
-    match = ouster.classify(batch, ouster_metadata) if ouster_metadata else None
-    if match is not None:
-        what, md = match
-        port = md.lidar_port if what == "lidar" else md.imu_port
-    else:
-        described = ouster.describe_stream(batch)
-        if described is None:
-            return Endpoint(VELODYNE_SENSOR, VELODYNE_DATA_PORT), Endpoint(BROADCAST, VELODYNE_DATA_PORT)
-        port = DEFAULT_IMU_PORT if described["kind"] == "Ouster IMU" else DEFAULT_LIDAR_PORT
-    return Endpoint(OUSTER_SENSOR, port), Endpoint(OUSTER_HOST, port)
+    match = registry.classify(batch, setup)
+    if match is None:
+        return DEFAULT_SOURCE, DEFAULT_DESTINATION
+    return registry.vendor(match.vendor).endpoints(match)
 
 
 def time_ordered(batches: Iterable[PacketBatch], window_ns: int = REORDER_WINDOW_NS) -> Iterator[PacketBatch]:
@@ -153,37 +123,37 @@ def _release(pending: list[PacketBatch], until_ns: int | None,
 
 
 def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str], *,
-                       metadata: Sequence[Any] = ()) -> PacketExport:
+                       metadata: Any = ()) -> PacketExport:
     """Write every UDP packet of the capture ``path`` to the pcap ``out``, in capture order.
 
     Args:
         path: pcap/pcapng, MCAP, rosbag2 (folder or .db3) or ROS 1 bag.
         out: the pcap to write (overwritten).
-        metadata: Ouster metadata (paths, JSON text or loaded) naming the ports of a bag's Ouster
-            streams; an MCAP's own ``/ouster/metadata`` serves when none is given.
+        metadata: the sensor files (as ``lidarpkt.open`` takes them) whose ports a bag's streams get; a file
+            the capture records serves when none of its vendor's is given.
 
     Returns:
         a :class:`PacketExport`.
 
     Raises:
-        UnsupportedContainerError: an OSF file, or no capture lidarpkt reads.
+        UnsupportedContainerError: a file of decoded frames (OSF), or no capture lidarpkt reads.
         CaptureFormatError: a bag or MCAP without raw packet topics, or a damaged capture (what
             was read before the damage is in ``out``).
     """
-    from lidarpkt.pipeline.options import load_ouster_metadata
-    from lidarpkt.containers import open_packet_source
     from lidarpkt.containers.magic import container_kind
+    from lidarpkt.vendors import registry
     from lidarpkt.writers.pcap import PcapBatchWriter
 
     src_path = Path(path)
-    if _is_osf(src_path):
+    frame_files = registry.frame_files(src_path) if src_path.is_file() else None
+    if frame_files is not None:
         raise UnsupportedContainerError(
-            f"{src_path} is an Ouster OSF file: it holds decoded scans, not the sensor's UDP packets, so there "
+            f"{src_path} is an {frame_files.what}: it holds decoded frames, not the sensor's UDP packets, so there "
             "are no packets to write as a pcap; export --format pcap takes a pcap, pcapng, MCAP or ROS bag "
             "that holds the packets")
     kind = container_kind(src_path)
-    source = open_packet_source(src_path)
-    given = load_ouster_metadata(list(metadata)) if metadata else []
+    source = registry.open_packets(src_path)
+    given = registry.load_sensor_files(list(metadata) if isinstance(metadata, (list, tuple)) else metadata)
     result = PacketExport()
     chosen: dict[int, tuple[Endpoint, Endpoint]] = {}  # a bag's endpoints by payload size
     batches = source.batches() if kind == "pcap" else time_ordered(source.batches())
@@ -193,15 +163,21 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
             if batch.src is None or batch.dst is None:
                 size = batch.payload_size
                 if size not in chosen:
-                    mds = given
-                    if not mds and source.ouster_metadata():  # an MCAP's own, once read past
-                        mds = load_ouster_metadata(source.ouster_metadata())
-                    chosen[size] = default_endpoints(batch, mds)
+                    files = list(given)
+                    recorded = source.recorded_sensor_file()  # an MCAP's own, once read past
+                    if recorded:
+                        f = registry.load_sensor_files([recorded])[0]
+                        if not any(g.vendor == f.vendor for g in files):
+                            files.append(f)
+                    chosen[size] = default_endpoints(batch, registry.setup(files))
                     result.defaulted[size] = f"{chosen[size][0]} → {chosen[size][1]}"
                 src, dst = chosen[size]
             writer.write(batch, src, dst)
     result.packets = writer.packets_written
     if result.packets == 0 and kind != "pcap":
-        raise CaptureFormatError(f"{src_path}: holds no topic of raw sensor packets (velodyne_msgs, "
-                                 "ouster_sensor_msgs, nebula_msgs); there are no packets to write as a pcap")
+        from lidarpkt.vendors import registry
+
+        packages = sorted({t.split("/")[0] for t in registry.bag_messages().packets})
+        raise CaptureFormatError(f"{src_path}: holds no topic of raw sensor packets ({', '.join(packages)}); there "
+                                 "are no packets to write as a pcap")
     return result

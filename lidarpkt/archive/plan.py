@@ -12,7 +12,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 from lidarpkt.errors import LidarpktError
 from lidarpkt.containers.magic import CAPTURE_SUFFIXES, find_captures
@@ -40,6 +40,7 @@ class Capture:
         mtime_ns: modification time, so a re-run redoes an input that changed.
         metadata: Ouster metadata JSONs (paths or URLs) for this input; empty for VLP-16 or when
             none was given or found beside it.
+        open_options: the job's other keyword options of ``lidarpkt.open``, as sorted ``(name, value)`` pairs.
     """
 
     url: str
@@ -47,6 +48,7 @@ class Capture:
     size_bytes: int
     mtime_ns: int = 0
     metadata: tuple[str, ...] = ()
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 def parse_size(text: str | int) -> int:
@@ -194,17 +196,20 @@ def plan_captures(
     *,
     glob: str | None = None,
     metadata: Iterable[str | os.PathLike[str]] = (),
+    open_options: Mapping[str, Any] | None = None,
 ) -> list[Capture]:
     """The captures of a job, each with its unique name and its Ouster metadata: ``metadata``
-    (given once for every input, as ``decode --metadata`` does) or the JSON beside the capture.
+    (given once for every input, as ``decode --metadata`` does) or the JSON beside the capture; and the
+    job's other options of ``lidarpkt.open`` (``open_options``).
 
     Raises:
         PlanError: see :func:`expand_paths`; a ``--metadata`` file that does not exist.
     """
     given = tuple(os.fspath(m) for m in metadata)
+    options = tuple(sorted((open_options or {}).items()))
     for m in given:
         if not is_remote(m) and not os.path.isfile(local_path(m)):
-            raise PlanError(f"--metadata {m}: no such file; give the Ouster sensor's metadata JSON")
+            raise PlanError(f"--metadata {m}: no such file; give the sensor's description file")
     entries = expand_paths(paths, glob=glob)
     names = _unique_names([e[0] for e in entries])
     captures = []
@@ -213,7 +218,8 @@ def plan_captures(
         if not md:
             found = sidecar_metadata(url)
             md = (found,) if found else ()
-        captures.append(Capture(url=url, name=name, size_bytes=size, mtime_ns=mtime, metadata=md))
+        captures.append(Capture(url=url, name=name, size_bytes=size, mtime_ns=mtime, metadata=md,
+                                open_options=options))
     return captures
 
 

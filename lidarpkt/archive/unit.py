@@ -43,6 +43,7 @@ class UnitTask:
         format: a :func:`lidarpkt.writers.open_writer` format name.
         options: writer options as sorted ``(name, value)`` pairs (``layout``, ``frames_per_file``...).
         metadata: Ouster metadata JSONs (paths or URLs).
+        open_options: other keyword options of ``lidarpkt.open``, as sorted ``(name, value)`` pairs.
         segment: a :class:`lidarpkt.containers.segments.Segment`, or None for the whole file.
         part: the segment's name (``seg0003``), None for the whole file.
         size_bytes: bytes this unit reads (for progress), the capture's size when whole.
@@ -62,6 +63,7 @@ class UnitTask:
     part: str | None = None
     size_bytes: int = 0
     ordinals: Any = None
+    open_options: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -112,9 +114,10 @@ class _Counts:
 
 def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) -> Path:
     """Where a unit's writer writes, inside its staging folder: the staging root for Parquet (a
-    dataset partitioned by capture: OUTDIR is the dataset); ``CAPTURE_STEM.FMT`` for one-file
-    formats (npz, mcap, las/laz); a folder ``CAPTURE_STEM/`` for the formats that write a folder
-    (ply, pcd, las/laz with ``frames_per_file``)."""
+    dataset partitioned by capture: OUTDIR is the dataset); ``CAPTURE_STEM.SUFFIX`` for one-file
+    formats (npz, mcap, las/laz, csv, rrd, bag; and the rosbag2 folder, one output as well); a
+    folder ``CAPTURE_STEM/`` for the formats that write a folder (ply, pcd, kitti, las/laz/csv with
+    ``frames_per_file``)."""
     from lidarpkt.writers import FORMATS
 
     stem = Path(capture).stem
@@ -124,7 +127,7 @@ def writer_target(fmt: str, stage: Path, capture: str, options: dict[str, Any]) 
         return stage / f"{stem}.pcap"
     spec = FORMATS.get(fmt)
     if spec is not None and not spec.directory and not options.get("frames_per_file"):
-        return stage / f"{stem}.{fmt}"
+        return stage / f"{stem}{spec.suffixes[0]}"  # .mcap, .npz, .las, .bag, .rosbag2 ...
     return stage / stem
 
 
@@ -151,7 +154,10 @@ def _fetch_input(url: str, scratch: list[str]) -> str:
 
 
 def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
-    """Move complete files from the staging folder to their place under OUTDIR."""
+    """Move complete files from the staging folder to their place under OUTDIR (a folder output, a
+    rosbag2, file by file)."""
+    files = [p for f in files for p in (sorted(x for x in Path(f).rglob("*") if x.is_file()) if Path(f).is_dir()
+                                        else [Path(f)])]
     rels = []
     remote = is_remote(task.output)
     if remote:
@@ -174,14 +180,13 @@ def _publish(files: list[Path], stage: Path, task: UnitTask) -> tuple[str, ...]:
     return tuple(sorted(rels))
 
 
-def _open_frames(path: str, task: UnitTask, metadata: list[str]) -> Any:
-    """The FrameReader of the task's capture (of its segment, when it has one); ``metadata``: local paths."""
-    import lidarpkt
-
-    options: dict[str, Any] = {}
+def _write_capture(path: str, task: UnitTask, metadata: list[str], writer: Any, feed: Any) -> None:
+    """The task's capture (its segment, when it has one) into ``writer``, in one pass (``metadata``: local
+    paths); a segment's frames get the whole file's ordinals."""
+    options: dict[str, Any] = dict(task.open_options)
     if task.segment is not None:
         options["segment"] = task.segment
-    return lidarpkt.open(path, metadata=metadata or None, **options)
+    feed.write(path, [writer], metadata=metadata or None, **options)
 
 
 def _write_pcap(path: str, target: Path, metadata: list[str]) -> list[Path]:
@@ -192,16 +197,14 @@ def _write_pcap(path: str, target: Path, metadata: list[str]) -> list[Path]:
     return [target]
 
 
-def _write_frames(writer: Any, reader: Any, counts: _Counts, task: UnitTask) -> None:
+def _feed(task: UnitTask) -> Any:
+    """The :class:`lidarpkt.writers.feed.Feed` of the task: a segment's frames renumbered to the whole file's."""
+    from lidarpkt.writers.feed import Feed
+
     from .ordinals import renumber_from
 
     renumber = renumber_from(task.ordinals) if task.segment is not None else None
-    with reader:
-        for frame in reader:
-            writer.write(frame if renumber is None else renumber.frame(frame))
-            counts.frames += 1
-            counts.lost += frame.counters.lost_packets
-            counts.malformed += frame.counters.malformed_packets
+    return Feed(map_frame=None if renumber is None else renumber.frame)
 
 
 def _reader_counts(reader: Any) -> tuple[int, int]:
@@ -221,7 +224,7 @@ def run_unit(task: UnitTask) -> UnitResult:
         a :class:`UnitResult`; ``error`` says what was wrong with the input or the output, and
         ``outputs`` are then the files of the frames decoded before the damage (possibly none).
     """
-    from lidarpkt.writers import open_writer
+    from lidarpkt.writers import open_writer, takes_packets
 
     start, cpu_start = time.perf_counter(), time.process_time()
     counts = _Counts()
@@ -237,7 +240,8 @@ def run_unit(task: UnitTask) -> UnitResult:
     options = dict(task.options)
     error: str | None = None
     outputs: tuple[str, ...] = ()
-    reader = writer = None
+    writer = None
+    feed = _feed(task)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", LidarpktWarning)
@@ -248,18 +252,21 @@ def run_unit(task: UnitTask) -> UnitResult:
                 if task.format == "pcap":  # the raw packets back in a pcap
                     outputs = _publish(_write_pcap(local, target, metadata), stage, task)
                 else:
-                    reader = _open_frames(local, task, metadata)
-                    if task.format == "mcap":  # decode's output: the capture's raw packets (read from it), clouds
-                        options = {"topics": DECODE_TOPICS, "capture": local, **options, "metadata": metadata or None}
+                    if takes_packets(task.format):  # decode's output: the capture's raw packets (of the one pass), clouds
+                        from lidarpkt.writers.mcap.frames import calibration_file
+
+                        options = {"topics": DECODE_TOPICS, "capture": local, **options,
+                                   "calibration": calibration_file(metadata)}
                     else:
                         options = {"capture": task.capture, **options}
                     writer = open_writer(task.format, target, part=task.part, **options)
-                    _write_frames(writer, reader, counts, task)
+                    _write_capture(local, task, metadata, writer, feed)
             except OutputError as exc:  # nothing of this unit can be trusted
                 error = str(exc)
-                counts.frames = 0
+                feed.frames = 0
             except (LidarpktError, OSError) as exc:  # damaged input: keep the frames before the damage
                 error = _input_error(task, exc)
+        counts.frames, counts.lost, counts.malformed = feed.frames, feed.lost_packets, feed.malformed_packets
         counts.messages = [str(w.message) for w in caught if issubclass(w.category, LidarpktWarning)][:20]
         if writer is not None and counts.frames:
             counts.points = int(getattr(writer, "points_written", 0))
@@ -268,14 +275,14 @@ def run_unit(task: UnitTask) -> UnitResult:
             except LidarpktError as exc:
                 error, outputs = error or str(exc), ()
     finally:
-        if reader is not None:
-            reader.close()
+        if feed.last is not None:
+            feed.last.close()
         if writer is not None and not outputs:
             writer.abort()
         shutil.rmtree(stage, ignore_errors=True)
         for folder in scratch:
             shutil.rmtree(folder, ignore_errors=True)
-    skipped, malformed = _reader_counts(reader)
+    skipped, malformed = _reader_counts(feed.last.reader if feed.last is not None else None)
     return UnitResult(
         key=task.key, input=task.input, part=task.part, outputs=outputs, frames=counts.frames if outputs else 0,
         points=counts.points if outputs else 0, lost_packets=counts.lost, skipped_packets=skipped,

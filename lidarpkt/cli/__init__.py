@@ -21,8 +21,8 @@ VERBS: dict[str, tuple[str, str]] = {
     "catalog": ("lidarpkt.cli.archive", "one row per capture file and sensor stream of an archive, in parallel"),
     "export": ("lidarpkt.cli.archive", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
     "decode": ("lidarpkt.cli.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
-    "record": ("lidarpkt.recorder.record", "record a live sensor (and a serial GPS) to MCAP"),
-    "replay": ("lidarpkt.recorder.replay", "send a capture's packets over UDP at the original pace"),
+    "record": ("lidarpkt.cli.record", "record a live sensor (and a serial GPS) to MCAP"),
+    "replay": ("lidarpkt.cli.replay", "send a capture's packets over UDP at the original pace"),
     "view": ("lidarpkt.cli.view", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
     "analyze": ("lidarpkt.cli.analysis", "range CDFs, motion compensation and GMMs of chosen raypaths"),
     "multireturn": ("lidarpkt.cli.analysis", "whole-image multi-return statistics and monitor flags"),
@@ -56,7 +56,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     filled in, so that ``lidarpkt --help`` imports no verb module (``"*"`` fills them all)."""
     parser = _Parser(
         prog="lidarpkt",
-        description="Decode, record and analyse Velodyne VLP-16 and Ouster OS1 lidar packets.",
+        description="Decode, record and analyse the UDP packets of spinning lidars.",
     )
     # says which implementation runs: the compiled kernels, or why not (their NumPy twins are slower)
     parser.add_argument("--version", action=_VersionAction)

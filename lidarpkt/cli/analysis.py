@@ -7,6 +7,8 @@ Ouster pcaps), stacks its complete frames on one column grid, and reports. Error
 
 from __future__ import annotations
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 import argparse
 import json
 import math
@@ -18,7 +20,7 @@ import numpy as np
 from lidarpkt.errors import AnalysisError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameStack
+    from lidarpkt.core.sequence import FrameStack
 
 # ---------------------------------------------------------------------------- helpers
 
@@ -28,7 +30,8 @@ def _check_outputs(args: argparse.Namespace, *, output_suffixes: tuple[str, ...]
     from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([p for p in (args.input, getattr(args, "input2", None)) if p])
-    cliargs.check_inputs((args.metadata or []) + (getattr(args, "metadata2", None) or []), "--metadata")
+    cliargs.sensor_options(args)
+    cliargs.check_inputs(getattr(args, "metadata2", None) or (), "--metadata2")
     if output_suffixes:
         cliargs.check_output(args.output, "-o", output_suffixes)
     if hasattr(args, "json"):
@@ -80,17 +83,23 @@ def _write_json(args: argparse.Namespace, doc: dict) -> None:
         _status(args, f"wrote {written}")
 
 
-def _load(path: str, metadata: list[str] | None, frames: str | None, grid: float | None = None, workers: int = 1):
+def _load(path: str, args: argparse.Namespace, workers: int = 1, metadata: list[str] | None = None):
+    """The stack of ``path`` with the verb's sensor options (``metadata``: IN2's own, ``--metadata2``),
+    ``--frames`` and ``--grid``."""
     from lidarpkt.analysis.stack import load_stack, parse_frame_range
 
     from lidarpkt.cli import args as cliargs
 
     cliargs.check_inputs([path])
-    cliargs.check_inputs(metadata or (), "--metadata")
+    options = cliargs.sensor_options(args)
+    if metadata:
+        options["metadata"] = metadata
+    grid = args.grid
     if grid is not None and grid <= 0:
         raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
+    frames = getattr(args, "frames", None)
     rng = parse_frame_range(frames) if frames else None
-    return load_stack(path, metadata=metadata, frames=rng, resolution_deg=grid, workers=workers)
+    return load_stack(path, frames=rng, resolution_deg=grid, workers=workers, **options)
 
 
 def _check_pixel(stack, row: int, col: int, slot: int) -> None:
@@ -127,28 +136,30 @@ def _source(path: str, stack) -> str:
 def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p)
+    cliargs.add_sensor_options(p)
     cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
     p.add_argument("--grid", metavar="DEG", type=float, default=None,
-                   help="VLP-16 azimuth grid in degrees (default: from the firing rate, 0.2 at 10 Hz, 0.4 at 20 Hz, "
-                        "as decode -o x.npz and FrameStack.from_frames); Ouster frames keep their columns")
+                   help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's, from "
+                        "its firing rate, as decode -o x.npz and FrameStack.from_frames); frames whose columns are "
+                        "their encoder's keep them")
 
 
 # ---------------------------------------------------------------------------- analyze
 
 
 def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", help="capture: pcap/pcapng, MCAP, ROS bag or OSF")
+    p.add_argument("input", metavar="IN", help=f"capture: {CAPTURES_TEXT}")
     from lidarpkt.cli import args as cliargs
 
     cliargs.add_workers(p)
-    cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; Ouster column = measurement id); "
-                                             "repeatable")
+    cliargs.add_pixel(p, required=True, help="raypath to analyse (row 0 = top beam; the column as the frame's: a "
+                                             "measurement id where columns are the encoder's); repeatable")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return: strongest, last or second_strongest, selected per firing as the sensor defines "
-                        "them (VLP-16 dual: slot 1 holds the second strongest where the last was the strongest), "
+                        "them (a last+strongest dual mode: slot 1 holds the second strongest where the last was the "
+                        "strongest), "
                         "or a raw slot index (0, 1); default 0")
     _add_input(p)
     p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
@@ -174,7 +185,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     selection = parse_return(args.slot)
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    stack = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
+    stack = _load(args.input, args, args.workers)
     stack, slot = resolve(stack, selection)
     for r, c in pixels:
         _check_pixel(stack, r, c, slot)
@@ -217,7 +228,7 @@ def run_analyze(args: argparse.Namespace) -> int:
 
 
 def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="IN", nargs="+", help="capture: pcap/pcapng, MCAP, ROS bag or OSF; several captures "
+    p.add_argument("input", metavar="IN", nargs="+", help=f"capture: {CAPTURES_TEXT}; several captures "
                    "or a folder (or --workers/--scheduler): -o is a folder of maps and summary.csv "
                    "(lidarpkt.archive.multireturn_maps)")
     from lidarpkt.cli import args as cliargs
@@ -247,13 +258,13 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
-                        "map's returns (a VLP-16 dual map has last, strongest, second_strongest); default 0")
+                        "map's returns (a last+strongest dual map has last, strongest, second_strongest); default 0")
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
     if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers is not None or args.scheduler:
         # an archive: one map per capture, in parallel
-        from lidarpkt.archive.multireturn import run_multireturn_archive
+        from lidarpkt.cli.archive import run_multireturn_archive
 
         return run_multireturn_archive(args)
     args.input = args.input[0]
@@ -274,7 +285,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
         from lidarpkt.cli import args as cliargs
 
         cliargs.check_output(args.gmm_map, "--gmm-map", (".npz", ".parquet"))
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args)
     stack = sensor_returns(stack)  # the returns as the sensor defines them
     mr = multireturn_map(stack, gap_m=gap, neighbourhood=args.neighbourhood, monitor_frame=args.monitor_frame,
                          threshold_m=args.threshold, method=method)
@@ -332,7 +343,7 @@ def add_compare_returns_arguments(p: argparse.ArgumentParser) -> None:
     cliargs.add_json(p, "the comparison as one JSON document")
     cliargs.add_plot(p)
     _add_input(p)
-    p.add_argument("--metadata2", action="append", metavar="M.json", help="Ouster metadata JSON of IN2 (default: --metadata)")
+    p.add_argument("--metadata2", action="append", metavar="FILE", help="a sensor's file of IN2 (default: --metadata)")
     cliargs.add_pixel(p, required=False, help="raypath whose temporal CDFs to compare in detail; repeatable")
     p.add_argument("--return", dest="slot", metavar="RETURN", default=None,
                    help="with IN2: the return of IN to compare: strongest, last, second_strongest (per firing, as "
@@ -373,7 +384,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         raise AnalysisError(f"--plot {args.plot}: compare-returns writes several figures; give a folder")
     _check_outputs(args)
     print = _say(args)  # noqa: A001 - the report's own print
-    a = _load(args.input, args.metadata, args.frames, args.grid, args.workers)
+    a = _load(args.input, args, args.workers)
     for r, c in pixels:  # before any heavy work
         _check_pixel(a, r, c, 0)
     src_a = _source(args.input, a)
@@ -404,7 +415,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
                                               f"returns, per raypath — {src_a}", "fraction of frames", a, vmax=1.0),
                          "two_returns.png"))
     else:
-        b = _load(args.input2, args.metadata2 or args.metadata, args.frames, args.grid, args.workers)
+        b = _load(args.input2, args, args.workers, metadata=args.metadata2)
         doc["inputs"].append(args.input2)
         doc["frames"] = [len(a), len(b)]
         sel_a, sel_b = _pair_returns(a, b, sel_a, sel_b)

@@ -9,7 +9,9 @@ Every verb builds its options from these helpers, so a flag means the same thing
                        ``.parquet`` or ``.json``). Where ``-o`` names another output (record's MCAP),
                        ``--report FILE.json`` writes the JSON. ``--json -o F.json`` does both.
 ``--plot DIR``         always a folder for figures (created if missing; its parent must exist).
-``--metadata M.json``  repeatable, one per Ouster sensor.
+``--metadata FILE``    repeatable, one per sensor: any vendor's description file, told apart by content
+                       (``--calibration FILE`` is a second spelling); ``--model NAME`` where packets
+                       cannot tell the model (:func:`add_sensor_options`, :func:`sensor_options`).
 ``-q/--quiet``         no progress bar and no status lines.
 ``--workers N``        parallelism of the verbs that decode.
 ``--pixel ROW,COL``    a raypath; repeatable where several make sense.
@@ -32,14 +34,15 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
-from lidarpkt.errors import InputFileError, OutputError, UsageError
+from lidarpkt.errors import InputFileError, LidarpktError, OutputError, UsageError
 
 __all__ = [
-    "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_metadata", "add_quiet", "add_workers", "add_pixel",
+    "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_sensor_options",
+    "sensor_options", "add_quiet", "add_workers", "add_pixel",
     "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
-    "discard_outputs", "error_line", "show_progress", "Progress", "StopSignals",
+    "discard_outputs", "error_line",
 ]
 
 JSON_STDOUT = "-"
@@ -220,13 +223,6 @@ def add_plot(parser: argparse.ArgumentParser, help: str = "write the figures (PN
     parser.add_argument("--plot", metavar="DIR", help=help)
 
 
-def add_metadata(parser: argparse.ArgumentParser, help: str | None = None) -> None:
-    """``--metadata M.json``, repeatable: one per Ouster sensor (VLP-16 needs none)."""
-    parser.add_argument("--metadata", action="append", default=None, metavar="M.json",
-                        help=help or "Ouster metadata JSON of a sensor in the input; repeat for several sensors "
-                                     "(VLP-16 needs none; MCAP files recorded by lidarpkt carry it)")
-
-
 def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and no status lines") -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help=help)
 
@@ -258,6 +254,76 @@ def preparse_pixel(argv: list[str]) -> list[str]:
         out.append(a)
         i += 1
     return out
+
+
+# ------------------------------------------------------------------------------ sensor options
+class _SensorFile(argparse.Action):
+    """``--metadata FILE`` and ``--calibration FILE``: one list of files, each remembered with the flag that
+    named it (the errors name the flag the user wrote)."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        files = list(getattr(namespace, "metadata", None) or [])
+        namespace.metadata = files + [value]
+        flags = dict(getattr(namespace, "_sensor_flags", None) or {})
+        flags.setdefault(value, option_string or "--metadata")
+        namespace._sensor_flags = flags
+
+
+def add_sensor_options(parser: argparse.ArgumentParser, help: str | None = None) -> None:
+    """The sensor options of every verb that opens a capture: ``--metadata FILE`` (repeatable, one per
+    sensor, any vendor's description file; ``--calibration FILE`` is a second spelling) and ``--model
+    NAME``. :func:`sensor_options` turns them into the library's options."""
+    parser.add_argument("--metadata", action=_SensorFile, default=None, metavar="FILE",
+                        help=help or "a sensor's description file (its metadata or calibration, of any vendor, told "
+                                     "apart by its content); repeat, one per sensor (sensors whose packets say "
+                                     "enough need none; MCAP files recorded by lidarpkt carry theirs)")
+    parser.add_argument("--calibration", action=_SensorFile, dest="metadata", metavar="FILE",
+                        help="a second spelling of --metadata (the same files, told apart by content)")
+    parser.add_argument("--model", "--velodyne-model", dest="model", metavar="NAME",
+                        help="the sensor model where its packets cannot tell it (two models sharing a factory "
+                             "byte); the second spelling is the former one")
+    parser.set_defaults(_sensor_flags={})
+
+
+def sensor_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The sensor options of the command line (:func:`add_sensor_options`) as the keyword options of
+    ``lidarpkt.open``: every file to ``metadata`` (each checked: it exists, and it is a sensor file of some
+    vendor, told apart by its content), the model to ``model`` (a model some vendor has), before any work.
+
+    Raises:
+        lidarpkt.errors.InputFileError: a file that does not exist.
+        lidarpkt.errors.UsageError: a file of no known kind (or that its vendor cannot read), an unknown model;
+            the message names the flag the user wrote.
+    """
+    from lidarpkt.vendors import registry
+
+    flags = getattr(args, "_sensor_flags", None) or {}
+    files: list[str] = []
+    for path in getattr(args, "metadata", None) or ():
+        flag = flags.get(path, "--metadata")
+        if "://" not in path:  # a URL (archive jobs) is read where the capture is read
+            check_inputs([path], flag)
+            try:
+                registry.load_sensor_files([path])
+            except LidarpktError as exc:
+                raise UsageError(f"{flag} {_after_name(str(exc), path)}") from None
+        files.append(path)
+    options: dict[str, Any] = {}
+    if files:
+        options["metadata"] = files
+    model = getattr(args, "model", None)
+    if model:
+        try:
+            registry.check_model(model)
+        except UsageError as exc:
+            raise UsageError(f"--model {model}: {str(exc).split(': ', 1)[1]}") from None
+        options["model"] = model
+    return options
+
+
+def _after_name(message: str, path: str) -> str:
+    """``"PATH: what"`` of a library message about ``path`` (the path in front once, whatever the message)."""
+    return message if message.startswith(path) else f"{path}: {message}"
 
 
 # ------------------------------------------------------------------------------ checks
@@ -364,95 +430,3 @@ def error_line(exc: BaseException) -> str:
     """The one line the CLI prints for an error."""
     text = " ".join(str(exc).split())  # one line whatever the message held
     return f"lidarpkt: error: {text}"
-
-
-# ------------------------------------------------------------------------------ progress
-def show_progress(quiet: bool) -> bool:
-    """Progress bars only on a terminal and without ``-q``."""
-    return not quiet and sys.stderr.isatty()
-
-
-class Progress:
-    """The progress bar of every verb (tqdm on stderr): bytes of the input read when known, else a
-    count, with a status text (``"52 frames"``) beside it. Off with ``-q`` or off a terminal."""
-
-    def __init__(self, quiet: bool, *, total: int | None = None, unit: str = "B", desc: str = "") -> None:
-        from tqdm import tqdm
-
-        enabled = show_progress(quiet)
-        try:  # a terminal that reports no size (a bare pty) would get no bar at all from tqdm
-            size = os.get_terminal_size(sys.stderr.fileno())
-            sized = size.columns > 0 and size.lines > 0
-        except OSError:
-            sized = False
-        self.bar = tqdm(total=total or None, unit=unit, unit_scale=True, unit_divisor=1024 if unit == "B" else 1000,
-                        desc=desc, disable=not enabled, file=sys.stderr, dynamic_ncols=sized,
-                        ncols=None if sized else 80, nrows=None if sized else 24, leave=False, mininterval=0.1)
-
-    def update(self, done: int | None, status: str = "") -> None:
-        """``done``: how far (bytes or items) from the start, ``None`` if unknown; ``status``: text after the bar."""
-        if self.bar.disable:
-            return
-        if done is not None and done != self.bar.n:
-            self.bar.update(done - self.bar.n)
-        if status:
-            self.bar.set_postfix_str(status, refresh=False)
-
-    def close(self) -> None:
-        self.bar.close()
-
-    def __enter__(self) -> "Progress":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-class StopSignals:
-    """SIGINT and SIGTERM ask a long-running verb (``record``, ``view``) to stop: it finishes cleanly
-    (closes its files with their index, says its summary) instead of dying mid-write.
-
-    ``with StopSignals() as stop:`` (or :meth:`install` … :meth:`restore`) installs the handlers (in the main thread only: elsewhere signals
-    cannot be handled) and puts the previous ones back at the end. ``stop.event`` is set and
-    ``stop.reason`` names the signal on the first one; with ``second_interrupt_raises``, a second
-    Ctrl-C raises :class:`KeyboardInterrupt` (stop now)."""
-
-    def __init__(self, *, second_interrupt_raises: bool = False) -> None:
-        import threading
-
-        self.event = threading.Event()
-        self.reason: str | None = None
-        self.second_interrupt_raises = second_interrupt_raises
-        self._previous: dict = {}
-
-    def __call__(self, signum, _frame) -> None:
-        import signal
-
-        if self.reason is not None and self.second_interrupt_raises and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        self.reason = signal.Signals(signum).name
-        self.event.set()
-
-    def install(self) -> "StopSignals":
-        """Handle SIGINT and SIGTERM from now on (main thread only); returns self."""
-        import signal
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.signal(sig, self)
-        return self
-
-    def restore(self) -> None:
-        """Put the previous handlers back. Idempotent."""
-        import signal
-
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous.clear()
-
-    def __enter__(self) -> "StopSignals":
-        return self.install()
-
-    def __exit__(self, *exc) -> None:
-        self.restore()

@@ -29,30 +29,31 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
 
 if TYPE_CHECKING:
-    from lidarpkt.core.frame import FrameIterator
+    from lidarpkt.writers.feed import Feed
 
 TOPIC_GROUPS = ("packets", "points", "images")  # lidarpkt.writers.mcap.frames.TOPIC_GROUPS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from lidarpkt.cli import args as cliargs
+    from lidarpkt.containers.magic import CAPTURES_TEXT
     from lidarpkt.writers import SUFFIXES
 
-    parser.add_argument("inputs", nargs="+", metavar="IN", help="pcap/pcapng, MCAP or ROS bag with raw packet topics, or OSF file (decoded frames)")
+    parser.add_argument("inputs", nargs="+", metavar="IN", help=f"captures ({CAPTURES_TEXT}; bags and MCAP with raw "
+                                                                "packet topics)")
     cliargs.add_output(parser, SUFFIXES,
-                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, "
-                            "OUT.ply / OUT.pcd (folders of one file per frame): the suffix chooses the format")
-    cliargs.add_metadata(parser)
-    parser.add_argument("--calibration", metavar="FILE", help="Velodyne calibration (ROS YAML or VeloView XML), or a Hesai "
-                        "Pandar's angle-correction CSV")
-    parser.add_argument("--velodyne-model", metavar="NAME",
-                        help="Velodyne model when the packets cannot say it (VLP-32A or VLP-32B, Puck LITE, HDL-64E S2)")
+                       help="OUT.mcap or OUT.npz; or OUT.parquet (a dataset folder), OUT.las, OUT.laz, OUT.csv, "
+                            "OUT.ply / OUT.pcd / OUT.kitti (folders of one file per frame), OUT.rrd (Rerun), "
+                            "OUT.bag (ROS 1), OUT.rosbag2 (a rosbag2 folder): the suffix chooses the format")
+    cliargs.add_sensor_options(parser)
     parser.add_argument("--topics", default="packets,points", metavar="LIST",
-                        help=f"MCAP: comma-separated groups among {', '.join(TOPIC_GROUPS)} (packets,points)")
+                        help=f"MCAP and ROS bags: comma-separated groups among {', '.join(TOPIC_GROUPS)} "
+                             "(packets,points)")
+    parser.add_argument("--storage", choices=("sqlite3", "mcap"),
+                        help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
     parser.add_argument("--grid", type=float, metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
@@ -60,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", choices=("points", "frames"),
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
     parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
-                        help="LAS/LAZ: one file per N frames in the folder OUT (default: one file)")
+                        help="LAS/LAZ/CSV: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
 
@@ -70,8 +71,8 @@ def add_frame_arguments(parser: argparse.ArgumentParser) -> None:
     that writes point clouds (pass :func:`frame_options` of the parsed args to the MCAP writer)."""
     parser.add_argument("--frame-id", action="append", metavar="NAME",
                         help="MCAP: the frame_id of a sensor's clouds and images; repeat once per sensor "
-                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: velodyne, "
-                             "os_sensor)")
+                             "(in order of appearance) or give SERIAL=NAME / ADDRESS=NAME (default: the vendor's ROS "
+                             "driver's)")
     parser.add_argument("--base-frame", metavar="NAME",
                         help="MCAP: write each sensor's mount on this frame to /tf_static")
     parser.add_argument("--mount", action="append", metavar="X,Y,Z,ROLL,PITCH,YAW",
@@ -84,48 +85,40 @@ def frame_options(args: argparse.Namespace) -> dict:
     return {"frame_ids": args.frame_id, "base_frame": args.base_frame, "mounts": args.mount}
 
 
-def _bytes_read(reader) -> int | None:
-    stats = getattr(getattr(reader, "reader", None), "stats", None)
-    return getattr(stats, "bytes_read", None)
+def _open_options(args) -> dict[str, Any]:
+    """The ``lidarpkt.open`` options of the flags."""
+    from lidarpkt.cli import args as cliargs
+
+    return {"workers": getattr(args, "workers", 1), **cliargs.sensor_options(args)}
 
 
-def _open_frames(path: str, args) -> FrameIterator:
-    import lidarpkt
+def _feed(args) -> tuple[Feed, Any]:
+    """The pass of every input (:class:`lidarpkt.writers.feed.Feed`) and its progress bar (bytes of the inputs)."""
+    from lidarpkt.cli import console
+    from lidarpkt.writers.feed import Feed
 
-    options: dict[str, Any] = {}
-    if args.calibration:
-        options["calibration"] = args.calibration
-    if getattr(args, "velodyne_model", None):
-        from lidarpkt.vendors.velodyne.models import MODELS, model_named
-
-        try:
-            model_named(args.velodyne_model)
-        except LidarpktError as exc:
-            raise UsageError(f"--velodyne-model {args.velodyne_model}: no such Velodyne model; give one of "
-                             f"{', '.join(m.name for m in MODELS)}") from exc
-        options["velodyne_model"] = args.velodyne_model
-    return lidarpkt.open(path, metadata=args.metadata, workers=getattr(args, "workers", 1), **options)
+    total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
+    progress = console.Progress(args.quiet, total=total, desc="decode")
+    return Feed(progress=lambda done, frames: progress.update(done, f"{frames} frames")), progress
 
 
 def run(args: argparse.Namespace) -> int:
     from lidarpkt.cli import args as cliargs
-    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix
+    from lidarpkt.writers import FORMATS, SUFFIXES, format_from_suffix, takes_packets
 
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
-    cliargs.check_inputs(args.metadata or (), "--metadata")
-    if args.calibration:
-        cliargs.check_inputs([args.calibration], "--calibration")
+    cliargs.sensor_options(args)  # the sensor files and model checked before any work
     if args.grid is not None and not args.grid > 0:
         raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
                          "e.g. --grid 0.2")
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
-    if fmt in ("mcap", "npz"):
+    if fmt == "npz" or takes_packets(fmt):
         _format_options(args, fmt)  # rejects the flags of other formats
-    if fmt == "mcap":
-        return _to_mcap(args, out)
+    if takes_packets(fmt):  # MCAP, ROS bags: the capture's packets too
+        return _to_mcap(args, out, fmt)
     if fmt == "npz":
         return _to_npz(args, out)
     # folder outputs (parquet, ply, pcd, las/laz per N frames) get one writer per input, named by it
@@ -133,76 +126,68 @@ def run(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- MCAP
-def _to_mcap(args, out: Path) -> int:
-    """The MCAP writer of :func:`lidarpkt.writers.open_writer`, fed with ``lidarpkt.open``'s frames of each
-    input: what a script writes with the library (the writer reads each input's packets itself)."""
-    from lidarpkt.cli import args as cliargs
+def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
+    """The MCAP (or ROS bag) writer of :func:`lidarpkt.writers.open_writer`, given each input's packets and frames
+    in one pass (:func:`lidarpkt.writers.write_captures`): what a script writes with the library."""
     from lidarpkt.writers import open_writer
-    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS
+    from lidarpkt.writers.mcap.frames import TOPIC_GROUPS, calibration_file
 
     groups = {g.strip() for g in args.topics.split(",") if g.strip()}
     unknown = groups - set(TOPIC_GROUPS)
     if unknown or not groups:
         raise UsageError(f"--topics {args.topics!r}: choose among {', '.join(TOPIC_GROUPS)}")
-    frames_too = bool(groups & {"points", "images"})
-    sizes = {p: Path(p).stat().st_size if Path(p).is_file() else 0 for p in args.inputs}
-    progress = cliargs.Progress(args.quiet, total=sum(sizes.values()) * (2 if "packets" in groups and frames_too else 1),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
-    with open_writer("mcap", out, capture=args.inputs[0], topics=groups, metadata=args.metadata,
-                     calibration=args.calibration, **frame_options(args)) as writer:
+    options = _open_options(args)
+    feed, progress = _feed(args)
+    with open_writer(fmt, out, capture=args.inputs[0], topics=groups,
+                     calibration=calibration_file(options.get("metadata", ())),
+                     **frame_options(args), **_format_options(args, fmt)) as writer:
         for path in args.inputs:
-            before = counts["done_before"]
-            writer.add_capture(path, progress=lambda b, before=before: progress.update(
-                before + b, f"{counts['frames']} frames"))
-            if "packets" in groups:
-                counts["done_before"] += sizes[path]
-            if frames_too:
-                _write_frames(writer, path, args, progress, counts)
+            feed.write(path, [writer], **options)
     writer.close()
     progress.close()
     if not args.quiet:  # packet messages first: the count `lidarpkt info` gives for the file
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({counts['frames']} frames) in {out} ({os.path.getsize(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({feed.frames} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
+
+
+def _size_bytes(path: Path) -> int:
+    """A file's size, or the sum of a folder's files (a rosbag2)."""
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else os.path.getsize(path)
 
 
 # ------------------------------------------------------------------------------ NPZ
 def _to_npz(args, out: Path) -> int:
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    n = 0
-    done_before = 0
+    options = _open_options(args)
+    feed, progress = _feed(args)
     with open_writer("npz", out, grid=args.grid, compress=args.compress) as writer:
         for path in args.inputs:
-            reader = _open_frames(path, args)
-            for frame in reader:
-                writer.write(frame)
-                n += 1
-                b = _bytes_read(reader)
-                progress.update(None if b is None else done_before + b, f"{n} frames")
-            done_before += Path(path).stat().st_size if Path(path).is_file() else 0
+            feed.write(path, [writer], **options)
         progress.close()
-        if not n:
+        if not feed.frames:
             raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {n} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
     return 0
 
 
 # ----------------------------------------------------------- Parquet, LAS/LAZ, PLY, PCD
 def _format_options(args, fmt: str) -> dict:
     """The writer options of ``fmt`` from the flags; a flag of another format is an error."""
+    from lidarpkt.writers import accepted_options
+
     if args.layout is not None and fmt != "parquet":
         raise RecorderError(f"--layout {args.layout}: only Parquet outputs have layouts (-o OUT.parquet)")
-    if args.frames_per_file is not None and fmt not in ("las", "laz"):
-        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ outputs (-o OUT.las)")
+    if args.frames_per_file is not None and "frames_per_file" not in accepted_options(fmt):
+        raise RecorderError(f"--frames-per-file {args.frames_per_file}: only for LAS/LAZ/CSV outputs (-o OUT.las)")
+    if getattr(args, "storage", None) is not None:
+        if "storage" not in accepted_options(fmt):
+            raise RecorderError(f"--storage {args.storage}: only rosbag2 outputs have storages (-o OUT.rosbag2)")
+        return {"storage": args.storage}
     if fmt == "parquet":
         return {"layout": args.layout or "points"}
     if args.frames_per_file is not None:
@@ -217,39 +202,27 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     writer for all inputs."""
     from lidarpkt.writers import open_writer
 
-    from lidarpkt.cli import args as cliargs
-
     options = _format_options(args, fmt)
-    progress = cliargs.Progress(args.quiet, total=sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file()),
-                                desc="decode")
-    counts = {"frames": 0, "done_before": 0}
+    open_options = _open_options(args)
+    feed, progress = _feed(args)
     written: list[Path] = []
     if per_input:
         for path in args.inputs:
             with open_writer(fmt, out, capture=path, **options) as writer:
-                _write_frames(writer, path, args, progress, counts)
+                feed.write(path, [writer], **open_options)
             written += writer.close()
     else:
         with open_writer(fmt, out, capture=args.inputs[0], **options) as writer:
             for path in args.inputs:
-                _write_frames(writer, path, args, progress, counts)
+                writer.capture = Path(path).name  # the input of the frames that follow (CSV's capture column)
+                feed.write(path, [writer], **open_options)
         written = writer.close()
     progress.close()
-    if not counts["frames"]:
+    if not feed.frames:
         raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {counts['frames']} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {feed.frames} frames in {len(written)} file(s) under {out}", file=sys.stderr)
     return 0
-
-
-def _write_frames(writer, path: str, args, progress, counts: dict) -> None:
-    reader = _open_frames(path, args)
-    for frame in reader:
-        writer.write(frame)
-        counts["frames"] += 1
-        b = _bytes_read(reader)
-        progress.update(None if b is None else counts["done_before"] + b, f"{counts['frames']} frames")
-    counts["done_before"] += Path(path).stat().st_size if Path(path).is_file() else 0
 
 
 # ------------------------------------------------------------------------------ Python API
@@ -258,8 +231,8 @@ def decode_captures(inputs: list[str | os.PathLike[str]], output: str | os.PathL
     """The ``decode`` verb from Python: ``inputs`` → ``output`` (the suffix chooses the format).
 
     ``options`` are the verb's flags by their Python names, with the CLI's defaults: ``metadata``
-    (list of paths), ``calibration``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
-    ``layout``, ``frames_per_file``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
+    (list of paths of any vendor's sensor description files), ``model``, ``topics`` (``"packets,points"``), ``grid``, ``compress``,
+    ``layout``, ``frames_per_file``, ``storage``, ``frame_id`` (list), ``base_frame``, ``mount`` (list of
     ``"x,y,z,roll,pitch,yaw"``). Raises the verb's :class:`~lidarpkt.errors.LidarpktError` s, and
     :class:`~lidarpkt.errors.OutputError` for an unknown option.
     """

@@ -3,6 +3,8 @@ matching, with and without the raypaths the monitor flags (:mod:`analysis.regist
 
 from __future__ import annotations
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 import argparse
 import json
 from pathlib import Path
@@ -14,12 +16,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from lidarpkt.analysis.multireturn import MONITOR_METHODS
     from lidarpkt.analysis.registration import ALGORITHMS, MODES
 
-    p.add_argument("input", metavar="CAPTURE", help="capture of a stationary sensor: pcap/pcapng, MCAP, ROS bag or OSF")
+    p.add_argument("input", metavar="CAPTURE", help=f"capture of a stationary sensor: {CAPTURES_TEXT}")
     from lidarpkt.cli import args as cliargs
 
-    cliargs.add_metadata(p)
+    cliargs.add_sensor_options(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
-    p.add_argument("--grid", metavar="DEG", type=float, default=None, help="VLP-16 azimuth grid in degrees (default 0.2 at 10 Hz)")
+    p.add_argument("--grid", metavar="DEG", type=float, default=None, help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return to register: strongest, last, second_strongest or a slot index (default 0)")
     cliargs.add_json(p, "the results as one JSON document")
@@ -69,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         from lidarpkt.analysis.gmm_map import load_gmm_map
 
         gmm_map = load_gmm_map(args.map)
-    stack = _load(args.input, args.metadata, args.frames, args.grid)
+    stack = _load(args.input, args)
     map_range = None
     if gmm_map is not None:
         map_range = gmm_map.map_range_mm(stack)

@@ -5,7 +5,7 @@ capture's own pace (``--rate``, ``--loop``) once a client has subscribed, and th
 serving after the end until interrupted. Without SOURCE it receives a live sensor with the
 flags and receive path of ``lidarpkt record`` (``--port``, ``--bind``, ``--multicast``,
 ``--metadata``, ``--sensor``); decoding and publishing run off the receive path (see
-:mod:`lidarpkt.view.tap`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
+:mod:`lidarpkt.pipeline.live`). Ctrl-C or SIGTERM stops it; exit status 0, or 2 on an error.
 """
 
 from __future__ import annotations
@@ -15,40 +15,48 @@ import sys
 import threading
 import time
 
+from lidarpkt.containers.magic import CAPTURES_TEXT
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from lidarpkt.recorder.record import add_receive_arguments
-
-    from lidarpkt.view.server import add_ws_argument
+    from . import args as cliargs
+    from .live import add_receive_arguments, add_ws_argument
 
     parser.add_argument("source", nargs="?", metavar="SOURCE",
-                        help="capture to show (pcap/pcapng, MCAP, ROS bag, OSF); without it, a live sensor")
+                        help=f"capture to show ({CAPTURES_TEXT}); without it, a live sensor")
     add_ws_argument(parser)
+    parser.add_argument("--rerun", nargs="?", const="web", metavar="TARGET",
+                        help="show it in Rerun's viewer instead of Foxglove: web (the default: Rerun's web viewer "
+                             "served on http://localhost:9090, data on port 9876; web:PORT, web:0 = any free "
+                             "ports), spawn (the native viewer), a rerun+http:// address, or FILE.rrd (needs "
+                             "pip install 'lidarpkt[rerun]')")
+    parser.add_argument("--color", choices=("range", "reflectivity"), default="range",
+                        help="--rerun: colour the points by range (default) or reflectivity")
     parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
-    add_receive_arguments(parser)
+    add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
+                                  "apart by its content); repeat, one per sensor")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    from lidarpkt.cli import args as cliargs
-
     cliargs.add_quiet(parser, "no status lines")
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidarpkt.cli import args as cliargs
     from lidarpkt.errors import LidarpktError
+    from lidarpkt.view.server import parse_ws
+
+    from . import args as cliargs
+    from .console import StopSignals
 
     if args.source is not None:
         cliargs.check_inputs([args.source])
-    cliargs.check_inputs(args.metadata or (), "--metadata")
+    cliargs.sensor_options(args)  # the sensor files and model checked before any work
     if args.source is not None and (args.port or args.bind or args.multicast or args.sensor):
         raise LidarpktError(f"--port/--bind/--multicast/--sensor: not with SOURCE {args.source}; view either a "
                             "capture or a live sensor")
-    from lidarpkt.view.server import parse_ws
-
     parse_ws(args.ws)  # a wrong flag is an error before any work
     if args.source is not None and args.rate <= 0:
         raise LidarpktError(f"--rate {args.rate}: not a positive speed factor; give e.g. --rate 1 (real time)")
-    with cliargs.StopSignals() as stop:
+    with StopSignals() as stop:
         if args.source is not None:
             return _view_capture(args, stop.event)
         return _view_live(args, stop.event)
@@ -59,8 +67,9 @@ def _deadline(args) -> float:
 
 
 def _view_capture(args, stop: threading.Event) -> int:
-    from lidarpkt.view.server import start_server
     from lidarpkt.view.sources import play_capture
+
+    from . import args as cliargs
 
     deadline = _deadline(args)
     readers = []
@@ -72,7 +81,7 @@ def _view_capture(args, stop: threading.Event) -> int:
         counted[0] = 0
 
     def wait_for_client(first) -> None:
-        servers.append(start_server(args.ws))
+        servers.append(_start(args))
         servers[0].sensor_name(first)  # advertise its channels, then wait until somebody looks
         if not args.quiet:
             print("lidarpkt view: waiting for a client to subscribe", file=sys.stderr, flush=True)
@@ -81,8 +90,8 @@ def _view_capture(args, stop: threading.Event) -> int:
 
     try:
         last_status = time.monotonic()
-        frames = play_capture(args.source, metadata=args.metadata or None, rate=args.rate, loop=args.loop,
-                              stop=stop, on_reader=new_round, before_first=wait_for_client)
+        frames = play_capture(args.source, rate=args.rate, loop=args.loop, stop=stop, on_reader=new_round,
+                              before_first=wait_for_client, **cliargs.sensor_options(args))
         for frame in frames:
             server = servers[0]
             server.publish(frame)
@@ -110,27 +119,25 @@ def _view_capture(args, stop: threading.Event) -> int:
 
 
 def _view_live(args, stop: threading.Event) -> int:
-    from lidarpkt.recorder.record import load_ouster_metadata
     from lidarpkt.containers.udp import UdpSource
+    from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+    from lidarpkt.view.tap import FrameDropper
 
-    from lidarpkt.view.server import start_server
-    from lidarpkt.view.sources import LiveDecoder
-    from lidarpkt.view.tap import FrameDropper, FrameTap
+    from .live import live_sensors, receive_options
 
-    mds = load_ouster_metadata(args)
-    ports = args.port or [p for md in mds for p in (md.lidar_port, md.imu_port)]
-    capture = UdpSource(ports, bind=args.bind, multicast=args.multicast, interface=args.interface,
-                         rcvbuf_bytes=int(args.rcvbuf * (1 << 20)), queue_bytes=int(args.queue * (1 << 20)))
+    files, decoder_options = live_sensors(args)
+    ports = args.port or [p for f in files for p in f.ports]
+    capture = UdpSource(ports, **receive_options(args))
     server = tap = dropper = None
     try:
-        server = start_server(args.ws)
+        server = _start(args)
         view = server
 
         def dropped(n: int) -> None:
             view.frames_dropped = n
 
         dropper = FrameDropper(server.publish, on_drop=dropped)
-        tap = FrameTap(LiveDecoder(mds), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
+        tap = FrameTap(LiveDecoder(files, **decoder_options), [dropper], on_batch=lambda b: view.count_packets(str(b.src), len(b)))
         print(f"lidarpkt view: listening on {capture.bind_address} port(s) {', '.join(map(str, capture.ports))}",
               file=sys.stderr, flush=True)
         capture.start()
@@ -155,6 +162,17 @@ def _view_live(args, stop: threading.Event) -> int:
             server.close()
     _report_errors(tap, dropper)
     return 0
+
+
+def _start(args):
+    """The Foxglove server on ``--ws``, or with ``--rerun`` the Rerun view (:mod:`lidarpkt.view.rerun`)."""
+    if getattr(args, "rerun", None):
+        from lidarpkt.view.rerun import start_rerun
+
+        return start_rerun(args.rerun, color=args.color)
+    from .live import start_view
+
+    return start_view(args.ws)
 
 
 def _report_errors(tap, dropper) -> None:

@@ -6,182 +6,35 @@ message (every packet of a ``VelodyneScan`` has the same 1206-byte size). Each p
 time is its own ROS stamp when the message has one (``VelodynePacket.stamp``), else the
 bag's receive time; source and destination are ``None`` (a bag does not keep them).
 
-What is extracted is decided by the message type alone, in :data:`PACKET_EXTRACTORS`:
-a function from one deserialised message to ``(payloads uint8[N, L], timestamp_ns int64[N])``.
-Adding a sensor's packet topic means adding one entry (and, if ROS does not ship the
-type, its ``.msg`` definition to :data:`lidarpkt.containers.rosmsgs.MESSAGE_DEFINITIONS`).
+What is extracted is decided by the message type alone, from the table the caller hands the reader
+(:class:`~lidarpkt.containers.rosmsgs.BagMessages`, the vendor registry's): a function from one
+deserialised message to ``(payloads uint8[N, L], timestamp_ns int64[N])`` per packet type, the ``.msg``
+definitions of the types ROS does not ship, and the ``std_msgs/String`` topics where a driver records
+its sensor file (read as the file's text, :meth:`BagReader.recorded_sensor_file`).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import struct
-import traceback
 from pathlib import Path
-from typing import Any, Callable, Generator, Iterable, Iterator
+from typing import Any, Generator, Iterable, Iterator
 
-import numpy as np
 
 from ..errors import CaptureFormatError, LidarpktWarning, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.packet import Packet, PacketBatch
 from .filters import check_filters
-from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope, next_bounded
-from .magic import MCAP_MAGIC, SQLITE_MAGIC
-from .rosmsgs import MESSAGE_DEFINITIONS, new_typestore  # noqa: F401 (MESSAGE_DEFINITIONS: the table, public here too)
-
-# Topics holding the Ouster sensor metadata JSON (std_msgs/msg/String) as ouster-ros names them: its node's
-# namespace (``/ouster``, ``/os_node``, ``/os_node0``, a user's own) then ``metadata``; every std_msgs/String
-# topic named so is read (:func:`is_ouster_metadata_topic`), these are examples.
-OUSTER_METADATA_TOPICS = ("/ouster/metadata", "/os_node/metadata", "/os_node0/metadata", "/metadata")
-
-
-def is_ouster_metadata_topic(topic: str) -> bool:
-    """Is ``topic`` (of type std_msgs/String) where ouster-ros records the sensor metadata: ``/metadata`` or
-    any ``<namespace>/metadata``?"""
-    return topic == "/metadata" or topic.endswith("/metadata")
-
-
-def _stamp_ns(stamp: Any) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def _velodyne_scan(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    packets = msg.packets
-    if not packets:
-        return np.zeros((0, 1206), np.uint8), np.zeros(0, np.int64)
-    payload = np.stack([np.asarray(p.data, dtype=np.uint8) for p in packets])
-    times = np.array([_stamp_ns(p.stamp) for p in packets], dtype=np.int64)
-    times[times == 0] = bag_time_ns  # drivers that leave the packet stamp empty
-    return payload, times
-
-
-def _velodyne_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    t = _stamp_ns(msg.stamp) or bag_time_ns
-    return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
-
-
-def _ouster_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    # PacketMsg has no stamp: the bag's receive (log) time is the packet's host time
-    return np.asarray(msg.buf, dtype=np.uint8)[None, :], np.array([bag_time_ns], dtype=np.int64)
-
-
-def _nebula_packet(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    t = _stamp_ns(msg.stamp) or bag_time_ns
-    return np.asarray(msg.data, dtype=np.uint8)[None, :], np.array([t], dtype=np.int64)
-
-
-def _pandar_scan(msg: Any, bag_time_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    packets = msg.packets
-    if not packets:
-        return np.zeros((0, 0), np.uint8), np.zeros(0, np.int64)
-    sizes = {int(p.size) for p in packets}
-    if len(sizes) != 1:  # one sensor sends one size; a batch holds one size
-        raise ValueError(f"packets of {len(sizes)} sizes ({sorted(sizes)[:4]}) in one PandarScan")
-    size = sizes.pop()
-    if not 0 < size <= 1500:
-        raise ValueError(f"packet size {size} outside the 1500-byte buffer")
-    payload = np.stack([np.asarray(p.data, dtype=np.uint8)[:size] for p in packets])
-    times = np.array([_stamp_ns(p.stamp) for p in packets], dtype=np.int64)
-    times[times == 0] = bag_time_ns
-    return payload, times
-
-
-# message type → extractor(message, bag receive time ns) → (payloads [N, L], times ns [N])
-PACKET_EXTRACTORS: dict[str, Callable[[Any, int], tuple[np.ndarray, np.ndarray]]] = {
-    "velodyne_msgs/msg/VelodyneScan": _velodyne_scan,
-    "velodyne_msgs/msg/VelodynePacket": _velodyne_packet,
-    "ouster_sensor_msgs/msg/PacketMsg": _ouster_packet,
-    "ouster_ros/msg/PacketMsg": _ouster_packet,
-    "nebula_msgs/msg/NebulaPacket": _nebula_packet,
-    "pandar_msgs/msg/PandarScan": _pandar_scan,
-}
-
-
-def _decompression_errors() -> tuple[type[BaseException], ...]:
-    """What the MCAP reader's chunk decompressors raise on damaged chunks (zstd; lz4 raises RuntimeError)."""
-    out: list[type[BaseException]] = [RuntimeError]
-    try:
-        from zstandard import ZstdError
-
-        out.append(ZstdError)
-    except ImportError:  # pragma: no cover - zstandard is a dependency
-        pass
-    return tuple(out)
-
-
-_DECOMPRESSION_ERRORS = _decompression_errors()
-
+from .inflate import bound_rosbags, bounded, inflate_rosbag2_files, needs_scope
+from .magic import MCAP_MAGIC
+from .mcap_records import DECOMPRESSION_ERRORS, mcap_stream_messages
+from .rosbag import close_failed_open, guarded, with_default_metadata
+from .rosmsgs import STRING, BagMessages, new_typestore
 
 def _normalise_type(msgtype: str) -> str:
     # ROS 1 names types "pkg/Type"; rosbags presents them as "pkg/msg/Type"
     parts = msgtype.split("/")
     return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
-
-
-def _release(exc: BaseException | None) -> None:
-    """Clear the locals of the library frames that ``exc`` (and what it chains) keeps, then close the
-    sqlite3 connections among them. An error met while stepping a query keeps rosbags' cursor, and so
-    the ``.db3``, open; rosbags' sqlite3 storage does not close the connection it opened when the
-    tables are missing. Either file would stay open while the caller keeps our error, and after it
-    until a garbage collection (a sqlite3 connection lives in a reference cycle). Cursors go first: a
-    connection closed under a live cursor stays open for as long as the cursor."""
-    import sqlite3
-
-    connections = []
-    seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        seen.add(id(exc))
-        for frame, _ in traceback.walk_tb(exc.__traceback__):
-            if frame.f_globals is globals():
-                continue  # ours, still running
-            names = frame.f_locals
-            connections += [v for v in names.values() if isinstance(v, sqlite3.Connection)]
-            try:
-                frame.clear()
-            except RuntimeError:  # still running
-                continue
-            if isinstance(names, dict):
-                names.clear()  # before Python 3.13, the f_locals snapshot outlives frame.clear()
-        exc = exc.__cause__ or exc.__context__
-    for connection in connections:
-        connection.close()
-
-
-def _close_failed_open(reader: Any, exc: BaseException) -> None:
-    """Close what rosbags opened before its ``open()`` failed, which it leaves open: the ROS 1 reader's
-    file (first line not UTF-8), a rosbag2's MCAP storage files (bad magic, cut index), its sqlite3
-    connections, the folder of a decompressed bag."""
-    for sub in getattr(reader, "readers", ()):
-        storage = getattr(sub, "storage", None)
-        opened = [getattr(sub, "bio", None), *getattr(storage, "dbconns", ()),
-                  *(getattr(f, "bio", None) for f in getattr(storage, "readers", ()))]
-        for obj in opened:
-            if obj is not None:
-                obj.close()
-        if getattr(sub, "tmpdir", None) is not None:
-            sub.tmpdir.cleanup()
-    _release(exc)
-
-
-def _guarded(messages: Iterator, path: Path, scoped: bool = False) -> Iterator:
-    """The bag's messages; damage met on the way (a corrupt chunk, a truncated file) becomes a
-    :class:`CaptureFormatError` once every message before it was delivered. ``scoped``: each step inflates
-    a rosbag2's MCAP chunks boundedly (:func:`~lidarpkt.containers.inflate.next_bounded`)."""
-    it = iter(messages)
-    while True:
-        try:
-            # bounded around each step only: the caller's code between steps sees rosbags' own inflaters
-            item = next_bounded(it, path) if scoped else next(it)
-        except StopIteration:
-            return
-        except Exception as exc:  # rosbags / sqlite3 raise their own types
-            _release(exc)
-            if isinstance(exc, CaptureFormatError):  # ours (a bounded inflater's), naming the file already
-                raise CaptureFormatError(str(exc)) from None
-            raise CaptureFormatError(f"{path}: the bag is damaged after the messages already read: {exc}") from None
-        yield item
 
 
 class BagReader:
@@ -190,6 +43,9 @@ class BagReader:
     Args:
         path: a rosbag2 directory (with ``metadata.yaml``), its ``.db3`` or ``.mcap`` file, or a ROS 1
             ``.bag``.
+        messages: the packet message types read and the topics holding sensor files (the vendor
+            registry's, :func:`lidarpkt.vendors.registry.bag_messages`); by default only the stamped
+            packets no vendor owns.
         topics: read only these topics (default: every topic of a known packet type).
         payload_sizes: keep only packets of these sizes.
         **filters: anything else that is not ``None`` raises: ``ports`` and ``src_addresses``
@@ -200,64 +56,65 @@ class BagReader:
         CaptureFormatError: the bag cannot be opened or decoded (message says why).
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, topics: Iterable[str] | None = None,
-                 payload_sizes: Iterable[int] | None = None, **filters: Any) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, messages: BagMessages | None = None,
+                 topics: Iterable[str] | None = None, payload_sizes: Iterable[int] | None = None, **filters: Any) -> None:
         check_filters(path, "bag", filters)
         self.path = Path(path)
+        self.messages = messages if messages is not None else BagMessages()
         self.topics = None if topics is None else frozenset(topics)
         self.payload_sizes = None if payload_sizes is None else frozenset(int(s) for s in payload_sizes)
         self.stats: dict[str, Any] = {"messages": 0, "packets": 0, "skipped_topics": {}}
-        self._ouster_metadata: str | None = None
-        self._metadata_topics: list | None = None  # set by batches(): metadata topics not read yet ([MCAP_MAGIC]: a plain MCAP)
+        self._sensor_file: str | None = None
+        self._metadata_topics: list | None = None  # set by batches(): sensor file topics not read yet ([MCAP_MAGIC]: a plain MCAP)
         self._metadata_scanned = False
         self._metadata_dir: Any = None  # a TemporaryDirectory holding a completed metadata.yaml, if one was needed
 
-    def ouster_metadata(self) -> str | None:
-        """The Ouster metadata JSON text recorded in the bag (``/ouster/metadata``, ``/os_node0/metadata``...);
-        ``None`` if there is none.
+    def recorded_sensor_file(self) -> str | None:
+        """The text of the sensor file a driver recorded in the bag (on a ``std_msgs/String`` topic of
+        :attr:`messages`' sensor file topics); ``None`` if there is none.
 
-        Once :meth:`batches` has started on a ROS bag (not a plain MCAP file, read as one stream), the
-        metadata topics are read ahead of the packets if need be: ouster-ros records the metadata after the
-        first packets, which would otherwise reach the caller before their metadata does.
+        Once :meth:`batches` has started on a ROS bag (not a plain MCAP file, read as one stream), those
+        topics are read ahead of the packets if need be: a driver may record the file after the first
+        packets, which would otherwise reach the caller before their sensor file does.
         """
-        if self._ouster_metadata is None and self._metadata_topics is not None:
+        if self._sensor_file is None and self._metadata_topics is not None:
             topics, self._metadata_topics = self._metadata_topics, None
             if topics == [MCAP_MAGIC]:
-                self._ouster_metadata = self._scan_mcap_metadata()
+                self._sensor_file = self._scan_mcap_metadata()
             elif topics:
                 self._metadata_scanned = True
-                self._ouster_metadata = self._scan_metadata(topics)
-        return self._ouster_metadata
+                self._sensor_file = self._scan_metadata(topics)
+        return self._sensor_file
 
     def _scan_mcap_metadata(self) -> str | None:
-        """The first Ouster metadata message within the first :data:`MCAP_METADATA_LOOKAHEAD_BYTES` of a plain
+        """The first sensor file message within the first :data:`MCAP_METADATA_LOOKAHEAD_BYTES` of a plain
         MCAP file, read as a stream of its own; ``None`` if there is none there, or damage comes first (which
         the pass over the packets reports)."""
         from mcap.exceptions import McapError
 
         from .rosmsgs import typestore
 
-        store = typestore()
+        store = typestore()  # std_msgs/String: no definition of the caller's needed
         with self.path.open("rb") as fh:
             try:
-                for schema, channel, message in _mcap_stream_messages(fh, self.path):
+                for schema, channel, message in mcap_stream_messages(fh, self.path):
                     if fh.tell() > MCAP_METADATA_LOOKAHEAD_BYTES:
                         return None
                     if (schema is None or channel.message_encoding != "cdr" or schema.name not in
-                            ("std_msgs/msg/String", "std_msgs/String") or not is_ouster_metadata_topic(channel.topic)):
+                            (STRING, "std_msgs/String") or self.messages.sensor_file_topic(channel.topic) is None):
                         continue
-                    text = store.deserialize_cdr(message.data, "std_msgs/msg/String").data
+                    text = store.deserialize_cdr(message.data, STRING).data
                     found = self._metadata_text(channel.topic, text)
                     if found is not None:
                         self._metadata_scanned = True
                         return found
             except (McapError, CaptureFormatError, struct.error, EOFError, ValueError, OverflowError,
-                    OSError) + _DECOMPRESSION_ERRORS:
+                    OSError) + DECOMPRESSION_ERRORS:
                 return None
         return None
 
     def _scan_metadata(self, topics: list[str]) -> str | None:
-        """The first Ouster metadata among the messages of ``topics``, read by a reader of their own (beside the
+        """The first sensor file among the messages of ``topics``, read by a reader of their own (beside the
         one reading the packets, whose completed metadata.yaml folder, if any, stays theirs)."""
         import warnings
 
@@ -271,8 +128,8 @@ class BagReader:
             raise
         try:
             conns = [c for c in reader.connections if c.topic in topics
-                     and _normalise_type(c.msgtype) == "std_msgs/msg/String"]
-            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path, needs_scope(reader)):
+                     and _normalise_type(c.msgtype) == STRING]
+            for conn, bag_time_ns, raw in guarded(reader.messages(connections=conns), self.path, needs_scope(reader)):
                 try:
                     text = reader.deserialize(raw, conn.msgtype).data
                 except Exception as exc:
@@ -289,25 +146,23 @@ class BagReader:
             self._metadata_dir = packets_dir
 
     def _metadata_text(self, topic: str, text: str) -> str | None:
-        """``text`` if it is a JSON object, as Ouster metadata is; else ``None`` and a warning. Callers hand
-        it to ``load_metadata``, which reads other text as the path of a file."""
-        try:
-            doc = json.loads(text)
-            reason = f"a JSON {type(doc).__name__}, not an object"
-        except (ValueError, RecursionError) as exc:  # not JSON; an int of > 4300 digits; nested too deep
-            doc, reason = None, f"not JSON: {str(exc)[:80]}"
-        if isinstance(doc, dict):
+        """``text`` if it is the sensor file the topic holds; else ``None`` and a warning (a sensor file
+        topic with something else on it)."""
+        kind = self.messages.sensor_file_topic(topic)
+        reason = "no sensor file topic" if kind is None else kind.refusal(text)
+        if reason is None:
             return text
         warn(SkippedPacketWarning(
-            f"{self.path}: the message on {topic} is not Ouster metadata ({reason}; it starts with {text[:40]!r}); "
-            "ignored. Pass the sensor's metadata JSON (metadata=... / --metadata) to decode its packets"))
+            f"{self.path}: the message on {topic} is not {kind.what if kind else 'a sensor file'} ({reason}; it "
+            f"starts with {text[:40]!r}); ignored. Pass the sensor's file (metadata=... / --metadata) to decode "
+            "its packets"))
         return None
 
     def _wanted(self, topic: str, msgtype: str) -> bool:
         kind = _normalise_type(msgtype)
-        if kind == "std_msgs/msg/String":
-            return is_ouster_metadata_topic(topic)
-        return kind in PACKET_EXTRACTORS and (self.topics is None or topic in self.topics)
+        if kind == STRING:
+            return self.messages.sensor_file_topic(topic) is not None
+        return kind in self.messages.packets and (self.topics is None or topic in self.topics)
 
     def _is_mcap_file(self) -> bool:
         if not self.path.is_file():
@@ -320,7 +175,7 @@ class BagReader:
         if p.is_file() and p.suffix == ".db3" and (p.parent / "metadata.yaml").exists():
             p = p.parent  # rosbags opens a rosbag2 by its directory
         if p.is_dir() and (p / "metadata.yaml").is_file():
-            patched = _with_default_metadata(p)
+            patched = with_default_metadata(p)
             if patched is not None:
                 self._metadata_dir, notes = patched
                 warn(LidarpktWarning(f"{p}: metadata.yaml {notes}; read it so (an old rosbag2 writer left the "
@@ -336,7 +191,7 @@ class BagReader:
     def _open(self):
         from rosbags.highlevel import AnyReader
 
-        store = new_typestore()
+        store = new_typestore(self.messages.definitions)
         reader = None
         try:
             reader = AnyReader(self._bag_paths(), default_typestore=store)
@@ -345,7 +200,7 @@ class BagReader:
                 reader.open()
             bound_rosbags(reader, self.path)  # ROS 1 chunks and rosbag2 messages inflate into a bounded size
         except Exception as exc:  # rosbags raises its own error types (AnyReaderError, ...)
-            _close_failed_open(reader, exc)
+            close_failed_open(reader, exc)
             self._cleanup_metadata_dir()
             if isinstance(exc, CaptureFormatError):
                 raise
@@ -360,16 +215,16 @@ class BagReader:
         try:
             for topic, msgtype, bag_time_ns, msg in messages:
                 kind = _normalise_type(msgtype)
-                if kind == "std_msgs/msg/String":
-                    if self._ouster_metadata is None and not self._metadata_scanned:
-                        self._ouster_metadata = self._metadata_text(topic, msg.data)
+                if kind == STRING:
+                    if self._sensor_file is None and not self._metadata_scanned:
+                        self._sensor_file = self._metadata_text(topic, msg.data)
                     continue
                 if bag_time_ns >= 1 << 63:  # MCAP log times are uint64; packet times are int64 ns
                     raise CaptureFormatError(
                         f"{self.path}: the message on {topic} has the bag time {bag_time_ns} ns, more than a time can "
                         "hold (int64 ns, past the year 2262): the bag is damaged there")
                 try:
-                    payload, times = PACKET_EXTRACTORS[kind](msg, int(bag_time_ns))
+                    payload, times = self.messages.packets[kind](msg, int(bag_time_ns))
                 except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # a bag's own definition of the type
                     raise CaptureFormatError(
                         f"{self.path}: the message on {topic} ({msgtype}) has not the fields lidarpkt reads for that "
@@ -402,8 +257,8 @@ class BagReader:
                     self.stats["skipped_topics"][c.topic] = c.msgtype
             if not conns:
                 return  # (rosbags reads no connections as all of them)
-            self._metadata_topics = [c.topic for c in conns if _normalise_type(c.msgtype) == "std_msgs/msg/String"]
-            for conn, bag_time_ns, raw in _guarded(reader.messages(connections=conns), self.path,
+            self._metadata_topics = [c.topic for c in conns if _normalise_type(c.msgtype) == STRING]
+            for conn, bag_time_ns, raw in guarded(reader.messages(connections=conns), self.path,
                                                       needs_scope(reader)):
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
@@ -425,18 +280,18 @@ class BagReader:
         from mcap.exceptions import McapError
         from rosbags.typesys import get_types_from_msg
 
-        store = new_typestore()
+        store = new_typestore(self.messages.definitions)
         known: dict[int, bool] = {}
         n = 0
-        self._metadata_topics = [MCAP_MAGIC]  # ouster_metadata(): look ahead in the file (see there)
+        self._metadata_topics = [MCAP_MAGIC]  # recorded_sensor_file(): look ahead in the file (see there)
         with self.path.open("rb") as fh:
-            it = _mcap_stream_messages(fh, self.path)
+            it = mcap_stream_messages(fh, self.path)
             while True:
                 try:
                     schema, channel, message = next(it)
                 except StopIteration:
                     return
-                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError) + _DECOMPRESSION_ERRORS as exc:  # OverflowError: a record length of 2**63 or more in a chunk
+                except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError) + DECOMPRESSION_ERRORS as exc:  # OverflowError: a record length of 2**63 or more in a chunk
                     warn(TruncatedCaptureWarning(
                         f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
                         "messages before the damage were read (a recording that was killed ends like this)"))
@@ -468,158 +323,6 @@ class BagReader:
                 yield channel.topic, schema.name, int(message.log_time), msg
 
 
-def _with_default_metadata(bag: Path) -> tuple[Any, str] | None:
-    """A temporary rosbag2 folder whose ``metadata.yaml`` fills the fields an old rosbag2 writer left
-    empty or out, and links to ``bag``'s storage files; ``None`` when nothing is missing (or the YAML is
-    not a rosbag2's: rosbags says what is wrong with it). A missing ``storage_identifier`` is the storage
-    its files are (sqlite3 or mcap, by their first bytes); a missing ``serialization_format`` is ``cdr``,
-    the only one rosbag2 writes. Returns ``(TemporaryDirectory, what was filled in)``."""
-    import tempfile
-
-    from ruamel.yaml import YAML, YAMLError
-
-    try:
-        doc = YAML(typ="safe").load((bag / "metadata.yaml").read_text())
-        info = doc["rosbag2_bagfile_information"]
-        files = [bag / Path(str(name)).name for name in info.get("relative_file_paths") or []]
-        topics = [t["topic_metadata"] for t in info.get("topics_with_message_count") or []]
-    except (OSError, YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
-        return None
-    notes = []
-    if not info.get("storage_identifier"):
-        storage = None
-        for file in files:
-            try:
-                with file.open("rb") as fh:
-                    head = fh.read(max(len(SQLITE_MAGIC), len(MCAP_MAGIC)))
-            except OSError:
-                continue
-            storage = "sqlite3" if head.startswith(SQLITE_MAGIC) else "mcap" if head.startswith(MCAP_MAGIC) else None
-            if storage:
-                break
-        if storage is None:
-            return None  # rosbags names the missing plugin
-        info["storage_identifier"] = storage
-        notes.append(f"names no storage plugin (its files are {storage})")
-    empty = [t.get("name", "?") for t in topics if isinstance(t, dict) and not t.get("serialization_format")]
-    for topic in topics:
-        if isinstance(topic, dict) and not topic.get("serialization_format"):
-            topic["serialization_format"] = "cdr"
-    if empty:
-        notes.append(f"names no serialization format for {', '.join(map(str, empty[:4]))} (cdr, rosbag2's own)")
-    if not notes:
-        return None
-    folder = tempfile.TemporaryDirectory(prefix="lidarpkt-bag-")
-    try:
-        for file in files:
-            if file.exists():
-                os.symlink(file.resolve(), Path(folder.name, file.name))
-        yaml = YAML(typ="safe")
-        yaml.default_flow_style = False
-        with Path(folder.name, "metadata.yaml").open("w") as fh:
-            yaml.dump(doc, fh)
-    except OSError as exc:
-        folder.cleanup()
-        raise CaptureFormatError(f"{bag}: metadata.yaml {'; '.join(notes)}, and completing it in a temporary "
-                                 f"folder failed: {exc}") from exc
-    return folder, "; ".join(notes)
-
-
-class _FileRemainder:
-    """A binary file whose ``read(n)`` asks for no more than the bytes left in the file.
-
-    A damaged MCAP record length (up to 2**64 - 1) would otherwise make the mcap reader's
-    ``read(length)`` allocate that much up front (a ``MemoryError``, or gigabytes); capped, the read
-    comes back short and the reader reports the file as cut short.
-    """
-
-    def __init__(self, fh) -> None:
-        self._fh = fh
-        self._size = os.fstat(fh.fileno()).st_size
-
-    def read(self, n: int = -1) -> bytes:
-        left = max(0, self._size - self._fh.tell())
-        return self._fh.read(left if n is None or n < 0 else min(n, left))
-
-    def __getattr__(self, name: str):
-        return getattr(self._fh, name)
-
-
-# ouster-ros records its metadata a few packets after the start; a plain MCAP file (read as one stream) is
+# a driver may record its sensor file a few packets after the start (ouster-ros does); a plain MCAP file (read as one stream) is
 # searched this far for it when the packets come first
 MCAP_METADATA_LOOKAHEAD_BYTES = 64 << 20
-MAX_MCAP_CHUNK_BYTES = 256 << 20  # uncompressed bytes of one MCAP chunk (writers use a few MB; ours ~1 s of data)
-
-
-def _mcap_stream_messages(fh, path: Path) -> Iterator[tuple[Any, Any, Any]]:
-    """``(schema, channel, message)`` of an MCAP file in file order, as the mcap library's
-    ``NonSeekingReader.iter_messages`` gives them, but with every chunk inflated into at most the
-    size it declares, itself at most :data:`MAX_MCAP_CHUNK_BYTES`.
-
-    The library inflates a zstd chunk into whatever size the zstd frame header names and an lz4
-    chunk without a limit: a few KB could ask for gigabytes.
-
-    Raises:
-        CaptureFormatError: a chunk declares more than :data:`MAX_MCAP_CHUNK_BYTES`.
-        mcap.exceptions.McapError: a chunk inflates to another size than it declares, or a message
-            names a channel (a channel a schema) not seen before.
-    """
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Chunk, Message, Schema
-    from mcap.stream_reader import StreamReader, breakup_chunk
-
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
-    # mcap annotates its input as a union of file classes; it only calls read(), which _FileRemainder has
-    for record in StreamReader(_FileRemainder(fh), emit_chunks=True).records:  # type: ignore[arg-type]
-        for rec in breakup_chunk(_inflated(record, path)) if isinstance(record, Chunk) else (record,):
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                if rec.schema_id != 0 and rec.schema_id not in schemas:
-                    raise McapError(f"no schema record found with id {rec.schema_id}")
-                channels[rec.id] = rec
-            elif isinstance(rec, Message):
-                channel = channels.get(rec.channel_id)
-                if channel is None:
-                    raise McapError(f"no channel record found with id {rec.channel_id}")
-                yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, rec
-
-
-def _inflated(chunk, path: Path):
-    """``chunk`` with its records uncompressed (compression ``""``), inflated into at most the size it
-    declares; an unknown compression is left for the mcap library to refuse."""
-    import io
-
-    from mcap.exceptions import McapError
-    from mcap.records import Chunk
-
-    declared = chunk.uncompressed_size
-    if declared > MAX_MCAP_CHUNK_BYTES:
-        raise CaptureFormatError(
-            f"{path}: an MCAP chunk declares {declared} bytes uncompressed, more than the {MAX_MCAP_CHUNK_BYTES >> 20} MiB "
-            "lidarpkt inflates at once (recorders write chunks of a few MB): the file is damaged or hostile there")
-    if chunk.compression == "zstd":
-        import zstandard
-
-        parts, want = [], declared + 1  # one byte more than declared tells a chunk that holds more
-        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)) as reader:
-            while want > 0 and (part := reader.read(want)):
-                parts.append(part)
-                want -= len(part)
-        data = b"".join(parts)
-    elif chunk.compression == "lz4":
-        import lz4.frame
-
-        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=declared + 1)
-    elif chunk.compression == "":
-        data = chunk.data
-    else:
-        return chunk
-    if len(data) != declared:
-        raise McapError(f"an MCAP chunk inflates to {'more than ' if len(data) > declared else ''}"
-                        f"{min(len(data), declared)} bytes where it declares {declared}")
-    return Chunk(compression="", data=data, message_start_time=chunk.message_start_time,
-                 message_end_time=chunk.message_end_time, uncompressed_size=declared,
-                 uncompressed_crc=chunk.uncompressed_crc)
-

@@ -22,7 +22,7 @@ from .reassembly import Reassembler
 from .trains import Trains, fragment_trains
 
 if TYPE_CHECKING:
-    from .pcap_reader import ReadStats
+    from .read_stats import ReadStats
 
 __all__ = ["ChunkDecoder"]
 
@@ -32,7 +32,7 @@ class ChunkDecoder(RecordParser):
 
     Args:
         path: the capture (for messages).
-        stats: the reader's :class:`~lidarpkt.containers.pcap_reader.ReadStats`, updated in place.
+        stats: the reader's :class:`~lidarpkt.containers.read_stats.ReadStats`, updated in place.
         ports, src_addresses, payload_sizes: the filters (None = keep all).
         reassembly_args: keyword arguments of :class:`~lidarpkt.containers.reassembly.Reassembler`.
     """

@@ -62,7 +62,7 @@ from .layouts import (
 from .trains import MIXED_CHECKSUM as _MIXED_CHECKSUM
 
 if TYPE_CHECKING:
-    from .pcap_reader import ReadStats
+    from .read_stats import ReadStats
     from .reassembly import Reassembler
 
 __all__ = ["ipv4_headers", "plain_udp", "RecordParser", "canonical_address", "is_ipv4_text", "ipv4_text"]

@@ -13,7 +13,8 @@ from ..errors import UnsupportedContainerError
 
 __all__ = [
     "PCAP_MAGIC_US", "PCAP_MAGIC_NS", "PCAP_MAGIC_MODIFIED", "PCAPNG_SHB", "PCAPNG_BOM", "PCAP_MAGIC_BYTES",
-    "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "OSF_IDENTIFIER", "is_osf", "capture_format", "format_from_magic",
+    "MCAP_MAGIC", "ROS1_MAGIC", "SQLITE_MAGIC", "OSF_IDENTIFIER", "FRAME_CONTAINERS", "CAPTURES_TEXT", "capture_format",
+    "format_from_magic",
     "is_capture", "container_kind", "CAPTURE_SUFFIXES", "looks_like_capture", "find_captures",
 ]
 
@@ -31,6 +32,10 @@ ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 # ouster-sdk's OSF: a size-prefixed flatbuffer whose file identifier (bytes 8-12) names the OSF header
 OSF_IDENTIFIER = b"OSF$"
+#: the container kinds of files of decoded frames, not packets (the vendor that records them reads them)
+FRAME_CONTAINERS = frozenset({"osf"})
+#: the files lidarpkt reads, for people (help texts, messages)
+CAPTURES_TEXT = "pcap/pcapng, MCAP, ROS bag (ROS 1 or rosbag2) or OSF"
 
 
 def capture_format(path: str | os.PathLike[str]) -> str | None:
@@ -60,15 +65,6 @@ def is_capture(path: str | os.PathLike[str]) -> bool:
     return capture_format(path) is not None
 
 
-def is_osf(path: str | os.PathLike[str]) -> bool:
-    """True when ``path`` is a file that starts as an OSF file does (never raises)."""
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(12)[8:12] == OSF_IDENTIFIER
-    except OSError:
-        return False
-
-
 def container_kind(path: str | os.PathLike[str]) -> str:
     """``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"`` (directory or .db3), ``"rosbag1"`` or ``"osf"`` (ouster-sdk's
     frame files: frames, not packets), from the first bytes.
@@ -96,10 +92,10 @@ def container_kind(path: str | os.PathLike[str]) -> str:
     if head.startswith(SQLITE_MAGIC):
         return "rosbag2"
     if head[8:12] == OSF_IDENTIFIER:
-        return "osf"
+        return next(iter(FRAME_CONTAINERS))
     shown = head.hex(" ") if head else "nothing (empty file)"
     raise UnsupportedContainerError(
-        f"{p} is not a capture lidarpkt reads (pcap, pcapng, MCAP, rosbag2, ROS 1 bag, OSF): it starts with {shown}"
+        f"{p} is not a capture lidarpkt reads ({CAPTURES_TEXT}): it starts with {shown}"
     )
 
 

@@ -35,7 +35,7 @@ IP ID; it is counted as malformed).
 Damage is reported, not raised, once a file is known to be a capture: a truncated last
 record or a record length beyond the end of the file stops reading there, and after the
 last good packet a :class:`~lidarpkt.errors.TruncatedCaptureWarning` says where;
-malformed records are counted in :class:`ReadStats` (and summed up in one
+malformed records are counted in :class:`~lidarpkt.containers.read_stats.ReadStats` (and summed up in one
 :class:`~lidarpkt.errors.SkippedPacketWarning`) and skipped. A file that is not a
 capture raises :class:`~lidarpkt.errors.CaptureFormatError`.
 
@@ -46,8 +46,6 @@ send to), ``src_addresses`` the source address, ``payload_sizes`` the UDP payloa
 from __future__ import annotations
 
 import os
-from collections import Counter
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
@@ -60,6 +58,7 @@ from .datagram import canonical_address
 from .magic import capture_format, format_from_magic, is_capture
 from .pcap_walk import BlockReader, PcapWalk
 from .pcapng_walk import PcapngWalk
+from .read_stats import ReadStats
 from .reassembly import Reassembler
 
 if TYPE_CHECKING:
@@ -67,7 +66,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "PcapReader",
-    "ReadStats",
     "read_packets",
     "read_batches",
     "is_capture",
@@ -81,42 +79,6 @@ READ_BLOCK_BYTES = 16 << 20  # the file is read in blocks this large (into one r
 # 32: as fast alone (4-32 MB within noise), and with lidarpkt.open's read-ahead thread the first block (read
 # before any decoding) and the last (decoded after all reading) are the parts that do not overlap. (4 MB blocks
 # made the Ouster pipeline 40 % slower: the batches' payload arrays, allocated fresh, page-faulted more)
-
-
-@dataclass
-class ReadStats:
-    """What a :class:`PcapReader` found. Counts are of records unless the name says otherwise."""
-
-    path: str = ""
-    format: str = ""  # "pcap" or "pcapng"
-    records: int = 0  # packet records read (pcap records, pcapng EPB/SPB/OPB)
-    bytes_read: int = 0  # file bytes walked (headers included)
-    udp_packets: int = 0  # UDP datagrams found (after reassembly, before filters)
-    yielded: int = 0  # datagrams handed out (after filters)
-    filtered: int = 0  # datagrams dropped by the port/address/size filters
-    non_udp: int = 0  # records that are not UDP (ARP, TCP, ICMP, other ethertypes...)
-    fragments: int = 0  # IP fragments seen
-    reassembled: int = 0  # datagrams rebuilt from fragments
-    reassembled_vectorised: int = 0  # of which rebuilt by the array fast path (whole in-order trains in one chunk)
-    orphaned_fragments: int = 0  # fragments whose datagram never completed (timed out, evicted, end of file)
-    duplicate_fragments: int = 0
-    malformed: int = 0  # records skipped as damaged (see malformed_reasons)
-    malformed_reasons: Counter = field(default_factory=Counter)
-    truncated: bool = False  # reading stopped at damage before the end of the file
-    truncated_reason: str = ""
-    link_types: Counter = field(default_factory=Counter)  # link type name -> records
-    interfaces: int = 0  # pcapng interfaces (1 for classic pcap)
-    snaplen: int = 0
-    nanosecond: bool = False  # classic pcap with ns time stamps
-    big_endian: bool = False
-
-    def as_dict(self) -> dict:
-        """A JSON-ready copy."""
-        out = {k: getattr(self, k) for k in self.__dataclass_fields__}
-        out["malformed_reasons"] = dict(self.malformed_reasons)
-        out["link_types"] = dict(self.link_types)
-        return out
-
 
 
 class PcapReader:
@@ -261,7 +223,7 @@ class PcapReader:
     def __iter__(self) -> Iterator[Packet]:
         return self.packets()
 
-    def ouster_metadata(self) -> None:
+    def recorded_sensor_file(self) -> None:
         """pcap/pcapng files carry no sensor metadata (the :class:`~lidarpkt.containers.PacketSource` protocol)."""
         return None
 

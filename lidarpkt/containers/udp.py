@@ -86,8 +86,8 @@ class UdpSource:
     def __init__(self, ports: list[int], *, bind: str | None = None, multicast: str | None = None,
                  interface: str | None = None, rcvbuf_bytes: int = 32 << 20, queue_bytes: int = 256 << 20) -> None:
         if not ports:
-            raise ReceiveError("no UDP port to listen on: give --port (2368 VLP-16 data, 8308 position, "
-                                "7502/7503 Ouster lidar/IMU)")
+            raise ReceiveError("no UDP port to listen on: give --port, the port the sensor sends to (2368 for most; "
+                               "a sensor file given with --metadata names its own)")
         self.ports = list(dict.fromkeys(int(p) for p in ports))
         self.multicast = multicast
         self.bind_address = bind or (multicast if multicast else "0.0.0.0")
@@ -309,7 +309,7 @@ class UdpSource:
             for t, row in zip(batch.timestamp_ns.tolist(), batch.payload):
                 yield Packet(t, batch.src, batch.dst, row.tobytes())
 
-    def ouster_metadata(self) -> str | None:
+    def recorded_sensor_file(self) -> str | None:
         """None: the network carries no metadata (an Ouster sensor serves it over HTTP: :mod:`lidarpkt.vendors.ouster.sensor_http`)."""
         return None
 

@@ -1,5 +1,8 @@
-"""The model every other layer speaks: frames and the sensor description (``frame``), packets and
-batches (``packet``), IMU samples (``imu``), the decoder and stream-counter protocols (``decoder``),
-stream kinds (``streams``), drop reasons (``dropped``), the continuity and rotation rules, the
-compiled kernels (``kernels``), and two helpers (``lazy`` names, ``readahead`` threads and their
-warnings). It imports NumPy and the standard library only."""
+"""The model every other layer speaks: frames and their points (``frame``), the sensor description
+(``sensor``), the column grid and (de)staggering (``grid``), frames in sequence (``sequence``: the readers'
+iterator, stacks), packets and batches (``packet``), IMU samples (``imu``), NMEA sentences (``nmea``), the
+decoder and stream-counter protocols (``decoder``), stream kinds and what a read saw (``streams``), drop
+reasons (``dropped``), what lidarpkt knows of a vendor (``vendor``: the record each vendor package
+exports), ROS topics (``ros``), the continuity, rotation and dual-return rules (``continuity``,
+``rotation``, ``dual``), the compiled kernels (``kernels``), and two helpers (``lazy`` names,
+``readahead`` threads and their warnings). It imports NumPy and the standard library only."""

@@ -4,13 +4,15 @@ offers (:class:`StreamCounter`, :class:`StreamCounts`).
 A :class:`Decoder` turns the packet batches of one sensor into frames: the packet source
 (:func:`lidarpkt.open`) makes one per sensor, pushes it the sensor's lidar batches (:meth:`push`)
 and its auxiliary ones (:meth:`push_auxiliary`: Velodyne position packets, Ouster IMU packets),
-and calls :meth:`finish` at the end of the capture. :class:`~lidarpkt.vendors.velodyne.VelodyneDecoder`
-and :class:`~lidarpkt.vendors.ouster.OusterDecoder` meet it.
+and calls :meth:`finish` at the end of the capture. Each vendor package has one (its registry record's
+``classify`` makes it). A decoder whose frames do not list their packets' ordinals
+(``frame.extra["packet_index"]``) also answers ``holds_packet(frame, batch)``: whether a frame holds
+the first packet of a batch (reading a segment of a capture needs it).
 
 A :class:`StreamCounter` is the recorder's live path: no frames, only packets, losses and
 rotations counted from the packets' own counters, one NumPy pass per batch. Each vendor package
-has one (:class:`lidarpkt.vendors.velodyne.stream.PacketCounter`, :class:`lidarpkt.vendors.ouster.stream.PacketCounter`),
-built on the same packet periods and rotation rules as its decoder.
+has one (its registry record's ``counter``), built on the same packet periods and rotation rules as
+its decoder.
 """
 
 from __future__ import annotations
@@ -21,12 +23,9 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 if TYPE_CHECKING:
     import numpy as np
 
-    from .frame import Frame, SensorInfo
+    from .frame import Frame
     from .packet import PacketBatch
-
-#: How far a stream's own counters may disagree with the capture clock between two packets; beyond
-#: it a step is a corrupted packet or a restart (:mod:`lidarpkt.core.continuity`), never packets lost.
-from .continuity import INTERRUPTION_S  # noqa: F401  (re-exported: its historical home)
+    from .sensor import SensorInfo
 
 
 class DecoderCounts(Protocol):

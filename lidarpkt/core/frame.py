@@ -1,4 +1,4 @@
-"""Frames (one rotation as a range image), the sensor description they carry, and stacks of frames.
+"""Frames: one rotation of one sensor as a range image, and its points.
 
 Shapes use R = return slots, H = rows (beams, row 0 = highest elevation), W = columns.
 Every array with a trailing W axis is per column; ``[R, H, W]`` arrays are per pixel and slot.
@@ -7,90 +7,13 @@ Every array with a trailing W axis is per column; ``[R, H, W]`` arrays are per p
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import TYPE_CHECKING, Any, Iterable, Iterator, Protocol
+from typing import Any
 
 import numpy as np
 
 from lidarpkt.errors import AnalysisError, CalibrationError, UsageError
-
-if TYPE_CHECKING:
-    from typing_extensions import Self  # typing.Self is Python 3.11+
-
-
-class Geometry(Protocol):
-    """Turns a frame's ranges into points; each vendor module provides one."""
-
-    def xyz(self, frame: "Frame", dtype: "np.typing.DTypeLike" = np.float64) -> np.ndarray:
-        """Points of ``frame`` as ``[R, H, W, 3]`` metres of ``dtype`` (float64 or float32), zeros where
-        there is no return."""
-        ...
-
-
-@dataclass(eq=False)
-class SensorInfo:
-    """What a sensor is and how to read its packets.
-
-    Built from the packets themselves where they say enough (VLP-16 factory bytes,
-    Ouster legacy packet size) and from the Ouster metadata JSON otherwise.
-
-    Attributes:
-        vendor: ``"velodyne"``, ``"ouster"`` or ``"hesai"``.
-        model: e.g. ``"VLP-16"``, ``"OS-1-64"``.
-        rows: H, beams per column.
-        columns_per_frame: W of a full frame. Ouster: exact (512/1024/2048). VLP-16:
-            firing sequences in one rotation at the nominal rate, a guide only (frames vary).
-        return_mode: ``"strongest"``, ``"last"``, ``"dual"`` (VLP-16) or ``"single"``,
-            ``"dual"``, ``"low_data_rate"`` (Ouster).
-        return_labels: the label of each return slot, e.g. ``("last", "strongest")``.
-        beam_altitude_deg: ``float64[H]`` elevation of each row, degrees, row order.
-        beam_azimuth_deg: ``float64[H]`` azimuth offset of each row, degrees, row order.
-        frequency_hz: rotation rate, 10 or 20 typically; ``None`` if unknown.
-        grid_resolution_deg: the finest column grid of the sensor (VLP-16: 0.2°, its firing
-            sequence at 10 Hz; Ouster: 360° / W). :func:`default_grid_deg` derives from it and the
-            rotation rate the grid every part of lidarpkt uses by default.
-        geometry: computes XYZ for frames of this sensor; ``None`` if no calibration.
-        serial, firmware, profile, product_id, init_id: as the sensor reports them, ``None`` if unknown.
-        return_order: Ouster ``return_order`` (``STRONGEST_TO_WEAKEST``, ``FARTHEST_TO_NEAREST``,
-            ``NEAREST_TO_FARTHEST``): what orders the return slots; ``None`` otherwise.
-        pixel_shift_by_row: ``int[H]`` Ouster stagger shifts (destaggering), ``None`` otherwise.
-        source: where the packets came from (``"192.168.1.201:2368"``), for reports.
-        metadata: the raw metadata document (Ouster JSON as a dict), empty if none.
-    """
-
-    vendor: str
-    model: str
-    rows: int
-    columns_per_frame: int
-    return_mode: str
-    return_labels: tuple[str, ...]
-    beam_altitude_deg: np.ndarray
-    beam_azimuth_deg: np.ndarray
-    frequency_hz: float | None = None
-    grid_resolution_deg: float | None = None
-    geometry: Geometry | None = None
-    serial: str | None = None
-    firmware: str | None = None
-    profile: str | None = None
-    product_id: int | None = None
-    init_id: int | None = None
-    pixel_shift_by_row: np.ndarray | None = None
-    source: str | None = None
-    metadata: dict[str, Any] = field(default_factory=dict)
-    return_order: str | None = None
-
-    def describe(self) -> dict[str, Any]:
-        """A JSON-ready summary (for ``info`` and MCAP metadata records)."""
-        out: dict[str, Any] = {}
-        for f in fields(self):
-            if f.name in ("geometry", "metadata"):
-                continue
-            value = getattr(self, f.name)
-            if isinstance(value, np.ndarray):
-                value = value.tolist()
-            elif isinstance(value, tuple):
-                value = list(value)
-            out[f.name] = value
-        return out
+from .grid import _grid_bins, _grid_positions, default_grid_deg, destagger
+from .sensor import SensorInfo
 
 
 @dataclass
@@ -223,20 +146,20 @@ class Frame:
         order of ``[R, H, W]``: slot, then row, then column (Ouster columns staggered, as sent).
         A dual-return pixel whose two slots repeat one return is two rows. Fields (:func:`points_dtype`):
 
-        ============  ========  ==============================================================
-        field         type      meaning
-        ============  ========  ==============================================================
+        ============  =========  ==============================================================
+        field         type       meaning
+        ============  =========  ==============================================================
         x, y, z       ``dtype``  metres, :meth:`xyz` (float64, or float32 as ``xyz(float32)``)
-        range_mm      uint32    range in millimetres (> 0)
-        reflectivity  uint8     the sensor's reflectivity
-        row           uint16    beam, 0 = the highest elevation
-        column        uint16    column of the frame's arrays
-        return_slot   uint8     index in ``return_labels``
-        timestamp_ns  int64     the return's firing time, ns since the Unix epoch (column time +
-                                ``pixel_time_offset_ns`` where the sensor defines it)
-        signal        uint16    Ouster: signal photons (only when the frame has ``signal``)
-        near_ir       uint16    Ouster: ambient near-IR of the pixel (only when it has ``near_ir``)
-        ============  ========  ==============================================================
+        range_mm      uint32     range in millimetres (> 0)
+        reflectivity  uint8      the sensor's reflectivity
+        row           uint16     beam, 0 = the highest elevation
+        column        uint16     column of the frame's arrays
+        return_slot   uint8      index in ``return_labels``
+        timestamp_ns  int64      the return's firing time, ns since the Unix epoch (column time +
+                                 ``pixel_time_offset_ns`` where the sensor defines it)
+        signal        uint16     Ouster: signal photons (only when the frame has ``signal``)
+        near_ir       uint16     Ouster: ambient near-IR of the pixel (only when it has ``near_ir``)
+        ============  =========  ==============================================================
 
         Raises:
             CalibrationError: the sensor has no calibration.
@@ -277,7 +200,8 @@ class Frame:
 
         ``resolution_deg`` defaults to :func:`default_grid_deg` of the sensor, the one grid that
         ``FrameStack.from_frames``, ``lidarpkt decode -o x.npz`` and ``lidarpkt analyze`` use. A
-        frame whose columns already are that grid (Ouster) is returned unchanged.
+        frame whose columns already are that grid (columns by measurement id, as Ouster's) is returned
+        unchanged.
         """
         res = resolution_deg if resolution_deg is not None else default_grid_deg(self.sensor)
         if res is None:
@@ -286,7 +210,7 @@ class Frame:
         if abs(n_bins * res - 360.0) > 1e-9:
             raise AnalysisError(f"grid resolution {res}° does not divide 360°")
         w = self.shape[2]
-        if self.sensor.vendor == "ouster" and n_bins == w:
+        if self.measurement_id is not None and n_bins == w:  # its columns are the encoder's: the grid itself
             return self
 
         valid_cols = np.flatnonzero(self.column_valid)
@@ -332,186 +256,3 @@ def points_dtype(frame: Frame, xyz_dtype: "np.typing.DTypeLike" = np.float64) ->
     xyz = np.dtype(xyz_dtype).newbyteorder("<")
     extra = [(name, typ) for name, typ in VENDOR_POINT_FIELDS if getattr(frame, name) is not None]
     return np.dtype([("x", xyz), ("y", xyz), ("z", xyz), *POINT_FIELDS, *extra])
-
-
-_SMOOTH_FIRINGS = 15  # firings averaged to tell the sensor's turn from its encoder's jitter
-
-
-def _grid_positions(azimuth_deg: np.ndarray, timestamp_ns: np.ndarray, res: float) -> np.ndarray:
-    """Position of each firing on a grid of ``res`` degrees (in bins), from its azimuths against time
-    smoothed over a few firings rather than from each measured azimuth: the sensor turns steadily,
-    but its encoder readings jitter (a VLP-16 at 19.98 Hz fires every 0.3996°, read as 0.39, 0.40 and
-    0.41°), and on a grid as fine as the firings that jitter puts two firings in one bin beside an
-    empty one, a column marked invalid though no packet was lost. A firing whose measured azimuth is
-    more than half a bin from the line (the rate changed) keeps its measured azimuth."""
-    measured = np.mod(azimuth_deg, 360.0)
-    if measured.size < 8:
-        return measured / res + 1e-9
-    steps = measured / res
-    if np.all(np.abs(steps - np.rint(steps)) < 1e-6):
-        # a sensor that reports its firings on the grid itself (Hesai XT and QT: 0.18° and 0.4° steps): each
-        # firing is its bin; a line fitted through their times (µs jitter) would only move some across an edge
-        return np.rint(steps) + 1e-9
-    turns = np.concatenate([[0], np.cumsum(np.diff(measured) < -180.0)])  # unwrap through 0°
-    unwrapped = measured + 360.0 * turns
-    t = (timestamp_ns - timestamp_ns[0]).astype(np.float64)
-    if not np.all(np.diff(t) >= 0) or t[-1] <= 0:
-        return measured / res + 1e-9
-    # least-squares line azimuth = a + b·t, in closed form (np.polyfit costs ~0.2 ms a frame)
-    t_mean, az_mean = t.mean(), unwrapped.mean()
-    dt = t - t_mean
-    slope = float(dt @ (unwrapped - az_mean)) / float(dt @ dt)
-    line = az_mean + slope * dt
-    # the slow wander of the rate about the line (up to ~0.06° a rotation) is kept, the jitter averaged out:
-    # a running mean of the residual over _SMOOTH_FIRINGS firings (fewer at the ends)
-    residual = unwrapped - line
-    half = _SMOOTH_FIRINGS // 2
-    csum = np.concatenate([[0.0], np.cumsum(residual)])
-    idx = np.arange(residual.size)
-    lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, residual.size)
-    fitted = line + (csum[hi] - csum[lo]) / (hi - lo)
-    steady = np.abs(fitted - unwrapped) < 0.5 * res
-    # the epsilon keeps an azimuth on a bin edge (187.6° / 0.4 = 468.99999...) in its bin
-    return np.mod(np.where(steady, fitted, unwrapped), 360.0) / res + 1e-9
-
-
-def _grid_bins(pos: np.ndarray, n_bins: int, tolerance: float = 0.1) -> np.ndarray:
-    """Bins of firings at ``pos`` (in bins, firing order): floor, except that where two consecutive
-    firings share a bin beside an empty one, the one within ``tolerance`` of the empty bin's edge
-    moves into it (what smoothing leaves of the jitter). Vectorised: one pass each way."""
-    bins = np.floor(pos).astype(np.int64) % n_bins
-    frac = pos - np.floor(pos)
-    for step in (1, -1):
-        occupied = np.zeros(n_bins, bool)
-        occupied[bins] = True
-        pairs = np.flatnonzero(bins[1:] == bins[:-1])
-        mover = pairs + 1 if step == 1 else pairs  # the later firing moves up, the earlier down
-        near = frac[mover] > 1.0 - tolerance if step == 1 else frac[mover] < tolerance
-        target = (bins[mover] + step) % n_bins
-        ok = near & ~occupied[target]
-        _, once = np.unique(target[ok], return_index=True)  # one firing per empty bin
-        bins[mover[ok][once]] = target[ok][once]
-    return bins
-
-
-def default_grid_deg(sensor: SensorInfo) -> float | None:
-    """The azimuth grid (degrees per column) frames of ``sensor`` are put on by default, from its firing rate.
-
-    The sensor's ``grid_resolution_deg``, coarsened for a VLP-16 spinning faster than 10 Hz so that
-    each column still holds a firing: at 20 Hz firing sequences are 0.4° apart, and a 0.2° grid
-    would leave every other column empty (``column_valid`` False although no packet was lost).
-    ``None`` when the sensor has no grid. One grid for :meth:`Frame.on_grid`,
-    :meth:`FrameStack.from_frames`, ``lidarpkt decode -o x.npz`` and the analysis verbs.
-    """
-    res = sensor.grid_resolution_deg
-    if res is None or sensor.vendor != "velodyne" or not sensor.frequency_hz:
-        return res
-    factor = max(1, int(round(float(sensor.frequency_hz) / 10.0)))
-    while factor > 1 and abs(round(360.0 / (res * factor)) * res * factor - 360.0) > 1e-9:
-        factor -= 1  # keep a grid that divides 360°
-    return res * factor
-
-
-def destagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """``[..., H, W]`` staggered (Ouster: columns = measurement ids) → destaggered, where adjacent
-    columns are adjacent azimuths: ``destaggered[u, (c + shift[u]) % W] = staggered[u, c]``, as
-    ouster-sdk does it. ``shift``: ``int[H]`` (``SensorInfo.pixel_shift_by_row``)."""
-    return _roll_rows(image, np.asarray(shift))
-
-
-def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`destagger`."""
-    return _roll_rows(image, -np.asarray(shift))
-
-
-def _roll_rows(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """``out[..., u, (c + shift[u]) % W] = image[..., u, c]``: one roll per distinct shift (a sensor has a few), not
-    a gather of every pixel (4x slower on an OS-128 image)."""
-    if not np.any(shift):
-        return image
-    out = np.empty_like(image)
-    for s in np.unique(shift).tolist():
-        rows = np.flatnonzero(shift == s)
-        out[..., rows, :] = np.roll(image[..., rows, :], s, axis=-1)
-    return out
-
-
-class FrameIterator:
-    """What every frame reader of :func:`lidarpkt.open` shares: iterate it for :class:`Frame` objects;
-    ``close()`` it (or use ``with``) to stop early. A subclass sets ``_iter``, its frames, and ``close()``."""
-
-    _iter: Iterator[Frame]
-
-    def __iter__(self) -> Self:
-        return self
-
-    def __next__(self) -> Frame:
-        return next(self._iter)
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-@dataclass(eq=False)
-class FrameStack:
-    """K frames of one sensor on one column grid, stacked along a first axis: the input of
-    the temporal analysis. Pixel (i, j) is the same raypath in every frame.
-
-    Attributes:
-        sensor, return_labels: as in :class:`Frame`.
-        frame_id: ``int64[K]``.
-        range_mm: ``uint32[K, R, H, W]``; reflectivity: ``uint8[K, R, H, W]``.
-        column_valid: ``bool[K, W]``; column_timestamp_ns: ``int64[K, W]``;
-        azimuth_deg: ``float64[K, W]``.
-    """
-
-    sensor: SensorInfo
-    return_labels: tuple[str, ...]
-    frame_id: np.ndarray
-    range_mm: np.ndarray
-    reflectivity: np.ndarray
-    column_valid: np.ndarray
-    column_timestamp_ns: np.ndarray
-    azimuth_deg: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.range_mm.shape[0])
-
-    @classmethod
-    def from_frames(
-        cls, frames: Iterable[Frame], *, resolution_deg: float | None = None, include_partial: bool = False
-    ) -> "FrameStack":
-        """Stack frames after putting each on the grid (see :meth:`Frame.on_grid`; by default
-        :func:`default_grid_deg`, the grid of ``lidarpkt decode -o x.npz`` and ``lidarpkt analyze``).
-
-        Partial frames are left out unless ``include_partial``. Raises
-        :class:`~lidarpkt.errors.AnalysisError` if no frame is left or the frames differ in
-        shape or return labels.
-        """
-        gridded = [f.on_grid(resolution_deg) for f in frames if include_partial or not f.partial]
-        if not gridded:
-            raise AnalysisError("no complete frames to stack (pass include_partial=True to use partial ones)")
-        first = gridded[0]
-        for f in gridded[1:]:
-            if f.shape != first.shape or f.return_labels != first.return_labels:
-                raise AnalysisError(
-                    f"frame {f.frame_id} has shape {f.shape} and returns {f.return_labels}, "
-                    f"unlike frame {first.frame_id} ({first.shape}, {first.return_labels}): "
-                    "stack frames of one sensor and mode only"
-                )
-        return cls(
-            sensor=first.sensor,
-            return_labels=first.return_labels,
-            frame_id=np.array([f.frame_id for f in gridded], dtype=np.int64),
-            range_mm=np.stack([f.range_mm for f in gridded]),
-            reflectivity=np.stack([f.reflectivity for f in gridded]),
-            column_valid=np.stack([f.column_valid for f in gridded]),
-            column_timestamp_ns=np.stack([f.column_timestamp_ns for f in gridded]),
-            azimuth_deg=np.stack([f.azimuth_deg for f in gridded]),
-        )

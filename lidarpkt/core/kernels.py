@@ -7,18 +7,17 @@ These loops do not vectorise well in NumPy, and run in C when they can
 - the walk over classic-pcap record headers when record sizes are mixed, and over pcapng's
   enhanced packet blocks (each record's offset depends on the one before it);
 - gathering rows of bytes at offsets (header fields of 1-8 bytes, where NumPy's fancy index
-  costs ~10-20 ns a row);
+  costs more per row than the bytes it moves);
 - Ouster XYZ, ``range · direction + offset`` in one pass instead of thirteen NumPy passes;
 - VLP-16 packets into range-image columns (``velodyne.decode.column_pixels``): one pass in chunks
-  of 64 packets, row by row (1.2-1.75x NumPy's two passes, paired runs on a loaded machine);
-- VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass
-  (0.26 against 0.37-0.49 ms per dual frame).
+  of 64 packets, row by row, where NumPy makes two;
+- VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass.
 - Ouster frame assembly (``ouster_scatter``, ``native/ouster.c``): each packet's pixels straight
   into the frame's ``[H, W]`` field arrays at their (row, column) place, in blocks of 16 rows copied
   to an L1 scratch and then extracted field by field with SSE2; no word planes, no transposing copy
-  (2.7 M instructions per OS-2-128 frame against 3.8 M for NumPy's copy and six field passes;
-  callgrind, ``benchmarks/bench_ouster_scatter.py``). Reading each field straight from the
-  column-major packets, as tried before, took more instructions than NumPy (every load a column apart).
+  (the packets are column-major: reading each field straight from them loads a column apart).
+  ``benchmarks/bench_ouster_scatter.py`` measures it; the figures are in the documentation's
+  performance history.
 
 The two XYZ loops have an AVX2 clone beside the baseline one (``target_clones``: the loader picks
 it on a machine that has AVX2, as NumPy's own dispatch does), with no FMA, so the bytes are the same.

@@ -1,101 +1,92 @@
-"""What each received datagram is, and which ones are missing: the cheap path of recording and
-writing raw packets (no decoding).
+"""What a stream of datagrams is (:class:`StreamKind`), and what a read of a capture saw, counted per
+stream kind (:class:`SourceStats`).
 
-:func:`classify_size` names the stream of a payload from its size (and the Ouster metadata when
-given); :class:`VelodyneLoss` and :class:`OusterLoss` count lost packets and rotations from the
-packets themselves, one NumPy pass per batch. The rules are the vendor packages' own
-(:mod:`lidarpkt.vendors.velodyne.stream`, :mod:`lidarpkt.vendors.ouster.stream`), the ones their decoders use, so
-that the recorder and the decoder cannot disagree about packet periods and rotations:
-
-* VLP-16: the device timestamp (µs past the hour) of consecutive data packets advances by exactly
-  one packet period (1327.104 µs single return, 663.552 µs dual: manual, "Timing"); a gap of k
-  periods means k − 1 packets lost. A rotation ends where the first block's azimuth wraps.
-* Hesai Pandar (sizes only these models send; the content is checked by the counter): the UDP
-  sequence number, else the packet time (:mod:`lidarpkt.vendors.hesai.stream`).
-* Ouster: the (frame id, measurement id) of each packet's first column gives its place in the
-  stream; a jump of k packets means k − 1 lost. A rotation ends where the frame id changes.
-
-A step back (or a repeat) is counted as out of order, never as loss. A jump of more than a second
-(forward or back) is an *interruption*: counted and reported on its own, not as packets lost.
+A stream kind is data: the vendor that names it (a :mod:`lidarpkt.vendors` registry entry), the
+vendor's name of the stream and whether frames are made of it. Each vendor declares its kinds; the
+vendor registry's one classifier says which kind a batch of packets is (:data:`OTHER` for none).
 """
 
 from __future__ import annotations
 
-from enum import Enum
-
-from lidarpkt.core.decoder import INTERRUPTION_S, StreamCounts
-from lidarpkt.vendors.hesai import stream as hesai_stream
-from lidarpkt.vendors.ouster import stream as ouster_stream
-from lidarpkt.vendors.velodyne import stream as velodyne_stream
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 
-class StreamKind(str, Enum):
-    """What a stream of datagrams is. A ``str`` (its value) so that it reads and prints as the word."""
+@dataclass(frozen=True)
+class StreamKind:
+    """One kind of stream a vendor's sensors send.
 
-    VELODYNE_DATA = "velodyne_data"
-    VELODYNE_POSITION = "velodyne_position"
-    OUSTER_LIDAR = "ouster_lidar"
-    OUSTER_IMU = "ouster_imu"
-    HESAI_DATA = "hesai_data"
-    OTHER = "other"
+    Attributes:
+        vendor: the vendor's registry name (``""`` for :data:`OTHER`).
+        name: the vendor's name of the stream (``"data"``, ``"position"``, ``"lidar"``, ``"imu"``...).
+        lidar: True for the stream frames are made of (range measurements), False for auxiliary ones.
+
+    ``str()`` gives ``"vendor_name"`` (``"other"`` for :data:`OTHER`), as ``lidarpkt info --json`` writes it.
+    """
+
+    vendor: str
+    name: str
+    lidar: bool = False
 
     def __str__(self) -> str:
-        return self.value
+        return f"{self.vendor}_{self.name}" if self.vendor else self.name
 
     def __format__(self, spec: str) -> str:
-        return format(self.value, spec)
+        return format(str(self), spec)
 
     @classmethod
-    def of(cls, vendor: str, kind: str) -> "StreamKind":
-        """The kind of a vendor's stream by the vendor's own name of it (``("velodyne", "data")``, the
-        :class:`lidarpkt.pipeline.router.Match` fields); :attr:`OTHER` for a pair this table does not name."""
-        return _KINDS.get((vendor, kind), cls.OTHER)
-
-    @property
-    def vendor(self) -> str | None:
-        """``"velodyne"``, ``"ouster"``, ``"hesai"``, or None for :attr:`OTHER`."""
-        return None if self is StreamKind.OTHER else self.value.split("_")[0]
-
-    @property
-    def is_lidar(self) -> bool:
-        """A stream of range measurements (the one frames are made of)."""
-        return self in (StreamKind.VELODYNE_DATA, StreamKind.OUSTER_LIDAR, StreamKind.HESAI_DATA)
+    def parse(cls, text: str, lidar: bool = False) -> "StreamKind":
+        """The kind a ``str()`` of it gave (``lidar`` is not in the text: give it where it matters)."""
+        vendor, sep, name = str(text).partition("_")
+        return cls(vendor, name, lidar) if sep else OTHER
 
 
-VELODYNE_DATA = StreamKind.VELODYNE_DATA
-VELODYNE_POSITION = StreamKind.VELODYNE_POSITION
-OUSTER_LIDAR = StreamKind.OUSTER_LIDAR
-OUSTER_IMU = StreamKind.OUSTER_IMU
-HESAI_DATA = StreamKind.HESAI_DATA
-OTHER = StreamKind.OTHER
-
-_KINDS = {("velodyne", "data"): VELODYNE_DATA, ("velodyne", "position"): VELODYNE_POSITION,
-          ("ouster", "lidar"): OUSTER_LIDAR, ("ouster", "imu"): OUSTER_IMU, ("hesai", "data"): HESAI_DATA}
+#: a stream of no kind any vendor declares
+OTHER = StreamKind("", "other")
 
 
-def classify_size(size: int, ouster_metadata=None) -> StreamKind:
-    """Stream kind of a ``size``-byte payload.
+class UnroutedStream(NamedTuple):
+    """A stream a read did not decode, as :attr:`SourceStats.unrouted_streams` keys it; ``str()`` gives
+    ``"src → dst (size B)"``."""
 
-    ``ouster_metadata`` (:class:`lidarpkt.vendors.ouster.metadata.OusterMetadata`) makes the
-    non-legacy Ouster profiles recognisable; without it only LEGACY sizes are.
+    src: str
+    dst: str
+    payload_size: int | None  # None: the streams beyond the listed ones, summed
+
+    def __str__(self) -> str:
+        return self.src if self.payload_size is None else f"{self.src} → {self.dst} ({self.payload_size} B)"
+
+
+OTHER_STREAMS = UnroutedStream("(other streams)", "", None)
+
+
+@dataclass
+class SourceStats:
+    """What a read of a capture saw: packets routed to decoders by stream kind, and streams it could not use.
+
+    Attributes:
+        batches, packets: batches and packets read.
+        routed: packets handed to a decoder, by stream kind.
+        unrouted_packets: packets of no stream lidarpkt could decode (or of sensors beyond the limit).
+        unrouted_streams: those packets by stream (the first 1000 streams; the rest under
+            :data:`OTHER_STREAMS`).
+        filtered_sources: packets of the sources ``source=`` left out, by source address.
+        frames: frames yielded.
     """
-    kind = velodyne_stream.stream_kind(size)
-    if kind is not None:
-        return _KINDS["velodyne", kind]
-    kind = ouster_stream.stream_kind(size, ouster_metadata)
-    if kind is not None:
-        return _KINDS["ouster", kind]
-    return HESAI_DATA if hesai_stream.stream_kind(size) else OTHER
 
+    batches: int = 0
+    packets: int = 0
+    routed: dict[StreamKind, int] = field(default_factory=dict)
+    unrouted_packets: int = 0
+    unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
+    filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
+    frames: int = 0
 
-#: The counts of one stream (the vendor counters' own).
-LossCount = StreamCounts
-#: Loss and rotation counting of one VLP-16 data stream: :class:`lidarpkt.vendors.velodyne.stream.PacketCounter`.
-VelodyneLoss = velodyne_stream.PacketCounter
-#: Loss and frame counting of one Ouster lidar stream: :class:`lidarpkt.vendors.ouster.stream.PacketCounter`.
-OusterLoss = ouster_stream.PacketCounter
-#: Loss and rotation counting of one Hesai Pandar stream: :class:`lidarpkt.vendors.hesai.stream.PacketCounter`.
-HesaiLoss = hesai_stream.PacketCounter
+    def packets_of(self, vendor: str, name: str) -> int:
+        """Packets routed of the stream kind ``name`` of ``vendor`` (``packets_of("velodyne", "data")``)."""
+        return sum(n for kind, n in self.routed.items() if (kind.vendor, kind.name) == (vendor, name))
 
-__all__ = ["StreamKind", "VELODYNE_DATA", "VELODYNE_POSITION", "OUSTER_LIDAR", "OUSTER_IMU", "HESAI_DATA", "OTHER",
-           "INTERRUPTION_S", "classify_size", "LossCount", "VelodyneLoss", "OusterLoss", "HesaiLoss"]
+    @property
+    def lidar_packets(self) -> int:
+        """Packets routed of the streams frames are made of."""
+        return sum(n for kind, n in self.routed.items() if kind.lidar)

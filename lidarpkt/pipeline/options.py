@@ -11,15 +11,21 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import os
 import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable, TypedDict, TypeVar
 
 if TYPE_CHECKING:
     from lidarpkt.containers.segments import Segment
+    from lidarpkt.core.vendor import DecodeSetup
 
-__all__ = ["OpenOptions", "OpenKeywords", "with_options", "load_ouster_metadata"]
+__all__ = ["OpenOptions", "OpenKeywords", "with_options", "DECODING_OPTIONS"]
+
+
+#: a sensor file as ``metadata=`` takes it: a path, JSON text, a parsed document or a loaded file
+SensorFileArg = Any
+#: the options handed to the vendors' decoders (:meth:`OpenOptions.decoding`)
+DECODING_OPTIONS = ("model", "cut_angle_deg", "cut_on_block", "verify_crc", "soft_id_check")
 
 
 def _option(default: Any, doc: str) -> Any:
@@ -31,29 +37,27 @@ class OpenOptions:
     """The keyword options of ``lidarpkt.open`` and ``FrameReader`` (each field's ``metadata["doc"]`` says
     what it does). Made from keywords by :meth:`from_keywords`; ``dataclasses.replace`` changes some."""
 
-    metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None = _option(
-        None, "Ouster metadata JSON (path or parsed dict), or a list of them for several sensors. MCAP files "
-        "we record carry it and need none. VLP-16 needs none. A Hesai angle-correction ``.csv`` here serves as "
-        "``calibration``.")
-    calibration: Any = _option(
-        None, "Velodyne calibration (path to a ROS YAML / VeloView XML, or a loaded one); the model's stock "
-        "calibration by default (the HDL-64E's: read from its packets' status cycle); or a Hesai Pandar "
-        "angle-correction CSV (a ``.csv`` path or a loaded ``HesaiCalibration``; without one Hesai frames have "
-        "no XYZ).")
-    velodyne_model: str | None = _option(
-        None, "Velodyne: the model (\"VLP-32A\", \"HDL-64E S3\", \"Puck LITE\", ...) when its packets cannot say it; "
-        "by default read from their factory byte (the HDL-64E from its block layout).")
+    metadata: SensorFileArg | Iterable[SensorFileArg] | None = _option(
+        None, "the sensors' description files, one per sensor, of any vendor, told apart by their content: a "
+        "path, JSON text, or a loaded (or parsed) file; a list of them for several sensors. Some sensors need "
+        "theirs to be decoded, some to compute XYZ, some have stock values (:mod:`lidarpkt.vendors` says "
+        "which); MCAP files lidarpkt records carry them. A file that fits no stream of the capture is reported "
+        "(an :class:`~lidarpkt.errors.UnusedSensorFileWarning`).")
+    model: str | None = _option(
+        None, "the sensor model where its packets cannot say it (two models that share a factory byte); by "
+        "default read from the packets.")
     cut_angle_deg: float | None = _option(
-        None, "VLP-16 and Hesai: cut frames at this azimuth (degrees) instead of at the wrap through 0°.")
+        None, "cut frames at this azimuth (degrees) instead of at the wrap through 0° (sensors whose frames end "
+        "where their azimuth wraps).")
     cut_on_block: bool = _option(
-        False, "VLP-16: cut at the block that wraps (VeloView's frames) rather than at the firing sequence "
+        False, "cut at the block of firings that wraps (VeloView's frames) rather than at the firing sequence "
         "that wraps.")
     source: str | None = _option(None, "decode only packets from this source IP address.")
     include_partial: bool = _option(True, "yield the partial frames at the ends of the capture (default True).")
     verify_crc: bool = _option(
-        True, "Ouster: check the CRC-64 of packets whose firmware writes one (default True).")
+        True, "check the CRC of packets whose firmware writes one (default True).")
     soft_id_check: bool = _option(
-        False, "Ouster: accept packets whose init_id differs from the metadata's (a changed init_id still "
+        False, "accept packets whose init_id differs from their sensor file's (a changed init_id still "
         "ends the frame).")
     max_sensors: int = _option(
         64, "most sensors (one decoder each) decoded from one capture (64); packets of further sources are "
@@ -65,8 +69,8 @@ class OpenOptions:
     segment: Segment | None = _option(
         None, "yield only the frames of this :class:`~lidarpkt.containers.segments.Segment` of the capture "
         "(from :func:`~lidarpkt.containers.segments.plan_segments`); the frames of all segments, in order, are "
-        "the whole file's. VLP-16 ``frame_id`` and ``extra[\"packet_index\"]`` then count from the "
-        "segment's start.")
+        "the whole file's. A ``frame_id`` that counts rotations and ``extra[\"packet_index\"]`` then count "
+        "from the segment's start.")
     ports: Iterable[int] | None = _option(None, "pcap/pcapng: keep only packets sent to these UDP destination ports.")
     src_addresses: Iterable[str] | None = _option(
         None, "pcap/pcapng: keep only packets from these source addresses.")
@@ -97,6 +101,24 @@ class OpenOptions:
         """The options as keyword arguments (every field, by name)."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
+    def decoding(self) -> dict[str, Any]:
+        """The options the vendors' decoders take (each those it knows), by name."""
+        return {name: getattr(self, name) for name in DECODING_OPTIONS}
+
+    def sensor_setup(self) -> tuple[list, DecodeSetup]:
+        """(the sensor files of ``metadata``, loaded; the vendors' :class:`~lidarpkt.core.vendor.DecodeSetup`):
+        what the router of files and live packets alike is given.
+
+        Raises:
+            lidarpkt.errors.MetadataError: a ``metadata`` file of no kind lidarpkt reads (or that its vendor
+                cannot read); UsageError: a ``model`` no vendor has.
+        """
+        from lidarpkt.vendors import registry
+
+        registry.check_model(self.model)
+        files = registry.load_sensor_files(self.metadata)
+        return files, registry.setup(files, self.decoding())
+
     def filters(self) -> dict[str, Any]:
         """The options the packet reader takes (``None``: the reader's default)."""
         return {"ports": self.ports, "src_addresses": self.src_addresses, "payload_sizes": self.payload_sizes,
@@ -108,9 +130,8 @@ class OpenKeywords(TypedDict, total=False):
     (``**options: Unpack[OpenKeywords]``): a misspelt or mistyped option is found before the script runs.
     A test holds it equal to :class:`OpenOptions`, name for name and type for type."""
 
-    metadata: str | os.PathLike[str] | dict | Iterable[str | os.PathLike[str] | dict] | None
-    calibration: Any
-    velodyne_model: str | None
+    metadata: SensorFileArg | Iterable[SensorFileArg] | None
+    model: str | None
     cut_angle_deg: float | None
     cut_on_block: bool
     source: str | None
@@ -150,17 +171,3 @@ def with_options(func: _F) -> _F:
                                subsequent_indent=indent + "    ") for f in dataclasses.fields(OpenOptions)]
         func.__doc__ = doc.replace(indent + "{options}", "\n".join(lines))
     return func
-
-
-def load_ouster_metadata(metadata: Any) -> list:
-    """The ``metadata`` option as a list of loaded Ouster metadata (``[]`` for ``None``); loaded ones pass through.
-
-    Raises:
-        lidarpkt.errors.MetadataError: a file or JSON text that is no Ouster metadata.
-    """
-    if metadata is None:
-        return []
-    from lidarpkt.vendors.ouster import load_metadata
-
-    items = metadata if isinstance(metadata, (list, tuple)) else [metadata]
-    return [m if hasattr(m, "sensor_info") else load_metadata(m) for m in items]

@@ -42,11 +42,13 @@ from typing import Any, Callable, Generator
 import numpy as np
 
 from lidarpkt.errors import CaptureFormatError, UnknownSensorError
-from lidarpkt.core.frame import Frame, FrameIterator
-from .options import OpenOptions, load_ouster_metadata
+from lidarpkt.core.frame import Frame
+from lidarpkt.core.sequence import FrameIterator
+from lidarpkt.vendors import registry
+from .options import OpenOptions
 
-__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "open_parallel", "plan", "MIN_SEGMENT_BYTES",
-           "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
+__all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_workers", "open_parallel", "plan",
+           "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
@@ -67,8 +69,9 @@ class PipelinedFrameReader(FrameIterator):
     of their own ahead of the caller (``lidarpkt.open(path, workers=2)``; see the module docstring).
 
     ``reader`` is that :class:`~lidarpkt.pipeline.reader.FrameReader` (its packets read ahead as ``workers=1``
-    reads them); ``stats`` is its :class:`~lidarpkt.pipeline.reader.SourceStats`, complete once the iteration
-    has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
+    reads them; in a pass with packets, :func:`lidarpkt.pipeline.passes.open_pass`, its batches come through
+    in order with the frames); ``stats`` is its :class:`~lidarpkt.core.streams.SourceStats`, complete once
+    the iteration has ended. ``close()`` (or ``with``) stops both threads. Raises while iterating what the
     single-threaded reader raises, after the frames before it.
     """
 
@@ -92,7 +95,11 @@ class PipelinedFrameReader(FrameIterator):
 
 
 def _frame_nbytes(frame: Frame) -> int:
-    """Bytes of a frame's arrays (what it counts against :data:`DECODE_AHEAD_BYTES`)."""
+    """Bytes of a frame's arrays (what it counts against :data:`DECODE_AHEAD_BYTES`); of a pass's packet batch
+    (:class:`~lidarpkt.pipeline.reader.Packets`), its payload."""
+    batch = getattr(frame, "batch", None)
+    if batch is not None:
+        return int(batch.payload.nbytes)
     total = sum(v.nbytes for v in vars(frame).values() if isinstance(v, np.ndarray))
     return total + sum(v.nbytes for v in frame.extra.values() if isinstance(v, np.ndarray))
 
@@ -102,7 +109,7 @@ class ParallelFrameReader(FrameIterator):
 
     Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
     same order, with the same arrays, ``frame_id`` and ``extra``. ``stats`` sums the segment readers'
-    :class:`~lidarpkt.pipeline.reader.SourceStats` (its packet counters include the packets each segment reader
+    :class:`~lidarpkt.core.streams.SourceStats` (its packet counters include the packets each segment reader
     read past its end to complete its last frame; ``stats.frames`` is exact). ``close()`` (or ``with``)
     stops the threads after the segments they are decoding. Warnings of the segment readers are
     emitted from the worker threads.
@@ -117,14 +124,14 @@ class ParallelFrameReader(FrameIterator):
                  open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
         """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
         of ``options.segment`` (a :class:`~lidarpkt.pipeline.reader.FrameReader`); ``stats`` is an empty
-        :class:`~lidarpkt.pipeline.reader.SourceStats` that sums theirs."""
+        :class:`~lidarpkt.core.streams.SourceStats` that sums theirs."""
         self.path = path
         self.segments = segments
         self.workers = int(options.workers)
         self._include_partial = options.include_partial
-        # the workers are the threads; the metadata is parsed once, not per segment
+        # the workers are the threads; the sensor files are read once, not per segment
         self._options = dataclasses.replace(options, workers=1, include_partial=True, read_ahead=False,
-                                            metadata=load_ouster_metadata(options.metadata) or None)
+                                            metadata=registry.load_sensor_files(options.metadata) or None)
         self._open_segment = open_segment
         self.stats = stats
         self._stop = threading.Event()
@@ -261,7 +268,7 @@ class Renumber:
     def frame(self, frame: Frame) -> Frame:
         """``frame`` of the current segment with the whole file's ordinals and SensorInfo."""
         frame.sensor = self._sensor(frame.sensor)
-        if frame.sensor.vendor in ("velodyne", "hesai"):  # frame ids counted from the stream's start
+        if registry.vendor(frame.sensor.vendor).frame_ids_counted:  # frame ids counted from the stream's start
             key = str(frame.sensor.source)
             frame.frame_id = self.next_frame_id.get(key, 0)
             self.next_frame_id[key] = frame.frame_id + 1
@@ -313,17 +320,26 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
     Raises:
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
-    workers = options.workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        from lidarpkt.errors import UsageError
-
-        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    workers = check_workers(options.workers)
     if workers == 1 or options.segment is not None:
         return None
     segments = plan(path, workers) if workers >= 3 else []
     if segments:
         return ParallelFrameReader(path, segments, options, open_segment, stats)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
+
+
+def check_workers(workers: Any) -> int:
+    """``workers`` when it is a whole number >= 1.
+
+    Raises:
+        lidarpkt.errors.UsageError: it is not.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        from lidarpkt.errors import UsageError
+
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    return workers
 
 
 def plan(path: str | os.PathLike[str], workers: int) -> list:

@@ -2,10 +2,11 @@
 
 ``lidarpkt.open(path)`` is :func:`open_frames`. The container (pcap, pcapng, MCAP,
 rosbag2, ROS 1 bag) is recognised by its first bytes, not its name. Every batch of
-packets is routed by what it is (VLP-16 data or position packets; Ouster lidar or IMU
-packets of a sensor whose metadata was given) and by its source, so that several
+packets is routed by what it is (the vendor registry's classifier: a vendor's stream, decoded
+with the sensor files given where its sensors need one) and by its source, so that several
 sensors in one file each get their own decoder. Streams that are none of these are
-counted, not decoded.
+counted, not decoded. A file of decoded frames a vendor records (OSF) gives that vendor's
+reader of its frames.
 """
 
 from __future__ import annotations
@@ -13,72 +14,34 @@ from __future__ import annotations
 import dataclasses
 import os
 import weakref
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple
+from typing import TYPE_CHECKING, Any, Generator, Iterator, NamedTuple, cast
 
 import numpy as np
 
-from lidarpkt.errors import DroppedPacketsWarning, SkippedPacketWarning, UnknownSensorError, UnsupportedContainerError
-from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.containers.protocol import PacketSource
 from lidarpkt.core.decoder import Decoder
-from lidarpkt.core.frame import Frame, FrameIterator
-from .options import OpenOptions, load_ouster_metadata, with_options
+from lidarpkt.core.dropped import DropCounts, format_dropped
+from lidarpkt.core.frame import Frame
 from lidarpkt.core.packet import PacketBatch
-from .router import Router, RouteOptions, source_name as _source_name
+from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
+from lidarpkt.core.sequence import FrameIterator
+from lidarpkt.core.streams import OTHER_STREAMS, SourceStats, UnroutedStream
+from lidarpkt.core.vendor import DecodeSetup, Match
+from lidarpkt.errors import (DroppedPacketsWarning, MetadataError, SkippedPacketWarning, UnknownSensorError,
+                             UnsupportedContainerError, UnusedSensorFileWarning)
+from lidarpkt.vendors import registry
+from .options import OpenOptions, with_options
+from .router import MAX_SENSORS, Router, source_name as _source_name
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack is Python 3.11+
 
-    from .options import OpenKeywords
     from lidarpkt.core.readahead import ReadAhead
-    from lidarpkt.vendors.ouster.osf import OsfReader
-    from .parallel import ParallelFrameReader, PipelinedFrameReader
-
-from lidarpkt.containers.magic import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, container_kind, is_osf  # noqa: F401 (public here too)
-from lidarpkt.containers.magic import PCAP_MAGIC_BYTES as PCAP_MAGICS  # noqa: F401
-from lidarpkt.containers.protocol import PacketSource, open_packet_source
+    from lidarpkt.core.vendor import FrameFiles
+    from .options import OpenKeywords
 
 _MAX_LISTED_STREAMS = 1000  # unrouted streams named one by one in SourceStats; the rest are summed
-
-
-def read_batches(path: str | os.PathLike[str], **filters: Any) -> Iterator[PacketBatch]:
-    """Packet batches of any supported container, in capture order (see :func:`lidarpkt.containers.open_packet_source`)."""
-    return open_packet_source(path, **filters).batches()
-
-
-class UnroutedStream(NamedTuple):
-    """A stream :func:`open_frames` did not decode, as :attr:`SourceStats.unrouted_streams` keys it;
-    ``str()`` gives ``"src → dst (size B)"``."""
-
-    src: str
-    dst: str
-    payload_size: int | None  # None: the streams beyond the listed ones, summed
-
-    def __str__(self) -> str:
-        return self.src if self.payload_size is None else f"{self.src} → {self.dst} ({self.payload_size} B)"
-
-
-OTHER_STREAMS = UnroutedStream("(other streams)", "", None)
-
-
-@dataclass
-class SourceStats:
-    """What :func:`open_frames` saw: packets routed to each kind of decoder and streams it could not use."""
-
-    batches: int = 0
-    packets: int = 0
-    velodyne_data_packets: int = 0
-    velodyne_position_packets: int = 0
-    ouster_lidar_packets: int = 0
-    ouster_imu_packets: int = 0
-    hesai_data_packets: int = 0
-    ouster_zone_packets: int = 0
-    unrouted_packets: int = 0
-    unrouted_streams: dict[UnroutedStream, int] = field(default_factory=dict)  # stream → packets
-    other_sensor_packets: dict[str, int] = field(default_factory=dict)  # "vendor kind" → packets, other vendors
-    filtered_sources: dict[str, int] = field(default_factory=dict)  # sources left out by source= → packets
-    frames: int = 0
 
 
 class FrameReader(FrameIterator):
@@ -125,28 +88,31 @@ class FrameReader(FrameIterator):
             if segment.count > 1:
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
-        self.reader: PacketSource = open_packet_source(path, **filters)
+        self.sensor_files, setup = opts.sensor_setup()  # before opening: a bad file says so first
+        self.reader: PacketSource = registry.open_packets(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
-        self.stats = SourceStats()
-        from lidarpkt.vendors.hesai.calibration import is_hesai_calibration  # a CSV is Hesai's, a YAML/XML the VLP-16's
-
-        hesai_cal = is_hesai_calibration(opts.calibration)
-        metadata, hesai_md = _split_hesai(opts.metadata)  # a Hesai CSV given as the sensor's metadata
-        self._decoder_options: dict[str, dict[str, Any]] = {
-            "velodyne": {"calibration": None if hesai_cal else opts.calibration, "cut_angle_deg": opts.cut_angle_deg,
-                         "cut_on_block": opts.cut_on_block, "model": opts.velodyne_model},
-            "ouster": {"verify_crc": opts.verify_crc, "soft_id_check": opts.soft_id_check},
-            "hesai": {"calibration": opts.calibration if hesai_cal else hesai_md, "cut_angle_deg": opts.cut_angle_deg}}
-        self._source_filter = opts.source
+        self._decoding = opts.decoding()
+        self._recorded_wanted = True  # a sensor file recorded in the capture is still to be looked for
         self._include_partial = opts.include_partial
-        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
-        too_many = weakref.WeakMethod(self._too_many_sensors)
-        self.router = Router(RouteOptions(load_ouster_metadata(metadata), self._decoder_options),
-                             max_sensors=opts.max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
+        self.driver = Driver(str(self.path), setup, max_sensors=opts.max_sensors, source=opts.source,
+                             ownership=self._ownership, sensor_files=self.sensor_files)
+        self.stats = self.driver.stats
+        self.router = self.driver.router
         # the generator holds a weak proxy, not self: dropping the last reference to the reader
         # finalises it at once (no cycle left to the garbage collector), which stops the thread
-        self._iter: Generator[Frame, None, None] = FrameReader._frames(weakref.proxy(self))
+        self._iter: Generator[Frame, None, None] = cast("Generator[Frame, None, None]",
+                                                        FrameReader._frames(weakref.proxy(self)))  # frames only
+
+    def items(self, decode: bool = True) -> Generator[Frame | Packets, None, None]:
+        """The pass as it goes, instead of iterating the reader: each batch read, as :class:`Packets` (with
+        what the router made of it), then the frames that batch completed; the last frames at the end.
+        ``decode=False``: the batches alone, classified but not decoded (no frames, no error for a capture
+        without a sensor). Call it before the first ``next()``; ``close()`` stops it as it stops the frames."""
+        self._iter.close()  # not started: nothing is lost
+        items = FrameReader._frames(weakref.proxy(self), packets=True, decode=decode)
+        self._iter = cast("Generator[Frame, None, None]", items)  # close() ends whichever generator runs
+        return items
 
     def close(self) -> None:
         """Stop reading: the read-ahead thread, if any, stops and the file is closed. Idempotent."""
@@ -174,72 +140,195 @@ class FrameReader(FrameIterator):
         """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
         return self.router.decoders
 
-    @property
-    def _ouster_metadata(self) -> list:
-        return list(self.router.options.ouster_metadata)
+    def drop_counts(self) -> DropCounts:
+        """Packets dropped so far, by reason (each vendor's reasons, :attr:`~lidarpkt.core.vendor.Vendor.drops`)."""
+        return self.driver.drop_counts()
 
-    def _frames(self) -> Generator[Frame, None, None]:
-        embedded = self.reader.ouster_metadata
+    def _take_recorded_file(self) -> None:
+        """A sensor file recorded inside the capture (an MCAP's, a bag's) serves when none of its vendor's was
+        given."""
+        text = self.reader.recorded_sensor_file()
+        if text is None:
+            return
+        self._recorded_wanted = False
+        recorded = registry.load_sensor_files([text])[0]
+        if not self.router.setup.files(recorded.vendor):
+            self.sensor_files.append(recorded)
+            self.router.setup = registry.setup(self.sensor_files, self._decoding)
+
+    def _frames(self, packets: bool = False, decode: bool = True) -> Generator[Frame | Packets, None, None]:
         batches = self._batches()
         ownership = self._ownership
         try:
             for batch in batches:
-                if not self.router.options.ouster_metadata:
-                    # Metadata recorded inside the file (MCAP /ouster/metadata) serves when none was given.
-                    self.router.options = RouteOptions(load_ouster_metadata(embedded()), self._decoder_options)
-                self.stats.batches += 1
-                self.stats.packets += len(batch)
-                src = batch.src.address if batch.src is not None else None
-                if self._source_filter is not None and src != self._source_filter:
-                    if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
-                        self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
-                    continue
+                if self._recorded_wanted:
+                    self._take_recorded_file()
                 split = getattr(self.reader, "split_ordinal", None)
                 post_end = split is not None and int(batch.index[0]) >= split
-                yield from FrameReader._emit(self, self._route(batch, post_end))  # self: the weak proxy
+                match, frames = self.driver.route(batch, post_end) if decode else (self.driver.classify(batch), [])
+                if packets:
+                    yield Packets(batch, match)  # items(): the batch before its frames
+                yield from FrameReader._emit(self, frames)  # self: the weak proxy
                 if ownership is not None and ownership.done(post_end):
                     break  # a segment: nothing further belongs to it
         finally:
             getattr(batches, "close", lambda: None)()  # stops the read-ahead thread (or closes the reader's generator) however we leave
+        if not decode:
+            return
         for key, decoder in list(self.decoders.items()):
             frames = decoder.finish()
             yield from FrameReader._emit(self, frames if ownership is None else ownership.finish(key, frames))
         if self.stats.packets and not self.decoders:
-            raise UnknownSensorError(self._no_sensor_message())
-        from lidarpkt.core.dropped import dropped_summary, no_sensor_hint  # what was skipped, lost or discarded: said once
-
-        if not (self.stats.velodyne_data_packets or self.stats.ouster_lidar_packets or self.stats.hesai_data_packets):
-            wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
-            if wrong:  # Ouster lidar packets without (fitting) metadata: say so, not "no frames"
+            raise UnknownSensorError(self.driver.no_sensor_message())
+        if not self.stats.lidar_packets:
+            wrong = registry.undecoded_hint(self.path, self.stats.unrouted_streams, self.router.setup)
+            if wrong:  # a vendor's lidar packets without (fitting) sensor file: say so, not "no frames"
                 raise UnknownSensorError(wrong)
-
-        summary = dropped_summary(self)
+        if self.segment is None:
+            for f in self.driver.unused_files():
+                warn(UnusedSensorFileWarning(f"{f.name}: {f.what}, but no stream of {self.path} fits it: not used"),
+                     stacklevel=3)
+        summary = self.driver.dropped_summary()  # what was skipped, lost or discarded: said once
         if summary:
             warn(DroppedPacketsWarning(summary), stacklevel=3)
 
-    def _route(self, batch: PacketBatch, post_end: bool = False) -> list[Frame]:
-        """Route a batch through the one router (:mod:`lidarpkt.pipeline.router`): its sensor's decoder; reading a
-        segment, nothing for a sensor whose frames of the segment are complete."""
+    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
+        for frame in frames:
+            if frame.partial and not self._include_partial:
+                continue
+            self.stats.frames += 1
+            yield frame
+
+
+class Packets(NamedTuple):
+    """A batch of a pass (:meth:`FrameReader.items`) and what the router made of it: ``stream`` is the
+    vendor's :class:`~lidarpkt.core.vendor.Match` (``.stream``, ``.vendor``, ``.kind``, ``.lidar``; ``.make``
+    ``None`` when the vendor recognises the stream but cannot decode it), ``None`` when no vendor recognised
+    the batch or ``source=`` left its source out."""
+
+    batch: PacketBatch
+    stream: Match | None
+
+
+class Driver:
+    """The one driver from packet batches to decoders, for capture files (:class:`FrameReader`) and live
+    sources (:class:`lidarpkt.pipeline.live.LiveDecoder`): each batch is routed by the router
+    (:mod:`lidarpkt.pipeline.router`) to its sensor's decoder and counted in :attr:`stats`
+    (:class:`SourceStats`); streams no vendor recognises, and sensors beyond ``max_sensors`` (said once, a
+    :class:`~lidarpkt.errors.SkippedPacketWarning`), are counted as unrouted; ``source`` keeps one source.
+
+    Args:
+        name: what warnings and errors name (the capture's path, the live address).
+        setup: the sensor files and decoding options the vendors' classifiers and decoders are given.
+        max_sensors: most sensors given a decoder.
+        source: decode only the packets of this source IP address (``None``: all).
+        ownership: reading a segment, its :class:`~lidarpkt.containers.segments.SegmentOwnership`.
+        unused_auxiliary: vendors whose auxiliary batches are counted, not handed to their decoders.
+        sensor_files: the sensor files given (:func:`lidarpkt.vendors.registry.load_sensor_files`), whose use it
+            follows (:meth:`unused_files`).
+    """
+
+    def __init__(self, name: str, setup: DecodeSetup, *, max_sensors: int = MAX_SENSORS, source: str | None = None,
+                 ownership: Any = None, unused_auxiliary: frozenset[str] = frozenset(),
+                 sensor_files: list | None = None) -> None:
+        self.name = name
+        self.stats = SourceStats()
+        self._source_filter = source
+        self._ownership = ownership
+        self.unused_auxiliary = unused_auxiliary
+        self.sensor_files = sensor_files if sensor_files is not None else []
+        self._used_files: set[int] = set()  # id() of the loaded sensor files decoders were given
+        # the router holds a weak method, not self: no reference cycle keeps a dropped reader (and its thread)
+        too_many = weakref.WeakMethod(self._too_many_sensors)
+        self.router = Router(setup, max_sensors=max_sensors, on_limit=lambda: (too_many() or (lambda: None))())
+
+    @property
+    def decoders(self) -> dict[tuple, Decoder]:
+        """(vendor, source address, ...) → the decoder of that sensor, in order of first packet."""
+        return self.router.decoders
+
+    def route(self, batch: PacketBatch, post_end: bool = False) -> tuple[Match | None, list[Frame]]:
+        """Count a batch and route it through the one router (:mod:`lidarpkt.pipeline.router`) to its sensor's
+        decoder: (what the router made of it, the frames it completed). Reading a segment, nothing for a sensor
+        whose frames of the segment are complete."""
+        self.stats.batches += 1
+        self.stats.packets += len(batch)
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            if len(self.stats.filtered_sources) < 1000 or src in self.stats.filtered_sources:
+                self.stats.filtered_sources[str(src)] = self.stats.filtered_sources.get(str(src), 0) + len(batch)
+            return None, []
         router = self.router
         match = router.classify(batch)
-        if match is None:
-            return self._unrouted(batch)
+        if match is None or match.make is None:  # no vendor's, or one its vendor cannot decode (no sensor file)
+            return match, self._unrouted(batch)
         key = router.key(batch, match)
         if self._ownership is not None and self._ownership.state(key, post_end).closed:
-            return []
+            return match, []
+        if key not in router.decoders:
+            self._check_files(match)
         route = router.route_match(batch, match)
         if route.decoder is None:
-            return self._unrouted(batch)
-        name = f"{match.vendor}_{match.kind}_packets"
-        if hasattr(self.stats, name):
-            setattr(self.stats, name, getattr(self.stats, name) + len(batch))
-        else:  # a vendor SourceStats has no field of its own for
-            other = self.stats.other_sensor_packets
-            other[f"{match.vendor} {match.kind}"] = other.get(f"{match.vendor} {match.kind}", 0) + len(batch)
+            return match, self._unrouted(batch)
+        self._used_files.update(id(f) for f in match.sensor_files)
+        self.stats.routed[match.stream] = self.stats.routed.get(match.stream, 0) + len(batch)
         if match.lidar:
-            return self._push(route.key, route.decoder, batch, post_end)
-        route.decoder.push_auxiliary(batch)
-        return []
+            return match, self._push(route.key, route.decoder, batch, post_end)
+        if match.vendor not in self.unused_auxiliary:
+            route.decoder.push_auxiliary(batch)
+        return match, []
+
+    def classify(self, batch: PacketBatch) -> Match | None:
+        """What the router makes of a batch (``None`` too when ``source`` leaves it out), without counting
+        or decoding it."""
+        src = batch.src.address if batch.src is not None else None
+        if self._source_filter is not None and src != self._source_filter:
+            return None
+        return self.router.classify(batch)
+
+    def finish(self) -> list[Frame]:
+        """The frames still being assembled in every decoder (the last, partial ones)."""
+        out: list[Frame] = []
+        for decoder in self.decoders.values():
+            out += decoder.finish()
+        return out
+
+    def unused_files(self) -> list:
+        """The sensor files given that no decoder was given (they fit no stream routed so far)."""
+        return [f for f in self.sensor_files if id(f.loaded) not in self._used_files]
+
+    def _check_files(self, match: Match) -> None:
+        """A new sensor whose vendor needs a sensor file for its XYZ, while the files given are all of other
+        vendors and fit no stream so far: the files are for another sensor, which is an error (the frames
+        would come without points, for a reason no later message could name).
+
+        Raises:
+            MetadataError: naming the files given and the one the sensor takes.
+        """
+        kind = registry.vendor(match.vendor).sensor_files
+        if kind is None or kind.needed_for != "xyz" or match.sensor_files or not self.sensor_files:
+            return
+        if any(f.vendor == match.vendor or id(f.loaded) in self._used_files for f in self.sensor_files):
+            return
+        given = "; ".join(f"{f.name} is a {f.what}" for f in self.sensor_files)
+        raise MetadataError(f"{self.name}: {given}, but its {registry.vendor(match.vendor).title} stream "
+                            f"({match.kind}) takes a {kind.what}: give the sensor's own file (metadata=... / "
+                            "--metadata)")
+
+    def drop_counts(self) -> DropCounts:
+        """Packets dropped so far, by reason, over every decoder (each vendor's reasons) and the unrouted ones."""
+        counts = DropCounts()
+        for key, decoder in self.decoders.items():
+            counts += registry.vendor(key[0]).drops(decoder.stats)
+        counts.unrouted += self.stats.unrouted_packets
+        return counts
+
+    def dropped_summary(self) -> str | None:
+        """The end-of-read summary line (``None`` when nothing was dropped)."""
+        text = format_dropped(self.drop_counts(), self.stats.packets)
+        if not text:
+            return None
+        return f"{self.name}: {text}; the frames hold what arrived (counts per decoder in .decoders[...].stats)"
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
@@ -268,41 +357,39 @@ class FrameReader(FrameIterator):
         OS-128), so a capture with thousands of source addresses (400 one-packet Ouster sources took
         660 MB) must not get one each. Said once."""
         warn(SkippedPacketWarning(
-            f"{self.path}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
+            f"{self.name}: more than {self.router.max_sensors} sensors (source addresses) in one capture; the "
             "packets of the others are counted in stats.unrouted_packets, not decoded (choose one with "
             "source=..., or raise max_sensors=...)"), stacklevel=7)
 
-    def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
-        for frame in frames:
-            if frame.partial and not self._include_partial:
-                continue
-            self.stats.frames += 1
-            yield frame
-
-    def _no_sensor_message(self) -> str:
+    def no_sensor_message(self) -> str:
+        """Why no sensor was decoded: the sources ``source`` left out, or the streams seen (and a hint)."""
         if not self.stats.unrouted_streams and self.stats.filtered_sources:
             seen = ", ".join(f"{a} ({n} packets)" for a, n in list(self.stats.filtered_sources.items())[:8])
-            return f"{self.path}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
+            return f"{self.name}: no packets from source {self._source_filter}; the capture holds packets from {seen}"
         streams = "; ".join(f"{k}: {n} packets" for k, n in list(self.stats.unrouted_streams.items())[:8])
-        from lidarpkt.core.dropped import no_sensor_hint
-
-        wrong = no_sensor_hint(self.path, self.stats.unrouted_streams, self._ouster_metadata)
+        setup = self.router.setup
+        wrong = registry.undecoded_hint(self.name, self.stats.unrouted_streams, setup)
         if wrong:
             return wrong
-        hint = "" if self._ouster_metadata else " For an Ouster sensor pass its metadata JSON (metadata=... / --metadata)."
-        return f"{self.path}: no VLP-16 or Ouster stream (nor a Hesai Pandar one) found among {streams}.{hint}"
+        needed = [v.sensor_files.what for v in registry.VENDORS if v.sensor_files is not None
+                  and v.sensor_files.needed_for == "decoding" and not setup.files(v.name)]
+        hint = (f" Some sensors are decoded only with their sensor file: pass the {' or the '.join(needed)} "
+                "(metadata=... / --metadata)." if needed else "")
+        return f"{self.name}: no stream of a sensor lidarpkt decodes ({registry.names()}) found among {streams}.{hint}"
 
 
 @with_options
 def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
-                ) -> FrameReader | ParallelFrameReader | PipelinedFrameReader | OsfReader:
+                ) -> FrameIterator:
     """Frames from a capture; this is ``lidarpkt.open``.
 
     Returns a :class:`FrameReader`: iterate it for :class:`~lidarpkt.core.frame.Frame` objects in the order
     their last packet arrived; its ``stats`` say what was routed where and what was skipped;
-    ``close()`` (or ``with``) stops reading early. An OSF file (ouster-sdk's recording of decoded
-    frames) gives a :class:`~lidarpkt.vendors.ouster.osf.OsfReader` of its stored frames (see
-    :func:`~lidarpkt.vendors.ouster.osf.open_osf` for the options it takes).
+    ``close()`` (or ``with``) stops reading early; with ``workers`` > 1 a
+    :class:`~lidarpkt.pipeline.parallel.ParallelFrameReader` or
+    :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader` gives the same frames. A file of decoded frames
+    (ouster-sdk's OSF) gives its vendor's reader of its stored frames (see :func:`_open_frame_file` for the
+    options it takes).
 
     Args:
         path: pcap/pcapng file, MCAP file, rosbag2 directory or ``.db3``, ROS 1 ``.bag``, or OSF file.
@@ -316,10 +403,9 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         UsageError: ``workers`` is not a whole number >= 1.
     """
     opts = OpenOptions.from_keywords("open_frames", dict(options))
-    if is_osf(path):  # ouster-sdk's frame files: frames, not packets
-        from lidarpkt.vendors.ouster.osf import open_osf
-
-        return open_osf(path, opts)
+    frame_files = registry.frame_files(path)
+    if frame_files is not None:  # files of decoded frames, not packets
+        return _open_frame_file(path, opts, frame_files)
     if opts.workers != 1:
         from .parallel import open_parallel
 
@@ -327,6 +413,42 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         if reader is not None:
             return reader
     return FrameReader(path, **dataclasses.replace(opts, workers=1).keywords())  # one thread after all
+
+
+_PACKET_OPTIONS = ("ports", "src_addresses", "payload_sizes", "topics", "batch_packets", "source")
+
+
+def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: FrameFiles) -> FrameIterator:
+    """``lidarpkt.open`` of a file of decoded frames (``files``: what it is): its vendor's reader (``workers``
+    ≥ 2: decoded in a thread ahead of the caller, :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader`).
+
+    The file carries its sensors' metadata: ``metadata`` is not used, nor are the options of packet decoding
+    (``model``, ``verify_crc``...); ``include_partial`` applies.
+
+    Raises:
+        UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): the file holds no packets.
+        UnsupportedContainerError: a ``segment`` of a file cut in several: the file is read whole.
+        UsageError: ``workers`` is not a whole number >= 1.
+        CaptureFormatError: the file is damaged.
+    """
+    from lidarpkt.errors import UnsupportedFilterError, UsageError
+
+    what = f"an {files.what}"
+    given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
+    if given:
+        raise UnsupportedFilterError(f"{path}: {', '.join(n + '=' for n in given)} cannot filter {what}: it holds "
+                                     "decoded frames, not packets")
+    if options.segment is not None and options.segment.count != 1:
+        raise UnsupportedContainerError(f"{path}: {what} is read whole (one segment)")
+    workers = options.workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
+    reader = files.open(path, SourceStats(), options.include_partial)
+    if workers == 1:
+        return reader
+    from .parallel import PipelinedFrameReader
+
+    return PipelinedFrameReader(reader)
 
 
 def _segment_reader(path: str | os.PathLike[str], options: OpenOptions) -> FrameReader:
@@ -353,19 +475,6 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
     return size >= READ_AHEAD_MIN_BYTES and (os.cpu_count() or 1) > 1
 
 
-def _split_hesai(metadata: Any) -> tuple[Any, Any]:
-    """(the Ouster metadata, the Hesai calibration) of the ``metadata`` option: an archive job's
-    ``--metadata`` may name a Pandar's angle-correction CSV, its sensor description as the JSON is an Ouster's."""
-    from lidarpkt.vendors.hesai.calibration import is_hesai_calibration
-
-    items = metadata if isinstance(metadata, (list, tuple)) else [metadata] if metadata is not None else []
-    hesai = [m for m in items if is_hesai_calibration(m)]
-    if not hesai:
-        return metadata, None
-    rest = [m for m in items if not is_hesai_calibration(m)]
-    return rest or None, hesai[0]
-
-
 def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
     """A batch past a segment's end as views of 1, 32, 64, 128... packets: the first alone (as
     ``SegmentOwnership.split_first_post`` asks), and the reader stops pushing as soon as the segment's last
@@ -377,16 +486,10 @@ def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
 
 
 def _holds_packet(frame: Frame, batch: PacketBatch, decoder) -> bool:
-    """Does ``frame`` hold the (first) packet of ``batch``? VLP-16 frames list their packets' ordinals;
-    an Ouster frame holds the packets of its frame id."""
+    """Does ``frame`` hold the (first) packet of ``batch``? Frames that list their packets' ordinals
+    (``extra["packet_index"]``) say so; a decoder whose frames do not answers it (``holds_packet``)."""
     index = frame.extra.get("packet_index")
     if index is not None:
         return bool(np.isin(int(batch.index[0]), index))
-    metadata = getattr(decoder, "metadata", None)
-    if metadata is None:
-        return False
-    from lidarpkt.vendors.ouster import decode_packets
-
-    fields = decode_packets(batch.payload[:1], metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
-    return int(fields.frame_id[0]) == frame.frame_id
-
+    holds = getattr(decoder, "holds_packet", None)
+    return bool(holds(frame, batch)) if holds is not None else False

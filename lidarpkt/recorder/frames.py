@@ -1,7 +1,7 @@
 """Frames while recording: ``record --points`` and ``record --view``, decoded off the receive path.
 
 :class:`LiveFrames` gets the batches the recorder has just written (:meth:`LiveFrames.offer`
-never waits) and decodes them in a :class:`lidarpkt.view.tap.FrameTap` thread. Each frame
+never waits) and decodes them in a :class:`lidarpkt.pipeline.live.FrameTap` thread. Each frame
 then goes, as chosen, to
 
 * ``--points``: ``sensor_msgs/PointCloud2`` per return slot (:mod:`lidarpkt.writers.mcap.pointcloud`)
@@ -10,7 +10,7 @@ then goes, as chosen, to
   encoded in the decoding thread and written by the recorder's loop
   (:meth:`LiveFrames.write_points`: the MCAP writer is used from one thread only); log time =
   host receive time of the last packet of the batch that completed the frame;
-* ``--view``: the Foxglove server, through a :class:`lidarpkt.view.tap.FrameDropper` that
+* ``--view``: the Foxglove server (:class:`lidarpkt.view.server.ViewServer`), through a :class:`lidarpkt.view.tap.FrameDropper` that
   drops frames for the viewer (counted) when publishing falls behind.
 
 If decoding falls behind, batches are dropped for the frames (counted in the summary as
@@ -22,33 +22,33 @@ from __future__ import annotations
 import queue
 import time
 
-from lidarpkt.writers.mcap import schemas
+from lidarpkt.containers import rosmsgs
+
 
 
 class LiveFrames:
     """Off-path frame decoding for points and view (see the module doc).
 
     Args:
-        ouster_metadata: metadata of each Ouster sensor (list, possibly empty).
+        metadata: the sensor files of the sensors (list, possibly empty), as ``lidarpkt.open`` takes them.
         points: encode PointCloud2 messages for the MCAP.
-        ws: ``--ws HOST:PORT`` of the view server, ``None`` for no view.
+        view: a started view server (:class:`~lidarpkt.view.server.ViewServer`), ``None`` for no view;
+            closed with this object.
         queue_bytes: payload bytes allowed to wait for decoding (beyond: dropped for the frames, counted).
         sensors: the frame ids and mounts (:class:`~lidarpkt.writers.mcap.frames.SensorFrames`);
             default: the vendors' frame ids, no ``/tf_static``.
-
-    Raises:
-        lidarpkt.view.server.ViewError: the view server cannot start.
+        decoder_options: the decoders' other options (``model``), as ``lidarpkt.open`` takes them.
     """
 
-    def __init__(self, ouster_metadata: list, *, points: bool, ws: str | None, queue_bytes: int = 64 << 20,
-                 sensors=None) -> None:
-        from lidarpkt.view.sources import LiveDecoder
-        from lidarpkt.view.tap import FrameDropper, FrameTap
+    def __init__(self, metadata: list, *, points: bool, view=None, queue_bytes: int = 64 << 20,
+                 sensors=None, decoder_options: dict | None = None) -> None:
+        from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+        from lidarpkt.view.tap import FrameDropper
         from lidarpkt.writers.mcap.frames import FrameTopics, SensorFrames
 
         self.sensors = sensors or SensorFrames()
 
-        self.view = self.dropper = None
+        self.view, self.dropper = view, None
         self._last_status = time.monotonic()
         self.points_frames = 0
         self._points: queue.SimpleQueue = queue.SimpleQueue()
@@ -56,19 +56,15 @@ class LiveFrames:
         consumers = []
         if points:
             consumers.append(self._encode_points)
-        if ws is not None:
-            from lidarpkt.view.server import start_server
-
-            self.view = start_server(ws, verb="record")
-            view = self.view
-
+        if view is not None:
             def dropped(n: int) -> None:
                 view.frames_dropped = n
 
             self.dropper = FrameDropper(view.publish, on_drop=dropped)
             consumers.append(self.dropper)
         on_batch = (lambda b: view.count_packets(str(b.src), len(b))) if self.view is not None else None
-        self.tap = FrameTap(LiveDecoder(ouster_metadata), consumers, on_batch=on_batch, queue_bytes=queue_bytes)
+        self.tap = FrameTap(LiveDecoder(metadata, **(decoder_options or {})), consumers, on_batch=on_batch,
+                            queue_bytes=queue_bytes)
 
     def _encode_points(self, frame) -> None:  # runs in the tap's thread
         # decode's own frames → messages (FrameTopics: each new sensor's latched mount, then its clouds),
@@ -134,7 +130,7 @@ class _QueuedMessages:
         self.out = out
 
     def write_message(self, topic, message, log_time_ns: int) -> None:
-        self.out.put((topic, schemas.encode(topic.msgtype, message), log_time_ns, None))
+        self.out.put((topic, rosmsgs.encode(topic.msgtype, message), log_time_ns, None))
 
     def write_latched(self, topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
         self.out.put((topic, data, log_time_ns, key))

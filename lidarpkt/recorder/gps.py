@@ -2,7 +2,7 @@
 
 :class:`GpsReader` reads a serial port (any pyserial URL: ``/dev/ttyUSB0``, a pty,
 ``socket://…``) in a background thread, splits it into lines, and keeps every sentence
-whose ``*hh`` checksum matches (the checksum is :func:`lidarpkt.vendors.velodyne.nmea.checksum`,
+whose ``*hh`` checksum matches (the checksum is :func:`lidarpkt.core.nmea.checksum`,
 the one the VLP-16 position packets are verified with). Sentences with a wrong or missing
 checksum, and lines that are not NMEA, are counted (``bad``) and dropped. Lines longer than
 NMEA allows are cut off (memory stays bounded whatever arrives).
@@ -19,8 +19,7 @@ import threading
 import time
 
 from lidarpkt.errors import NMEAError, SerialPortError
-from lidarpkt.vendors.velodyne.clock import fix_time_ns
-from lidarpkt.vendors.velodyne.nmea import checksum, parse_nmea
+from lidarpkt.core.nmea import checksum, fix_time_ns, parse_nmea
 
 MAX_LINE = 512  # NMEA 0183 allows 82 characters; proprietary sentences run a little longer
 
@@ -56,7 +55,7 @@ def verify_sentence(line: bytes | str) -> str:
 def sentence_time_ns(sentence: str, host_time_ns: int) -> int:
     """The UTC time a $--RMC / $--GGA sentence reports, ns since the epoch; ``host_time_ns`` for
     other sentences and for empty time fields. GGA has no date: the day nearest the host time
-    (:func:`lidarpkt.vendors.velodyne.clock.fix_time_ns`, as the VLP-16 decoder resolves it)."""
+    (:func:`lidarpkt.core.nmea.fix_time_ns`, as the VLP-16 decoder resolves it)."""
     try:
         fix = parse_nmea(sentence)
     except NMEAError:

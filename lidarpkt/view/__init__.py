@@ -2,8 +2,9 @@
 
 * :mod:`lidarpkt.view.messages` — frames as ``foxglove.PointCloud`` / ``RawImage`` / ``FrameTransform``;
 * :mod:`lidarpkt.view.server` — :class:`ViewServer`, the channels of each sensor;
-* :mod:`lidarpkt.view.sources` — a capture at its own pace, live batches to frames;
-* :mod:`lidarpkt.view.tap` — decoding off the recorder's receive path;
+* :mod:`lidarpkt.view.sources` — a capture at its own pace (live packets become frames in
+  :mod:`lidarpkt.pipeline.live`);
+* :mod:`lidarpkt.view.tap` — frames dropped for a viewer that falls behind;
 * :mod:`lidarpkt.cli.view` — the ``lidarpkt view`` verb.
 
 Needs the ``view`` extra (``pip install 'lidarpkt[view]'``, foxglove-sdk); importing this
@@ -12,7 +13,7 @@ package does not import foxglove-sdk.
 
 from __future__ import annotations
 
-__all__ = ["ViewServer", "play_capture", "LiveDecoder"]
+__all__ = ["ViewServer", "play_capture"]
 
 
 def __getattr__(name: str):
@@ -20,8 +21,8 @@ def __getattr__(name: str):
         from .server import ViewServer
 
         return ViewServer
-    if name in ("play_capture", "LiveDecoder"):
-        from . import sources
+    if name == "play_capture":
+        from .sources import play_capture
 
-        return getattr(sources, name)
+        return play_capture
     raise AttributeError(name)

@@ -93,7 +93,7 @@ def point_cloud(frame, slot: int, frame_id: str, points: np.ndarray | None = Non
 
 
 def _display(frame, image: np.ndarray) -> np.ndarray:
-    return frame.destaggered(image) if frame.sensor.vendor == "ouster" else image
+    return frame.destaggered(image)  # unchanged for a frame without a stagger
 
 
 def images(frame, slot: int, frame_id: str) -> tuple:

@@ -23,9 +23,7 @@ from one thread while another counts packets.
 
 from __future__ import annotations
 
-import argparse
 import re
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -282,20 +280,3 @@ class ViewServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def add_ws_argument(parser: argparse.ArgumentParser) -> None:
-    """``--ws HOST:PORT``, shared with ``record --view``."""
-    parser.add_argument("--ws", default="127.0.0.1:8765", metavar="HOST:PORT",
-                        help="address of the Foxglove WebSocket server (127.0.0.1:8765; port 0 = any free port)")
-
-
-def start_server(ws: str, *, verb: str = "view"):
-    """A :class:`~lidarpkt.view.server.ViewServer` on ``--ws``; says where to connect (even with
-    ``--quiet``: scripts wait for that line)."""
-    host, port = parse_ws(ws)
-    server = ViewServer(host, port)
-    shown = "localhost" if host in ("127.0.0.1", "0.0.0.0", "::", "::1") else host
-    print(f"lidarpkt {verb}: serving ws://{host}:{server.port} (Foxglove: Open connection → "
-          f"ws://{shown}:{server.port})", file=sys.stderr, flush=True)
-    return server

@@ -1,10 +1,32 @@
-"""The frame-writer interface every output format meets, and the temporary-then-rename files.
+"""The writer interface every output format meets, and the temporary-then-rename files.
 
 A writer takes the frames of one capture (one or several sensors, in order) and writes them in
 its format. Every file is first written under a hidden temporary name in its final folder
 (``.NAME.<random>.tmp``) and renamed to ``NAME`` only when complete, so a killed job never
 leaves a partial file that looks complete; :meth:`FrameWriter.abort` (also what a ``with`` block
 that raises does) removes the temporaries.
+
+Packets ride along with the frames. Writers never open their inputs: one pass over each capture
+(:func:`lidarpkt.writers.write_captures`, :func:`lidarpkt.pipeline.passes.open_pass`) hands every
+writer, in this order (:class:`PacketWriter`; :class:`BaseWriter` gives each a default that does nothing):
+
+* ``begin_capture(capture)``: a capture starts; ``capture`` is a :class:`lidarpkt.pipeline.passes.Capture`
+  (``path`` as given, ``container``, ``metadata``: the loaded sensor metadata its packets are
+  recognised with, once its first batch is handed; ``receive_span()`` for an OSF file);
+* ``write_packets(batch, stream)``, only to a writer whose ``wants_packets`` is true: every
+  :class:`~lidarpkt.core.packet.PacketBatch` read, in capture order, before the frames it completed
+  (one stream: ``src``/``dst`` endpoints or ``None`` for a bag's, ``timestamp_ns`` int64[N] host capture
+  times in ns, ``payload`` uint8[N, L], ``index`` int64[N] ordinals in the capture), with ``stream``,
+  what the router made of it: a :class:`lidarpkt.pipeline.router.Match` (``vendor``, ``kind``: the
+  vendor's name of the stream, ``lidar``: frames are made of it), or ``None`` when no vendor recognised
+  the batch (it is still handed: raw outputs keep every packet);
+* ``write(frame)``: each frame, in order;
+* ``end_capture(capture)``: the capture's last batch and frame have been handed.
+
+A writer that wants no packets ignores them (``wants_packets = False``, the default): the pass then
+decodes as ``lidarpkt.open`` does, segments and threads included. A writer that takes packets and no
+frames says so (``wants_frames = False``): when no writer of a pass wants frames, the capture's packets
+are classified but not decoded.
 """
 
 from __future__ import annotations
@@ -12,6 +34,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import shutil
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
@@ -35,6 +58,27 @@ class FrameWriter(Protocol):
         ...
 
 
+@runtime_checkable
+class PacketWriter(Protocol):
+    """What a writer that takes the raw packets beside the frames offers (see the module doc)."""
+
+    wants_packets: bool
+    wants_frames: bool
+
+    def begin_capture(self, capture: Any) -> None:
+        """A capture starts (a :class:`lidarpkt.pipeline.passes.Capture`)."""
+        ...
+
+    def write_packets(self, batch: Any, stream: Any) -> None:
+        """One :class:`~lidarpkt.core.packet.PacketBatch` of the capture, in capture order, and what the router
+        made of it (a :class:`lidarpkt.pipeline.router.Match`, or ``None``)."""
+        ...
+
+    def end_capture(self, capture: Any) -> None:
+        """The capture's last batch and frame have been handed."""
+        ...
+
+
 class AtomicFiles:
     """Temporary files beside their final names, renamed into place when complete."""
 
@@ -43,7 +87,8 @@ class AtomicFiles:
         self.committed: list[Path] = []
 
     def temporary(self, final: str | os.PathLike[str]) -> Path:
-        """A new temporary path in ``final``'s folder (the folder must exist)."""
+        """A new temporary path in ``final``'s folder (the folder must exist): a file's, or a folder's
+        (a rosbag2), which :meth:`commit` renames as a whole."""
         final = Path(final)
         if not final.parent.is_dir():
             raise OutputError(f"{final}: the folder {final.parent} does not exist; create it or choose another")
@@ -52,7 +97,8 @@ class AtomicFiles:
         return tmp
 
     def commit(self, tmp: Path) -> Path:
-        """Rename a complete temporary to its final name (replacing an older file of that name)."""
+        """Rename a complete temporary to its final name (replacing an older file of that name, or an
+        empty folder)."""
         final = self._pending.pop(tmp)
         try:
             os.replace(tmp, final)
@@ -62,10 +108,13 @@ class AtomicFiles:
         return final
 
     def abort(self) -> None:
-        """Remove every temporary not yet committed."""
+        """Remove every temporary not yet committed (a temporary folder with what it holds)."""
         for tmp in list(self._pending):
             try:
-                tmp.unlink()
+                if tmp.is_dir() and not tmp.is_symlink():
+                    shutil.rmtree(tmp)
+                else:
+                    tmp.unlink()
             except FileNotFoundError:
                 pass
             except OSError:
@@ -96,7 +145,9 @@ class BaseWriter:
     """Shared plumbing: ``with`` support (abort on error), idempotent close/abort, file names.
 
     Subclasses implement :meth:`_write` and :meth:`_finish` (which commits its files through
-    ``self.files``) and may extend :meth:`abort`.
+    ``self.files``) and may extend :meth:`abort`; one that takes the packets too (module doc) sets
+    ``wants_packets`` and overrides :meth:`write_packets` (and :meth:`begin_capture`,
+    :meth:`end_capture` as it needs).
 
     Attributes:
         frames_written: frames given to :meth:`write`.
@@ -105,6 +156,8 @@ class BaseWriter:
     """
 
     suffix = ""
+    wants_packets = False  # True: the pass hands this writer every packet batch (write_packets)
+    wants_frames = True  # False (with wants_packets): it writes no frames; a pass for such writers alone decodes none
 
     def __init__(self, out: str | os.PathLike[str], *, capture: str | os.PathLike[str] | None = None,
                  part: str | None = None) -> None:
@@ -127,6 +180,31 @@ class BaseWriter:
         """``CAPTURESTEM_SENSOR_FRAMEID.SUFFIX``: the same whatever the segmentation."""
         stem = Path(self.capture).stem if self.capture else "frames"
         return f"{_safe(stem)}_{sensor_tag(frame.sensor)}_{frame.frame_id:06d}{suffix}"
+
+    def one_file_or_groups(self, frames_per_file: int | None) -> int | None:
+        """Set up a format that writes one file (``out``; its folder must exist) or, with ``frames_per_file``
+        N, a folder ``out`` of files of N frames each (:meth:`group_file`; made if missing). Returns N.
+
+        Raises :class:`~lidarpkt.errors.OutputError`: N below 1, a folder that does not exist."""
+        if frames_per_file is not None and int(frames_per_file) < 1:
+            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
+        if frames_per_file is None:
+            self.path = self.single_file()
+            if not self.path.parent.is_dir():
+                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
+            return None
+        self.out_dir()
+        return int(frames_per_file)
+
+    def group_file(self, frame: Any, frames_per_file: int, suffix: str) -> tuple[tuple[str, int], Path]:
+        """(key, path) of the file holding ``frame`` when each file holds ``frames_per_file`` frames of one
+        sensor: ``OUT/CAPTURESTEM_SENSOR_FFFFFF[.PART]SUFFIX``, F the first frame id of its group (grouped by
+        frame id, so that the grouping does not depend on how the capture was segmented)."""
+        start = frame.frame_id // frames_per_file * frames_per_file
+        stem = _safe(Path(self.capture).stem) if self.capture else "frames"
+        tag = sensor_tag(frame.sensor)
+        name = f"{stem}_{tag}_{start:06d}" + (f".{_safe(self.part)}" if self.part else "")
+        return (tag, start), self.out / (name + suffix)
 
     def out_dir(self) -> Path:
         """``out`` as a folder (created if missing; its parent must exist)."""
@@ -152,6 +230,15 @@ class BaseWriter:
             self.abort()
             raise OutputError(f"{self.out}: writing failed: {exc.strerror or exc}") from None
         self.frames_written += 1
+
+    def begin_capture(self, capture: Any) -> None:
+        """A capture starts (module doc); nothing by default."""
+
+    def write_packets(self, batch: Any, stream: Any) -> None:
+        """A packet batch of the capture (module doc); ignored by default."""
+
+    def end_capture(self, capture: Any) -> None:
+        """The capture has been handed whole (module doc); nothing by default."""
 
     def close(self) -> list[Path]:
         if self._done:

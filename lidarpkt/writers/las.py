@@ -31,7 +31,7 @@ import numpy as np
 
 from lidarpkt.errors import OutputError
 
-from .base import BaseWriter, _safe, sensor_tag
+from .base import BaseWriter
 
 SCALE_M = 0.0001  # 0.1 mm
 GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00:00Z
@@ -99,15 +99,7 @@ class LasWriter(BaseWriter):
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
                  frames_per_file: int | None = None) -> None:
         super().__init__(out, capture=capture, part=part)
-        if frames_per_file is not None and int(frames_per_file) < 1:
-            raise OutputError(f"--frames-per-file {frames_per_file}: give a positive number of frames")
-        self.frames_per_file = None if frames_per_file is None else int(frames_per_file)
-        if self.frames_per_file is None:
-            self.path = self.single_file()
-            if not self.path.parent.is_dir():
-                raise OutputError(f"-o {self.path}: the folder {self.path.parent} does not exist")
-        else:
-            self.out_dir()
+        self.frames_per_file = self.one_file_or_groups(frames_per_file)
         self._open: dict[Any, tuple[Any, Path]] = {}  # group key -> (laspy writer, temporary path)
         self._sensors: dict[tuple, int] = {}
 
@@ -125,17 +117,13 @@ class LasWriter(BaseWriter):
         header.generating_software = "lidarpkt"
         return header
 
-    def _writer_for(self, frame, sensor_index: int):
+    def _writer_for(self, frame):
         import laspy
 
         if self.frames_per_file is None:
             key, final = None, self.path
         else:
-            start = frame.frame_id // self.frames_per_file * self.frames_per_file
-            key = (sensor_index, start)
-            stem = _safe(Path(self.capture).stem) if self.capture else "frames"
-            name = f"{stem}_{sensor_tag(frame.sensor)}_{start:06d}" + (f".{_safe(self.part)}" if self.part else "")
-            final = self.out / (name + self.suffix)
+            key, final = self.group_file(frame, self.frames_per_file, self.suffix)
         entry = self._open.get(key)
         if entry is None:
             tmp = self.files.temporary(final)
@@ -151,7 +139,7 @@ class LasWriter(BaseWriter):
         skey = (frame.sensor.vendor, frame.sensor.source, frame.sensor.serial)
         sensor_index = self._sensors.setdefault(skey, len(self._sensors))
         pts = las_points(frame)
-        writer = self._writer_for(frame, sensor_index)
+        writer = self._writer_for(frame)
         n = pts["row"].size
         if n == 0:
             return

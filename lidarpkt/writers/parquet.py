@@ -106,7 +106,7 @@ def frames_schema():
 
 
 def _calibration_json(sensor) -> str | None:
-    """The VLP-16 calibration the frame's XYZ came from (per-laser corrections), as JSON."""
+    """The calibration the frame's XYZ came from (per-laser corrections, as its geometry keeps them), as JSON."""
     import dataclasses
 
     cal = getattr(sensor.geometry, "calibration", None)
@@ -155,6 +155,29 @@ def frame_points(frame) -> dict[str, np.ndarray]:
     return out
 
 
+def points_record_batch(frame, schema):
+    """One frame's points as a ``pyarrow.RecordBatch`` of ``schema`` (:func:`points_schema`, or one of its
+    columns' subset): the columns of :func:`frame_points`, ``sensor`` and ``return_label`` as
+    dictionaries, and nulls for the columns the frame has not (``signal``, ``near_ir``)."""
+    import pyarrow as pa
+
+    cols = frame_points(frame)
+    n = cols["frame_id"].size
+    arrays = []
+    for fld in schema:
+        if fld.name == "sensor":
+            arrays.append(pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)),
+                                                         pa.array([sensor_name(frame.sensor)])))
+        elif fld.name == "return_label":
+            arrays.append(pa.DictionaryArray.from_arrays(pa.array(cols["return_slot"].astype(np.int8)),
+                                                         pa.array(list(frame.return_labels), pa.string())))
+        elif fld.name in cols:
+            arrays.append(pa.array(cols[fld.name], fld.type))
+        else:
+            arrays.append(pa.nulls(n, fld.type))
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
 class ParquetWriter(BaseWriter):
     """A Parquet dataset of the capture's frames (see the module doc).
 
@@ -197,7 +220,7 @@ class ParquetWriter(BaseWriter):
 
     def _write(self, frame) -> None:
         if self.layout == "points":
-            batch = self._points_batch(frame)
+            batch = points_record_batch(frame, self.schema)
             self._pending_size += batch.num_rows
             self.points_written += batch.num_rows
             limit = self.row_group_rows
@@ -217,25 +240,6 @@ class ParquetWriter(BaseWriter):
         table = pa.Table.from_batches(self._pending, schema=self.schema)
         self._open().write_table(table, row_group_size=max(table.num_rows, 1))
         self._pending, self._pending_size = [], 0
-
-    def _points_batch(self, frame):
-        import pyarrow as pa
-
-        cols = frame_points(frame)
-        n = cols["frame_id"].size
-        arrays = []
-        for fld in self.schema:
-            if fld.name == "sensor":
-                arrays.append(pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)),
-                                                             pa.array([sensor_name(frame.sensor)])))
-            elif fld.name == "return_label":
-                arrays.append(pa.DictionaryArray.from_arrays(pa.array(cols["return_slot"].astype(np.int8)),
-                                                             pa.array(list(frame.return_labels), pa.string())))
-            elif fld.name in cols:
-                arrays.append(pa.array(cols[fld.name], fld.type))
-            else:
-                arrays.append(pa.nulls(n, fld.type))
-        return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
 
     def _finish(self) -> None:
         self._flush()
@@ -268,7 +272,7 @@ class ParquetWriter(BaseWriter):
 
 # ------------------------------------------------------------------------------ reading back
 def _sensor_from(row: dict[str, Any]):
-    from lidarpkt.core.frame import SensorInfo
+    from lidarpkt.core.sensor import SensorInfo
 
     info = json.loads(row["sensor_json"])
     for key in ("beam_altitude_deg", "beam_azimuth_deg"):
@@ -278,23 +282,18 @@ def _sensor_from(row: dict[str, Any]):
     info["return_labels"] = tuple(info["return_labels"])
     metadata = json.loads(row["metadata_json"]) if row.get("metadata_json") else {}
     sensor = SensorInfo(**info, metadata=metadata)
-    if sensor.vendor == "ouster" and metadata:
-        from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors import registry
 
-        sensor.geometry = load_metadata(metadata).sensor_info().geometry
-    elif sensor.vendor == "velodyne":
-        from lidarpkt.vendors.velodyne.calibration import VelodyneCalibration
-        from lidarpkt.vendors.velodyne.geometry import VelodyneGeometry
-
-        cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
-        sensor.geometry = VelodyneGeometry(None if cal is None else VelodyneCalibration(**cal))
+    cal = json.loads(row["calibration_json"]) if row.get("calibration_json") else None
+    sensor.geometry = registry.geometry(sensor, cal)  # its vendor's, from the sensor file or calibration kept
     return sensor
 
 
 def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
     """The :class:`~lidarpkt.Frame` objects of a ``layout="frames"`` dataset folder or file, in
     file order. Arrays, scalars, counters, labels and the sensor description are as written;
-    the sensor's geometry is rebuilt from the Ouster metadata or the VLP-16 calibration.
+    the sensor's geometry is rebuilt by its vendor (:func:`lidarpkt.vendors.registry.geometry`) from the sensor
+    file or the calibration kept.
 
     Raises :class:`~lidarpkt.errors.OutputError` for a file that is not of the frames layout.
     """

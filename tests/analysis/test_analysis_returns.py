@@ -20,7 +20,7 @@ from lidarpkt.analysis.returns import (
     select_returns,
 )
 from lidarpkt.cli import main
-from lidarpkt.vendors.velodyne.dual import signal_order_undecided
+from lidarpkt.core.dual import signal_order_undecided
 from lidarpkt.fixtures import ensure
 from test_analysis_support import load_fixture, make_stack
 

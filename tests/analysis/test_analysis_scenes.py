@@ -29,8 +29,9 @@ def scenes():
 
 @pytest.fixture(scope="module")
 def reports():
-    gen = importlib.import_module("lidarpkt.fixtures.generate")
-    return {"vlp16": gen.vlp16_reports(VLP_FRAMES, 0, 0), "os1-64": gen.os1_reports(OS1_FRAMES, 0, 0)}
+    os1 = importlib.import_module("lidarpkt.fixtures.os1")
+    vlp16 = importlib.import_module("lidarpkt.fixtures.vlp16")
+    return {"vlp16": vlp16.vlp16_reports(VLP_FRAMES, 0, 0), "os1-64": os1.os1_reports(OS1_FRAMES, 0, 0)}
 
 
 def test_stacks_line_up_with_the_truth_frames(scenes):

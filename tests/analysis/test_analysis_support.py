@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarpkt.core.frame import FrameStack, SensorInfo
+from lidarpkt.core.sequence import FrameStack
+from lidarpkt.core.sensor import SensorInfo
 
 
 def make_stack(range_mm, valid=None, labels=None, shift=None, reflectivity=None, vendor=None) -> FrameStack:

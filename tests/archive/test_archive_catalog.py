@@ -18,7 +18,7 @@ from lidarpkt.archive import CATALOG_COLUMNS, catalog
 from lidarpkt.archive.catalog import catalog_capture
 from lidarpkt.archive.plan import Capture
 from lidarpkt.errors import LidarpktError
-from lidarpkt.cli.info import describe_capture
+from lidarpkt.pipeline.describe import describe_capture
 from lidarpkt.vendors.ouster import load_metadata
 from writers_cases import CASES, IDS, capture
 

@@ -118,7 +118,7 @@ def _cases(tmp: Path) -> list[tuple[str, list[str], str, list[Path]]]:
          "-o /proc/lidarpkt-ex", []),
         ("multireturn-folder-missing-input", ["multireturn", vlp10, missing, "-o", str(tmp / "mr"), "--workers", "1"],
          "no such file or directory", [tmp / "mr"]),
-        ("export-format", ["export", vlp10, "-o", str(tmp / "e"), "--format", "csv"], "--format", [tmp / "e"]),
+        ("export-format", ["export", vlp10, "-o", str(tmp / "e"), "--format", "tiff"], "--format", [tmp / "e"]),
         ("export-metadata-missing", ["export", vlp10, "-o", str(tmp / "e"), "--format", "npz", "--metadata",
                                      str(tmp / "m.json")], "--metadata", [tmp / "e"]),
         ("export-frames-per-file", ["export", vlp10, "-o", str(tmp / "e"), "--format", "las", "--frames-per-file",

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lidarpkt import fixtures
-from lidarpkt.vendors.velodyne.dual import second_strongest_mark
+from lidarpkt.core.dual import second_strongest_mark
 
 REPO = Path(__file__).resolve().parents[2]
 FRAMES = 4
@@ -28,7 +28,7 @@ def demo(tmp_path_factory):
 
 def test_demo_writes_mcap_figures_and_summary_for_every_capture(demo):
     out, stdout, summary = demo
-    from lidarpkt.cli.demo import CAPTURES
+    from lidarpkt.fixtures import CAPTURES
 
     assert sorted(summary["captures"]) == sorted(CAPTURES)
     for name in CAPTURES:

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from lidarpkt.cli.info import describe_capture, format_capture
+from lidarpkt.pipeline.describe import describe_capture, format_capture
 from lidarpkt.core.packet import Endpoint, Packet
-from lidarpkt.writers.pcap import frames_for, write_pcap_records
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import write_pcap_records
 from conftest import external
 
 
@@ -287,7 +288,7 @@ def test_mcap_with_recorded_metadata(tmp_path):
     res = _cli(str(out), "--json")
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["format"] == "mcap" and doc["ouster_metadata_in_file"]
+    assert doc["format"] == "mcap" and doc["sensor_file_in_capture"]
     (lidar,) = _by(doc, 8448)
     assert lidar["packets"] == 34
     assert (lidar["details"]["profile"], lidar["details"]["profile_source"]) == ("RNG15_RFL8_NIR8", "metadata")

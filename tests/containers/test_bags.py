@@ -9,6 +9,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.vendors.velodyne import VelodyneDecoder, decode_packets, encode_data_packets
@@ -44,7 +45,7 @@ def _payloads_from_sqlite(db) -> list[tuple[int, list[tuple[int, bytes]]]]:
 def test_nebula_bag_packets_are_the_stored_bytes(ext):
     expected = _payloads_from_sqlite(ext(NEBULA + "/1673400471837873222_0.db3"))
     assert [c for c, _ in expected] == [151, 151, 151, 150]
-    reader = BagReader(ext(NEBULA))
+    reader = BagReader(ext(NEBULA), messages=bag_messages())
     batches = list(reader.batches())
     assert [len(b) for b in batches] == [151, 151, 151, 150]
     for batch, (_, packets) in zip(batches, expected):
@@ -78,12 +79,14 @@ def test_nebula_bag_opens_by_directory_or_db3_and_decodes_dual(ext):
     ("nebula/vls128/1614315746471294674", 2193),  # serialization_format: "" (rosbag2 of 2020)
     ("nebula/hesai/qt128/1730273789074637152", None),  # storage_identifier: ""
 ])
-def test_old_rosbag2_metadata_with_empty_fields_opens_with_the_evident_default(ext, bag, packets):
+def test_old_rosbag2_metadata_with_empty_fields_opens_with_the_evident_default(ext, bag, packets, tmp_path,
+                                                                             monkeypatch):
     import glob
     import tempfile
 
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # this test's own: other workers make their own copies
     before = set(glob.glob(f"{tempfile.gettempdir()}/lidarpkt-bag-*"))
-    reader = BagReader(ext(bag))
+    reader = BagReader(ext(bag), messages=bag_messages())
     with pytest.warns(LidarpktWarning, match="metadata.yaml names no") as said:
         batches = list(reader.batches())
     assert len([w for w in said if "metadata.yaml" in str(w.message)]) == 1  # said once
@@ -105,13 +108,13 @@ def test_empty_storage_and_format_fields_are_filled_from_the_files(tmp_path, ext
     meta = meta.replace("serialization_format: cdr", "serialization_format: ''")
     (bag / "metadata.yaml").write_text(meta)
     with pytest.warns(LidarpktWarning, match="no storage plugin .*sqlite3.*no serialization format"):
-        got = list(BagReader(bag).batches())
-    want = list(BagReader(src).batches())
+        got = list(BagReader(bag, messages=bag_messages()).batches())
+    want = list(BagReader(src, messages=bag_messages()).batches())
     assert [b.payload.tobytes() for b in got] == [b.payload.tobytes() for b in want]
     assert [b.timestamp_ns.tolist() for b in got] == [b.timestamp_ns.tolist() for b in want]
     (bag / "1673400471837873222_0.db3").write_bytes(b"neither sqlite nor mcap" * 4)
     with pytest.raises(CaptureFormatError, match="Storage plugin"):  # nothing to infer: rosbags says what is missing
-        list(BagReader(bag).batches())
+        list(BagReader(bag, messages=bag_messages()).batches())
 
 
 def _dual_payloads(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
@@ -130,7 +133,7 @@ def test_mcap_written_by_mcap_ros2(tmp_path):
     payload, host = _dual_payloads()
     path = tmp_path / "scan.mcap"
     path.write_bytes(velodyne_scan_mcap(payload, host, packets_per_message=20, frame_id="velodyne"))
-    batch = PacketBatch.concatenate(list(BagReader(path).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(path, messages=bag_messages()).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
     frames = list(lidarpkt.open(path))
@@ -146,11 +149,11 @@ def test_ros1_bag_written_by_rosbags(tmp_path):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
-    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.vendors.registry import ros_definitions
 
     store = get_typestore(Stores.ROS1_NOETIC)
     types = {}
-    for name, text in MESSAGE_DEFINITIONS.items():
+    for name, text in ros_definitions().items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     Scan = store.types["velodyne_msgs/msg/VelodyneScan"]
@@ -166,7 +169,7 @@ def test_ros1_bag_written_by_rosbags(tmp_path):
                   for i in range(start, start + 20)]
             msg = Scan(header=Header(seq=start, stamp=pk[0].stamp, frame_id="velodyne"), packets=pk)
             w.write(conn, int(host[start + 19]), store.serialize_ros1(msg, "velodyne_msgs/msg/VelodyneScan"))
-    batch = PacketBatch.concatenate(list(BagReader(path).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(path, messages=bag_messages()).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
     assert decode_packets(batch.payload).return_mode.tolist() == [0x39] * 40
@@ -178,11 +181,11 @@ def test_unreadable_bag_is_a_library_error(tmp_path):
     bad = tmp_path / "broken.bag"
     bad.write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 40)
     with pytest.raises(LidarpktError):
-        list(BagReader(bad).batches())
+        list(BagReader(bad, messages=bag_messages()).batches())
     fake = tmp_path / "fake.db3"
     fake.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
     with pytest.raises(CaptureFormatError):
-        list(BagReader(fake).batches())
+        list(BagReader(fake, messages=bag_messages()).batches())
 
 
 def test_truncated_mcap_gives_what_it_holds_then_a_warning(tmp_path):
@@ -196,7 +199,7 @@ def test_truncated_mcap_gives_what_it_holds_then_a_warning(tmp_path):
     from lidarpkt.errors import TruncatedCaptureWarning
 
     with pytest.warns(TruncatedCaptureWarning):
-        got = list(BagReader(cut).batches())
+        got = list(BagReader(cut, messages=bag_messages()).batches())
     assert 0 < len(got) < 60
     # whatever came out before the damage is intact
     for b in got:
@@ -216,7 +219,7 @@ def test_damaged_rosbag2_gives_what_it_holds_then_a_clear_error(tmp_path, ext):
     db.write_bytes(bytes(data))
     got = []
     with pytest.raises(LidarpktError):
-        for b in BagReader(bag).batches():
+        for b in BagReader(bag, messages=bag_messages()).batches():
             got.append(b)
     expected = _payloads_from_sqlite(ext(NEBULA + "/1673400471837873222_0.db3"))
     for b, (_, packets) in zip(got, expected):

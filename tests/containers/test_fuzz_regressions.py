@@ -121,6 +121,8 @@ def test_bag_whose_first_line_is_not_text_closes_its_file(tmp_path):
     import gc
 
     from lidarpkt.containers.bags import BagReader
+
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "cut.mcap"
@@ -131,7 +133,7 @@ def test_bag_whose_first_line_is_not_text_closes_its_file(tmp_path):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with pytest.raises(CaptureFormatError, match="cannot open as a ROS bag"):
-            list(BagReader(path).batches())
+            list(BagReader(path, messages=bag_messages()).batches())
         gc.collect()
     # only this file's: an unclosed file's ResourceWarning names it (other objects may still be collected here)
     assert not [w for w in caught if issubclass(w.category, ResourceWarning) and path.name in str(w.message)]
@@ -143,6 +145,7 @@ def test_mcap_with_a_corrupt_compressed_chunk_warns_instead_of_raising_zstd_erro
     detected') came out raw. Now the messages before the chunk, then a TruncatedCaptureWarning."""
     from lidarpkt import fixtures
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import TruncatedCaptureWarning
     from lidarpkt.containers.pcap_reader import read_packets
 
@@ -153,7 +156,7 @@ def test_mcap_with_a_corrupt_compressed_chunk_warns_instead_of_raising_zstd_erro
     path = tmp_path / "corrupt.mcap"
     path.write_bytes(bytes(raw))
     with pytest.warns(TruncatedCaptureWarning, match="damaged"):
-        got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+        got = [row.tobytes() for b in BagReader(path, messages=bag_messages()).batches() for row in b.payload]
     assert got == payloads[: len(got)] and len(got) < len(payloads)
 
 
@@ -261,6 +264,7 @@ def test_mcap_with_a_huge_record_length_warns_instead_of_raising_memory_error(tm
     of each length field set: every one must end in a warning after a prefix of the packets."""
     from lidarpkt import fixtures
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import TruncatedCaptureWarning
     from lidarpkt.containers.pcap_reader import read_packets
 
@@ -285,7 +289,7 @@ def test_mcap_with_a_huge_record_length_warns_instead_of_raising_memory_error(tm
         path = tmp_path / "huge.mcap"
         path.write_bytes(bytes(raw))
         with pytest.warns(TruncatedCaptureWarning):
-            got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+            got = [row.tobytes() for b in BagReader(path, messages=bag_messages()).batches() for row in b.payload]
         assert got == payloads[: len(got)], where  # (damage in the summary section comes after all 30)
 
 
@@ -312,11 +316,11 @@ def _velodyne_packet_rosbag2(folder, n: int = 12) -> Path:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS
+    from lidarpkt.vendors.registry import ros_definitions
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     typ = "velodyne_msgs/msg/VelodynePacket"
-    store.register(get_types_from_msg(MESSAGE_DEFINITIONS[typ], typ))
+    store.register(get_types_from_msg(ros_definitions()[typ], typ))
     msg, stamp = store.types[typ], store.types["builtin_interfaces/msg/Time"]
     w = Writer(folder)
     w.open()
@@ -338,6 +342,8 @@ def test_rosbag2_whose_second_db3_is_damaged_closes_it_while_the_error_is_kept(t
     import sqlite3
 
     from lidarpkt.containers.bags import BagReader
+
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import CaptureFormatError
 
     db = _velodyne_packet_rosbag2(tmp_path / "bag")
@@ -355,7 +361,7 @@ def test_rosbag2_whose_second_db3_is_damaged_closes_it_while_the_error_is_kept(t
 
     got = []
     with pytest.raises(CaptureFormatError, match="damaged after the messages already read") as caught:
-        for b in BagReader(db.parent).batches():
+        for b in BagReader(db.parent, messages=bag_messages()).batches():
             got += [int(row[0]) for row in b.payload]
     assert got == list(range(12))
     assert caught.value is not None and _open_files_under(tmp_path) == []
@@ -387,6 +393,8 @@ def test_rosbag2_that_fails_to_open_leaves_no_file_open(tmp_path, damage):
     import gc
 
     from lidarpkt.containers.bags import BagReader
+
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import CaptureFormatError
     from lidarpkt.containers.pcap_reader import read_packets
 
@@ -412,7 +420,7 @@ def test_rosbag2_that_fails_to_open_leaves_no_file_open(tmp_path, damage):
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         with pytest.raises(CaptureFormatError, match="cannot open as a ROS bag") as caught:
-            list(BagReader(folder).batches())
+            list(BagReader(folder, messages=bag_messages()).batches())
         assert caught.value is not None and _open_files_under(tmp_path) == []
         del caught
         gc.collect()
@@ -431,6 +439,7 @@ def test_mcap_chunk_record_length_of_2_63_or_more_warns_instead_of_overflow_erro
 
     from lidarpkt import fixtures
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import TruncatedCaptureWarning
     from lidarpkt.containers.pcap_reader import read_packets
     from reference_tools import VELODYNE_SCAN_SCHEMA
@@ -461,7 +470,7 @@ def test_mcap_chunk_record_length_of_2_63_or_more_warns_instead_of_overflow_erro
     path = tmp_path / "long.mcap"
     path.write_bytes(bytes(raw))
     with pytest.warns(TruncatedCaptureWarning, match="cut short or damaged after 2 messages"):
-        got = [row.tobytes() for b in BagReader(path).batches() for row in b.payload]
+        got = [row.tobytes() for b in BagReader(path, messages=bag_messages()).batches() for row in b.payload]
     assert got == [p.payload for p in pk[:2]]
 
 
@@ -498,12 +507,13 @@ def test_bag_ouster_metadata_message_that_is_no_json_object_is_skipped_with_a_wa
     ``lidarpkt.open`` handed the bag's text to ``load_metadata``, which reads any text not starting
     with '{' as the path of a file: a raw ValueError (embedded null byte), and a bag could make lidarpkt
     read (or hang on, /dev/zero) any local file. A JSON object nested too deep or with a 5000-digit
-    int gave a raw RecursionError / ValueError. Now ``BagReader.ouster_metadata()`` is only ever a JSON
+    int gave a raw RecursionError / ValueError. Now ``BagReader.recorded_sensor_file()`` is only ever a JSON
     object's text; any other message there is skipped with a SkippedPacketWarning, and the VLP-16
     packets of the same bag are decoded."""
     import lidarpkt
     from lidarpkt import fixtures
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import SkippedPacketWarning
     from lidarpkt.containers.pcap_reader import read_packets
 
@@ -512,10 +522,10 @@ def test_bag_ouster_metadata_message_that_is_no_json_object_is_skipped_with_a_wa
     pk = [p for p in read_packets(fixtures.canned("vlp16-strongest")) if len(p.payload) == 1206][:80]
     path = tmp_path / "b.mcap"
     path.write_bytes(_scan_and_string_mcap([p.payload for p in pk], [p.timestamp_ns for p in pk], text))
-    reader = BagReader(path)
+    reader = BagReader(path, messages=bag_messages())
     with pytest.warns(SkippedPacketWarning, match="/ouster/metadata is not Ouster metadata"):
         assert sum(len(b) for b in reader.batches()) == 80
-    assert reader.ouster_metadata() is None
+    assert reader.recorded_sensor_file() is None
     with pytest.warns(SkippedPacketWarning, match="not Ouster metadata"):
         frames = list(lidarpkt.open(path))
     assert frames and all(f.range_mm.shape[1] == 16 for f in frames), was
@@ -528,6 +538,7 @@ def test_bag_time_beyond_int64_is_a_capture_format_error(tmp_path, container):
     (and the MCAP file stayed open while that error was kept). Now the packets before, then a
     CaptureFormatError naming the topic and the time, and no file of the bag left open."""
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import CaptureFormatError
     from lidarpkt.containers.pcap_reader import read_packets
 
@@ -556,7 +567,7 @@ def test_bag_time_beyond_int64_is_a_capture_format_error(tmp_path, container):
         path = _mcap_storage_rosbag2(tmp_path / "bag", mcap)
     got = []
     with pytest.raises(CaptureFormatError, match=r"/velodyne_packets has the bag time 18446744073709551615 ns") as caught:
-        for b in BagReader(path).batches():
+        for b in BagReader(path, messages=bag_messages()).batches():
             got += [row.tobytes() for row in b.payload]
     assert got == [p.payload for p in pk[:2]]
     assert caught.value is not None and _open_files_under(tmp_path) == []
@@ -574,6 +585,8 @@ def test_bag_without_packet_topics_gives_no_batches_not_key_error(tmp_path, cont
 
     from lidarpkt.containers.bags import BagReader
 
+    from lidarpkt.vendors.registry import bag_messages
+
     if container == "rosbag2":
         from rosbags.rosbag2 import Writer
 
@@ -590,7 +603,7 @@ def test_bag_without_packet_topics_gives_no_batches_not_key_error(tmp_path, cont
         raw = store.serialize_cdr(msg, msg.__msgtype__) if container == "rosbag2" else store.serialize_ros1(msg, msg.__msgtype__)
         w.write(conn, 1_000 + i, raw)
     w.close()
-    reader = BagReader(path)
+    reader = BagReader(path, messages=bag_messages())
     assert list(reader.batches()) == []
     assert reader.stats["skipped_topics"] == {"/chatter": "std_msgs/msg/Int32"}
     assert list(lidarpkt.open(path)) == []
@@ -606,11 +619,15 @@ def test_ros1_bag_whose_own_definition_renames_a_field_is_a_capture_format_error
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
+    from lidarpkt.containers.bags import BagReader
+
+    from lidarpkt.vendors.registry import ros_definitions
+
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.errors import CaptureFormatError
 
     store = get_typestore(Stores.ROS1_NOETIC)
-    for name, text in MESSAGE_DEFINITIONS.items():
+    for name, text in ros_definitions().items():
         store.register(get_types_from_msg(text, name))
     T = store.types
     time = T["builtin_interfaces/msg/Time"](sec=1, nanosec=5)
@@ -631,7 +648,7 @@ def test_ros1_bag_whose_own_definition_renames_a_field_is_a_capture_format_error
     path.write_bytes(raw.replace(*renamed))
     got = []
     with pytest.raises(CaptureFormatError, match="has not the fields lidarpkt reads") as caught:
-        for b in BagReader(path).batches():
+        for b in BagReader(path, messages=bag_messages()).batches():
             got += [row.tobytes() for row in b.payload]
     assert got[0] == u8.tobytes()  # the packet before the damage
     assert caught.value is not None and _open_files_under(tmp_path) == []
@@ -695,12 +712,13 @@ def _zero_bomb(compression: str, size: int) -> bytes:
 _READ_AND_REPORT_PEAK = r"""
 import sys, warnings
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.errors import LidarpktError
 n, outcome = 0, "ok"
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     try:
-        for b in BagReader(sys.argv[1]).batches():
+        for b in BagReader(sys.argv[1], messages=bag_messages()).batches():
             n += len(b)
     except LidarpktError as exc:
         outcome = type(exc).__name__
@@ -729,13 +747,15 @@ def test_mcap_chunk_that_inflates_past_its_declared_size_is_not_inflated(tmp_pat
 
 
 def test_mcap_chunk_declaring_more_than_the_limit_is_a_capture_format_error(tmp_path):
-    from lidarpkt.containers.bags import MAX_MCAP_CHUNK_BYTES, BagReader
+    from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
+    from lidarpkt.containers.mcap_records import MAX_MCAP_CHUNK_BYTES
     from lidarpkt.errors import CaptureFormatError
 
     path = tmp_path / "big.mcap"
     payloads = _mcap_with_second_chunk_replaced(path, "zstd", b"\x28\xb5\x2f\xfd", declared=MAX_MCAP_CHUNK_BYTES + 1)
     got = []
     with pytest.raises(CaptureFormatError, match="MiB"):
-        for b in BagReader(path).batches():
+        for b in BagReader(path, messages=bag_messages()).batches():
             got += [row.tobytes() for row in b.payload]
     assert 0 < len(got) < len(payloads) and got == payloads[: len(got)]

@@ -27,7 +27,8 @@ from conftest import external
 from lidarpkt.errors import CaptureFormatError, LidarpktError, LidarpktWarning, NMEAError, TruncatedCaptureWarning
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 from lidarpkt.containers.pcap_reader import PcapReader
-from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 from reference_tools import velodyne_scan_mcap
 
 FIXTURE_SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -209,7 +210,7 @@ def test_orphan_fragment_flood_keeps_the_pending_state_capped(tmp_path):
     """30 000 orphan first fragments (distinct IP IDs from 4 senders) with a good packet after every
     1000th: every good packet comes out, and the reader's pending reassembly state never exceeds its
     bounds while reading (benchmarks/bench_orphans.py measures millions, with peak RSS)."""
-    from lidarpkt.writers.pcap import ip_packets, link_frame, udp_datagram
+    from lidarpkt.writers.framing import ip_packets, link_frame, udp_datagram
 
     good = []
     records = []
@@ -325,7 +326,7 @@ def test_vlp16_bad_packets_among_good_ones_leave_the_good_ones_decoded(tmp_path,
               st.integers(0, 80), st.characters()),
 ))
 def test_nmea_parser_takes_any_text(sentence):
-    from lidarpkt.vendors.velodyne import parse_nmea
+    from lidarpkt.core.nmea import parse_nmea
 
     try:
         fix = parse_nmea(sentence)
@@ -538,12 +539,13 @@ def _small_mcap() -> tuple[bytes, list[bytes], list[int]]:
 
 def _bag_packets(path):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         got, err = [], None
         try:
-            for b in BagReader(path).batches():
+            for b in BagReader(path, messages=bag_messages()).batches():
                 got += [(int(t), row.tobytes()) for t, row in zip(b.timestamp_ns, b.payload)]
         except LidarpktError as exc:
             err = exc

@@ -32,7 +32,8 @@ from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedC
 from lidarpkt.core.packet import Endpoint, Packet
 from lidarpkt.containers.pcap_reader import PcapReader, capture_format
 from lidarpkt.containers.pcap_walk import MAX_RECORD_BYTES
-from lidarpkt.writers.pcap import frames_for, pcap_bytes
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import pcap_bytes
 from test_ouster_cases import CAPTURES as OUSTER_CAPTURES
 
 NATIVE = kernels.native  # as imported: the extension, or None when not built / LIDARPKT_NATIVE=0

@@ -12,7 +12,6 @@ import pytest
 import lidarpkt
 from conftest import external
 from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S, StreamContinuity
-from lidarpkt.core.dropped import dropped_counts
 from lidarpkt.errors import LidarpktError
 from lidarpkt.vendors.ouster import load_metadata
 from lidarpkt.vendors.ouster.stream import PacketCounter as OusterCounter
@@ -43,7 +42,7 @@ def _open(path, **kw):
         with lidarpkt.open(path, **kw) as reader:
             frames = sum(1 for _ in reader)
             dec = max(reader.decoders.values(), key=lambda d: d.stats.packets)
-            return frames, dec.stats, dropped_counts(reader)
+            return frames, dec.stats, reader.drop_counts()
 
 
 def _vlp_moved(tmp_path, k: int, by_us: int):

@@ -9,7 +9,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UnknownSensorError
-from lidarpkt.pipeline.reader import UnroutedStream
+from lidarpkt.core.streams import UnroutedStream
 from conftest import external
 
 PCAP = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"  # legacy OS1-64: 12608-byte lidar packets

@@ -11,7 +11,8 @@ import pytest
 import lidarpkt
 from conftest import external
 from lidarpkt.containers.bags import BagReader
-from lidarpkt.containers.bags import is_ouster_metadata_topic
+from lidarpkt.vendors.registry import bag_messages
+from lidarpkt.vendors.ouster.ros import is_metadata_topic as is_ouster_metadata_topic
 
 BAG = "ouster-sdk/512x10_raw.bag"  # ouster-ros ROS 1: /os_node0/{lidar,imu}_packets, /os_node0/metadata
 
@@ -58,10 +59,10 @@ def test_ouster_ros1_bag_decodes_without_metadata_to_ouster_sdk_frame():
     assert_frames_equal_sdk(ours, theirs)
     # every packet routed: the metadata is recorded after the first lidar packet and still serves it
     st = reader.stats
-    assert (st.ouster_lidar_packets, st.ouster_imu_packets, st.unrouted_packets) == (32, 10, 0)
+    assert (st.packets_of("ouster", "lidar"), st.packets_of("ouster", "imu"), st.unrouted_packets) == (32, 10, 0)
     (decoder,) = reader.decoders.values()
     assert len(decoder.imu_samples()) == len(imu) == 10
-    routed = [bytes(b.payload[i]) for b in BagReader(path).batches() if b.payload_size == 48 for i in range(len(b))]
+    routed = [bytes(b.payload[i]) for b in BagReader(path, messages=bag_messages()).batches() if b.payload_size == 48 for i in range(len(b))]
     assert routed == imu
 
 
@@ -120,7 +121,7 @@ def test_ouster_ros2_bag_decodes_like_the_ros1_one(tmp_path, storage):
     with lidarpkt.open(bag2) as reader:
         ours = list(reader)
     assert_frames_equal_sdk(ours, theirs)
-    assert (reader.stats.ouster_lidar_packets, reader.stats.ouster_imu_packets) == (32, 10)
+    assert (reader.stats.packets_of("ouster", "lidar"), reader.stats.packets_of("ouster", "imu")) == (32, 10)
 
 
 def test_metadata_topics_are_any_namespace():

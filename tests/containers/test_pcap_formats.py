@@ -19,15 +19,8 @@ import pytest
 from lidarpkt.errors import CaptureFormatError, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.core.packet import Endpoint, Packet
 from lidarpkt.containers.pcap_reader import PcapReader, read_batches, read_packets
-from lidarpkt.writers.pcap import (
-    Interface,
-    frames_for,
-    pcap_bytes,
-    pcapng_bytes,
-    write_pcap,
-    write_pcap_records,
-    write_pcapng,
-)
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes, write_pcap, write_pcap_records, write_pcapng
 from conftest import external
 from reference_tools import ouster_sdk_pcap_packets
 
@@ -462,7 +455,7 @@ def test_other_link_type_numbers(tmp_path, real_packets, linktype, link, big_end
 
 def _ipv4_with_options(src, dst, ident, payload_l4, *, more=False, offset=0):
     """An IPv4 header with 8 bytes of options (two NOPs, a 4-byte experimental option, end), IHL 7."""
-    from lidarpkt.writers.pcap import internet_checksum
+    from lidarpkt.containers.layouts import internet_checksum
 
     options = b"\x01\x01" + b"\x9e\x04\x00\x00" + b"\x00\x00"
     flags = (0x2000 if more else 0) | (offset // 8)
@@ -473,7 +466,7 @@ def _ipv4_with_options(src, dst, ident, payload_l4, *, more=False, offset=0):
 
 
 def test_ipv4_options_fast_and_fragment_paths(tmp_path, real_packets):
-    from lidarpkt.writers.pcap import link_frame, udp_datagram
+    from lidarpkt.writers.framing import link_frame, udp_datagram
 
     vlp = [p for p in real_packets if len(p.payload) == 1206][:3]
     ost = [p for p in real_packets if len(p.payload) == 12608][0]

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 from lidarpkt.core.packet import Endpoint, Packet
 from lidarpkt.containers.pcap_reader import PcapReader
-from lidarpkt.writers.pcap import Interface, frames_for, pcap_bytes, pcapng_bytes
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import Interface, pcap_bytes, pcapng_bytes
 
 _PACKETS = [
     Packet(1_600_000_000_000_000_000 + i * 1_327_000, Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368),

@@ -271,7 +271,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
 
 def _modified_pcap(path: Path, packets) -> None:
     """``packets`` as a pcap of the modified format (magic a1b2cd34): 24-byte record headers."""
-    from lidarpkt.writers.pcap import frames_for
+    from lidarpkt.writers.framing import frames_for
 
     out = bytearray(struct.pack("<IHHiIII", 0xA1B2CD34, 2, 4, 0, 0, 65535, 1))
     for p in packets:

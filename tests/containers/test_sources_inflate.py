@@ -16,7 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
+from lidarpkt.containers.bags import BagReader
+
+from lidarpkt.vendors.registry import ros_definitions
+
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.errors import CaptureFormatError
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.pcap_reader import read_packets
@@ -38,7 +42,7 @@ def _store(ros1: bool):
 
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     types = {}
-    for name, text in MESSAGE_DEFINITIONS.items():
+    for name, text in ros_definitions().items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store
@@ -138,10 +142,11 @@ def _zero_bomb(compression: str, size: int) -> bytes:
 _READ_AND_REPORT_PEAK = r"""
 import sys
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.errors import LidarpktError
 n, outcome = 0, "ok"
 try:
-    for b in BagReader(sys.argv[1]).batches():
+    for b in BagReader(sys.argv[1], messages=bag_messages()).batches():
         n += len(b)
 except LidarpktError as exc:
     outcome = type(exc).__name__
@@ -165,7 +170,7 @@ def test_compressed_ros1_bags_read_as_before(tmp_path, compression):
     _ros1_bag(path, compression)
     chunks = [r for r in _ros1_records(path.read_bytes()) if r[1][b"op"] == b"\x05"]
     assert len(chunks) >= 3 and {r[1][b"compression"] for r in chunks} == {compression.encode()}
-    batch = PacketBatch.concatenate(list(BagReader(path).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(path, messages=bag_messages()).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
 
@@ -173,7 +178,7 @@ def test_compressed_ros1_bags_read_as_before(tmp_path, compression):
 def test_message_compressed_rosbag2_reads_as_before(tmp_path):
     payload, host = _payloads()
     _rosbag2_compressed(tmp_path / "bag")
-    batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag").batches()))
+    batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag", messages=bag_messages()).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
 
@@ -214,7 +219,7 @@ def test_chunk_larger_than_declared_or_than_the_limit(tmp_path):
     struct.pack_into("<I", raw, at, MAX_INFLATED_BYTES + 1)
     path.write_bytes(bytes(raw))
     with pytest.raises(CaptureFormatError, match="MiB"):
-        list(BagReader(path).batches())
+        list(BagReader(path, messages=bag_messages()).batches())
 
 
 # ----------------------------------------------------------------- rosbag2 MCAP storage, rosbag2 compressed files
@@ -280,7 +285,7 @@ def test_rosbag2_mcap_storage_reads_as_before_and_leaves_rosbags_table_alone(tmp
     try:
         reading.set()
         for _ in range(20):
-            for batch in BagReader(folder).batches():
+            for batch in BagReader(folder, messages=bag_messages()).batches():
                 got.append(batch.payload)
                 assert all(storage_mcap.DECOMPRESSORS[k] is f for k, f in stock.items())
     finally:
@@ -326,11 +331,12 @@ _READ_FILE_BOMB = r"""
 import os, sys
 import lidarpkt.containers.inflate as inflate
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.errors import CaptureFormatError
 inflate.MAX_INFLATED_BYTES = int(sys.argv[2])  # the floor of the file limit, small so the test writes little
 inflate._DISK_MARGIN_BYTES = int(sys.argv[3])
 try:
-    list(BagReader(sys.argv[1]).batches())
+    list(BagReader(sys.argv[1], messages=bag_messages()).batches())
     print("ok")
 except CaptureFormatError as exc:
     print(exc)
@@ -346,7 +352,7 @@ def test_file_compressed_rosbag2_reads_as_before_and_leaves_no_temporary_files(t
     res = subprocess.run([sys.executable, "-c", _READ_FILE_BOMB, str(tmp_path / "bag"), str(1 << 30), "0"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert res.stdout.strip() == "ok", res.stderr[-2000:]
-    batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag").batches()))
+    batch = PacketBatch.concatenate(list(BagReader(tmp_path / "bag", messages=bag_messages()).batches()))
     np.testing.assert_array_equal(batch.payload, payload)
     np.testing.assert_array_equal(batch.timestamp_ns, host)
     assert list((tmp_path / "tmp").iterdir()) == []
@@ -357,7 +363,7 @@ def test_file_compressed_rosbag2_reads_as_before_and_leaves_no_temporary_files(t
     db = zstandard.ZstdDecompressor().decompressobj().decompress(compressed.read_bytes())
     half = len(db) // 2
     compressed.write_bytes(zstandard.ZstdCompressor().compress(db[:half]) + zstandard.ZstdCompressor().compress(db[half:]))
-    again = PacketBatch.concatenate(list(BagReader(tmp_path / "bag").batches()))
+    again = PacketBatch.concatenate(list(BagReader(tmp_path / "bag", messages=bag_messages()).batches()))
     np.testing.assert_array_equal(again.payload, payload)
     assert list((tmp_path / "tmp").iterdir()) == []
 
@@ -386,7 +392,7 @@ def test_file_compressed_rosbag2_with_mcap_storage_inflates_the_file_then_bounds
     import zstandard
 
     folder, chunks, payload = _scan_mcap_rosbag2(tmp_path / "bag")
-    plain = PacketBatch.concatenate(list(BagReader(folder).batches())).payload
+    plain = PacketBatch.concatenate(list(BagReader(folder, messages=bag_messages()).batches())).payload
     np.testing.assert_array_equal(plain, payload)
     _bomb_in_place(folder / "b_0.mcap", chunks[1][0], "zstd", 512 << 20)
     storage = folder / "b_0.mcap"

@@ -12,9 +12,11 @@ import lidarpkt
 from lidarpkt.errors import LidarpktError, UnsupportedContainerError, UnsupportedFilterError
 from lidarpkt.core.packet import Packet
 from lidarpkt.containers.pcap_reader import PcapReader, read_packets
-from lidarpkt.writers.pcap import frames_for, write_pcap, write_pcap_records, write_pcapng
+from lidarpkt.writers.framing import frames_for
+from lidarpkt.writers.pcap import write_pcap, write_pcap_records, write_pcapng
 from lidarpkt.containers import PacketSource, container_kind, open_packet_source
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.containers.magic import PCAP_MAGIC_BYTES, format_from_magic
 
 from conftest import REPO_ROOT, external
@@ -41,7 +43,7 @@ def test_one_opener_for_every_container(tmp_path):
     bag = external(NEBULA)
     for path, reader_type, kind in ((pcap, PcapReader, "pcap"), (ng, PcapReader, "pcap"), (mcap, BagReader, "mcap"),
                                     (bag, BagReader, "rosbag2"), (bag / "1673400471837873222_0.db3", BagReader, "rosbag2")):
-        src = open_packet_source(path)
+        src = open_packet_source(path, messages=bag_messages())
         assert isinstance(src, reader_type) and isinstance(src, PacketSource), path
         assert container_kind(path) == kind
         batches = list(src.batches())
@@ -51,7 +53,7 @@ def test_one_opener_for_every_container(tmp_path):
         order = np.argsort(np.concatenate([b.index for b in batches]), kind="stable")
         flat = [p for b in batches for p in b.packets()]
         assert [flat[i].payload for i in order] == [p.payload for p in packets]
-        assert src.ouster_metadata() is None
+        assert src.recorded_sensor_file() is None
 
 
 def test_magic_is_known_once():
@@ -85,14 +87,14 @@ def test_address_filters_raise_for_bags_instead_of_being_ignored(tmp_path, name)
         with pytest.raises(UnsupportedFilterError, match=f"{name}=.*records no UDP ports or addresses.*topics="):
             open_packet_source(path, **{name: value})
         with pytest.raises(UnsupportedFilterError):
-            BagReader(path, **{name: value})
+            BagReader(path, **{name: value}, messages=bag_messages())
         with pytest.raises(UnsupportedFilterError):
             lidarpkt.open(path, **{name: value})
     with pytest.raises(UnsupportedFilterError, match="unknown packet filter"):
-        BagReader(mcap, batch_packets=10)
+        BagReader(mcap, batch_packets=10, messages=bag_messages())
     # None means "no filter" everywhere, and the filters bags do have still work
-    assert len(list(open_packet_source(mcap, ports=None, src_addresses=None).batches())) == 3
-    assert list(open_packet_source(mcap, payload_sizes=[512]).batches()) == []
+    assert len(list(open_packet_source(mcap, messages=bag_messages(), ports=None, src_addresses=None).batches())) == 3
+    assert list(open_packet_source(mcap, messages=bag_messages(), payload_sizes=[512]).batches()) == []
 
 
 def test_pcap_filters_still_filter():

@@ -15,7 +15,7 @@ from lidarpkt.errors import UsageError
 from lidarpkt.containers import open_packet_source
 from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.containers.udp import UdpSource, parse_udp_url
-from lidarpkt.view.sources import LiveDecoder
+from lidarpkt.pipeline.live import LiveDecoder
 from conftest import REPO_ROOT
 
 CAPTURE = REPO_ROOT / "lidarpkt" / "fixtures" / "canned" / "vlp16-strongest.pcap"
@@ -32,7 +32,7 @@ def test_udp_url_opens_a_source_whose_batches_decode_like_the_capture():
     data = [p for p in packets if len(p.payload) == 1206]
     port = _free_port()
     source = open_packet_source(f"udp://127.0.0.1:{port}")
-    assert isinstance(source, UdpSource) and source.ouster_metadata() is None
+    assert isinstance(source, UdpSource) and source.recorded_sensor_file() is None
     got = []
     decoder = LiveDecoder()
     frames = []

@@ -62,7 +62,7 @@ def test_export_parquet_holds_one_row_per_return(ext, tmp_path):
     assert res.returncode == 0, res.stderr
     (out,) = tmp_path.glob("**/*.parquet")
     table = pq.read_table(out).to_pandas()
-    frames = list(lidarpkt.open(bag, calibration=csv))
+    frames = list(lidarpkt.open(bag, metadata=csv))
     assert len(table) == sum(int(np.count_nonzero(f.range_mm)) for f in frames) > 400_000
     f = frames[3]
     rows = table[table.frame_id == f.frame_id].sort_values(["return_slot", "row", "column"])
@@ -76,7 +76,7 @@ def test_open_counts_hesai_packets_and_says_what_a_csv_is_for(ext):
     bag, csv = ext("nebula/hesai/xt16/1732848127890747768"), ext("nebula/hesai/PandarXT16.csv")
     with lidarpkt.open(bag, metadata=[csv]) as reader:  # an archive job's --metadata: the CSV is the calibration
         frames = list(reader)
-    assert reader.stats.hesai_data_packets == 1626 and reader.stats.unrouted_packets == 0
+    assert reader.stats.packets_of("hesai", "data") == 1626 and reader.stats.unrouted_packets == 0
     assert frames[1].sensor.geometry is not None and frames[1].sensor.beam_altitude_deg[0] == 15.0
     assert frames[1].sensor.return_mode == "last_strongest" and frames[1].sensor.frequency_hz == pytest.approx(10.0, abs=0.02)
     without = list(lidarpkt.open(bag))
@@ -92,7 +92,7 @@ def test_whole_frames_fill_the_default_grid(ext, folder, bag, model, columns):
     """The XT and QT send their firings on the grid (0.18°, 0.4°, 0.6° steps): every column is its own
     bin. The Pandar64's azimuths wander by up to ±0.04° about 0.2° steps (and a rotation holds 1799 or 1800
     firings): a few share a bin, fewer than 2 %."""
-    from lidarpkt.core.frame import FrameStack
+    from lidarpkt.core.sequence import FrameStack
 
     frames = [f for f in lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}")) if not f.partial]
     stack = FrameStack.from_frames(frames)
@@ -128,7 +128,7 @@ def test_decode_to_mcap_keeps_the_packets_and_names_nebulas_topic(ext, tmp_path)
         summary = make_reader(fh).get_summary()
     counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
     assert counts == {"/lidarpkt/other_packets": 2000, "/pandar_points": 5, "/pandar_points2": 5}
-    again, frames = list(lidarpkt.open(out, calibration=csv)), list(lidarpkt.open(bag, calibration=csv))
+    again, frames = list(lidarpkt.open(out, metadata=csv)), list(lidarpkt.open(bag, metadata=csv))
     assert [f.sensor.model for f in again] == ["PandarXT32"] * 5
     assert all(np.array_equal(a.range_mm, b.range_mm) for a, b in zip(again, frames))
 

@@ -23,7 +23,9 @@ def test_hydra4_points_are_our_last_returns(ext):
 
     from lidarpkt.containers.bags import BagReader
 
-    batch = next(iter(BagReader(glob.glob(str(ext("nebula/hesai/xt32")) + "/*/")[0]).batches()))
+    from lidarpkt.vendors.registry import bag_messages
+
+    batch = next(iter(BagReader(glob.glob(str(ext("nebula/hesai/xt32")) + "/*/")[0], messages=bag_messages()).batches()))
     csv = ext("nebula/hesai/PandarXT32.csv")
     theirs = PandarXT32(csv, 0.05, 120.0)
     n = 40

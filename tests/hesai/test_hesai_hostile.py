@@ -5,19 +5,19 @@ PandarScan. Each gives counted skips (the decoder's stats, ``lidarpkt.core.dropp
 from __future__ import annotations
 
 import glob
-import types
 import warnings
 
 import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.core.dropped import dropped_counts
 from lidarpkt.errors import CaptureFormatError, LidarpktError, SkippedPacketWarning
 from lidarpkt.vendors.hesai import HesaiCalibration, HesaiDecoder, detect_model
 from lidarpkt.vendors.hesai.models import MODELS
 from lidarpkt.core.packet import PacketBatch
-from lidarpkt.containers.bags import MESSAGE_DEFINITIONS, BagReader
+from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import ros_definitions
+from lidarpkt.vendors.registry import bag_messages
 
 FOLDERS = ["40p", "64", "qt64", "qt128", "xt16", "xt32", "xt32m"]
 
@@ -25,7 +25,7 @@ FOLDERS = ["40p", "64", "qt64", "qt128", "xt16", "xt32", "xt32m"]
 def _bag_batch(ext, folder) -> PacketBatch:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return next(iter(BagReader(glob.glob(str(ext(f"nebula/hesai/{folder}")) + "/*/")[0]).batches()))
+        return next(iter(BagReader(glob.glob(str(ext(f"nebula/hesai/{folder}")) + "/*/")[0], messages=bag_messages()).batches()))
 
 
 def _decoder(model):
@@ -101,9 +101,10 @@ def test_duplicates_and_late_packets_are_dropped_and_counted(ext):
     assert dec.stats.decoded_packets == 150 and _accounted(dec, len(again) + 100)
     counts = {"late": 10, "duplicate": 5}
 
-    # what lidarpkt.core.dropped reads: the router's sensor keys (vendor, ...) and their decoders' stats
-    reader = types.SimpleNamespace(decoders={("hesai", None, "PandarXT32"): dec})
-    assert {k: v for k, v in dropped_counts(reader).items() if k in counts} == counts
+    # the decoder's stats under the reasons of lidarpkt.core.dropped: the vendor's drop reasons
+    from lidarpkt.vendors import registry
+
+    assert {k: v for k, v in registry.vendor("hesai").drops(dec.stats).items() if k in counts} == counts
 
 
 def _write_bag(path, scans):
@@ -112,7 +113,7 @@ def _write_bag(path, scans):
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     types = {}
-    for name, text in MESSAGE_DEFINITIONS.items():
+    for name, text in ros_definitions().items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
     Scan, Packet = store.types["pandar_msgs/msg/PandarScan"], store.types["pandar_msgs/msg/PandarPacket"]
@@ -137,8 +138,8 @@ def test_damaged_packets_in_a_bag_are_reported_by_lidarpkt_dropped(ext, tmp_path
     with pytest.warns(lidarpkt.errors.DroppedPacketsWarning, match="10 skipped as malformed"), \
             lidarpkt.open(tmp_path / "bag") as reader:
         frames = list(reader)
-    assert frames and reader.stats.hesai_data_packets == 500
-    assert dropped_counts(reader).malformed == 10
+    assert frames and reader.stats.packets_of("hesai", "data") == 500
+    assert reader.drop_counts().malformed == 10
 
 
 def test_a_pandar_scan_of_two_sizes_or_an_oversized_packet_is_one_clear_error(ext, tmp_path):

@@ -88,7 +88,7 @@ def best_match(ext, folder, bag, pcd, name, lo, hi):
     model = model_named(name)
     lo, hi = max(lo, model.min_range_m), min(hi, model.max_range_m)
     ref = read_pcd_xyz(ext(f"nebula/hesai/{folder}/{pcd}.pcd"))
-    frames = list(lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}"), calibration=ext(f"nebula/hesai/{name}.csv")))
+    frames = list(lidarpkt.open(ext(f"nebula/hesai/{folder}/{bag}"), metadata=ext(f"nebula/hesai/{name}.csv")))
     points = [nebula_filtered_points(f, lo, hi) for f in frames]
     sample = ref[:: max(1, len(ref) // 500)]
     k = int(np.argmax([within(sample, p, 1e-3).mean() if len(p) else 0.0 for p in points]))

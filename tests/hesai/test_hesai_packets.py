@@ -88,8 +88,9 @@ def test_utc_time_is_the_calendars():
 def test_the_xt32_bag_first_packet_time(ext):
     """Tail bytes of the bag's first packet, read by hand: year 0x77 (1900 + 119), July 25, 03:19:29, 619 165 µs."""
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
-    batch = next(iter(BagReader(ext("nebula/hesai/xt32/1673400677802009732")).batches()))
+    batch = next(iter(BagReader(ext("nebula/hesai/xt32/1673400677802009732"), messages=bag_messages()).batches()))
     raw = decode_packets(batch.payload, model_named("PandarXT32"))
     want = dt.datetime(2019, 7, 25, 3, 19, 29, tzinfo=dt.timezone.utc)
     assert int(raw.timestamp_ns[0]) == int(want.timestamp()) * 10**9 + 619_165_000
@@ -102,8 +103,10 @@ def test_real_packets_survive_decode_encode_decode(ext, folder):
 
     from lidarpkt.containers.bags import BagReader
 
+    from lidarpkt.vendors.registry import bag_messages
+
     bag = glob.glob(str(ext(f"nebula/hesai/{folder}")) + "/*/")[0]
-    batch = next(iter(BagReader(bag).batches()))
+    batch = next(iter(BagReader(bag, messages=bag_messages()).batches()))
     model = detect_model(batch.payload)
     raw = decode_packets(batch.payload, model)
     assert raw.valid.all()

@@ -107,7 +107,7 @@ def test_replay_serves_the_calibration_and_the_packets_decode_live(ext):
     live = dec.push(PacketBatch.from_payloads(arr, np.arange(len(arr), dtype=np.int64) * 200_000)) + dec.finish()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        stored = list(lidarpkt.open(bag, calibration=csv))
+        stored = list(lidarpkt.open(bag, metadata=csv))
     assert len(live) == len(stored)
     for a, b in zip(live, stored):
         assert np.array_equal(a.range_mm, b.range_mm) and np.array_equal(a.xyz(), b.xyz())

@@ -14,6 +14,7 @@ from lidarpkt.pipeline import parallel
 from lidarpkt.vendors.hesai import decode_packets, detect_model, encode_packets
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 from lidarpkt.containers.bags import BagReader
+from lidarpkt.vendors.registry import bag_messages
 from lidarpkt.writers.pcap import write_pcap
 
 
@@ -21,7 +22,7 @@ from lidarpkt.writers.pcap import write_pcap
 def xt32_pcap(ext, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        batch = PacketBatch.concatenate(list(BagReader(glob.glob(str(ext("nebula/hesai/xt32")) + "/*/")[0]).batches()))
+        batch = PacketBatch.concatenate(list(BagReader(glob.glob(str(ext("nebula/hesai/xt32")) + "/*/")[0], messages=bag_messages()).batches()))
     model = detect_model(batch.payload)
     raw = decode_packets(batch.payload, model)
     span = int(raw.timestamp_ns[-1] - raw.timestamp_ns[0]) + 200_000
@@ -42,8 +43,8 @@ def test_segments_give_the_frames_of_one_thread(xt32_pcap, monkeypatch):
     monkeypatch.setattr(parallel, "MIN_SEGMENT_BYTES", 100_000)
     monkeypatch.setattr(parallel, "MAX_SEGMENT_BYTES", 400_000)
     path, csv = xt32_pcap
-    one = list(lidarpkt.open(path, calibration=csv))
-    reader = lidarpkt.open(path, calibration=csv, workers=3)
+    one = list(lidarpkt.open(path, metadata=csv))
+    reader = lidarpkt.open(path, metadata=csv, workers=3)
     assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 4
     three = list(reader)
     assert [f.frame_id for f in three] == [f.frame_id for f in one] == list(range(9))

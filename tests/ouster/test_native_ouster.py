@@ -17,7 +17,8 @@ import pytest
 from lidarpkt.core import kernels
 from lidarpkt.vendors.ouster.decode import packet_view, read_pixel_field
 from lidarpkt.vendors.ouster.fieldplan import SLOT_FIELDS, extract, new_fields, packet_layout, scatter_steps
-from lidarpkt.vendors.ouster.frames import _NATIVE_PIXEL_BYTES, OusterDecoder
+from lidarpkt.vendors.ouster.builder import _NATIVE_PIXEL_BYTES
+from lidarpkt.vendors.ouster.frames import OusterDecoder
 from lidarpkt.vendors.ouster.profiles import PROFILES
 from test_ouster_cases import CAPTURES, IDS, decode_frames, lidar_streams
 

@@ -307,14 +307,14 @@ def test_hostile_sizes_allocate_nothing_they_claim(tmp_path):
     huge_chunk = bytearray(data)
     struct.pack_into("<I", huge_chunk, start, 0xFFFFFFF0)
     cases["chunk size"] = bytes(huge_chunk)
-    from lidarpkt.vendors.ouster.osf import _root
+    from lidarpkt.containers.osf.format import root_table
 
     block = bytes(data[start:end - 4])
-    chunk = _root(block, "Chunk")
+    chunk = root_table(block, "Chunk")
     msg_buf = chunk.messages[0].buffer
     base = np.frombuffer(block, np.uint8).ctypes.data
     msg_at = start + (np.frombuffer(msg_buf, np.uint8).ctypes.data - base)
-    msg = _root(bytes(msg_buf), "LidarScanMsg")
+    msg = root_table(bytes(msg_buf), "LidarScanMsg")
     # header_timestamp's vector length -> 0xFFFFFFFF
     slot_off = msg._t.Offset(4 + 2 * 2)
     vec = msg._t.Pos + slot_off
@@ -343,7 +343,7 @@ def test_png_unfilter_matches_pillow():
 
     from PIL import Image
 
-    from lidarpkt.vendors.ouster.osf import _png_inflate_unfilter
+    from lidarpkt.containers.osf.codecs import _png_inflate_unfilter
 
     data = external("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.osf").read_bytes()
     pos, checked, filters = 0, 0, set()
@@ -376,7 +376,7 @@ def _chunks(png: bytes, kind: bytes):
 def test_64_bit_field_image_round_trip():
     """A 64-bit field as ouster-sdk stores it (16-bit RGBA PNG, low bytes first in each pixel; rows with each
     filter) decodes to its values: the path Pillow cannot take."""
-    from lidarpkt.vendors.ouster.osf import _decode_image
+    from lidarpkt.containers.osf.codecs import decode_image
 
     rng = np.random.default_rng(7)
     h, w = 6, 40
@@ -409,8 +409,8 @@ def test_64_bit_field_image_round_trip():
 
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 6, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(bytes(raw))) + chunk(b"IEND", b""))
-    np.testing.assert_array_equal(_decode_image(png, (h, w), np.dtype("<u8"), None), values)
-    np.testing.assert_array_equal(_decode_image(png, (h, w), np.dtype("<i8"), None), values.view(np.int64))
+    np.testing.assert_array_equal(decode_image(png, (h, w), np.dtype("<u8"), None), values)
+    np.testing.assert_array_equal(decode_image(png, (h, w), np.dtype("<i8"), None), values.view(np.int64))
 
 
 # ----------------------------------------------------------------------------- files written here
@@ -440,7 +440,7 @@ def test_osf_written_here_reads_as_ouster_sdk_reads_it(tmp_path):
     1-D field, a ZPNG 64-bit field): ouster-sdk's reader and lidarpkt's give the same arrays."""
     from osf_builder import Custom, png_rgba, zpng
 
-    from lidarpkt.core.frame import destagger
+    from lidarpkt.core.grid import destagger
 
     rng = np.random.default_rng(3)
 

@@ -401,7 +401,8 @@ def test_damaged_and_shuffled_real_packets_never_crash(which, flips, order):
         return
     s = dec.stats
     assert s.packets == len(payload)
-    assert s.accepted + s.crc_failures + s.id_mismatch + s.bad_measurement_id + s.late + s.duplicates == s.packets
+    assert (s.accepted + s.crc_failures + s.id_mismatch + s.bad_measurement_id + s.late + s.duplicates
+            + s.corrupted) == s.packets
     for f in frames:
         assert f.range_mm.shape == (md.profile.returns, md.pixels_per_column, md.columns_per_frame)
         assert f.column_valid.shape == (md.columns_per_frame,)

@@ -15,7 +15,8 @@ from lidarpkt.core import kernels
 from lidarpkt.vendors.ouster import OusterDecoder, decode_packets, encode_packets, load_metadata
 from lidarpkt.vendors.ouster.encode import empty_fields, encode_frame
 from lidarpkt.vendors.ouster.imu import imu_samples
-from lidarpkt.vendors.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER, read_bits
+from lidarpkt.vendors.ouster.profiles import FUSA_HEADER, PROFILES, STANDARD_HEADER
+from lidarpkt.vendors.ouster.bitfield import read_bits
 from lidarpkt.vendors.ouster.zone import decode_zone_packets
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.pcap_reader import read_batches
@@ -368,7 +369,7 @@ def test_imu_and_zone_packets_without_lidar_give_no_frame_and_no_error():
         reader = lidarpkt.open(external(IMU_ZM[0]), metadata=str(external(IMU_ZM[1])))
         frames = list(reader)
     assert frames == []
-    assert reader.stats.ouster_imu_packets == 8 and reader.stats.ouster_zone_packets == 1
+    assert reader.stats.packets_of("ouster", "imu") == 8 and reader.stats.packets_of("ouster", "zone") == 1
     (dec,) = reader.decoders.values()
     assert len(dec.imu_samples()) == 64 and dec.stats.zone_packets == 1
     (states,) = dec.zone_states()

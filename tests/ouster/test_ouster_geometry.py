@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import external
-from lidarpkt.core.frame import FrameStack
+from lidarpkt.core.sequence import FrameStack
 from lidarpkt.vendors.ouster import OusterDecoder, encode_frame, load_metadata
 from lidarpkt.core.packet import PacketBatch
 from test_ouster_cases import decode_frames

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import MetadataError, PacketFormatError
+from lidarpkt.vendors.ouster import bitfield as B
 from lidarpkt.vendors.ouster import profiles as P
 
 
@@ -16,39 +17,39 @@ def pieces(fields):
 
 
 def test_reserved_bits_split_at_32_bit_words():
-    assert pieces(P._reserved(104, 24)) == [("_reserved_104", 104, 24)]
-    assert pieces(P._reserved(156, 100)) == [("_reserved_156", 156, 4), ("_reserved_160", 160, 32),
+    assert pieces(B.reserved_bits(104, 24)) == [("_reserved_104", 104, 24)]
+    assert pieces(B.reserved_bits(156, 100)) == [("_reserved_156", 156, 4), ("_reserved_160", 160, 32),
                                              ("_reserved_192", 192, 32), ("_reserved_224", 224, 32)]
-    assert pieces(P._reserved(0, 64)) == [("_reserved_0", 0, 32), ("_reserved_32", 32, 32)]
-    assert pieces(P._reserved(40, 8)) == [("_reserved_40", 40, 8)]
-    assert pieces(P._reserved(30, 5)) == [("_reserved_30", 30, 2), ("_reserved_32", 32, 3)]
-    assert P._reserved(8, 0) == ()
-    assert all(f.reserved for f in P._reserved(156, 100))
+    assert pieces(B.reserved_bits(0, 64)) == [("_reserved_0", 0, 32), ("_reserved_32", 32, 32)]
+    assert pieces(B.reserved_bits(40, 8)) == [("_reserved_40", 40, 8)]
+    assert pieces(B.reserved_bits(30, 5)) == [("_reserved_30", 30, 2), ("_reserved_32", 32, 3)]
+    assert B.reserved_bits(8, 0) == ()
+    assert all(f.reserved for f in B.reserved_bits(156, 100))
 
 
 def test_cover_check_accepts_an_exact_cover_and_names_the_bad_bits():
-    ok = (P.BitField("A", 0, 3), P.BitField("B", 3, 5))
-    P._check_cover(ok, 8, "t")
+    ok = (B.BitField("A", 0, 3), B.BitField("B", 3, 5))
+    B.check_cover(ok, 8, "t")
     with pytest.raises(PacketFormatError, match=r"t: bits \[7\] not covered exactly once"):
-        P._check_cover((P.BitField("A", 0, 7),), 8, "t")
+        B.check_cover((B.BitField("A", 0, 7),), 8, "t")
     with pytest.raises(PacketFormatError, match=r"bits \[2\] not covered exactly once"):
-        P._check_cover((P.BitField("A", 0, 3), P.BitField("B", 2, 1), P.BitField("C", 3, 5)), 8, "t")
+        B.check_cover((B.BitField("A", 0, 3), B.BitField("B", 2, 1), B.BitField("C", 3, 5)), 8, "t")
     with pytest.raises(PacketFormatError, match="field B outside the record"):
-        P._check_cover((P.BitField("A", 0, 4), P.BitField("B", 4, 5)), 8, "t")
+        B.check_cover((B.BitField("A", 0, 4), B.BitField("B", 4, 5)), 8, "t")
     with pytest.raises(PacketFormatError, match="field Z outside the record"):
-        P._check_cover((P.BitField("A", 0, 8), P.BitField("Z", 8, 0)), 8, "t")
+        B.check_cover((B.BitField("A", 0, 8), B.BitField("Z", 8, 0)), 8, "t")
 
 
 def test_bit_field_types_masks_and_lookups():
-    assert P.BitField("R", 0, 15, 3).dtype == np.uint32  # 18 bits
-    assert P.BitField("R", 0, 13, 3).dtype == np.uint16  # exactly 16
-    assert P.BitField("N", 0, 8, 4).dtype == np.uint16
-    assert P.BitField("F", 0, 8).dtype == np.uint8
-    assert P.BitField("S", 0, 40).dtype == np.uint64
+    assert B.BitField("R", 0, 15, 3).dtype == np.uint32  # 18 bits
+    assert B.BitField("R", 0, 13, 3).dtype == np.uint16  # exactly 16
+    assert B.BitField("N", 0, 8, 4).dtype == np.uint16
+    assert B.BitField("F", 0, 8).dtype == np.uint8
+    assert B.BitField("S", 0, 40).dtype == np.uint64
     with pytest.raises(ValueError, match="wider than 64 bits"):
-        _ = P.BitField("X", 0, 64, 1).dtype
-    assert P.BitField("F", 0, 5).mask == 0b11111 and P.BitField("W", 0, 32).mask == 0xFFFFFFFF
-    assert P.RNG15_RFL8_NIR8.field("NEAR_IR") == P.BitField("NEAR_IR", 24, 8, 4)
+        _ = B.BitField("X", 0, 64, 1).dtype
+    assert B.BitField("F", 0, 5).mask == 0b11111 and B.BitField("W", 0, 32).mask == 0xFFFFFFFF
+    assert P.RNG15_RFL8_NIR8.field("NEAR_IR") == B.BitField("NEAR_IR", 24, 8, 4)
     with pytest.raises(KeyError, match="RNG15_RFL8_NIR8 has no pixel field 'SIGNAL'"):
         P.RNG15_RFL8_NIR8.field("SIGNAL")
     assert P.get_profile("LEGACY") is P.LEGACY
@@ -82,20 +83,20 @@ def test_packet_sizes_and_dtypes(profile, h, size):
 def test_to_raw_errors_name_the_unit_and_the_width():
     from lidarpkt.errors import PacketFormatError
 
-    rng = P.BitField("RANGE", 0, 15, 3)
-    assert P._to_raw(np.array([8, 16, 0]), rng).tolist() == [1, 2, 0]
+    rng = B.BitField("RANGE", 0, 15, 3)
+    assert B._to_raw(np.array([8, 16, 0]), rng).tolist() == [1, 2, 0]
     with pytest.raises(PacketFormatError, match=r"field RANGE: values must be multiples of 8 \(the wire unit\); got e.g. 12"):
-        P._to_raw(np.array([8, 12, 16]), rng)
+        B._to_raw(np.array([8, 12, 16]), rng)
     with pytest.raises(PacketFormatError, match=r"field RANGE: value 262144 does not fit in 15 bits × 8$"):
-        P._to_raw(np.array([8, (1 << 15) * 8]), rng)
+        B._to_raw(np.array([8, (1 << 15) * 8]), rng)
     with pytest.raises(PacketFormatError, match=r"field FLAGS: value 2 does not fit in 1 bits$"):
-        P._to_raw(np.array([1, 2]), P.BitField("FLAGS", 15, 1))
+        B._to_raw(np.array([1, 2]), B.BitField("FLAGS", 15, 1))
 
 
 def test_read_bits_keeps_leading_axes_and_the_field_type():
     data = np.random.default_rng(3).integers(0, 256, size=(2, 3, 12), dtype=np.uint8)
     for f in P.RNG19_RFL8_SIG16_NIR16.pixel_fields:
-        got = P.read_bits(data, f)
+        got = B.read_bits(data, f)
         assert got.shape == (2, 3) and got.dtype == f.dtype, f.name
         want = [[(int.from_bytes(data[i, j].tobytes(), "little") >> f.start_bit) & f.mask for j in range(3)] for i in range(2)]
         assert got.tolist() == want, f.name

@@ -186,7 +186,8 @@ def test_warning_is_raised_in_the_caller_as_an_error_filter_says(tmp_path):
 def test_unsupported_link_type_warning_comes_at_the_same_point(tmp_path):
     """SkippedPacketWarning of the per-record path (records of a link type lidarpkt does not read),
     in the middle of the capture: seen between the same frames with and without read-ahead."""
-    from lidarpkt.writers.pcap import Interface, frames_for, write_pcapng_records
+    from lidarpkt.writers.framing import frames_for
+    from lidarpkt.writers.pcap import Interface, write_pcapng_records
 
     src = tmp_path / "vlp16.pcap"
     _vlp16_capture(src, n=1500)

@@ -5,7 +5,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UnknownSensorError, UnsupportedContainerError
-from lidarpkt.pipeline.reader import container_kind
+from lidarpkt.containers.magic import container_kind
 
 
 def test_veloview_test_through_open(ext):
@@ -35,7 +35,7 @@ def test_two_sensors_on_one_port_each_get_their_own_decoder(ext):
     # SOURCES.md: OS-0-128 from 169.254.92.158, OS-1-64 from 169.254.238.111, one packet each.
     by_source = {f.sensor.source.split(":")[0]: f.shape[1] for f in frames}
     assert by_source == {"169.254.92.158": 128, "169.254.238.111": 64}
-    assert len(reader.decoders) == 2 and reader.stats.ouster_lidar_packets == 2
+    assert len(reader.decoders) == 2 and reader.stats.packets_of("ouster", "lidar") == 2
 
 
 def test_source_filter_keeps_one_sensor(ext):
@@ -56,7 +56,7 @@ def test_position_packets_are_routed_not_reported_as_unknown(ext):
     reader = lidarpkt.open(ext("rust-lidar-utils/velodyne_vlp16.pcap"))
     frames = list(reader)
     assert frames and reader.stats.unrouted_packets == 0
-    assert reader.stats.velodyne_data_packets == 84 and reader.stats.velodyne_position_packets == 16
+    assert reader.stats.packets_of("velodyne", "data") == 84 and reader.stats.packets_of("velodyne", "position") == 16
 
 
 def test_hdl32e_capture_is_decoded_as_an_hdl32e(ext):
@@ -121,7 +121,7 @@ def test_calibration_files_are_accepted_by_path(ext):
     stock = list(lidarpkt.open(path))
     omega = np.deg2rad(stock[0].sensor.beam_altitude_deg)  # per row
     for cal in ("rust-lidar-utils/VLP16db.yaml", "veloview/VLP-16.xml"):
-        frames = list(lidarpkt.open(path, calibration=ext(cal)))
+        frames = list(lidarpkt.open(path, metadata=ext(cal)))
         assert [f.shape for f in frames] == [f.shape for f in stock]
         a, b = stock[0].xyz(), frames[0].xyz()
         hit = stock[0].range_mm > 0

@@ -12,7 +12,7 @@ import tty
 import pytest
 
 from lidarpkt.errors import NMEAError, SerialPortError
-from lidarpkt.vendors.velodyne import nmea
+from lidarpkt.core import nmea
 from lidarpkt.recorder.gps import GpsReader, verify_sentence
 from test_replay_record import Recorder
 

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from lidarpkt.errors import PortInUseError
-from lidarpkt.vendors.ouster.metadata import load_metadata
+from lidarpkt.vendors.ouster.metadata_json import load_metadata
 from lidarpkt.containers.pcap_reader import read_batches, read_packets
-from lidarpkt.core import streams
+from lidarpkt.vendors import registry
+from lidarpkt.vendors.ouster.stream import PacketCounter as OusterCounter
+from lidarpkt.vendors.velodyne.stream import PacketCounter as VelodyneCounter
 from lidarpkt.containers.udp import UdpSource
 from conftest import external
 
@@ -166,7 +168,7 @@ def _velodyne_payloads(rel: str) -> np.ndarray:
     ("rust-lidar-utils/velodyne_example.pcap", 1),
 ])
 def test_velodyne_real_captures_show_no_loss_and_their_known_wraps(rel, rotations):
-    t = streams.VelodyneLoss()
+    t = VelodyneCounter()
     payload = _velodyne_payloads(rel)
     for part in np.array_split(payload, 7):  # batch boundaries must not matter
         t.update(part)
@@ -178,21 +180,22 @@ def test_velodyne_dropped_and_repeated_packets_are_counted_exactly():
     drop = [10, 11, 12, 500, 1500]
     kept = np.delete(payload, drop, axis=0)
     kept = np.insert(kept, 700, kept[699], axis=0)  # a duplicate
-    t = streams.VelodyneLoss()
+    t = VelodyneCounter()
     t.update(kept)
     assert t.count.lost == len(drop) and t.count.out_of_order == 1
 
 
 def test_velodyne_dual_mode_period_from_the_real_dual_bag():
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
-    batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
+    batches = list(BagReader(external("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches())
     payload = np.concatenate([b.payload for b in batches])
     assert set(payload[:, 1204].tolist()) == {0x39}
-    t = streams.VelodyneLoss()
+    t = VelodyneCounter()
     t.update(payload)
     assert (t.count.lost, t.count.out_of_order) == (0, 0)  # packets every 663.552 µs, as the manual says
-    t2 = streams.VelodyneLoss()
+    t2 = VelodyneCounter()
     t2.update(np.delete(payload, [5, 300], axis=0))
     assert t2.count.lost == 2
 
@@ -204,34 +207,47 @@ def test_velodyne_dual_mode_period_from_the_real_dual_bag():
 ])
 def test_ouster_real_captures_loss_counting(pcap, meta, changes):
     md = load_metadata(external(meta))
+    setup = registry.setup(registry.load_sensor_files([md]))
     lidar = np.concatenate([b.payload for b in read_batches(external(pcap))
-                            if streams.classify_size(b.payload_size, md) == streams.OUSTER_LIDAR])
-    t = streams.OusterLoss(md)
+                            if (m := registry.classify(b, setup)) is not None and m.lidar])
+    t = OusterCounter(md)
     t.update(lidar)
     assert (t.count.lost, t.count.out_of_order) == (0, 0)
     if changes is not None:
         assert t.count.frames == changes
-    t2 = streams.OusterLoss(md)
+    t2 = OusterCounter(md)
     for part in np.array_split(np.delete(lidar, [3, 4, 40], axis=0), 3):
         t2.update(part)
     assert t2.count.lost == 3 and t2.count.out_of_order == 0
 
 
-def test_stream_kinds_from_sizes_and_metadata():
+def _kinds(pcap, *files):
+    """(payload size, stream kind text, decodable) of the first batch of each stream of a capture."""
+    setup = registry.setup(registry.load_sensor_files(list(files)))
+    seen = {}
+    for b in read_batches(external(pcap)):
+        if b.payload_size not in seen:
+            m = registry.classify(b, setup)
+            seen[b.payload_size] = (str(m.stream), m.decodable) if m is not None else ("other", False)
+    return seen
+
+
+def test_stream_kinds_from_the_packets_and_the_sensor_files():
+    assert _kinds("veloview/vlp-16-test-90deg-1-50-frames.pcap") == {
+        1206: ("velodyne_data", True), 512: ("velodyne_position", True)}
+    # a legacy OS1-64 without its metadata: recognised by its size and headers, not decodable
+    assert _kinds("ouster-sdk/OS-1-64_1024x10_fw20.pcap")[12608] == ("ouster_lidar", False)
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
-    assert streams.classify_size(1206) == streams.VELODYNE_DATA
-    assert streams.classify_size(512) == streams.VELODYNE_POSITION
-    assert streams.classify_size(12608) == streams.OUSTER_LIDAR  # legacy OS1-64 without metadata
-    assert streams.classify_size(md.packet_size) == streams.OTHER
-    assert streams.classify_size(md.packet_size, md) == streams.OUSTER_LIDAR
-    assert streams.classify_size(48, md) == streams.OUSTER_IMU
+    assert _kinds("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")[md.packet_size] == ("ouster_lidar", False)
+    with_md = _kinds("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", md)
+    assert with_md[md.packet_size] == ("ouster_lidar", True) and with_md[48] == ("ouster_imu", True)
 
 
 def test_a_sensor_restart_is_an_interruption_not_a_loss():
     # two real captures years apart back to back: the device clock jumps, nothing was lost
     a = _velodyne_payloads("rust-lidar-utils/velodyne_vlp16.pcap")
     b = _velodyne_payloads("rust-lidar-utils/velodyne_example.pcap")
-    t = streams.VelodyneLoss()
+    t = VelodyneCounter()
     t.update(a)
     t.update(b)
     assert (t.count.lost, t.count.out_of_order, t.count.interruptions) == (0, 0, 1)
@@ -241,7 +257,7 @@ def test_a_sensor_restart_is_an_interruption_not_a_loss():
     later = lidar.copy()
     view = later.view(md.profile.packet_dtype(md.pixels_per_column, md.columns_per_packet))[:, 0]
     view["columns"]["frame_id"] += 500
-    t = streams.OusterLoss(md)
+    t = OusterCounter(md)
     t.update(lidar)
     t.update(np.delete(later, 50, axis=0))
     assert (t.count.out_of_order, t.count.interruptions, t.count.lost) == (0, 1, 1)
@@ -254,7 +270,7 @@ def test_hdl32e_timing_is_not_taken_for_vlp16_loss(tmp_path):
     from lidarpkt.writers.mcap.packets import PacketSink
 
     payload = _velodyne_payloads("rust-lidar-utils/velodyne_vlp32.pcap")
-    vlp_timing = streams.VelodyneLoss()
+    vlp_timing = VelodyneCounter()
     vlp_timing.update(payload)
     assert vlp_timing.count.out_of_order > 0  # what a VLP-16 period would wrongly say
     w = McapWriter(tmp_path / "h.mcap")

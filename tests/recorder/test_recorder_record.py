@@ -72,10 +72,10 @@ def test_non_legacy_ouster_needs_and_uses_the_metadata(tmp_path):
     packets = list(read_capture(str(pcap)))
     lidar_port, imu_port = _free_ports(2)
     rec = Recorder(tmp_path, [lidar_port, imu_port], "--metadata", str(meta), "-q")
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
     md = load_metadata(meta)
-    replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, ouster_metadata=md)
+    replay(packets, "127.0.0.1", lidar_port, rate=10.0, port_map={md.imu_port: imu_port}, metadata=md)
     rec.wait_until_read()
     assert rec.stop() == 0
     _, msgs = _messages(rec.out)
@@ -157,6 +157,8 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
 
     from lidarpkt.containers.bags import BagReader
 
+    from lidarpkt.vendors.registry import bag_messages
+
     mnt = tmp_path / "small"
     mnt.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)],
@@ -179,7 +181,7 @@ def test_disk_full_while_recording_is_a_clear_error_and_the_file_stays_readable(
         assert "Traceback" not in text
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            got = [row.tobytes() for b in BagReader(out).batches() for row in b.payload]
+            got = [row.tobytes() for b in BagReader(out, messages=bag_messages()).batches() for row in b.payload]
         assert len(got) > 300 and got == [p.payload for p in packets[: len(got)]]
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)

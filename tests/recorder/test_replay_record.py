@@ -257,6 +257,8 @@ def test_sigkill_leaves_the_packets_before_the_last_chunk_readable(tmp_path):
 
     from lidarpkt.containers.bags import BagReader
 
+    from lidarpkt.vendors.registry import bag_messages
+
     pcap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")  # about 2.5 s, 20 Hz
     packets = [p for p in read_capture(str(pcap)) if len(p.payload) == 1206]
     (port,) = _free_ports(1)
@@ -272,7 +274,7 @@ def test_sigkill_leaves_the_packets_before_the_last_chunk_readable(tmp_path):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                return [row.tobytes() for b in BagReader(rec.out).batches() for row in b.payload]
+                return [row.tobytes() for b in BagReader(rec.out, messages=bag_messages()).batches() for row in b.payload]
             except (LidarpktError, FileNotFoundError):
                 return []
 
@@ -387,7 +389,7 @@ def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_re
     """Issue 14: without --metadata the non-legacy lidar packets went to 7502 (mapped), not --to,
     although `lidarpkt info` calls the stream Ouster lidar; now both recognise it by its header."""
     pcap = external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap")  # non-legacy
-    from lidarpkt.vendors.ouster.metadata import load_metadata
+    from lidarpkt.vendors.ouster.metadata_json import load_metadata
 
     md = load_metadata(external("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"))
     lidar, other = _free_ports(2)
@@ -399,7 +401,7 @@ def test_replay_without_metadata_sends_ouster_lidar_to_the_lidar_port_as_info_re
         noise = [replace(p, payload=bytes(len(p.payload))) for p in packets if len(p.payload) != 48]
         zeros = replay(noise, "127.0.0.1", lidar, rate=None, port_map={7502: other})
         assert zeros.unknown == 64 and zeros.per_port == {other: 64}  # the size alone is not enough
-        told = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7503: other}, ouster_metadata=md)
+        told = replay(packets, "127.0.0.1", lidar, rate=None, port_map={7503: other}, metadata=md)
         assert told.unknown == 0 and told.per_port == {lidar: 64, other: 10}
     finally:
         for s in socks:

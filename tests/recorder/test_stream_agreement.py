@@ -13,10 +13,12 @@ from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.pcap_reader import read_batches
 from lidarpkt.vendors.velodyne import VelodyneDecoder
-from lidarpkt.vendors.velodyne.clock import DAY_NS, HOUR_NS, in_nearest_hour_ns, on_nearest_day_ns
+from lidarpkt.core.nmea import DAY_NS, on_nearest_day_ns
+from lidarpkt.vendors.velodyne.clock import HOUR_NS, in_nearest_hour_ns
 from lidarpkt.recorder.gps import sentence_time_ns
 from lidarpkt.writers.mcap.writer import McapWriter
-from lidarpkt.writers.mcap.packets import PacketSink, velodyne_sensor_time_ns
+from lidarpkt.writers.mcap.packets import PacketSink
+from lidarpkt.vendors.velodyne.ros import sensor_time_ns as velodyne_sensor_time_ns
 
 
 def _vlp_batch(rel: str) -> PacketBatch:
@@ -34,7 +36,7 @@ def _drop(batch: PacketBatch, rows: list[int]) -> PacketBatch:
 def _record(tmp_path, batch: PacketBatch, metadata=None, parts: int = 5) -> PacketSink:
     """The recorder's path: the batch, in parts, through a PacketSink into a real MCAP file."""
     writer = McapWriter(tmp_path / "out.mcap")
-    sink = PacketSink(writer, ouster_metadata=metadata)
+    sink = PacketSink(writer, metadata=metadata)
     for rows in np.array_split(np.arange(len(batch)), parts):
         sink.push(PacketBatch(batch.src, batch.dst, batch.timestamp_ns[rows], batch.payload[rows], batch.index[rows]))
     sink.finish()
@@ -65,8 +67,9 @@ def test_velodyne_recorder_and_decoder_agree(tmp_path, rel, drop):
 
 def test_velodyne_dual_recorder_and_decoder_agree(tmp_path):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
-    batches = list(BagReader(external("nebula/vlp16/1673400471837873222")).batches())
+    batches = list(BagReader(external("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches())
     batch = _drop(PacketBatch.from_payloads(np.concatenate([b.payload for b in batches]),
                                             np.concatenate([b.timestamp_ns for b in batches])), [7, 8, 300])
     sink = _record(tmp_path, batch)

@@ -7,7 +7,8 @@ import pytest
 
 from lidarpkt.errors import CalibrationError, NMEAError
 from lidarpkt.core.packet import PacketBatch
-from lidarpkt.vendors.velodyne import VelodyneDecoder, load_calibration, parse_nmea, stock_calibration
+from lidarpkt.vendors.velodyne import VelodyneDecoder, load_calibration, stock_calibration
+from lidarpkt.core.nmea import parse_nmea
 
 MANUAL_ELEVATION = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15], float)
 

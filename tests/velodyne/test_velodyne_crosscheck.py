@@ -106,8 +106,9 @@ def test_einride_recording_matches(ext):
 
 def test_dual_bag_matches(ext):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
-    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches()))
     assert assert_same_points(batch) > 55000
 
 

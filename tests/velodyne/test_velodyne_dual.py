@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.vendors.velodyne.dual import second_strongest_mark, signal_order_undecided
+from lidarpkt.core.dual import second_strongest_mark, signal_order_undecided
 
 
 def _pairs(*rows):
@@ -66,7 +66,7 @@ def test_real_dual_capture_marks_under_the_old_and_the_new_rule(ext):
     """The nebula bag (tier4/nebula, the only real VLP-16 dual data): counts of the marks the physical
     rule changes. VeloView flags the return with the higher intensity byte DUAL_INTENSITY_HIGH and
     nebula labels it *_STRONGEST: both compare the bytes alone, the rule this module replaces."""
-    frames = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), calibration=ext("nebula/VLP16.yaml")))
+    frames = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), metadata=ext("nebula/VLP16.yaml")))
     assert len(frames) == 5
     two = old = old_on_pairs = new = undecided = 0
     for f in frames:
@@ -98,7 +98,7 @@ def test_nebula_return_types_compare_the_bytes_and_the_mark_keeps_a_subset(ext):
     from test_velodyne_nebula import read_pcd
 
     neb = read_pcd(ext("nebula/vlp16/1673400472138016708.pcd"))
-    f = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), calibration=ext("nebula/VLP16.yaml")))[3]
+    f = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), metadata=ext("nebula/VLP16.yaml")))[3]
     r, fl, mark = f.range_mm.astype(np.int64), f.reflectivity.astype(np.int64), f.extra["second_strongest"]
     pair = (r[0] > 0) & (r[1] > 0) & (r[0] != r[1])
     where = {}

@@ -407,7 +407,7 @@ def test_a_sensor_that_stops_turning_cannot_grow_a_frame_forever():
 
 def test_calibration_through_lidarpkt_open(ext):
     stock = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap")))[1]
-    yaml = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap"), calibration=ext("rust-lidar-utils/VLP16db.yaml")))[1]
+    yaml = list(lidarpkt.open(ext("rust-lidar-utils/velodyne_example.pcap"), metadata=ext("rust-lidar-utils/VLP16db.yaml")))[1]
     a, b = stock.xyz(), yaml.xyz()
     np.testing.assert_array_equal(a[..., :2], b[..., :2])  # same elevations and azimuths
     hit = stock.range_mm > 0
@@ -417,7 +417,7 @@ def test_calibration_through_lidarpkt_open(ext):
 
 
 def _nmea(body: str) -> str:
-    from lidarpkt.vendors.velodyne.nmea import checksum
+    from lidarpkt.core.nmea import checksum
 
     return f"${body}*{checksum(body):02X}"
 

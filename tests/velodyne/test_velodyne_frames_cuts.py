@@ -308,7 +308,7 @@ def test_warnings_name_the_source_and_point_at_the_caller():
 
 
 def _nmea(body: str) -> str:
-    from lidarpkt.vendors.velodyne.nmea import checksum
+    from lidarpkt.core.nmea import checksum
 
     return f"${body}*{checksum(body):02X}"
 

@@ -32,9 +32,9 @@ HDL64_CAL = {"HDL-64E S2": "nebula/HDL64e_s2.yaml", "HDL-64E S3": "nebula/HDL64e
 
 
 def data_packets(path) -> PacketBatch:
-    from lidarpkt.containers import open_packet_source
+    from lidarpkt.vendors.registry import open_packets
 
-    return PacketBatch.concatenate([b for b in open_packet_source(path).batches() if b.payload_size == 1206])
+    return PacketBatch.concatenate([b for b in open_packets(path).batches() if b.payload_size == 1206])
 
 
 def reference_points(batch: PacketBatch, model: str | None = None, calibration=None) -> np.ndarray:
@@ -151,7 +151,7 @@ def test_hand_built_packets_of_every_model_and_mode_match_velodyne_decoder(ext, 
                                                      else mode}
     if mode == "dual":  # the dual mark (velodyne/dual.py) on every model: slot 1 second strongest where the
         # last return's signal (reflectivity / range²) is the higher
-        from lidarpkt.vendors.velodyne.dual import second_strongest_mark
+        from lidarpkt.core.dual import second_strongest_mark
 
         for f in frames:
             mark = f.extra["second_strongest"]
@@ -171,7 +171,7 @@ def test_the_model_comes_from_the_factory_byte_without_an_option():
 # ------------------------------------------------------------------ errors
 def test_a_vlp32a_or_b_byte_says_which_option_picks_one():
     batch = hand_built("VLP-32A", "strongest")
-    with pytest.raises(UnknownSensorError, match=r"0x23 is a VLP-32A or a VLP-32B.*velodyne_model='VLP-32A'"):
+    with pytest.raises(UnknownSensorError, match=r"0x23 is a VLP-32A or a VLP-32B.*model='VLP-32A'"):
         VelodyneDecoder().push(batch)
 
 
@@ -337,7 +337,7 @@ def test_where_nebula_differs_it_is_the_azimuth_alone(ext, model, message, pcd, 
     nebula by its own table. By the manuals' "Precision Azimuth Calculation", ours stands."""
     from scipy.spatial import cKDTree
 
-    batch = [b for b in __import__("lidarpkt.containers", fromlist=["x"]).open_packet_source(ext(REAL[model])).batches()
+    batch = [b for b in __import__("lidarpkt.vendors.registry", fromlist=["x"]).open_packets(ext(REAL[model])).batches()
              if b.payload_size == 1206][message]
     neb = _pcd_xyz(ext(pcd))
     ours, _ = our_points(batch, calibration=ext(calibration))
@@ -390,7 +390,7 @@ def test_cli_says_in_one_line_which_option_picks_a_vlp32a_or_b(tmp_path):
     bad = subprocess.run(run, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     lines = bad.stderr.strip().splitlines()
-    assert len(lines) == 1 and "VLP-32A or a VLP-32B" in lines[0] and "--velodyne-model" in lines[0]
+    assert len(lines) == 1 and "VLP-32A or a VLP-32B" in lines[0] and "(--model)" in lines[0]
     good = subprocess.run(run + ["--velodyne-model", "VLP-32B"], capture_output=True, text=True, timeout=60)
     assert good.returncode == 0, good.stderr
     with np.load(tmp_path / "out.npz") as npz:
@@ -465,9 +465,9 @@ def test_an_unknown_velodyne_model_is_one_line_naming_the_flag(ext, tmp_path, ca
     from lidarpkt.cli import main
 
     out = tmp_path / "x.mcap"
-    status = main(["decode", str(ext("rust-lidar-utils/velodyne_vlp32.pcap")), "-o", str(out), "--velodyne-model", "VLP-99"])
+    status = main(["decode", str(ext("rust-lidar-utils/velodyne_vlp32.pcap")), "-o", str(out), "--model", "VLP-99"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert status == 2 and len(err) == 1 and err[0].startswith("lidarpkt: error: --velodyne-model VLP-99: no such")
+    assert status == 2 and len(err) == 1 and err[0].startswith("lidarpkt: error: --model VLP-99: no such")
     assert not out.exists()
-    with pytest.raises(UnknownSensorError, match="^velodyne_model 'VLP-99'"):
+    with pytest.raises(UnknownSensorError, match="^model 'VLP-99'"):
         model_named("VLP-99")

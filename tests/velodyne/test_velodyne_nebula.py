@@ -35,7 +35,7 @@ def read_pcd(path) -> np.ndarray:
 def test_nebula_cloud_is_contained_in_our_rotation(ext):
     neb = read_pcd(ext("nebula/vlp16/1673400472138016708.pcd"))
     assert len(neb) == 14831
-    frames = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), calibration=ext("nebula/VLP16.yaml")))
+    frames = list(lidarpkt.open(ext("nebula/vlp16/1673400471837873222"), metadata=ext("nebula/VLP16.yaml")))
     f = frames[3]  # the rotation of the 4th message: nebula's cloud spans 0.31°–358.98°
     slot, row, col = np.nonzero(f.range_mm)
     xyz = f.xyz()[slot, row, col]

@@ -149,8 +149,9 @@ def test_roundtrip_pcap_payloads(ext, name):
 
 def test_roundtrip_dual_bag_payloads(ext):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
-    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches()))
     assert batch.payload.shape == (603, DATA_PACKET_SIZE)
     _roundtrip_data(batch.payload)
 
@@ -158,6 +159,7 @@ def test_roundtrip_dual_bag_payloads(ext):
 # ------------------------------------------------------------------ what the real captures say
 def test_factory_bytes_of_real_captures(ext):
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
 
     ex = decode_packets(_real_payloads(ext, "rust-lidar-utils/velodyne_example.pcap", DATA_PACKET_SIZE))
     assert set(ex.return_mode.tolist()) == {0x37} and set(ex.product_id.tolist()) == {0x22}
@@ -165,7 +167,7 @@ def test_factory_bytes_of_real_captures(ext):
     assert set(early.product_id.tolist()) == {0x21}
     # VLP-16 timing: a packet every 12 × 110.592 µs (integer µs stamps: 1327 or 1328)
     assert set(np.diff(early.timestamp_us.astype(np.int64)).tolist()) <= {1327, 1328}
-    dual = decode_packets(PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches())).payload)
+    dual = decode_packets(PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches())).payload)
     assert set(dual.return_mode.tolist()) == {0x39}
     # dual mode: both blocks of a pair carry the same azimuth
     np.testing.assert_array_equal(dual.azimuth_cdeg[:, 0::2], dual.azimuth_cdeg[:, 1::2])
@@ -207,6 +209,7 @@ def test_azimuth_interpolation_within_a_block():
 def test_frames_encode_back_to_the_real_payloads(ext):
     """decode → frames → encode_frames gives every byte back (einride strongest, nebula dual)."""
     from lidarpkt.containers.bags import BagReader
+    from lidarpkt.vendors.registry import bag_messages
     from lidarpkt.vendors.velodyne import VelodyneDecoder, encode_frames
 
     payload = np.fromfile(ext("einride-vlp16-go/recording.bin"), np.uint8).reshape(-1, DATA_PACKET_SIZE)
@@ -214,7 +217,7 @@ def test_frames_encode_back_to_the_real_payloads(ext):
     dec = VelodyneDecoder()
     frames = dec.push(PacketBatch.from_payloads(payload, host)) + dec.finish()
     np.testing.assert_array_equal(encode_frames(frames), payload)
-    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222")).batches()))
+    batch = PacketBatch.concatenate(list(BagReader(ext("nebula/vlp16/1673400471837873222"), messages=bag_messages()).batches()))
     dec = VelodyneDecoder()
     frames = dec.push(batch) + dec.finish()
     np.testing.assert_array_equal(encode_frames(frames), batch.payload)

@@ -13,7 +13,7 @@ import pytest
 
 from lidarpkt import fixtures
 import lidarpkt
-from lidarpkt.fixtures import generate as gen
+from lidarpkt.fixtures import vlp16
 from lidarpkt.vendors.ouster import OusterDecoder, load_metadata
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.pcap_reader import read_batches
@@ -25,7 +25,7 @@ ROTATIONS = 50
 def fifty(tmp_path_factory):
     """{mode: pcap} of exactly 50 rotations, first firing at 0.1°, last at 359.9°."""
     out = tmp_path_factory.mktemp("rotations")
-    return {m: gen.write_vlp16_rotations(out / f"{m}.pcap", ROTATIONS, mode=m) for m in ("strongest", "dual")}
+    return {m: vlp16.write_vlp16_rotations(out / f"{m}.pcap", ROTATIONS, mode=m) for m in ("strongest", "dual")}
 
 
 @pytest.mark.parametrize("mode", ["strongest", "dual"])
@@ -50,7 +50,7 @@ def test_the_analysis_stacks_fifty_frames(fifty):
 @pytest.mark.parametrize("drop", ["first", "last", "both"])
 def test_rotations_missing_columns_at_the_ends_stay_partial(tmp_path, drop):
     packets = {"first": slice(1, None), "last": slice(None, -1), "both": slice(1, -1)}[drop]
-    pcap = gen.write_vlp16_rotations(tmp_path / "cut.pcap", 3, packets=packets)
+    pcap = vlp16.write_vlp16_rotations(tmp_path / "cut.pcap", 3, packets=packets)
     frames = list(lidarpkt.open(pcap))
     assert len(frames) == 3
     assert [f.partial for f in frames] == [drop in ("first", "both"), False, drop in ("last", "both")]
@@ -58,10 +58,10 @@ def test_rotations_missing_columns_at_the_ends_stay_partial(tmp_path, drop):
 
 def test_one_missing_column_at_the_start_is_partial(tmp_path):
     # the first firing at 0.3°: the one at 0.1° is missing
-    frames = list(lidarpkt.open(gen.write_vlp16_rotations(tmp_path / "a.pcap", 2, first_cdeg=30)))
+    frames = list(lidarpkt.open(vlp16.write_vlp16_rotations(tmp_path / "a.pcap", 2, first_cdeg=30)))
     assert frames[0].partial
     # the first firing at 0.19°: the one before it would have been at −0.01°, another rotation
-    frames = list(lidarpkt.open(gen.write_vlp16_rotations(tmp_path / "b.pcap", 2, first_cdeg=19)))
+    frames = list(lidarpkt.open(vlp16.write_vlp16_rotations(tmp_path / "b.pcap", 2, first_cdeg=19)))
     assert not frames[0].partial
 
 

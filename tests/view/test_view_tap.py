@@ -1,4 +1,4 @@
-"""Decoding off the receive path (lidarpkt.view.tap, lidarpkt.view.sources.LiveDecoder), with real
+"""Decoding off the receive path (lidarpkt.pipeline.live: FrameTap, LiveDecoder; lidarpkt.view.tap), with real
 threads: the caller never waits, what cannot be decoded or shown is dropped *and counted*, and the
 frames that are decoded equal ``lidarpkt.open``'s whatever the batching."""
 
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 import lidarpkt
-from lidarpkt.view.sources import LiveDecoder, play_capture
-from lidarpkt.view.tap import FrameDropper, FrameTap
+from lidarpkt.pipeline.live import FrameTap, LiveDecoder
+from lidarpkt.view.sources import play_capture
+from lidarpkt.view.tap import FrameDropper
 from lidarpkt.recorder.replay import read_capture
 from lidarpkt.containers.udp import batch_from_packets
 from test_view_capture import CANNED
@@ -62,7 +63,7 @@ def test_tap_never_blocks_and_counts_what_it_drops():
     assert tap.dropped_packets > 0
     release.set()
     tap.close()
-    decoded = sum(d.stats.packets for d in tap.decoder.decoders.values()) + tap.decoder.position_packets
+    decoded = sum(d.stats.packets for d in tap.decoder.decoders.values()) + tap.decoder.auxiliary_packets
     assert decoded > 0 and decoded + tap.dropped_packets == sum(len(b) for b in batches)  # each packet: one or other
     assert len(seen) == tap.frames
 
@@ -122,3 +123,30 @@ def test_play_capture_paces_by_sensor_time_and_loops():
         if len(looped) == 2 * len(frames) + 1:
             stop.set()
     assert [f.frame_id for f in looped[:2 * len(frames)]] == [f.frame_id for f in frames] * 2
+
+
+@pytest.mark.filterwarnings("ignore::lidarpkt.errors.DroppedPacketsWarning")  # the file's summary of the same counts
+def test_live_and_files_share_one_driver_sensor_limit_and_unrouted_streams_included(tmp_path):
+    """The same capture pushed live and read as a file goes through one driver (lidarpkt.pipeline.reader.Driver):
+    with two sensors and max_sensors=1, both warn once that the second is not decoded and count its packets,
+    and a stream of no sensor, as unrouted, in the same streams."""
+    from lidarpkt.core.packet import Endpoint, Packet
+    from lidarpkt.errors import SkippedPacketWarning
+    from lidarpkt.writers.pcap import write_pcap
+
+    packets = list(read_capture(str(CANNED / "vlp16-dual.pcap")))
+    other = Endpoint("192.168.1.202", 2368)
+    mixed = [p for q in packets for p in (q, Packet(q.timestamp_ns + 1, other, q.dst, q.payload))]
+    mixed.append(Packet(packets[-1].timestamp_ns + 5, other, Endpoint("10.0.0.9", 9999), b"junk" * 9))
+    write_pcap(tmp_path / "two.pcap", mixed)
+    with pytest.warns(SkippedPacketWarning, match="more than 1 sensors"):
+        reader = lidarpkt.open(tmp_path / "two.pcap", max_sensors=1)
+        want = list(reader)
+    decoder = LiveDecoder(max_sensors=1)
+    items = [(p.timestamp_ns, p.src, p.dst, p.payload) for p in read_capture(str(tmp_path / "two.pcap"))]
+    with pytest.warns(SkippedPacketWarning, match="more than 1 sensors"):
+        got = [f for b in batch_from_packets(items) for f in decoder.push(b)] + decoder.finish()
+    same_frames(got, want)
+    assert len(decoder.decoders) == len(reader.decoders) == 1
+    assert decoder.unrouted_packets == reader.stats.unrouted_packets == len(packets) + 1
+    assert set(decoder.stats.unrouted_streams) == set(reader.stats.unrouted_streams)

@@ -1,6 +1,6 @@
-"""The MCAP writer stands alone: ``open_writer("mcap", out, capture=..., topics=("packets", "points"))`` fed
-with ``lidarpkt.open``'s frames writes what ``lidarpkt decode --topics packets,points`` writes, message for
-message and log time for log time, in a process that never loads the recorder."""
+"""The MCAP writer stands alone: ``open_writer("mcap", out, topics=("packets", "points"))`` fed by one pass over
+the capture (``lidarpkt.writers.write_captures``) writes what ``lidarpkt decode --topics packets,points`` writes,
+message for message and log time for log time, in a process that never loads the recorder."""
 
 from __future__ import annotations
 
@@ -21,12 +21,10 @@ CASES = [  # (capture, metadata): a VLP-16 (data + position packets) and an Oust
 
 LIBRARY_SCRIPT = """
 import json, sys
-import lidarpkt
-from lidarpkt.writers import open_writer
+from lidarpkt.writers import open_writer, write_captures
 capture, out, metadata = sys.argv[1], sys.argv[2], (sys.argv[3] if len(sys.argv) > 3 else None)
-with open_writer("mcap", out, capture=capture, topics=("packets", "points"), metadata=metadata) as writer:
-    for frame in lidarpkt.open(capture, metadata=metadata):
-        writer.write(frame)
+with open_writer("mcap", out, capture=capture, topics=("packets", "points")) as writer:
+    write_captures([capture], [writer], metadata=metadata)
 print(json.dumps(sorted(m for m in sys.modules if m.startswith("lidarpkt.recorder") or m == "recorder")))
 """
 
@@ -72,14 +70,12 @@ def test_veloview_capture_gives_every_packet_message(tmp_path):
     """The issue's numbers: the VeloView capture gives 52 clouds and 418 packet messages: one message per
     position packet (counted here from the capture by the pcap reader) and one VelodyneScan per rotation of
     its 1902 data packets."""
-    import lidarpkt
     from lidarpkt.containers.pcap_reader import read_packets
-    from lidarpkt.writers import open_writer
+    from lidarpkt.writers import open_writer, write_captures
 
     cap = external(CASES[0][0])
     with open_writer("mcap", tmp_path / "x.mcap", capture=cap, topics=("packets", "points")) as writer:
-        for frame in lidarpkt.open(cap):
-            writer.write(frame)
+        write_captures([cap], [writer])
     msgs, _ = _records(tmp_path / "x.mcap")
     by_topic: dict[str, int] = {}
     for topic, *_ in msgs:
@@ -90,9 +86,19 @@ def test_veloview_capture_gives_every_packet_message(tmp_path):
     assert by_topic["/velodyne_packets"] + position == writer.packet_messages == 418
 
 
-def test_packets_need_the_capture(tmp_path):
+def test_packets_need_the_pass_over_the_capture(tmp_path):
+    """The writer opens no input: asked for packets but given frames alone (or nothing), it says how to
+    hand it the capture, and leaves no file."""
+    import lidarpkt
     from lidarpkt.errors import OutputError
     from lidarpkt.writers import open_writer
 
-    with pytest.raises(OutputError, match="capture="):
-        open_writer("mcap", tmp_path / "x.mcap", topics=("packets",))
+    with pytest.raises(OutputError, match="write_captures"):
+        with open_writer("mcap", tmp_path / "x.mcap", topics=("packets",)):
+            pass
+    cap = external(CASES[0][0])
+    with pytest.raises(OutputError, match="write_captures"):
+        with open_writer("mcap", tmp_path / "x.mcap", capture=cap, topics=("packets", "points")) as writer:
+            for frame in lidarpkt.open(cap):
+                writer.write(frame)
+    assert list(tmp_path.iterdir()) == []

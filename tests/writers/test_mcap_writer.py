@@ -15,6 +15,9 @@ import lidarpkt
 from lidarpkt.errors import DiskFullError, TruncatedCaptureWarning
 from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.mcap import schemas
+from lidarpkt.vendors.velodyne import ros as vros
+from lidarpkt.vendors.ouster import ros as oros
+from lidarpkt.containers import rosmsgs
 from lidarpkt.writers.mcap.writer import McapWriter
 from conftest import external
 
@@ -24,6 +27,10 @@ mcap_ros2_decoder = pytest.importorskip("mcap_ros2.decoder")
 VLP = "rust-lidar-utils/velodyne_vlp16.pcap"  # data + position packets
 OS1 = "ouster-sdk/OS-1-64_1024x10_fw20.pcap"  # legacy OS1-64, lidar + IMU
 OS1_JSON = "ouster-sdk/OS-1-64_sensor_config_reduced.json"
+
+
+def _encode(msgtype, message):
+    return rosmsgs.encode(msgtype, message, schemas.typestore())
 
 
 def _official(path):
@@ -47,22 +54,22 @@ def _decode(tmp_path, *args):
 # ---------------------------------------------------------------------------- CDR codecs
 def test_velodyne_scan_codec_matches_rosbags_and_the_official_decoder():
     store = schemas.typestore()
-    pkt, scan = store.types["velodyne_msgs/msg/VelodynePacket"], store.types[schemas.VELODYNE_SCAN]
+    pkt, scan = store.types["velodyne_msgs/msg/VelodynePacket"], store.types[vros.VELODYNE_SCAN]
     rng = np.random.default_rng(1)
     for n in (0, 1, 2, 151):
         payload = rng.integers(0, 256, (n, 1206), dtype=np.uint8)
         host = rng.integers(0, 2**31 * 10**9, n)
-        ref = schemas.encode(schemas.VELODYNE_SCAN, scan(
-            header=schemas.header(1_673_400_471_837_873_222, "velodyne"),
-            packets=[pkt(stamp=schemas.ros_time(t), data=p) for t, p in zip(host, payload)]))
-        ours = schemas.encode_velodyne_scan(payload, host, 1_673_400_471_837_873_222)
+        ref = _encode(vros.VELODYNE_SCAN, scan(
+            header=rosmsgs.header(1_673_400_471_837_873_222, "velodyne", schemas.typestore()),
+            packets=[pkt(stamp=rosmsgs.ros_time(t, schemas.typestore()), data=p) for t, p in zip(host, payload)]))
+        ours = vros.encode_velodyne_scan(payload, host, 1_673_400_471_837_873_222)
         assert ours == ref
-        stamp, frame_id, host2, payload2 = schemas.decode_velodyne_scan(ours)
+        stamp, frame_id, host2, payload2 = vros.decode_velodyne_scan(ours)
         assert (stamp, frame_id) == (1_673_400_471_837_873_222, "velodyne")
         assert np.array_equal(host2, host) and np.array_equal(payload2, payload)
     from mcap_ros2._dynamic import generate_dynamic
 
-    msg = generate_dynamic(schemas.VELODYNE_SCAN, schemas.schema_text(schemas.VELODYNE_SCAN))[schemas.VELODYNE_SCAN](ours)
+    msg = generate_dynamic(vros.VELODYNE_SCAN, schemas.schema_text(vros.VELODYNE_SCAN))[vros.VELODYNE_SCAN](ours)
     assert [bytes(p.data) for p in msg.packets] == [p.tobytes() for p in payload]
     assert [p.stamp.sec * 10**9 + p.stamp.nanosec for p in msg.packets] == host.tolist()
 
@@ -75,26 +82,26 @@ def test_velodyne_scan_decoder_reads_the_real_nebula_bag_blobs():
         blobs = [bytes(r[0]) for r in con.execute("select data from messages order by id")]
     assert [len(b) for b in blobs]
     for blob in blobs:
-        stamp, frame_id, host, payload = schemas.decode_velodyne_scan(blob)
-        ref = schemas.decode(schemas.VELODYNE_SCAN, blob)
+        stamp, frame_id, host, payload = vros.decode_velodyne_scan(blob)
+        ref = schemas.decode(vros.VELODYNE_SCAN, blob)
         assert frame_id == ref.header.frame_id == "velodyne"
         assert stamp == ref.header.stamp.sec * 10**9 + ref.header.stamp.nanosec
         assert np.array_equal(payload, np.stack([p.data for p in ref.packets]))
         assert host.tolist() == [p.stamp.sec * 10**9 + p.stamp.nanosec for p in ref.packets]
-        assert schemas.encode_velodyne_scan(payload, host, stamp, frame_id) == blob[:-2]
+        assert vros.encode_velodyne_scan(payload, host, stamp, frame_id) == blob[:-2]
 
 
 def test_packet_msg_and_stamped_packet_codecs_match_rosbags():
     store = schemas.typestore()
     payload = bytes(range(256)) * 49 + b"xyz"
-    ref = schemas.encode(schemas.PACKET_MSG, store.types[schemas.PACKET_MSG](buf=np.frombuffer(payload, np.uint8)))
-    assert schemas.encode_packet_msg(payload) == ref
-    assert schemas.decode_packet_msg(ref) == payload
+    ref = _encode(oros.PACKET_MSG, store.types[oros.PACKET_MSG](buf=np.frombuffer(payload, np.uint8)))
+    assert oros.encode_packet_msg(payload) == ref
+    assert oros.decode_packet_msg(ref) == payload
     t = 1_415_145_600_123_456_789
-    ref = schemas.encode(schemas.NEBULA_PACKET, store.types[schemas.NEBULA_PACKET](
-        stamp=schemas.ros_time(t), data=np.frombuffer(payload[:512], np.uint8)))
-    assert schemas.encode_stamped_packet(payload[:512], t) == ref
-    assert schemas.decode_stamped_packet(ref) == (t, payload[:512])
+    ref = _encode(rosmsgs.STAMPED_PACKET, store.types[rosmsgs.STAMPED_PACKET](
+        stamp=rosmsgs.ros_time(t, schemas.typestore()), data=np.frombuffer(payload[:512], np.uint8)))
+    assert rosmsgs.encode_stamped_packet(payload[:512], t) == ref
+    assert rosmsgs.decode_stamped_packet(ref) == (t, payload[:512])
 
 
 # ------------------------------------------------------------------------ raw packet files
@@ -230,7 +237,7 @@ def test_chunks_close_by_time_and_a_cut_file_reads_back_up_to_its_last_chunk(tmp
     w = McapWriter(path, chunk_seconds=0.5, clock=clock)
     sizes = []
     for i in range(103):
-        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(bytes([i]) * 1000), 1_000 + i)
+        w.write(oros.LIDAR_TOPIC, oros.encode_packet_msg(bytes([i]) * 1000), 1_000 + i)
         clock.t += 0.125  # 8 messages a second (binary-exact steps)
         sizes.append(path.stat().st_size)
     # every 0.5 s of messages reached the file without close(): as after a SIGKILL
@@ -241,15 +248,16 @@ def test_chunks_close_by_time_and_a_cut_file_reads_back_up_to_its_last_chunk(tmp
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         from lidarpkt.containers.bags import BagReader
+        from lidarpkt.vendors.registry import bag_messages
 
-        batches = list(BagReader(tmp_path / "killed.mcap").batches())
+        batches = list(BagReader(tmp_path / "killed.mcap", messages=bag_messages()).batches())
     got = [b.payload[0].tobytes() for b in batches]
     assert len(got) == 100 and got == [bytes([i]) * 1000 for i in range(len(got))]
     assert not caught or issubclass(caught[0].category, TruncatedCaptureWarning)
     # cut inside a chunk: a warning, and everything before the damage
     (tmp_path / "torn.mcap").write_bytes(data[: len(data) * 2 // 3])
     with pytest.warns(TruncatedCaptureWarning, match="cut short"):
-        torn = list(BagReader(tmp_path / "torn.mcap").batches())
+        torn = list(BagReader(tmp_path / "torn.mcap", messages=bag_messages()).batches())
     assert [b.payload[0].tobytes() for b in torn] == got[: len(torn)] and len(torn) > 40
     # the closed file is complete: summary with one chunk index per chunk
     summary, _, msgs = _official(path)
@@ -260,10 +268,10 @@ def test_rotation_by_size_gives_complete_files_each_with_the_metadata(tmp_path):
     clock = _Clock()
     w = McapWriter(tmp_path / "rot.mcap", chunk_seconds=0.2, rotate_bytes=20_000, clock=clock)
     w.add_metadata("lidarpkt.sensor", {"vendor": "ouster"})
-    w.write_latched(schemas.OUSTER_METADATA, schemas.encode(
-        schemas.STRING, schemas.typestore().types[schemas.STRING](data="{}")), 1)
+    w.write_latched(oros.METADATA_TOPIC, _encode(
+        rosmsgs.STRING, schemas.typestore().types[rosmsgs.STRING](data="{}")), 1)
     for i in range(200):
-        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
+        w.write(oros.LIDAR_TOPIC, oros.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
         clock.t += 0.05
     w.close()
     assert len(w.files) >= 3 and [f.name for f in w.files][:2] == ["rot_0000.mcap", "rot_0001.mcap"]
@@ -281,11 +289,11 @@ def test_rotated_files_start_with_every_sensors_latched_messages(tmp_path):
     (keyed by sensor); a later message of the same key replaces the earlier one."""
     clock = _Clock()
     w = McapWriter(tmp_path / "rot.mcap", chunk_seconds=0.2, rotate_bytes=20_000, clock=clock)
-    string = schemas.typestore().types[schemas.STRING]
+    string = schemas.typestore().types[rosmsgs.STRING]
     for key, text in (("A", '{"sensor": "A"}'), ("B", '{"sensor": "B"}'), ("A", '{"sensor": "A2"}')):
-        w.write_latched(schemas.OUSTER_METADATA, schemas.encode(schemas.STRING, string(data=text)), 1, key=key)
+        w.write_latched(oros.METADATA_TOPIC, _encode(rosmsgs.STRING, string(data=text)), 1, key=key)
     for i in range(200):
-        w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
+        w.write(oros.LIDAR_TOPIC, oros.encode_packet_msg(np.random.default_rng(i).bytes(1000)), 10 + i)
         clock.t += 0.05
     w.close()
     assert len(w.files) >= 3
@@ -306,11 +314,12 @@ def test_disk_full_is_a_clear_error_and_the_file_stays_readable(tmp_path):
         rng = np.random.default_rng(0)
         with pytest.raises(DiskFullError, match="no space left.*readable up to its last complete chunk"):
             for i in range(1000):
-                w.write(schemas.OUSTER_LIDAR, schemas.encode_packet_msg(rng.bytes(4000)), i)
+                w.write(oros.LIDAR_TOPIC, oros.encode_packet_msg(rng.bytes(4000)), i)
         with pytest.warns(TruncatedCaptureWarning):
             from lidarpkt.containers.bags import BagReader
+            from lidarpkt.vendors.registry import bag_messages
 
-            got = list(BagReader(mnt / "full.mcap").batches())
+            got = list(BagReader(mnt / "full.mcap", messages=bag_messages()).batches())
         assert len(got) > 10
         rng = np.random.default_rng(0)
         assert [b.payload[0].tobytes() for b in got] == [rng.bytes(4000) for _ in got]
@@ -322,7 +331,7 @@ def test_rotation_by_time(tmp_path):
     clock = _Clock()
     w = McapWriter(tmp_path / "t.mcap", chunk_seconds=0.25, rotate_seconds=1.0, clock=clock)
     for i in range(40):  # 4 s of messages, 10 a second
-        w.write(schemas.OUSTER_IMU, schemas.encode_packet_msg(bytes(48)), i)
+        w.write(oros.IMU_TOPIC, oros.encode_packet_msg(bytes(48)), i)
         clock.t += 0.125 if i % 5 else 0.0625
     w.close()
     counts = [sum(1 for t, _, _ in _official(f)[2] if t == "/ouster/imu_packets") for f in w.files]
@@ -358,18 +367,18 @@ def test_one_velodyne_scan_per_rotation_and_dual_returns_on_their_own_topics(tmp
 def test_damaged_cdr_messages_raise_lidarpkt_errors():
     from lidarpkt.errors import CaptureFormatError, PacketFormatError
 
-    good = schemas.encode_velodyne_scan(np.zeros((3, 1206), np.uint8), np.arange(3), 5)
+    good = vros.encode_velodyne_scan(np.zeros((3, 1206), np.uint8), np.arange(3), 5)
     for cut in (0, 10, 30, len(good) - 1):
         with pytest.raises(CaptureFormatError):
-            schemas.decode_velodyne_scan(good[:cut])
+            vros.decode_velodyne_scan(good[:cut])
     with pytest.raises(CaptureFormatError, match="not little-endian CDR"):
-        schemas.decode_velodyne_scan(b"\x00\x00" + good[2:])
+        vros.decode_velodyne_scan(b"\x00\x00" + good[2:])
     with pytest.raises(PacketFormatError):
-        schemas.encode_velodyne_scan(np.zeros((2, 512), np.uint8), np.arange(2), 0)
+        vros.encode_velodyne_scan(np.zeros((2, 512), np.uint8), np.arange(2), 0)
     with pytest.raises(CaptureFormatError):
-        schemas.decode_packet_msg(schemas.encode_packet_msg(b"abc")[:-1])
+        oros.decode_packet_msg(oros.encode_packet_msg(b"abc")[:-1])
     with pytest.raises(CaptureFormatError):
-        schemas.decode_stamped_packet(schemas.encode_stamped_packet(b"abc", 1)[:-1])
+        rosmsgs.decode_stamped_packet(rosmsgs.encode_stamped_packet(b"abc", 1)[:-1])
 
 
 def test_mcap_to_mcap_keeps_non_legacy_ouster_topics_from_the_recorded_metadata(tmp_path):

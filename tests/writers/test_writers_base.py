@@ -17,12 +17,15 @@ from writers_cases import CASES, case, load  # noqa: F401 - the parametrised fix
 
 
 def test_format_from_suffix_and_unknown_suffix():
-    assert [format_from_suffix(f"x.{s}") for s in ("mcap", "npz", "parquet", "las", "LAZ", "ply", "pcd")] == \
-        ["mcap", "npz", "parquet", "las", "laz", "ply", "pcd"]
+    assert [format_from_suffix(f"x.{s}") for s in ("mcap", "npz", "parquet", "las", "LAZ", "ply", "pcd", "csv",
+                                                   "kitti", "rrd", "bag", "rosbag2")] == \
+        ["mcap", "npz", "parquet", "las", "laz", "ply", "pcd", "csv", "kitti", "rrd", "rosbag1", "rosbag2"]
     with pytest.raises(OutputError, match=r"-o x\.txt: unknown output type '\.txt'; the accepted suffixes are "
-                                          r"\.mcap, \.npz, \.parquet, \.las, \.laz, \.ply, \.pcd"):
+                                          r"\.mcap, \.npz, \.parquet, \.las, \.laz, \.ply, \.pcd, \.csv, \.kitti, "
+                                          r"\.rrd, \.bag, \.rosbag2"):
         format_from_suffix("x.txt")
-    with pytest.raises(LidarpktError, match="choose among mcap, npz, parquet, las, laz, ply, pcd"):
+    with pytest.raises(LidarpktError, match="choose among mcap, npz, parquet, las, laz, ply, pcd, csv, kitti, rrd, "
+                                            "rosbag1, rosbag2"):
         open_writer("xyz", "out")
 
 
@@ -31,7 +34,7 @@ def _hidden(path, root) -> bool:
 
 
 def _out(tmp_path, fmt):
-    return tmp_path / ("out" if FORMATS[fmt].directory else f"out.{fmt}")
+    return tmp_path / ("out" if FORMATS[fmt].directory else f"out{FORMATS[fmt].suffixes[0]}")
 
 
 @pytest.mark.parametrize("fmt", list(FORMATS))

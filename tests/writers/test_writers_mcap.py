@@ -17,6 +17,7 @@ import lidarpkt
 from lidarpkt.errors import OutputError
 from lidarpkt.writers import open_writer
 from lidarpkt.writers.mcap import schemas
+from lidarpkt.vendors.velodyne import ros as vros
 from writers_cases import CASES, capture, case, load  # noqa: F401 - the parametrised fixture
 
 rosbag2 = pytest.importorskip("rosbags.rosbag2")
@@ -66,7 +67,7 @@ def _capture_span(cap: Path) -> tuple[int, int]:
         times = []
         with rosbag2.Reader(cap) as reader:
             for c, t, raw in reader.messages():
-                msg = schemas.decode(c.msgtype, raw) if c.msgtype == schemas.VELODYNE_SCAN else None
+                msg = schemas.decode(c.msgtype, raw) if c.msgtype == vros.VELODYNE_SCAN else None
                 times += [p.stamp.sec * 10**9 + p.stamp.nanosec for p in msg.packets] if msg else [t]
     else:
         import dpkt

@@ -198,7 +198,7 @@ def test_frames_layout_keeps_a_custom_velodyne_calibration(tmp_path):
 
     cap = external("veloview/vlp-16-test-90deg-1-50-frames.pcap")
     cal = external("veloview/VLP-16.xml")
-    frames = list(lidarpkt.open(cap, calibration=cal))[:3]
+    frames = list(lidarpkt.open(cap, metadata=cal))[:3]
     stock = list(lidarpkt.open(cap))[:3]
     assert not np.array_equal(frames[1].xyz(), stock[1].xyz())  # the file's corrections change the points
     _write(frames, tmp_path / "ds", cap, layout="frames")

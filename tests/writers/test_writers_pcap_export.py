@@ -14,7 +14,7 @@ from conftest import external
 from lidarpkt.cli import main
 from lidarpkt.errors import UnsupportedContainerError
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
-from lidarpkt.containers import open_packet_source
+from lidarpkt.vendors.registry import open_packets
 from lidarpkt.writers.pcap import PcapBatchWriter, write_pcap
 from reference_tools import ouster_sdk_pcap_packets
 
@@ -25,7 +25,7 @@ OSF = "ouster-sdk/osf_fw_3.2_10scans.osf"
 
 
 def _packets_inside(path) -> list[Packet]:
-    return list(open_packet_source(path).packets())
+    return list(open_packets(path).packets())
 
 
 def _export(tmp_path, src, *extra) -> "Path":  # noqa: F821 - pathlib's, returned
@@ -175,10 +175,34 @@ def test_an_osf_file_gets_one_clear_error(tmp_path, capsys):
     from lidarpkt.archive.packets import write_packets_pcap
 
     osf = external(OSF)
-    with pytest.raises(UnsupportedContainerError, match="OSF file: it holds decoded scans, not the sensor's UDP"):
+    with pytest.raises(UnsupportedContainerError, match="OSF file: it holds decoded frames, not the sensor's UDP"):
         write_packets_pcap(osf, tmp_path / "x.pcap")
     assert not (tmp_path / "x.pcap").exists()
     assert main(["export", str(osf), "-o", str(tmp_path / "out"), "--format", "pcap", "--workers", "1"]) == 1
     err = capsys.readouterr().err
     assert "OSF file" in err and "Traceback" not in err
     assert not list((tmp_path / "out").glob("*.pcap"))
+
+
+def test_write_pcap_frames_interleaved_streams_together_as_the_one_packet_builder_does(tmp_path):
+    """write_pcap frames the packets of each stream of a window together (the NumPy builder on many rows):
+    its records are those of frames_for (the same builder on one row) packet by packet, the IP identification
+    counting packets from 1 in capture order, across windows; read back, every payload is in its place."""
+    from lidarpkt.containers.pcap_reader import read_packets
+    from lidarpkt.writers import framing
+    from lidarpkt.writers.pcap import pcap_bytes
+
+    rng = np.random.default_rng(7)
+    ends = [(Endpoint("192.168.1.201", 2368), Endpoint("255.255.255.255", 2368), 1206),
+            (Endpoint("192.168.1.201", 8308), Endpoint("255.255.255.255", 8308), 512),
+            (Endpoint("10.0.0.2", 7502), Endpoint("10.0.0.1", 7502), 3300),  # fragmented
+            (Endpoint("fe80::2", 7503), Endpoint("fe80::1", 7503), 2000)]  # IPv6, fragmented
+    kinds = rng.integers(0, len(ends), framing.WINDOW_PACKETS + 500)
+    packets = [Packet(1_700_000_000_000_000_000 + i * 50_000, ends[k][0], ends[k][1],
+                      rng.integers(0, 256, ends[k][2], dtype=np.uint8).tobytes()) for i, k in enumerate(kinds)]
+    write_pcap(tmp_path / "x.pcap", packets)
+    one_by_one = [(p.timestamp_ns, f) for i, p in enumerate(packets)
+                  for f in framing.frames_for(p, ident=(i + 1) & 0xFFFF)]
+    assert (tmp_path / "x.pcap").read_bytes() == pcap_bytes(one_by_one)
+    back = list(read_packets(tmp_path / "x.pcap"))
+    assert [(p.timestamp_ns, p.payload) for p in back] == [(p.timestamp_ns, p.payload) for p in packets]

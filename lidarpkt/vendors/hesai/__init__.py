@@ -9,7 +9,8 @@ Modules: ``packet`` (the byte layouts, declared once as NumPy dtypes), ``models`
 a model is a row; return modes and the dual mark rule), ``decode`` (raw fields of a batch),
 ``detect`` (which model sent a stream), ``timing`` (firing time of each laser), ``frames``
 (:class:`HesaiDecoder`), ``calibration`` (angle-correction CSV), ``geometry`` (XYZ in nebula's
-frame: x = r·cos(el)·sin(az), y = r·cos(el)·cos(az), z = r·sin(el)), ``encode`` (the inverse).
+frame: x = r·cos(el)·sin(az), y = r·cos(el)·cos(az), z = r·sin(el)), ``encode`` (the inverse), ``stream`` (the recorder's packet counter), ``ros`` (its ROS messages),
+``vendor`` (its registry record, :data:`VENDOR`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 from lidarpkt.core.lazy import lazy_names
 
 _LAZY: dict[str, str] = {
+    "VENDOR": "vendor",
     "HesaiCalibration": "calibration",
     "load_calibration": "calibration",
     "parse_calibration": "calibration",
@@ -36,6 +38,7 @@ _LAZY: dict[str, str] = {
 }
 
 __all__ = [
+    "VENDOR",
     "MODELS",
     "RETURN_MODES",
     "DecoderStats",

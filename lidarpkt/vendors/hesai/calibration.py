@@ -75,10 +75,3 @@ def load_calibration(calibration: HesaiCalibration | str | os.PathLike[str]) -> 
     except (OSError, UnicodeDecodeError) as exc:
         raise CalibrationError(f"{path}: cannot read the Hesai calibration: {exc}") from exc
     return parse_calibration(text, str(path))
-
-
-def is_hesai_calibration(calibration: object) -> bool:
-    """Whether the ``calibration`` option is meant for a Hesai sensor: a :class:`HesaiCalibration` or a ``.csv`` path."""
-    if isinstance(calibration, HesaiCalibration):
-        return True
-    return isinstance(calibration, (str, os.PathLike)) and str(calibration).lower().endswith(".csv")

@@ -42,7 +42,8 @@ import numpy as np
 from lidarpkt.core.readahead import warn
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.rotation import rotation_is_whole, wrapped
 from .calibration import HesaiCalibration, load_calibration

@@ -17,7 +17,7 @@ from .calibration import HesaiCalibration
 
 
 class HesaiGeometry:
-    """Points of Hesai frames from their calibration (a :class:`lidarpkt.core.frame.Geometry`).
+    """Points of Hesai frames from their calibration (a :class:`lidarpkt.core.sensor.Geometry`).
 
     Args:
         calibration: the sensor's angles.

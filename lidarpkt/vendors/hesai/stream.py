@@ -3,7 +3,7 @@
 The rules are the decoder's (:mod:`lidarpkt.vendors.hesai.frames`): a packet is lost where the UDP sequence
 number skips (models whose protocol has one), else where the packet time advances by more than one
 packet period (the median step); a step back or a repeat is out of order, never loss; a jump of more
-than :data:`~lidarpkt.core.decoder.INTERRUPTION_S` is an interruption; a rotation ends where the first
+than :data:`~lidarpkt.core.continuity.INTERRUPTION_S` is an interruption; a rotation ends where the first
 block's azimuth wraps.
 """
 
@@ -11,17 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarpkt.core.decoder import INTERRUPTION_S, StreamCounts
+from lidarpkt.core.continuity import INTERRUPTION_S
+from lidarpkt.core.decoder import StreamCounts
 from lidarpkt.errors import PacketFormatError
 from lidarpkt.core.rotation import wrapped
 from .decode import decode_packets
 from .detect import detect_model
-from .models import BY_SIZE, HesaiModel
-
-
-def stream_kind(payload_size: int) -> str | None:
-    """``"data"`` for a payload size some Pandar sends (the recorder's cheap test), else ``None``."""
-    return "data" if payload_size in BY_SIZE else None
+from .models import HesaiModel
 
 
 class PacketCounter:

@@ -6,15 +6,17 @@ RNG15_RFL8_WIN8, FIVE_WORD_PIXEL, under a STANDARD or FUSA packet header (``head
 deprecated FUSA_RNG15_RFL8_NIR8_DUAL name too). IMU profiles LEGACY and ACCEL32_GYRO32_NMEA;
 zone-monitoring packets.
 
-Modules: :mod:`.profiles` (every layout as bit-field tables, once), :mod:`.metadata` (JSON, both
-layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
+Modules: :mod:`.bitfield` (bit-field tables, read and written in NumPy), :mod:`.profiles` (every lidar
+packet layout, once), :mod:`.auxiliary` (the IMU and zone-monitoring layouts), :mod:`.metadata` (the
+parsed metadata), :mod:`.metadata_json` (reading its JSON: both layouts, defaults), :mod:`.decode` / :mod:`.encode` (batch fields <-> packet bytes, exact inverse),
 :mod:`.crc` (CRC-64/XZ over a batch), :mod:`.frames` (:class:`OusterDecoder`; :mod:`.fieldplan` where
 a frame's fields come from, for its C and NumPy paths), :mod:`.geometry`
 (ouster-sdk's XYZ lookup table), :mod:`.detect` (:func:`classify`, :func:`describe_stream`),
 :mod:`.imu` (both IMU profiles, :func:`imu_samples` in SI units), :mod:`.zone` (zone-monitoring
-packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (size classifier and the
+packets), :mod:`.digest` (ouster-sdk style MD5 digests), :mod:`.stream` (the
 packet/loss/frame counter the recorder runs live), :mod:`.osf` (ouster-sdk's OSF files of decoded
-frames, read by ``lidarpkt.open``).
+frames, read by ``lidarpkt.open``), :mod:`.ros` (its ROS messages), :mod:`.builder` (a frame being filled),
+:mod:`.vendor` (its registry record, :data:`VENDOR`).
 
 >>> md = load_metadata("sensor.json")                                   # doctest: +SKIP
 >>> fields = decode_packets(batch.payload, md)      # raw fields, [N, 16, H] pixels   # doctest: +SKIP
@@ -28,6 +30,7 @@ from lidarpkt.core.lazy import lazy_names
 
 # public name -> its module, imported on first use (lidarpkt/core/lazy.py)
 _LAZY: dict[str, str] = {
+    "VENDOR": "vendor",
     "crc64_xz": "crc",
     "OusterPacketFields": "decode",
     "decode_packets": "decode",
@@ -49,15 +52,16 @@ _LAZY: dict[str, str] = {
     "OusterMetadata": "metadata",
     "OsfFile": "osf",
     "OsfReader": "osf",
-    "load_metadata": "metadata",
+    "load_metadata": "metadata_json",
     "PROFILES": "profiles",
-    "BitField": "profiles",
+    "BitField": "bitfield",
     "Profile": "profiles",
     "get_profile": "profiles",
     "with_header": "profiles",
 }
 
 __all__ = [
+    "VENDOR",
     "BitField",
     "OusterDecoder",
     "OusterDecoderStats",

@@ -13,7 +13,8 @@ import numpy as np
 
 from lidarpkt.errors import PacketFormatError, SensorMismatchError
 from .crc import footer_crc_ok
-from .profiles import LEGACY_STATUS_VALID, BitField, Profile, read_bits
+from .profiles import LEGACY_STATUS_VALID, Profile
+from .bitfield import BitField, read_bits
 
 
 @dataclass(eq=False)

@@ -8,6 +8,7 @@ first, then the init_id and serial in the packet header (non-legacy profiles).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -17,14 +18,9 @@ from .crc import footer_crc_ok
 from .decode import decode_packets
 from .imu import decode_imu, imu_samples
 from .metadata import OusterMetadata
-from .profiles import (
-    HEADER_BYTES,
-    HEADER_TYPES,
-    IMU_PACKET_SIZE,
-    PROFILES,
-    Profile,
-    read_bits,
-)
+from .profiles import HEADER_BYTES, HEADER_TYPES, PROFILES, Profile
+from .auxiliary import IMU_PACKET_SIZE
+from .bitfield import read_bits
 from .zone import decode_zone_packets
 
 _GUESS_ROWS = (16, 32, 64, 128)
@@ -157,6 +153,24 @@ def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
             ranked.append((unlikely, order, profile, h))
     ranked.sort(key=lambda t: (t[0], t[1]))
     return [(p, h) for _, _, p, h in ranked]
+
+
+@lru_cache(maxsize=1)
+def _guess_sizes() -> frozenset[int]:
+    return frozenset(p.packet_size(h, 16) for p in PROFILES.values() for h in _GUESS_ROWS)
+
+
+def guess(batch: PacketBatch) -> str | None:
+    """What a stream no metadata fits looks like, as :func:`describe_stream` guesses it: ``"lidar"`` (the size
+    and column headers of some profile), ``"imu"`` (48-byte packets that read as an IMU's) or ``None``."""
+    size = batch.payload_size
+    if len(batch) == 0:
+        return None
+    if size == IMU_PACKET_SIZE:
+        return "imu" if _imu_plausible(batch.payload) else None
+    if size not in _guess_sizes():
+        return None
+    return "lidar" if _guesses(batch.payload) else None
 
 
 def describe_stream(batch: PacketBatch, metadata: Sequence[OusterMetadata] = ()) -> dict | None:

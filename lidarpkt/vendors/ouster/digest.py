@@ -17,7 +17,8 @@ import numpy as np
 from lidarpkt.errors import UsageError
 from lidarpkt.core.frame import Frame
 from .decode import OusterPacketFields, read_pixel_field
-from .profiles import BitField, Profile
+from .bitfield import BitField
+from .profiles import Profile
 
 
 def raw_word_fields(profile: Profile) -> tuple[BitField, ...]:

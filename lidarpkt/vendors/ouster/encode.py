@@ -13,7 +13,8 @@ from lidarpkt.errors import PacketFormatError
 from .crc import crc64_xz
 from .decode import OusterPacketFields
 from .fieldplan import plane_attr
-from .profiles import HEADER_STATUS_FIELDS, Profile, _to_raw, write_bits
+from .profiles import HEADER_STATUS_FIELDS, Profile
+from .bitfield import _to_raw, write_bits
 
 
 def encode_packets(fields: OusterPacketFields, metadata=None, *, crc: bool | None = None) -> np.ndarray:

@@ -44,23 +44,22 @@ from dataclasses import dataclass, fields as dc_fields
 
 import numpy as np
 
-from lidarpkt.core import kernels
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.continuity import CAPTURE_RESOLUTION_S, packets_spanned
 from lidarpkt.errors import SensorMismatchError, SkippedPacketWarning
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
-from .decode import OusterPacketFields, decode_packets, packet_view
+from .decode import OusterPacketFields, decode_packets
 from lidarpkt.core.imu import ImuSamples
 from .imu import imu_samples
 from .zone import OusterZoneStates, decode_zone_packets
 from .metadata import OusterMetadata
-from .fieldplan import SLOT_ATTRS, extract, field_plan, new_fields, packet_layout, scatter_steps
+from .builder import FrameBuilder, zero_missing
+from .fieldplan import SLOT_ATTRS
 from .profiles import HEADER_STATUS_FIELDS, LEGACY_STATUS_VALID
 from .stream import packet_period_ns, packet_places, stream_continuity
 
-_BLOCK_BYTES = 200_000  # packets copied into the word planes at a time (fits a 512 KB L2 cache)
-_NATIVE_PIXEL_BYTES = 16  # ouster_scatter's widest pixel (MAX_WORDS words); wider ones take the NumPy twin
 
 
 @dataclass
@@ -90,123 +89,6 @@ class OusterDecoderStats:
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in dc_fields(self)}
-
-
-class _Builder:
-    """One frame being filled.
-
-    With the compiled kernels, each packet's pixels are scattered straight into the frame's field
-    arrays at their (row, column) place (``ouster_scatter``, no transposed copy). The NumPy twin
-    scatters the raw pixel words by measurement id into word planes (``planes[k, row, column]`` =
-    32-bit word k of the pixel) and extracts the fields once, when the frame is released, each by
-    one contiguous shift/mask pass over its plane.
-
-    Neither is zeroed up front: columns that never arrived are zeroed at release.
-    """
-
-    def __init__(self, decoder: "OusterDecoder", key: tuple[int, int], frame_id: int) -> None:
-        md = decoder.metadata
-        h, w = md.pixels_per_column, md.columns_per_frame
-        self.key = key
-        self.frame_id = frame_id
-        self.native = kernels.native if md.profile.pixel_bytes <= _NATIVE_PIXEL_BYTES else None
-        self.planes: np.ndarray | None = None  # NumPy path: the packets' pixel words, one plane per word
-        self.outputs: dict[str, np.ndarray | None] | None = None  # compiled path: the fields themselves
-        if self.native is not None:
-            self.outputs, self.targets = new_fields(md.profile, h, w)
-        else:
-            # scratch reused frame after frame (fresh 1.5 MB planes per OS-2-128 frame page-faulted)
-            self.planes = decoder._spare_planes if decoder._spare_planes is not None else np.empty(
-                (md.profile.pixel_bytes // 4, h, w), np.uint32)
-            decoder._spare_planes = None
-        self.timestamp_ns = np.zeros(w, np.int64)
-        self.measurement_id = np.zeros(w, np.uint16)
-        self.status = np.zeros(w, np.uint32)
-        self.encoder_count = np.zeros(w, np.uint32) if md.profile.legacy else None
-        self.received = np.zeros(w, bool)
-        self.header_status = None if md.profile.legacy else dict(
-            zip(HEADER_STATUS_FIELDS, np.zeros((len(HEADER_STATUS_FIELDS), w), np.uint8)))
-        self.counters = FrameCounters()
-        self.last_mid0 = -1
-        self.packets = 0  # packets placed
-        self.host_ns = [0, 0]  # first and last capture time of its packets (0: unknown)
-
-    def add(self, f: OusterPacketFields, payload: np.ndarray, md: OusterMetadata) -> None:
-        """Columns of packets ``f`` with their payloads ``uint8[n, packet_size]``."""
-        mids = f.measurement_id
-        n, c = mids.shape
-        flat = mids.ravel().astype(np.intp)
-        if flat.size == 0:  # every packet was a duplicate
-            return
-        if self.outputs is not None and self.native is not None:
-            self.native.ouster_scatter(payload, *packet_layout(md.profile, md.pixels_per_column, c), md.pixels_per_column,
-                                       mids.astype(np.int64), scatter_steps(md.profile), self.targets)
-        else:
-            self._add_words(packet_view(payload, md.profile, md.pixels_per_column, c)["columns"]["pixels"], flat)
-        self.timestamp_ns[flat] = f.timestamp_ns.ravel()
-        self.measurement_id[flat] = mids.ravel()
-        self.status[flat] = f.status.ravel()
-        if self.encoder_count is not None and f.encoder_count is not None:  # LEGACY
-            self.encoder_count[flat] = f.encoder_count.ravel()
-        if self.header_status is not None and HEADER_STATUS_FIELDS[0] in f.header:
-            index = mids.astype(np.intp)
-            for k, arr in self.header_status.items():
-                arr[index] = f.header[k][:, None]
-        self.received[flat] = True
-
-    def _add_words(self, words: np.ndarray, flat: np.ndarray) -> None:
-        """The NumPy twin of ``ouster_scatter``: pixel words ``<u4[n, C, H, words]`` into the planes."""
-        n, c = words.shape[:2]
-        m0 = int(flat[0])
-        planes = self.planes
-        assert planes is not None  # the NumPy path has them
-        src = words.transpose(3, 2, 0, 1)  # [words, H, n, C] view of the packets
-        if m0 + n * c <= planes.shape[2] and int(flat[-1]) == m0 + n * c - 1 and (np.diff(flat) == 1).all():
-            # the common case: consecutive measurement ids, strided copies into slices of columns,
-            # a few packets at a time so that the source block stays in cache (about 2x faster than
-            # one copy of the whole batch, whose transposed walk misses the cache)
-            nw, h = planes.shape[:2]
-            step = max(1, _BLOCK_BYTES // max(1, words.strides[0]))
-            for i in range(0, n, step):
-                j = min(n, i + step)
-                planes[:, :, m0 + i * c : m0 + j * c].reshape(nw, h, j - i, c)[...] = src[:, :, i:j]
-        else:
-            planes[:, :, flat] = src.reshape(planes.shape[0], planes.shape[1], n * c)  # last copy wins
-
-    def fields(self, profile, kept: np.ndarray) -> dict[str, np.ndarray | None]:
-        """Pixel fields by frame attribute: ``range_mm``, ``reflectivity``, ``flags``, ``signal``
-        (``[R, H, W]``, ``None`` if the profile has no SIGNAL), ``near_ir`` and ``window``
-        (``[H, W]``, window ``None`` if absent); zeros where ``kept`` (``bool[W]``) is False."""
-        if self.outputs is not None:
-            _zero_missing(self.targets, kept)
-            return self.outputs
-        planes = self.planes
-        assert planes is not None  # the NumPy path has them
-        _zero_missing([planes], kept)
-        shape = planes.shape[1:]
-        out: dict[str, np.ndarray | None] = {}
-        for attr, per_slot, dtype in field_plan(profile):
-            if not per_slot:
-                out[attr] = None
-            elif attr not in SLOT_ATTRS:
-                out[attr] = extract(planes, per_slot[0], np.empty(shape, dtype))
-            else:
-                arr = np.empty((len(per_slot),) + shape, dtype)
-                for r, step in enumerate(per_slot):
-                    extract(planes, step, arr[r])
-                out[attr] = arr
-        return out
-
-
-def _zero_missing(arrays, received: np.ndarray) -> None:
-    """Zero the columns (last axis) of ``arrays`` where ``received`` is False, run by run of columns: slices,
-    not a boolean index (which cost 0.3 ms per OS-128 frame with missing columns, as at segment ends)."""
-    if received.all():
-        return
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], (~received).view(np.int8), [0]))))
-    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist()):
-        for arr in arrays:
-            arr[..., a:b] = 0
 
 
 class OusterDecoder:
@@ -239,12 +121,12 @@ class OusterDecoder:
         if options:
             raise TypeError(f"OusterDecoder: unknown options {sorted(options)}")
         self.metadata = metadata
-        self.source = source
+        self._source = source
         self.verify_crc = verify_crc and metadata.footer_kind == "crc"
         self.soft_id_check = soft_id_check
         self.sensor = metadata.sensor_info(source)
         self.stats = OusterDecoderStats()
-        self._current: _Builder | None = None
+        self._current: FrameBuilder | None = None
         self._spare_planes: np.ndarray | None = None  # the last released frame's word planes, for the next
         self._released: deque[tuple[int, int]] = deque(maxlen=16)
         self._pending_counters = FrameCounters()  # skips seen while no frame was open
@@ -333,7 +215,8 @@ class OusterDecoder:
             if self._current is None or self._current.key != key:
                 if self._current is not None:
                     out.append(self._release())
-                self._current = _Builder(self, key, key[1])
+                self._current = FrameBuilder(self.metadata, key, key[1], self._spare_planes)
+                self._spare_planes = None  # the builder's now (the NumPy path), or not needed
                 self._current.counters = self._current.counters.add(self._pending_counters)
                 self._pending_counters = FrameCounters()
             self._add(f.select(slice(s, e)), payload[s:e], host[s:e])
@@ -414,7 +297,7 @@ class OusterDecoder:
         if not valid.all():
             # a column whose status says invalid holds nothing (a sensor sends them around an azimuth
             # window, with timestamps): zero, as a column that never arrived (ouster-sdk drops them too)
-            _zero_missing([b.timestamp_ns, b.measurement_id]
+            zero_missing([b.timestamp_ns, b.measurement_id]
                           + (list(b.header_status.values()) if b.header_status is not None else [])
                           + ([b.encoder_count] if b.encoder_count is not None else []), valid)
         px = b.fields(md.profile, valid)
@@ -445,6 +328,22 @@ class OusterDecoder:
             extra=extra,
         )
 
+    def holds_packet(self, frame: Frame, batch: PacketBatch) -> bool:
+        """Does ``frame`` (one of this decoder's) hold the first packet of ``batch``: is it of the frame's id?"""
+        fields = decode_packets(batch.payload[:1], self.metadata, verify_crc=False, fields=(), header_fields=("frame_id",))
+        return int(fields.frame_id[0]) == frame.frame_id
+
+    @property
+    def source(self) -> str | None:
+        """Where the packets come from, for reports; its :class:`SensorInfo` carries it (a new name is a new one)."""
+        return self._source
+
+    @source.setter
+    def source(self, name: str | None) -> None:
+        if name != self._source:
+            self._source = name
+            self.sensor = self.metadata.sensor_info(name)
+
     def finish(self) -> list[Frame]:
         """The frame still being filled (partial), if any.
 
@@ -466,7 +365,7 @@ class OusterDecoder:
         return out
 
     def sensor_info(self, mode: str | None = None) -> SensorInfo:
-        """The sensor's :class:`~lidarpkt.core.frame.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
+        """The sensor's :class:`~lidarpkt.core.sensor.SensorInfo` (one profile per sensor: ``mode`` is ignored)."""
         return self.sensor
 
     # ------------------------------------------------------------------ IMU

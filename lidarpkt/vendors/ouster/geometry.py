@@ -22,7 +22,7 @@ from lidarpkt.core import kernels
 
 
 class OusterGeometry:
-    """XYZ of Ouster frames (implements :class:`lidarpkt.core.frame.Geometry`)."""
+    """XYZ of Ouster frames (implements :class:`lidarpkt.core.sensor.Geometry`)."""
 
     def __init__(self, metadata) -> None:
         self.metadata = metadata

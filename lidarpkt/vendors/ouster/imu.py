@@ -1,9 +1,9 @@
 """Ouster IMU packets, both profiles of the metadata's ``udp_profile_imu``.
 
-* LEGACY (48 bytes, :data:`~lidarpkt.vendors.ouster.profiles.IMU_DTYPE`): system, accelerometer and
+* LEGACY (48 bytes, :data:`~lidarpkt.vendors.ouster.auxiliary.IMU_DTYPE`): system, accelerometer and
   gyroscope timestamps (uint64, ns), linear acceleration x/y/z (float32, g), angular velocity
   x/y/z (float32, deg/s). :func:`decode_imu` / :func:`encode_imu`.
-* ACCEL32_GYRO32_NMEA (firmware 3.x, :func:`~lidarpkt.vendors.ouster.profiles.imu_packet_dtype`): the
+* ACCEL32_GYRO32_NMEA (firmware 3.x, :func:`~lidarpkt.vendors.ouster.auxiliary.imu_packet_dtype`): the
   lidar packet header, an NMEA block (timestamp and the last sentence received), then
   ``imu_measurements_per_packet`` measurements (timestamp, measurement id, status, acceleration
   in m/s², angular velocity in rad/s), the footer. :func:`decode_imu_nmea`.
@@ -19,13 +19,9 @@ import numpy as np
 from lidarpkt.errors import PacketFormatError
 from lidarpkt.core.imu import STANDARD_GRAVITY_MPS2, ImuSamples
 from lidarpkt.core.packet import payload_rows
-from .profiles import (
-    HEADER_TYPES,
-    IMU_DTYPE,
-    IMU_PACKET_SIZE,
-    imu_packet_dtype,
-    read_bits,
-)
+from .profiles import HEADER_TYPES
+from .auxiliary import IMU_DTYPE, IMU_PACKET_SIZE, imu_packet_dtype
+from .bitfield import read_bits
 
 
 def decode_imu(payload: np.ndarray) -> np.ndarray:

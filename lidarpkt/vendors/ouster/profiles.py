@@ -26,66 +26,7 @@ from functools import cache, lru_cache
 import numpy as np
 
 from lidarpkt.errors import MetadataError, PacketFormatError
-
-# --------------------------------------------------------------------------- bit fields
-
-
-@dataclass(frozen=True)
-class BitField:
-    """One field of a little-endian bit-packed record.
-
-    Attributes:
-        name: the manual's field name (``RANGE``, ``FLAGS`` ...); ``_``-prefixed = reserved bits.
-        start_bit: offset of the least significant bit from the start of the record.
-        width: number of bits on the wire.
-        upshift: left shift applied after extraction to get the field's unit (RANGE of
-            RNG15_RFL8_NIR8 is in 8 mm steps: upshift 3 gives mm).
-    """
-
-    name: str
-    start_bit: int
-    width: int
-    upshift: int = 0
-
-    @property
-    def reserved(self) -> bool:
-        return self.name.startswith("_")
-
-    @property
-    def dtype(self) -> np.dtype:
-        """Smallest unsigned type holding ``width + upshift`` bits (as ouster-sdk's field types)."""
-        bits = self.width + self.upshift
-        for dt in (np.uint8, np.uint16, np.uint32, np.uint64):
-            if bits <= np.dtype(dt).itemsize * 8:
-                return np.dtype(dt)
-        raise ValueError(f"bit field {self.name} is wider than 64 bits")
-
-    @property
-    def mask(self) -> int:
-        return (1 << self.width) - 1
-
-
-def _check_cover(fields: tuple[BitField, ...], n_bits: int, what: str) -> None:
-    """Every bit of the record belongs to exactly one field (checked at import)."""
-    used = np.zeros(n_bits, np.int32)
-    for f in fields:
-        if f.start_bit + f.width > n_bits or f.width <= 0:
-            raise PacketFormatError(f"{what}: field {f.name} outside the record")
-        used[f.start_bit : f.start_bit + f.width] += 1
-    if not np.all(used == 1):
-        raise PacketFormatError(f"{what}: bits {np.flatnonzero(used != 1).tolist()} not covered exactly once")
-
-
-def _reserved(start_bit: int, width: int) -> tuple[BitField, ...]:
-    """Reserved bits split into ≤ 32-bit pieces (so any field fits a 64-bit read)."""
-    out = []
-    while width > 0:
-        w = min(32, width, 32 - start_bit % 32) if start_bit % 32 else min(32, width)
-        out.append(BitField(f"_reserved_{start_bit}", start_bit, w))
-        start_bit += w
-        width -= w
-    return tuple(out)
-
+from .bitfield import BitField, check_cover, reserved_bits
 
 # --------------------------------------------------------------------------- packet headers
 
@@ -96,13 +37,13 @@ STANDARD_HEADER: tuple[BitField, ...] = (
     BitField("init_id", 32, 24),
     BitField("prod_sn", 56, 40),
     BitField("alert_flags", 96, 8),  # firmware 3.x; reserved (zero) before
-    *_reserved(104, 24),
+    *reserved_bits(104, 24),
     BitField("countdown_thermal_shutdown", 128, 8),
     BitField("countdown_shot_limiting", 136, 8),
     BitField("thermal_shutdown", 144, 4),
-    *_reserved(148, 4),
+    *reserved_bits(148, 4),
     BitField("shot_limiting", 152, 4),
-    *_reserved(156, 100),
+    *reserved_bits(156, 100),
 )
 
 #: Packet header of the FUSA profiles (firmware 3.1): other offsets, 32-bit frame id.
@@ -111,14 +52,14 @@ FUSA_HEADER: tuple[BitField, ...] = (
     BitField("init_id", 8, 24),
     BitField("frame_id", 32, 32),
     BitField("alert_flags", 64, 8),
-    *_reserved(72, 16),
+    *reserved_bits(72, 16),
     BitField("prod_sn", 88, 40),
     BitField("countdown_thermal_shutdown", 128, 8),
     BitField("countdown_shot_limiting", 136, 8),
     BitField("thermal_shutdown", 144, 4),
-    *_reserved(148, 4),
+    *reserved_bits(148, 4),
     BitField("shot_limiting", 152, 4),
-    *_reserved(156, 100),
+    *reserved_bits(156, 100),
 )
 
 HEADER_BYTES = 32
@@ -142,23 +83,23 @@ LEGACY_STATUS_VALID = 0xFFFFFFFF
 
 _LEGACY_PIXEL = (
     BitField("RANGE", 0, 20),
-    *_reserved(20, 8),
+    *reserved_bits(20, 8),
     BitField("FLAGS", 28, 4),
     BitField("REFLECTIVITY", 32, 8),
-    *_reserved(40, 8),  # high byte of the 16-bit reflectivity word, not part of the field
+    *reserved_bits(40, 8),  # high byte of the 16-bit reflectivity word, not part of the field
     BitField("SIGNAL", 48, 16),
     BitField("NEAR_IR", 64, 16),
-    *_reserved(80, 16),
+    *reserved_bits(80, 16),
 )
 _RNG19_PIXEL = (
     BitField("RANGE", 0, 19),
     BitField("FLAGS", 19, 5),
-    *_reserved(24, 8),
+    *reserved_bits(24, 8),
     BitField("REFLECTIVITY", 32, 8),
-    *_reserved(40, 8),
+    *reserved_bits(40, 8),
     BitField("SIGNAL", 48, 16),
     BitField("NEAR_IR", 64, 16),
-    *_reserved(80, 8),
+    *reserved_bits(80, 8),
     BitField("WINDOW", 88, 8),
 )
 _RNG19_DUAL_FIRST_FOUR_WORDS = (
@@ -174,7 +115,7 @@ _RNG19_DUAL_FIRST_FOUR_WORDS = (
 )
 _RNG19_DUAL_PIXEL = (
     *_RNG19_DUAL_FIRST_FOUR_WORDS,
-    *_reserved(112, 8),
+    *reserved_bits(112, 8),
     BitField("WINDOW", 120, 8),
 )
 _RNG15_PIXEL = (
@@ -200,12 +141,12 @@ _RNG15_ZONE16_PIXEL = (
     BitField("NEAR_IR", 24, 8, 4),
     BitField("ZONE_MASK", 32, 16),
     BitField("WINDOW", 48, 8),
-    *_reserved(56, 8),
+    *reserved_bits(56, 8),
 )
 _RNG19_ZONE16_PIXEL = (
     BitField("RANGE", 0, 19),
     BitField("FLAGS", 19, 5),
-    *_reserved(24, 8),
+    *reserved_bits(24, 8),
     BitField("REFLECTIVITY", 32, 8),
     BitField("WINDOW", 40, 8),
     BitField("SIGNAL", 48, 16),
@@ -222,7 +163,7 @@ _RNG19_ZONE16_DUAL_PIXEL = (  # no NEAR_IR: the zone mask takes its place
     BitField("SIGNAL", 64, 16),
     BitField("SIGNAL2", 80, 16),
     BitField("ZONE_MASK", 96, 16),
-    *_reserved(112, 8),
+    *reserved_bits(112, 8),
     BitField("WINDOW", 120, 8),
 )
 _RNG19_RGB16_PIXEL = (
@@ -234,7 +175,7 @@ _RNG19_RGB16_PIXEL = (
     BitField("R", 64, 16),
     BitField("G", 80, 16),
     BitField("B", 96, 16),
-    *_reserved(112, 16),
+    *reserved_bits(112, 16),
 )
 _RNG19_RGB16_DUAL_PIXEL = (
     *_RNG19_DUAL_FIRST_FOUR_WORDS,
@@ -242,7 +183,7 @@ _RNG19_RGB16_DUAL_PIXEL = (
     BitField("G", 128, 16),
     BitField("B", 144, 16),
 )
-_FIVE_WORD_PIXEL = (*_RNG19_DUAL_FIRST_FOUR_WORDS, *_reserved(112, 48))
+_FIVE_WORD_PIXEL = (*_RNG19_DUAL_FIRST_FOUR_WORDS, *reserved_bits(112, 48))
 _RNG15_WIN8_PIXEL = (
     BitField("RANGE", 0, 15, 3),
     BitField("FLAGS", 15, 1),
@@ -399,9 +340,9 @@ PROFILES: dict[str, Profile] = {
 }
 
 for _p in PROFILES.values():
-    _check_cover(_p.pixel_fields, _p.pixel_bytes * 8, f"{_p.name} pixel")
+    check_cover(_p.pixel_fields, _p.pixel_bytes * 8, f"{_p.name} pixel")
     if _p.header_fields:
-        _check_cover(_p.header_fields, HEADER_BYTES * 8, f"{_p.name} header")
+        check_cover(_p.header_fields, HEADER_BYTES * 8, f"{_p.name} header")
     for _f in _p.pixel_fields:  # decode reads each pixel field from one 32-bit word
         if _f.start_bit // 32 != (_f.start_bit + _f.width - 1) // 32:
             raise PacketFormatError(f"{_p.name} pixel: field {_f.name} straddles a 32-bit word")
@@ -433,162 +374,3 @@ def get_profile(name: str) -> Profile:
         raise MetadataError(
             f"udp_profile_lidar {name!r} is not supported; supported profiles: {', '.join(PROFILES)}"
         ) from None
-
-
-# --------------------------------------------------------------------------- IMU
-
-#: LEGACY IMU packet (48 bytes): three timestamps (ns), acceleration (g), angular velocity (deg/s).
-IMU_DTYPE = np.dtype(
-    [
-        ("sys_timestamp_ns", "<u8"),
-        ("accel_timestamp_ns", "<u8"),
-        ("gyro_timestamp_ns", "<u8"),
-        ("accel_x_g", "<f4"),
-        ("accel_y_g", "<f4"),
-        ("accel_z_g", "<f4"),
-        ("gyro_x_deg_per_s", "<f4"),
-        ("gyro_y_deg_per_s", "<f4"),
-        ("gyro_z_deg_per_s", "<f4"),
-    ]
-)
-IMU_PACKET_SIZE = IMU_DTYPE.itemsize
-
-#: IMU profiles of the metadata's ``udp_profile_imu``.
-IMU_PROFILES = ("LEGACY", "ACCEL32_GYRO32_NMEA")
-
-#: ACCEL32_GYRO32_NMEA (firmware 3.x): the 32-byte packet header of the lidar packets, this NMEA block,
-#: ``imu_measurements_per_packet`` measurements of :data:`IMU_MEASUREMENT_DTYPE`, the 32-byte footer.
-#: The sentence is NUL-padded ASCII (the last NMEA sentence the sensor received, empty without one).
-IMU_NMEA_BLOCK_DTYPE = np.dtype(
-    {"names": ["nmea_timestamp_ns", "nmea_sentence"], "formats": ["<u8", "S85"], "offsets": [0, 8], "itemsize": 100}
-)
-#: One ACCEL32_GYRO32_NMEA measurement: a column-like header (status bit 0 = valid), acceleration in m/s²
-#: and angular velocity in rad/s (float32; the LEGACY packet's are in g and deg/s).
-IMU_MEASUREMENT_DTYPE = np.dtype(
-    [
-        ("timestamp_ns", "<u8"),
-        ("measurement_id", "<u2"),
-        ("status", "<u2"),
-        ("accel_x_mps2", "<f4"),
-        ("accel_y_mps2", "<f4"),
-        ("accel_z_mps2", "<f4"),
-        ("gyro_x_radps", "<f4"),
-        ("gyro_y_radps", "<f4"),
-        ("gyro_z_radps", "<f4"),
-    ]
-)
-
-
-def imu_packet_dtype(measurements: int) -> np.dtype:
-    """Structured dtype of one ACCEL32_GYRO32_NMEA packet holding ``measurements`` measurements."""
-    return _imu_packet_dtype(int(measurements))
-
-
-@lru_cache(maxsize=16)
-def _imu_packet_dtype(m: int) -> np.dtype:
-    nmea_at = HEADER_BYTES
-    meas_at = nmea_at + IMU_NMEA_BLOCK_DTYPE.itemsize
-    footer_at = meas_at + m * IMU_MEASUREMENT_DTYPE.itemsize
-    return np.dtype(
-        {
-            "names": ["header", "nmea", "measurements", "footer"],
-            "formats": [("u1", (HEADER_BYTES,)), IMU_NMEA_BLOCK_DTYPE, (IMU_MEASUREMENT_DTYPE, (m,)), ("u1", (FOOTER_BYTES,))],
-            "offsets": [0, nmea_at, meas_at, footer_at],
-            "itemsize": footer_at + FOOTER_BYTES,
-        }
-    )
-
-
-# --------------------------------------------------------------------------- zone monitoring
-
-ZONES_PER_PACKET = 16
-ZONESET_HASH_BYTES = 32
-#: One zone's state in a zone-monitoring packet (36 bytes); the ranges are in mm like RANGE.
-ZONE_STATE_FIELDS: tuple[BitField, ...] = (
-    BitField("live", 0, 1),
-    *_reserved(1, 7),
-    BitField("id", 8, 8),
-    BitField("error_flags", 16, 8),
-    *_reserved(24, 2),
-    BitField("trigger_type", 26, 2),
-    *_reserved(28, 3),
-    BitField("trigger_status", 31, 1),
-    BitField("triggered_frames", 32, 32),
-    BitField("count", 64, 32),
-    BitField("occlusion_count", 96, 32),
-    BitField("invalid_count", 128, 32),
-    BitField("max_count", 160, 32),
-    BitField("min_range_mm", 192, 19),
-    *_reserved(211, 13),
-    BitField("max_range_mm", 224, 19),
-    *_reserved(243, 13),
-    BitField("mean_range_mm", 256, 19),
-    *_reserved(275, 13),
-)
-ZONE_STATE_BYTES = 36
-_check_cover(ZONE_STATE_FIELDS, ZONE_STATE_BYTES * 8, "zone state")
-#: Zone-monitoring packet: packet header, timestamp (ns), SHA-256 of the live zone set, 16 zone states, footer.
-ZONE_PACKET_DTYPE = np.dtype(
-    {
-        "names": ["header", "timestamp_ns", "live_zoneset_hash", "zones", "footer"],
-        "formats": [("u1", (HEADER_BYTES,)), "<u8", ("u1", (ZONESET_HASH_BYTES,)),
-                    ("u1", (ZONES_PER_PACKET, ZONE_STATE_BYTES)), ("u1", (FOOTER_BYTES,))],
-        "offsets": [0, HEADER_BYTES, HEADER_BYTES + 8, HEADER_BYTES + 8 + ZONESET_HASH_BYTES,
-                    HEADER_BYTES + 8 + ZONESET_HASH_BYTES + ZONES_PER_PACKET * ZONE_STATE_BYTES],
-        "itemsize": HEADER_BYTES + 8 + ZONESET_HASH_BYTES + ZONES_PER_PACKET * ZONE_STATE_BYTES + FOOTER_BYTES,
-    }
-)
-ZONE_PACKET_SIZE = ZONE_PACKET_DTYPE.itemsize
-
-
-# --------------------------------------------------------------------------- bit access helpers
-
-
-def read_bits(data: np.ndarray, field: BitField) -> np.ndarray:
-    """Field ``field`` of byte records ``data`` (``uint8[..., nbytes]``), up-shift applied, in ``field.dtype``."""
-    first = field.start_bit // 8
-    shift = field.start_bit % 8
-    nbytes = (shift + field.width + 7) // 8
-    if nbytes == 1:  # within one byte (the header's status fields, read for every packet decoded)
-        v = data[..., first]
-        if shift:
-            v = v >> np.uint8(shift)
-        if field.width < 8:
-            v = v & np.uint8(field.mask)
-        v = v.astype(field.dtype)
-        return v << field.dtype.type(field.upshift) if field.upshift else v
-    acc = np.zeros(data.shape[:-1], np.uint64)
-    for k in range(nbytes):
-        acc |= data[..., first + k].astype(np.uint64) << np.uint64(8 * k)
-    value = (acc >> np.uint64(shift)) & np.uint64(field.mask)
-    return value.astype(field.dtype) << field.dtype.type(field.upshift) if field.upshift else value.astype(field.dtype)
-
-
-def write_bits(data: np.ndarray, field: BitField, value: np.ndarray) -> None:
-    """OR ``value`` (in field units, up-shift included) into the zeroed bits of ``data`` (``uint8[..., nbytes]``)."""
-    raw = _to_raw(np.asarray(value), field)
-    first = field.start_bit // 8
-    shift = field.start_bit % 8
-    nbytes = (shift + field.width + 7) // 8
-    raw = raw << np.uint64(shift)
-    for k in range(nbytes):
-        data[..., first + k] |= ((raw >> np.uint64(8 * k)) & np.uint64(0xFF)).astype(np.uint8)
-
-
-def _to_raw(value: np.ndarray, field: BitField) -> np.ndarray:
-    """The wire value of ``value``; :class:`PacketFormatError` if it does not fit the field exactly."""
-    from lidarpkt.errors import PacketFormatError
-
-    v = value.astype(np.uint64)
-    if field.upshift and np.any(v & np.uint64((1 << field.upshift) - 1)):
-        raise PacketFormatError(
-            f"field {field.name}: values must be multiples of {1 << field.upshift} "
-            f"(the wire unit); got e.g. {int(v[(v & np.uint64((1 << field.upshift) - 1)) != 0].flat[0])}"
-        )
-    raw = v >> np.uint64(field.upshift)
-    if np.any(raw > np.uint64(field.mask)):
-        raise PacketFormatError(
-            f"field {field.name}: value {int(raw.max()) << field.upshift} does not fit in {field.width} bits"
-            + (f" × {1 << field.upshift}" if field.upshift else "")
-        )
-    return raw

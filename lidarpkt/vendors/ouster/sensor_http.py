@@ -69,7 +69,7 @@ def fetch_metadata_text(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: 
 def fetch_metadata(host: str, port: int = DEFAULT_HTTP_PORT, *, timeout_s: float = 5.0):
     """:func:`fetch_metadata_text`, parsed. Raises :class:`~lidarpkt.errors.SensorConnectionError`, or
     :class:`MetadataError` when the JSON is not usable Ouster metadata."""
-    from .metadata import load_metadata
+    from .metadata_json import load_metadata
 
     text = fetch_metadata_text(host, port, timeout_s=timeout_s)
     try:

@@ -1,5 +1,5 @@
-"""An Ouster lidar stream's packets counted: what a payload size is, how many packets a gap lost,
-where a frame ends. The recorder's live path (:mod:`lidarpkt.core.streams`) uses :class:`PacketCounter`;
+"""An Ouster lidar stream's packets counted: how many packets a gap lost, where a frame ends. The
+recorder's live path uses :class:`PacketCounter` (the registry record's ``counter``);
 :class:`~lidarpkt.vendors.ouster.OusterDecoder` ends a frame at the same place (a change of frame id) and
 places packets by the same measurement ids.
 
@@ -16,24 +16,7 @@ import numpy as np
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.core.decoder import StreamCounts
 from .metadata import OusterMetadata
-from .profiles import IMU_PACKET_SIZE, LEGACY, read_bits
-
-# LEGACY lidar packets of 16, 32, 64, 128 beams: recognisable without metadata
-LEGACY_SIZES = frozenset(LEGACY.packet_size(h) for h in (16, 32, 64, 128))
-
-
-def stream_kind(payload_size: int, metadata: OusterMetadata | None = None) -> str | None:
-    """``"lidar"`` or ``"imu"`` by payload size alone (the live path's cheap test; :func:`classify`
-    also checks the content), ``None`` for another size. ``metadata`` makes the non-legacy profiles
-    recognisable; without it only the LEGACY sizes of 16 to 128 beams are."""
-    if metadata is not None and payload_size == metadata.packet_size:
-        return "lidar"
-    if payload_size == IMU_PACKET_SIZE or (metadata is not None and payload_size == metadata.imu_packet_size):
-        return "imu"
-    if metadata is None and payload_size in LEGACY_SIZES:
-        return "lidar"
-    return None
-
+from .bitfield import read_bits
 
 def window_packets(metadata: OusterMetadata) -> int:
     """Packets per frame in the metadata's column window (all of the frame's without a window)."""

@@ -1,8 +1,8 @@
 """Ouster zone-monitoring packets (firmware 3.2+, sent to ``udp_port_zm``): the state of 16 zones.
 
-Layout (:data:`~lidarpkt.vendors.ouster.profiles.ZONE_PACKET_DTYPE`): the lidar packet header, a timestamp
+Layout (:data:`~lidarpkt.vendors.ouster.auxiliary.ZONE_PACKET_DTYPE`): the lidar packet header, a timestamp
 (ns, the sensor's clock), the SHA-256 of the live zone set, 16 zone states of 36 bytes
-(:data:`~lidarpkt.vendors.ouster.profiles.ZONE_STATE_FIELDS`: live, id, error flags, trigger type and
+(:data:`~lidarpkt.vendors.ouster.auxiliary.ZONE_STATE_FIELDS`: live, id, error flags, trigger type and
 status, triggered frames, point counts, min/max/mean range in mm), the footer.
 """
 
@@ -13,13 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidarpkt.core.packet import payload_rows
-from .profiles import (
-    HEADER_TYPES,
-    ZONE_PACKET_DTYPE,
-    ZONE_PACKET_SIZE,
-    ZONE_STATE_FIELDS,
-    read_bits,
-)
+from .profiles import HEADER_TYPES
+from .auxiliary import ZONE_PACKET_DTYPE, ZONE_PACKET_SIZE, ZONE_STATE_FIELDS
+from .bitfield import read_bits
 
 #: The zone-state fields, reserved bits left out.
 ZONE_FIELD_NAMES = tuple(f.name for f in ZONE_STATE_FIELDS if not f.reserved)

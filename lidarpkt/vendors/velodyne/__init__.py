@@ -12,12 +12,14 @@ model's per-block, per-channel tables in each return mode), ``hdl64e`` (the HDL-
 and the calibration it carries), ``packet``
 (the byte layouts, declared once as NumPy dtypes), ``decode`` (raw fields of a batch), ``encode``
 (the inverse), ``timing`` (firing times, per-firing azimuth, rotation rate), ``clock`` (the hour of
-a packet stamp, the day of an NMEA time), ``stream`` (size classifier; loss, rotation and
+a packet stamp), ``stream`` (size classifier; loss, rotation and
 whole-rotation rules shared by the decoder and the recorder), ``frames`` (:class:`VelodyneDecoder`:
-frames, absolute time, losses), ``dual`` (which dual-return firings hold the second strongest), ``detect`` (which
+frames, absolute time, losses; the dual-return mark is :mod:`lidarpkt.core.dual`), ``detect`` (which
 model), ``calibration`` (stock, ROS YAML,
 VeloView XML), ``geometry`` (XYZ), ``points`` (flat point lists in velodyne_decoder's layout),
-``nmea`` ($GPRMC/$GPGGA).
+``accounting`` (what the decoder counts), ``columns`` (the column runs of a frame), ``ros`` (its ROS messages),
+``vendor`` (its registry record, :data:`VENDOR`). The NMEA sentences of its position packets are read by
+:mod:`lidarpkt.core.nmea`.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from lidarpkt.core.lazy import lazy_names
 
 # public name -> its module, imported on first use (lidarpkt/core/lazy.py)
 _LAZY: dict[str, str] = {
+    "VENDOR": "vendor",
     "VelodyneCalibration": "calibration",
     "load_calibration": "calibration",
     "stock_calibration": "calibration",
@@ -40,15 +43,13 @@ _LAZY: dict[str, str] = {
     "encode_data_packets": "encode",
     "encode_frames": "encode",
     "encode_position_packets": "encode",
-    "DecoderStats": "frames",
+    "DecoderStats": "accounting",
     "VelodyneDecoder": "frames",
     "VelodyneGeometry": "geometry",
     "MODELS": "models",
     "VLP16": "models",
     "VelodyneModel": "models",
     "model_for_product": "models",
-    "NMEAFix": "nmea",
-    "parse_nmea": "nmea",
     "DATA_PACKET_SIZE": "packet",
     "POSITION_PACKET_SIZE": "packet",
     "POINT_DTYPE": "points",
@@ -56,6 +57,7 @@ _LAZY: dict[str, str] = {
 }
 
 __all__ = [
+    "VENDOR",
     "DATA_PACKET_SIZE",
     "POSITION_PACKET_SIZE",
     "DataPackets",
@@ -75,8 +77,6 @@ __all__ = [
     "VelodyneCalibration",
     "load_calibration",
     "stock_calibration",
-    "NMEAFix",
-    "parse_nmea",
     "frame_points",
     "POINT_DTYPE",
     "VelodyneModel",

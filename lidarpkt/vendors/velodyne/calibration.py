@@ -17,6 +17,7 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -111,19 +112,34 @@ def stock_calibration(model: VelodyneModel = VLP16) -> VelodyneCalibration:
     )
 
 
-def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | None,
+def load_calibration(path: str | os.PathLike[str] | VelodyneCalibration | Sequence[str | os.PathLike[str] |
+                                                                                  VelodyneCalibration] | None,
                      model: VelodyneModel = VLP16) -> VelodyneCalibration:
     """A calibration of ``model`` (the VLP-16) from a ROS driver YAML or a VeloView XML file (detected by content).
 
-    ``None`` gives the model's stock calibration; a :class:`VelodyneCalibration` is returned as is.
+    ``None`` gives the model's stock calibration; a :class:`VelodyneCalibration` is returned as is; of
+    several (a list or tuple: one per sensor of a capture), the first that is ``model``'s.
 
     Raises:
-        CalibrationError: unreadable file, unknown format, or not the model's number of lasers (16).
+        CalibrationError: unreadable file, unknown format, or not the model's number of lasers (16); of
+            several, the first one's error when none is the model's.
     """
     if path is None:
         return stock_calibration(model)
+    if isinstance(path, (list, tuple)):
+        errors: list[CalibrationError] = []
+        for candidate in path:
+            try:
+                return load_calibration(candidate, model)
+            except CalibrationError as exc:
+                errors.append(exc)
+        if not errors:
+            return stock_calibration(model)
+        raise errors[0]
     if isinstance(path, VelodyneCalibration):
         return path
+    if not isinstance(path, (str, os.PathLike)):
+        raise CalibrationError(f"calibration={path!r}: not a calibration file's path nor a loaded calibration")
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8", errors="replace")

@@ -1,10 +1,9 @@
-"""VLP-16 time resolution, defined once: µs past the hour → ns since the epoch, NMEA time of day → UTC.
+"""VLP-16 time resolution, defined once: µs past the hour → ns since the epoch.
 
 A VLP-16 stamps each packet with the µs past the top of the hour (manual, "Timestamp"); the hour
-comes from a reference (GPS time, the capture clock, the previous packet). $GPGGA carries a time
-of day and no date; the day comes from a reference the same way. The decoder
-(:mod:`lidarpkt.vendors.velodyne.frames`), detection, the recorder's sink and its GPS reader all use these
-functions, so that they cannot disagree about which hour or day a stamp is in.
+comes from a reference (GPS time of a position packet's NMEA fix, :func:`lidarpkt.core.nmea.fix_time_ns`;
+the capture clock; the previous packet). The decoder (:mod:`lidarpkt.vendors.velodyne.frames`), detection
+and the recorder's sink all use these functions, so that they cannot disagree about which hour a stamp is in.
 """
 
 from __future__ import annotations
@@ -13,7 +12,6 @@ import numpy as np
 
 HOUR_US = 3_600_000_000
 HOUR_NS = HOUR_US * 1000
-DAY_NS = 24 * HOUR_NS
 
 
 def in_nearest_hour_ns(timestamp_us: np.ndarray | int, reference_ns: np.ndarray | int) -> np.ndarray:
@@ -34,23 +32,6 @@ def hour_steps_us(timestamp_us: np.ndarray, previous_us: int | None = None) -> n
     ts = np.asarray(timestamp_us, np.int64)
     prev = np.concatenate([[ts[0] if previous_us is None else previous_us], ts[:-1]]) if ts.size else ts
     return (ts - prev + HOUR_US // 2) % HOUR_US - HOUR_US // 2
-
-
-def on_nearest_day_ns(time_of_day_ns: int, reference_ns: int) -> int:
-    """ns since the epoch of a UTC time of day (ns past midnight) on the day that puts it nearest
-    ``reference_ns`` (the host clock, say). Exactly half a day away goes to the later day."""
-    return time_of_day_ns + (reference_ns - time_of_day_ns + DAY_NS // 2) // DAY_NS * DAY_NS
-
-
-def fix_time_ns(fix, reference_ns: int | None) -> int | None:
-    """UTC of an :class:`~lidarpkt.vendors.velodyne.nmea.NMEAFix`, ns since the epoch: its date and time
-    ($GPRMC), else its time of day on the day nearest ``reference_ns`` ($GPGGA), else ``None``
-    (no time in the sentence, or a time of day and no reference)."""
-    if fix.utc_ns is not None:
-        return int(fix.utc_ns)
-    if fix.time_of_day_s is None or not reference_ns:
-        return None
-    return on_nearest_day_ns(round(fix.time_of_day_s * 1e9), int(reference_ns))
 
 
 class SensorClock:

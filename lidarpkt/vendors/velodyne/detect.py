@@ -23,7 +23,7 @@ from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
 from .models import (AMBIGUOUS_PRODUCTS, BANK_FLAGS, HDL32E, HDL32E_PACKET_PERIOD_US, HDL64E_S2, HDL64E_S3, MODELS,
                      PRODUCT_NAMES, VLP16, VelodyneModel, model_for_product)
-from .nmea import parse_nmea
+from lidarpkt.core.nmea import parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
 from .stream import stream_kind
 from .timing import rotation_frequency_hz
@@ -221,7 +221,7 @@ def product_model(product: int, raw, source: str | None = None) -> VelodyneModel
         a, b = AMBIGUOUS_PRODUCTS[product]
         raise UnknownSensorError(
             f"{where}Velodyne factory byte 0x{product:02x} is a {a} or a {b}, which the packets cannot tell apart; "
-            f"say which with velodyne_model='{a}' or '{b}' (--velodyne-model)")
+            f"say which with model='{a}' or '{b}' (--model)")
     if product == 0x21:
         return VLP16 if _timing_or_layout_says_vlp16(raw) else HDL32E
     model = model_for_product(product)
@@ -229,8 +229,8 @@ def product_model(product: int, raw, source: str | None = None) -> VelodyneModel
         name = PRODUCT_NAMES.get(product)
         raise UnknownSensorError(
             f"{where}Velodyne factory byte 0x{product:02x}" + (f" ({name})" if name else "") + " names no model "
-            f"lidarpkt decodes ({', '.join(m.name for m in MODELS)}); pick one with velodyne_model=... "
-            "(--velodyne-model) if the byte is wrong")
+            f"lidarpkt decodes ({', '.join(m.name for m in MODELS)}); pick one with model=... "
+            "(--model) if the byte is wrong")
     return model
 
 
@@ -247,7 +247,7 @@ def detect_model(raw, source: str | None = None) -> VelodyneModel:
 
 def check_product(raw, model: VelodyneModel, source: str | None = None) -> None:
     """Packets of another table model than the one the decoder was given raise
-    :class:`~lidarpkt.errors.UnknownSensorError` (velodyne_model= / calibration for the wrong sensor)."""
+    :class:`~lidarpkt.errors.UnknownSensorError` (model= / a calibration for the wrong sensor)."""
     product = int(np.bincount(np.asarray(raw.product_id)).argmax())
     if product in model.product_ids or product == 0x23 and model.name in ("VLP-32A", "VLP-32B"):
         return
@@ -255,7 +255,7 @@ def check_product(raw, model: VelodyneModel, source: str | None = None) -> None:
     if other is not None and other.lasers != model.lasers:
         raise UnknownSensorError(
             f"{source + ': ' if source else ''}packets of a {other.name} (factory byte 0x{product:02x}) given to a "
-            f"{model.name} decoder; drop velodyne_model= (--velodyne-model) or name the sensor's model")
+            f"{model.name} decoder; drop model= (--model) or name the sensor's model")
 
 
 def hdl64e_modes(raw):

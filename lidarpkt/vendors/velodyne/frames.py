@@ -10,7 +10,7 @@ return), slot 1 block 2k+1: the strongest return, or — when the strongest retu
 the last — the second strongest. Such pixels are marked in ``frame.extra["second_strongest"]``
 (``bool[16, W]``): slot 1's range differs from slot 0's and slot 0 (the last return) has the
 strictly higher signal at the detector, estimated from the packet as reflectivity / range²
-(:func:`lidarpkt.vendors.velodyne.dual.second_strongest_mark`, which documents the model, the tie rule
+(:func:`lidarpkt.core.dual.second_strongest_mark`, which documents the model, the tie rule
 and what the mark cannot know). Where the sensor saw one return both slots hold it, as the
 sensor sends it.
 
@@ -56,28 +56,29 @@ interpolation): ``azimuth_deg`` per column reproduces its points within 1e-4 m.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
-from .clock import HOUR_US, SensorClock, fix_time_ns
-from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, flags_ok, layout_pixels
+from .clock import HOUR_US, SensorClock
+from .accounting import DecoderStats, PacketAccounting
+from .columns import Columns, finish_columns
+from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, layout_pixels
 from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
 from .layout import packet_layout
-from .dual import second_strongest_mark
+from lidarpkt.core.dual import second_strongest_mark
 from .geometry import VelodyneGeometry
 from .hdl64e import StatusCycle
-from .nmea import parse_sentence_rows
+from lidarpkt.core.nmea import fix_time_ns, parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from lidarpkt.core.rotation import rotation_is_whole, wrapped
-from .stream import packets_lost
 from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
 
 DUAL = RETURN_MODE_CODES["dual"]
@@ -86,73 +87,14 @@ MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
 
-@dataclass
-class DecoderStats:
-    """What a :class:`VelodyneDecoder` saw, counted."""
-
-    packets: int = 0  # data packets pushed
-    decoded_packets: int = 0
-    malformed_size: int = 0  # data batches of another payload size
-    malformed_flag: int = 0  # a block flag other than 0xEEFF or an azimuth ≥ 360°
-    unknown_return_mode: int = 0
-    duplicate_packets: int = 0  # same sensor timestamp as an earlier packet
-    out_of_order_packets: int = 0  # older than an earlier packet (put back in order within a batch)
-    late_packets: int = 0  # older than the last packet of an earlier batch: dropped
-    lost_packets: int = 0  # inferred from time gaps, never more than the capture time holds
-    corrupted_packets: int = 0  # off both neighbours by more than the capture time allows: skipped
-    restarts: int = 0  # the stream's clock jumped (or paused more than INTERRUPTION_S) and went on from there
-    outside_fov_packets: int = 0  # not sent: the sensor's field of view leaves out a sector (a gap at the same
-    # azimuths every rotation), so not lost
-    long_gaps: int = 0  # gaps longer than max_gap_s (frame cut, nothing inserted)
-    overlong_frames: int = 0  # frames released without an azimuth wrap (max_frame_columns)
-    position_packets: int = 0
-    position_malformed: int = 0
-    nmea_errors: int = 0
-    gps_fixes: int = 0
-    gps_fixes_ignored: int = 0  # fixes that would have moved the hour of packets already placed
-    frames: int = 0
-
-    @property
-    def malformed(self) -> int:
-        """Packets skipped as malformed (size, flag, return mode)."""
-        return self.malformed_size + self.malformed_flag + self.unknown_return_mode
-
-
-@dataclass
-class _Columns:
-    """A run of columns of one return mode (the pieces a frame is concatenated from)."""
-
-    range_mm: np.ndarray  # uint32 [R, 16, w]
-    reflectivity: np.ndarray  # uint8 [R, 16, w]
-    azimuth_px: np.ndarray  # uint16 [16, w]
-    azimuth_cdeg: np.ndarray  # float64 [w]
-    valid: np.ndarray  # bool [w]
-    timestamp_ns: np.ndarray  # int64 [w]
-    packet_index: np.ndarray  # int64 [w]
-    lost: np.ndarray  # int32 [w]: packets lost just before this column
-
-    def __len__(self) -> int:
-        return int(self.valid.shape[0])
-
-    def split(self, at: list[int]) -> list["_Columns"]:
-        names = self.__dataclass_fields__
-        pieces = {k: np.split(getattr(self, k), at, axis=-1) for k in names}
-        return [_Columns(**{k: pieces[k][i] for k in names}) for i in range(len(at) + 1)]
-
-    @staticmethod
-    def concat(parts: list["_Columns"]) -> "_Columns":
-        if len(parts) == 1:
-            return parts[0]
-        return _Columns(**{k: np.concatenate([getattr(p, k) for p in parts], axis=-1) for k in _Columns.__dataclass_fields__})
-
-
-class VelodyneDecoder:
+class VelodyneDecoder(PacketAccounting):
     """Frames of one VLP-16 (one source address) from its data and position packets
     (a :class:`lidarpkt.core.decoder.Decoder`).
 
     Args:
         calibration: a :class:`~lidarpkt.vendors.velodyne.calibration.VelodyneCalibration`, a path to a ROS
-            YAML / VeloView XML, or ``None`` for the stock calibration.
+            YAML / VeloView XML, several of them (the first that is the model's serves), or ``None`` for
+            the stock calibration.
         cut_angle_deg: cut frames where the azimuth passes this angle instead of 0°.
         source: a name for reports (``"192.168.1.201:2368"``).
         max_gap_s: lost stretches shorter than this become invalid columns; longer ones end the
@@ -202,7 +144,7 @@ class VelodyneDecoder:
         self.max_frame_columns = int(max_frame_columns)
         self._pending_columns = 0
         self.stats = DecoderStats()
-        self._pending: list[_Columns] = []
+        self._pending: list[Columns] = []
         self._start_unknown = True  # the pending frame does not begin at a wrap (the first of a stream)
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
@@ -350,37 +292,10 @@ class VelodyneDecoder:
             return self._await_calibration(batch, raw)
         if not self.model.product_ids and self.model.dual_layout == "upper_lower":
             raw = hdl64e_modes(raw)
-        ok = raw.flag_ok if self.model.blocks_per_column == 1 else flags_ok(raw, self.model)
-        known = np.isin(raw.return_mode, list(RETURN_MODES))
-        bad_flag = int(np.count_nonzero(~ok))
-        bad_mode = int(np.count_nonzero(ok & ~known))
-        if bad_flag or bad_mode:
-            self.stats.malformed_flag += bad_flag
-            self.stats.unknown_return_mode += bad_mode
-            self._pending_counters.malformed_packets += bad_flag + bad_mode
-            warn(SkippedPacketWarning(
-                f"{self.source or self.model.name}: skipped {bad_flag} packets with a bad block flag or azimuth and "
-                f"{bad_mode} with an unknown return mode"), stacklevel=3)
-            keep = ok & known
-            raw = raw.select(keep)
-            times = batch.timestamp_ns[keep]
-            index = batch.index[keep]
-        else:
-            times, index = batch.timestamp_ns, batch.index
-        if len(raw) == 0:
+        kept = self._keep_sound(batch, raw)
+        if kept is None:
             return []
-        st = self.continuity.check(raw.timestamp_us.astype(np.int64), times)
-        restart = st.restart
-        if st.corrupted:
-            self.stats.corrupted_packets += st.corrupted
-            self._pending_counters.malformed_packets += st.corrupted
-            warn(SkippedPacketWarning(
-                f"{self.source or self.model.name}: skipped {st.corrupted} packets whose time jumped further than the "
-                "capture time allows (corrupted)"), stacklevel=3)
-            raw, times, index, restart = raw.select(st.keep), times[st.keep], index[st.keep], restart[st.keep]
-            if len(raw) == 0:
-                return []
-        self.stats.restarts += st.restarts
+        raw, times, index, restart = kept
         if self._product_id is None:
             self._product_id = int(raw.product_id[0])
         abs_ns = self.absolute_time_ns(raw.timestamp_us, times)
@@ -412,35 +327,12 @@ class VelodyneDecoder:
                                                          packet_layout(self.model, mode),
                                                          self.model.packet_period_us(mode), None, None)[0])
                 self._frequency_hz = round(float(rate) / 36000.0, 2) or None
-        # Packets out of order inside a batch are put back in order (counted, kept); duplicates and
-        # packets older than the last one of an earlier batch (its frame may be gone) are dropped, counted.
-        last = self._last_abs_ns if self._last_abs_ns is not None else np.iinfo(np.int64).min
-        running = np.maximum.accumulate(np.concatenate([[last], abs_ns]))[:-1]
-        ooo = int(np.count_nonzero(abs_ns < running))
-        if ooo:
-            order = np.argsort(abs_ns, kind="stable")
-            raw, abs_ns, index, host_ns = raw.select(order), abs_ns[order], index[order], host_ns[order]
-            self.stats.out_of_order_packets += ooo
-            self._pending_counters.out_of_order_packets += ooo
-        late = abs_ns < last
-        dup = np.concatenate([[False], abs_ns[1:] == abs_ns[:-1]]) | (abs_ns == last)
-        if late.any() or dup.any():
-            n_late, n_dup = int(np.count_nonzero(late)), int(np.count_nonzero(dup & ~late))
-            self.stats.late_packets += n_late
-            self.stats.duplicate_packets += n_dup
-            self._pending_counters.late_packets += n_late
-            self._pending_counters.duplicate_packets += n_dup
-            fresh = ~(late | dup)
-            raw, abs_ns, index, host_ns = raw.select(fresh), abs_ns[fresh], index[fresh], host_ns[fresh]
-            if len(raw) == 0:
-                return frames
+        ordered = self._in_order(raw, abs_ns, index, host_ns)
+        if ordered is None:
+            return frames
+        raw, abs_ns, index, host_ns = ordered
         self.stats.decoded_packets += len(raw)
-        period_ns = self.model.packet_period_ns(mode)
-        gaps = np.diff(np.concatenate([[abs_ns[0] if self._last_abs_ns is None else self._last_abs_ns], abs_ns]))
-        prev_host = np.concatenate([[self._last_host_ns if self._last_abs_ns is not None else 0], host_ns[:-1]])
-        missing = self.continuity.bound_lost(packets_lost(gaps, period_ns), host_ns - prev_host,
-                                             (host_ns != 0) & (prev_host != 0), period_ns)
-        missing = self._outside_fov(raw, missing)
+        gaps, missing = self._lost(raw, abs_ns, host_ns, mode)
         long_gap = gaps > self.max_gap_ns
         cuts = np.flatnonzero(long_gap)
         bounds = sorted({0, *cuts.tolist(), len(raw)})
@@ -464,49 +356,14 @@ class VelodyneDecoder:
         self._last_packet_az_cdeg = int(raw.azimuth_cdeg[-1, -1])
         return frames
 
-    #: a gap of fewer packets is a loss wherever it falls; a field-of-view sector is tens of packets wide
-    FOV_MIN_PACKETS = 8
-    #: two gaps are the same sector when both edges agree within this (a few packets' azimuth step)
-    FOV_EDGE_CDEG = 200
-
-    def _outside_fov(self, raw: DataPackets, missing: np.ndarray) -> np.ndarray:
-        """``missing`` less the gaps of a restricted field of view: a sensor set to send only part of its
-        rotation leaves a gap at the same azimuth sector (from the last azimuth before it to the first after)
-        every rotation; lost packets fall anywhere. The first gap of a sector is counted lost until the
-        next rotation shows the same sector; then it is moved from lost to ``outside_fov_packets``."""
-        wide = np.flatnonzero(missing >= self.FOV_MIN_PACKETS)
-        if wide.size == 0:
-            return missing
-        missing = missing.copy()
-        last = self._last_packet_az_cdeg
-        for i in wide.tolist():
-            before = int(raw.azimuth_cdeg[i - 1, -1]) if i > 0 else last
-            if before is None:
-                continue
-            sector = (before, int(raw.azimuth_cdeg[i, 0]))
-            same = [k for k, (known, _) in enumerate(self._gap_sectors)
-                    if all(abs((a - b + 18000) % 36000 - 18000) <= self.FOV_EDGE_CDEG for a, b in zip(known, sector))]
-            n = int(missing[i])
-            if not same:
-                self._gap_sectors = (self._gap_sectors + [(sector, n)])[-8:]  # counted lost for now
-                continue
-            k = same[0]
-            first = self._gap_sectors[k][1]
-            if first:  # the sector's first gap, counted lost then: a field of view after all
-                self.stats.lost_packets -= first
-                self.stats.outside_fov_packets += first
-                self._gap_sectors[k] = (self._gap_sectors[k][0], 0)
-            self.stats.outside_fov_packets += n
-            missing[i] = 0
-        return missing
-
-    def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> _Columns:
+    def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> Columns:
         if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path
             rate = self._packet_rates(raw, mode)
             rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), rate, self._row_laser,
                                              round(self.model.distance_resolution_m * 1000))
             per_packet = self.model.columns_per_packet(mode)
-            return self._finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet)
+            return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
+                                  self._last_az_cdeg)
         dual = mode == "dual"
         per_packet = self.model.columns_per_packet(mode)
         slots, seqs = (2 if dual else 1), self.model.sequences_per_block
@@ -515,7 +372,8 @@ class VelodyneDecoder:
         else:
             fa = firing_azimuth_cdeg(raw.azimuth_cdeg, False)  # [n, 12, 32]
         rng, refl, az_px = column_pixels(raw, fa, self._row_laser, slots, seqs)
-        return self._finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet)
+        return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
+                                  self._last_az_cdeg)
 
     def _packet_rates(self, raw: DataPackets, mode: str) -> np.ndarray:
         """``float32[N]`` rotation rate of each packet, 0.01° per second, as velodyne_decoder measures it."""
@@ -527,49 +385,7 @@ class VelodyneDecoder:
             self._prev_first_az, self._prev_stamp_us)
         return rate
 
-    def _finish_columns(self, rng: np.ndarray, refl: np.ndarray, az_px: np.ndarray, abs_ns: np.ndarray,
-                        index: np.ndarray, miss: np.ndarray, per_packet: int) -> _Columns:
-        """Column times, packet ordinals and the columns standing for lost packets, around the pixels."""
-        n, n_lasers, model, lasers = len(abs_ns), self.model.lasers, self.model, self._row_laser
-        col_az = az_px[int(np.flatnonzero(lasers == 0)[0])].astype(np.float64)  # laser 0 fires first
-        seq = np.rint(model.column_offset_ns + np.arange(per_packet) * float(model.sequence_ns)).astype(np.int64)
-        ts = (abs_ns[:, None] + seq[None, :]).reshape(-1)
-        pidx = np.repeat(index.astype(np.int64), per_packet)
-        total_missing = int(miss.sum())
-        if total_missing == 0:
-            lost = np.zeros(n * per_packet, np.int32)
-            return _Columns(rng, refl, az_px, col_az, np.ones(n * per_packet, bool), ts, pidx, lost)
-        # scatter the packets' columns among invalid columns standing for the lost packets
-        slot = np.arange(n) + np.cumsum(miss)
-        w = (n + total_missing) * per_packet
-        cols = (slot[:, None] * per_packet + np.arange(per_packet)[None, :]).reshape(-1)
-        r_out = np.zeros(rng.shape[:2] + (w,), np.uint32)
-        f_out = np.zeros(refl.shape[:2] + (w,), np.uint8)
-        a_out = np.zeros((n_lasers, w), np.uint16)
-        r_out[..., cols], f_out[..., cols], a_out[:, cols] = rng, refl, az_px
-        valid = np.zeros(w, bool)
-        valid[cols] = True
-        ts_out = np.zeros(w, np.int64)
-        ts_out[cols] = ts
-        p_out = np.full(w, -1, np.int64)
-        p_out[cols] = pidx
-        # one count at the first column of each lost packet, so that a frame cut inside a gap
-        # counts exactly the packets lost on its side
-        lost_slot = np.repeat(slot - miss, miss) + (np.arange(total_missing) - np.repeat(np.cumsum(miss) - miss, miss))
-        lost = np.zeros(w, np.int32)
-        lost[lost_slot * per_packet] = 1
-        # azimuth of lost columns: interpolated along the unwrapped azimuth of the valid ones
-        anchor_idx = [] if self._last_az_cdeg is None else [-1]
-        anchor_az = [] if self._last_az_cdeg is None else [self._last_az_cdeg]
-        known_idx = np.concatenate([anchor_idx, cols]).astype(np.float64)
-        known_az = np.concatenate([anchor_az, col_az])
-        step = np.diff(known_az) % 36000.0
-        unwrapped = known_az[0] + np.concatenate([[0.0], np.cumsum(step)])
-        az_all = np.interp(np.arange(w, dtype=np.float64), known_idx, unwrapped) % 36000.0
-        az_all[cols] = col_az
-        return _Columns(r_out, f_out, a_out, az_all, valid, ts_out, p_out, lost)
-
-    def _append(self, cols: _Columns) -> list[Frame]:
+    def _append(self, cols: Columns) -> list[Frame]:
         key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
         if self.cut_on_block:
             key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
@@ -602,7 +418,7 @@ class VelodyneDecoder:
         self._start_unknown = end != "wrap"  # the next frame begins at a wrap only after one
         if not parts:
             return []
-        cols = _Columns.concat(parts)
+        cols = Columns.concat(parts)
         counters.lost_packets += int(cols.lost.sum())
         partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut")
         frame = self._make_frame(cols, partial, counters)
@@ -659,7 +475,7 @@ class VelodyneDecoder:
                 self._sensors[mode] = info
         return info
 
-    def _make_frame(self, cols: _Columns, partial: bool, counters: FrameCounters) -> Frame:
+    def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
         offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
         toff = np.where(cols.valid[None, :], offsets[:, None], 0)

@@ -285,5 +285,5 @@ def model_named(name: str) -> VelodyneModel:
     for model in MODELS:
         if model.name.replace(" ", "").replace("-", "").lower() == key:
             return model
-    raise UnknownSensorError(f"velodyne_model {name!r}: no such Velodyne model; lidarpkt decodes "
+    raise UnknownSensorError(f"model {name!r}: no such Velodyne model; lidarpkt decodes "
                              f"{', '.join(m.name for m in MODELS)}")

@@ -1,6 +1,6 @@
 """A VLP-16 stream's packets counted: what a payload size is, how many packets a gap lost, where a
 rotation ends. The decoder (:mod:`lidarpkt.vendors.velodyne.frames`) and the recorder's live path
-(:class:`PacketCounter`, through :mod:`lidarpkt.core.streams`) both use these rules, so that they cannot
+(:class:`PacketCounter`, the registry record's ``counter``) both use these rules, so that they cannot
 disagree about packet periods and rotations.
 
 * Packet period: the model table's (:meth:`VelodyneModel.packet_period_us`: 1327.104 µs in the

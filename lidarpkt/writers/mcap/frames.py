@@ -19,15 +19,20 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Iterable, Sequence, cast
 
 import numpy as np
 
+from lidarpkt.containers import rosmsgs
+from lidarpkt.core.ros import Topic
 from lidarpkt.errors import OutputError
 
 from ..base import BaseWriter
 from . import schemas
-from .pointcloud import FRAME_IDS, image_messages, pointcloud_messages
+from .packets import CaptureTimes, PacketSink
+from .pending import PendingFrames
+from .pointcloud import default_frame_id, image_messages, pointcloud_messages
+from .writer import McapWriter
 
 TOPIC_GROUPS = ("packets", "points", "images")
 Mount = tuple[float, float, float, float, float, float]
@@ -42,6 +47,21 @@ def parse_mount(text: str) -> Mount:
     if len(values) != 6 or not all(np.isfinite(values)):
         raise OutputError(f"--mount {text}: give six numbers x,y,z,roll,pitch,yaw (metres, degrees)")
     return values  # type: ignore[return-value]
+
+
+def calibration_file(metadata: Iterable[Any]) -> str | None:
+    """Of the sensor files given (paths, as ``lidarpkt.open`` takes them), the one an MCAP of the frames records
+    as their calibration (``calibration=`` of :class:`McapFrameWriter`): the first whose vendor writes no
+    messages of its own for it (those are recorded with the packets); ``None`` when there is none.
+
+    Raises what :func:`lidarpkt.vendors.registry.load_sensor_files` raises."""
+    from lidarpkt.vendors import registry
+
+    given = [m for m in metadata if isinstance(m, (str, os.PathLike))]
+    for path, f in zip(given, registry.load_sensor_files(given)):
+        if registry.vendor(f.vendor).ros.sensor_file_messages is None:
+            return str(path)
+    return None
 
 
 def mount_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, float, float, float]:
@@ -110,7 +130,7 @@ class SensorFrames:
             name = self._ordered[self._unkeyed]
             self._unkeyed += 1
         if name is None:
-            base = FRAME_IDS.get(sensor.vendor, sensor.vendor)
+            base = default_frame_id(sensor.vendor)
             same = sum(1 for k in self._assigned if k[0] == sensor.vendor)
             name = base if same == 0 else f"{base}_{same}"
         if name in self._assigned.values():
@@ -126,9 +146,9 @@ class SensorFrames:
         index = list(self._assigned).index(self.key(sensor))
         x, y, z, roll, pitch, yaw = self.mounts[index] if index < len(self.mounts) else (0.0,) * 6
         qx, qy, qz, qw = mount_quaternion(roll, pitch, yaw)
-        t = schemas.typestore().types
+        t = rosmsgs.typestore().types
         stamped = t["geometry_msgs/msg/TransformStamped"](
-            header=schemas.header(stamp_ns, self.base_frame), child_frame_id=name,
+            header=rosmsgs.header(stamp_ns, self.base_frame), child_frame_id=name,
             transform=t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
                 rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
@@ -138,12 +158,21 @@ class SensorFrames:
 def frame_log_time(frame, offsets: dict[str, int]) -> int:
     """When the frame's last packet was received (host time, ns): its last column's sensor time plus
     its source's clock offset (the only offset when the frame's source is not named)."""
+    return frame_end_ns(frame) + clock_offset(frame.sensor.source, offsets)
+
+
+def frame_end_ns(frame) -> int:
+    """The sensor time (ns) of the frame's last valid column (its first column's when none is valid)."""
     valid = frame.column_timestamp_ns[frame.column_valid]
-    end = int(valid.max()) if valid.size else frame.timestamp_ns
-    offset = offsets.get(frame.sensor.source)
+    return int(valid.max()) if valid.size else frame.timestamp_ns
+
+
+def clock_offset(source: str | None, offsets: dict[str, int]) -> int:
+    """``source``'s clock offset (host − sensor time, ns); the only one when ``source`` has none; else 0."""
+    offset = offsets.get(source) if source is not None else None
     if offset is None:
         offset = next(iter(offsets.values())) if len(offsets) == 1 else 0
-    return end + offset
+    return offset
 
 
 class FrameTopics:
@@ -163,61 +192,71 @@ class FrameTopics:
     def write(self, frame, log_time_ns: int, tf_time_ns: int | None = None) -> None:
         """Write one frame's messages at ``log_time_ns``; a new sensor's mount first, at ``tf_time_ns``."""
         if self.sensors.is_new(frame.sensor):
-            tf = self.sensors.transform(frame.sensor, log_time_ns if tf_time_ns is None else tf_time_ns)
-            if tf is not None:
-                self.mcap.write_latched(schemas.TF_STATIC, schemas.encode(schemas.TF_MESSAGE, tf),
-                                        log_time_ns if tf_time_ns is None else tf_time_ns,
-                                        key=self.sensors.frame_id(frame.sensor))
+            self.mount(frame.sensor, log_time_ns if tf_time_ns is None else tf_time_ns)
+        for topic, msg in self.messages(frame):
+            self.mcap.write_message(topic, msg, log_time_ns)
+
+    def mount(self, sensor, time_ns: int) -> None:
+        """Write ``sensor``'s mount on the base frame to ``/tf_static`` (stamped and logged at ``time_ns``), if
+        there is a base frame."""
+        tf = self.sensors.transform(sensor, time_ns)
+        if tf is not None:
+            self.mcap.write_latched(schemas.TF_STATIC, rosmsgs.encode(schemas.TF_MESSAGE, tf), time_ns,
+                                    key=self.sensors.frame_id(sensor))
+
+    def messages(self, frame) -> list:
+        """``(topic, message)`` of the frame's point clouds and/or images, in its sensor's frame."""
         name = self.sensors.frame_id(frame.sensor)
         messages: list = []
         if "points" in self.groups:
             messages += pointcloud_messages(frame, frame_id=name)
         if "images" in self.groups:
             messages += image_messages(frame, frame_id=name)
-        for topic, msg in messages:
-            self.mcap.write_message(topic, msg, log_time_ns)
+        return messages
 
 
 class McapFrameWriter(BaseWriter):
     """ROS 2 MCAP of a capture: its raw packets and its frames' messages (see the module doc).
 
-    What ``lidarpkt decode IN -o OUT.mcap`` writes, from Python:
+    What ``lidarpkt decode IN -o OUT.mcap`` writes, from Python (one pass over the capture hands the
+    writer its packets and frames, :func:`lidarpkt.writers.write_captures`):
 
-    >>> with open_writer("mcap", "out.mcap", capture="drive.pcap", topics=("packets", "points")) as w:  # doctest: +SKIP
-    ...     for frame in lidarpkt.open("drive.pcap"):
-    ...         w.write(frame)
+    >>> with open_writer("mcap", "out.mcap", topics=("packets", "points")) as w:  # doctest: +SKIP
+    ...     write_captures(["drive.pcap"], [w])
 
-    The packets and their capture times come from the capture itself (``capture``, read again
-    here; the frames need not be all of it): before the first frame (or at :meth:`close` when no
-    frame comes), :meth:`add_capture` writes the capture's packets when ``packets`` is among the
-    topics (:class:`~lidarpkt.writers.mcap.packets.PacketSink`) and measures its clock offsets and
-    span (:func:`~lidarpkt.writers.mcap.packets.capture_times`), the frames' log times. Call
-    :meth:`add_capture` yourself to put the frames of several captures in one file.
+    Of each capture (:meth:`begin_capture` … :meth:`end_capture`) it writes the packets when ``packets`` is
+    among the topics (:class:`~lidarpkt.writers.mcap.packets.PacketSink`) and measures its clock offsets and
+    span (:class:`~lidarpkt.writers.mcap.packets.CaptureTimes`), the frames' log times; a frame whose log
+    time the rest of the capture may still change waits (:class:`~lidarpkt.writers.mcap.pending.PendingFrames`),
+    as do each sensor's mount and the sensor files' latched messages, logged at the capture's start. Frames written with
+    :meth:`write` alone, without a pass, are logged at their sensor time (unless the times are given).
 
     Args:
         out: the ``.mcap`` file (its folder must exist).
-        capture: the capture file the frames come from (pcap/pcapng, MCAP, bag). ``None`` (or a name
-            that is no file) writes frames only, logged at their sensor time; ``packets`` needs the file.
+        capture: the name of the capture the frames come from (recorded in the file's metadata when
+            frames come without a pass).
         part: see :func:`lidarpkt.writers.open_writer`.
         topics: groups among ``packets``, ``points``, ``images``.
         frame_ids, base_frame, mounts: see :class:`SensorFrames`.
-        metadata: the Ouster metadata of the capture's sensors, as ``lidarpkt.open`` takes it (paths,
-            dicts or loaded, one per sensor): which packets are Ouster packets, and their clocks. The
-            capture's own ``/ouster/metadata`` serves when none is given.
-        calibration: the VLP-16 calibration file the frames were decoded with, recorded in the file's
-            metadata (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
+        metadata: the sensor files of the capture's sensors, as ``lidarpkt.open`` takes them (paths or
+            loaded, one per sensor): what their packets are, and their clocks. By default those the pass
+            recognises them with (given to it, or recorded in the capture).
+        calibration: the calibration file the frames were decoded with, recorded in the file's metadata
+            (``lidarpkt.calibration``, and ``lidarpkt.frames`` of each sensor); ``None``: stock.
         clock_offsets, start_ns, end_ns: host − sensor time (ns) per source address, the capture's
             first and last packet host times (see :func:`frame_log_time`), to use instead of measuring
-            them from ``capture``.
+            them from the packets.
         chunk_bytes: MCAP chunk size.
 
     Raises:
-        OutputError: an unknown topic group; ``packets`` without a capture; the output cannot be
-            written. MetadataError: ``metadata`` is no Ouster metadata. What reading the capture
-            raises (:func:`lidarpkt.containers.open_packet_source`), from :meth:`add_capture`.
+        OutputError: an unknown topic group; ``packets`` given frames without a pass (at the first frame,
+            or at :meth:`close`); the output cannot be written. MetadataError: a file of ``metadata`` is of
+            no kind lidarpkt reads.
     """
 
     suffix = ".mcap"
+    wants_packets = True
+    pending_bytes = 64 << 20  # encoded frame messages held in memory while their log time waits
 
     def __init__(self, out: str | os.PathLike[str], *, capture: Any = None, part: str | None = None,
                  topics: Iterable[str] = ("points",), frame_ids: Sequence[str] | str | None = None,
@@ -225,36 +264,44 @@ class McapFrameWriter(BaseWriter):
                  metadata: Any = None, calibration: str | os.PathLike[str] | None = None,
                  clock_offsets: dict[str, int] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None, chunk_bytes: int = 4 << 20) -> None:
-        from lidarpkt.pipeline.options import load_ouster_metadata
-
-        from .writer import McapWriter
+        from lidarpkt.vendors import registry
 
         super().__init__(out, capture=capture, part=part)
         groups = set(topics)
         if not groups or groups - set(TOPIC_GROUPS):
             raise OutputError(f"topics={','.join(sorted(groups))}: choose among {', '.join(TOPIC_GROUPS)}")
-        readable = capture is not None and (Path(capture).is_file() or Path(capture).is_dir())
-        if "packets" in groups and not readable:
-            raise OutputError(f"topics=packets: the packets are read from the capture, and capture={capture} is "
-                              "no file; give capture=<the capture's path>")
         sensors = SensorFrames(frame_ids, base_frame, mounts)
-        self.ouster_metadata = load_ouster_metadata(metadata)
+        self.sensor_files = registry.load_sensor_files(metadata)
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
-        self.mcap = McapWriter(self._tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        self.mcap = self._open_messages(self._tmp, chunk_bytes)
         self.groups = groups
+        self.wants_frames = bool(groups & {"points", "images"})
         self.topics = FrameTopics(self.mcap, groups, sensors)
         self.clock_offsets = dict(clock_offsets or {})
         self.start_ns, self.end_ns = start_ns, end_ns
         self._given_times = clock_offsets is not None or start_ns is not None or end_ns is not None
-        self._pending_capture = str(capture) if readable else None
         self._input: str | None = None if capture is None else str(capture)
         self._described: set[tuple] = set()
+        self._capture: Any = None  # the capture being handed (begin_capture … end_capture)
+        self._captures = 0
+        self._times: CaptureTimes | None = None  # its times, while they are being measured
+        self._sink: PacketSink | None = None
+        self._sink_out: _SinkOutput | None = None
+        self._pending = PendingFrames(self._tmp.parent, self.pending_bytes)
+        self._unmounted: list = []  # sensors whose mount waits for the capture's start
         self.packet_messages = 0  # packet messages written (what `lidarpkt info` counts as the packets)
-        self.decoded_messages = 0  # /ouster/imu and /ouster/zone_states messages written beside them
+        self.decoded_messages = 0  # messages decoded from the packets (IMU samples...) written beside them
         if self.calibration is not None:
             self._add_calibration_record(self.calibration)
+
+    def _open_messages(self, tmp: Path, chunk_bytes: int) -> Any:
+        """Where the messages go: a :class:`~lidarpkt.writers.mcap.writer.McapWriter` on ``tmp``. The ROS bag
+        writers (:mod:`lidarpkt.writers.rosbag`) give their bag files with the same methods instead."""
+        from .writer import McapWriter
+
+        return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
 
     def _add_calibration_record(self, calibration: str) -> None:
         try:
@@ -264,46 +311,57 @@ class McapFrameWriter(BaseWriter):
                               f"{exc.strerror or exc}") from exc
         self.mcap.add_metadata("lidarpkt.calibration", {"path": calibration, "content": text})
 
-    def add_capture(self, capture: str | os.PathLike[str], *, progress: Callable[[int], None] | None = None) -> None:
-        """The capture whose frames come next: its packets are written (``packets`` topic) and its clock
-        offsets and span measured (unless given to the constructor). ``progress(bytes_read)`` is called
-        as its packets are read."""
-        from lidarpkt.containers import open_packet_source
-        from lidarpkt.containers.magic import is_osf
-        from lidarpkt.containers.protocol import embedded_ouster_metadata
-
-        from .packets import PacketSink, capture_times
-
-        self._pending_capture = None
-        self._input = str(capture)
-        mds = self.ouster_metadata
-        if is_osf(capture):  # decoded frames, no packets: the span they were received in
-            if not self._given_times:
-                from lidarpkt.vendors.ouster.osf import receive_span
-
-                self.set_capture_times({}, *receive_span(capture))
+    # ------------------------------------------------------------------ the pass
+    def begin_capture(self, capture: Any) -> None:
+        """The capture whose packets and frames come next (a :class:`lidarpkt.pipeline.passes.Capture`)."""
+        if self._capture is not None:
+            self.end_capture(self._capture)
+        self._capture = capture
+        self._captures += 1
+        self._input = str(capture.path)
+        self._sink = self._sink_out = None
+        self._times = None
+        if self._given_times:
             return
-        if not self._given_times:
-            self.set_capture_times(*capture_times(capture, mds))
-        if "packets" not in self.groups:
-            return
-        if not mds:
-            from lidarpkt.pipeline.options import load_ouster_metadata
+        span = capture.receive_span()  # an OSF file: decoded frames, no packets: the span they were received in
+        if span is not None:
+            self.set_capture_times({}, *span)
+        else:
+            self._times = CaptureTimes()
 
-            embedded = embedded_ouster_metadata(capture)
-            mds = load_ouster_metadata(embedded) if embedded else []
-        before = self.mcap.messages_written
-        sink = PacketSink(self.mcap, ouster_metadata=mds, log_time_ns=self.start_ns)
-        reader = open_packet_source(capture)
-        for batch in reader.batches():
-            sink.push(batch)
-            if progress is not None:
-                done = getattr(reader.stats, "bytes_read", None)
-                if done is not None:
-                    progress(int(done))
-        sink.finish()
-        self.decoded_messages += sink.decoded_messages
-        self.packet_messages += self.mcap.messages_written - before - sink.decoded_messages
+    def write_packets(self, batch: Any, stream: Any) -> None:
+        """One batch of the capture in hand: its packets written (``packets`` topic), its times measured."""
+        if self._capture is None:
+            raise OutputError(f"{self.out}: packets come within a capture; call begin_capture(capture) first")
+        files = self.sensor_files or self._capture.sensor_files
+        if self._times is not None:
+            self._times.add(batch, files)
+            self._settle(final=False)
+        if "packets" in self.groups:
+            if self._sink is None:
+                self._sink_out = _SinkOutput(self.mcap)
+                self._sink = PacketSink(cast(McapWriter, self._sink_out), metadata=files)
+            self._sink.push(batch)
+
+    def end_capture(self, capture: Any = None) -> None:
+        """The capture in hand is complete: the frames waiting for its span are written, and each new sensor's
+        mount and the sensor files' latched messages at its start."""
+        if self._capture is None:
+            return
+        self._capture = None
+        times, self._times = self._times, None
+        if times is not None:
+            self.set_capture_times(times.offsets, times.start_ns, times.end_ns)
+        self._settle(final=True)
+        for sensor in self._unmounted:  # (frames come from packets: the capture has a start)
+            self.topics.mount(sensor, self.start_ns or 0)
+        self._unmounted.clear()
+        if self._sink is not None and self._sink_out is not None:
+            self._sink.finish()
+            self._sink_out.release(self.start_ns or 0)
+            self.decoded_messages += self._sink.decoded_messages
+            self.packet_messages += self._sink_out.messages - self._sink.decoded_messages
+            self._sink = self._sink_out = None
 
     def set_capture_times(self, clock_offsets: dict[str, int], start_ns: int | None, end_ns: int | None) -> None:
         """The clock offsets and time span of the capture whose frames come next."""
@@ -311,16 +369,45 @@ class McapFrameWriter(BaseWriter):
         self.start_ns, self.end_ns = start_ns, end_ns
 
     def log_time(self, frame) -> int:
-        t = frame_log_time(frame, self.clock_offsets)
+        return self._clamp(frame_log_time(frame, self.clock_offsets))
+
+    def _clamp(self, t: int) -> int:
         if self.end_ns is not None:
             t = min(t, self.end_ns)
         if self.start_ns is not None:
             t = max(t, self.start_ns)
         return t
 
+    def _settled(self, end_ns: int, source: str | None) -> bool:
+        """Whether the rest of the capture can no longer change this frame's log time."""
+        times = self._times
+        if times is None or times.start_ns is None or times.end_ns is None:
+            return False
+        if not (times.offsets_final or source in times.offsets):
+            return False
+        return times.start_ns <= end_ns + clock_offset(source, times.offsets) <= times.end_ns
+
+    def _settle(self, final: bool) -> None:
+        """Write the waiting frames whose log time is now known (all of them at the capture's end)."""
+        if not len(self._pending):
+            return
+        if final:
+            waiting = list(self._pending.drain())
+            offsets = self.clock_offsets
+        else:
+            waiting = self._pending.take(self._settled)
+            offsets = self._times.offsets if self._times is not None else {}
+        for end_ns, source, messages in waiting:
+            t = end_ns + clock_offset(source, offsets)
+            t = self._clamp(t) if final else t  # a settled time is inside the span
+            for topic, data in messages:
+                self.mcap.write(topic, data, t)
+
+    # ------------------------------------------------------------------ frames
     def _write(self, frame) -> None:
-        if self._pending_capture is not None:
-            self.add_capture(self._pending_capture)
+        if "packets" in self.groups and self._capture is None and not self._captures:
+            raise OutputError(f"{self.out}: topics=packets: the packets come from the pass over the capture; write "
+                              "with lidarpkt.writers.write_captures([capture], [writer]), not frames alone")
         if not self.groups & {"points", "images"}:
             return
         sensor_key = (frame.sensor.vendor, frame.sensor.source, frame.sensor.model)
@@ -329,13 +416,58 @@ class McapFrameWriter(BaseWriter):
             self.mcap.add_metadata("lidarpkt.frames", {
                 "input": str(self._input), "sensor_info": json.dumps(frame.sensor.describe(), default=str),
                 "calibration": self.calibration or "stock"})
-        self.topics.write(frame, self.log_time(frame), self.start_ns)
+        if self._times is None:  # the times are known: given, an OSF file's span, or none (sensor time)
+            self.topics.write(frame, self.log_time(frame), self.start_ns)
+            return
+        sensors = self.topics.sensors
+        if sensors.is_new(frame.sensor):
+            sensors.frame_id(frame.sensor)  # named in order of appearance, mounted at the capture's start
+            self._unmounted.append(frame.sensor)
+        end_ns, source = frame_end_ns(frame), frame.sensor.source
+        if self._settled(end_ns, source):
+            t = end_ns + clock_offset(source, self._times.offsets)
+            for topic, msg in self.topics.messages(frame):
+                self.mcap.write_message(topic, msg, t)
+        else:
+            self._pending.add(end_ns, source, [(topic, rosmsgs.encode(topic.msgtype, msg))
+                                               for topic, msg in self.topics.messages(frame)])
 
     def _finish(self) -> None:
-        if self._pending_capture is not None:  # no frame came: the capture's packets all the same
-            self.add_capture(self._pending_capture)
+        if self._capture is not None:  # a pass stopped short (damage): what it handed is written
+            self.end_capture(self._capture)
+        if "packets" in self.groups and not self._captures:
+            raise OutputError(f"{self.out}: topics=packets: no capture was handed to the writer; write with "
+                              "lidarpkt.writers.write_captures([capture], [writer])")
         self.mcap.close()
         self.files.commit(self._tmp)
 
     def _release(self) -> None:
+        self._pending.close()
         self.mcap._abandon()  # close without a summary; the temporary is removed next
+
+
+class _SinkOutput:
+    """What a capture's :class:`~lidarpkt.writers.mcap.packets.PacketSink` writes to: the MCAP file, its
+    messages counted; its latched messages (the sensor files', logged at the capture's start) held until
+    :meth:`release` gives that start."""
+
+    def __init__(self, mcap: McapWriter) -> None:
+        self.mcap = mcap
+        self.messages = 0
+        self._latched: list[tuple[Topic, bytes, str]] = []
+
+    def write(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        self.messages += 1
+        self.mcap.write(topic, data, log_time_ns, publish_time_ns)
+
+    def write_latched(self, topic: Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
+        self.messages += 1
+        self._latched.append((topic, data, key))
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self.mcap.add_metadata(name, data)
+
+    def release(self, log_time_ns: int) -> None:
+        for topic, data, key in self._latched:
+            self.mcap.write_latched(topic, data, log_time_ns, key=key)
+        self._latched.clear()

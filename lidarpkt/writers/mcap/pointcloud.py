@@ -1,14 +1,14 @@
 """Frames as ROS 2 messages: organised ``sensor_msgs/PointCloud2`` and ``sensor_msgs/Image``.
 
 One point cloud per return slot. The cloud is organised: ``height`` = H rows (row 0 = the
-top beam, as in :class:`lidarpkt.core.frame.Frame`), ``width`` = W columns; Ouster clouds and
-images are destaggered (as ouster-ros publishes them), VLP-16 ones keep the firing order.
+top beam, as in :class:`lidarpkt.core.frame.Frame`), ``width`` = W columns; clouds and images of
+staggered frames are destaggered (as ouster-ros publishes them), the others keep the firing order.
 Pixels without a return (range 0, or a column no packet delivered) have NaN x, y, z, and the
 cloud's ``is_dense`` is false (the ROS convention for an organised cloud: viewers skip them
 instead of drawing them on the sensor's origin); their other fields say what the image says of
 the pixel (its row, its column's time, the sensor's reflectivity). The returns are the rows of
 ``Frame.points()``, the same as every other point output. The ``header.frame_id`` is the sensor's
-(:class:`lidarpkt.writers.mcap.frames.SensorFrames`; by default ``velodyne`` / ``os_sensor``).
+(:class:`lidarpkt.writers.mcap.frames.SensorFrames`; by default its vendor's driver's, ``velodyne`` / ``os_sensor``).
 
 Point fields (the layout is :data:`POINT_DTYPE`; the PointField list derives from it):
 
@@ -29,6 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarpkt.core.ros import Topic
+from lidarpkt.core.vendor import FrameTopics
+from lidarpkt.containers import rosmsgs
 from . import schemas
 
 POINT_DTYPE = np.dtype(
@@ -39,12 +42,23 @@ POINT_DTYPE = np.dtype(
 # sensor_msgs/PointField datatype codes
 _DATATYPE = {np.dtype("<f4"): 7, np.dtype("<u2"): 4, np.dtype("<u4"): 6, np.dtype("<f8"): 8, np.dtype("u1"): 2}
 
-FRAME_IDS = {"velodyne": "velodyne", "ouster": "os_sensor"}
+
+def _frame_topics(frame) -> FrameTopics:
+    from lidarpkt.vendors import registry
+
+    return registry.vendor(frame.sensor.vendor).ros.frames
+
+
+def default_frame_id(vendor: str) -> str:
+    """The default coordinate frame of a ``vendor`` sensor: its ROS driver's (``velodyne``, ``os_sensor``)."""
+    from lidarpkt.vendors import registry
+
+    return registry.vendor(vendor).ros.frames.frame_id
 
 
 def point_fields() -> list:
     """The ``sensor_msgs/msg/PointField`` list of :data:`POINT_DTYPE`."""
-    pf = schemas.typestore().types["sensor_msgs/msg/PointField"]
+    pf = rosmsgs.typestore().types["sensor_msgs/msg/PointField"]
     from lidarpkt.containers.layouts import field_info, field_names
 
     return [pf(name=name, offset=field_info(POINT_DTYPE, name)[1], datatype=_DATATYPE[POINT_DTYPE[name]],
@@ -52,8 +66,8 @@ def point_fields() -> list:
 
 
 def _display(frame, image: np.ndarray) -> np.ndarray:
-    """``[..., H, W]`` image in display order: destaggered for Ouster, unchanged otherwise."""
-    return frame.destaggered(image) if frame.sensor.vendor == "ouster" else image
+    """``[..., H, W]`` image in display order: destaggered for a staggered frame, unchanged otherwise."""
+    return frame.destaggered(image)
 
 
 def cloud_fields(frame, points: np.ndarray) -> np.ndarray:
@@ -62,9 +76,10 @@ def cloud_fields(frame, points: np.ndarray) -> np.ndarray:
     out = np.empty(points.size, POINT_DTYPE)
     out["x"], out["y"], out["z"] = points["x"], points["y"], points["z"]
     out["reflectivity"] = points["reflectivity"]
-    ouster_signal = frame.sensor.vendor == "ouster" and "signal" in (points.dtype.names or ())
-    out["intensity"] = points["signal"] if ouster_signal else points["reflectivity"]
-    out["ring"] = (frame.shape[1] - 1 - points["row"]) if frame.sensor.vendor == "velodyne" else points["row"]
+    ros = _frame_topics(frame)
+    intensity = ros.intensity if ros.intensity in (points.dtype.names or ()) else "reflectivity"
+    out["intensity"] = points[intensity]
+    out["ring"] = (frame.shape[1] - 1 - points["row"]) if ros.ring_from_bottom else points["row"]
     out["time"] = (points["timestamp_ns"] - frame.timestamp_ns).astype(np.float64) * 1e-9
     out["range"] = points["range_mm"]
     return out
@@ -108,16 +123,16 @@ def frame_points(frame, points: np.ndarray | None = None) -> np.ndarray:
 
 
 def pointcloud_messages(frame, points: np.ndarray | None = None, *,
-                        frame_id: str | None = None) -> list[tuple[schemas.Topic, object]]:
+                        frame_id: str | None = None) -> list[tuple[Topic, object]]:
     """``(topic, PointCloud2)`` for each return slot of ``frame``; ``header.stamp`` = sensor time,
-    ``header.frame_id`` = ``frame_id`` (default: the vendor's, :data:`FRAME_IDS`); ``points`` is
+    ``header.frame_id`` = ``frame_id`` (default: the vendor's, :func:`default_frame_id`); ``points`` is
     ``frame.points()`` when already computed."""
     pts = frame_points(frame, points)
-    store = schemas.typestore()
+    store = rosmsgs.typestore()
     pc2 = store.types[schemas.POINTCLOUD2]
     r, h, w = pts.shape
     fields = point_fields()
-    hdr = schemas.header(frame.timestamp_ns, frame_id or FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
+    hdr = rosmsgs.header(frame.timestamp_ns, frame_id or default_frame_id(frame.sensor.vendor))
     out = []
     for slot in range(r):
         data = np.ascontiguousarray(pts[slot]).view(np.uint8).reshape(-1)
@@ -128,12 +143,12 @@ def pointcloud_messages(frame, points: np.ndarray | None = None, *,
     return out
 
 
-def image_messages(frame, *, frame_id: str | None = None) -> list[tuple[schemas.Topic, object]]:
+def image_messages(frame, *, frame_id: str | None = None) -> list[tuple[Topic, object]]:
     """Range (``32FC1``, metres) and reflectivity (``mono8``) images of each return slot."""
-    store = schemas.typestore()
+    store = rosmsgs.typestore()
     img = store.types[schemas.IMAGE]
     r, h, w = frame.shape
-    hdr = schemas.header(frame.timestamp_ns, frame_id or FRAME_IDS.get(frame.sensor.vendor, frame.sensor.vendor))
+    hdr = rosmsgs.header(frame.timestamp_ns, frame_id or default_frame_id(frame.sensor.vendor))
     rng_m = _display(frame, frame.range_mm).astype("<f4") * np.float32(1e-3)
     refl = _display(frame, frame.reflectivity).astype(np.uint8)
     out = []

@@ -29,8 +29,10 @@ from typing import TYPE_CHECKING, BinaryIO, Callable
 
 from lidarpkt.errors import DiskFullError, OutputError
 
+from lidarpkt.containers import rosmsgs
+
 from . import schemas
-from .schemas import Topic
+from lidarpkt.core.ros import Topic
 
 if TYPE_CHECKING:
     from mcap.writer import Writer
@@ -176,7 +178,7 @@ class McapWriter:
 
     def write_message(self, topic: Topic, message: object, log_time_ns: int) -> None:
         """Encode a rosbags message object of ``topic.msgtype`` and write it."""
-        self.write(topic, schemas.encode(topic.msgtype, message), log_time_ns)
+        self.write(topic, rosmsgs.encode(topic.msgtype, message), log_time_ns)
 
     def write_latched(self, topic: Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
         """Write a message that every rotated file must start with (``/ouster/metadata``, ``/tf_static``).

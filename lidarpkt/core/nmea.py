@@ -1,6 +1,9 @@
-"""NMEA $GPRMC / $GPGGA sentences as VLP-16 position packets carry them (checksum verified).
+"""NMEA $GPRMC / $GPGGA sentences as a GPS receiver sends them, and lidar position packets carry them
+(checksum verified), and the UTC time of a fix.
 
-Only what the decoder needs: UTC date and time, fix validity, latitude and longitude.
+Only what the decoders and the recorder need: UTC date and time, fix validity, latitude and longitude.
+$GPGGA carries a time of day and no date: the day comes from a reference (the capture clock), so that
+the decoders and the recorder's GPS reader cannot disagree about which day a fix is on.
 """
 
 from __future__ import annotations
@@ -140,3 +143,23 @@ def parse_sentence_rows(rows: np.ndarray) -> tuple[list[NMEAFix | None], np.ndar
         except NMEAError:
             fixes.append(None)
     return fixes, inverse.ravel()
+
+
+DAY_NS = 24 * 3_600_000_000_000
+
+
+def on_nearest_day_ns(time_of_day_ns: int, reference_ns: int) -> int:
+    """ns since the epoch of a UTC time of day (ns past midnight) on the day that puts it nearest
+    ``reference_ns`` (the host clock, say). Exactly half a day away goes to the later day."""
+    return time_of_day_ns + (reference_ns - time_of_day_ns + DAY_NS // 2) // DAY_NS * DAY_NS
+
+
+def fix_time_ns(fix, reference_ns: int | None) -> int | None:
+    """UTC of an :class:`NMEAFix`, ns since the epoch: its date and time
+    ($GPRMC), else its time of day on the day nearest ``reference_ns`` ($GPGGA), else ``None``
+    (no time in the sentence, or a time of day and no reference)."""
+    if fix.utc_ns is not None:
+        return int(fix.utc_ns)
+    if fix.time_of_day_s is None or not reference_ns:
+        return None
+    return on_nearest_day_ns(round(fix.time_of_day_s * 1e9), int(reference_ns))
