@@ -39,7 +39,8 @@ import itertools
 
 import numpy as np
 
-from lidarpkt.core.frame import Frame, FrameCounters, SensorInfo
+from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn
 from lidarpkt.core.rotation import rotation_is_whole, wrapped

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarpkt.core.frame import SensorInfo
+from lidarpkt.core.sensor import SensorInfo
 from .calibration import RobosenseCalibration
 from .difop import DeviceInfo
 from .geometry import RobosenseGeometry
