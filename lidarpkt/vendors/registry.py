@@ -20,11 +20,11 @@ from lidarpkt.containers.rosmsgs import STAMPED_PACKET, stamped_packet
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.vendor import DecodeSetup, FrameFiles, Match, Vendor
 from lidarpkt.errors import MetadataError
-from . import hesai, ouster, velodyne
+from . import hesai, ouster, robosense, velodyne
 
 #: The vendors, in the order their classifiers are asked (Ouster first: with its metadata given, a stream
 #: that fits the metadata is the sensor's, whatever its size says otherwise).
-VENDORS: tuple[Vendor, ...] = (ouster.VENDOR, velodyne.VENDOR, hesai.VENDOR)
+VENDORS: tuple[Vendor, ...] = (ouster.VENDOR, velodyne.VENDOR, hesai.VENDOR, robosense.VENDOR)
 
 _BY_NAME = {v.name: v for v in VENDORS}
 _SNIFF_BYTES = 64 << 10  # a sensor file is told by its first 64 KiB

@@ -78,7 +78,7 @@ def test_flipped_bytes_are_counted_and_losses_stay_physical(bag, baseline):
     payload, stamps = bag
     rng = np.random.default_rng(11)
     span_packets = (stamps[-1] - stamps[0]) / PERIOD_NS
-    for trial in range(6):
+    for _trial in range(6):
         bad = payload.copy()
         rows = rng.choice(len(bad), 40, replace=False)
         cols = rng.integers(0, P.PACKET_SIZE, 40)

@@ -11,7 +11,7 @@ from robosense_bag import CSV, FOLDER, all_packets, batches, messages
 from conftest import external
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.errors import CalibrationError
-from lidarpkt.vendors.robosense import (DEFAULT_PORTS, MESSAGE_DEFINITIONS, PacketCounter, classify, describe_stream,
+from lidarpkt.vendors.robosense import (MESSAGE_DEFINITIONS, PacketCounter, classify, describe_stream,
                                         is_robosense_calibration, load_calibration, parse_calibration)
 from lidarpkt.vendors.robosense import ros
 from lidarpkt.vendors.robosense.stream import stream_kind
@@ -53,11 +53,9 @@ def test_classify_and_describe():
     only = describe_stream(PacketBatch.from_payloads(difop))
     assert only["kind"] == "RoboSense DIFOP" and only["calibration"] == "DIFOP (32 lasers)"
     assert only["serial_number"] == "2410bac9d50b" and (only["msop_port"], only["difop_port"]) == (6699, 7788)
-    assert DEFAULT_PORTS == {"msop": 6699, "difop": 7788}
-    from lidarpkt.vendors.robosense.stream import default_ports
+    from lidarpkt.vendors.robosense.vendor import PORTS
 
-    ports = default_ports(msgs[3].payload)
-    assert set(ports[msgs[3].is_difop]) == {7788} and set(ports[~msgs[3].is_difop]) == {6699}
+    assert PORTS == {"msop": 6699, "difop": 7788}
 
 
 def test_ros_messages_out_of_the_bag_and_back():

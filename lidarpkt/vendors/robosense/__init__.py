@@ -6,7 +6,7 @@ Public names: :class:`RobosenseDecoder`, :func:`decode_packets`, :func:`detect_m
 :func:`describe_stream`, :func:`decode_difop`, :func:`encode_packets`, :func:`encode_difop`,
 :func:`load_calibration`, :func:`is_robosense_calibration`, :class:`RobosenseCalibration`,
 :class:`RobosenseModel`, :data:`MODELS`, :func:`model_named`, :class:`PacketCounter`,
-:data:`DEFAULT_PORTS`, :data:`MESSAGE_DEFINITIONS`.
+:data:`MESSAGE_DEFINITIONS`, :data:`VENDOR` (its registry record).
 
 Modules: ``packet`` (the byte layouts, declared once as NumPy dtypes), ``models`` (the model table: a
 model is a row), ``timing`` (firing times), ``decode`` (raw MSOP fields of a batch), ``difop`` (device
@@ -14,7 +14,7 @@ information), ``detect`` (MSOP or DIFOP, family, model), ``columns`` (packets to
 columns), ``frames`` (:class:`RobosenseDecoder`), ``sensor`` (its ``SensorInfo``), ``calibration``
 (the DIFOP's angles or the angle CSV), ``geometry`` (XYZ in rs_driver's and nebula's frame),
 ``stream`` (losses and rotations), ``describe`` (``info``), ``ros`` (``robosense_msgs``), ``encode``
-(the inverse).
+(the inverse), ``vendor`` (the registry record).
 """
 
 from __future__ import annotations
@@ -42,12 +42,11 @@ _LAZY: dict[str, str] = {
     "RobosenseModel": "models",
     "model_named": "models",
     "MESSAGE_DEFINITIONS": "ros",
-    "DEFAULT_PORTS": "stream",
     "PacketCounter": "stream",
+    "VENDOR": "vendor",
 }
 
 __all__ = [
-    "DEFAULT_PORTS",
     "MESSAGE_DEFINITIONS",
     "MODELS",
     "DecoderStats",
@@ -58,6 +57,7 @@ __all__ = [
     "RobosenseGeometry",
     "RobosenseModel",
     "RobosensePackets",
+    "VENDOR",
     "classify",
     "decode_difop",
     "decode_packets",

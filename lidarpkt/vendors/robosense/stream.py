@@ -23,15 +23,6 @@ from .decode import RobosensePackets, decode_packets
 from .detect import detect_model, is_difop
 from .models import RobosenseModel
 
-DEFAULT_PORTS = {"msop": 6699, "difop": 7788}  # the manuals' default destination ports
-
-
-def default_ports(payload: np.ndarray) -> np.ndarray:
-    """``uint16[N]``: the default destination port of each ``uint8[N, L]`` payload (a DIFOP's, else an
-    MSOP's): where replay and pcap export send packets that came without addresses (a ROS bag's)."""
-    return np.where(is_difop(payload), DEFAULT_PORTS["difop"], DEFAULT_PORTS["msop"]).astype(np.uint16)
-
-
 def packet_period_ns(model: RobosenseModel, n_returns: np.ndarray | int) -> np.ndarray:
     """``float64[...]``: time a packet spans in a mode of ``n_returns`` returns per firing."""
     single = float(model.blocks * model.block_period_ns)
