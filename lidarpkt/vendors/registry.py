@@ -153,6 +153,40 @@ def _load_one(item: Any) -> SensorFile:
     raise MetadataError(f"{name}: not a sensor file lidarpkt reads ({_what_it_is(text)}); give {_kinds()}")
 
 
+_IN_BAND_SPAN_NS = 1_500_000_000  # a sensor sending its file in-band sends it at least this often
+_IN_BAND_QUIET_NS = 100_000_000  # a capture none of whose streams of its first 0.1 s carries one has none
+
+
+def sensor_files_in_packets(path: str | os.PathLike[str], setup: DecodeSetup) -> list[SensorFile]:
+    """The sensor files the first packets of a capture carry (:attr:`~lidarpkt.core.vendor.Vendor.sensor_file_in_packets`),
+    one per vendor and source address, looked for in its first 1.5 s (0.1 s when no stream of a vendor that
+    sends one is there): what the reader of a later segment of the capture is given."""
+    if not any(v.sensor_file_in_packets is not None for v in VENDORS):
+        return []
+    found: dict[tuple, SensorFile] = {}
+    wanted: set[tuple] = set()
+    start = None
+    for batch in open_packets(path).batches():
+        t = int(batch.timestamp_ns[0]) if len(batch) else None
+        start = t if start is None else start
+        if t is not None and start is not None and (
+                t - start > _IN_BAND_SPAN_NS or (not wanted and t - start > _IN_BAND_QUIET_NS)):
+            break
+        match = classify(batch, setup)
+        v = vendor(match.vendor) if match is not None else None
+        if match is None or v is None or v.sensor_file_in_packets is None:
+            continue
+        key = (v.name, batch.src.address if batch.src is not None else None)
+        wanted.add(key)
+        if key not in found:
+            loaded = v.sensor_file_in_packets(batch, match)
+            if loaded is not None:
+                found[key] = SensorFile(v.name, f"{os.fspath(path)} (in its packets)", loaded)
+        if wanted <= set(found):
+            break
+    return list(found.values())
+
+
 def _kinds() -> str:
     whats = [v.sensor_files.what for v in VENDORS if v.sensor_files is not None]
     return ", ".join(whats[:-1]) + " or " + whats[-1] if len(whats) > 1 else whats[0]

@@ -99,3 +99,22 @@ def pcd(name: str) -> np.ndarray:
     for k, f in enumerate(PCD_FIELDS):
         out[f] = values[:, k]
     return out
+
+
+def sensor_packets() -> list:
+    """The bag's packets as the sensor sends them (:class:`~lidarpkt.core.packet.Packet`): from 192.168.1.200, MSOP to
+    port 6699 and DIFOP to port 7788 of 192.168.1.102, at their receive stamps."""
+    from lidarpkt.core.packet import Endpoint, Packet
+
+    payload, stamps = all_packets()
+    difop = np.all(payload[:, :8] == np.frombuffer(bytes.fromhex("a5ff005a11115555"), np.uint8), axis=1)
+    return [Packet(int(t), Endpoint("192.168.1.200", port), Endpoint("192.168.1.102", port), row.tobytes())
+            for t, row, port in zip(stamps, payload, np.where(difop, 7788, 6699).tolist())]
+
+
+def write_sensor_pcap(path: Path) -> Path:
+    """A pcap of :func:`sensor_packets`."""
+    from lidarpkt.writers.pcap import write_pcap
+
+    write_pcap(path, sensor_packets(), nanosecond=True)
+    return path

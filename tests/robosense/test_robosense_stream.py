@@ -70,20 +70,20 @@ def test_ros_messages_out_of_the_bag_and_back():
     for name, text in MESSAGE_DEFINITIONS.items():
         types.update(get_types_from_msg(text, name))
     store.register(types)
-    T = store.types
     for m in messages():
-        fields = ros.scan_fields(m.payload, m.stamp_ns)
-        packets = [T[ros.PACKET_TYPE](stamp=T["builtin_interfaces/msg/Time"](**p["stamp"]), is_difop=p["is_difop"],
-                                      data=p["data"], size=p["size"]) for p in fields["packets"]]
-        header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](**fields["header"]["stamp"]),
-                                          frame_id=fields["header"]["frame_id"])
-        msg = store.deserialize_cdr(store.serialize_cdr(T[ros.SCAN_TYPE](header=header, packets=packets),
-                                                        ros.SCAN_TYPE), ros.SCAN_TYPE)
+        ours = ros.encode_scan(m.payload, m.stamp_ns)
+        msg = store.deserialize_cdr(ours, ros.SCAN_TYPE)
         payload, times = ros.packets_from_scan(msg, m.bag_time_ns)
         assert np.array_equal(payload, m.payload) and np.array_equal(times, m.stamp_ns)
         assert [bool(p.is_difop) for p in msg.packets] == m.is_difop.tolist()
+        assert (msg.header.frame_id, msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) == \
+            ("robosense", int(m.stamp_ns[0]))
+        assert ours == bytes(store.serialize_cdr(msg, ros.SCAN_TYPE))  # rosbags' bytes, byte for byte
+    one = store.deserialize_cdr(store.serialize_cdr(msg.packets[0], ros.PACKET_TYPE), ros.PACKET_TYPE)
+    payload, times = ros.packet_from_message(one, 7)
+    assert payload.tobytes() == messages()[-1].payload[0].tobytes() and times[0] == messages()[-1].stamp_ns[0]
     with pytest.raises(ValueError, match="1500-byte buffer"):
-        ros.scan_fields(np.zeros((1, 1501), np.uint8), np.zeros(1, np.int64))
+        ros.encode_scan(np.zeros((1, 1501), np.uint8), np.zeros(1, np.int64))
 
 
 def test_the_angle_csv_is_told_apart_by_content(tmp_path):

@@ -55,6 +55,21 @@ class RobosenseCalibration:
         return RobosenseCalibration(self.elevation_deg[:lasers], self.azimuth_offset_deg[:lasers], self.source)
 
 
+@dataclass(frozen=True, eq=False)
+class DifopPacket:
+    """A sensor's DIFOP packet given as its sensor file (the one of a capture's first packets, for the reader of
+    a later segment): the decoder takes it as if it came first.
+
+    Attributes:
+        payload: the packet (1248 bytes).
+        address: the sensor's IP address (``None`` in a capture that keeps no addresses).
+    """
+
+    payload: bytes
+    address: str | None = None
+    source: str = "DIFOP"
+
+
 def _rows(text: str) -> list[tuple[float, float]] | None:
     rows = []
     for line in text.splitlines():

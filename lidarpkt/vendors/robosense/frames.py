@@ -71,6 +71,8 @@ class RobosenseDecoder:
         max_frame_columns: a frame without a wrap after this many columns is released as partial.
         difop_wait_s: how long the first packets wait for a DIFOP, counted in packets (as many as the
             model sends in that time in dual return, its fastest).
+        difop: a DIFOP packet (bytes) taken as if it came first (the capture's, for a reader starting past it):
+            the first packets need not wait.
 
     Raises:
         UnknownSensorError: a model name not in the table.
@@ -79,7 +81,7 @@ class RobosenseDecoder:
 
     def __init__(self, *, model: RobosenseModel | str | None = None, calibration=None,
                  cut_angle_deg: float | None = None, source: str | None = None, max_gap_s: float = 0.2,
-                 max_frame_columns: int = 65536, difop_wait_s: float = 1.2) -> None:
+                 max_frame_columns: int = 65536, difop_wait_s: float = 1.2, difop: bytes | None = None) -> None:
         self.model: RobosenseModel | None = model_named(model) if isinstance(model, str) else model
         self._model_given = self.model is not None
         self._csv: RobosenseCalibration | None = None if calibration is None else load_calibration(calibration)
@@ -109,6 +111,9 @@ class RobosenseDecoder:
         self._last_run_ts: int | None = None
         self._sensors: dict[tuple, SensorInfo] = {}
         self._frame_id = 0
+        if difop is not None:
+            self._take_difop(np.frombuffer(difop, np.uint8)[None, :])
+            self.stats.difop_packets -= 1  # given, not a packet of this read
 
     # ------------------------------------------------------------------ packets in
     def push(self, batch: PacketBatch) -> list[Frame]:

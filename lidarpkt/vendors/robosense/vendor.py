@@ -46,18 +46,24 @@ def classify(batch: PacketBatch, setup: DecodeSetup) -> Match | None:
     found = kind_of(batch)
     if found is None:
         return None
+    from .calibration import DifopPacket
+
     model = _model(setup)
     files = setup.files(NAME)
-    fitting = [f for f in files if model is None or f.lasers == model.lasers]
+    address = batch.src.address if batch.src is not None else None
+    difop = next((f for f in files if isinstance(f, DifopPacket) and f.address == address), None)
+    fitting = [f for f in files if not isinstance(f, DifopPacket) and (model is None or f.lasers == model.lasers)]
     calibration = fitting[0] if fitting else None
     cut_angle_deg = setup.option("cut_angle_deg")
 
     def make(source: str):
         from .frames import RobosenseDecoder
 
-        return RobosenseDecoder(model=model, calibration=calibration, cut_angle_deg=cut_angle_deg, source=source)
+        return RobosenseDecoder(model=model, calibration=calibration, cut_angle_deg=cut_angle_deg, source=source,
+                                difop=None if difop is None else difop.payload)
 
-    return Match(MSOP if found.kind == "msop" else DIFOP, (), make, () if calibration is None else (calibration,))
+    used = tuple(f for f in (calibration, difop) if f is not None)
+    return Match(MSOP if found.kind == "msop" else DIFOP, (), make, used)
 
 
 def describe(batch: PacketBatch, setup: DecodeSetup) -> dict | None:
@@ -127,6 +133,19 @@ def endpoints(match: Match) -> tuple[Endpoint, Endpoint]:
     return Endpoint(SENSOR_ADDRESS, port), Endpoint(HOST_ADDRESS, port)
 
 
+def sensor_file_in_packets(batch: PacketBatch, match: Match) -> Any:
+    """The first DIFOP of a batch that decodes, as a :class:`~lidarpkt.vendors.robosense.calibration.DifopPacket`
+    (``None`` when it holds none)."""
+    from .calibration import DifopPacket
+    from .describe import device_info
+    from .detect import is_difop
+
+    for row in batch.payload[is_difop(batch.payload)]:
+        if device_info(row[None, :])[0] is not None:
+            return DifopPacket(row.tobytes(), batch.src.address if batch.src is not None else None)
+    return None
+
+
 def _recognise(text: str) -> bool:
     from .calibration import is_robosense_csv
 
@@ -134,16 +153,17 @@ def _recognise(text: str) -> bool:
 
 
 def _is_loaded(obj: Any) -> bool:
-    from .calibration import RobosenseCalibration
+    from .calibration import DifopPacket, RobosenseCalibration
 
-    return isinstance(obj, RobosenseCalibration)
+    return isinstance(obj, (RobosenseCalibration, DifopPacket))
 
 
 def _load(obj: Any) -> Any:
-    """A :class:`~lidarpkt.vendors.robosense.calibration.RobosenseCalibration` (a loaded one passes through)."""
-    from .calibration import load_calibration
+    """A :class:`~lidarpkt.vendors.robosense.calibration.RobosenseCalibration` (a loaded one, or a DIFOP packet,
+    passes through)."""
+    from .calibration import DifopPacket, load_calibration
 
-    return load_calibration(obj)
+    return obj if isinstance(obj, DifopPacket) else load_calibration(obj)
 
 
 def models() -> tuple[str, ...]:
@@ -171,4 +191,5 @@ VENDOR = Vendor(
     sensor_files=SensorFiles("RoboSense angle CSV", _recognise, _is_loaded, _load, needed_for="xyz"),
     frame_ids_counted=True,
     models=models,
+    sensor_file_in_packets=sensor_file_in_packets,
 )
