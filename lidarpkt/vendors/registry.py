@@ -166,24 +166,31 @@ def sensor_files_in_packets(path: str | os.PathLike[str], setup: DecodeSetup) ->
     found: dict[tuple, SensorFile] = {}
     wanted: set[tuple] = set()
     start = None
-    for batch in open_packets(path).batches():
-        t = int(batch.timestamp_ns[0]) if len(batch) else None
-        start = t if start is None else start
-        if t is not None and start is not None and (
-                t - start > _IN_BAND_SPAN_NS or (not wanted and t - start > _IN_BAND_QUIET_NS)):
-            break
-        match = classify(batch, setup)
-        v = vendor(match.vendor) if match is not None else None
-        if match is None or v is None or v.sensor_file_in_packets is None:
-            continue
-        key = (v.name, batch.src.address if batch.src is not None else None)
-        wanted.add(key)
-        if key not in found:
-            loaded = v.sensor_file_in_packets(batch, match)
-            if loaded is not None:
-                found[key] = SensorFile(v.name, f"{os.fspath(path)} (in its packets)", loaded)
-        if wanted <= set(found):
-            break
+    batches = open_packets(path).batches()
+    try:
+        for batch in batches:
+            if not len(batch):
+                continue
+            start = int(batch.timestamp_ns[0]) if start is None else start
+            elapsed = int(batch.timestamp_ns[0]) - start
+            if elapsed > _IN_BAND_SPAN_NS or (not wanted and elapsed > _IN_BAND_QUIET_NS):
+                break
+            match = classify(batch, setup)
+            v = vendor(match.vendor) if match is not None else None
+            if match is None or v is None or v.sensor_file_in_packets is None:
+                continue
+            key = (v.name, batch.src.address if batch.src is not None else None)
+            wanted.add(key)
+            if key not in found:
+                loaded = v.sensor_file_in_packets(batch, match)
+                if loaded is not None:
+                    found[key] = SensorFile(v.name, f"{os.fspath(path)} (in its packets)", loaded)
+            if wanted <= set(found):
+                break
+    finally:
+        close = getattr(batches, "close", None)
+        if close is not None:
+            close()
     return list(found.values())
 
 

@@ -236,3 +236,22 @@ def test_hostile_copies_give_counted_skips_or_one_error_line(tmp_path):
         assert 1 <= len(np.load(tmp_path / "t.npz")["frame_id"]) <= 4
     else:
         assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_model_and_metadata_options_reach_the_decoder(tmp_path):
+    """``model=`` and ``metadata=`` (the angle CSV, told apart by content) of ``lidarpkt.open`` and the CLI give the
+    decoder's own reading of the bag as a Helios 16P, the one compared with nebula's XYZ."""
+    from robosense_bag import decode
+
+    bag, csv = external(BAG), external(CSV)
+    opened = _frames(bag, model="RS-Helios-16P", metadata=[str(csv)])
+    direct = decode(model="RS-Helios-16P", calibration=str(csv))[0]
+    _same_frames(opened, direct)
+    assert opened[0].sensor.model == "RS-Helios-16P" and opened[0].sensor.rows == 16
+    run = lidarpkt_cli("decode", str(bag), "-o", str(tmp_path / "p.parquet"), "--model", "RS-Helios-16P",
+                       "--calibration", str(csv), "-q")
+    assert run.returncode == 0, run.stderr
+    table = ds.dataset(tmp_path / "p.parquet", format="parquet").to_table()
+    assert table.num_rows == len(_returns(opened)[0]) and int(table["row"].to_numpy().max()) == 15
+    wrong = lidarpkt_cli("decode", str(bag), "-o", str(tmp_path / "q.npz"), "--model", "RS-Helios-99")
+    assert wrong.returncode == 2 and len(wrong.stderr.strip().splitlines()) == 1 and "RS-Helios-16P" in wrong.stderr
