@@ -1,7 +1,7 @@
 """RoboSense decoding speed: frames and XYZ of the RS-Helios bag, repeated into a stream of 30 MB or more.
 
 The bag (``../shared/fixtures/external/nebula/robosense/helios16p``, 751 packets: 750 MSOP and a DIFOP) is
-read with rosbags (the ``robosense_msgs`` definitions registered), its MSOP packets decoded once into
+read through the vendor registry (as ``lidarpkt.open`` reads it), its MSOP packets decoded once into
 fields and re-encoded by lidarpkt's encoder ``--copies`` times over (each copy later in the packets'
 own clock by the bag's span, the header's packet counter running on: one seamless stream of whole
 rotations, as the sensor would send it), the DIFOP first. The stream is pushed in batches of 8192
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -28,28 +27,17 @@ sys.path.insert(0, str(REPO))
 EXTERNAL = Path(os.environ.get("LIDARPKT_EXTERNAL_FIXTURES", REPO.parent / "shared" / "fixtures" / "external"))
 
 from lidarpkt.core.packet import PacketBatch
-from lidarpkt.vendors.robosense import MESSAGE_DEFINITIONS, RobosenseDecoder, decode_packets, detect_model, encode_packets
+from lidarpkt.vendors.registry import open_packets
+from lidarpkt.vendors.robosense import RobosenseDecoder, decode_packets, detect_model, encode_packets
 from lidarpkt.vendors.robosense.detect import is_difop
-from lidarpkt.vendors.robosense.ros import packets_from_scan
+from bench_hesai import best_of
 
 BAG = EXTERNAL / "nebula/robosense/helios16p/rosbag2_2023_08_03-11_02_46"
 BATCH = 8192
 
 
 def bag_packets() -> np.ndarray:
-    from rosbags.rosbag2 import Reader
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    types: dict = {}
-    for name, text in MESSAGE_DEFINITIONS.items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    rows = []
-    with Reader(BAG) as reader:
-        for conn, bag_time, raw in reader.messages():
-            rows.append(packets_from_scan(store.deserialize_cdr(raw, conn.msgtype), bag_time)[0])
-    return np.concatenate(rows)
+    return np.concatenate([batch.payload for batch in open_packets(BAG).batches()])
 
 
 def stream(payload: np.ndarray, copies: int) -> tuple[np.ndarray, np.ndarray]:
@@ -86,15 +74,6 @@ def run(payload: np.ndarray, host: np.ndarray, xyz: bool = True) -> tuple[int, i
                 frames += 1
                 points += int(np.count_nonzero(f.range_mm))
     return frames, points
-
-
-def best_of(fn, repeat: int):
-    best, result = float("inf"), None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
 
 
 def main() -> int:

@@ -5,7 +5,6 @@ byte for byte, and the recording decodes to the bag's frames."""
 from __future__ import annotations
 
 import json
-import socket
 import warnings
 
 import numpy as np
@@ -48,23 +47,12 @@ def test_view_sends_the_frames_to_a_websocket_client(tmp_path):
         assert m.message.frame_id == "robosense"
 
 
-def _free_ports(n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
 def test_replay_to_record_on_the_msop_and_difop_ports(tmp_path):
     mcap_reader = pytest.importorskip("mcap.reader")
     from mcap_ros2.decoder import DecoderFactory
 
     from lidarpkt.recorder.replay import replay
-    from test_replay_record import Recorder
+    from test_replay_record import Recorder, _free_ports
 
     bag = external(BAG)
     packets = sensor_packets()  # MSOP to 6699, DIFOP to 7788

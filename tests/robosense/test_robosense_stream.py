@@ -12,7 +12,7 @@ from conftest import external
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.errors import CalibrationError
 from lidarpkt.vendors.robosense import (MESSAGE_DEFINITIONS, PacketCounter, classify, describe_stream,
-                                        is_robosense_calibration, load_calibration, parse_calibration)
+                                        load_calibration, parse_calibration)
 from lidarpkt.vendors.robosense import ros
 from lidarpkt.vendors.robosense.stream import stream_kind
 
@@ -87,16 +87,26 @@ def test_ros_messages_out_of_the_bag_and_back():
 
 
 def test_the_angle_csv_is_told_apart_by_content(tmp_path):
+    """The registry tells the angle CSV from every other vendor's file by content (``metadata=``)."""
+    from lidarpkt.errors import MetadataError
+    from lidarpkt.vendors.registry import load_sensor_files
+
     path = external(CSV)
-    assert is_robosense_calibration(path) and is_robosense_calibration(str(path))
+    (loaded,) = load_sensor_files([path])
+    assert loaded.vendor == "robosense" and loaded.what == "RoboSense angle CSV" and loaded.loaded.lasers == 16
+    hesai = sorted(external("nebula/hesai").glob("*.csv"))
+    assert hesai and {f.vendor for f in load_sensor_files(hesai)} == {"hesai"}
     cal = load_calibration(path)
     assert cal.lasers == 16 and cal.elevation_deg[3] == 8.90 and cal.azimuth_offset_deg[0] == -4.05
-    hesai = sorted(external("nebula/hesai").glob("*.csv"))
-    assert hesai and not any(is_robosense_calibration(p) for p in hesai)
-    assert not is_robosense_calibration(tmp_path / "absent.csv")
+    with pytest.raises(MetadataError, match="no such file"):
+        load_sensor_files([tmp_path / "absent.csv"])
     one_column = tmp_path / "angles.csv"
     one_column.write_text("\n".join(str(15 - 2 * k) for k in range(16)) + "\n")
-    assert is_robosense_calibration(one_column) and not load_calibration(one_column).azimuth_offset_deg.any()
+    assert load_sensor_files([one_column])[0].vendor == "robosense" and not load_calibration(one_column).azimuth_offset_deg.any()
+    fifteen = tmp_path / "fifteen.csv"
+    fifteen.write_text("1,2\n" * 15)
+    with pytest.raises(MetadataError, match="not a sensor file"):
+        load_sensor_files([fifteen])
     for text, why in (("1,2\n" * 15, "15 lines"), ("a,b\n" * 16, "not 'elevation,azimuth'"),
                       ("95,0\n" * 16, "out of range")):
         with pytest.raises(CalibrationError, match=why):

@@ -4,7 +4,7 @@ counting, ROS messages and the encoder.
 
 Public names: :class:`RobosenseDecoder`, :func:`decode_packets`, :func:`detect_model`, :func:`classify`,
 :func:`describe_stream`, :func:`decode_difop`, :func:`encode_packets`, :func:`encode_difop`,
-:func:`load_calibration`, :func:`is_robosense_calibration`, :class:`RobosenseCalibration`,
+:func:`load_calibration`, :func:`is_robosense_csv`, :class:`RobosenseCalibration`,
 :class:`RobosenseModel`, :data:`MODELS`, :func:`model_named`, :class:`PacketCounter`,
 :data:`MESSAGE_DEFINITIONS`, :data:`VENDOR` (its registry record).
 
@@ -23,7 +23,7 @@ from lidarpkt.core.lazy import lazy_names
 
 _LAZY: dict[str, str] = {
     "RobosenseCalibration": "calibration",
-    "is_robosense_calibration": "calibration",
+    "is_robosense_csv": "calibration",
     "load_calibration": "calibration",
     "parse_calibration": "calibration",
     "RobosensePackets": "decode",
@@ -65,7 +65,7 @@ __all__ = [
     "detect_model",
     "encode_difop",
     "encode_packets",
-    "is_robosense_calibration",
+    "is_robosense_csv",
     "load_calibration",
     "model_named",
     "parse_calibration",

@@ -4,7 +4,8 @@ A sensor sends its own calibration in every DIFOP (:mod:`lidarpkt.vendors.robose
 decoder takes it from there when the capture holds one, and from the angle CSV RoboSense ships
 (rs_driver's ``angle.csv``, nebula's ``RobosenseHelios16P.csv``) otherwise. That CSV has no header:
 one line per laser in channel order, ``elevation,azimuth_offset`` in degrees (the azimuth offset may
-be missing: 0). It is told apart from other vendors' CSVs by content (:func:`is_robosense_csv`):
+be missing: 0). It is told apart from other vendors' CSVs by content (:func:`is_robosense_csv`, which the
+vendor registry asks of a ``metadata=`` file):
 Hesai's angle-correction CSV starts with a header line and has three columns.
 """
 
@@ -121,22 +122,6 @@ def load_calibration(calibration: RobosenseCalibration | str | os.PathLike[str])
     except (OSError, UnicodeDecodeError) as exc:
         raise CalibrationError(f"{path}: cannot read the RoboSense angle CSV: {exc}") from exc
     return parse_calibration(text, str(path))
-
-
-def is_robosense_calibration(calibration: object) -> bool:
-    """Whether a sensor description file (the ``metadata=`` option) is a RoboSense angle CSV, by content:
-    a :class:`RobosenseCalibration`, or a path to a small text file :func:`is_robosense_csv` accepts."""
-    if isinstance(calibration, RobosenseCalibration):
-        return True
-    if not isinstance(calibration, (str, os.PathLike)):
-        return False
-    path = Path(calibration)
-    try:
-        if not path.is_file() or path.stat().st_size > 64 * 1024:
-            return False
-        return is_robosense_csv(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError):
-        return False
 
 
 def from_device(elevation_deg: np.ndarray, azimuth_offset_deg: np.ndarray) -> RobosenseCalibration:
