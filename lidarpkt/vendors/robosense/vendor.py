@@ -8,7 +8,7 @@ angle CSV (``metadata=``) serves where a capture holds no DIFOP.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any
 
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
@@ -172,10 +172,6 @@ def models() -> tuple[str, ...]:
     return tuple(m.name for m in MODELS)
 
 
-def geometry(sensor: Any, calibration: Mapping[str, Any] | None) -> Any:
-    return None  # XYZ needs each firing's azimuth (frame.extra), which files of frames do not keep
-
-
 VENDOR = Vendor(
     name=NAME,
     title="RoboSense",
@@ -190,6 +186,6 @@ VENDOR = Vendor(
     ros=ROS,
     sensor_files=SensorFiles("RoboSense angle CSV", _recognise, _is_loaded, _load, needed_for="xyz"),
     frame_ids_counted=True,
-    models=models,
+    models=models,  # no geometry: XYZ needs each firing's azimuth (frame.extra), which files of frames do not keep
     sensor_file_in_packets=sensor_file_in_packets,
 )
