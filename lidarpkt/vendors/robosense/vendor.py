@@ -8,7 +8,7 @@ angle CSV (``metadata=``) serves where a capture holds no DIFOP.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
@@ -172,6 +172,25 @@ def models() -> tuple[str, ...]:
     return tuple(m.name for m in MODELS)
 
 
+def geometry(sensor: Any, calibration: Mapping[str, Any] | None) -> Any:
+    """The XYZ of frames read back from a file: the angles of each row their SensorInfo keeps, the distance unit
+    and the model's lens centre (``None`` for frames decoded without a calibration)."""
+    metadata = sensor.metadata or {}
+    if metadata.get("calibration_source") is None or "distance_unit_mm" not in metadata:
+        return None
+    import numpy as np
+
+    from .calibration import RobosenseCalibration
+    from .geometry import RobosenseGeometry
+    from .models import model_named
+
+    model = model_named(sensor.model)
+    angles = RobosenseCalibration(np.asarray(sensor.beam_altitude_deg, np.float64),
+                                  np.asarray(sensor.beam_azimuth_deg, np.float64), metadata["calibration_source"])
+    unit_um = int(round(float(metadata["distance_unit_mm"]) * 1000))
+    return RobosenseGeometry(angles, np.arange(angles.lasers), unit_um, model.lens_rx_m, model.lens_rz_m)
+
+
 VENDOR = Vendor(
     name=NAME,
     title="RoboSense",
@@ -186,6 +205,7 @@ VENDOR = Vendor(
     ros=ROS,
     sensor_files=SensorFiles("RoboSense angle CSV", _recognise, _is_loaded, _load, needed_for="xyz"),
     frame_ids_counted=True,
-    models=models,  # no geometry: XYZ needs each firing's azimuth (frame.extra), which files of frames do not keep
+    models=models,
+    geometry=geometry,
     sensor_file_in_packets=sensor_file_in_packets,
 )
