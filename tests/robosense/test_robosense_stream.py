@@ -52,6 +52,7 @@ def test_classify_and_describe():
     assert without["model"] == "RS-Helios" and "DIFOP" in without["return_mode"]
     only = describe_stream(PacketBatch.from_payloads(difop))
     assert only["kind"] == "RoboSense DIFOP" and only["calibration"] == "DIFOP (32 lasers)"
+    assert only["return_mode"] == "strongest" and only["return_mode_byte"] == 4
     assert only["serial_number"] == "2410bac9d50b" and (only["msop_port"], only["difop_port"]) == (6699, 7788)
     from lidarpkt.vendors.robosense.vendor import PORTS
 

@@ -64,6 +64,7 @@ def test_info_names_model_return_mode_and_calibration_source(tmp_path):
     kinds = {s["dst_port"]: s for s in doc["streams"]}
     assert kinds[6699]["stream_kind"] == "robosense_msop" and kinds[7788]["stream_kind"] == "robosense_difop"
     assert kinds[7788]["details"]["calibration"] == "DIFOP (32 lasers)"
+    assert kinds[7788]["details"]["return_mode"] == "strongest" and kinds[6699]["details"]["model"] == "RS-Helios"
     with_csv = json.loads(lidarpkt_cli("info", "--json", str(pcap), "--metadata", str(external(CSV))).stdout)
     msop = next(s for s in with_csv["streams"] if s["dst_port"] == 6699)
     assert msop["details"]["calibration"].startswith("angle CSV")

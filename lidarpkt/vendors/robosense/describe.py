@@ -55,8 +55,9 @@ def describe_stream(batch: PacketBatch) -> dict[str, Any] | None:
         out["kind"] = "RoboSense DIFOP"
         if info is not None and info_model is not None:
             family = [m for m in FAMILIES[info_model.family] if info.return_mode in m.return_modes]
-            out.update({"return_mode_byte": info.return_mode, "calibration": f"DIFOP ({family[0].lasers} lasers)",
-                        **info.describe()})
+            n_returns = len(family[0].return_modes[info.return_mode])
+            out.update({"return_mode": mode_text(family[0], info.return_mode, n_returns),
+                        "calibration": f"DIFOP ({family[0].lasers} lasers)", **info.describe()})
         else:
             out["malformed_packets"] = out["difop_packets"]
         return out
@@ -75,7 +76,7 @@ def describe_stream(batch: PacketBatch) -> dict[str, Any] | None:
     else:
         n_returns = 1
     out["return_mode"] = mode_text(model, info.return_mode if info is not None else None, n_returns)
-    out["calibration"] = "DIFOP" if info is not None else "none in this batch (DIFOP packets carry it; or --metadata CSV)"
+    out["calibration"] = "DIFOP" if info is not None else "the sensor's DIFOP packets (none among these) or its angle CSV"
     if info is not None:
         out["motor_speed_rpm"] = info.motor_speed_rpm
         out["rotation_hz"] = info.motor_speed_rpm / 60.0

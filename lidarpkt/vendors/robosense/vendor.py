@@ -73,7 +73,7 @@ def describe(batch: PacketBatch, setup: DecodeSetup) -> dict | None:
 
     d = describe_stream(batch)
     files = setup.files(NAME)
-    if d is not None and files and d.get("calibration", "").startswith("none"):
+    if d is not None and files and "model" in d and d.get("calibration") != "DIFOP":
         d["calibration"] = f"angle CSV {files[0].source} (until a DIFOP comes)"
     return d
 
