@@ -107,6 +107,8 @@ def _view_capture(args, stop: threading.Event) -> int:
             from lidarpkt.errors import LidarpktError
 
             raise LidarpktError(f"{args.source}: no frame to show; check it with lidarpkt info")
+        if not servers[0].serves_viewers:  # a .rrd file, a spawned or remote Rerun viewer: it has every frame
+            return 0
         if not stop.is_set() and time.monotonic() < deadline and not args.quiet:
             print(f"lidarpkt view: end of {args.source} ({servers[0].frames_published} frames); still serving, "
                   "Ctrl-C to stop", file=sys.stderr, flush=True)

@@ -121,6 +121,8 @@ class RerunView:
         self.frames_published = 0
         self.frames_dropped = 0  # frames the caller dropped before publishing (under load)
         self._closed = False
+        # only the web target holds the data in this process: a file, a spawned or a remote viewer has it
+        self.serves_viewers = self.url is not None
 
     def _connect(self, rr: Any, target: str) -> None:
         if target == "web" or target.startswith("web:"):

@@ -111,6 +111,8 @@ class ViewServer:
             address cannot be bound.
     """
 
+    serves_viewers = True  # the data reaches viewers only while this process serves it
+
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, name: str = "lidarpkt",
                  first_frame_wait_s: float = 1.0) -> None:
         try:

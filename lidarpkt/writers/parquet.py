@@ -318,11 +318,28 @@ def read_frames(path: str | os.PathLike[str]) -> Iterator[Any]:
             kwargs: dict[str, Any] = {n: arr(n, t, (r, h, w)) for n, t in PIXEL_ARRAYS.items()}  # Frame checks them
             kwargs.update({n: arr(n, t, (h, w)) for n, t in IMAGE_ARRAYS.items()})
             kwargs.update({n: arr(n, t, (w,)) for n, t in COLUMN_ARRAYS.items()})
-            extra = {e["name"]: np.frombuffer(e["data"], np.lib.format.descr_to_dtype(e["dtype"]))
+            extra = {e["name"]: np.frombuffer(e["data"], _dtype_from_text(e["dtype"]))
                      .reshape(e["shape"]).copy() for e in row["extra"] or []}
             counters = FrameCounters(**{f.name: row[f.name] for f in fields(FrameCounters)})
             yield Frame(sensor=sensor, frame_id=row["frame_id"], return_labels=tuple(row["return_labels"]),
                         partial=row["partial"], counters=counters, extra=extra, **kwargs)
+
+
+def _dtype_text(dtype: np.dtype) -> str:
+    """A NumPy dtype as text: its ``.npy`` descr, as JSON where it is a record's field list."""
+    descr = np.lib.format.dtype_to_descr(dtype)
+    return descr if isinstance(descr, str) else json.dumps(descr)
+
+
+def _dtype_from_text(text: str) -> np.dtype:
+    """The dtype of :func:`_dtype_text` (JSON turned the record fields' tuples into lists)."""
+    if not text.startswith("["):
+        return np.dtype(text)
+
+    def fields(descr: list) -> list:
+        return [(name, fields(t) if isinstance(t, list) else t, *map(tuple, shape)) for name, t, *shape in descr]
+
+    return np.lib.format.descr_to_dtype(fields(json.loads(text)))
 
 
 def frame_record_batch(frame, schema):
@@ -343,7 +360,7 @@ def frame_record_batch(frame, schema):
     for name, typ in {**PIXEL_ARRAYS, **IMAGE_ARRAYS, **COLUMN_ARRAYS}.items():
         arr = _checked(frame, name, typ)
         row[name] = None if arr is None else arr.reshape(-1)
-    row["extra"] = [{"name": k, "dtype": np.lib.format.dtype_to_descr(v.dtype), "shape": list(v.shape),
+    row["extra"] = [{"name": k, "dtype": _dtype_text(v.dtype), "shape": list(v.shape),
                      "data": np.ascontiguousarray(v).tobytes()} for k, v in frame.extra.items()]
     arrays = []
     for fld in schema:

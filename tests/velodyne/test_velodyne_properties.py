@@ -118,7 +118,7 @@ def test_damaged_packets_never_raise_a_traceback(data_edits, pos_edits):
         frames = dec.push(batch) + dec.finish()
         dec.push_position(pos)
     s = dec.stats
-    assert s.decoded_packets + s.malformed + s.duplicate_packets + s.late_packets == 8
+    assert s.decoded_packets + s.malformed + s.duplicate_packets + s.late_packets + s.corrupted_packets == 8
     assert sum(int(f.column_valid.sum()) for f in frames) % 12 == 0
 
 

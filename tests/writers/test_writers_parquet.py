@@ -204,3 +204,22 @@ def test_frames_layout_keeps_a_custom_velodyne_calibration(tmp_path):
     _write(frames, tmp_path / "ds", cap, layout="frames")
     for a, b in zip(frames, read_frames(tmp_path / "ds")):
         np.testing.assert_array_equal(a.xyz(), b.xyz())
+
+
+def test_frames_layout_keeps_record_arrays_of_extra(tmp_path):
+    """Zone-monitoring frames (ouster-sdk's OSF of an OS-0-128 with zones) carry ``zone_states``, a record
+    array: its fields and values come back from the frames layout as they went in."""
+    import lidarpkt
+    from conftest import external
+    from lidarpkt.writers.parquet import read_frames
+
+    cap = external("ouster-sdk/single_frame_zm.osf")
+    frames = list(lidarpkt.open(cap))
+    assert frames[0].extra["zone_states"].dtype.names  # the case: a record array among the extras
+    _write(frames, tmp_path / "ds", cap, layout="frames")
+    back = list(read_frames(tmp_path / "ds"))
+    assert len(back) == len(frames)
+    for a, b in zip(frames, back):
+        assert a.extra.keys() == b.extra.keys()
+        for k in a.extra:
+            assert a.extra[k].dtype == b.extra[k].dtype and np.array_equal(a.extra[k], b.extra[k]), k
