@@ -90,6 +90,9 @@ class FrameReader(FrameIterator):
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
         self.sensor_files, setup = opts.sensor_setup()  # before opening: a bad file says so first
+        if segment is not None and not segment.first:  # what sensors send in-band, the segment may start past
+            in_band = registry.sensor_files_in_packets(path, setup)  # the capture's own: not files given
+            setup = registry.setup([*self.sensor_files, *in_band], opts.decoding()) if in_band else setup
         self.reader: PacketSource = registry.open_packets(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
