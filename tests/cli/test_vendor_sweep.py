@@ -20,6 +20,7 @@ CAPTURES = {
     "hesai-xt32": (HESAI + "xt32/1673400677802009732", HESAI + "PandarXT32.csv"),
     "hesai-xt32m": (HESAI + "xt32m/1660893203042895158", HESAI + "PandarXT32M.csv"),
     "hesai-without-its-csv": (HESAI + "xt32/1673400677802009732", None),
+    "robosense-helios": ("nebula/robosense/helios16p/rosbag2_2023_08_03-11_02_46", None),
 }
 VERBS = {
     "analyze": ["--pixel", "5,100"],

@@ -29,6 +29,7 @@ CASES = {
     "hesai-xt32": (HESAI + "xt32/1673400677802009732", HESAI + "PandarXT32.csv", 400, 30),
     "hesai-40p": (HESAI + "40p/1673400149412331409", HESAI + "Pandar40P.csv", 500, 40),
     "hesai-qt64": (HESAI + "qt64/1673401195788312575", HESAI + "PandarQT64.csv", 150, 20),
+    "robosense-helios": ("nebula/robosense/helios16p/rosbag2_2023_08_03-11_02_46", None, 300, 15),
 }
 
 
