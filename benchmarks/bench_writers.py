@@ -23,11 +23,13 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 import lidarpkt  # noqa: E402
 from lidarpkt.writers import FORMATS, open_writer  # noqa: E402
 
-CANNED = REPO / "fixtures" / "canned"
+CANNED = REPO / "lidarpkt" / "fixtures" / "canned"
 
 
 def _size(paths: list[Path]) -> int:
-    return sum(p.stat().st_size for p in paths)
+    """Bytes of the files written: a folder (a rosbag2 bag, a dataset) counts every file under it."""
+    return sum(sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() else p.stat().st_size
+               for p in paths)
 
 
 def bench(frames: list, fmt: str, folder: Path, **options) -> dict:

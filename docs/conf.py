@@ -32,7 +32,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-exclude_patterns = ["_build", "README.draft.md", "Thumbs.db", ".DS_Store"]
+exclude_patterns = ["_build", "Thumbs.db", ".DS_Store"]
 
 # Every warning fails the build (-W); nitpicky makes an unresolved cross-reference one. References the
 # docstrings make to internal modules and to other libraries are settled in lidarpkt_docs.

@@ -76,6 +76,7 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "hesai-xt16": (_HESAI + "xt16/1732848127890747768", (_HESAI + "PandarXT16.csv",)),
     "hesai-xt32": (_HESAI + "xt32/1673400677802009732", (_HESAI + "PandarXT32.csv",)),
     "hesai-xt32m": (_HESAI + "xt32m/1660893203042895158", (_HESAI + "PandarXT32M.csv",)),
+    "robosense-helios": ("ext:nebula/robosense/helios16p/rosbag2_2023_08_03-11_02_46", ()),
     "canned-vlp16-strongest": ("vlp16-strongest.pcap", ()),
     "canned-vlp16-last": ("vlp16-last.pcap", ()),
     "canned-vlp16-dual": ("vlp16-dual.pcap", ()),

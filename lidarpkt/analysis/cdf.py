@@ -145,7 +145,8 @@ def spatial_cdf(
         frames = np.arange(len(stack))
     else:
         if not -len(stack) <= frame < len(stack):
-            raise AnalysisError(f"frame {frame} is not in this stack of {len(stack)} frames")
+            raise AnalysisError(f"frame {frame} is not in this stack of {len(stack)} frames; give one of 0-{len(stack) - 1} "
+                                "(--monitor-frame)")
         frames = np.array([frame % len(stack)])
     ranges = stack.range_mm[frames[:, None, None], slot, rows[None, :, None], cols[None, :, :]]
     valid = sample_mask(stack, slot)[frames[:, None, None], rows[None, :, None], cols[None, :, :]]

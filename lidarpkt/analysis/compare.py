@@ -111,7 +111,7 @@ def compare_slots(stack: FrameStack, a: int | str = 0, b: int | str = 1, *, delt
         r = 2
     if not (0 <= a < r and 0 <= b < r) or a == b:
         raise AnalysisError(
-            f"cannot compare slots {a} and {b}: this capture has {r} return slot(s) {list(stack.return_labels)}; "
+            f"cannot compare slots {a} and {b}: this capture has {r} return {'slot' if r == 1 else 'slots'} {list(stack.return_labels)}; "
             "slot comparison needs a dual-return capture (or give a second capture to compare modes)"
         )
     labels = (stack.return_labels[a], stack.return_labels[b])
@@ -214,10 +214,10 @@ def compare_stacks(
     a, slot_a = resolve(a, slot_a)
     b, slot_b = resolve(b, slot_b)
     if a.range_mm.shape[2:] != b.range_mm.shape[2:]:
-        raise AnalysisError(
-            f"the captures have different range images ({a.range_mm.shape[2]}x{a.range_mm.shape[3]} and "
-            f"{b.range_mm.shape[2]}x{b.range_mm.shape[3]}): compare captures of one sensor on one grid"
-        )
+        (ha, wa), (hb, wb) = a.range_mm.shape[2:], b.range_mm.shape[2:]
+        hint = (f"; put both on one grid with --grid {360.0 / min(wa, wb):g} (resolution_deg= of load_stack in Python)" if ha == hb
+                else "; compare captures of one sensor")
+        raise AnalysisError(f"the captures have different range images ({ha}x{wa} and {hb}x{wb}){hint}")
     for stack, slot, name in ((a, slot_a, "first"), (b, slot_b, "second")):
         if not 0 <= slot < stack.range_mm.shape[1]:
             raise AnalysisError(f"the {name} capture has no return slot {slot} (it has {list(stack.return_labels)})")

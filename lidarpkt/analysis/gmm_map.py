@@ -1,4 +1,4 @@
-"""Probabilistic raypath maps: a Gaussian mixture of every pixel's ranges over a stack (issue 17 §4).
+"""Probabilistic raypath maps: a Gaussian mixture of every pixel's ranges over a stack .
 
 The paper cites "explicitly probabilistic maps, which inherently represent each raypath as a
 probabilistic CDF". :func:`fit_gmm_map` fits, for every pixel and return at once, the mixture

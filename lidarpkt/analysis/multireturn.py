@@ -281,44 +281,8 @@ def monitor_score(stack: FrameStack, *, frame: int = 0, n: int = 5, method: str 
       (:func:`spatial_gap_score`).
     - ``row``: the paper's score with each row of the neighbourhood sorted on its own.
 
-    Measured with ``python benchmarks/monitor_methods.py`` (frame 0, n = 5, flag at score > 0.1 m;
-    truth: ``n_clusters >= 2`` at a 0.1 m gap over the whole stack, raypaths with a return only):
-    precision / recall / ROC AUC. The generated captures are ``fixtures.ensure`` seed 0, static,
-    50 VLP-16 and 30 OS1-64 frames; the last and dual VLP-16 slots and the OS1 dual's strongest
-    slot give the same figures as the rows shown (to ±0.003 AUC); the OS1 dual's second-strongest
-    slot has returns only where there are two echoes, so every raypath is "multi" and it has no ROC.
-
-    ==============================  ==================  ==================  ==================  ==================
-    capture (slot)                  detrend (default)   plane               gap (paper)         row
-    ==============================  ==================  ==================  ==================  ==================
-    VLP-16 strongest, generated     0.39 / 0.62 / 0.97  0.05 / 1.00 / 0.97  0.03 / 1.00 / 0.93  0.07 / 0.95 / 0.91
-    OS1-64 legacy, generated        0.38 / 0.61 / 0.98  0.12 / 0.93 / 0.97  0.02 / 1.00 / 0.97  0.04 / 0.95 / 0.93
-    VeloView VLP-16, real, 50 fr.   0.55 / 0.38 / 0.71  0.32 / 0.56 / 0.74  0.26 / 0.63 / 0.72  0.25 / 0.57 / 0.70
-    ==============================  ==================  ==================  ==================  ==================
-
-    At a recall of one half or more, the best precision over the thresholds is 0.40 / 0.43 / 0.41
-    (detrend, the three captures above), 0.37 / 0.25 / 0.34 (plane), 0.18 / 0.27 / 0.29 (gap),
-    0.15 / 0.19 / 0.44 (row). ``detrend`` has the best precision at its default threshold and the
-    best AUC on the generated scenes; on the real capture all four rank raypaths about equally
-    badly (AUC 0.70–0.74): more than a third of its multi-return raypaths have no gap over
-    0.1 m anywhere in their 5 × 5 neighbourhood in frame 0 (the paper's score misses them too),
-    and a quarter have no gap over 2.5 cm in their 3 × 3 one: a single frame does not show them. In the generated
-    scenes the multi-return raypaths are the window, foliage and corner patches and the grazing
-    ground whose range spread (0.1–0.4 m) opens gaps over 50 frames; ``detrend`` still flags
-    the pixels within two columns of an object's side (an edge across the rows) and, on the
-    OS1, the hedge top (its 1 m steps per beam are not a plane), and misses much of the noisier
-    ground, whose gaps over 50 frames need not show in one frame's 15 samples.
-    A 64 × 1024 slot scores in about 0.1 s (``detrend``).
-
-    Judged by the scan-matching error it prevents (``benchmarks/monitor_methods.py``, issue 17 §3:
-    the first 10 frames registered by point-to-point ICP, point-to-plane ICP and VGICP to the
-    first frame and to the map of all frames; mean over them of 1 − median translation error with
-    the flagged raypaths removed / with all): detrend −7 %, plane −22 %, row −30 %, gap −122 %
-    (generated VLP-16 +5 / +4 / −19 / −107 %, generated OS1-64 −5 / −2 / −87 / −91 %, VeloView
-    −21 / −68 / +16 / −168 %). No method reduces the error on these static scenes: the raypaths a
-    single frame flags are mostly edges and creases that constrain the match, so removing them
-    costs more than their ranges' ambiguity does. ``detrend`` removes the fewest returns (2–6 %)
-    and costs the least, which is why it stays the default.
+    How the methods compare against the temporal truth, and on scan matching, is measured by
+    ``benchmarks/monitor_methods.py`` (figures in the multi-return guide of the documentation).
 
     Raises AnalysisError for an unknown method, a bad n or frame.
     """

@@ -148,12 +148,17 @@ def points_of(stack: FrameStack, frame: int, range_mm: np.ndarray) -> np.ndarray
     without a geometry."""
     geometry = stack.sensor.geometry
     if geometry is None:
-        raise AnalysisError(f"{stack.sensor.model}: no calibration to compute points (give the sensor's file with --metadata)")
+        raise AnalysisError(f"{stack.sensor.source or stack.sensor.model}: no {stack.sensor.model} calibration to compute "
+                            "points; give the sensor's file with --metadata (metadata=... in Python)")
     h, w = range_mm.shape
     az_cdeg = (np.rint(np.mod(stack.azimuth_deg[frame], 360.0) * 100.0).astype(np.int64) % 36000).astype(np.uint16)
+    # what every vendor's geometry reads of a frame: its ranges, its columns' azimuths (Hesai, RoboSense)
+    # and its firings' azimuths (Velodyne)
     view = SimpleNamespace(range_mm=np.ascontiguousarray(range_mm[None], np.uint32),
+                           azimuth_deg=np.asarray(stack.azimuth_deg[frame], np.float64),
+                           column_valid=stack.column_valid[frame], sensor=stack.sensor,
                            extra={"azimuth_cdeg": np.broadcast_to(az_cdeg, (h, w))})
-    return geometry.xyz(cast("Frame", view))[0]  # a geometry reads only a frame's range_mm and extra
+    return geometry.xyz(cast("Frame", view))[0]
 
 
 def removal_masks(
@@ -255,7 +260,9 @@ def registration_impact(
     stack, slot = resolve(stack, slot)
     k = len(stack)
     if k < 2:
-        raise AnalysisError(f"registration needs at least 2 frames, the stack has {k}")
+        raise AnalysisError(f"{stack.sensor.source or stack.sensor.model}: registration matches one frame to the next "
+                            f"and this capture gives {k} {'frame' if k == 1 else 'frames'}; give a capture of 2 or more "
+                            "rotations")
     removed = removal_masks(stack, slot, method=monitor_method, gap_m=gap_m, neighbourhood=neighbourhood,
                             threshold_m=threshold_m, conditions=conditions)
     rng = stack.range_mm[:, slot]

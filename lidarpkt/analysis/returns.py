@@ -33,6 +33,8 @@ from lidarpkt.core.dual import second_strongest_mark
 
 #: The return kinds a selection may name (besides a raw slot index).
 RETURN_KINDS = ("strongest", "last", "second_strongest")
+#: the labels sensors give their return slots (Hesai's first/second, Ouster's by return order), besides the kinds
+SLOT_LABELS = ("first", "second", "farthest", "second_farthest", "nearest", "second_nearest", "second_last")
 
 _LAST_STRONGEST = ("last", "strongest")  # a dual mode whose slot 1 is the strongest or the second strongest
 
@@ -75,16 +77,17 @@ def available_returns(stack: FrameStack) -> tuple[str, ...]:
 
 
 def parse_return(text: str | int) -> str | int:
-    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``. Raises AnalysisError
-    for anything else."""
+    """``"0"``/``0`` → 0 (a raw slot), ``"strongest"`` → ``"strongest"``, a slot label of some sensor
+    (:data:`SLOT_LABELS`: ``"first"``, ``"farthest"``...) as it is, looked up in the capture's slots when used.
+    Raises AnalysisError for anything else."""
     if isinstance(text, (int, np.integer)):
         return int(text)
     t = str(text).strip()
     if t.lstrip("-").isdigit():
         return int(t)
-    if t in RETURN_KINDS:
+    if t in RETURN_KINDS or t in SLOT_LABELS:
         return t
-    raise AnalysisError(f"--return {text!r}: give a slot index (0, 1) or one of {', '.join(RETURN_KINDS)}")
+    raise AnalysisError(f"--return {text!r}: give a slot index (0, 1) or one of {', '.join(RETURN_KINDS + SLOT_LABELS)}")
 
 
 def second_strongest_marks(stack: FrameStack) -> np.ndarray:
@@ -159,7 +162,8 @@ def select_returns(stack: FrameStack, selections: Sequence[str | int]) -> Return
         if isinstance(sel, int):
             if not 0 <= sel < r_count:
                 names = ", ".join(f"{i}={lab}" for i, lab in enumerate(stack.return_labels))
-                raise AnalysisError(f"return slot {sel} does not exist: this capture has {r_count} slot(s) ({names})")
+                raise AnalysisError(f"return slot {sel} does not exist: this capture has {r_count} "
+                                    f"{'slot' if r_count == 1 else 'slots'} ({names}); give one of them (--return)")
             rngs.append(stack.range_mm[:, sel])
             refls.append(stack.reflectivity[:, sel])
             valids.append(None if pv is None else pv[:, sel])

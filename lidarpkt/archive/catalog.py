@@ -27,6 +27,8 @@ CATALOG_COLUMNS: dict[str, str] = {
 
 
 def _mode(details: dict[str, Any]) -> str | None:
+    if details.get("profile_source") == "guess" and len(details.get("candidates") or ()) > 1:
+        return None  # packets of that size fit several profiles: only the sensor's metadata can say which
     if "profile" in details:
         return str(details["profile"])
     mode = details.get("return_mode")
@@ -103,15 +105,16 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
 
             for folder in scratch:
                 shutil.rmtree(folder, ignore_errors=True)
-    base.update(container=doc["format"], malformed_records=doc.get("malformed", 0), error=error)
-    if doc.get("truncated") and not error:
-        base["error"] = f"{capture.url}: truncated: {doc.get('truncated_reason')}"
+    truncated = f"{capture.url}: truncated: {doc.get('truncated_reason')}" if doc.get("truncated") else None
+    base.update(container=doc["format"], malformed_records=doc.get("malformed", 0), error=error or truncated)
     rows = []
     for s in doc.get("sensors", ()):  # a file of decoded frames: the frames of each sensor, no packets
         rows.append({**base, "stream": s["source"], "source": s["source"], "kind": s["kind"],
                      "vendor": s["vendor"], "model": s["model"], "mode": s["profile"], "start_ns": s["first_timestamp_ns"],
                      "end_ns": s["last_timestamp_ns"], "packets": 0, "frames": s["frames"],
                      "partial_frames": s["partial_frames"], "lost_packets": 0, "skipped_packets": 0})
+    # the streams the decode's error names, if it names any: the rows of the others do not carry it
+    named = {f"{s['src']} → {s['dst']}" for s in doc["streams"] if error and f"{s['src']} → {s['dst']}" in error}
     for s in doc["streams"]:
         details = s.get("details") or {}
         source = s["src"] or "unknown source"
@@ -119,6 +122,8 @@ def catalog_capture(capture: Capture) -> list[dict[str, Any]]:
         # the IMU's): the frames go to the first lidar stream of that address
         decoded = _take(per_source, source) if _is_lidar(s["stream_kind"]) else None
         row = dict(base)
+        if error and named and f"{s['src']} → {s['dst']}" not in named:
+            row["error"] = truncated  # the error is another stream's (it names it)
         row.update(stream=f"{s['src'] or '?'} -> {s['dst'] or '?'}", source=source, kind=s["kind"],
                    vendor=s["vendor"], model=(decoded or {}).get("model") or details.get("product_name") or details.get("model"),
                    mode=_mode(details), payload_size=s["payload_size"], start_ns=s["first_timestamp_ns"],

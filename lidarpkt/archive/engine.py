@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator, Sequence
 
+from lidarpkt.core.checks import WORKERS
 from lidarpkt.errors import LidarpktError
 
 DEFAULT_RETRIES = 2  # a task whose worker died is re-run by Dask anyway; this covers other transient failures
@@ -44,9 +45,11 @@ class EngineOptions:
             return self.scheduler
         return os.environ.get("DASK_SCHEDULER_ADDRESS") or None if self.workers is None else None
 
+    def __post_init__(self) -> None:
+        if self.workers is not None:  # None: the CPU count
+            WORKERS.check(self.workers, "workers")  # raises UsageError naming the option and its range
+
     def _workers(self) -> int:
-        if self.workers is not None and self.workers < 1:
-            raise EngineError(f"--workers {self.workers}: give 1 or more workers")
         return self.workers or os.cpu_count() or 1
 
 

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator
 
 import numpy as np
 
-from lidarpkt.errors import CaptureFormatError, UnsupportedContainerError
+from lidarpkt.errors import CaptureFormatError, OutputError, UnsupportedContainerError
 from lidarpkt.core.packet import Endpoint, PacketBatch
 
 if TYPE_CHECKING:
@@ -157,7 +157,8 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
     result = PacketExport()
     chosen: dict[int, tuple[Endpoint, Endpoint]] = {}  # a bag's endpoints by payload size
     batches = source.batches() if kind == "pcap" else time_ordered(source.batches())
-    with PcapBatchWriter(out) as writer:
+    writer = _writing(out, lambda: PcapBatchWriter(out))
+    try:
         for batch in batches:
             src = dst = None
             if batch.src is None or batch.dst is None:
@@ -172,7 +173,9 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
                     chosen[size] = default_endpoints(batch, registry.setup(files))
                     result.defaulted[size] = f"{chosen[size][0]} → {chosen[size][1]}"
                 src, dst = chosen[size]
-            writer.write(batch, src, dst)
+            _writing(out, writer.write, batch, src, dst)
+    finally:
+        _writing(out, writer.close)  # what was read before an error is in ``out``
     result.packets = writer.packets_written
     if result.packets == 0 and kind != "pcap":
         from lidarpkt.vendors import registry
@@ -181,3 +184,14 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
         raise CaptureFormatError(f"{src_path}: holds no topic of raw sensor packets ({', '.join(packages)}); there "
                                  "are no packets to write as a pcap")
     return result
+
+
+def _writing(out: str | os.PathLike[str], action: Any, *args: Any) -> Any:
+    """``action(*args)``, its OS error (a full disk) said as the output's, not taken for the input's."""
+    from lidarpkt.writers.base import failure_text
+
+    try:
+        return action(*args)
+    except OSError as exc:
+        raise OutputError(f"{out}: writing failed: {failure_text(exc)}") from None
+

@@ -10,8 +10,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 import warnings
+from typing import Any
 
 from lidarpkt.errors import LidarpktError, LidarpktWarning
 
@@ -20,7 +23,8 @@ VERBS: dict[str, tuple[str, str]] = {
     "info": ("lidarpkt.cli.info", "say what streams and sensors a capture holds"),
     "catalog": ("lidarpkt.cli.archive", "one row per capture file and sensor stream of an archive, in parallel"),
     "export": ("lidarpkt.cli.archive", "export an archive to Parquet, LAS/LAZ, PLY, PCD, NPZ or MCAP on Dask"),
-    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP (raw packets and frames) or NumPy .npz"),
+    "decode": ("lidarpkt.cli.decode", "decode captures to MCAP, NPZ, Parquet, LAS/LAZ, PLY, PCD, CSV, KITTI, Rerun or "
+                                     "ROS bags"),
     "record": ("lidarpkt.cli.record", "record a live sensor (and a serial GPS) to MCAP"),
     "replay": ("lidarpkt.cli.replay", "send a capture's packets over UDP at the original pace"),
     "view": ("lidarpkt.cli.view", "show a capture or a live sensor in Foxglove (WebSocket, ws://localhost:8765)"),
@@ -117,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     mark = cliargs.outputs_mark()
     previous_showwarning = warnings.showwarning
     warnings.showwarning = _show_warning
+    previous_sigint = _interruptible()
+    args = None
     try:
         parser = build_parser(verb if verb in VERBS else None)
         args = parser.parse_args(argv)
@@ -137,13 +143,24 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except OSError as exc:  # a file operation no check foresaw (disk full, a folder removed meanwhile)
         cliargs.discard_outputs(mark)
-        where = exc.filename or "output"
+        output = getattr(args, "output", None)
+        where = exc.filename or (f"-o {output}" if output else "output")
         print(f"lidarpkt: error: {where}: {exc.strerror or exc}; check the path, its folder and the free space",
               file=sys.stderr)
         return 2
     finally:
         cliargs.forget_outputs(mark)
         warnings.showwarning = previous_showwarning
+        if previous_sigint is not None:
+            signal.signal(signal.SIGINT, previous_sigint)
+
+
+def _interruptible() -> Any:
+    """Ctrl-C stops every verb, also one started with SIGINT ignored (as a shell's ``&`` in a script starts
+    it): the default handler is put back; returns the disposition to restore (None: nothing changed)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        return None
+    return signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

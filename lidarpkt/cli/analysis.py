@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lidarpkt.errors import AnalysisError
+from lidarpkt.cli.console import count
 
 if TYPE_CHECKING:
     from lidarpkt.core.sequence import FrameStack
@@ -94,9 +95,7 @@ def _load(path: str, args: argparse.Namespace, workers: int = 1, metadata: list[
     options = cliargs.sensor_options(args)
     if metadata:
         options["metadata"] = metadata
-    grid = args.grid
-    if grid is not None and grid <= 0:
-        raise AnalysisError(f"--grid {grid}: not a positive number of degrees; give one that divides 360, e.g. --grid 0.4")
+    grid = args.grid  # its range checked as it was parsed (cliargs.NUMBERS)
     frames = getattr(args, "frames", None)
     rng = parse_frame_range(frames) if frames else None
     return load_stack(path, frames=rng, resolution_deg=grid, workers=workers, **options)
@@ -114,11 +113,6 @@ def _check_pixel(stack, row: int, col: int, slot: int) -> None:
             raise AnalysisError(f"--pixel {row},{col}: outside the {h} x {w} range image of this capture; use ROW in "
                                 f"0..{h - 1} and COL in 0..{w - 1}") from None
         raise AnalysisError(f"--return: {exc}; choose one of its slots") from None
-
-
-def _check_neighbourhood(n: int) -> None:
-    if n < 1 or n % 2 == 0:
-        raise AnalysisError(f"--neighbourhood {n}: not an odd number >= 1; give e.g. 3 or 5 (the paper's)")
 
 
 def _plots():
@@ -140,7 +134,7 @@ def _add_input(p: argparse.ArgumentParser, frames: bool = True) -> None:
     cliargs.add_quiet(p, "no status lines (\"wrote ...\"); the report itself is still printed")
     if frames:
         p.add_argument("--frames", metavar="A:B", help="analyse complete frames A..B-1 only (e.g. 0:30, 10:)")
-    p.add_argument("--grid", metavar="DEG", type=float, default=None,
+    p.add_argument("--grid", metavar="DEG", type=cliargs.number("--grid"), default=None,
                    help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's, from "
                         "its firing rate, as decode -o x.npz and FrameStack.from_frames); frames whose columns are "
                         "their encoder's keep them")
@@ -162,7 +156,7 @@ def add_analyze_arguments(p: argparse.ArgumentParser) -> None:
                         "strongest), "
                         "or a raw slot index (0, 1); default 0")
     _add_input(p)
-    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
+    p.add_argument("--neighbourhood", metavar="N", type=cliargs.number("--neighbourhood"), default=5, help="spatial CDF neighbourhood N×N, odd (default 5)")
     p.add_argument("--motion-compensation", action="store_true",
                    help="also compute the motion-compensated CDF (5×5 patch, ±2 px, against frame 0)")
     p.add_argument("--gmm", metavar="em|auto|THRESHOLDS", default="em",
@@ -179,7 +173,6 @@ def run_analyze(args: argparse.Namespace) -> int:
     # options and outputs first: a typo should not cost a decode
     pixels = list(args.pixel)
     gmm = None if args.gmm in ("none", "off") else parse_method(args.gmm)
-    _check_neighbourhood(args.neighbourhood)
     if args.plot and args.plot.lower().endswith(".png"):
         raise AnalysisError(f"--plot {args.plot}: analyze writes several figures; give a folder")
     selection = parse_return(args.slot)
@@ -195,7 +188,7 @@ def run_analyze(args: argparse.Namespace) -> int:
         for r, c in pixels
     ]
     source = _source(args.input, stack)
-    print(f"{source}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
+    print(f"{source}: {count(len(stack), 'frame')} of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}, "
           f"return {stack.return_labels[slot]}")
     print(f"{'row':>4} {'col':>5} {'returns':>8} {'non-ret':>8} {'missing':>8} {'GMM':>5}  component means (m) [weights]")
     for ra in results:
@@ -206,7 +199,7 @@ def run_analyze(args: argparse.Namespace) -> int:
               f"{'-' if g is None else g.n_components:>5}  {desc}")
         if ra.motion is not None:
             moved = int(np.count_nonzero(np.any(ra.motion.offsets != 0, axis=1)))
-            print(f"{'':>4} motion compensation: {moved} of {len(stack)} frames moved")
+            print(f"{'':>4} motion compensation: {moved} of {count(len(stack), 'frame')} moved")
     _write_json(args, {"frames": len(stack), "pixels": [ra.to_json() for ra in results]})
     if args.plot:
         plots = _plots()
@@ -236,15 +229,15 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="one capture: the statistics and monitor flags, MAP.npz; several: a folder")
     p.set_defaults(_output_suffixes=(".npz",))
-    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), default=None, metavar="N",
-                   help="several captures: processes of a local Dask cluster (default: the CPU count)")
+    p.add_argument("--workers", type=cliargs.number("--workers"), default=None, metavar="N",
+                   help="use N CPU cores (several captures: N processes of a local Dask cluster; default: every core)")
     p.add_argument("--scheduler", metavar="ADDR", help="several captures: an existing Dask cluster (tcp://HOST:8786)")
     cliargs.add_plot(p, "write the multi-return map and the monitor's ROC (PNG) into this folder")
     _add_input(p)
-    p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
-    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
-    p.add_argument("--monitor-frame", metavar="K", type=int, default=0, help="frame the monitor looks at (default 0)")
-    p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--gap", metavar="M", type=cliargs.number("--gap"), default=None, help="range gap that separates clusters, metres (default 0.1)")
+    p.add_argument("--neighbourhood", metavar="N", type=cliargs.number("--neighbourhood"), default=5, help="monitor neighbourhood N×N, odd (default 5)")
+    p.add_argument("--monitor-frame", metavar="K", type=cliargs.number("--monitor-frame"), default=0, help="frame the monitor looks at (default 0)")
+    p.add_argument("--threshold", metavar="M", type=cliargs.number("--threshold"), default=None, help="monitor flag threshold, metres (default: the gap)")
     from lidarpkt.analysis.multireturn import MONITOR_METHODS
 
     p.add_argument("--method", choices=MONITOR_METHODS, default=None,
@@ -255,14 +248,17 @@ def add_multireturn_arguments(p: argparse.ArgumentParser) -> None:
                         "neighbourhood")
     p.add_argument("--gmm-map", metavar="OUT", help="also fit a Gaussian mixture per pixel and return (a probabilistic "
                    "raypath map) and write it: NPZ, or Parquet when OUT ends in .parquet")
-    p.add_argument("--gmm-components", metavar="L", type=int, default=4, help="most mixture components per pixel (default 4)")
+    p.add_argument("--gmm-components", metavar="L", type=cliargs.number("--gmm-components"), default=4, help="most mixture components per pixel (default 4)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return shown in the plot: a kind (strongest, last, second_strongest) or an index into the "
                         "map's returns (a last+strongest dual map has last, strongest, second_strongest); default 0")
 
 
 def run_multireturn(args: argparse.Namespace) -> int:
-    if len(args.input) > 1 or Path(args.input[0]).is_dir() or args.workers is not None or args.scheduler:
+    from lidarpkt.containers.magic import is_capture_folder
+
+    folder = Path(args.input[0]).is_dir() and not is_capture_folder(args.input[0])  # a bag folder is one capture
+    if len(args.input) > 1 or folder or args.workers is not None or args.scheduler:
         # an archive: one map per capture, in parallel
         from lidarpkt.cli.archive import run_multireturn_archive
 
@@ -272,12 +268,7 @@ def run_multireturn(args: argparse.Namespace) -> int:
     from lidarpkt.analysis.multireturn import multireturn_map
     from lidarpkt.analysis.returns import parse_return, sensor_returns
 
-    gap = DEFAULT_GAP_M if args.gap is None else args.gap
-    if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
-    _check_neighbourhood(args.neighbourhood)
-    if args.gmm_components < 1:
-        raise AnalysisError(f"--gmm-components {args.gmm_components}: give 1 or more")
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap  # the flags' ranges checked as parsed (cliargs.NUMBERS)
     method = args.method
     shown = parse_return(args.slot)
     _check_outputs(args, output_suffixes=(".npz",))
@@ -295,7 +286,10 @@ def run_multireturn(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise AnalysisError(f"-o {out}: cannot write ({exc.strerror or exc}); choose a writable path") from None
     s = mr.stats
-    print(f"{_source(args.input, stack)}: {len(stack)} frames of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
+    slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
+    if not 0 <= slot < len(s.return_labels):
+        raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
+    print(f"{_source(args.input, stack)}: {count(len(stack), 'frame')} of {stack.range_mm.shape[2]}x{stack.range_mm.shape[3]}")
     for i, label in enumerate(s.return_labels):
         with_ret = int(np.count_nonzero(s.n_returns[i]))
         multi = int(np.count_nonzero(s.multi_return[i]))
@@ -309,9 +303,6 @@ def run_multireturn(args: argparse.Namespace) -> int:
         _status(args, _write_gmm_map(stack, args.gmm_map, args.gmm_components, gap))
     if args.plot:
         plots = _plots()
-        slot = shown if isinstance(shown, int) else (s.return_labels.index(shown) if shown in s.return_labels else -1)
-        if not 0 <= slot < len(s.return_labels):
-            raise AnalysisError(f"--return {args.slot}: no such slot; this capture has slots {list(s.return_labels)}")
         figure, roc = Path(args.plot) / "multireturn_map.png", Path(args.plot) / "multireturn_roc.png"
         plots.save(plots.plot_multireturn_map(mr, stack, slot, _source(args.input, stack)), figure)
         ev = mr.evaluation[slot]
@@ -405,7 +396,7 @@ def run_compare_returns(args: argparse.Namespace) -> int:
         doc["frames"] = len(a)
         doc["slots"] = pc.summary()
         s = pc.summary()
-        print(f"{src_a}: {len(a)} frames, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
+        print(f"{src_a}: {count(len(a), 'frame')}, {s['labels'][0]} vs {s['labels'][1]}: {s['pairs']} pairs, "
               f"{_fmt(s['fraction_identical'])} identical, {s['pairs_one_sided']} with a return on one side only")
         if plots:
             figs.append((plots.plot_delta_histogram(pc, src_a), "delta_histogram.png"))

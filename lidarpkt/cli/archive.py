@@ -22,7 +22,7 @@ from lidarpkt.errors import LidarpktError
 from lidarpkt.writers.base import write_atomic
 
 from . import args as cliargs
-from .console import JobBars
+from .console import JobBars, count
 
 
 def _add_engine(p: argparse.ArgumentParser) -> None:
@@ -30,8 +30,9 @@ def _add_engine(p: argparse.ArgumentParser) -> None:
     cliargs.add_sensor_options(p, "a sensor's description file for every input, of any vendor, told apart by its "
                                   "content (by default the JSON beside each capture with the same stem); repeat, one "
                                   "per sensor")
-    p.add_argument("--workers", type=cliargs.positive_int_type("--workers"), metavar="N",
-                   help="processes of a local Dask cluster (default: the CPU count); 1 runs without Dask")
+    p.add_argument("--workers", type=cliargs.number("--workers"), metavar="N",
+                   help="use N CPU cores (default: every core): N processes of a local Dask cluster, a capture or "
+                        "segment each; 1 runs in this process, without Dask")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="run on an existing Dask cluster (tcp://HOST:8786; default $DASK_SCHEDULER_ADDRESS)")
     cliargs.add_quiet(p, "no progress bar or summary")
@@ -55,7 +56,7 @@ def add_export_arguments(p: argparse.ArgumentParser) -> None:
                    "packets, from pcapng, MCAP and ROS bags too; a bag's keep the vendor's default ports)")
     p.add_argument("--layout", choices=("points", "frames"), help="Parquet: one row per return (points, the "
                    "default) or per frame")
-    p.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+    p.add_argument("--frames-per-file", type=cliargs.number("--frames-per-file"), metavar="N",
                    help="LAS/LAZ/CSV: one file per N frames")
     p.add_argument("--storage", choices=("sqlite3", "mcap"),
                    help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
@@ -73,7 +74,8 @@ def _check_engine(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_catalog(args: argparse.Namespace) -> int:
-    """Write the catalog; exit status 0 (a row with an error is data, not a failure of the verb)."""
+    """Write the catalog (every row, errors too); exit status as export's (:func:`job_status`): 1 when a file
+    failed, its row saying why."""
     from lidarpkt.archive import CATALOG_COLUMNS
     from lidarpkt.archive.catalog import catalog_rows, rows_to_table
 
@@ -98,12 +100,12 @@ def run_catalog(args: argparse.Namespace) -> int:
         write_atomic(out, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
     if cliargs.wants_json(args):
         cliargs.emit_json(args, json.dumps(rows, indent=1, default=str))
-    if not args.quiet:
-        files = len({r["path"] for r in rows})
-        bad = len({r["path"] for r in rows if r["error"]})
-        print(f"lidarpkt catalog: {len(rows)} streams in {files} files ({bad} with errors)"
+    files = len({r["path"] for r in rows})
+    bad = len({r["path"] for r in rows if r["error"]})
+    if not args.quiet or bad:
+        print(f"lidarpkt catalog: {count(len(rows), 'stream')} in {count(files, 'file')} ({bad} with errors)"
               + (f" in {out or cliargs.json_file(args)}" if out or cliargs.json_file(args) else ""), file=sys.stderr)
-    return 0
+    return job_status(bad)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -123,7 +125,14 @@ def run_export(args: argparse.Namespace) -> int:
         bars.close()
     if not args.quiet or report.failed:
         print("lidarpkt export: " + report.summary(), file=sys.stderr)
-    return 1 if report.failed else 0
+    return job_status(len(report.failed))
+
+
+def job_status(failed_files: int) -> int:
+    """The exit status of the archive verbs (catalog, export, multireturn over several captures): 0 when every
+    file was read, 1 when some file failed (the output holds the others; the summary says which failed)."""
+    return 1 if failed_files else 0
+
 
 
 def run_multireturn_archive(args: argparse.Namespace) -> int:
@@ -153,12 +162,12 @@ def run_multireturn_archive(args: argparse.Namespace) -> int:
     failed = [r for r in rows if r["error"]]
     for r in rows:
         if not r["error"]:
-            print(f"{r['capture']} slot {r['slot']} ({r['return_label']}): {r['frames_used']} frames, "
+            print(f"{r['capture']} slot {r['slot']} ({r['return_label']}): {count(r['frames_used'], 'frame')}, "
                   f"multi-return {_fraction(r['multi_return_fraction'])}, non-return {_fraction(r['nonreturn_fraction'])}")
     for r in failed:
         print(f"lidarpkt multireturn: failed: {r['capture']}: {r['error']}", file=sys.stderr)
-    print(f"wrote {len({r['map'] for r in rows if r['map']})} maps and {Path(args.output) / 'summary.csv'}")
-    return 1 if failed else 0
+    print(f"wrote {count(len({r['map'] for r in rows if r['map']}), 'map')} and {Path(args.output) / 'summary.csv'}")
+    return job_status(len({r["capture"] for r in failed}))
 
 
 def _fraction(value: float | None) -> str:

@@ -13,7 +13,8 @@ Every verb builds its options from these helpers, so a flag means the same thing
                        (``--calibration FILE`` is a second spelling); ``--model NAME`` where packets
                        cannot tell the model (:func:`add_sensor_options`, :func:`sensor_options`).
 ``-q/--quiet``         no progress bar and no status lines.
-``--workers N``        parallelism of the verbs that decode.
+``--workers N``        the CPU cores a verb may use (threads that decode, Dask processes over an
+                       archive, the threads of scan matching: the verb's help says which).
 ``--pixel ROW,COL``    a raypath; repeatable where several make sense.
 ``--port N``           a UDP port, 1–65535.
 
@@ -36,16 +37,52 @@ import sys
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from lidarpkt.core.checks import PORT, WORKERS, Number
 from lidarpkt.errors import InputFileError, LidarpktError, OutputError, UsageError
 
 __all__ = [
     "add_output", "add_json", "check_json", "json_file", "emit_json", "wants_json", "add_plot", "add_sensor_options",
     "sensor_options", "add_quiet", "add_workers", "add_pixel",
-    "parse_pixel", "port", "positive_int", "check_output", "check_folder", "check_inputs",
+    "parse_pixel", "port", "positive_int", "NUMBERS", "number", "check_output", "check_folder", "check_inputs",
     "discard_outputs", "error_line",
 ]
 
 JSON_STDOUT = "-"
+
+
+# ------------------------------------------------------------------------------ numeric flags
+#: Every numeric flag of the command line and the values it takes, declared once: a flag means the same in
+#: every verb that has it, and is checked the same way (:func:`number`: one line naming the flag and the
+#: range, exit 2). The tests drive each with :meth:`~lidarpkt.core.checks.Number.bad_values`.
+NUMBERS: dict[str, Number] = {
+    "--workers": WORKERS,
+    "--frames-per-file": Number(1, whole=True, example="100"),
+    "--frames": Number(1, whole=True, example="10"),
+    "--seed": Number(0, 2**32 - 1, whole=True, example="0"),
+    "--grid": Number(0.05, 10, unit="degrees", example="0.2"),
+    "--gap": Number(0, 1000, low_open=True, unit="metres", example="0.1"),
+    "--threshold": Number(0, 1000, low_open=True, unit="metres", example="0.1"),
+    "--neighbourhood": Number(1, 99, whole=True, odd=True, example="5"),
+    "--monitor-frame": Number(0, whole=True, example="0"),
+    "--gmm-components": Number(1, 16, whole=True, example="4"),
+    "--downsample": Number(0, 100, low_open=True, unit="metres", example="0.25"),
+    "--max-correspondence": Number(0, 1000, low_open=True, unit="metres", example="1"),
+    "--voxel": Number(0, 100, low_open=True, unit="metres", example="1"),
+    "--rate": Number(0, 1000, low_open=True, example="2"),
+    "--duration": Number(0, low_open=True, unit="seconds", example="10"),
+    "--start-after-fetch": Number(0, 3600, unit="seconds", example="1"),
+    "--rotate-size": Number(0.1, 1 << 20, unit="MB", example="512"),
+    "--rotate-time": Number(0.5, unit="seconds", example="60"),
+    "--chunk-seconds": Number(0.01, 60, unit="seconds", example="0.5"),
+    "--baud": Number(50, 4_000_000, whole=True, example="9600"),
+    "--rcvbuf": Number(0.001, 2047, unit="MB", example="32"),  # the kernel's option is a C int of bytes
+    "--queue": Number(0.0625, 1 << 16, unit="MB", example="256"),
+}
+
+
+def number(flag: str):
+    """argparse ``type=`` for the numeric flag ``flag``, as :data:`NUMBERS` declares it."""
+    return _argparse_type(NUMBERS[flag].parse, flag)
 
 
 # ------------------------------------------------------------------------------ flag parsers
@@ -74,25 +111,13 @@ def _argparse_type(fn, flag: str):
 
 
 def port(text: str, flag: str = "--port") -> int:
-    """A UDP port number, 1–65535. Raises :class:`UsageError`."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise UsageError(f"{flag} {text}: not a port number; give an integer in 1-65535, e.g. {flag} 2368") from None
-    if not 1 <= value <= 65535:
-        raise UsageError(f"{flag} {text}: out of range; a UDP port is in 1-65535 (e.g. {flag} 2368)")
-    return value
+    """A UDP port number, 1–65535 (:data:`lidarpkt.core.checks.PORT`). Raises :class:`UsageError`."""
+    return int(PORT.parse(text, flag))
 
 
 def positive_int(text: str, flag: str) -> int:
-    """An integer >= 1. Raises :class:`UsageError`."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise UsageError(f"{flag} {text}: not a whole number >= 1; give e.g. {flag} 2")
-    return value
+    """An integer >= 1 (as :data:`NUMBERS` declares ``flag``, when it does). Raises :class:`UsageError`."""
+    return int((NUMBERS.get(flag) or Number(1, whole=True, example="2")).parse(text, flag))
 
 
 def _json_file(text: str, flag: str) -> str:
@@ -229,9 +254,10 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
-    parser.add_argument("--workers", type=positive_int_type("--workers"), default=None, metavar="N",
-                        help="decode in N processes side by side (1: in this one); a pcap/pcapng capture is cut "
-                             "into segments (default: the idle CPUs, at most 4, for a capture of 64 MB or more, else 1)")
+    parser.add_argument("--workers", type=number("--workers"), default=None, metavar="N",
+                        help="use N CPU cores: a pcap/pcapng capture is cut into segments decoded by N processes "
+                             "side by side (1: in this one; default: the idle CPUs, at most 4, for a capture of 64 MB "
+                             "or more, else 1)")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

@@ -7,7 +7,12 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["JobBars", "Progress", "StopSignals", "show_progress"]
+__all__ = ["JobBars", "Progress", "StopSignals", "show_progress", "count"]
+
+
+def count(n: int, noun: str, plural: str | None = None) -> str:
+    """``"1 frame"``, ``"2 frames"``: a number and its noun, singular or plural."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"
 
 
 def show_progress(quiet: bool) -> bool:

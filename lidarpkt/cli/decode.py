@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lidarpkt.errors import LidarpktError, RecorderError, UsageError
+from lidarpkt.cli.console import count
 
 if TYPE_CHECKING:
     from lidarpkt.writers.feed import Feed
@@ -54,13 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(packets,points)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"),
                         help="rosbag2: the storage of the bag's messages (sqlite3, as ros2 bag records by default)")
-    parser.add_argument("--grid", type=float, metavar="DEG",
+    parser.add_argument("--grid", type=cliargs.number("--grid"), metavar="DEG",
                         help="NPZ: azimuth grid resolution (default: the sensor's, from its firing rate)")
     parser.add_argument("--compress", action="store_true", help="NPZ: compress the arrays (slower)")
     add_frame_arguments(parser)
     parser.add_argument("--layout", choices=("points", "frames"),
                         help="Parquet: one row per return (points, the default) or per frame (frames)")
-    parser.add_argument("--frames-per-file", type=cliargs.positive_int_type("--frames-per-file"), metavar="N",
+    parser.add_argument("--frames-per-file", type=cliargs.number("--frames-per-file"), metavar="N",
                         help="LAS/LAZ/CSV: one file per N frames in the folder OUT (default: one file)")
     cliargs.add_workers(parser)
     cliargs.add_quiet(parser, "no progress bar and no summary")
@@ -99,7 +100,7 @@ def _feed(args) -> tuple[Feed, Any]:
 
     total = sum(Path(p).stat().st_size for p in args.inputs if Path(p).is_file())
     progress = console.Progress(args.quiet, total=total, desc="decode")
-    return Feed(progress=lambda done, frames: progress.update(done, f"{frames} frames")), progress
+    return Feed(progress=lambda done, frames: progress.update(done, count(frames, "frame"))), progress
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,12 +110,16 @@ def run(args: argparse.Namespace) -> int:
     # every check before any decoding: a typo must not cost a decode, nor leave a file behind
     cliargs.check_inputs(args.inputs)
     cliargs.sensor_options(args)  # the sensor files and model checked before any work
-    if args.grid is not None and not args.grid > 0:
-        raise UsageError(f"--grid {args.grid}: not a positive number of degrees; give one that divides 360, "
-                         "e.g. --grid 0.2")
     fmt = format_from_suffix(args.output)
     folder = FORMATS[fmt].directory or bool(args.frames_per_file)
     out = cliargs.check_folder(args.output, "-o") if folder else cliargs.check_output(args.output, "-o", SUFFIXES)
+    if args.frame_id or args.base_frame or args.mount:
+        if not takes_packets(fmt):
+            raise UsageError("--frame-id/--base-frame/--mount: they place the point clouds of MCAP and ROS bag "
+                             f"outputs; drop them for {fmt} (or write -o OUT.mcap)")
+        from lidarpkt.writers.mcap.frames import SensorFrames
+
+        SensorFrames(**frame_options(args))  # their values checked before any decoding
     if fmt == "npz" or takes_packets(fmt):
         _format_options(args, fmt)  # rejects the flags of other formats
     if takes_packets(fmt):  # MCAP, ROS bags: the capture's packets too
@@ -149,7 +154,7 @@ def _to_mcap(args, out: Path, fmt: str = "mcap") -> int:
         frame_messages = writer.mcap.messages_written - writer.packet_messages - writer.decoded_messages
         imu = f", {writer.decoded_messages} IMU/zone messages" if writer.decoded_messages else ""
         print(f"lidarpkt decode: {writer.packet_messages} packet messages{imu} and {frame_messages} frame messages "
-              f"({feed.frames} frames) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
+              f"({count(feed.frames, 'frame')}) in {out} ({_size_bytes(out) / 1e6:.1f} MB)", file=sys.stderr)
     return 0
 
 
@@ -171,7 +176,7 @@ def _to_npz(args, out: Path) -> int:
         if not feed.frames:
             raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {feed.frames} frames from {writer.sensors} sensor(s) in {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {count(feed.frames, 'frame')} from {count(writer.sensors, 'sensor')} in {out}", file=sys.stderr)
     return 0
 
 
@@ -221,7 +226,7 @@ def _to_format(args, out: Path, fmt: str, per_input: bool) -> int:
     if not feed.frames:
         raise LidarpktError(f"{', '.join(args.inputs)}: no frames decoded; check the capture with lidarpkt info")
     if not args.quiet:
-        print(f"lidarpkt decode: {feed.frames} frames in {len(written)} file(s) under {out}", file=sys.stderr)
+        print(f"lidarpkt decode: {count(feed.frames, 'frame')} in {count(len(written), 'file')} under {out}", file=sys.stderr)
     return 0
 
 

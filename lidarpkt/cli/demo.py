@@ -24,9 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("-o", "--output", dest="output", default="demo-out", metavar="DIR",
                         help="folder for MCAP files, figures, summary (demo-out)")
-    parser.add_argument("--frames", type=int, metavar="N",
+    parser.add_argument("--frames", type=cliargs.number("--frames"), metavar="N",
                         help="frames per capture (default: the fixtures' full length)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the scene's per-firing draws (0)")
+    parser.add_argument("--seed", type=cliargs.number("--seed"), default=0, help="seed of the scene's per-firing draws (0)")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures (no matplotlib needed)")
     parser.add_argument("--no-mcap", action="store_true", help="skip writing MCAP files")
     cliargs.add_quiet(parser, "no progress bar")

@@ -23,8 +23,8 @@ def add_receive_arguments(parser: argparse.ArgumentParser, metadata_help: str) -
     cliargs.add_sensor_options(parser, metadata_help)
     parser.add_argument("--sensor", metavar="HOST[:PORT]",
                         help="Ouster sensor to fetch the metadata from (GET /api/v1/sensor/metadata, port 80)")
-    parser.add_argument("--rcvbuf", type=float, default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
-    parser.add_argument("--queue", type=float, default=256, metavar="MB",
+    parser.add_argument("--rcvbuf", type=cliargs.number("--rcvbuf"), default=32, metavar="MB", help="kernel receive buffer to ask for (32)")
+    parser.add_argument("--queue", type=cliargs.number("--queue"), default=256, metavar="MB",
                         help="payload megabytes allowed to wait for the writer before drops are counted (256)")
 
 

@@ -15,10 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from lidarpkt.errors import RecorderError
 
 from . import args as cliargs
+from .console import count
 from .live import add_receive_arguments, add_ws_argument, live_sensors, receive_options, start_view
 
 
@@ -29,16 +31,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                   "apart by its content): recorded in the file, and what the --points frames are "
                                   "decoded with; repeat, one per sensor")
     stop = parser.add_mutually_exclusive_group()
-    stop.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    stop.add_argument("--frames", type=int, metavar="N", help="stop after N complete rotations")
+    stop.add_argument("--duration", type=cliargs.number("--duration"), metavar="S", help="stop after S seconds")
+    stop.add_argument("--frames", type=cliargs.number("--frames"), metavar="N", help="stop after N complete rotations")
     cliargs.add_output(parser, (".mcap",), help="MCAP file to write")
-    parser.add_argument("--rotate-size", type=float, metavar="MB",
+    parser.add_argument("--rotate-size", type=cliargs.number("--rotate-size"), metavar="MB",
                         help="start a new file every MB megabytes (files are then OUT_0000.mcap, OUT_0001.mcap ...)")
-    parser.add_argument("--rotate-time", type=float, metavar="S", help="start a new file every S seconds (as above)")
-    parser.add_argument("--chunk-seconds", type=float, default=0.5, metavar="S",
+    parser.add_argument("--rotate-time", type=cliargs.number("--rotate-time"), metavar="S", help="start a new file every S seconds (as above)")
+    parser.add_argument("--chunk-seconds", type=cliargs.number("--chunk-seconds"), default=0.5, metavar="S",
                         help="close an MCAP chunk every S seconds: at most that much is lost if killed (0.5)")
     parser.add_argument("--gps", metavar="PORT", help="serial port of an NMEA GPS (e.g. /dev/ttyUSB0)")
-    parser.add_argument("--baud", type=int, default=9600, help="GPS baud rate (9600)")
+    parser.add_argument("--baud", type=cliargs.number("--baud"), default=9600, help="GPS baud rate (9600)")
     parser.add_argument("--points", action="store_true",
                         help="also write PointCloud2 frames (decoded off the receive path) to the MCAP")
     parser.add_argument("--view", action="store_true",
@@ -46,7 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_ws_argument(parser)
     add_frame_arguments(parser)  # with --points: each sensor's frame id and its mount on /tf_static
     cliargs.add_json(parser, "the summary as one JSON document", file_flag="--report")  # -o is the MCAP
-    cliargs.add_quiet(parser, "no status line and no summary")
+    cliargs.add_quiet(parser, "no status line and no summary: only errors, the notices of what happens to the "
+                              "stream (silence, unknown packets kept), and the one line that says where it listens "
+                              "and writes (scripts wait for it)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,17 +94,24 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _listening(capture, args: argparse.Namespace) -> None:
-    granted = ", ".join(f"{p}: {b / (1 << 20):.1f} MiB" for p, b in capture.stats.rcvbuf_granted.items())
-    # printed even with --quiet: it says the recorder is ready (scripts wait for it)
-    print(f"lidarpkt record: listening on {capture.bind_address} port(s) "
-          f"{', '.join(map(str, capture.ports))}; receive buffer asked "
-          f"{capture.stats.rcvbuf_requested / (1 << 20):.0f} MiB, granted {granted}; writing {args.output}",
-          file=sys.stderr, flush=True)
+    granted = ", ".join(f"{b / (1 << 20):.1f} MiB on port {p}" for p, b in capture.stats.rcvbuf_granted.items())
+    out = Path(args.output)
+    if args.rotate_size or args.rotate_time:  # the files the writer makes: STEM_0000.mcap, STEM_0001.mcap ...
+        writing = f"{out.with_name(out.stem + '_0000.mcap')}, {out.stem}_0001.mcap ... (a new file every " + \
+            " or ".join(x for x in (f"{args.rotate_size:g} MB" if args.rotate_size else "",
+                                    f"{args.rotate_time:g} s" if args.rotate_time else "") if x) + ")"
+    else:
+        writing = str(out)
+    # printed even with --quiet: the one line that says the recorder is ready (scripts wait for it)
+    ports = ", ".join(map(str, capture.ports))
+    print(f"lidarpkt record: listening on {capture.bind_address} {'port' if len(capture.ports) == 1 else 'ports'} "
+          f"{ports}; receive buffer asked {capture.stats.rcvbuf_requested / (1 << 20):g} MiB, granted {granted}; "
+          f"writing {writing}", file=sys.stderr, flush=True)
 
 
 def _status_line(s) -> None:
     lost = f"{s.lost_gaps} (gaps) + {s.kernel_drops} (kernel) + {s.queue_overflow} (queue)"
-    print(f"\r[{s.seconds:7.1f} s] {s.packets_per_s:8.0f} pkt/s  {s.frames} frames  lost {lost}  "
+    print(f"\r[{s.seconds:7.1f} s] {s.packets_per_s:8.0f} pkt/s  {count(s.frames, 'rotation')}  lost {lost}  "
           f"{s.bytes_written / 1e6:8.1f} MB", end="" if sys.stderr.isatty() else "\n", file=sys.stderr, flush=True)
 
 
@@ -113,14 +124,15 @@ def summary_text(d: dict, report_lines: list[str]) -> str:
     """The summary a recording prints: its files, counts and losses, then the sink's report lines."""
     lines = [
         f"lidarpkt record: stopped by {d['stopped_by']} after {d['seconds']:.1f} s",
-        f"  {d['packets']} packets in {d['messages_written']} messages, {d['frames']} rotations, "
+        f"  {count(d['packets'], 'packet')} in {count(d['messages_written'], 'message')}, "
+        f"{count(d['frames'], 'rotation')}, "
         f"{d['bytes_written'] / 1e6:.1f} MB in {', '.join(d['files'])}",
         f"  lost: {d['lost_total']} = the larger of {d['lost_gaps']} (gaps in the packets' own counters, wherever "
         f"lost) and {d['kernel_drops']} (kernel buffer full) + {d['queue_overflow']} (writer fell behind), which "
         f"leave gaps too; {d['out_of_order']} out of order",
     ]
     if d["interruptions"]:
-        lines.append(f"  the sensor stream was interrupted {d['interruptions']} time(s) (a jump of more than a second "
+        lines.append(f"  the sensor stream was interrupted {count(d['interruptions'], 'time')} (a jump of more than a second "
                      "in its own counters: stopped, restarted or unplugged); recording went on")
     if d["corrupted"]:
         lines.append(f"  {d['corrupted']} packets were corrupted (their own counters jumped further than the capture "

@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 from lidarpkt.errors import AnalysisError
+from lidarpkt.cli.console import count
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     cliargs.add_sensor_options(p)
     p.add_argument("--frames", metavar="A:B", help="use complete frames A..B-1 only (e.g. 0:20)")
-    p.add_argument("--grid", metavar="DEG", type=float, default=None, help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's)")
+    p.add_argument("--grid", metavar="DEG", type=cliargs.number("--grid"), default=None, help="azimuth grid in degrees of sensors whose columns are firings (default: the sensor's)")
     p.add_argument("--return", dest="slot", metavar="RETURN", default="0",
                    help="return to register: strongest, last, second_strongest or a slot index (default 0)")
     cliargs.add_json(p, "the results as one JSON document")
@@ -30,35 +31,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", action="append", choices=MODES, help="target: each frame to the first, or to a map of all frames; repeatable (default both)")
     p.add_argument("--map", metavar="GMM", help="a probabilistic raypath map (multireturn --gmm-map) as the scan-to-map target")
     p.add_argument("--method", choices=MONITOR_METHODS, default=None, help="the monitor's score (default detrend)")
-    p.add_argument("--gap", metavar="M", type=float, default=None, help="range gap that separates clusters, metres (default 0.1)")
-    p.add_argument("--neighbourhood", metavar="N", type=int, default=5, help="monitor neighbourhood N×N, odd (default 5)")
-    p.add_argument("--threshold", metavar="M", type=float, default=None, help="monitor flag threshold, metres (default: the gap)")
-    p.add_argument("--downsample", metavar="M", type=float, default=0.25, help="voxel-grid downsampling of every cloud, metres (default 0.25)")
-    p.add_argument("--max-correspondence", metavar="M", type=float, default=1.0, help="largest correspondence distance, metres (default 1)")
-    p.add_argument("--voxel", metavar="M", type=float, default=1.0, help="VGICP voxel size, metres (default 1)")
-    p.add_argument("--workers", metavar="N", type=cliargs.positive_int_type("--workers"), default=1,
-                   help="threads small_gicp uses (default 1)")
+    p.add_argument("--gap", metavar="M", type=cliargs.number("--gap"), default=None, help="range gap that separates clusters, metres (default 0.1)")
+    p.add_argument("--neighbourhood", metavar="N", type=cliargs.number("--neighbourhood"), default=5, help="monitor neighbourhood N×N, odd (default 5)")
+    p.add_argument("--threshold", metavar="M", type=cliargs.number("--threshold"), default=None, help="monitor flag threshold, metres (default: the gap)")
+    p.add_argument("--downsample", metavar="M", type=cliargs.number("--downsample"), default=0.25, help="voxel-grid downsampling of every cloud, metres (default 0.25)")
+    p.add_argument("--max-correspondence", metavar="M", type=cliargs.number("--max-correspondence"), default=1.0, help="largest correspondence distance, metres (default 1)")
+    p.add_argument("--voxel", metavar="M", type=cliargs.number("--voxel"), default=1.0, help="VGICP voxel size, metres (default 1)")
+    p.add_argument("--workers", metavar="N", type=cliargs.number("--workers"), default=1,
+                   help="use N CPU cores (default 1): the threads of the scan matching (small_gicp)")
     cliargs.add_quiet(p, "no table and no status lines")
 
 
 def run(args: argparse.Namespace) -> int:
     from lidarpkt.cli import args as cliargs
 
-    from lidarpkt.cli.analysis import _check_neighbourhood, _check_outputs, _clean, _load, _plots, _source, _status
+    from lidarpkt.cli.analysis import _check_outputs, _clean, _load, _plots, _source, _status
     from lidarpkt.analysis.gmm import DEFAULT_GAP_M
     from lidarpkt.analysis.multireturn import DEFAULT_MONITOR_METHOD
     from lidarpkt.analysis.registration import ALGORITHMS, MODES, RegistrationSettings, registration_impact
     from lidarpkt.analysis.returns import parse_return
 
     # options first: a typo should not cost a decode
-    _check_neighbourhood(args.neighbourhood)
     selection = parse_return(args.slot)
-    gap = DEFAULT_GAP_M if args.gap is None else args.gap
-    if not gap > 0:
-        raise AnalysisError(f"--gap {args.gap}: not a positive number of metres; give e.g. --gap 0.1")
-    for flag, value in (("--downsample", args.downsample), ("--max-correspondence", args.max_correspondence), ("--voxel", args.voxel)):
-        if not value > 0:
-            raise AnalysisError(f"{flag} {value}: not a positive number of metres; give e.g. {flag} 0.5")
+    gap = DEFAULT_GAP_M if args.gap is None else args.gap  # the flags' ranges checked as parsed (cliargs.NUMBERS)
     if args.map:
         cliargs.check_inputs([args.map], "--map")
     if args.plot and args.plot.lower().endswith(".png"):
@@ -101,7 +96,7 @@ def print_table(impact, source: str) -> None:
     from lidarpkt.analysis.registration import CONDITIONS
 
     rf = impact.removed_fraction
-    print(f"{source}: {impact.frames} frames, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "
+    print(f"{source}: {count(impact.frames, 'frame')}, {impact.points_per_frame:.0f} returns per frame ({impact.label} return); "
           f"monitor ({impact.monitor_method}) removes {100 * rf['monitor_removed']:.1f} %, "
           f"multi-return raypaths {100 * rf['multireturn_removed']:.1f} % of the returns")
     head = f"{'algorithm':<20} {'target':<13}" + "".join(f" {c:>24}" for c in CONDITIONS)

@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="capture to replay: pcap/pcapng, MCAP or ROS bag with raw packet topics")
     parser.add_argument("--to", required=True, metavar="HOST:PORT", help="where the lidar data stream goes")
     pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, default=1.0, metavar="F", help="speed factor (1 = real time)")
+    pace.add_argument("--rate", type=cliargs.number("--rate"), default=1.0, metavar="F", help="speed factor (1 = real time)")
     pace.add_argument("--max", action="store_true", help="send as fast as possible")
     parser.add_argument("--loop", action="store_true", help="start again at the end, until interrupted")
     parser.add_argument("--port-map", action="append", default=[], metavar="SRC:DST",
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ptc", metavar="HOST:PORT",
                         help="also answer Hesai PTC commands there (a Pandar's TCP port 9347), serving the Hesai "
                              "CSV of --calibration (or --metadata) for 'get calibration' (0x05), as the sensor does")
-    parser.add_argument("--start-after-fetch", type=float, metavar="S",
+    parser.add_argument("--start-after-fetch", type=cliargs.number("--start-after-fetch"), metavar="S",
                         help="with --http or --ptc: send nothing until the metadata (calibration) has been fetched, "
                              "then start S seconds later (the client opens its sockets after fetching)")
     cliargs.add_quiet(parser, "no summary")

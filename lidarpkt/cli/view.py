@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 
+from lidarpkt.cli.console import count
 from lidarpkt.containers.magic import CAPTURES_TEXT
 
 
@@ -32,11 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "pip install 'lidarpkt[rerun]')")
     parser.add_argument("--color", choices=("range", "reflectivity"), default="range",
                         help="--rerun: colour the points by range (default) or reflectivity")
-    parser.add_argument("--rate", type=float, default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
+    parser.add_argument("--rate", type=cliargs.number("--rate"), default=1.0, metavar="F", help="SOURCE: speed factor (1 = real time)")
     parser.add_argument("--loop", action="store_true", help="SOURCE: start again at the end, until interrupted")
     add_receive_arguments(parser, "a sensor's description file (its metadata or calibration, of any vendor, told "
                                   "apart by its content); repeat, one per sensor")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--duration", type=cliargs.number("--duration"), metavar="S", help="stop after S seconds")
     cliargs.add_quiet(parser, "no status lines")
 
 
@@ -110,7 +111,7 @@ def _view_capture(args, stop: threading.Event) -> int:
         if not servers[0].serves_viewers:  # a .rrd file, a spawned or remote Rerun viewer: it has every frame
             return 0
         if not stop.is_set() and time.monotonic() < deadline and not args.quiet:
-            print(f"lidarpkt view: end of {args.source} ({servers[0].frames_published} frames); still serving, "
+            print(f"lidarpkt view: end of {args.source} ({count(servers[0].frames_published, 'frame')}); still serving, "
                   "Ctrl-C to stop", file=sys.stderr, flush=True)
         while not stop.wait(1.0) and time.monotonic() < deadline:
             servers[0].publish_status()
@@ -188,5 +189,5 @@ def _status_line(statuses: list[dict], quiet: bool) -> None:
         return
     for s in statuses:
         print(f"lidarpkt view: {s['sensor']}: {s['packets_per_s']:.0f} pkt/s, {s['frames_per_s']:.1f} frames/s, "
-              f"lost {s['lost_packets']}, {s['frames']} frames, {s['view_frames_dropped']} dropped for the view",
+              f"lost {s['lost_packets']}, {count(s['frames'], 'frame')}, {s['view_frames_dropped']} dropped for the view",
               file=sys.stderr, flush=True)

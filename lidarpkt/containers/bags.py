@@ -204,7 +204,7 @@ class BagReader:
             self._cleanup_metadata_dir()
             if isinstance(exc, CaptureFormatError):
                 raise
-            raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {exc}") from None
+            raise CaptureFormatError(f"{self.path}: cannot open as a ROS bag: {_plain(exc)}{_reindex_hint(self.path)}") from None
         return reader
 
     def batches(self) -> Iterator[PacketBatch]:
@@ -292,9 +292,11 @@ class BagReader:
                 except StopIteration:
                     return
                 except (McapError, struct.error, EOFError, ValueError, OverflowError, OSError) + DECOMPRESSION_ERRORS as exc:  # OverflowError: a record length of 2**63 or more in a chunk
+                    why = str(exc) or type(exc).__name__
                     warn(TruncatedCaptureWarning(
-                        f"{self.path}: the MCAP file is cut short or damaged after {n} messages ({exc}); the "
-                        "messages before the damage were read (a recording that was killed ends like this)"))
+                        f"{self.path}: the MCAP file is cut short or damaged after {n} message{'s' * (n != 1)} ({why}); "
+                        "the messages before the damage were read (a recording that was killed ends like this; "
+                        f"lidarpkt export {self.path} -o FOLDER --format mcap writes a whole copy)"))
                     return
                 wanted = known.get(channel.id)
                 if wanted is None:
@@ -326,3 +328,21 @@ class BagReader:
 # a driver may record its sensor file a few packets after the start (ouster-ros does); a plain MCAP file (read as one stream) is
 # searched this far for it when the packets come first
 MCAP_METADATA_LOOKAHEAD_BYTES = 64 << 20
+
+
+def _plain(exc: BaseException) -> str:
+    """An error's message in words: rosbags wraps its causes' argument tuples (``"...: ('Header could not be
+    read from file.',)"``); their text is kept, the tuple's parentheses and quotes are not."""
+    import re
+
+    text = str(exc) or type(exc).__name__
+    return re.sub(r"\(\s*(['\"])(.*?)\1,?\s*\)", r"\2", text).rstrip(".")
+
+
+def _reindex_hint(path: Path) -> str:
+    """What to do with a ROS 1 bag that cannot be opened: one cut short (a recording that was killed) has no index."""
+    if str(path).lower().endswith(".bag"):
+        return ("; a ROS 1 bag cut short (a recording that was killed) has no index: rebuild it with rosbag reindex "
+                "(ROS 1), then read it again")
+    return "; check the bag with ros2 bag info"
+

@@ -65,6 +65,12 @@ def is_capture(path: str | os.PathLike[str]) -> bool:
     return capture_format(path) is not None
 
 
+def is_capture_folder(path: str | os.PathLike[str]) -> bool:
+    """A folder that is one capture (a rosbag2 folder, with its ``metadata.yaml``), not a folder of captures."""
+    p = Path(path)
+    return p.is_dir() and (p / "metadata.yaml").exists()
+
+
 def container_kind(path: str | os.PathLike[str]) -> str:
     """``"pcap"`` (pcap or pcapng), ``"mcap"``, ``"rosbag2"`` (directory or .db3), ``"rosbag1"`` or ``"osf"`` (ouster-sdk's
     frame files: frames, not packets), from the first bytes.
@@ -73,7 +79,7 @@ def container_kind(path: str | os.PathLike[str]) -> str:
     """
     p = Path(path)
     if p.is_dir():
-        if (p / "metadata.yaml").exists():
+        if is_capture_folder(p):
             return "rosbag2"
         raise UnsupportedContainerError(f"{p} is a directory without a rosbag2 metadata.yaml")
     try:

@@ -29,7 +29,7 @@ from .magic import container_kind
 
 __all__ = ["Segment", "plan_segments", "DEFAULT_SEGMENT_BYTES"]
 
-DEFAULT_SEGMENT_BYTES = 256 << 20  # issue 13's --segment-size default
+DEFAULT_SEGMENT_BYTES = 256 << 20  # the archive's --segment-size default
 _PCAP_GLOBAL = 24
 _READ = 16 << 20  # the index pass reads record headers in blocks this large
 _MAX_RECORD = 1 << 18

@@ -35,6 +35,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
+from lidarpkt.core.checks import PORT, Number
 from lidarpkt.errors import PortInUseError, ReceiveError
 from lidarpkt.core.packet import Endpoint, Packet, PacketBatch
 
@@ -45,6 +46,9 @@ SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)
 
 MAX_DATAGRAM = 65535
+#: the values the receiver's options take: the kernel's buffer size is a C int, halved as the kernel doubles it
+RCVBUF_BYTES = Number(1 << 10, (1 << 31) - 1, whole=True, example=str(32 << 20))
+QUEUE_BYTES = Number(1, whole=True, example=str(256 << 20))
 READ_BATCH = 1024  # datagrams read from one socket before the thread looks at the stop flag again
 FINAL_READ_S = 1.0  # on stop, how long the kernel's backlog is read at most
 _ANC_SPACE = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4) + socket.CMSG_SPACE(12)
@@ -76,10 +80,11 @@ class UdpSource:
         bind: local address (``0.0.0.0`` = every interface, broadcast included).
         multicast: IPv4 group to join (then ``bind`` defaults to the group).
         interface: interface name or IPv4 address for the multicast membership.
-        rcvbuf_bytes: kernel receive buffer to ask for.
-        queue_bytes: payload bytes allowed to wait for the consumer before drops are counted.
+        rcvbuf_bytes: kernel receive buffer to ask for (:data:`RCVBUF_BYTES`).
+        queue_bytes: payload bytes allowed to wait for the consumer before drops are counted (:data:`QUEUE_BYTES`).
 
     Raises:
+        UsageError: ``rcvbuf_bytes``, ``queue_bytes`` or a port out of range.
         PortInUseError, ReceiveError: from :meth:`open` (called by the constructor).
     """
 
@@ -88,7 +93,9 @@ class UdpSource:
         if not ports:
             raise ReceiveError("no UDP port to listen on: give --port, the port the sensor sends to (2368 for most; "
                                "a sensor file given with --metadata names its own)")
-        self.ports = list(dict.fromkeys(int(p) for p in ports))
+        self.ports = list(dict.fromkeys(PORT.check(p, "ports") for p in ports))
+        rcvbuf_bytes = RCVBUF_BYTES.check(rcvbuf_bytes, "rcvbuf_bytes")
+        queue_bytes = QUEUE_BYTES.check(queue_bytes, "queue_bytes")
         self.multicast = multicast
         self.bind_address = bind or (multicast if multicast else "0.0.0.0")
         self.interface = interface

@@ -208,7 +208,9 @@ class Frame:
             return self
         n_bins = int(round(360.0 / res))
         if abs(n_bins * res - 360.0) > 1e-9:
-            raise AnalysisError(f"grid resolution {res}° does not divide 360°")
+            near = 360.0 / max(1, n_bins)
+            raise AnalysisError(f"grid resolution {res:g}° does not divide 360°; give one that does, e.g. {near:g} "
+                                f"(360/{max(1, n_bins)})")
         w = self.shape[2]
         if self.measurement_id is not None and n_bins == w:  # its columns are the encoder's: the grid itself
             return self

@@ -17,27 +17,65 @@ def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndar
     return key < prev - HALF_TURN_CDEG
 
 
+#: a step between two columns of a frame larger than this many typical steps means columns are missing
+#: between them (one missing column makes it two; sensors' jitter stays well below)
+GAP_STEPS = 1.6
+
+
 def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start: bool, check_end: bool,
-                      by_block: bool = False, fallback_step_cdeg: float | None = None) -> bool:
+                      by_block: bool = False, fallback_step_cdeg: float | None = None,
+                      lost_columns: bool = False) -> bool:
     """Whether the columns of a frame (``azimuth_cdeg``: each column's azimuth, 0.01°) hold its whole
-    rotation. Where the frame did not begin (``check_start``) or end (``check_end``) at a wrap, its
-    first (last) column must lie within one firing interval after (before) the cut angle: the firing
-    before (after) it then belongs to another rotation. The interval is the median azimuth step of
-    the columns (``fallback_step_cdeg`` for a one-column frame; without it such a frame is not
-    whole); with ``by_block`` (frames cut at whole blocks, even columns opening a block) it is two
-    steps, and a block's second column takes its first's place."""
+    rotation: the rule of every vendor whose columns carry an azimuth, so that ``Frame.partial`` means
+    the same for all (True exactly when columns of the rotation are missing).
+
+    Missing inside: ``lost_columns`` (the decoder put invalid columns where packets were lost), or a step
+    between two columns larger than :data:`GAP_STEPS` typical steps (columns never received and not
+    put in). Missing at the ends: where the frame did not begin (``check_start``) or end (``check_end``)
+    at a wrap, its first (last) column must lie within one firing interval after (before) the cut angle:
+    the firing before (after) it then belongs to another rotation. The interval is the median azimuth step
+    of the columns (``fallback_step_cdeg`` for a one-column frame; without it such a frame is not whole);
+    with ``by_block`` (frames cut at whole blocks, even columns opening a block) it is two steps, and a
+    block's second column takes its first's place."""
+    if lost_columns:
+        return False
+    key = (np.asarray(azimuth_cdeg, np.float64) - cut_cdeg) % 36000.0
+    step = float(np.median(np.diff(azimuth_cdeg) % 36000.0)) if len(key) >= 2 else 0.0
+    if step > 0 and len(key) >= 2:
+        advance = np.diff(key)
+        if float(advance.max()) > GAP_STEPS * (2 * step if by_block else step):
+            return False  # columns of this rotation never arrived between two that did
     if not (check_start or check_end):
         return True
-    key = (np.asarray(azimuth_cdeg, np.float64) - cut_cdeg) % 36000.0
-    if len(key) >= 2:
-        step = float(np.median(np.diff(azimuth_cdeg) % 36000.0))
-    elif fallback_step_cdeg:
+    if len(key) < 2:
+        if not fallback_step_cdeg:
+            return False
         step = fallback_step_cdeg
-    else:
-        return False
     if by_block:
         key[1::2] = key[0::2]
         step *= 2
     if check_start and not key[0] < step:
         return False
     return not check_end or key[-1] >= 36000.0 - step
+
+
+def rate_disagreement(frame) -> str | None:
+    """What a whole frame's own column times say of its sensor's rotation rate, where it disagrees by more than
+    a third with the rate its :class:`~lidarpkt.core.sensor.SensorInfo` states (a sensor file of another
+    mode, e.g. legacy Ouster metadata of 1024x20 for a 10 Hz capture); ``None`` where they agree or cannot
+    tell (a partial frame, no stated rate, fewer than two timed columns)."""
+    hz = frame.sensor.frequency_hz
+    valid = np.flatnonzero(frame.column_valid)
+    if frame.partial or not hz or valid.size < 2:
+        return None
+    times = frame.column_timestamp_ns[valid]
+    span_ns = float(times.max() - times.min())
+    if span_ns <= 0:
+        return None
+    width = frame.column_valid.size
+    measured_hz = (valid[-1] - valid[0]) / width / (span_ns * 1e-9)
+    if abs(measured_hz - hz) <= hz / 3:
+        return None
+    return (f"{frame.sensor.source or frame.sensor.model}: its sensor file says {hz:g} Hz, but its frames take "
+            f"{1e3 / measured_hz:.0f} ms ({measured_hz:.3g} Hz): the file is of another mode of the sensor; the "
+            "frames' times and points follow the packets, the rest follows the file")

@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
-from lidarpkt.errors import AnalysisError
+from lidarpkt.errors import AnalysisError, UsageError
 from .frame import Frame
 from .sensor import SensorInfo
 
@@ -18,15 +19,42 @@ if TYPE_CHECKING:
 
 class FrameIterator:
     """What every frame reader of :func:`lidarpkt.open` shares: iterate it for :class:`Frame` objects;
-    ``close()`` it (or use ``with``) to stop early. A subclass sets ``_iter``, its frames, and ``close()``."""
+    ``close()`` it (or use ``with``) to stop early. A subclass sets ``_iter``, its frames, and ``close()``.
+
+    A reader gives its frames once: a loop over a reader whose frames have all been taken, or that was
+    closed, raises :class:`~lidarpkt.errors.UsageError` (rather than giving no frame, as an exhausted
+    iterator would). A loop left early (``break``) and taken up again goes on where it left off."""
 
     _iter: Iterator[Frame]
+    _ended: str | None = None  # "consumed" once the last frame was taken, "closed" once close() ran
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        close = cls.__dict__.get("close")
+        if close is not None and not getattr(close, "_marks_closed", False):
+            @functools.wraps(close)
+            def closing(self, *args, **kw):
+                self._ended = self._ended or "closed"
+                return close(self, *args, **kw)
+
+            closing._marks_closed = True  # type: ignore[attr-defined]
+            cls.close = closing  # type: ignore[method-assign]
 
     def __iter__(self) -> Self:
+        if self._ended:
+            what = "its frames were all taken" if self._ended == "consumed" else "it was closed"
+            path = getattr(self, "path", None) or getattr(getattr(self, "reader", None), "path", "lidarpkt.open()")
+            raise UsageError(f"{path}: a reader of lidarpkt.open() gives its frames "
+                             f"once, and {what}; call lidarpkt.open() again for another pass (or keep the frames "
+                             "in a list)")
         return self
 
     def __next__(self) -> Frame:
-        return next(self._iter)
+        try:
+            return next(self._iter)
+        except StopIteration:
+            self._ended = self._ended or "consumed"
+            raise
 
     def close(self) -> None:
         raise NotImplementedError

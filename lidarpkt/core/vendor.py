@@ -237,6 +237,11 @@ class Vendor:
         geometry: the XYZ geometry of a sensor whose frames were read back from a file, from its
             :class:`~lidarpkt.core.sensor.SensorInfo` (``metadata``: its sensor file's document) and the
             fields of the calibration the file kept (``None``: none); ``None`` when it cannot be rebuilt.
+        sensor_file_in_packets: the sensor file a matched batch of its packets carries (loaded, as
+            :attr:`SensorFiles.load` gives it; ``None`` when the batch holds none), for sensors that send
+            their calibration in-band now and then: the reader of a later segment of a capture, which
+            starts past it, is given the one of the capture's first packets and decodes as the whole
+            capture does. ``None`` for a vendor whose packets carry none.
     """
 
     name: str
@@ -257,6 +262,7 @@ class Vendor:
     models: Callable[[], tuple[str, ...]] | None = None
     undecoded_hint: Callable[[Any, Mapping[Any, int], Sequence[Any]], str | None] | None = None
     geometry: Callable[[Any, Mapping[str, Any] | None], Any] | None = None
+    sensor_file_in_packets: Callable[[PacketBatch, Match], Any] | None = None
 
     def stream(self, name: str) -> StreamKind:
         """Its stream kind called ``name``.

@@ -28,7 +28,8 @@ from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the call
 from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.core.streams import OTHER_STREAMS, SourceStats, UnroutedStream
 from lidarpkt.core.vendor import DecodeSetup, Match
-from lidarpkt.errors import (DroppedPacketsWarning, MetadataError, SkippedPacketWarning, UnknownSensorError,
+from lidarpkt.core.rotation import rate_disagreement
+from lidarpkt.errors import (DroppedPacketsWarning, LidarpktWarning, MetadataError, SkippedPacketWarning, UnknownSensorError,
                              UnsupportedContainerError, UnusedSensorFileWarning)
 from lidarpkt.vendors import registry
 from .options import OpenOptions, with_options
@@ -89,12 +90,15 @@ class FrameReader(FrameIterator):
                 self._ownership = SegmentOwnership(segment)
                 filters["segment"] = segment
         self.sensor_files, setup = opts.sensor_setup()  # before opening: a bad file says so first
+        if segment is not None and not segment.first:  # what sensors send in-band, the segment may start past
+            in_band = registry.sensor_files_in_packets(path, setup)  # the capture's own: not files given
+            setup = registry.setup([*self.sensor_files, *in_band], opts.decoding()) if in_band else setup
         self.reader: PacketSource = registry.open_packets(path, **filters)
         self.read_ahead = _want_read_ahead(self.reader, opts.read_ahead)
         self._read_ahead: ReadAhead[PacketBatch] | None = None  # the running ReadAhead, if any
         self._decoding = opts.decoding()
         self._recorded_wanted = True  # a sensor file recorded in the capture is still to be looked for
-        self._include_partial = opts.include_partial
+        self._include_partial, self._rates_checked = opts.include_partial, set[Any]()
         self.driver = Driver(str(self.path), setup, max_sensors=opts.max_sensors, source=opts.source,
                              ownership=self._ownership, sensor_files=self.sensor_files)
         self.stats = self.driver.stats
@@ -194,6 +198,10 @@ class FrameReader(FrameIterator):
 
     def _emit(self, frames: list[Frame]) -> Iterator[Frame]:
         for frame in frames:
+            if not frame.partial and frame.sensor.source not in self._rates_checked:  # a file of another rate
+                self._rates_checked.add(frame.sensor.source)
+                if note := rate_disagreement(frame):
+                    warn(LidarpktWarning(note), stacklevel=3)
             if frame.partial and not self._include_partial:
                 continue
             self.stats.frames += 1
@@ -328,7 +336,7 @@ class Driver:
         text = format_dropped(self.drop_counts(), self.stats.packets)
         if not text:
             return None
-        return f"{self.name}: {text}; the frames hold what arrived (counts per decoder in .decoders[...].stats)"
+        return f"{self.name}: {text}; the frames hold what arrived (each frame's counters say what it lost)"
 
     def _push(self, key: tuple, decoder, batch: PacketBatch, post_end: bool) -> list[Frame]:
         """``decoder.push(batch)``; reading a segment, only the frames that belong to it (SegmentOwnership)."""
@@ -402,7 +410,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         MetadataError, SensorMismatchError, CaptureFormatError: see their docstrings.
         UsageError: ``workers`` is not a whole number >= 1.
     """
-    opts = OpenOptions.from_keywords("open_frames", dict(options))
+    opts = OpenOptions.from_keywords("lidarpkt.open", dict(options))
     frame_files = registry.frame_files(path)
     if frame_files is not None:  # files of decoded frames, not packets
         return _open_frame_file(path, opts, frame_files)

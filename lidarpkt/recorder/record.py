@@ -17,7 +17,8 @@ from typing import Any, Callable, Sequence
 
 from lidarpkt.containers import rosmsgs
 from lidarpkt.containers.udp import UdpSource
-from lidarpkt.errors import LidarpktError
+from lidarpkt.core.checks import Number
+from lidarpkt.errors import LidarpktError, UsageError
 from lidarpkt.vendors import registry
 from lidarpkt.writers.mcap import schemas
 from lidarpkt.writers.mcap.packets import PacketSink
@@ -57,6 +58,25 @@ class Recording:
 
     summary: dict[str, Any]
     report_lines: list[str] = field(default_factory=list)
+
+
+#: what the numeric options of :func:`record` take (``None`` passes: no limit)
+LIMITS = {
+    "chunk_seconds": Number(0.01, 60, example="0.5"),
+    "rotate_bytes": Number(100_000, whole=True, optional=True, example="512_000_000"),
+    "rotate_seconds": Number(0.5, optional=True, example="60"),
+    "duration_s": Number(0, low_open=True, optional=True, example="10"),
+    "max_frames": Number(1, whole=True, optional=True, example="10"),
+    "gps_baud": Number(50, 4_000_000, whole=True, example="9600"),
+}
+
+
+def _check_limits(**values: Any) -> None:
+    for name, value in values.items():
+        try:
+            LIMITS[name].check(value, name)
+        except UsageError as exc:
+            raise UsageError(f"record(): {exc}") from None
 
 
 def record(output: str | os.PathLike[str], *, ports: Sequence[int] = (), bind: str | None = None,
@@ -104,9 +124,12 @@ def record(output: str | os.PathLike[str], *, ports: Sequence[int] = (), bind: s
         ``points`` or ``view`` the live frames' counts (``frames_decoded`` ...).
 
     Raises:
+        lidarpkt.errors.UsageError: a size, time or count out of its range (:data:`LIMITS`), before anything opens.
         lidarpkt.errors.LidarpktError: a port in use, a GPS port that cannot be opened, a view that cannot
             serve (each before the file is created), a write that fails (disk full).
     """
+    _check_limits(chunk_seconds=chunk_seconds, rotate_bytes=rotate_bytes, rotate_seconds=rotate_seconds,
+                  duration_s=duration_s, max_frames=max_frames, gps_baud=gps_baud)
     notice = on_notice or (lambda text: None)
     capture = gps_reader = writer = frames = None
     try:
@@ -195,7 +218,8 @@ class _Loop:
             reason = self.should_stop()
             if reason is None and duration_s is not None and now - start >= duration_s:
                 reason = f"duration {duration_s:g} s"
-            elif reason is None and max_frames is not None and sink.frames >= max_frames:
+            elif reason is None and max_frames is not None and sink.frames > max_frames:
+                # the first wrap ends the rotation under way when recording began: N + 1 wraps hold N whole ones
                 reason = f"{max_frames} frames"
             if frames is not None:
                 frames.tick(self._lost_total())

@@ -71,13 +71,26 @@ def recorded_sensor_file(path: str, look_ahead: int = 64):
     return registry.load_sensor_files([text])[0] if text else None
 
 
+def sender(host: str, port: int) -> tuple[socket.socket, str]:
+    """The UDP socket packets are sent from (one source address for every round of a replay: receivers see
+    one sensor) and the address of ``host``. Raises :class:`RecorderError` if ``host`` cannot be resolved."""
+    try:
+        family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+    except socket.gaierror as exc:
+        raise RecorderError(f"--to {host}: cannot resolve the host ({exc.strerror or exc}); give an address such as 127.0.0.1") from None
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
+    return sock, str(addr[0])
+
+
 def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | None = 1.0,
            port_map: dict[int, int] | None = None, metadata=None,
-           clock=time.monotonic, sleep=time.sleep) -> ReplayStats:
+           clock=time.monotonic, sleep=time.sleep, sock: socket.socket | None = None) -> ReplayStats:
     """Send ``packets`` to ``host``: the lidar streams to ``port``, others to their (mapped) ports.
 
     ``metadata``: the sensor files, as ``lidarpkt.open`` takes them, to recognise packets that are
-    recognised only with them (an Ouster profile). ``rate`` None = as fast as possible.
+    recognised only with them (an Ouster profile). ``rate`` None = as fast as possible. ``sock``: the socket
+    to send from (:func:`sender`; kept open), else one of its own, closed at the end.
     Returns :class:`ReplayStats`. Raises
     :class:`RecorderError` if the address cannot be resolved or a send fails.
     """
@@ -85,13 +98,12 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
 
     port_map = port_map or {}
     setup = registry.setup(registry.load_sensor_files(metadata))
-    try:
-        family, _, _, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
-    except socket.gaierror as exc:
-        raise RecorderError(f"--to {host}: cannot resolve the host ({exc.strerror or exc}); give an address such as 127.0.0.1") from None
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8 << 20)
-    dest_host = addr[0]
+    own = sock is None
+    if own:
+        sock, dest_host = sender(host, port)
+    else:
+        dest_host = str(socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0][4][0])
+    assert sock is not None
     stats = ReplayStats(per_port={})
     kind_port: dict[tuple[int, int | None], int] = {}
     unknown_keys: set[tuple[int, int | None]] = set()
@@ -133,7 +145,8 @@ def replay(packets: Iterable[Packet], host: str, port: int, *, rate: float | Non
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: what was sent is still counted
         stats.interrupted = True
     finally:
-        sock.close()
+        if own:
+            sock.close()
     stats.seconds = clock() - start
     return stats
 
@@ -154,9 +167,10 @@ def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0,
     """
     rounds = itertools.count() if loop else range(1)
     total = ReplayStats(per_port={})
+    sock, _ = sender(host, port)  # every round from one source address: one sensor to the receivers
     try:
         for _ in rounds:
-            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, metadata=metadata)
+            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, metadata=metadata, sock=sock)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds
@@ -170,4 +184,6 @@ def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0,
                 raise LidarpktError(f"{path}: holds no UDP packets to replay; check it with lidarpkt info")
     except KeyboardInterrupt:  # between two rounds (opening the capture again): interrupted all the same
         total.interrupted = True
+    finally:
+        sock.close()
     return total

@@ -20,11 +20,11 @@ from lidarpkt.containers.rosmsgs import STAMPED_PACKET, stamped_packet
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.vendor import DecodeSetup, FrameFiles, Match, Vendor
 from lidarpkt.errors import MetadataError
-from . import hesai, ouster, velodyne
+from . import hesai, ouster, robosense, velodyne
 
 #: The vendors, in the order their classifiers are asked (Ouster first: with its metadata given, a stream
 #: that fits the metadata is the sensor's, whatever its size says otherwise).
-VENDORS: tuple[Vendor, ...] = (ouster.VENDOR, velodyne.VENDOR, hesai.VENDOR)
+VENDORS: tuple[Vendor, ...] = (ouster.VENDOR, velodyne.VENDOR, hesai.VENDOR, robosense.VENDOR)
 
 _BY_NAME = {v.name: v for v in VENDORS}
 _SNIFF_BYTES = 64 << 10  # a sensor file is told by its first 64 KiB
@@ -153,6 +153,47 @@ def _load_one(item: Any) -> SensorFile:
     raise MetadataError(f"{name}: not a sensor file lidarpkt reads ({_what_it_is(text)}); give {_kinds()}")
 
 
+_IN_BAND_SPAN_NS = 1_500_000_000  # a sensor sending its file in-band sends it at least this often
+_IN_BAND_QUIET_NS = 100_000_000  # a capture none of whose streams of its first 0.1 s carries one has none
+
+
+def sensor_files_in_packets(path: str | os.PathLike[str], setup: DecodeSetup) -> list[SensorFile]:
+    """The sensor files the first packets of a capture carry (:attr:`~lidarpkt.core.vendor.Vendor.sensor_file_in_packets`),
+    one per vendor and source address, looked for in its first 1.5 s (0.1 s when no stream of a vendor that
+    sends one is there): what the reader of a later segment of the capture is given."""
+    if not any(v.sensor_file_in_packets is not None for v in VENDORS):
+        return []
+    found: dict[tuple, SensorFile] = {}
+    wanted: set[tuple] = set()
+    start = None
+    batches = open_packets(path).batches()
+    try:
+        for batch in batches:
+            if not len(batch):
+                continue
+            start = int(batch.timestamp_ns[0]) if start is None else start
+            elapsed = int(batch.timestamp_ns[0]) - start
+            if elapsed > _IN_BAND_SPAN_NS or (not wanted and elapsed > _IN_BAND_QUIET_NS):
+                break
+            match = classify(batch, setup)
+            v = vendor(match.vendor) if match is not None else None
+            if match is None or v is None or v.sensor_file_in_packets is None:
+                continue
+            key = (v.name, batch.src.address if batch.src is not None else None)
+            wanted.add(key)
+            if key not in found:
+                loaded = v.sensor_file_in_packets(batch, match)
+                if loaded is not None:
+                    found[key] = SensorFile(v.name, f"{os.fspath(path)} (in its packets)", loaded)
+            if wanted <= set(found):
+                break
+    finally:
+        close = getattr(batches, "close", None)
+        if close is not None:
+            close()
+    return list(found.values())
+
+
 def _kinds() -> str:
     whats = [v.sensor_files.what for v in VENDORS if v.sensor_files is not None]
     return ", ".join(whats[:-1]) + " or " + whats[-1] if len(whats) > 1 else whats[0]
@@ -184,6 +225,8 @@ def _what_it_is(text: str) -> str:
         except (ValueError, RecursionError):
             return "it starts as JSON"
         return f"a JSON {type(doc).__name__} without the fields of any of them"
+    if any(ord(c) < 9 or 13 < ord(c) < 32 or c == "\ufffd" for c in text[:64]):
+        return "binary data: sensor files are text"
     first = text.lstrip().splitlines()[0]
     if "," in first:
         return f"comma-separated lines that are none of them; it starts with {first[:40]!r}"

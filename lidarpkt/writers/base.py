@@ -31,14 +31,28 @@ are classified but not decoded.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import secrets
 import shutil
+import sqlite3
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
 from lidarpkt.errors import OutputError
+
+#: what a failed write raises: the file system's errors, and SQLite's (rosbag2's storage) when the disk fills
+WRITE_ERRORS: tuple[type[BaseException], ...] = (OSError, sqlite3.Error)
+
+
+def failure_text(exc: BaseException) -> str:
+    """Why a write failed, in words: the system's reason (and what to do when the disk is full)."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG) or "full" in str(exc):
+        return f"{(exc.strerror if isinstance(exc, OSError) else None) or exc}; free some space or write elsewhere"
+    if isinstance(exc, OSError) and exc.errno is None:  # a library's short write (NumPy's tofile...): no reason given
+        return f"{exc} (is the disk full?)"
+    return str((exc.strerror if isinstance(exc, OSError) else None) or exc)
 
 
 @runtime_checkable
@@ -226,9 +240,9 @@ class BaseWriter:
             raise OutputError(f"{self.out}: the writer is closed")
         try:
             self._write(frame)
-        except OSError as exc:
+        except WRITE_ERRORS as exc:
             self.abort()
-            raise OutputError(f"{self.out}: writing failed: {exc.strerror or exc}") from None
+            raise OutputError(f"{self.out}: writing failed: {failure_text(exc)}") from None
         self.frames_written += 1
 
     def begin_capture(self, capture: Any) -> None:
@@ -245,9 +259,9 @@ class BaseWriter:
             return list(self.files.committed)
         try:
             self._finish()
-        except OSError as exc:
+        except WRITE_ERRORS as exc:
             self.abort()
-            raise OutputError(f"{self.out}: writing failed: {exc.strerror or exc}") from None
+            raise OutputError(f"{self.out}: writing failed: {failure_text(exc)}") from None
         except BaseException:
             self.abort()
             raise

@@ -334,7 +334,7 @@ def _dtype_text(dtype: np.dtype) -> str:
 def _dtype_from_text(text: str) -> np.dtype:
     """The dtype of :func:`_dtype_text` (JSON turned the record fields' tuples into lists)."""
     if not text.startswith("["):
-        return np.dtype(text)  # what descr_to_dtype makes of a plain descr
+        return np.dtype(text)
 
     def fields(descr: list) -> list:
         return [(name, fields(t) if isinstance(t, list) else t, *map(tuple, shape)) for name, t, *shape in descr]

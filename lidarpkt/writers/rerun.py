@@ -38,6 +38,7 @@ The file is written under a temporary name and renamed when complete.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from typing import Any
@@ -205,8 +206,11 @@ class RrdWriter(BaseWriter):
         self.points_written += points.size
 
     def _finish(self) -> None:
-        self.recording.flush()
-        self.recording.disconnect()  # the file sink writes its end and closes
+        try:
+            self.recording.flush()
+            self.recording.disconnect()  # the file sink writes its end and closes
+        except RuntimeError as exc:  # its file-writer thread stopped: the write failed (a full disk, most often)
+            raise OSError(errno.EIO, f"the Rerun file writer stopped ({exc}): is there space left on the disk?") from exc
         self.files.commit(self._tmp)
 
     def _release(self) -> None:

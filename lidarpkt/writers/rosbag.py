@@ -42,6 +42,7 @@ from typing import Any, Iterable, Sequence
 from lidarpkt.containers import rosmsgs
 from lidarpkt.errors import OutputError
 
+from .base import WRITE_ERRORS, failure_text
 from .mcap import schemas
 from .mcap.frames import McapFrameWriter, Mount
 from .mcap.writer import McapWriter
@@ -96,8 +97,8 @@ class _BagMessages:
             conn = self._connections[topic.name] = self._connect(topic)
         try:
             self._writer.write(conn, int(log_time_ns), self._encode(topic, data))
-        except OSError as exc:
-            raise OutputError(f"writing {self.path} failed: {exc.strerror or exc}") from exc
+        except WRITE_ERRORS as exc:
+            raise OutputError(f"writing {self.path} failed: {failure_text(exc)}") from exc
         self.messages_written += 1
 
     def write_message(self, topic: schemas.Topic, message: object, log_time_ns: int) -> None:
@@ -129,8 +130,8 @@ class Ros1BagMessages(_BagMessages):
         self._writer = Writer(path)
         try:
             self._writer.open()
-        except OSError as exc:
-            raise OutputError(f"cannot create the bag {path}: {exc.strerror or exc}") from exc
+        except WRITE_ERRORS as exc:
+            raise OutputError(f"cannot create the bag {path}: {failure_text(exc)}") from exc
 
     def _connect(self, topic: schemas.Topic) -> Any:
         return self._writer.add_connection(topic.name, topic.msgtype, typestore=ros1_typestore(),
@@ -159,8 +160,8 @@ class Rosbag2Sqlite3Messages(_BagMessages):
         self._writer.dbpath = folder / f"{name}_0.db3"  # ros2 bag's name for it (rosbags would use the folder's)
         try:
             self._writer.open()
-        except OSError as exc:
-            raise OutputError(f"cannot create the bag {folder}: {exc.strerror or exc}") from exc
+        except WRITE_ERRORS as exc:
+            raise OutputError(f"cannot create the bag {folder}: {failure_text(exc)}") from exc
         self._records: dict[str, int] = {}
 
     def _connect(self, topic: schemas.Topic) -> Any:
@@ -186,8 +187,8 @@ class Rosbag2McapMessages(McapWriter):
     def __init__(self, folder: Path, name: str, chunk_bytes: int) -> None:
         try:
             folder.mkdir()
-        except OSError as exc:
-            raise OutputError(f"cannot create the bag {folder}: {exc.strerror or exc}") from exc
+        except WRITE_ERRORS as exc:
+            raise OutputError(f"cannot create the bag {folder}: {failure_text(exc)}") from exc
         self.folder = folder
         self.counts: dict[str, tuple[schemas.Topic, int]] = {}
         self.span: list[int] = []  # first and last log time

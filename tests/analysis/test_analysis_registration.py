@@ -121,8 +121,8 @@ def test_cli_on_a_real_capture_writes_the_documented_json_table_and_figures(ext,
 @pytest.mark.parametrize(
     "extra,message",
     [
-        (["--downsample", "0"], "--downsample 0.0: not a positive number of metres"),
-        (["--workers", "0"], "--workers 0: not a whole number >= 1"),
+        (["--downsample", "0"], "--downsample 0: out of range; --downsample takes a number in (0, 100] metres"),
+        (["--workers", "0"], "--workers 0: out of range; --workers takes a whole number in [1, 1024]"),
         (["--return", "loudest"], "--return 'loudest'"),
         (["--neighbourhood", "4"], "--neighbourhood 4"),
     ],

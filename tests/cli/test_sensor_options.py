@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import lidarpkt
+from lidarpkt.vendors.registry import VENDORS
 
 REPO = Path(__file__).resolve().parents[2]
 XT32 = "nebula/hesai/xt32/1673400677802009732"
@@ -99,8 +100,9 @@ def test_a_file_of_no_known_kind_is_one_line_and_exit_2_before_any_work(verb, fl
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert len(lines) == 1, r.stderr
     assert lines[0].startswith(f"lidarpkt: error: {flag} {junk}: not a sensor file lidarpkt reads (it starts with "), r.stderr
-    assert lines[0].endswith("; give Ouster metadata JSON, Velodyne calibration (ROS YAML or VeloView XML) or Hesai "
-                             "angle-correction CSV"), r.stderr
+    whats = [v.sensor_files.what for v in VENDORS if v.sensor_files is not None]  # every vendor's, in order
+    assert lines[0].endswith(f"; give {', '.join(whats[:-1])} or {whats[-1]}"), r.stderr
+    assert "Ouster metadata JSON, Velodyne calibration (ROS YAML or VeloView XML), Hesai angle-correction CSV" in lines[0]
     assert sorted(p.name for p in out.iterdir()) == []  # nothing written
 
 

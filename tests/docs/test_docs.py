@@ -35,8 +35,7 @@ sphinx = pytest.importorskip("sphinx", reason="the docs extra is not installed: 
 #: the packages the API reference documents (docs/reference/api/): every name of their __all__
 DOCUMENTED = ("lidarpkt", "lidarpkt.errors", "lidarpkt.containers", "lidarpkt.writers", "lidarpkt.archive",
               "lidarpkt.analysis", "lidarpkt.view", "lidarpkt.fixtures")
-#: README.md as it will be, until it replaces README.md (then README.md itself is checked)
-README = DOCS / "README.draft.md" if (DOCS / "README.draft.md").exists() else REPO_ROOT / "README.md"
+README = REPO_ROOT / "README.md"
 #: the pages, and the other texts that name files (benchmarks/README.md says how to run the benchmarks)
 PAGES = sorted({p for p in DOCS.rglob("*.md") if "_build" not in p.parts} | {README})
 TEXTS = PAGES + [REPO_ROOT / "benchmarks" / "README.md"]

@@ -112,7 +112,8 @@ def test_one_frame_equals_nebulas_cloud(ext, folder, bag, pcd, name, lo, hi, lab
     need = 0.98 if folder in CUT_BY_CHANNEL else 0.99
     assert neb_in_ours >= need, f"{name}: {neb_in_ours:.4f} of nebula's {len(ref)} points have one of ours within 1 mm"
     assert ours_in_neb >= need, f"{name}: {ours_in_neb:.4f} of our {n_ours} points have one of nebula's within 1 mm"
-    assert not frame.partial
+    # the XT32M bag lost packets in every rotation: its frame, as nebula's scan, misses columns (partial)
+    assert frame.partial == (folder == "xt32m") == (frame.counters.lost_packets > 0)
     for f in frames:
         assert f.sensor.vendor == "hesai" and f.sensor.model == name
         assert f.return_labels == labels and f.shape[0] == 2

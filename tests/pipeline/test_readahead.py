@@ -18,7 +18,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.core.readahead import THREAD_NAME, ReadAhead
-from lidarpkt.errors import CaptureFormatError, DroppedPacketsWarning, SkippedPacketWarning, TruncatedCaptureWarning
+from lidarpkt.errors import UsageError, CaptureFormatError, DroppedPacketsWarning, SkippedPacketWarning, TruncatedCaptureWarning
 from lidarpkt.core.packet import Endpoint, Packet
 from lidarpkt.containers.pcap_reader import read_packets
 from lidarpkt.writers.pcap import write_pcap, write_pcapng
@@ -266,7 +266,10 @@ def test_abandoned_iteration_leaves_no_thread(longer_than_the_queue, how):
         assert len(_read_ahead_threads()) == 1
         reader.close()
         reader.close()  # idempotent
-        assert list(reader) == []
+        with pytest.raises(StopIteration):
+            next(reader)
+        with pytest.raises(UsageError, match="it was closed"):  # a loop after close() is a mistake, said
+            list(reader)
     elif how == "with":
         with lidarpkt.open(path, read_ahead=True, batch_packets=32) as reader:
             next(reader)

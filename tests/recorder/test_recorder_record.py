@@ -29,6 +29,10 @@ def test_frames_option_stops_after_that_many_rotations(tmp_path):
     _, msgs = _messages(rec.out)
     got = _recorded_payloads(msgs)["/velodyne_packets"]
     assert got == [p.payload for p in packets[: len(got)]] and len(got) == report["packets"]
+    import lidarpkt  # the recording holds five whole rotations (the first wrap ends the one under way)
+
+    whole = [f for f in lidarpkt.open(rec.out) if not f.partial]
+    assert len(whole) >= 5, [f.frame_id for f in whole]
 
 
 def test_rotation_by_size_splits_the_recording_without_losing_a_packet(tmp_path):

@@ -41,6 +41,7 @@ def parse_calibration(text: str, source: str = "calibration") -> HesaiCalibratio
     Raises :class:`~lidarpkt.errors.CalibrationError` naming ``source`` and the line that is wrong.
     """
     rows: list[tuple[int, float, float]] = []
+    lines: list[tuple[int, str]] = []  # (line number, text) of each row, for the errors
     for number, line in enumerate(text.splitlines(), 1):
         line = line.strip().lstrip("\ufeff")
         if not line or (number == 1 and not line[0].isdigit()):
@@ -53,11 +54,15 @@ def parse_calibration(text: str, source: str = "calibration") -> HesaiCalibratio
         if not (np.isfinite(elevation) and np.isfinite(azimuth) and -90 <= elevation <= 90 and -360 < azimuth < 360):
             raise CalibrationError(f"{source}: line {number}: angles out of range ({elevation}, {azimuth})")
         rows.append((channel, elevation, azimuth))
+        lines.append((number, line))
     if not rows:
         raise CalibrationError(f"{source}: no channel lines; a Hesai angle-correction CSV has 'channel,elevation,azimuth'")
     channels = [r[0] for r in rows]
     if channels != list(range(1, len(rows) + 1)):
-        raise CalibrationError(f"{source}: channels must be numbered 1..{len(rows)} in order, found {channels[:6]}...")
+        i = next(i for i, c in enumerate(channels) if c != i + 1)
+        number, line = lines[i]
+        raise CalibrationError(f"{source}: line {number} {line[:60]!r} is channel {channels[i]} where channel {i + 1} "
+                               f"should be; the channels are numbered 1..{len(rows)} in order, one line each")
     arr = np.array([(r[1], r[2]) for r in rows], np.float64)
     return HesaiCalibration(arr[:, 0].copy(), arr[:, 1].copy(), source)
 

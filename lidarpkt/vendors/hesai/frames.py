@@ -21,15 +21,18 @@ strongest (its reflectivity is higher; see :mod:`lidarpkt.vendors.hesai.models` 
 
 Cuts. A frame ends before the first column whose azimuth (minus the cut angle) wrapped past 0; a
 return-mode change, a stretch of more than ``max_gap_s`` without packets, or ``max_frame_columns``
-columns without a wrap end it too. ``partial`` as for the VLP-16 (:mod:`lidarpkt.vendors.velodyne.frames`):
-a frame that does not begin (end) at a wrap is whole only if its first (last) column lies within
-one firing interval after (before) the cut angle.
+columns without a wrap end it too. ``partial`` as for every vendor
+(:func:`~lidarpkt.core.rotation.rotation_is_whole`): True where columns of the rotation are missing, i.e.
+where two columns lie further apart than the firing interval allows (packets lost inside the frame), or a
+frame that does not begin (end) at a wrap has its first (last) column further than one firing interval
+after (before) the cut angle.
 
 Order and loss. Packets are put in time order within a batch (counted as out of order);
 duplicates (the same packet time) and packets older than the last one of an earlier batch are
 dropped and counted. Lost packets are counted from the UDP sequence number where the protocol has
 one, else from gaps in packet time; lost columns are not inserted (``column_valid`` is True for
-every column; :meth:`Frame.on_grid` shows the gap as invalid bins).
+every column the frame holds, all received; the frame is ``partial`` and :meth:`Frame.on_grid` shows the gap
+as invalid bins).
 """
 
 from __future__ import annotations
@@ -135,8 +138,11 @@ class HesaiDecoder:
             self._row_channel = np.arange(model.channels)
             return
         if cal.channels != model.channels:
+            rows = (f"channel {cal.channels + 1} has no line" if cal.channels < model.channels else
+                    f"the lines of channels {model.channels + 1}-{cal.channels} are too many")
             raise CalibrationError(f"{cal.source}: a calibration of {cal.channels} channels for a {model.name}, "
-                                   f"which has {model.channels}; pass the sensor's own angle-correction CSV")
+                                   f"which has {model.channels} ({rows}); give the sensor's own angle-correction CSV "
+                                   "(--metadata FILE; metadata=... in Python)")
         self._row_channel = np.argsort(-cal.elevation_deg, kind="stable")
         self.geometry = HesaiGeometry(cal, self._row_channel)
 

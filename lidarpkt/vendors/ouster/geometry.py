@@ -29,8 +29,8 @@ class OusterGeometry:
 
     @cached_property
     def _tables(self) -> "_Tables":
-        """The tables of this calibration, shared by every geometry of the same one (:func:`_shared_tables`):
-        each ``lidarpkt.open`` of a sensor's captures would otherwise spend ~15 ms on an OS-128's."""
+        """The tables of this calibration, shared by every geometry of the same one (:func:`_shared_tables`),
+        so that each ``lidarpkt.open`` of a sensor's captures does not build them again."""
         md = self.metadata
         key = (md.columns_per_frame, md.pixels_per_column,
                *(np.asarray(a, np.float64).tobytes() for a in (md.beam_to_lidar_transform, md.lidar_to_sensor_transform,

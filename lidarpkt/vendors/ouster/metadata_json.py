@@ -294,7 +294,7 @@ def _parse(doc: dict, path: str | None) -> OusterMetadata:
     if return_order is None:
         return_order = "STRONGEST_TO_WEAKEST"
         defaulted.append("return_order")
-    if return_order not in RETURN_LABELS:
+    if not isinstance(return_order, str) or return_order not in RETURN_LABELS:
         raise MetadataError(f"metadata field config_params.return_order {return_order!r}: expected one of {', '.join(RETURN_LABELS)}")
     timestamp_mode = json_get(doc, ("config_params", "timestamp_mode"), ("timestamp_mode",))
     azimuth_window = json_get(doc, ("config_params", "azimuth_window"), ("azimuth_window",))

@@ -187,13 +187,24 @@ def undecoded_hint(path: Any, unrouted_streams: Mapping[Any, int], metadata: Seq
             return (f"{path}: the stream {key}, {count} packets, has the size of Ouster lidar packets "
                     f"({' or '.join(layouts)}) but no Ouster metadata was given; pass the sensor's metadata JSON "
                     "with --metadata M.json (metadata=... in Python)")
-        expected = "; ".join(
-            f"{md.prod_line or 'its sensor'} {md.profile.name} with {md.pixels_per_column} px sends "
-            f"{md.profile.packet_size(md.pixels_per_column, md.columns_per_packet)} B packets" for md in metadata)
-        return (f"{path}: the Ouster metadata does not fit the stream {key}: {expected}, but these packets are "
-                f"{size} B (which fits {' or '.join(layouts)}); give the metadata JSON of the sensor that recorded "
-                "this capture")
+        return (f"{path}: the Ouster metadata does not fit the stream {key}: "
+                f"{'; '.join(_difference(md, size, layouts) for md in metadata)}; give the metadata JSON of the sensor "
+                "that recorded this capture")
     return None
+
+
+def _difference(md: Any, size: int, layouts: list[str]) -> str:
+    """What differs between the packets of one metadata's sensor and a stream of ``size`` B packets."""
+    sensor = f"{md.prod_line or 'its sensor'} {md.profile.name} with {md.pixels_per_column} px"
+    expected = md.profile.packet_size(md.pixels_per_column, md.columns_per_packet)
+    if expected != size:
+        return f"{sensor} sends {expected} B packets, but these are {size} B (which fits {' or '.join(layouts)})"
+    if md.profile.legacy:
+        return f"{sensor} sends {size} B packets as these are, but they do not read as its packets"
+    ids = ", ".join(x for x in (f"init_id {md.init_id}" if md.init_id else "",
+                                f"serial {md.serial}" if getattr(md, "serial", None) else "") if x)
+    return (f"{sensor} sends {size} B packets as these are, but their header names another sensor "
+            f"(not {ids or 'its init_id and serial'})")
 
 
 # --------------------------------------------------------------------------- OSF files

@@ -21,7 +21,8 @@ sensor sends it.
 
 Cuts. A frame ends before the first column whose azimuth (minus the cut angle) wrapped
 past 0, i.e. dropped by more than half a turn. ``partial`` means columns of the rotation are
-missing: a frame that does not begin at a wrap (the first of a stream, the first after a long
+missing (:func:`~lidarpkt.core.rotation.rotation_is_whole`, the rule of every vendor): a frame holding
+lost columns is partial; so is a frame that does not begin at a wrap (the first of a stream, the first after a long
 loss of packets, a return-mode change or an overlong frame) is whole only if its first column
 fires within one firing interval (the azimuth advance of one firing sequence; of one block with
 ``cut_on_block``) after the cut angle, and a frame that does not end at a wrap (the last one,
@@ -423,16 +424,17 @@ class VelodyneDecoder(PacketAccounting):
             return []
         cols = Columns.concat(parts)
         counters.lost_packets += int(cols.lost.sum())
-        partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut")
+        partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut",
+                                                          bool(cols.lost.any()))
         frame = self._make_frame(cols, partial, counters)
         return [frame]
 
-    def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
+    def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool, lost: bool) -> bool:
         """Whether a frame's columns hold its whole rotation (see :func:`~lidarpkt.core.rotation.rotation_is_whole`)."""
         hz = self._frequency_hz
         fallback = hz * 36000.0 * self.model.sequence_ns * 1e-9 if hz else None
         return rotation_is_whole(azimuth_cdeg, self.cut_cdeg, check_start=check_start, check_end=check_end,
-                                 by_block=self.cut_on_block, fallback_step_cdeg=fallback)
+                                 by_block=self.cut_on_block, fallback_step_cdeg=fallback, lost_columns=lost)
 
     def finish(self) -> list[Frame]:
         """The last frame, if any columns are pending (partial unless it reaches the cut angle).

@@ -32,9 +32,6 @@ DATA_PACKET_SIZE = 1206
 POSITION_PACKET_SIZE = 512
 BLOCKS_PER_PACKET = 12
 CHANNELS_PER_BLOCK = 32
-# The VLP-16's facts under their old names (lidarpkt.vendors.velodyne.models holds them, per model)
-LASERS = VLP16.lasers
-
 BLOCK_FLAG = 0xEEFF  # bytes FF EE read as u16 little-endian
 
 RETURN_MODE_CODES = {name: code for code, name in RETURN_MODES.items()}

@@ -141,8 +141,8 @@ class McapWriter:
             where = self.files[-1] if self.files else self.path
             if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
                 raise DiskFullError(
-                    f"no space left while writing {where} ({self.messages_written} messages written): "
-                    "the file is readable up to its last complete chunk; free space and record again"
+                    f"no space left while writing {where} ({self.messages_written} messages written); free some "
+                    "space or write elsewhere (a recording keeps what it wrote, readable up to its last complete chunk)"
                 ) from exc
             raise OutputError(f"writing {where} failed: {exc.strerror or exc}") from exc
 
