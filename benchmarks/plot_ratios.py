@@ -15,18 +15,18 @@ from pathlib import Path
 #: comparison -> (ratio of each paired round of the latest run, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((2.67, 2.37, 2.35), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.12, 3.25, 3.76), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((2.25, 3.08, 3.22), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((2.72, 2.81, 3.15), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.56, 2.79, 1.44), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((0.69, 0.91, 1.42), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((2.06, 1.68, 1.83), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.05, 1.13, 0.71), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.93, 0.96, 1.04), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((0.37, 1.43, 0.91), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((2.40, 2.36, 2.82), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((3.61, 3.40, 3.39), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.13, 2.91, 3.13), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((2.69, 2.81, 2.97), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.33, 2.28, 2.36), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.20, 1.31, 1.40), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.71, 1.97, 1.93), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.26, 1.30, 1.27), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.44, 1.06, 1.25), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.28, 1.34, 1.10), 1.5),
 }
-RUN_DATE = "2026-11-27, load average 5-6"
+RUN_DATE = "2026-11-27, load average 1-2"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
