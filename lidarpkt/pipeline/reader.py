@@ -436,10 +436,9 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: 
     Raises:
         UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): the file holds no packets.
         UnsupportedContainerError: a ``segment`` of a file cut in several: the file is read whole.
-        UsageError: ``workers`` is not a whole number >= 1.
         CaptureFormatError: the file is damaged.
     """
-    from lidarpkt.errors import UnsupportedFilterError, UsageError
+    from lidarpkt.errors import UnsupportedFilterError
 
     what = f"an {files.what}"
     given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
@@ -448,11 +447,8 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: 
                                      "decoded frames, not packets")
     if options.segment is not None and options.segment.count != 1:
         raise UnsupportedContainerError(f"{path}: {what} is read whole (one segment)")
-    workers = options.workers
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
-    reader = files.open(path, SourceStats(), options.include_partial)
-    if workers in (None, 1):
+    reader = files.open(path, SourceStats(), options.include_partial)  # options checked by OpenOptions
+    if options.workers in (None, 1):
         return reader
     from .parallel import PipelinedFrameReader
 

@@ -84,8 +84,7 @@ from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, p
                      rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
-#: Packets turned into columns at a time (see ``_push_run``).
-PIECE_PACKETS = 1024
+PIECE_PACKETS = 1024  # packets turned into columns at a time (see _push_run)
 #: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
 MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
@@ -353,8 +352,7 @@ class VelodyneDecoder(PacketAccounting):
             else:
                 miss = missing[a:b]
             self.stats.lost_packets += int(miss.sum())
-            # columns made a piece at a time: a frame holds views of its piece's arrays, so memory follows the
-            # piece (about 13 VLP-16 rotations), not the batch (the reader's chunk of up to 8 MB)
+            # a piece at a time: a frame holds views of its piece's arrays, so memory follows the piece, not the batch
             for lo in range(a, b, PIECE_PACKETS):
                 hi = min(b, lo + PIECE_PACKETS)
                 cols = self._columns(raw.select(slice(lo, hi)), abs_ns[lo:hi], index[lo:hi], miss[lo - a:hi - a], mode)
