@@ -5,7 +5,7 @@ copy re-encoded with our encoder with the next frame id and timestamps moved on 
 period (CRC recomputed where the firmware writes one), written with ``lidarpkt.writers.pcap``
 as unfragmented loopback datagrams like ouster-sdk's own recordings.
 
-    python benchmarks/bench_ouster.py [--capture dual|legacy|single|ldr] [--frames 500] [--repeat 3] [--keep PATH]
+    python benchmarks/bench_ouster.py [--capture dual|legacy|single|ldr|ldr128] [--frames 500] [--repeat 3] [--keep PATH]
 
 Prints, for each decoder, wall time, frames/s and MB/s of UDP payload, and the ratio. Both
 decoders produce full frames (all channel fields); neither computes XYZ.
@@ -32,11 +32,14 @@ CAPTURES = {
     "legacy": ("ouster-sdk/OS-1-64_1024x10_fw20.pcap", "ouster-sdk/OS-1-64_sensor_config_reduced.json"),
     "single": ("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-2-128-U1_v2.3.0_1024x10.json"),
     "ldr": ("ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.pcap", "ouster-sdk/OS-0-128-U1_v2.3.0_1024x10.json"),
+    "ldr128": ("ouster-sdk/OS-1-128_v2.3.0_1024x10_lb_n3.pcap", "ouster-sdk/OS-1-128_v2.3.0_1024x10.json"),
 }
 
 
 def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, int]:
-    """Write ``frames`` copies of the capture's single frame; returns (packets, payload bytes)."""
+    """Write ``frames`` copies of the frames of the capture's first batch of lidar packets (each copy's frame ids
+    and times moved on by the frames it holds, so that the result reads as one stream); returns (packets,
+    payload bytes)."""
     from lidarpkt.vendors.ouster import decode_packets, encode_packets, load_metadata
     from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.containers.pcap_reader import read_batches
@@ -46,7 +49,10 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
     batch = next(b for b in read_batches(pcap) if b.payload_size == md.packet_size)
     fields = decode_packets(batch.payload, md)
     period_ns = int(1e9 / (md.frequency_hz or 10))
-    first_id = int(fields.frame_id[0])
+    ids = (fields.column_frame_id[:, 0] if md.profile.legacy else fields.frame_id).astype(np.int64)
+    first_id = int(ids[0])
+    rel = (ids - first_id) % 65536  # each packet's frame among the batch's
+    per_copy = int(rel.max()) + 1
     host_t0 = int(batch.timestamp_ns[0])
     dt_host = batch.timestamp_ns - host_t0
     src, dst = Endpoint("127.0.0.1", 7502), Endpoint("127.0.0.1", md.lidar_port)
@@ -54,15 +60,16 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
     def packets():
         for k in range(frames):
             f = decode_packets(batch.payload, md)
-            fid = (first_id + k) % 65536
+            fid = (first_id + k * per_copy + rel) % 65536
             if md.profile.legacy:
-                f.column_frame_id[:] = fid
+                f.column_frame_id[:] = fid[:, None]
             else:
                 f.header["frame_id"][:] = fid
-            f.timestamp_ns[:] = fields.timestamp_ns + np.uint64(k * period_ns)
+            shift = k * per_copy * period_ns
+            f.timestamp_ns[:] = fields.timestamp_ns + np.uint64(shift)
             payload = encode_packets(f, md)
             for i in range(len(payload)):
-                yield Packet(host_t0 + k * period_ns + int(dt_host[i]), src, dst, payload[i].tobytes())
+                yield Packet(host_t0 + shift + int(dt_host[i]), src, dst, payload[i].tobytes())
 
     write_pcap(out, packets(), mtu=None)
     return frames * len(batch), frames * batch.payload.size

@@ -114,6 +114,70 @@ def build_model(path: Path, model_name: str, seconds: float, mode: str = "strong
     return n
 
 
+#: The real captures of the other models, as ``run_all.py`` repeats them: (name, capture under the external
+#: fixtures, copies). The bags are exported to pcap first (``lidarpkt export --format pcap``).
+REAL_CAPTURES = (
+    ("VLP-32C", "nebula/vlp32/1713492677464078412", 150),
+    ("VLS-128", "nebula/vls128/1614315746471294674", 25),
+    ("HDL-32E", "rust-lidar-utils/velodyne_vlp32.pcap", 300),
+)
+HOUR_US = 3_600_000_000
+
+
+def export_pcap(capture: Path, out: Path) -> Path:
+    """``capture`` (a bag, or a pcap used as is) as a classic pcap, through ``lidarpkt export --format pcap``."""
+    if capture.is_file() and capture.suffix == ".pcap":
+        return capture
+    import subprocess
+
+    folder = out.with_suffix(".export")
+    subprocess.run([sys.executable, "-m", "lidarpkt", "export", str(capture), "-o", str(folder), "--format", "pcap",
+                    "--workers", "1", "-q"], check=True, cwd=REPO)
+    return next(folder.glob("*.pcap"))
+
+
+def build_repeated(source: Path, copies: int, out: Path) -> int:
+    """``copies`` copies of the data packets (1206 B) of the pcap ``source``, one after the other: each copy's
+    capture times and device times (the µs past the hour of each packet) moved on by the stream's span (first to
+    last packet plus one median packet interval), so that the result reads as one stream. Position packets are
+    left out (their NMEA times would not move). Returns the number of packets written."""
+    from lidarpkt.containers.pcap_reader import read_batches
+
+    batches = [b for b in read_batches(source) if b.payload_size == 1206]
+    payload = np.concatenate([b.payload for b in batches])
+    host_ns = np.concatenate([b.timestamp_ns for b in batches])
+    order = np.argsort(np.concatenate([b.index for b in batches]), kind="stable")
+    payload, host_ns = payload[order], host_ns[order]
+    src, dst = batches[0].src, batches[0].dst
+    device_us = payload[:, 1200:1204].copy().view("<u4")[:, 0].astype(np.int64)
+    step_us = int(np.median(np.diff(device_us) % HOUR_US)) if len(device_us) > 1 else 0
+    span_us = int((device_us[-1] - device_us[0]) % HOUR_US) + step_us
+
+    def packets():
+        for k in range(copies):
+            copy = payload.copy()
+            copy[:, 1200:1204] = ((device_us + k * span_us) % HOUR_US).astype("<u4").view(np.uint8).reshape(-1, 4)
+            t = host_ns + k * span_us * 1000
+            for i in range(len(copy)):
+                yield Packet(int(t[i]), src, dst, copy[i].tobytes())
+
+    write_pcap(out, packets(), udp_checksum=False)
+    return copies * len(payload)
+
+
+def real_capture(workdir: Path, name: str, external: Path) -> Path | None:
+    """The repeated capture of model ``name`` (:data:`REAL_CAPTURES`) under ``workdir``, built once; None when
+    the external fixtures are missing."""
+    _, rel, copies = next(c for c in REAL_CAPTURES if c[0] == name)
+    capture = external / rel
+    if not capture.exists():
+        return None
+    out = workdir / f"{name.lower()}_real_x{copies}.pcap"
+    if not out.exists():
+        build_repeated(export_pcap(capture, out), copies, out)
+    return out
+
+
 def run_lidarpkt(path: Path, xyz: bool = True, workers: int = 1, read_ahead: bool | None = None) -> tuple[int, int]:
     frames = points = 0
     for f in lidarpkt.open(path, workers=workers, read_ahead=read_ahead):

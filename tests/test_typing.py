@@ -50,7 +50,7 @@ def test_mypy_flags_a_misspelt_option_and_sees_frames(tmp_path):
     out = proc.stdout
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert re.search(r'user_script\.py:4: error: Unexpected keyword argument "no_such_option"', out), out
-    assert re.search(r'user_script\.py:5: error: Argument "workers" .* incompatible type "str"; expected "int"', out), out
+    assert re.search(r'user_script\.py:5: error: Argument "workers" .* incompatible type "str"; expected "int \| None"', out), out
     assert 'user_script.py:7: note: Revealed type is "lidarpkt.core.frame.Frame"' in out, out
     assert len(re.findall(r": error:", out)) == 2, out  # the well-typed call passes
 

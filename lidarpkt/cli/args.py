@@ -254,9 +254,10 @@ def add_quiet(parser: argparse.ArgumentParser, help: str = "no progress bar and 
 
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers N``: parallelism of the verbs that decode (1 = this thread only)."""
-    parser.add_argument("--workers", type=number("--workers"), default=1, metavar="N",
-                        help="use N CPU cores (default 1): decode in N threads; 2 decodes beside the reading, "
-                             "ahead of the output; 3 or more decode segments of a pcap/pcapng side by side")
+    parser.add_argument("--workers", type=number("--workers"), default=None, metavar="N",
+                        help="use N CPU cores: a pcap/pcapng capture is cut into segments decoded by N processes "
+                             "side by side (1: in this one; default: the idle CPUs, at most 4, for a capture of 64 MB "
+                             "or more, else 1)")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

@@ -90,7 +90,7 @@ def _open_options(args) -> dict[str, Any]:
     """The ``lidarpkt.open`` options of the flags."""
     from lidarpkt.cli import args as cliargs
 
-    return {"workers": getattr(args, "workers", 1), **cliargs.sensor_options(args)}
+    return {"workers": getattr(args, "workers", None), **cliargs.sensor_options(args)}
 
 
 def _feed(args) -> tuple[Feed, Any]:

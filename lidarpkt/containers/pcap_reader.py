@@ -75,10 +75,12 @@ __all__ = [
 MAX_CHUNK_BYTES = 8 << 20  # a chunk (and so a batch) spans at most this much of the file: 8 MB keeps a chunk in
 # L3 while its records are walked, grouped and copied out (mixed VLP-16 capture: 28 ms per 100 MB against 32-39 ms
 # with 32 MB chunks)
-READ_BLOCK_BYTES = 16 << 20  # the file is read in blocks this large (into one reused buffer); 16 MB rather than
-# 32: as fast alone (4-32 MB within noise), and with lidarpkt.open's read-ahead thread the first block (read
-# before any decoding) and the last (decoded after all reading) are the parts that do not overlap. (4 MB blocks
-# made the Ouster pipeline 40 % slower: the batches' payload arrays, allocated fresh, page-faulted more)
+BATCH_PACKETS = 2048  # records per chunk by default: a decoder turns a batch into frames at once, so the frames
+# waiting to be handed out are a batch's (2048 VLP-16 packets: 14 dual rotations, ~9 MB with their pixel times),
+# not 8192 packets' (55 rotations); as fast per packet in warm runs (OS-2-128, OS-0-32, VLP-16 dual)
+READ_BLOCK_BYTES = 8 << 20  # the file is read in blocks this large (into one reused buffer); 4-32 MB ran within
+# noise alone. (4 MB blocks made the Ouster pipeline 40 % slower: the batches' payload arrays, allocated fresh,
+# page-faulted more)
 
 
 class PcapReader:
@@ -115,7 +117,7 @@ class PcapReader:
         ports: Iterable[int] | None = None,
         src_addresses: Iterable[str] | None = None,
         payload_sizes: Iterable[int] | None = None,
-        batch_packets: int = 8192,
+        batch_packets: int = BATCH_PACKETS,
         reassembly_timeout_ns: int = 30_000_000_000,
         max_pending_datagrams: int = 1024,
         max_pending_bytes: int = 64 * 1024 * 1024,

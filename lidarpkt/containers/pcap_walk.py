@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import struct
 import sys
+import threading
 from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
@@ -39,6 +40,18 @@ POST_END_CHUNK_BYTES = 1 << 20  # reading a segment: chunks past its end (a VLP-
 POST_END_READ_BYTES = 2 * POST_END_CHUNK_BYTES + MAX_RECORD_BYTES  # and file blocks: a whole chunk fits
 
 
+_spare = threading.local()  # the last read block of this thread, lent to the next reader once nothing uses it
+
+
+def _block(nbytes: int) -> np.ndarray:
+    """A read buffer of at least ``nbytes``: the thread's last one when no reader or view holds it any more (the
+    readers of a capture's segments, one after another, fault one block's pages in once, not one per segment)."""
+    buf = getattr(_spare, "block", None)
+    if buf is None or buf.shape[0] < nbytes or sys.getrefcount(buf) > 3:  # 3: buf, _spare.block, the argument
+        buf = _spare.block = np.empty(nbytes, np.uint8)
+    return buf
+
+
 class BlockReader:
     """Reads a file in blocks into one reused buffer (no mmap: a file truncated while it is read
     must give a short read, not a SIGBUS; memory stays bounded by the block size)."""
@@ -56,7 +69,7 @@ class BlockReader:
         if self.segment_end is not None:  # past a segment's end only its last frame is read
             want = min(want, max(0, self.segment_end - offset) + POST_END_READ_BYTES)
         if self._buf is None or self._buf.shape[0] < want:
-            self._buf = np.empty(max(want, 1), np.uint8)
+            self._buf = _block(max(want, 1))
         view = self._buf.data[:want]  # the array's own memoryview
         self.fh.seek(offset)
         got = 0

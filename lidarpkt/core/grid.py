@@ -103,12 +103,31 @@ def restagger(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
 
 
 def _roll_rows(image: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """``out[..., u, (c + shift[u]) % W] = image[..., u, c]``: one roll per distinct shift (a sensor has a few), not
-    a gather of every pixel (4x slower on an OS-128 image)."""
+    """``out[..., u, (c + shift[u]) % W] = image[..., u, c]``: two slice copies per group of rows of one shift (rows
+    in a stride, as a sensor's few distinct shifts repeat down the beams, are one group), no gather of every pixel.
+    A structured image (a point cloud) is moved as raw records: NumPy copies a structured dtype field by field."""
     if not np.any(shift):
         return image
-    out = np.empty_like(image)
+    src = image.view(np.dtype((np.void, image.dtype.itemsize))) if image.dtype.names else image
+    w = src.shape[-1]
+    out = np.empty_like(src)
+    for s, rows in _shift_groups(np.asarray(shift)):
+        k = s % w
+        for sel in rows:
+            out[..., sel, k:] = src[..., sel, :w - k]
+            out[..., sel, :k] = src[..., sel, w - k:]
+    return out.view(image.dtype) if image.dtype.names else out
+
+
+def _shift_groups(shift: np.ndarray) -> list[tuple[int, list[slice]]]:
+    """(shift, row slices) of each distinct shift: one strided slice when its rows are evenly spaced, else a
+    slice per row."""
+    groups = []
     for s in np.unique(shift).tolist():
         rows = np.flatnonzero(shift == s)
-        out[..., rows, :] = np.roll(image[..., rows, :], s, axis=-1)
-    return out
+        step = int(rows[1] - rows[0]) if rows.size > 1 else 1
+        if rows.size == 1 or bool(np.all(np.diff(rows) == step)):
+            groups.append((int(s), [slice(int(rows[0]), int(rows[-1]) + 1, step)]))
+        else:
+            groups.append((int(s), [slice(r, r + 1) for r in rows.tolist()]))
+    return groups

@@ -26,7 +26,7 @@ _local = threading.local()
 T = TypeVar("T")  # what the reader yields (packet batches, frames)
 
 THREAD_NAME = "lidarpkt-read-ahead"
-DEFAULT_MAX_BYTES = 16 << 20  # queued batches (payload bytes; one read block); one batch is always allowed. 8-48 MB measured alike, 16 MB steadier
+DEFAULT_MAX_BYTES = 8 << 20  # queued batches (payload bytes; one read block); one batch is always allowed
 
 
 def warn(message: Warning, stacklevel: int = 1) -> None:

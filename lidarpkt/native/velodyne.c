@@ -41,6 +41,14 @@ static void velodyne_xyz_rows(const uint32_t *restrict rng, const uint16_t *rest
     }
 }
 
+/* The largest of n uint16 (0 for none): a reduction the compiler vectorises, where a loop that stops at the
+ * first bad azimuth is not. */
+static uint16_t max_u16(const uint16_t *restrict v, Py_ssize_t n) {
+    uint16_t m = 0;
+    for (Py_ssize_t i = 0; i < n; i++) m = v[i] > m ? v[i] : m;
+    return m;
+}
+
 PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
     PyObject *objs[6];
     int has_dist, has_voff;
@@ -73,11 +81,11 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
             goto done;
         }
         const uint16_t *az = (const uint16_t *)b[1].buf;
-        for (Py_ssize_t i = 0; i < hw; i++) {
-            if (az[i] >= table) {
-                PyErr_Format(PyExc_IndexError, "velodyne_xyz: azimuth %d (0.01 degree) is 360 degrees or more", az[i]);
-                goto done;
-            }
+        if (max_u16(az, hw) >= table) {
+            Py_ssize_t i = 0;
+            while (az[i] < table) i++;
+            PyErr_Format(PyExc_IndexError, "velodyne_xyz: azimuth %d (0.01 degree) is 360 degrees or more", az[i]);
+            goto done;
         }
         Py_ssize_t returns = (b[0].len / 4) / hw;
         const uint32_t *rng = (const uint32_t *)b[0].buf;
@@ -101,29 +109,84 @@ done:
     return release_buffers(b, got, result);
 }
 
-/* velodyne_columns(distance, reflectivity, firing_azimuth, lasers, slots, range_out, refl_out, az_out)
+/* velodyne_columns(distance, reflectivity, azimuth, rate, dt, lasers, slots, range_out, refl_out, az_out)
  *
- * The VLP-16 packets of a batch into range-image columns, as VelodyneDecoder._columns's NumPy path:
- * distance uint16 [N, 12, 32] and reflectivity uint8 [N, 12, 32] (any strides: views of the 3-byte
- * records of the payloads), firing_azimuth uint16 [N, 12 / slots, 32] (any strides), lasers int64
- * [16] (the laser of each row, each < 16), slots 1 or 2 (dual: block b is slot b % 2); outputs
- * C-contiguous range_out uint32 [slots, 16, W], refl_out uint8 [slots, 16, W], az_out uint16 [16, W]
- * with W = N * (12 / slots) * 2. Column (p * (12 / slots) + b / slots) * 2 + seq of row r holds
- * channel seq * 16 + lasers[r] of block b of packet p; range = 2 * distance (mm).
+ * The VLP-16 packets of a batch into range-image columns, as lidarpkt.vendors.velodyne.decode.column_pixels's
+ * NumPy twin: distance uint16 [N, 12, 32] and reflectivity uint8 [N, 12, 32] (any strides: views of the
+ * 3-byte records of the payloads), azimuth uint16 [N, 12] (the block azimuths, any strides), rate float32
+ * [N] (each packet's rotation rate, 0.01 degree per second), dt float32 [12 / slots, 32] (the delay of each
+ * firing after its block's first, seconds), lasers int64 [16] (the laser of each row, each < 16), slots 1
+ * or 2 (dual: block b is slot b % 2); outputs C-contiguous range_out uint32 [slots, 16, W], refl_out uint8
+ * [slots, 16, W], az_out uint16 [16, W] with W = N * (12 / slots) * 2. Column (p * B + bb) * 2 + seq of row
+ * r (B = 12 / slots) holds channel seq * 16 + lasers[r] of block bb * slots + slot of packet p; range = 2 *
+ * distance (mm); its firing azimuth is lround(azimuth[p][bb * slots] + rate[p] * dt[bb][channel]) mod 36000,
+ * summed in float32 in lidarpkt.vendors.velodyne.timing.firing_azimuths's order (rate * dt, + azimuth,
+ * + 36000, + 0.5, truncated): one firing-azimuth tile per packet in L1, then spread over the rows.
  */
+/* floor(rate * dt + az + 36000 + 0.5) summed in float32 in the twin's order (rate * dt, + az, + 36000, + 0.5,
+ * truncated) less 36000, then the floor modulo 36000 by three subtractions: exact for sums below 4 * 36000;
+ * outside [0, 36000) the caller redoes the pixel with azimuth_mod (no valid azimuth gets there) */
+static inline int32_t firing_azimuth(float rate, float dt, float az) {
+    float v = rate * dt;
+    v += az;
+    v += 36000.0f;
+    v += 0.5f;
+    int32_t r = (int32_t)v - 36000;
+    r = r >= 36000 ? r - 36000 : r;
+    r = r >= 36000 ? r - 36000 : r;
+    return r >= 36000 ? r - 36000 : r;
+}
+
+/* The firing azimuths of one packet: tile[bb * 32 + k] for the blocks' azimuths az[bb] (bps of them) */
+MULTIVERSION
+static void firing_tile(const float *restrict dt, float rate, const float *restrict az, Py_ssize_t bps,
+                        int32_t *restrict tile) {
+    for (Py_ssize_t bb = 0; bb < bps; bb++) {
+        const float *d = dt + bb * 32;
+        int32_t *out = tile + bb * 32;
+        float a = az[bb];
+        for (int k = 0; k < 32; k++) out[k] = firing_azimuth(rate, d[k], a);  /* in [0, 36000) for 16-bit azimuths */
+    }
+}
+
+static inline void columns_chunk(const char *dist, const char *refl, Py_ssize_t ds0, Py_ssize_t ds1, Py_ssize_t ds2,
+                                 Py_ssize_t rs0, Py_ssize_t rs1, Py_ssize_t rs2, const int64_t *lasers, int slots,
+                                 Py_ssize_t p0, Py_ssize_t p1, Py_ssize_t w, uint32_t *rng_out, uint8_t *refl_out) {
+    Py_ssize_t bps = 12 / slots;
+    for (int slot = 0; slot < slots; slot++) {
+        for (int r = 0; r < 16; r++) {
+            Py_ssize_t laser = lasers[r];
+            uint32_t *ro = rng_out + ((Py_ssize_t)slot * 16 + r) * w;
+            uint8_t *fo = refl_out + ((Py_ssize_t)slot * 16 + r) * w;
+            for (Py_ssize_t p = p0; p < p1; p++) {
+                const char *dp = dist + p * ds0 + slot * ds1 + laser * ds2;
+                const char *rp = refl + p * rs0 + slot * rs1 + laser * rs2;
+                Py_ssize_t c = p * bps * 2;
+                for (Py_ssize_t bb = 0; bb < bps; bb++) {
+                    const char *d = dp + bb * slots * ds1, *f = rp + bb * slots * rs1;
+                    ro[c + 2 * bb] = 2u * (uint32_t)load_u16(d);
+                    ro[c + 2 * bb + 1] = 2u * (uint32_t)load_u16(d + 16 * ds2);
+                    fo[c + 2 * bb] = (uint8_t)f[0];
+                    fo[c + 2 * bb + 1] = (uint8_t)f[16 * rs2];
+                }
+            }
+        }
+    }
+}
 
 PyObject *lp_velodyne_columns(PyObject *self, PyObject *args) {
-    PyObject *o[7];
+    PyObject *o[9];
     int slots;
-    if (!PyArg_ParseTuple(args, "OOOOiOOO", &o[0], &o[1], &o[2], &o[3], &slots, &o[4], &o[5], &o[6])) return NULL;
-    static const Py_ssize_t sizes[7] = {2, 1, 2, 8, 4, 1, 2};
-    static const char *codes[7] = {"H", "B", "H", INTEGER_CODES, "IL", "B", "H"};
-    Py_buffer b[7];
+    if (!PyArg_ParseTuple(args, "OOOOOOiOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &slots, &o[6], &o[7], &o[8]))
+        return NULL;
+    static const Py_ssize_t sizes[9] = {2, 1, 2, 4, 4, 8, 4, 1, 2};
+    static const char *codes[9] = {"H", "B", "H", "f", "f", INTEGER_CODES, "IL", "B", "H"};
+    Py_buffer b[9];
     int got = 0;
     PyObject *result = NULL;
-    for (; got < 7; got++) {
+    for (; got < 9; got++) {
         int flags = got < 3 ? PyBUF_STRIDES | PyBUF_FORMAT
-                            : PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got >= 4 ? PyBUF_WRITABLE : 0);
+                            : PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got >= 6 ? PyBUF_WRITABLE : 0);
         if (get_buffer(o[got], &b[got], flags, sizes[got], "velodyne_columns") < 0) goto done;
         if (!is_native(b[got].format, codes[got])) {
             PyErr_SetString(PyExc_ValueError, "velodyne_columns: unexpected item types");
@@ -139,56 +202,50 @@ PyObject *lp_velodyne_columns(PyObject *self, PyObject *args) {
         Py_ssize_t bps = 12 / slots;
         Py_ssize_t n = b[0].ndim == 3 ? b[0].shape[0] : -1, w = n * bps * 2;
         if (n < 0 || b[0].shape[1] != 12 || b[0].shape[2] != 32 || b[1].ndim != 3 || b[1].shape[0] != n ||
-            b[1].shape[1] != 12 || b[1].shape[2] != 32 || b[2].ndim != 3 || b[2].shape[0] != n ||
-            b[2].shape[1] != bps || b[2].shape[2] != 32 || b[3].len != 16 * 8 || b[4].len != slots * 16 * w * 4 ||
-            b[5].len != slots * 16 * w || b[6].len != 16 * w * 2) {
+            b[1].shape[1] != 12 || b[1].shape[2] != 32 || b[2].ndim != 2 || b[2].shape[0] != n ||
+            b[2].shape[1] != 12 || b[3].len != n * 4 || b[4].len != bps * 32 * 4 || b[5].len != 16 * 8 ||
+            b[6].len != slots * 16 * w * 4 || b[7].len != slots * 16 * w || b[8].len != 16 * w * 2) {
             PyErr_SetString(PyExc_ValueError, "velodyne_columns: arrays of disagreeing shapes");
             goto done;
         }
-        const int64_t *lasers = (const int64_t *)b[3].buf;
+        const int64_t *lasers = (const int64_t *)b[5].buf;
         for (int r = 0; r < 16; r++) {
             if (lasers[r] < 0 || lasers[r] > 15) {
                 PyErr_SetString(PyExc_ValueError, "velodyne_columns: a laser number outside 0-15");
                 goto done;
             }
         }
-        const char *dist = (const char *)b[0].buf, *refl = (const char *)b[1].buf, *fa = (const char *)b[2].buf;
+        const char *dist = (const char *)b[0].buf, *refl = (const char *)b[1].buf, *azb = (const char *)b[2].buf;
         const Py_ssize_t *ds = b[0].strides, *rs = b[1].strides, *as = b[2].strides;
-        uint32_t *rng_out = (uint32_t *)b[4].buf;
-        uint8_t *refl_out = (uint8_t *)b[5].buf;
-        uint16_t *az_out = (uint16_t *)b[6].buf;
+        const float *rate = (const float *)b[3].buf, *dt = (const float *)b[4].buf;
+        uint32_t *rng_out = (uint32_t *)b[6].buf;
+        uint8_t *refl_out = (uint8_t *)b[7].buf;
+        uint16_t *az_out = (uint16_t *)b[8].buf;
+        /* the records of packets viewed in place (strides 1206, 100, 3): constant strides let the compiler
+         * fold the address arithmetic */
+        int packed = ds[0] == 1206 && ds[1] == 100 && ds[2] == 3 && rs[0] == 1206 && rs[1] == 100 && rs[2] == 3;
         Py_BEGIN_ALLOW_THREADS
-        /* packets in chunks whose records stay in L2 (64 x 1.2 kB); per chunk, row by row, so that
-         * each output row is written contiguously (a packet at a time touched 80 rows ~300 kB apart) */
+        int32_t tile[12 * 32];
+        /* packets in chunks whose records stay in L2 (64 x 1.2 kB); per chunk, row by row, so that each output
+         * row is written contiguously (a packet at a time touched 80 rows ~300 kB apart) */
         for (Py_ssize_t p0 = 0; p0 < n; p0 += 64) {
             Py_ssize_t p1 = p0 + 64 < n ? p0 + 64 : n;
-            for (int slot = 0; slot < slots; slot++) {
+            if (packed)
+                columns_chunk(dist, refl, 1206, 100, 3, 1206, 100, 3, lasers, slots, p0, p1, w, rng_out, refl_out);
+            else
+                columns_chunk(dist, refl, ds[0], ds[1], ds[2], rs[0], rs[1], rs[2], lasers, slots, p0, p1, w, rng_out,
+                              refl_out);
+            for (Py_ssize_t p = p0; p < p1; p++) {
+                float azf[12];
+                for (Py_ssize_t bb = 0; bb < bps; bb++) azf[bb] = (float)load_u16(azb + p * as[0] + bb * slots * as[1]);
+                firing_tile(dt, rate[p], azf, bps, tile);
+                Py_ssize_t c = p * bps * 2;
                 for (int r = 0; r < 16; r++) {
-                    Py_ssize_t laser = lasers[r];
-                    uint32_t *ro = rng_out + ((Py_ssize_t)slot * 16 + r) * w;
-                    uint8_t *fo = refl_out + ((Py_ssize_t)slot * 16 + r) * w;
-                    for (Py_ssize_t p = p0; p < p1; p++) {
-                        const char *dp = dist + p * ds[0] + slot * ds[1] + laser * ds[2];
-                        const char *rp = refl + p * rs[0] + slot * rs[1] + laser * rs[2];
-                        Py_ssize_t c = p * bps * 2;
-                        for (Py_ssize_t bb = 0; bb < bps; bb++) {
-                            const char *d = dp + bb * slots * ds[1], *f = rp + bb * slots * rs[1];
-                            ro[c + 2 * bb] = 2u * (uint32_t)load_u16(d);
-                            ro[c + 2 * bb + 1] = 2u * (uint32_t)load_u16(d + 16 * ds[2]);
-                            fo[c + 2 * bb] = (uint8_t)f[0];
-                            fo[c + 2 * bb + 1] = (uint8_t)f[16 * rs[2]];
-                        }
-                    }
-                }
-            }
-            for (int r = 0; r < 16; r++) {
-                uint16_t *ao = az_out + (Py_ssize_t)r * w;
-                for (Py_ssize_t p = p0; p < p1; p++) {
-                    const char *ap = fa + p * as[0] + lasers[r] * as[2];
-                    Py_ssize_t c = p * bps * 2;
+                    uint16_t *ao = az_out + (Py_ssize_t)r * w + c;
+                    const int32_t *t = tile + lasers[r];
                     for (Py_ssize_t bb = 0; bb < bps; bb++) {
-                        ao[c + 2 * bb] = load_u16(ap + bb * as[1]);
-                        ao[c + 2 * bb + 1] = load_u16(ap + bb * as[1] + 16 * as[2]);
+                        ao[2 * bb] = (uint16_t)t[bb * 32];
+                        ao[2 * bb + 1] = (uint16_t)t[bb * 32 + 16];
                     }
                 }
             }
@@ -212,6 +269,41 @@ done:
  * [S, L, N * C], az_out uint16 [L, N * C]. Azimuth = lround(block azimuth + rate * dt) mod 36000 in
  * float32, summed in the twin's order (rate * dt, + azimuth, + 36000, + 0.5, truncated).
  */
+/* One pixel of m packets (records `dstride` / `rstride` bytes apart) into every c-th element of a row: scalar
+ * (vectorised, the strided loads and stores cost GCC's SSE2 code several times more instructions) */
+__attribute__((optimize("no-tree-vectorize")))
+static void strided_pixels(const char *dp, Py_ssize_t dstride, const char *rp, Py_ssize_t rstride, uint32_t unit,
+                           Py_ssize_t m, uint32_t *ro, uint8_t *fo, Py_ssize_t c) {
+    for (Py_ssize_t p = 0; p < m; p++) {
+        ro[p * c] = unit * (uint32_t)load_u16(dp + p * dstride);
+        fo[p * c] = (uint8_t)rp[p * rstride];
+    }
+}
+
+/* One pixel's firing azimuth in m packets: out[p] = firing_azimuth(rate[p], dt, az[p]) (rate and the pixel's
+ * block azimuths contiguous, so the loop vectorises); whether one fell outside [0, 36000) (then the caller redoes
+ * them with azimuth_mod) */
+MULTIVERSION
+static int firing_run(const float *restrict rate, float dt, const float *restrict az, Py_ssize_t m,
+                      int32_t *restrict out) {
+    int32_t outside = 0;
+    for (Py_ssize_t p = 0; p < m; p++) {
+        int32_t v = firing_azimuth(rate[p], dt, az[p]);
+        outside |= (v < 0) | (v >= 36000);
+        out[p] = v;
+    }
+    return outside != 0;
+}
+
+static int32_t azimuth_mod(float rate, float dt, float az) {
+    float v = rate * dt;
+    v += az;
+    v += 36000.0f;
+    v += 0.5f;
+    int32_t t = (int32_t)v;
+    return ((t % 36000) + 36000) % 36000;
+}
+
 PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
     PyObject *o[10];
     unsigned int unit;
@@ -257,54 +349,37 @@ PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
         uint32_t *rng_out = (uint32_t *)b[7].buf;
         uint8_t *refl_out = (uint8_t *)b[8].buf;
         uint16_t *az_out = (uint16_t *)b[9].buf;
-        /* byte offsets inside a packet's records of every pixel's distance and reflectivity, and of each
-         * firing's block azimuth: the inner loops add them to a packet's base */
-        Py_ssize_t npx = s * l * c;
-        Py_ssize_t *off = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(2 * npx + l * c));
-        if (off == NULL) {
-            PyErr_NoMemory();
-            goto done;
-        }
-        for (Py_ssize_t i = 0; i < npx; i++) {
-            Py_ssize_t blk = src[i] >> 5, ch = src[i] & 31;
-            off[i] = blk * ds[1] + ch * ds[2];
-            off[npx + i] = blk * rs[1] + ch * rs[2];
-        }
-        for (Py_ssize_t i = 0; i < l * c; i++) off[2 * npx + i] = azb[i] * as[1];
         Py_BEGIN_ALLOW_THREADS
+        float azt[12 * 64]; /* a chunk's block azimuths, block by block */
+        int32_t run[64]; /* one pixel's firing azimuths in the chunk's packets */
+        /* packets in chunks of 64 (their records stay in L2); per chunk, pixel (row, k) by pixel with the packets
+         * in the inner loop: a pixel's offsets are constant there, and each row is written in order */
         for (Py_ssize_t p0 = 0; p0 < n; p0 += 64) {
-            Py_ssize_t p1 = p0 + 64 < n ? p0 + 64 : n;
+            Py_ssize_t m = (p0 + 64 < n ? p0 + 64 : n) - p0;
             for (Py_ssize_t row = 0; row < s * l; row++) {
-                const Py_ssize_t *od = off + row * c, *orf = off + npx + row * c;
-                uint32_t *ro = rng_out + row * w;
-                uint8_t *fo = refl_out + row * w;
-                for (Py_ssize_t p = p0; p < p1; p++) {
-                    const char *dp = dist + p * ds[0], *rp = refl + p * rs[0];
-                    for (Py_ssize_t k = 0; k < c; k++) {
-                        ro[p * c + k] = unit * (uint32_t)load_u16(dp + od[k]);
-                        fo[p * c + k] = (uint8_t)rp[orf[k]];
-                    }
+                for (Py_ssize_t k = 0; k < c; k++) {
+                    Py_ssize_t blk = src[row * c + k] >> 5, ch = src[row * c + k] & 31;
+                    const char *dp = dist + p0 * ds[0] + blk * ds[1] + ch * ds[2];
+                    const char *rp = refl + p0 * rs[0] + blk * rs[1] + ch * rs[2];
+                    strided_pixels(dp, ds[0], rp, rs[0], unit, m, rng_out + row * w + p0 * c + k,
+                                   refl_out + row * w + p0 * c + k, c);
                 }
             }
+            /* the chunk's block azimuths block-major, as float: azt[blk][p] */
+            for (int blk = 0; blk < 12; blk++)
+                for (Py_ssize_t p = 0; p < m; p++) azt[blk * 64 + p] = (float)load_u16(azp + (p0 + p) * as[0] + blk * as[1]);
             for (Py_ssize_t row = 0; row < l; row++) {
-                const Py_ssize_t *oa = off + 2 * npx + row * c;
-                const float *dtr = dt + row * c;
-                uint16_t *ao = az_out + row * w;
-                for (Py_ssize_t p = p0; p < p1; p++) {
-                    const char *ap = azp + p * as[0];
-                    float rp_ = rate[p];
-                    for (Py_ssize_t k = 0; k < c; k++) {
-                        float v = rp_ * dtr[k];
-                        v += (float)load_u16(ap + oa[k]);
-                        v += 36000.0f;
-                        v += 0.5f;
-                        ao[p * c + k] = (uint16_t)((int32_t)v % 36000);
-                    }
+                for (Py_ssize_t k = 0; k < c; k++) {
+                    Py_ssize_t i = row * c + k;
+                    const float *a = azt + azb[i] * 64;
+                    if (firing_run(rate + p0, dt[i], a, m, run))
+                        for (Py_ssize_t p = 0; p < m; p++) run[p] = azimuth_mod(rate[p0 + p], dt[i], a[p]);
+                    uint16_t *ao = az_out + row * w + p0 * c + k;
+                    for (Py_ssize_t p = 0; p < m; p++) ao[p * c] = (uint16_t)run[p];
                 }
             }
         }
         Py_END_ALLOW_THREADS
-        PyMem_Free(off);
     }
     result = Py_NewRef(Py_None);
 done:

@@ -101,13 +101,15 @@ class OpenOptions:
         None, "bags and MCAP: read only these topics (default: every topic of a known packet type).",
         Several(Text(), example="['/sensor/packets']"))
     batch_packets: int | None = _option(
-        None, "pcap/pcapng: most packets per batch (the reader's default, 8192, when None).",
-        Number(1, 1 << 20, whole=True, optional=True, example="8192"))
-    workers: int = _option(
-        1, "threads that decode (default 1): 2 decodes the frames in a thread of their own beside the "
-        "read-ahead, ahead of the caller (any container); 3 or more cut pcap/pcapng captures of at least "
-        "16 MB into segments decoded side by side (:mod:`lidarpkt.pipeline.parallel`). The frames, their order and "
-        "arrays are those of ``workers=1``. ``segment=`` reads in one thread.", WORKERS)
+        None, "pcap/pcapng: most packets per batch (the reader's default, 2048, when None).",
+        Number(1, 1 << 20, whole=True, optional=True, example="2048"))
+    workers: int | None = _option(
+        None, "decoders working side by side: 1 decodes in this thread; N > 1 cuts a pcap/pcapng capture of at "
+        "least 16 MB into segments decoded by N forked processes (threads where processes cannot be forked), other "
+        "containers decoding in a thread of their own beside the read-ahead (:mod:`lidarpkt.pipeline.parallel`). "
+        "``None`` (default): for a pcap/pcapng of at least 64 MB, N = the CPUs idle now (the CPUs less the load "
+        "average, at most 4) when two or more are, else 1. The frames, their order and arrays are those of "
+        "``workers=1``. ``segment=`` reads in one thread.", dataclasses.replace(WORKERS, optional=True))
 
     @classmethod
     def from_keywords(cls, caller: str, options: dict[str, Any]) -> "OpenOptions":
@@ -179,7 +181,7 @@ class OpenKeywords(TypedDict, total=False):
     payload_sizes: Iterable[int] | None
     topics: Iterable[str] | None
     batch_packets: int | None
-    workers: int
+    workers: int | None
 
 
 _NAMES = frozenset(f.name for f in dataclasses.fields(OpenOptions))

@@ -1,30 +1,29 @@
-"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes in N threads beside the caller's.
+"""Both cores: ``lidarpkt.open(path, workers=N)`` decodes with N workers beside the caller's thread.
 
-Two designs, chosen by N:
-
-- **workers=2, a pipeline** (:class:`PipelinedFrameReader`, any container): one thread reads the
-  packets (the read-ahead of ``workers=1``) and a second decodes them into frames, up to
-  :data:`DECODE_AHEAD_BYTES` of frames ahead of the caller, whose own work on each frame (XYZ, a
-  writer, an analysis) then overlaps the decoding of the next ones. The frames are those of the
+- **Segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least 2 x :data:`MIN_SEGMENT_BYTES`):
+  the capture is cut into record-aligned segments (:func:`lidarpkt.containers.segments.plan_segments`,
+  cuts found by re-synchronising on record headers near each cut, so that planning reads almost
+  nothing); each segment is read by its own :class:`~lidarpkt.pipeline.reader.FrameReader`
+  (``segment=``), which yields exactly the frames the segment owns. The workers are forked processes
+  (:mod:`lidarpkt.pipeline.processes`: no GIL shared with the caller, frames handed back through shared
+  memory in one copy), or threads where this process cannot fork (a daemonic worker of its own, a
+  platform without ``fork``; then only for N >= 3). The frames of segment k are handed out only after
+  those of segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader
+  counts from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole
+  file's. The reader of each segment checks the cut after it (its walk of the records must meet it)
+  and stops the capture where damage stops the single-threaded reader. Memory stays flat in the
+  capture's length: each worker holds at most its ring of frames (processes) or its segment
+  (threads), each segment at most :data:`MAX_SEGMENT_BYTES` of packets and about
+  :data:`MAX_SEGMENT_FRAME_BYTES` of frames.
+- **A pipeline** (:class:`PipelinedFrameReader`, the containers that cannot be cut: MCAP, bags, OSF,
+  and small captures): one thread reads the packets (the read-ahead of ``workers=1``) and a second
+  decodes them into frames, up to :data:`DECODE_AHEAD_BYTES` of frames ahead of the caller, whose own
+  work on each frame then overlaps the decoding of the next ones. The frames are those of the
   single-threaded reader itself (same object code, same order), and its warnings reach the caller's
-  thread at the point of the stream where they arose. On 2 cores this beats cutting the capture:
-  nothing is read or decoded twice, no reader is set up per segment, and frames are used while they
-  are still in the cache (measured in benchmarks/README.md).
-- **workers >= 3, segments** (:class:`ParallelFrameReader`, pcap/pcapng of at least
-  2 x :data:`MIN_SEGMENT_BYTES`): the capture is cut into record-aligned segments
-  (:func:`lidarpkt.containers.segments.plan_segments`, cuts found by re-synchronising on record headers
-  near each cut, so that planning reads almost nothing); each segment is read by its own
-  :class:`~lidarpkt.pipeline.reader.FrameReader` (``segment=``), which yields exactly the frames the segment
-  owns, in a pool of ``workers`` threads. The frames of segment k are handed out only after those of
-  segment k-1, so the order is that of ``workers=1``; the VLP-16 ordinals a segment reader counts
-  from its own start (``frame_id``, ``extra["packet_index"]``) are renumbered to the whole file's.
-  The reader of each segment checks the cut after it (its walk of the records must meet it) and
-  stops the capture where damage stops the single-threaded reader. Threads, not processes: the
-  decode kernels and the large NumPy operations release the GIL, and frames then need no copy
-  between processes (an OS-2-128 frame is ~1.5 MB, decoded in ~1.2 ms of CPU: about what pickling
-  and unpickling it would cost). Memory stays flat in the capture's length: at most ``workers``
-  segments are decoded and held at once, each at most :data:`MAX_SEGMENT_BYTES` of packets and
-  about :data:`MAX_SEGMENT_FRAME_BYTES` of frames. Captures that cannot be cut take the pipeline.
+  thread at the point of the stream where they arose.
+
+``workers=None`` (the default) is :func:`default_workers`: several processes for a large pcap/pcapng,
+one thread otherwise.
 """
 
 from __future__ import annotations
@@ -34,10 +33,9 @@ import queue
 import threading
 import weakref
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 import dataclasses
 from dataclasses import fields
-from typing import Any, Callable, Generator
+from typing import TYPE_CHECKING, Any, Callable, Generator
 
 import numpy as np
 
@@ -47,14 +45,20 @@ from lidarpkt.core.sequence import FrameIterator
 from lidarpkt.vendors import registry
 from .options import OpenOptions
 
+if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
+
 __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_workers", "open_parallel", "plan",
-           "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES", "DECODE_AHEAD_BYTES"]
+           "default_workers", "PARALLEL_MIN_BYTES", "MIN_SEGMENT_BYTES", "MAX_SEGMENT_BYTES", "MAX_SEGMENT_FRAME_BYTES",
+           "DECODE_AHEAD_BYTES"]
 
 # Each segment boundary costs about two frames of decoding (the segment after it discards the frame it
 # starts in; the one before reads on to complete its last frame) plus a reader's set-up (callgrind: ~17M
 # instructions for VLP-16 dual, where 1 MB of capture costs ~27M; ~20M for OS-2-128, 6M per MB). So
 # segments hold many frames, but no more than MAX_SEGMENT_FRAME_BYTES of decoded frames each.
 
+PARALLEL_MIN_BYTES = 64 << 20  # workers=None: captures at least this large are decoded by several processes
+MAX_DEFAULT_WORKERS = 4
 MIN_SEGMENT_BYTES = 8 << 20
 MAX_SEGMENT_BYTES = 64 << 20
 MAX_SEGMENT_FRAME_BYTES = 56 << 20
@@ -105,14 +109,15 @@ def _frame_nbytes(frame: Frame) -> int:
 
 
 class ParallelFrameReader(FrameIterator):
-    """Iterator of :class:`~lidarpkt.core.frame.Frame` decoded by ``workers`` threads over segments of a capture.
+    """Iterator of :class:`~lidarpkt.core.frame.Frame` decoded by ``workers`` processes (or threads) over segments
+    of a capture.
 
     Made by ``lidarpkt.open(path, workers=N)`` with N > 1; yields the frames of ``workers=1``, in the
     same order, with the same arrays, ``frame_id`` and ``extra``. ``stats`` sums the segment readers'
     :class:`~lidarpkt.core.streams.SourceStats` (its packet counters include the packets each segment reader
     read past its end to complete its last frame; ``stats.frames`` is exact). ``close()`` (or ``with``)
-    stops the threads after the segments they are decoding. Warnings of the segment readers are
-    emitted from the worker threads.
+    stops the workers (processes are ended, threads finish the segment in hand). Warnings of the segment
+    readers are re-emitted in the caller's thread (processes) or emitted from the worker threads.
 
     Raises (while iterating): what ``lidarpkt.open`` raises, at the point of the stream where the
     single-threaded reader would (the frames of the segments before it are yielded first).
@@ -121,13 +126,16 @@ class ParallelFrameReader(FrameIterator):
     _iter: Generator[Frame, None, None]  # closed by close()
 
     def __init__(self, path: str | os.PathLike[str], segments: list, options: OpenOptions,
-                 open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any) -> None:
+                 open_segment: Callable[[str | os.PathLike[str], OpenOptions], Any], stats: Any,
+                 processes: bool = False) -> None:
         """``options`` are ``lidarpkt.open``'s; ``open_segment(path, options)`` makes the single-threaded reader
         of ``options.segment`` (a :class:`~lidarpkt.pipeline.reader.FrameReader`); ``stats`` is an empty
-        :class:`~lidarpkt.core.streams.SourceStats` that sums theirs."""
+        :class:`~lidarpkt.core.streams.SourceStats` that sums theirs; ``processes``: the segments are
+        decoded by forked processes (:mod:`lidarpkt.pipeline.processes`) instead of threads."""
         self.path = path
         self.segments = segments
-        self.workers = int(options.workers)
+        self.workers = int(options.workers or 1)
+        self.processes = bool(processes)
         self._include_partial = options.include_partial
         # the workers are the threads; the sensor files are read once, not per segment
         self._options = dataclasses.replace(options, workers=1, include_partial=True, read_ahead=False,
@@ -135,21 +143,37 @@ class ParallelFrameReader(FrameIterator):
         self._open_segment = open_segment
         self.stats = stats
         self._stop = threading.Event()
-        self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
-        # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the threads)
+        self._pool: ThreadPoolExecutor | None = None
+        self._runner = None
+        if self.processes:
+            from .processes import ProcessRunner
+
+            self._runner = ProcessRunner(segments, self.workers, self._read_segment)
+        else:
+            from concurrent.futures import ThreadPoolExecutor  # imported when used: logging, its start-up cost
+
+            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="lidarpkt-segment")
+        # the generator holds a weak proxy: dropping the reader finalises it (__del__ stops the workers)
         self._iter = ParallelFrameReader._frames(weakref.proxy(self))
 
     def close(self) -> None:
-        """Stop: pending segments are cancelled, running ones stop at their next frame. Idempotent."""
+        """Stop: pending segments are cancelled, running ones stop at their next frame (worker processes
+        are ended). Idempotent."""
         self._stop.set()
         self._iter.close()
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._end(wait=True)
 
     def __del__(self) -> None:
         stop = getattr(self, "_stop", None)
         if stop is not None:
             stop.set()
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._end(wait=False)
+
+    def _end(self, wait: bool) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=wait, cancel_futures=True)
+        if self._runner is not None:
+            self._runner.close()
 
     # ------------------------------------------------------------------ work
     def _read_segment(self, segment, out: queue.SimpleQueue) -> None:
@@ -180,7 +204,7 @@ class ParallelFrameReader(FrameIterator):
                  bool(getattr(read_stats, "truncated", False))))
 
     def _frames(self) -> Generator[Frame, None, None]:
-        pending: deque[tuple[Any, queue.SimpleQueue]] = deque()
+        pending: deque[tuple[Any, Any]] = deque()  # (segment, its items' get()): a queue or a process channel
         todo = iter(self.segments)
         renumber = Renumber()
         unknown: list[str] = []
@@ -188,10 +212,15 @@ class ParallelFrameReader(FrameIterator):
 
         def submit() -> None:
             seg = next(todo, None)
-            if seg is not None:
-                q: queue.SimpleQueue = queue.SimpleQueue()
-                self._pool.submit(self._read_segment, seg, q)
-                pending.append((seg, q))
+            if seg is None:
+                return
+            if self._runner is not None:  # the worker processes have their segments already
+                pending.append((seg, self._runner.start(seg)))
+                return
+            q: queue.SimpleQueue = queue.SimpleQueue()
+            assert self._pool is not None
+            self._pool.submit(self._read_segment, seg, q)
+            pending.append((seg, q))
 
         try:
             for _ in range(self.workers):
@@ -200,7 +229,7 @@ class ParallelFrameReader(FrameIterator):
                 seg, q = pending[0]
                 while True:
                     item = q.get()
-                    if type(item) is tuple and item and item[0] is _END:
+                    if not isinstance(item, Frame):  # the end of the segment
                         break
                     frame = renumber.frame(item)
                     if frame.partial and not self._include_partial:
@@ -221,8 +250,11 @@ class ParallelFrameReader(FrameIterator):
                     break  # the whole-file reader stops at the same damage: no later segment counts
                 submit()
         finally:
-            self._stop.set()
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            try:
+                self._stop.set()
+                self._end(wait=False)
+            except ReferenceError:  # the reader was dropped, and its __del__ has stopped the workers
+                pass
         if unknown and len(unknown) == segments_read:
             raise UnknownSensorError(unknown[0])
 
@@ -321,29 +353,74 @@ def open_parallel(path: str | os.PathLike[str], options: OpenOptions,
         lidarpkt.errors.UsageError: ``workers`` is not a positive integer.
     """
     workers = check_workers(options.workers)
+    if workers is None:
+        workers = default_workers(path)
+        options = dataclasses.replace(options, workers=workers)
     if workers == 1 or options.segment is not None:
         return None
-    segments = plan(path, workers) if workers >= 3 else []
+    from .processes import can_fork  # imported when used: multiprocessing's start-up cost
+
+    processes = can_fork()
+    if processes:
+        from .processes import RING_BYTES
+
+        segments = plan(path, workers, RING_BYTES)
+    else:
+        segments = plan(path, workers) if workers >= 3 else []
     if segments:
-        return ParallelFrameReader(path, segments, options, open_segment, stats)
+        return ParallelFrameReader(path, segments, options, open_segment, stats, processes=processes)
     return PipelinedFrameReader(open_segment(path, dataclasses.replace(options, workers=1)))
 
 
-def check_workers(workers: Any) -> int:
-    """``workers`` when it is a whole number >= 1.
+def check_workers(workers: Any) -> int | None:
+    """``workers`` when it is ``None`` (the default: :func:`default_workers` decides) or a whole number >= 1.
 
     Raises:
-        lidarpkt.errors.UsageError: it is not.
+        lidarpkt.errors.UsageError: it is neither.
     """
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         from lidarpkt.errors import UsageError
 
         raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
     return workers
 
 
-def plan(path: str | os.PathLike[str], workers: int) -> list:
-    """The segments ``workers`` threads decode; one segment when the capture is no pcap/pcapng or too small."""
+def default_workers(path: str | os.PathLike[str]) -> int:
+    """``lidarpkt.open``'s ``workers=None``: for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES`, the CPUs this
+    process may use that are idle now (the CPUs less the load average, at most :data:`MAX_DEFAULT_WORKERS`) when
+    workers can be forked and two or more are idle, else 1. A smaller capture decodes in about the time it takes
+    to set workers up, bags and OSF cannot be cut, and on cores other processes keep busy the workers only add
+    their copies and segment boundaries (measured in the documentation's performance page)."""
+    from lidarpkt.containers.magic import container_kind
+    from lidarpkt.errors import LidarpktError
+
+    try:
+        big = os.path.isfile(path) and os.path.getsize(path) >= PARALLEL_MIN_BYTES
+        cuttable = big and container_kind(path) == "pcap"  # pcap or pcapng
+    except (OSError, LidarpktError):  # the reader opened next says what is wrong with the file
+        return 1
+    if not cuttable:
+        return 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    idle = min(cpus, MAX_DEFAULT_WORKERS, int(cpus - _load_average() + 0.5))
+    if idle < 2:
+        return 1
+    from .processes import can_fork  # multiprocessing's modules, imported only when workers may be forked
+
+    return idle if can_fork() else 1
+
+
+def _load_average() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:  # not available: assume the machine is idle
+        return 0.0
+
+
+def plan(path: str | os.PathLike[str], workers: int, frame_bytes: int | None = None) -> list:
+    """The segments ``workers`` decode; one segment when the capture is no pcap/pcapng or too small.
+    ``frame_bytes``: the frames a worker may hold at once (a process's ring; default
+    :data:`MAX_SEGMENT_FRAME_BYTES`), which bounds a segment's frames."""
     from lidarpkt.containers.segments import plan_segments
 
     try:
@@ -352,23 +429,26 @@ def plan(path: str | os.PathLike[str], workers: int) -> list:
         return []
     if workers < 2 or os.path.isdir(path) or size < 2 * MIN_SEGMENT_BYTES:
         return []
-    # frame bytes per capture byte: VLP-16 dual 3.4 (1206-byte packets), Ouster 0.9-1.2 (3 kB and more)
-    expansion = 3.5 if _first_record_bytes(path) < 2000 else 1.25
-    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int(MAX_SEGMENT_FRAME_BYTES / expansion)))
+    most = max(MIN_SEGMENT_BYTES, min(MAX_SEGMENT_BYTES, int((frame_bytes or MAX_SEGMENT_FRAME_BYTES) / _expansion(path))))
     seg_bytes = min(most, max(MIN_SEGMENT_BYTES, size // (workers * _SEGMENTS_PER_WORKER)))
     segments = plan_segments(path, seg_bytes, walk=False)  # each cut is checked by the segment before it
     return segments if len(segments) > 1 else []
 
 
-def _first_record_bytes(path) -> int:
-    """Captured length of a classic pcap's first record (1500 when unknown: pcapng, damage)."""
+def _expansion(path) -> float:
+    """Frame bytes per capture byte, from a classic pcap's first record: 2.5 for datagrams that fit a record (a
+    Velodyne packet: 7 bytes of frame for each 3-byte return, its columns' arrays besides), 1.0 for an IPv4
+    fragment or a large record (an Ouster packet: its pixels as they come, field by field); 2.5 when unknown."""
     from lidarpkt.containers.magic import PCAP_MAGIC_MODIFIED, PCAP_MAGIC_NS, PCAP_MAGIC_US
 
     with open(path, "rb") as fh:
-        head = fh.read(40)
-    if len(head) < 40:
-        return 1500
+        head = fh.read(24 + 16 + 22)
+    if len(head) < 62:
+        return 2.5
     for order in ("little", "big"):
         if int.from_bytes(head[:4], order) in (PCAP_MAGIC_US, PCAP_MAGIC_NS, PCAP_MAGIC_MODIFIED):
-            return int.from_bytes(head[32:36], order)
-    return 1500  # pcapng, damage
+            caplen = int.from_bytes(head[32:36], order)
+            ethernet = int.from_bytes(head[20:24], order) == 1 and head[52:54] == b"\x08\x00"  # link type, IPv4
+            fragment = ethernet and int.from_bytes(head[60:62], "big") & 0x3FFF != 0  # more fragments, or an offset
+            return 1.0 if fragment or caplen >= 2000 else 2.5
+    return 2.5  # pcapng, damage

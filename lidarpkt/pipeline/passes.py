@@ -6,7 +6,8 @@ frames that batch completed: what the writers take (:func:`lidarpkt.writers.writ
 an output holding raw packets and frames (an MCAP of ``packets,points``) costs one read of the capture.
 Without packets it is ``lidarpkt.open``'s frames, whatever ``workers`` chooses.
 
-With packets, ``workers`` ≥ 2 decodes in a thread of its own ahead of the caller (the pipeline of
+With packets, ``workers`` ≥ 2 (or ``None`` where :func:`~lidarpkt.pipeline.parallel.default_workers` gives
+2 or more) decodes in a thread of its own ahead of the caller (the pipeline of
 :class:`~lidarpkt.pipeline.parallel.PipelinedFrameReader`, batches and frames in one queue bounded in
 bytes): segments decoded side by side would hand the packets out of order.
 """
@@ -83,16 +84,18 @@ class CapturePass:
     def __init__(self, path: str | os.PathLike[str], packets: bool, options: OpenOptions, decode: bool = True) -> None:
         from lidarpkt.containers.magic import container_kind
 
-        from .parallel import PipelinedFrameReader, check_workers
+        from .parallel import PipelinedFrameReader, check_workers, default_workers
 
         container = container_kind(path)
         if not packets or container in FRAME_CONTAINERS:  # a file of decoded frames holds no packets
             self.reader: Any = open_frames(path, **options.keywords())
         else:
-            check_workers(options.workers)
+            workers = check_workers(options.workers)
             self.reader = FrameReader(path, **dataclasses.replace(options, workers=1).keywords())
             self.reader.items(decode)  # iterating the reader now yields the batches too
-            if options.workers != 1 and options.segment is None:
+            if workers is None and options.segment is None:
+                workers = default_workers(path)
+            if workers != 1 and options.segment is None:
                 self.reader = PipelinedFrameReader(self.reader)
         frames = self.reader.reader if isinstance(self.reader, PipelinedFrameReader) else self.reader
         self.capture = Capture(path, container, frames)

@@ -71,11 +71,11 @@ class FrameReader(FrameIterator):
             {options}
 
         Raises:
-            ValueError: ``workers`` is not 1 (``lidarpkt.open(path, workers=N)`` decodes in N threads).
+            ValueError: ``workers`` is neither 1 nor None (``lidarpkt.open(path, workers=N)`` decodes in N).
             And what :func:`open_frames` raises on opening.
         """
         opts = OpenOptions.from_keywords("FrameReader", options)
-        if opts.workers != 1:
+        if opts.workers not in (None, 1):
             raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
         self.path = Path(path)
         self.segment = segment = opts.segment
@@ -436,10 +436,9 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: 
     Raises:
         UnsupportedFilterError: a packet filter (``ports``, ``topics``, ``source``...): the file holds no packets.
         UnsupportedContainerError: a ``segment`` of a file cut in several: the file is read whole.
-        UsageError: ``workers`` is not a whole number >= 1.
         CaptureFormatError: the file is damaged.
     """
-    from lidarpkt.errors import UnsupportedFilterError, UsageError
+    from lidarpkt.errors import UnsupportedFilterError
 
     what = f"an {files.what}"
     given = [name for name in _PACKET_OPTIONS if getattr(options, name) is not None]
@@ -448,11 +447,8 @@ def _open_frame_file(path: str | os.PathLike[str], options: OpenOptions, files: 
                                      "decoded frames, not packets")
     if options.segment is not None and options.segment.count != 1:
         raise UnsupportedContainerError(f"{path}: {what} is read whole (one segment)")
-    workers = options.workers
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise UsageError(f"workers={workers!r}: not a whole number >= 1; give e.g. workers=2")
-    reader = files.open(path, SourceStats(), options.include_partial)
-    if workers == 1:
+    reader = files.open(path, SourceStats(), options.include_partial)  # options checked by OpenOptions
+    if options.workers in (None, 1):
         return reader
     from .parallel import PipelinedFrameReader
 
@@ -486,7 +482,7 @@ def _want_read_ahead(reader, read_ahead: bool | None) -> bool:
 def _post_end_parts(batch: PacketBatch) -> Iterator[PacketBatch]:
     """A batch past a segment's end as views of 1, 32, 64, 128... packets: the first alone (as
     ``SegmentOwnership.split_first_post`` asks), and the reader stops pushing as soon as the segment's last
-    frame is complete instead of decoding (and copying) the rest of a batch of up to 8192 packets."""
+    frame is complete instead of decoding (and copying) the rest of a batch of up to 2048 packets."""
     n, start, step = len(batch), 0, 1
     while start < n:
         yield batch if (start, step) == (0, 1) and n == 1 else batch.select(slice(start, min(n, start + step)))

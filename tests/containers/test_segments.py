@@ -261,7 +261,7 @@ def test_a_cut_inside_a_record_is_caught_by_the_segment_before_it(tmp_path, monk
     _nested_capture(path, 0x0800)
     walked, synced = plan_segments(path, 40_000), plan_segments(path, 40_000, walk=False)
     assert walked != synced  # fooled: the first cut is inside a datagram
-    monkeypatch.setattr(parallel, "plan", lambda p, workers: synced)
+    monkeypatch.setattr(parallel, "plan", lambda p, workers, frame_bytes=None: synced)
     reader = lidarpkt.open(path, workers=3)
     with pytest.raises(CaptureFormatError, match=rf"cut the capture at byte {synced[0].end_offset}.*workers=1"):
         list(reader)

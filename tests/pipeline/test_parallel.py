@@ -10,6 +10,7 @@ the default plan. Plus: closing early stops the threads, warnings reach the call
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -21,7 +22,7 @@ import pytest
 
 import lidarpkt
 from lidarpkt.errors import UsageError
-from lidarpkt.pipeline import parallel
+from lidarpkt.pipeline import parallel, processes
 from lidarpkt.errors import UnknownSensorError
 from lidarpkt.pipeline.reader import FrameReader
 
@@ -78,18 +79,62 @@ def small_segments(monkeypatch):
 
 
 @pytest.mark.parametrize("name", CANNED_NAMES + EXTERNAL)
-def test_two_and_three_workers_give_the_frames_of_one(name, small_segments):
+def test_two_and_three_workers_give_the_frames_of_one(name, small_segments, monkeypatch):
     path, md = _capture(name)
-    reader = lidarpkt.open(path, metadata=md, workers=2)
-    assert isinstance(reader, parallel.PipelinedFrameReader)
-    reader.close()
-    reader = lidarpkt.open(path, metadata=md, workers=3)
-    if path.stat().st_size > 20_000:  # duplicate_id holds two datagrams: nothing to cut
-        assert isinstance(reader, parallel.ParallelFrameReader) and len(reader.segments) >= 2
-    reader.close()
     one = _frames(path, md, read_ahead=False)
-    _assert_same(one, _frames(path, md, workers=2), f"{path.name} pipeline")
-    _assert_same(one, _frames(path, md, workers=3), f"{path.name} segments")
+    for workers in (2, 3):  # forked processes over the segments
+        reader = lidarpkt.open(path, metadata=md, workers=workers)
+        if path.stat().st_size > 20_000:  # duplicate_id holds two datagrams: nothing to cut
+            assert isinstance(reader, parallel.ParallelFrameReader) and reader.processes and len(reader.segments) >= 2
+        reader.close()
+        _assert_same(one, _frames(path, md, workers=workers), f"{path.name} {workers} processes")
+    with monkeypatch.context() as m:  # where no process can be forked: the pipeline, and threads over segments
+        m.setattr(processes, "can_fork", lambda: False)
+        reader = lidarpkt.open(path, metadata=md, workers=2)
+        assert isinstance(reader, parallel.PipelinedFrameReader)
+        reader.close()
+        _assert_same(one, _frames(path, md, workers=2), f"{path.name} pipeline")
+        _assert_same(one, _frames(path, md, workers=3), f"{path.name} threads")
+
+
+@pytest.mark.parametrize("ring", [1 << 20, 40_000])
+def test_frames_kept_or_dropped_through_a_small_ring(ring, small_segments, monkeypatch):
+    """The caller may drop each frame (the workers then wait for ring space) or keep them all (a worker whose
+    ring is full while the caller waits for it sends the frame's bytes through the pipe): the same frames;
+    a frame's arrays stay valid after the reader is closed and the workers are gone."""
+    monkeypatch.setattr(processes, "RING_BYTES", ring)
+    path, md = _capture("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10")
+    one = _frames(path, md, read_ahead=False)
+    kept = _frames(path, md, workers=2)
+    _assert_same(one, kept, "kept")
+    streamed = []
+    for frame in lidarpkt.open(path, metadata=md, workers=2):
+        streamed.append(frame.range_mm.copy())
+    assert len(streamed) == len(one) and all(np.array_equal(a, f.range_mm) for a, f in zip(streamed, one))
+
+
+def test_default_workers_by_capture_size(small_segments, monkeypatch):
+    """workers=None: one thread for a small capture, processes (up to 4, no more than the idle CPUs) for a large
+    pcap; one thread when fewer than two CPUs are idle, in a daemonic process (a Dask worker) or when the capture
+    is a bag."""
+    path, md = _capture("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10")
+    assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
+    monkeypatch.setattr(parallel, "PARALLEL_MIN_BYTES", 100_000)
+    monkeypatch.setattr(parallel, "_load_average", lambda: 0.0)  # an idle machine
+    reader = lidarpkt.open(path, metadata=md)
+    cpus = len(os.sched_getaffinity(0))
+    if cpus > 1:
+        assert isinstance(reader, parallel.ParallelFrameReader) and reader.processes
+        assert reader.workers == min(cpus, parallel.MAX_DEFAULT_WORKERS)
+        _assert_same(_frames(path, md, read_ahead=False), list(reader), "default")
+    reader.close()
+    monkeypatch.setattr(parallel, "_load_average", lambda: cpus - 1.0)  # one CPU idle: one thread
+    assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
+    monkeypatch.setattr(parallel, "_load_average", lambda: 0.0)
+    monkeypatch.setattr(processes, "can_fork", lambda: False)
+    assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
+    monkeypatch.setattr(processes, "can_fork", lambda: True)
+    assert isinstance(lidarpkt.open(external("nebula/vlp16/1673400471837873222")), FrameReader)
 
 
 @pytest.mark.parametrize("name", ["vlp16-strongest", "os1-64-dual"])
@@ -129,8 +174,26 @@ def test_close_early_stops_the_threads(workers, small_segments):
     while threading.active_count() > before and time.monotonic() < deadline:
         time.sleep(0.01)
     assert threading.active_count() == before
+    for pid in reader._runner.pids:  # the worker processes are gone, and reaped
+        with pytest.raises(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)
+    assert first.range_mm.sum() > 0  # a frame from the shared ring outlives its worker
     with pytest.raises(StopIteration):
         next(reader)
+
+
+def test_dropping_the_reader_ends_its_workers(small_segments):
+    path, md = _capture("veloview/vlp-16-test-90deg-1-50-frames")
+    reader = lidarpkt.open(path, metadata=md, workers=2)
+    next(reader)
+    pids = list(reader._runner.pids)
+    del reader
+    import gc
+
+    gc.collect()
+    for pid in pids:
+        with pytest.raises(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)
 
 
 @pytest.mark.parametrize("workers", [0, -1, 1.5, "2"])

@@ -126,23 +126,37 @@ def test_native_columns_give_the_frames_of_numpy(name, monkeypatch):
 @pytest.mark.parametrize("slots", [1, 2])
 def test_native_columns_views_copies_and_row_orders(slots, monkeypatch):
     from lidarpkt.vendors.velodyne.decode import column_pixels, decode_packets
-    from lidarpkt.vendors.velodyne.timing import firing_azimuth_cdeg
+    from lidarpkt.vendors.velodyne.timing import firing_dt_s, packet_rate_cdeg_s_vlp16
 
     payload = np.random.default_rng(slots).integers(0, 256, (37, 1206), dtype=np.uint8)
     raw = decode_packets(payload)
-    fa = firing_azimuth_cdeg(raw.azimuth_cdeg % 36000, slots == 2, slice(0, None, 2) if slots == 2 else slice(None))
-    for rows in (np.arange(16), np.random.default_rng(9).permutation(16)):
-        for r in (raw, raw.select(np.arange(36, -1, -1))):  # strided views of the payload, and fancy-indexed copies
-            got = column_pixels(r, fa if r is raw else fa[::-1], rows, slots)
-            with monkeypatch.context() as m:
-                m.setattr(kernels, "native", None)
-                want = column_pixels(r, fa if r is raw else fa[::-1], rows, slots)
-            assert all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(got, want))
+    for azimuths in ("any", "valid"):  # any 16 bits (the twin's general path), then block azimuths below 36000
+        if azimuths == "valid":
+            raw.azimuth_cdeg %= 36000
+        rate = packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, slots == 2)
+        dt = firing_dt_s(slots == 2)[::slots]
+        for rows in (np.arange(16), np.random.default_rng(9).permutation(16)):
+            for r in (raw, raw.select(np.arange(36, -1, -1))):  # compact copies, and fancy-indexed copies reversed
+                rr = rate if r is raw else rate[::-1]
+                got = column_pixels(r, rr, dt, rows, slots)
+                with monkeypatch.context() as m:
+                    m.setattr(kernels, "native", None)
+                    want = column_pixels(r, rr, dt, rows, slots)
+                assert all(x.dtype == y.dtype and np.array_equal(x, y) for x, y in zip(got, want))
+        view = decode_packets(payload, copy=False)  # strided views of the payload
+        got = column_pixels(view, packet_rate_cdeg_s_vlp16(view.azimuth_cdeg, slots == 2), dt, np.arange(16), slots)
+        with monkeypatch.context() as m:
+            m.setattr(kernels, "native", None)
+            want = column_pixels(view, packet_rate_cdeg_s_vlp16(view.azimuth_cdeg, slots == 2), dt, np.arange(16), slots)
+        assert all(np.array_equal(x, y) for x, y in zip(got, want))
     w = 37 * 24 // slots
     rng, refl, az = np.empty((slots, 16, w), np.uint32), np.empty((slots, 16, w), np.uint8), np.empty((16, w), np.uint16)
+    args = (raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg, rate, np.ascontiguousarray(dt))
     with pytest.raises(ValueError, match="laser"):
-        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.full(16, 16, np.int64), slots, rng, refl, az)
+        NATIVE.velodyne_columns(*args, np.full(16, 16, np.int64), slots, rng, refl, az)
     with pytest.raises(ValueError, match="shapes"):
-        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.arange(16), slots, rng[:, :, 1:].copy(), refl, az)
+        NATIVE.velodyne_columns(*args, np.arange(16), slots, rng[:, :, 1:].copy(), refl, az)
+    with pytest.raises(ValueError, match="shapes"):
+        NATIVE.velodyne_columns(*args[:3], rate[1:].copy(), args[4], np.arange(16), slots, rng, refl, az)
     with pytest.raises(ValueError, match="slots"):
-        NATIVE.velodyne_columns(raw.distance_2mm, raw.reflectivity, fa, np.arange(16), 3, rng, refl, az)
+        NATIVE.velodyne_columns(*args, np.arange(16), 3, rng, refl, az)

@@ -55,7 +55,10 @@ class DataPackets:
         return self.distance_2mm.astype(np.uint32) << 1
 
     def select(self, rows: np.ndarray | slice) -> "DataPackets":
-        """The chosen packets (boolean mask, indices or a slice)."""
+        """The chosen packets (boolean mask, indices or a slice); ``self`` for a mask that keeps every packet
+        (the common case of a sound capture: no copy of the batch)."""
+        if isinstance(rows, np.ndarray) and rows.dtype == bool and rows.shape == (len(self),) and rows.all():
+            return self
         return DataPackets(**{k: getattr(self, k)[rows] for k in self.__dataclass_fields__})
 
 
@@ -172,18 +175,20 @@ def decode_position_packets(payload: np.ndarray) -> PositionPackets:
     return PositionPackets(**{name: np.array(pk[name]) for name in pk.dtype.names or ()})  # structured: names set
 
 
-def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: np.ndarray, slots: int,
+def column_pixels(raw: DataPackets, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, row_laser: np.ndarray, slots: int,
                   sequences: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The pixels of a batch as range-image columns: ``range_mm`` ``uint32[slots, 16, W]`` (2 × the
-    wire's distance), ``reflectivity`` ``uint8[slots, 16, W]`` and per-firing ``azimuth`` ``uint16[16, W]``
-    (from ``firing_azimuth_cdeg``, ``[N, 12 / slots, 32]``), W = N · (12 / slots) · 2; row r is laser
-    ``row_laser[r]``; dual packets (``slots`` 2) put block b in slot b % 2.
+    wire's distance), ``reflectivity`` ``uint8[slots, 16, W]`` and per-firing ``azimuth`` ``uint16[16, W]``,
+    W = N · (12 / slots) · 2; row r is laser ``row_laser[r]``; dual packets (``slots`` 2) put block b in
+    slot b % 2. The azimuth of a firing is :func:`~lidarpkt.vendors.velodyne.timing.firing_azimuths` of its
+    block's azimuth (block 2k of a dual pair), the packet's rate (``rate_cdeg_s``, ``float32[N]``) and its
+    delay (``dt_s``, ``float32[12 / slots, 32]``).
 
-    Compiled (``lidarpkt._native.velodyne_columns``, one pass a packet at a time) when it is built;
-    the NumPy twin makes two passes: the strided 3-byte records copied once into [slot, column,
-    laser] order (long inner loops), then per row one gather of a laser column (16 small ufunc
-    calls); gathering each row straight from the packets walked inner loops of 2 elements and was
-    1.7x slower.
+    Compiled (``lidarpkt._native.velodyne_columns``, one pass in chunks of 64 packets, each packet's firing
+    azimuths computed in an L1 tile) when it is built; the NumPy twin computes every firing azimuth, copies
+    the strided 3-byte records once into [slot, column, laser] order (long inner loops), then per row
+    gathers a laser column (16 small ufunc calls); gathering each row straight from the packets walked
+    inner loops of 2 elements and was 1.7x slower.
     """
     n, blocks, channels = raw.distance_2mm.shape
     lasers = channels // sequences
@@ -193,9 +198,14 @@ def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: 
     az_px = np.empty((lasers, w0), np.uint16)
     native = kernels.native
     if native is not None and (lasers, blocks, sequences) == (16, 12, 2):
-        native.velodyne_columns(raw.distance_2mm, raw.reflectivity, firing_azimuth_cdeg,
+        native.velodyne_columns(raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg,
+                                np.ascontiguousarray(rate_cdeg_s, np.float32), np.ascontiguousarray(dt_s, np.float32),
                                 np.ascontiguousarray(row_laser, np.int64), slots, rng, refl, az_px)
         return rng, refl, az_px
+    from .timing import firing_azimuths
+
+    az = raw.azimuth_cdeg
+    fa = firing_azimuths(az[:, ::slots], rate_cdeg_s, dt_s, general=bool(az.size and int(az.max()) > 36000))
     # [n, blocks per slot, slots, 2 seq, 16 lasers] → [slots, n, blocks per slot, 2 seq, 16 lasers]
     split = (n, blocks // slots, slots, sequences, lasers)
     d = np.empty((slots, n, blocks // slots, sequences, lasers), np.uint16)
@@ -203,7 +213,7 @@ def column_pixels(raw: DataPackets, firing_azimuth_cdeg: np.ndarray, row_laser: 
     f = np.empty((slots, n, blocks // slots, sequences, lasers), np.uint8)
     f[...] = raw.reflectivity.reshape(split).transpose(2, 0, 1, 3, 4)
     d, f = d.reshape(slots, w0, lasers), f.reshape(slots, w0, lasers)
-    a = firing_azimuth_cdeg.reshape(w0, lasers)
+    a = fa.reshape(w0, lasers)
     two = np.uint32(2)
     for row, laser in enumerate(np.asarray(row_laser).tolist()):
         np.multiply(d[:, :, laser], two, out=rng[:, row])

@@ -80,9 +80,11 @@ from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
 from lidarpkt.core.rotation import rotation_is_whole, wrapped
-from .timing import firing_azimuth_cdeg, interpacket_rate_cdeg_s, packet_rate_cdeg_s, rotation_frequency_hz
+from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, packet_rate_cdeg_s_vlp16,
+                     rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
+PIECE_PACKETS = 1024  # packets turned into columns at a time (see _push_run)
 #: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
 MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
@@ -350,8 +352,11 @@ class VelodyneDecoder(PacketAccounting):
             else:
                 miss = missing[a:b]
             self.stats.lost_packets += int(miss.sum())
-            cols = self._columns(raw.select(slice(a, b)), abs_ns[a:b], index[a:b], miss, mode)
-            frames += self._append(cols)
+            # a piece at a time: a frame holds views of its piece's arrays, so memory follows the piece, not the batch
+            for lo in range(a, b, PIECE_PACKETS):
+                hi = min(b, lo + PIECE_PACKETS)
+                cols = self._columns(raw.select(slice(lo, hi)), abs_ns[lo:hi], index[lo:hi], miss[lo - a:hi - a], mode)
+                frames += self._append(cols)
         self._last_abs_ns = int(abs_ns[-1])
         self._last_host_ns = int(host_ns[-1])
         self._last_packet_az_cdeg = int(raw.azimuth_cdeg[-1, -1])
@@ -359,22 +364,16 @@ class VelodyneDecoder(PacketAccounting):
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> Columns:
         if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path
-            rate = self._packet_rates(raw, mode)
-            rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), rate, self._row_laser,
-                                             round(self.model.distance_resolution_m * 1000))
-            per_packet = self.model.columns_per_packet(mode)
-            return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
-                                  self._last_az_cdeg)
-        dual = mode == "dual"
-        per_packet = self.model.columns_per_packet(mode)
-        slots, seqs = (2 if dual else 1), self.model.sequences_per_block
-        if dual:
-            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, True, slice(0, None, 2))  # [n, 6, 32]
+            rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), self._packet_rates(raw, mode),
+                                             self._row_laser, round(self.model.distance_resolution_m * 1000))
         else:
-            fa = firing_azimuth_cdeg(raw.azimuth_cdeg, False)  # [n, 12, 32]
-        rng, refl, az_px = column_pixels(raw, fa, self._row_laser, slots, seqs)
-        return finish_columns(rng, refl, az_px, abs_ns, index, miss, per_packet, self.model, self._row_laser,
-                                  self._last_az_cdeg)
+            dual = mode == "dual"
+            slots = 2 if dual else 1
+            dt = firing_dt_s(dual)[::slots]  # dual: one block of each pair (the pair shares its firings)
+            rng, refl, az_px = column_pixels(raw, packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, dual), dt,
+                                             self._row_laser, slots, self.model.sequences_per_block)
+        return finish_columns(rng, refl, az_px, abs_ns, index, miss, self.model.columns_per_packet(mode), self.model,
+                              self._row_laser, self._last_az_cdeg)
 
     def _packet_rates(self, raw: DataPackets, mode: str) -> np.ndarray:
         """``float32[N]`` rotation rate of each packet, 0.01° per second, as velodyne_decoder measures it."""
@@ -387,8 +386,10 @@ class VelodyneDecoder(PacketAccounting):
         return rate
 
     def _append(self, cols: Columns) -> list[Frame]:
-        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0
+        # azimuths are in [0, 36000): with no cut angle the key is the azimuth itself
+        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0 if self.cut_cdeg else cols.azimuth_cdeg
         if self.cut_on_block:
+            key = key.copy()
             key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
         cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
@@ -479,8 +480,12 @@ class VelodyneDecoder(PacketAccounting):
 
     def _make_frame(self, cols: Columns, partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode or "strongest"
-        offsets = np.rint(np.asarray(self.model.laser_offsets_ns)[self._row_laser]).astype(np.int64)
-        toff = np.where(cols.valid[None, :], offsets[:, None], 0)
+        # a row's offset in every column, 0 in columns no packet delivered; read-only, and with every column
+        # delivered a view of a shared image of them (no [16, W] int64 image written per frame)
+        toff = row_offsets_ns(self.model, self._row_laser, len(cols))
+        if not cols.valid.all():
+            toff = np.where(cols.valid, toff, 0)
+            toff.flags.writeable = False
         extra = {"azimuth_cdeg": cols.azimuth_px, "packet_index": cols.packet_index}
         if mode == "dual":
             extra["second_strongest"] = second_strongest_mark(cols.range_mm, cols.reflectivity)

@@ -48,6 +48,8 @@ _DT_SINGLE = _FIRING_OFFSET_S32 - _FIRING_OFFSET_S32[:, :1]
 _DT_DUAL = _DT_SINGLE[np.arange(BLOCKS_PER_PACKET) // 2]
 _DURATION_SINGLE = _FIRING_OFFSET_S32[BLOCKS_PER_PACKET - 1, 0] - _FIRING_OFFSET_S32[0, 0]
 _DURATION_DUAL = _FIRING_OFFSET_S32[(BLOCKS_PER_PACKET - 1) // 2, 0] - _FIRING_OFFSET_S32[0, 0]
+_DT_SINGLE.flags.writeable = False
+_DT_DUAL.flags.writeable = False
 
 
 def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool, blocks: slice = slice(None)) -> np.ndarray:
@@ -58,25 +60,51 @@ def firing_azimuth_cdeg(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool, block
     block of each dual pair), all 12 by default.
     lround(block_az + rate·dt) mod 36000 with rate = (last − first block azimuth, mod 36000)
     over the time between those blocks, computed in float32 like velodyne_decoder; ties
-    round half away from zero.
+    round half away from zero (:func:`packet_rate_cdeg_s_vlp16`, :func:`firing_azimuths`).
     """
+    az = np.asarray(azimuth_cdeg)
+    rate = packet_rate_cdeg_s_vlp16(az, dual)
+    if np.ndim(dual) == 0:
+        dt = firing_dt_s(bool(dual))[blocks][None]  # [1, B, 32]
+    else:
+        dual = np.asarray(dual, dtype=bool)
+        dt = np.where(dual[:, None, None], _DT_DUAL[blocks], _DT_SINGLE[blocks])
+    return firing_azimuths(az[:, blocks], rate, dt, general=bool(az.size and int(az.max()) > 36000))
+
+
+def packet_rate_cdeg_s_vlp16(azimuth_cdeg: np.ndarray, dual: np.ndarray | bool) -> np.ndarray:
+    """``float32[N]`` rotation rate inside each VLP-16 packet, 0.01°/s: the last block's azimuth advance over the
+    first's (mod 36000) over the time between their first firings, in velodyne_decoder's float32 arithmetic.
+    ``dual``: ``bool[N]``, or one bool for all."""
     az = np.asarray(azimuth_cdeg)
     diff = ((az[:, -1].astype(np.int32) - az[:, 0].astype(np.int32)) + 36000) % 36000
     if np.ndim(dual) == 0:
         duration = _DURATION_DUAL if dual else _DURATION_SINGLE
-        dt = (_DT_DUAL if dual else _DT_SINGLE)[blocks][None]  # [1, B, 32]
     else:
-        dual = np.asarray(dual, dtype=bool)
-        duration = np.where(dual, _DURATION_DUAL, _DURATION_SINGLE).astype(np.float32)
-        dt = np.where(dual[:, None, None], _DT_DUAL[blocks], _DT_SINGLE[blocks])
-    rate = diff.astype(np.float32) / duration  # cdeg/s, float32
-    value = rate[:, None, None] * dt
-    value += az[:, blocks].astype(np.float32)[:, :, None]
+        duration = np.where(np.asarray(dual, dtype=bool), _DURATION_DUAL, _DURATION_SINGLE).astype(np.float32)
+    return diff.astype(np.float32) / duration  # cdeg/s, float32
+
+
+def firing_dt_s(dual: bool) -> np.ndarray:
+    """``float32[12, 32]``: the delay of every firing after its block's first, seconds, as velodyne_decoder
+    tabulates it (dual: block 2k and 2k + 1 share the times of single-mode block k). Read-only."""
+    return _DT_DUAL if dual else _DT_SINGLE
+
+
+def firing_azimuths(block_azimuth_cdeg: np.ndarray, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, *,
+                    general: bool = False) -> np.ndarray:
+    """``uint16[N, B, 32]``: lround(block azimuth + rate · dt) mod 36000 of every firing, summed in float32 in
+    velodyne_decoder's order (rate · dt, + azimuth, + 36000, + 0.5, truncated). ``block_azimuth_cdeg``:
+    ``[N, B]``; ``rate_cdeg_s``: ``float32[N]``; ``dt_s``: ``float32[B, 32]`` (or broadcast to ``[N, B, 32]``).
+    ``general``: some block azimuth is above 36000 (damaged), so the sum may pass 72000: the integer
+    modulo instead of one subtraction. (The compiled ``velodyne_columns`` makes the same sum per firing.)"""
+    value = rate_cdeg_s[:, None, None] * dt_s
+    value += np.asarray(block_azimuth_cdeg).astype(np.float32)[:, :, None]
     value += np.float32(36000)
     # lround of a positive value: in [36000, 72000) float32 steps are 1/256 or 1/128, so + 0.5 is
     # exact and truncation is the floor
     value += np.float32(0.5)
-    if az.size and int(az.max()) > 36000:  # not a valid block azimuth: the general integer path
+    if general:  # not a valid block azimuth: the general integer path
         rounded = value.astype(np.int32)
         rounded %= 36000
         return rounded.astype(np.uint16)
@@ -148,3 +176,23 @@ def interpacket_rate_cdeg_s(first_azimuth_cdeg: np.ndarray, timestamp_us: np.nda
     if prev_az is None:
         rate[0] = rate[1] if n > 1 else 0.0
     return rate.astype(np.float32), int(az[-1]), int(ts[-1])
+
+
+#: (laser offsets, row order) -> the widest read-only image of row offsets made so far (see row_offsets_ns)
+_ROW_OFFSETS: dict[tuple[bytes, bytes], np.ndarray] = {}
+
+
+def row_offsets_ns(model: VelodyneModel, row_laser: np.ndarray, width: int) -> np.ndarray:
+    """``int64[L, width]``, read-only: each row's firing delay after its column's first firing, ns (the model's
+    laser offsets; row ``i`` is laser ``row_laser[i]``), in every column. A view of one image per model and
+    row order, shared by every decoder (a capture of many sensors makes one)."""
+    laser_ns = np.asarray(model.laser_offsets_ns)
+    key = (laser_ns.tobytes(), np.asarray(row_laser).tobytes())
+    image = _ROW_OFFSETS.get(key)
+    if image is None or image.shape[1] < width:
+        offsets = np.rint(laser_ns[row_laser]).astype(np.int64)
+        image = np.empty((len(offsets), max(width, 4096)), np.int64)
+        image[...] = offsets[:, None]
+        image.flags.writeable = False
+        _ROW_OFFSETS[key] = image
+    return image[:, :width]

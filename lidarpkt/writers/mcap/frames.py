@@ -275,9 +275,9 @@ class McapFrameWriter(BaseWriter):
         self.calibration = None if calibration is None else str(calibration)
         self.path = self.single_file()
         self._tmp = self.files.temporary(self.path)
-        self.mcap = self._open_messages(self._tmp, chunk_bytes)
         self.groups = groups
         self.wants_frames = bool(groups & {"points", "images"})
+        self.mcap = self._open_messages(self._tmp, chunk_bytes)
         self.topics = FrameTopics(self.mcap, groups, sensors)
         self.clock_offsets = dict(clock_offsets or {})
         self.start_ns, self.end_ns = start_ns, end_ns
@@ -299,9 +299,13 @@ class McapFrameWriter(BaseWriter):
     def _open_messages(self, tmp: Path, chunk_bytes: int) -> Any:
         """Where the messages go: a :class:`~lidarpkt.writers.mcap.writer.McapWriter` on ``tmp``. The ROS bag
         writers (:mod:`lidarpkt.writers.rosbag`) give their bag files with the same methods instead."""
-        from .writer import McapWriter
+        from .writer import FRAMES_COMPRESSION, McapWriter
 
-        return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
+        # frames: chunks as FRAMES_COMPRESSION says (speed); no fsync (an output decoding makes again, as the
+        # other writers' files)
+        compression = FRAMES_COMPRESSION if self.wants_frames else "zstd"
+        return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes, compression=compression,
+                          sync=False)
 
     def _add_calibration_record(self, calibration: str) -> None:
         try:

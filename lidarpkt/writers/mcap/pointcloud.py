@@ -85,40 +85,42 @@ def cloud_fields(frame, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def _no_return_rows(frame, mask: np.ndarray, like: np.dtype) -> np.ndarray:
-    """Rows in the layout of ``frame.points()`` for the pixels of ``mask`` (those without a return):
-    NaN x, y, z, range 0, and what the image says of the pixel (its reflectivity and signal, its
-    row, its firing time: the column's, or the frame's where no packet delivered the column)."""
-    slot, row, col = np.nonzero(mask)
-    out = np.zeros(slot.size, like)
-    out["x"] = out["y"] = out["z"] = np.nan
-    out["reflectivity"] = frame.reflectivity[mask]
-    out["row"], out["column"], out["return_slot"] = row, col, slot
-    t = np.where(frame.column_valid[col], frame.column_timestamp_ns[col], frame.timestamp_ns)
-    if frame.pixel_time_offset_ns is not None:
-        t = t + frame.pixel_time_offset_ns[row, col]
-    out["timestamp_ns"] = t
-    if "signal" in (like.names or ()):  # a structured dtype: names is set
-        out["signal"] = frame.signal[mask]
-    if "near_ir" in (like.names or ()):
-        out["near_ir"] = frame.near_ir[row, col]
-    return out
-
-
 def frame_points(frame, points: np.ndarray | None = None) -> np.ndarray:
     """``POINT_DTYPE[R, H, W]`` organised points of ``frame`` in display order (see module doc).
 
-    The returns are ``points`` (``frame.points()``, computed here when not given) through
-    :func:`cloud_fields`. An organised cloud also has a point for every pixel without a return,
-    which ``points()`` has no row for: those come from the image (:func:`_no_return_rows`).
+    Every pixel is a point, filled field by field from the frame's images in whole-array passes: the
+    returns (:meth:`Frame.has_return`) with the values of :func:`cloud_fields` of their ``frame.points()``
+    row, the other pixels with NaN x, y, z, range 0 and what the image says of the pixel (its
+    reflectivity and signal, its row, its firing time: the column's, or the frame's where no packet
+    delivered the column). x, y, z are ``frame.xyz()`` rounded to float32, or taken from ``points``
+    (``frame.points()``) when given.
     Raises :class:`lidarpkt.errors.CalibrationError` when the sensor has no calibration.
     """
-    if points is None:
-        points = frame.points()
+    r, h, w = frame.shape
     hit = frame.has_return()
-    grid = np.empty(frame.shape, POINT_DTYPE)
-    grid[hit] = cloud_fields(frame, points)  # points() is hit's pixels in C order, as boolean indexing
-    grid[~hit] = cloud_fields(frame, _no_return_rows(frame, ~hit, points.dtype))
+    grid = np.empty((r, h, w), POINT_DTYPE)
+    if points is None:
+        xyz = frame.xyz()
+        for i, name in enumerate(("x", "y", "z")):
+            grid[name] = xyz[..., i]
+            np.copyto(grid[name], np.float32(np.nan), where=~hit)
+    else:  # the rows of points() are hit's pixels in C order
+        flat = np.flatnonzero(hit)
+        for name in ("x", "y", "z"):
+            grid[name] = np.nan
+            grid[name].reshape(-1)[flat] = points[name]
+    t0 = frame.timestamp_ns
+    t = np.where(np.asarray(frame.column_valid, bool), frame.column_timestamp_ns, t0)
+    t = t + frame.pixel_time_offset_ns if frame.pixel_time_offset_ns is not None else np.broadcast_to(t, (h, w))
+    grid["time"] = (t - t0).astype(np.float64) * 1e-9  # one [H, W] image for every slot
+    grid["reflectivity"] = frame.reflectivity
+    ros = _frame_topics(frame)
+    intensity = getattr(frame, ros.intensity, None)  # the image the vendor's driver names, where the frame has it
+    grid["intensity"] = frame.reflectivity if intensity is None else intensity
+    row = np.arange(h, dtype=np.uint16)[:, None]
+    grid["ring"] = (h - 1 - row) if ros.ring_from_bottom else row
+    grid["range"] = frame.range_mm
+    np.copyto(grid["range"], 0, where=~hit)
     return _display(frame, grid)
 
 
