@@ -257,7 +257,7 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=number("--workers"), default=None, metavar="N",
                         help="use N CPU cores: a pcap/pcapng capture is cut into segments decoded by N processes "
                              "side by side (1: in this one; default: the idle CPUs, at most 4, for a capture of 64 MB "
-                             "or more, else 1)")
+                             "or more when three or more are idle, else 1)")
 
 
 def add_pixel(parser: argparse.ArgumentParser, *, required: bool, help: str) -> None:

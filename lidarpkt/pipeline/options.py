@@ -108,7 +108,7 @@ class OpenOptions:
         "least 16 MB into segments decoded by N forked processes (threads where processes cannot be forked), other "
         "containers decoding in a thread of their own beside the read-ahead (:mod:`lidarpkt.pipeline.parallel`). "
         "``None`` (default): for a pcap/pcapng of at least 64 MB, N = the CPUs idle now (the CPUs less the load "
-        "average, at most 4) when two or more are, else 1. The frames, their order and arrays are those of "
+        "average, at most 4) when three or more are, else 1 (two workers on two cores measured slower than one). The frames, their order and arrays are those of "
         "``workers=1``. ``segment=`` reads in one thread.", dataclasses.replace(WORKERS, optional=True))
 
     @classmethod

@@ -59,6 +59,7 @@ __all__ = ["ParallelFrameReader", "PipelinedFrameReader", "Renumber", "check_wor
 
 PARALLEL_MIN_BYTES = 64 << 20  # workers=None: captures at least this large are decoded by several processes
 MAX_DEFAULT_WORKERS = 4
+MIN_DEFAULT_WORKERS = 3  # workers=None forks no fewer: two on two cores were slower than one
 MIN_SEGMENT_BYTES = 8 << 20
 MAX_SEGMENT_BYTES = 64 << 20
 MAX_SEGMENT_FRAME_BYTES = 56 << 20
@@ -388,9 +389,10 @@ def check_workers(workers: Any) -> int | None:
 def default_workers(path: str | os.PathLike[str]) -> int:
     """``lidarpkt.open``'s ``workers=None``: for a pcap/pcapng of at least :data:`PARALLEL_MIN_BYTES`, the CPUs this
     process may use that are idle now (the CPUs less the load average, at most :data:`MAX_DEFAULT_WORKERS`) when
-    workers can be forked and two or more are idle, else 1. A smaller capture decodes in about the time it takes
-    to set workers up, bags and OSF cannot be cut, and on cores other processes keep busy the workers only add
-    their copies and segment boundaries (measured in the documentation's performance page)."""
+    workers can be forked and at least :data:`MIN_DEFAULT_WORKERS` are idle, else 1. A smaller capture decodes in
+    about the time it takes to set workers up, bags and OSF cannot be cut, on cores other processes keep busy the
+    workers only add their copies and segment boundaries, and two workers on two cores measured slower than one
+    (the documentation's performance page)."""
     from lidarpkt.containers.magic import container_kind
     from lidarpkt.errors import LidarpktError
 
@@ -403,7 +405,7 @@ def default_workers(path: str | os.PathLike[str]) -> int:
         return 1
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     idle = min(cpus, MAX_DEFAULT_WORKERS, int(cpus - _load_average() + 0.5))
-    if idle < 2:
+    if idle < MIN_DEFAULT_WORKERS:
         return 1
     from .processes import can_fork  # multiprocessing's modules, imported only when workers may be forked
 

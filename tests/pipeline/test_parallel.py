@@ -115,14 +115,17 @@ def test_frames_kept_or_dropped_through_a_small_ring(ring, small_segments, monke
 
 def test_default_workers_by_capture_size(small_segments, monkeypatch):
     """workers=None: one thread for a small capture, processes (up to 4, no more than the idle CPUs) for a large
-    pcap; one thread when fewer than two CPUs are idle, in a daemonic process (a Dask worker) or when the capture
-    is a bag."""
+    pcap; one thread when fewer than MIN_DEFAULT_WORKERS (3) CPUs are idle, in a daemonic process (a Dask
+    worker) or when the capture is a bag. The forking path is exercised here with the minimum lowered to 2."""
     path, md = _capture("ouster-sdk/OS-2-128-U1_v2.3.0_1024x10")
     assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
     monkeypatch.setattr(parallel, "PARALLEL_MIN_BYTES", 100_000)
     monkeypatch.setattr(parallel, "_load_average", lambda: 0.0)  # an idle machine
-    reader = lidarpkt.open(path, metadata=md)
     cpus = len(os.sched_getaffinity(0))
+    if cpus < parallel.MIN_DEFAULT_WORKERS:  # two cores: one thread, however idle
+        assert isinstance(lidarpkt.open(path, metadata=md), FrameReader)
+    monkeypatch.setattr(parallel, "MIN_DEFAULT_WORKERS", 2)
+    reader = lidarpkt.open(path, metadata=md)
     if cpus > 1:
         assert isinstance(reader, parallel.ParallelFrameReader) and reader.processes
         assert reader.workers == min(cpus, parallel.MAX_DEFAULT_WORKERS)
