@@ -21,6 +21,7 @@ from lidarpkt.errors import MetadataError
 from lidarpkt.vendors.ouster import OusterDecoder, OusterGeometry, load_metadata
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.containers.reassembly import FRAGMENT_OVERHEAD, Reassembler
+import lidarpkt.containers.pcap_reader  # noqa: F401 - used as lidarpkt.containers.pcap_reader below
 from reference_tools import velodyne_scan_mcap
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "fuzz"
