@@ -75,8 +75,8 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 
 
 class _VersionAction(argparse.Action):
-    """``--version``: the version string is made only when asked for (importlib.metadata costs
-    ~10-50 ms of start-up that every other command would pay)."""
+    """``--version``: the version string is made only when asked for (importlib.metadata's import is
+    start-up time every other command would pay)."""
 
     def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
         super().__init__(option_strings, dest, nargs=0, default=default,

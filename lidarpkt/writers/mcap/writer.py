@@ -40,10 +40,8 @@ if TYPE_CHECKING:
 LIBRARY = "lidarpkt recorder"
 
 #: Chunk compression of a file that holds frames (point clouds, images), chosen for speed: none. Organised
-#: float32 clouds barely shrink under a fast codec: ``decode --topics packets,points`` of a 60 s VLP-16 dual
-#: capture writes 1.08 GB of chunks, which lz4 (the mcap library's fast level, ~620 MB/s on one core) makes
-#: 0.93 GB for ~1.75 s of CPU, and zstd (the library writes level 3 only, ~170 MB/s) ~0.75 GB for ~6 s; writing
-#: the 16 % lz4 saves costs 0.05-0.25 s of CPU on the same machine. Files of packets alone keep zstd: raw
+#: float32 clouds barely shrink under a fast codec, and compressing them costs more CPU than writing the
+#: bytes saved (measured in the documentation's performance page). Files of packets alone keep zstd: raw
 #: packets shrink more, and arrive at packet rate. ``mcap compress`` (the mcap CLI) compresses a file
 #: afterwards where its size matters more than the time.
 FRAMES_COMPRESSION = "none"
