@@ -94,3 +94,23 @@ def test_hesai_xt32m_frames_missing_most_of_a_rotation_are_partial():
         if f.counters.lost_packets or (span_cdeg.size and span_cdeg.max() > 2 * np.median(span_cdeg)):
             assert f.partial, f.frame_id
     assert sum(f.partial for f in frames) >= 4
+
+
+def test_a_hesai_frame_with_lost_packets_holds_their_columns_as_invalid(tmp_path):
+    """Hesai as Velodyne: the columns of lost packets are in the frame, invalid (no returns), so that the frame
+    has the columns of its rotation; its points are those of the packets that arrived."""
+    capture, metadata, first, count = CASES["hesai-xt32"]
+    cut = tmp_path / "cut.pcap"
+    _cut(external(capture), cut, first, count)
+    whole = {int(f.column_timestamp_ns[0]): f for f in _frames(external(capture), metadata)}
+    lossy = [f for f in _frames(cut, metadata) if f.counters.lost_packets]
+    assert lossy
+    for f in lossy:
+        blocks = f.column_valid.size - int(f.column_valid.sum())
+        assert f.partial and blocks > 0 and blocks % f.counters.lost_packets == 0  # whole packets' columns
+        assert not f.range_mm[..., ~f.column_valid].any()
+        same = whole.get(int(f.column_timestamp_ns[0]))
+        if same is not None:  # the whole capture's frame: same width, its columns where packets arrived
+            assert same.column_valid.size == f.column_valid.size
+            assert np.array_equal(same.range_mm[..., f.column_valid], f.range_mm[..., f.column_valid])
+            assert np.allclose(same.azimuth_deg, f.azimuth_deg, atol=0.02)  # interpolated where lost

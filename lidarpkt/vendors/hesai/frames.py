@@ -30,9 +30,9 @@ after (before) the cut angle.
 Order and loss. Packets are put in time order within a batch (counted as out of order);
 duplicates (the same packet time) and packets older than the last one of an earlier batch are
 dropped and counted. Lost packets are counted from the UDP sequence number where the protocol has
-one, else from gaps in packet time; lost columns are not inserted (``column_valid`` is True for
-every column the frame holds, all received; the frame is ``partial`` and :meth:`Frame.on_grid` shows the gap
-as invalid bins).
+one, else from gaps in packet time; their columns are put in the frame as the Velodyne decoder puts them
+(``column_valid`` False, zero range, zero time, the azimuth interpolated between the columns around
+them), so a frame with lost packets holds the columns of its rotation.
 """
 
 from __future__ import annotations
@@ -80,7 +80,8 @@ class DecoderStats:
         return self.malformed_size + self.malformed_fields
 
 
-_COLUMN_KEYS = ("range_mm", "reflectivity", "azimuth_cdeg", "timestamp_ns", "time_key", "packet_index", "rpm")
+_COLUMN_KEYS = ("range_mm", "reflectivity", "azimuth_cdeg", "timestamp_ns", "time_key", "packet_index", "rpm",
+                "valid")
 
 
 class HesaiDecoder:
@@ -122,6 +123,7 @@ class HesaiDecoder:
         self._last_key: float | None = None
         self._period_ns: float | None = None
         self._last_host_ns = 0  # capture time of the last packet counted (0: unknown)
+        self._last_column: float | None = None  # azimuth (0.01°) of the last column appended
         self._continuity = StreamContinuity(1.0)  # only its capture-time credit: losses the capture can hold
         self._rpm: int | None = None
         self._sensors: dict[int, SensorInfo] = {}
@@ -180,7 +182,7 @@ class HesaiDecoder:
             return []
         self.stats.decoded_packets += len(raw)
         order = np.argsort(batch.index, kind="stable")  # the kept packets' capture times, by their ordinals
-        self._count_lost(raw, batch.timestamp_ns[order[np.searchsorted(batch.index[order], index)]])
+        lost = self._count_lost(raw, batch.timestamp_ns[order[np.searchsorted(batch.index[order], index)]])
         frames: list[Frame] = []
         change = np.flatnonzero(np.diff(raw.return_mode.astype(np.int16))) + 1
         gaps = np.flatnonzero(np.diff(raw.timestamp_ns) > self.max_gap_ns) + 1
@@ -191,13 +193,15 @@ class HesaiDecoder:
             if self._mode is not None and mode != self._mode:
                 self.stats.mode_changes += 1
                 frames += self._flush(end="cut")
+                self._last_column = None
             elif self._last_run_ts is not None and first_ts - self._last_run_ts > self.max_gap_ns:
                 self.stats.long_gaps += 1
                 frames += self._flush(end="cut")
-                self._last_key = None
+                self._last_key = self._last_column = None
             self._mode = mode
             self._rpm = int(raw.motor_speed_rpm[b - 1])
-            frames += self._append(self._columns(raw.select(slice(a, b)), index[a:b], mode))
+            cols = self._columns(raw.select(slice(a, b)), index[a:b], mode)
+            frames += self._append(_with_lost_columns(cols, lost[a:b], len(cols["valid"]) // (b - a), self._last_column))
             self._last_run_ts = int(raw.timestamp_ns[b - 1])
         self.stats.frames += len(frames)
         return frames
@@ -237,10 +241,11 @@ class HesaiDecoder:
             self._last_ts = int(raw.timestamp_ns[-1])
         return raw, index
 
-    def _count_lost(self, raw: HesaiPackets, host_ns: np.ndarray) -> None:
+    def _count_lost(self, raw: HesaiPackets, host_ns: np.ndarray) -> np.ndarray:
         """Packets lost between these and the ones before, by the UDP sequence number where the model sends
         one, else by the sensor's time steps; never more than the capture time between them can hold
-        (:meth:`lidarpkt.core.continuity.StreamContinuity.bound_lost`)."""
+        (:meth:`lidarpkt.core.continuity.StreamContinuity.bound_lost`). Returns how many were lost before each
+        packet, ``int64[N]``."""
         dt = np.diff(raw.timestamp_ns).astype(np.float64)
         if dt.size:
             med = float(np.median(dt))
@@ -253,7 +258,7 @@ class HesaiDecoder:
             self._last_seq = int(seq[-1])
         else:
             if not self._period_ns or dt.size == 0:
-                return
+                return np.zeros(len(raw), np.int64)
             lost = np.concatenate([[0], np.maximum(np.rint(dt / self._period_ns).astype(np.int64) - 1, 0)])
             lost[1:][dt > self.max_gap_ns] = 0
         host = np.asarray(host_ns, np.int64)
@@ -265,6 +270,7 @@ class HesaiDecoder:
         total = int(lost.sum())
         self.stats.lost_packets += total
         self._pending_counters.lost_packets += total
+        return np.asarray(lost, np.int64)
 
     # ------------------------------------------------------------------ columns
     def _columns(self, raw: HesaiPackets, index: np.ndarray, mode: int) -> dict[str, np.ndarray]:
@@ -297,12 +303,13 @@ class HesaiDecoder:
         return {"range_mm": rng, "reflectivity": refl,
                 "azimuth_cdeg": az.astype(np.float64), "timestamp_ns": ts, "time_key": key.reshape(-1),
                 "packet_index": np.repeat(index.astype(np.int64), groups),
-                "rpm": np.repeat(raw.motor_speed_rpm, groups)}
+                "rpm": np.repeat(raw.motor_speed_rpm, groups), "valid": np.ones(n * groups, bool)}
 
     def _append(self, cols: dict[str, np.ndarray]) -> list[Frame]:
         key = (cols["azimuth_cdeg"] - self.cut_cdeg) % 36000.0
         cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
+        self._last_column = float(cols["azimuth_cdeg"][-1])
         frames: list[Frame] = []
         start = 0
         for at in cut_at:
@@ -326,13 +333,14 @@ class HesaiDecoder:
         if not parts:
             return []
         cols = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts], axis=-1) for k in _COLUMN_KEYS}
-        whole = end != "overlong" and self._is_whole(cols["azimuth_cdeg"], start_unknown, end == "cut")
+        whole = end != "overlong" and self._is_whole(cols["azimuth_cdeg"], start_unknown, end == "cut",
+                                                     not cols["valid"].all())
         return [self._make_frame(cols, not whole, counters)]
 
-    def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool) -> bool:
+    def _is_whole(self, azimuth_cdeg: np.ndarray, check_start: bool, check_end: bool, lost: bool) -> bool:
         fallback = self.model.grid_resolution_deg * 100.0 if self.model is not None else None
         return rotation_is_whole(azimuth_cdeg, self.cut_cdeg, check_start=check_start, check_end=check_end,
-                                 fallback_step_cdeg=fallback)
+                                 fallback_step_cdeg=fallback, lost_columns=lost)
 
     def finish(self) -> list[Frame]:
         """The last frame, if any columns are pending (partial unless it reaches the cut angle)."""
@@ -381,17 +389,51 @@ class HesaiDecoder:
     def _make_frame(self, cols: dict[str, np.ndarray], partial: bool, counters: FrameCounters) -> Frame:
         mode = self._mode if self._mode is not None else 0x39
         assert self.model is not None
-        w = cols["azimuth_cdeg"].shape[0]
         extra = {"packet_index": cols["packet_index"], "motor_speed_rpm": cols["rpm"]}
         rng, refl = cols["range_mm"], cols["reflectivity"]
         if mode in MARKED_MODES:
             extra["second_strongest"] = (rng[1] > 0) & (refl[1] < refl[0])
         frame = Frame(
             sensor=self.sensor_info(mode), frame_id=self._frame_id, range_mm=rng, reflectivity=refl,
-            return_labels=self.model.labels(mode), column_valid=np.ones(w, bool),
+            return_labels=self.model.labels(mode), column_valid=cols["valid"].copy(),
             column_timestamp_ns=cols["timestamp_ns"], azimuth_deg=cols["azimuth_cdeg"] / 100.0,
             pixel_time_offset_ns=np.take(self._time_table, cols["time_key"], axis=1), partial=partial, counters=counters,
             extra=extra,
         )
         self._frame_id += 1
         return frame
+
+
+def _with_lost_columns(cols: dict[str, np.ndarray], lost: np.ndarray, groups: int,
+                       before: float | None) -> dict[str, np.ndarray]:
+    """``cols`` (the columns of N packets, ``groups`` each) with the columns of the packets lost before each
+    (``lost``, ``int64[N]``) put in as invalid columns: no returns, zero time, the azimuth (0.01°)
+    interpolated between the received columns around them (``before``: the azimuth of the last column
+    before these, for a loss before the first packet; without it that loss is counted, not put in)."""
+    lost = lost.copy()
+    if before is None:
+        lost[0] = 0
+    if not lost.any():
+        return cols
+    az = cols["azimuth_cdeg"]
+    added = lost * groups  # invalid columns before each packet
+    shift = np.cumsum(added)  # columns added up to and including each packet's gap
+    width = az.shape[0] + int(shift[-1])
+    kept = np.arange(az.shape[0]) + np.repeat(shift, groups)  # where the received columns go
+    out = {}
+    for k, v in cols.items():
+        fill = -1 if k == "packet_index" else 0
+        arr = np.full(v.shape[:-1] + (width,), fill, v.dtype)
+        arr[..., kept] = v
+        out[k] = arr
+    # each added column's azimuth: between the column before its gap and the one after it
+    gap_packets = np.flatnonzero(added)
+    first_col = gap_packets * groups  # index in cols of the packet's first column
+    prev_az = np.where(gap_packets > 0, az[np.maximum(first_col - 1, 0)], 0.0 if before is None else before)
+    counts = added[gap_packets]
+    step_az = ((az[first_col] - prev_az) % 36000.0) / (counts + 1)
+    j = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts) + 1  # 1..m within each gap
+    slots = np.flatnonzero(~np.isin(np.arange(width), kept))
+    out["azimuth_cdeg"][slots] = (np.repeat(prev_az, counts) + j * np.repeat(step_az, counts)) % 36000.0
+    out["rpm"][slots] = np.repeat(cols["rpm"][first_col], counts)
+    return out
