@@ -110,6 +110,9 @@ class RerunView:
             self._connect(rr, target)
         except (RuntimeError, OSError, ValueError) as exc:  # the SDK's own errors: a port in use, a bad address
             self.recording.disconnect()
+            if self._tmp is not None:  # a file: its folder, as every other output says it
+                folder = Path(target).parent
+                raise RerunViewError(f"--rerun {target}: cannot write in {folder}; choose a writable folder") from None
             raise RerunViewError(f"--rerun {target}: cannot serve or connect there ({exc})") from None
         except BaseException:
             self.recording.disconnect()

@@ -150,6 +150,9 @@ def test_bad_rerun_target_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["view", str(CANNED / "vlp16-dual.pcap"), "--rerun", str(tmp_path / "no" / "x.rrd")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+    assert main(["view", str(CANNED / "vlp16-dual.pcap"), "--rerun", "/proc/x.rrd"]) == 2  # a folder not writable
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("--rerun /proc/x.rrd: cannot write in /proc; choose a writable folder")
     import socket
 
     with socket.socket() as taken:  # the gRPC port (web:PORT's PORT + 1) held by another server
