@@ -1,15 +1,46 @@
-"""nebula's ``RobosenseScan`` carries the DIFOP among the MSOP packets, and a bag keeps no UDP ports: the vendor
-record parts a scan by kind, so that each kind can go to its factory port (MSOP 6699, DIFOP 7788, rs_driver's
-``msop_port`` and ``difop_port``). Packets are told apart by their identifiers here, not by lidarpkt."""
+"""A bag keeps no UDP ports, and nebula's ``RobosenseScan`` carries the DIFOP among the MSOP packets: ``export --format
+pcap`` of the bag sends each kind to its factory port (MSOP 6699, DIFOP 7788, rs_driver's
+``msop_port`` and ``difop_port``), where RoboSense's own driver listens for them. The pcap is read by dpkt;
+packets are told apart by their identifiers here, not by lidarpkt."""
 
 from __future__ import annotations
 
-import numpy as np
+import json
+import socket
+import warnings
 
-from robosense_bag import batches
+import numpy as np
+import pytest
+
+import lidarpkt
+from archive_cases import lidarpkt_cli
+from conftest import external
+from robosense_bag import BAG, all_packets, batches
+
+dpkt = pytest.importorskip("dpkt")
 
 DIFOP_ID = bytes.fromhex("a5ff005a11115555")  # a DIFOP packet's first 8 bytes (the manuals' identifier)
 MSOP_PORT, DIFOP_PORT = 6699, 7788  # the manuals' factory ports, rs_driver's defaults
+SENSOR, HOST = "192.168.1.200", "192.168.1.102"
+
+
+def _frames(path) -> list:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return list(lidarpkt.open(path))
+
+
+def _udp_datagrams(pcap: Path) -> list[tuple[str, str, int, int, bytes]]:
+    """(source address, destination address, source port, destination port, payload) of every record, by dpkt."""
+    out = []
+    with open(pcap, "rb") as fh:
+        for _, frame in dpkt.pcap.UniversalReader(fh):
+            ip = dpkt.ethernet.Ethernet(frame).data
+            assert isinstance(ip, dpkt.ip.IP) and not ip.mf and ip.offset == 0  # 1248 B: never fragmented
+            udp = ip.data
+            assert isinstance(udp, dpkt.udp.UDP) and udp.ulen == 8 + len(udp.data)
+            out.append((socket.inet_ntoa(ip.src), socket.inet_ntoa(ip.dst), udp.sport, udp.dport, bytes(udp.data)))
+    return out
 
 
 def test_the_record_parts_a_scan_by_kind():
@@ -29,3 +60,29 @@ def test_the_record_parts_a_scan_by_kind():
             assert registry.vendor(m.vendor).endpoints(m)[1].port == (DIFOP_PORT if m.kind == "difop" else MSOP_PORT)
         kinds.append([m.kind for m, _ in parts])
     assert sorted(kinds) == [["msop"]] * 4 + [["msop", "difop"]]  # one message carries the DIFOP among its MSOP
+
+
+def test_export_pcap_sends_msop_to_6699_and_difop_to_7788(tmp_path):
+    bag = external(BAG)
+    run = lidarpkt_cli("export", str(bag), "--format", "pcap", "-o", str(tmp_path / "pcap"), "-q")
+    assert run.returncode == 0, run.stderr
+    (pcap,) = (tmp_path / "pcap").rglob("*.pcap")
+    datagrams = _udp_datagrams(pcap)
+    payload, _ = all_packets()  # the bag read by rosbags
+    assert [d[4] for d in datagrams] == [row.tobytes() for row in payload]  # every packet, in order
+    difop = [d for d in datagrams if d[4][:8] == DIFOP_ID]
+    msop = [d for d in datagrams if d[4][:8] != DIFOP_ID]
+    assert len(difop) == 1 and len(msop) == 750
+    assert {d[:4] for d in difop} == {(SENSOR, HOST, DIFOP_PORT, DIFOP_PORT)}
+    assert {d[:4] for d in msop} == {(SENSOR, HOST, MSOP_PORT, MSOP_PORT)}
+    doc = json.loads(lidarpkt_cli("info", "--json", str(pcap)).stdout)
+    kinds = {s["dst_port"]: s["stream_kind"] for s in doc["streams"]}
+    assert kinds == {MSOP_PORT: "robosense_msop", DIFOP_PORT: "robosense_difop"}
+    again, direct = _frames(pcap), _frames(bag)
+    assert len(again) == len(direct) > 0
+    for a, b in zip(again, direct):
+        assert (a.frame_id, a.timestamp_ns, a.sensor.model, a.return_labels) == \
+            (b.frame_id, b.timestamp_ns, b.sensor.model, b.return_labels)
+        for name in ("range_mm", "reflectivity", "azimuth_deg", "column_timestamp_ns", "column_valid"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        np.testing.assert_array_equal(a.xyz(), b.xyz())
