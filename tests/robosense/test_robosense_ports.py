@@ -1,24 +1,32 @@
 """A bag keeps no UDP ports, and nebula's ``RobosenseScan`` carries the DIFOP among the MSOP packets: ``export --format
-pcap`` of the bag sends each kind to its factory port (MSOP 6699, DIFOP 7788, rs_driver's
-``msop_port`` and ``difop_port``), where RoboSense's own driver listens for them. The pcap is read by dpkt;
-packets are told apart by their identifiers here, not by lidarpkt."""
+pcap`` and ``replay`` of the bag send each kind to its factory port (MSOP 6699, DIFOP 7788, rs_driver's
+``msop_port`` and ``difop_port``), where RoboSense's own driver listens for them. The pcap is read by dpkt, the
+replayed datagrams by sockets bound to the two ports; packets are told apart by their identifiers here, not by
+lidarpkt."""
 
 from __future__ import annotations
 
 import json
+import re
+import selectors
 import socket
+import subprocess
+import sys
+import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import lidarpkt
 from archive_cases import lidarpkt_cli
-from conftest import external
+from conftest import end_process, external, start_process
 from robosense_bag import BAG, all_packets, batches
 
 dpkt = pytest.importorskip("dpkt")
 
+REPO = Path(__file__).resolve().parents[2]
 DIFOP_ID = bytes.fromhex("a5ff005a11115555")  # a DIFOP packet's first 8 bytes (the manuals' identifier)
 MSOP_PORT, DIFOP_PORT = 6699, 7788  # the manuals' factory ports, rs_driver's defaults
 SENSOR, HOST = "192.168.1.200", "192.168.1.102"
@@ -86,3 +94,46 @@ def test_export_pcap_sends_msop_to_6699_and_difop_to_7788(tmp_path):
         for name in ("range_mm", "reflectivity", "azimuth_deg", "column_timestamp_ns", "column_valid"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
         np.testing.assert_array_equal(a.xyz(), b.xyz())
+
+
+def _receive(socks: list[socket.socket], proc: subprocess.Popen, quiet_s: float = 1.0,
+             timeout_s: float = 120.0) -> list[list[bytes]]:
+    """The datagrams each socket receives while ``proc`` runs and until they stay quiet ``quiet_s`` after it ends."""
+    got: list[list[bytes]] = [[] for _ in socks]
+    with selectors.DefaultSelector() as sel:
+        for i, s in enumerate(socks):
+            sel.register(s, selectors.EVENT_READ, i)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            events = sel.select(timeout=quiet_s)
+            if not events and proc.poll() is not None:
+                break
+            for key, _ in events:
+                got[key.data].append(key.fileobj.recv(65535))
+    return got
+
+
+def test_replay_of_the_bag_sends_the_difop_to_the_difop_port():
+    from test_replay_record import _free_ports, _receivers
+
+    bag = external(BAG)
+    msop_port, difop_port = _free_ports(2)
+    socks = _receivers([msop_port, difop_port])
+    proc = None
+    try:
+        proc = start_process([sys.executable, "-m", "lidarpkt", "replay", str(bag), "--to", f"127.0.0.1:{msop_port}",
+                              "--port-map", f"{DIFOP_PORT}:{difop_port}", "--max"],
+                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        on_msop, on_difop = _receive(socks, proc)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err
+    finally:
+        for s in socks:
+            s.close()
+        if proc is not None:
+            end_process(proc)
+    assert re.search(rf"\b750 to port {msop_port}\b", err) and re.search(rf"\b1 to port {difop_port}\b", err), err
+    payload, _ = all_packets()
+    rows = [row.tobytes() for row in payload]
+    assert on_difop == [r for r in rows if r[:8] == DIFOP_ID]  # the one DIFOP, where rs_driver listens for it
+    assert on_msop == [r for r in rows if r[:8] != DIFOP_ID]  # the 750 MSOP in order, no DIFOP among them
