@@ -71,6 +71,8 @@ def test_every_record_answers_for_a_real_capture(name):
         assert match is not None and match.vendor == name and match.decodable and match.stream in v.streams
         src, dst = v.endpoints(match)
         assert isinstance(src, Endpoint) and isinstance(dst, Endpoint) and 0 < dst.port < 65536
+        parts = registry.by_kind(batch, match)  # these vendors' batches hold one stream kind: the batch itself
+        assert v.split is not None or (len(parts) == 1 and parts[0][0] is match and parts[0][1] is batch)
         details = v.describe(batch, setup)
         assert details is not None and details["kind"] and all(isinstance(b, str) for b in v.summary(details))
         if match.lidar and match.stream not in seen:

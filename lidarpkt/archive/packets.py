@@ -6,11 +6,13 @@ pcap, pcapng, MCAP, ROS bags), lidar and IMU/position packets alike, goes out in
 with its capture time (nanoseconds) and its UDP payload byte for byte, framed by
 :class:`lidarpkt.writers.pcap.PcapBatchWriter` (Ethernet, IPv4 fragmented at MTU 1500, valid
 checksums). A pcap keeps its packets' addresses and ports. A ROS bag or an MCAP records neither,
-so each stream gets its vendor's factory defaults (:func:`default_endpoints`: the registry record's
+so each stream gets its vendor's factory defaults (:func:`addressed`: the registry record's
 :attr:`~lidarpkt.core.vendor.Vendor.endpoints`, from its sensor file's ports where one is given):
 a VLP-16's data from 192.168.1.201:2368 to broadcast, an Ouster's lidar packets from 169.254.0.2 to
 169.254.0.1 on the metadata's ``udp_port_lidar``...; a stream of no vendor from 192.168.1.201:2368 to
-broadcast, the common lidar default.
+broadcast, the common lidar default. A message that carries packets of two stream kinds (a RoboSense
+scan holds its DIFOP among the MSOP) is parted by kind (:func:`lidarpkt.vendors.registry.by_kind`),
+each kind on its own port (MSOP 6699, DIFOP 7788), as the sensor's driver listens for them.
 
 A bag's or an MCAP's file order need not be its capture order (a writer may store each topic's
 messages apart, as ``decode`` does with a chunk's IMU packets): their packets go out in the order
@@ -35,9 +37,9 @@ from lidarpkt.errors import CaptureFormatError, OutputError, UnsupportedContaine
 from lidarpkt.core.packet import Endpoint, PacketBatch
 
 if TYPE_CHECKING:
-    from lidarpkt.core.vendor import DecodeSetup
+    from lidarpkt.core.vendor import DecodeSetup, Match
 
-__all__ = ["PacketExport", "default_endpoints", "time_ordered", "write_packets_pcap"]
+__all__ = ["PacketExport", "addressed", "default_endpoints", "time_ordered", "write_packets_pcap"]
 
 # the common lidar default (the factory address and port of most sensors), to broadcast
 DEFAULT_SOURCE = Endpoint("192.168.1.201", 2368)
@@ -48,7 +50,8 @@ REORDER_WINDOW_NS = 2_000_000_000  # a bag's packets are put in time order withi
 @dataclass
 class PacketExport:
     """What :func:`write_packets_pcap` wrote: ``packets``; ``defaulted``: for a bag or MCAP, the
-    endpoints given to each payload size (``{1206: "192.168.1.201:2368 → 255.255.255.255:2368"}``)."""
+    endpoints given to each payload size (``{1206: "192.168.1.201:2368 → 255.255.255.255:2368"}``; those of
+    each stream kind, joined by ``"; "``, where packets of one size are of two kinds)."""
 
     packets: int = 0
     defaulted: dict[int, str] = field(default_factory=dict)
@@ -63,6 +66,17 @@ def default_endpoints(batch: PacketBatch, setup: DecodeSetup | None = None) -> t
     if match is None:
         return DEFAULT_SOURCE, DEFAULT_DESTINATION
     return registry.vendor(match.vendor).endpoints(match)
+
+
+def addressed(batch: PacketBatch, match: Match | None) -> list[PacketBatch]:
+    """A batch that kept no addresses (of the stream ``match``, ``None``: of no vendor) from and to its
+    factory endpoints: one batch per stream kind it holds, in the order of its first packet
+    (:func:`lidarpkt.vendors.registry.factory_addressed`); the common lidar default for a stream of no vendor."""
+    from lidarpkt.vendors import registry
+
+    if match is None:
+        return [PacketBatch(DEFAULT_SOURCE, DEFAULT_DESTINATION, batch.timestamp_ns, batch.payload, batch.index)]
+    return registry.factory_addressed(batch, match)
 
 
 def time_ordered(batches: Iterable[PacketBatch], window_ns: int = REORDER_WINDOW_NS) -> Iterator[PacketBatch]:
@@ -155,25 +169,30 @@ def write_packets_pcap(path: str | os.PathLike[str], out: str | os.PathLike[str]
     source = registry.open_packets(src_path)
     given = registry.load_sensor_files(list(metadata) if isinstance(metadata, (list, tuple)) else metadata)
     result = PacketExport()
-    chosen: dict[int, tuple[Endpoint, Endpoint]] = {}  # a bag's endpoints by payload size
+    matched: dict[int, Match | None] = {}  # a bag's stream by payload size (its first batch's)
     batches = source.batches() if kind == "pcap" else time_ordered(source.batches())
     writer = _writing(out, lambda: PcapBatchWriter(out))
     try:
         for batch in batches:
-            src = dst = None
+            parts = [batch]
             if batch.src is None or batch.dst is None:
                 size = batch.payload_size
-                if size not in chosen:
+                if size not in matched:
                     files = list(given)
                     recorded = source.recorded_sensor_file()  # an MCAP's own, once read past
                     if recorded:
                         f = registry.load_sensor_files([recorded])[0]
                         if not any(g.vendor == f.vendor for g in files):
                             files.append(f)
-                    chosen[size] = default_endpoints(batch, registry.setup(files))
-                    result.defaulted[size] = f"{chosen[size][0]} → {chosen[size][1]}"
-                src, dst = chosen[size]
-            _writing(out, writer.write, batch, src, dst)
+                    matched[size] = registry.classify(batch, registry.setup(files))
+                parts = addressed(batch, matched[size])
+                for part in parts:
+                    given_to = f"{part.src} → {part.dst}"
+                    before = result.defaulted.get(size)
+                    if before is None or given_to not in before.split("; "):
+                        result.defaulted[size] = given_to if before is None else f"{before}; {given_to}"
+            for part in parts:
+                _writing(out, writer.write, part)
     finally:
         _writing(out, writer.close)  # what was read before an error is in ``out``
     result.packets = writer.packets_written

@@ -4,9 +4,9 @@ Each vendor package (``lidarpkt.vendors.<name>``) exports its record as ``VENDOR
 :data:`lidarpkt.vendors.registry.VENDORS`. Everything outside the vendor folders asks the registry and names
 no vendor: the router and ``info`` ask the one classifier (:attr:`Vendor.classify`), the recorder the
 stream counter, the bag reader and the MCAP writer the ROS messages, replay and pcap export the
-factory addresses, the end-of-read summary the drop reasons, ``lidarpkt.open`` the sensor files and
-the frame files. A record holds functions and tables; the functions import the vendor's modules when
-called, so that reading the registry costs nothing.
+factory addresses (of each stream kind a bag's message holds), the end-of-read summary the drop
+reasons, ``lidarpkt.open`` the sensor files and the frame files. A record holds functions and tables;
+the functions import the vendor's modules when called, so that reading the registry costs nothing.
 """
 
 from __future__ import annotations
@@ -223,6 +223,10 @@ class Vendor:
         drops: its decoder's ``stats`` → :class:`~lidarpkt.core.dropped.DropCounts`.
         endpoints: the factory source and destination of a matched stream (replay, pcap export of a
             capture that kept no addresses).
+        split: a batch that holds packets of several of its stream kinds (a ROS message carrying a sensor's
+            two streams together) parted by kind: each kind's :class:`Match` and the ``bool[N]`` mask of its
+            rows, the masks covering every row once (a kind it does not hold: an empty mask); ``None`` for a
+            vendor whose batches hold one kind each (the batch's :class:`Match` is every packet's).
         ros: its ROS messages.
         sensor_files: its sensor description files, ``None`` when it has none.
         frame_files: files of decoded frames it records, by container kind (:func:`~lidarpkt.containers.magic.container_kind`).
@@ -263,6 +267,7 @@ class Vendor:
     undecoded_hint: Callable[[Any, Mapping[Any, int], Sequence[Any]], str | None] | None = None
     geometry: Callable[[Any, Mapping[str, Any] | None], Any] | None = None
     sensor_file_in_packets: Callable[[PacketBatch, Match], Any] | None = None
+    split: Callable[[PacketBatch, Match], Sequence[tuple[Match, np.ndarray]]] | None = None
 
     def stream(self, name: str) -> StreamKind:
         """Its stream kind called ``name``.

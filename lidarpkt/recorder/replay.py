@@ -3,7 +3,8 @@
 The lidar data streams (the streams frames are made of: the vendor registry's classifier says which)
 go to ``host:port``; the other streams (auxiliary ones, anything else) go to their original
 destination port on HOST, or where ``port_map`` sends them. Containers that keep no ports (ROS bags,
-MCAP) send each stream to its vendor's port (the factory one, or the one its sensor file names).
+MCAP) send each stream to its vendor's port (the factory one, or the one its sensor file names), each
+stream kind its own where one message carries two (:func:`read_capture`).
 
 Pacing follows the capture's own receive times divided by ``rate``; ``rate=None`` sends as
 fast as the socket takes them. The sender sleeps only when it is more than a millisecond
@@ -16,12 +17,15 @@ import itertools
 import socket
 import time
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import numpy as np
 
 from lidarpkt.core.packet import Packet, PacketBatch
 from lidarpkt.errors import LidarpktError, RecorderError
+
+if TYPE_CHECKING:
+    from lidarpkt.core.vendor import Match
 
 
 @dataclass
@@ -36,17 +40,35 @@ class ReplayStats:
     interrupted: bool = False  # stopped by Ctrl-C or SIGTERM before the end
 
 
-def read_capture(path: str) -> Iterator[Packet]:
+def read_capture(path: str, metadata=None) -> Iterator[Packet]:
     """Every packet of a capture in receive order (pcap streamed; bags/MCAP read whole, then
-    ordered by host receive time)."""
-    from lidarpkt.containers.pcap_reader import PcapReader
-    from lidarpkt.vendors.registry import open_packets
+    ordered by host receive time).
 
-    reader = open_packets(path)
+    A bag's or an MCAP's packets, which kept no addresses, come from and to their vendor's factory
+    endpoints, each stream kind its own (:func:`lidarpkt.vendors.registry.factory_addressed`; the stream of
+    a payload size told by its first batch, with the sensor files ``metadata``, as :func:`replay` takes
+    them): a message carrying two kinds of packets sends each to its port. Packets of no vendor keep none.
+    """
+    from lidarpkt.containers.pcap_reader import PcapReader
+    from lidarpkt.vendors import registry
+
+    reader = registry.open_packets(path)
     if isinstance(reader, PcapReader):
         yield from reader.packets()
         return
-    batches = list(reader.batches())
+    setup = registry.setup(registry.load_sensor_files(metadata))
+    matched: dict[int, Match | None] = {}  # the stream of each payload size
+    batches = []
+    for batch in reader.batches():
+        if len(batch) and (batch.src is None or batch.dst is None):
+            size = batch.payload_size
+            if size not in matched:
+                matched[size] = registry.classify(batch, setup)
+            match = matched[size]
+            if match is not None:
+                batches.extend(registry.factory_addressed(batch, match))
+                continue
+        batches.append(batch)
     if not batches:
         return
     # a bag stores a rotation's packets in one message written after its last packet: host times,
@@ -170,7 +192,8 @@ def replay_capture(path: str, host: str, port: int, *, rate: float | None = 1.0,
     sock, _ = sender(host, port)  # every round from one source address: one sensor to the receivers
     try:
         for _ in rounds:
-            s = replay(read_capture(path), host, port, rate=rate, port_map=port_map, metadata=metadata, sock=sock)
+            s = replay(read_capture(path, metadata), host, port, rate=rate, port_map=port_map, metadata=metadata,
+                       sock=sock)
             total.packets += s.packets
             total.bytes += s.bytes
             total.seconds += s.seconds

@@ -61,6 +61,32 @@ def classify(batch: PacketBatch, setup: DecodeSetup | None = None) -> Match | No
     return recognised
 
 
+def by_kind(batch: PacketBatch, match: Match) -> list[tuple[Match, PacketBatch]]:
+    """``batch``, a stream of ``match``'s vendor, as the packets of each stream kind it holds with each kind's
+    match: ``[(match, batch)]``, but where the vendor's :attr:`~lidarpkt.core.vendor.Vendor.split` finds
+    several kinds in it (a ROS message carrying two streams), one part per kind in the order of its first
+    packet (NumPy masks, no loop over packets)."""
+    split = vendor(match.vendor).split
+    if split is None:
+        return [(match, batch)]
+    parts = [(m, rows) for m, rows in split(batch, match) if rows.any()]
+    if len(parts) <= 1:
+        return [(parts[0][0] if parts else match, batch)]
+    parts.sort(key=lambda part: int(part[1].argmax()))
+    return [(m, batch.select(rows)) for m, rows in parts]
+
+
+def factory_addressed(batch: PacketBatch, match: Match) -> list[PacketBatch]:
+    """``batch``, which kept no addresses (a bag's), as batches from and to its vendor's factory endpoints
+    (:attr:`~lidarpkt.core.vendor.Vendor.endpoints`): one per stream kind it holds (:func:`by_kind`), in the
+    order of its first packet, so that each kind goes to its own port."""
+    out = []
+    for m, part in by_kind(batch, match):
+        src, dst = vendor(m.vendor).endpoints(m)
+        out.append(PacketBatch(src, dst, part.timestamp_ns, part.payload, part.index))
+    return out
+
+
 def undecoded_hint(path: Any, unrouted_streams: Mapping[Any, int], setup: DecodeSetup) -> str | None:
     """What to say when no stream was decoded but a vendor recognises some as its own (its sensor file is
     missing or does not fit), ``None`` when none does."""

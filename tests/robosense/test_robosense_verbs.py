@@ -1,8 +1,8 @@
 """Every verb takes the RoboSense bag through the vendor registry alone: ``info``, ``decode`` (MCAP with the packets
 as ``robosense_msgs/msg/RobosenseScan`` and PointCloud2; NPZ), ``export`` (Parquet holding exactly
-``lidarpkt.open``'s returns; pcap holding the 751 payloads byte for byte; segments equal to the whole file),
-``catalog`` on a Dask LocalCluster, ``analyze`` and ``multireturn``; hostile copies give counted skips or one
-error line."""
+``lidarpkt.open``'s returns; pcap holding the 751 payloads byte for byte, MSOP to port 6699 and DIFOP to 7788;
+segments equal to the whole file), ``catalog`` on a Dask LocalCluster, ``analyze`` and ``multireturn``; hostile
+copies give counted skips or one error line."""
 
 from __future__ import annotations
 
@@ -133,7 +133,9 @@ def test_export_pcap_gives_the_751_payloads_byte_for_byte(tmp_path):
     payload, stamps = all_packets()
     assert [p.payload for p in packets] == [row.tobytes() for row in payload]
     assert [p.timestamp_ns for p in packets] == stamps.tolist()
-    assert {p.dst.port for p in packets} == {6699}  # a bag keeps no addresses: the MSOP factory port
+    difop = [p.payload[:8] == bytes.fromhex("a5ff005a11115555") for p in packets]
+    # a bag keeps no addresses: each kind its factory port (tests/robosense/test_robosense_ports.py reads them by dpkt)
+    assert [p.dst.port for p in packets] == [7788 if d else 6699 for d in difop] and sum(difop) == 1
     _same_frames(_frames(pcap), _frames(bag))
 
 

@@ -3,18 +3,22 @@ rest of lidarpkt asks of RoboSense sensors, answered by this package's modules (
 
 A sensor sends two streams of 1248-byte packets: MSOP (the measurements, port 6699) and DIFOP (its device
 information and calibration, port 7788, once a second). Both go to one decoder per sensor address; the
-angle CSV (``metadata=``) serves where a capture holds no DIFOP.
+angle CSV (``metadata=``) serves where a capture holds no DIFOP. A ROS bag carries the two in one message
+and keeps no ports: :func:`split` parts them, so that replay and pcap export send each to its own port.
 """
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
 from lidarpkt.core.streams import StreamKind
 from lidarpkt.core.vendor import DecodeSetup, Match, SensorFiles, Vendor
 from .ros import ROS
+
+if TYPE_CHECKING:
+    import numpy as np
 
 NAME = "robosense"
 MSOP = StreamKind(NAME, "msop", lidar=True)
@@ -133,6 +137,17 @@ def endpoints(match: Match) -> tuple[Endpoint, Endpoint]:
     return Endpoint(SENSOR_ADDRESS, port), Endpoint(HOST_ADDRESS, port)
 
 
+def split(batch: PacketBatch, match: Match) -> list[tuple[Match, np.ndarray]]:
+    """A batch's MSOP and DIFOP packets (a ``RobosenseScan`` carries its DIFOP among the MSOP): the DIFOP rows
+    by their identifier (:func:`.detect.is_difop`), every other row MSOP; each with ``match`` of its kind."""
+    from dataclasses import replace
+
+    from .detect import is_difop
+
+    difop = is_difop(batch.payload)
+    return [(replace(match, stream=MSOP), ~difop), (replace(match, stream=DIFOP), difop)]
+
+
 def sensor_file_in_packets(batch: PacketBatch, match: Match) -> Any:
     """The first DIFOP of a batch that decodes, as a :class:`~lidarpkt.vendors.robosense.calibration.DifopPacket`
     (``None`` when it holds none)."""
@@ -208,4 +223,5 @@ VENDOR = Vendor(
     models=models,
     geometry=geometry,
     sensor_file_in_packets=sensor_file_in_packets,
+    split=split,
 )
