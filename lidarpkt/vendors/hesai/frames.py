@@ -48,7 +48,7 @@ from lidarpkt.errors import CalibrationError, SkippedPacketWarning
 from lidarpkt.core.frame import Frame, FrameCounters
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
-from lidarpkt.core.rotation import rotation_is_whole, wrapped
+from lidarpkt.core.rotation import modulo_turn, rotation_is_whole, wrapped
 from .calibration import HesaiCalibration, load_calibration
 from .decode import HesaiPackets, decode_packets, returns_of
 from .detect import detect_model
@@ -306,7 +306,7 @@ class HesaiDecoder:
                 "rpm": np.repeat(raw.motor_speed_rpm, groups), "valid": np.ones(n * groups, bool)}
 
     def _append(self, cols: dict[str, np.ndarray]) -> list[Frame]:
-        key = (cols["azimuth_cdeg"] - self.cut_cdeg) % 36000.0
+        key = modulo_turn(cols["azimuth_cdeg"] - self.cut_cdeg)
         cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
         self._last_column = float(cols["azimuth_cdeg"][-1])

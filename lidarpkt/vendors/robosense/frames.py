@@ -43,7 +43,7 @@ from lidarpkt.core.frame import Frame, FrameCounters
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn
-from lidarpkt.core.rotation import rotation_is_whole, wrapped
+from lidarpkt.core.rotation import modulo_turn, rotation_is_whole, wrapped
 from lidarpkt.errors import SkippedPacketWarning, UnknownSensorError
 from . import packet as P
 from .calibration import RobosenseCalibration, from_device, load_calibration
@@ -387,7 +387,7 @@ class RobosenseDecoder:
     def _append(self, cols: Columns) -> list[Frame]:
         if cols.count == 0:
             return []
-        key = (cols.block_azimuth_cdeg - self.cut_cdeg) % 36000.0
+        key = modulo_turn(cols.block_azimuth_cdeg - self.cut_cdeg)
         cut_at = np.flatnonzero(wrapped(key, self._last_key)).tolist()
         self._last_key = float(key[-1])
         frames: list[Frame] = []

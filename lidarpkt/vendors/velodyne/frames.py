@@ -79,7 +79,7 @@ from lidarpkt.core.nmea import fix_time_ns, parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
-from lidarpkt.core.rotation import rotation_is_whole, wrapped
+from lidarpkt.core.rotation import modulo_turn, rotation_is_whole, wrapped
 from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, packet_rate_cdeg_s_vlp16,
                      rotation_frequency_hz, row_offsets_ns)
 
@@ -387,7 +387,7 @@ class VelodyneDecoder(PacketAccounting):
 
     def _append(self, cols: Columns) -> list[Frame]:
         # azimuths are in [0, 36000): with no cut angle the key is the azimuth itself
-        key = (cols.azimuth_cdeg - self.cut_cdeg) % 36000.0 if self.cut_cdeg else cols.azimuth_cdeg
+        key = modulo_turn(cols.azimuth_cdeg - self.cut_cdeg) if self.cut_cdeg else cols.azimuth_cdeg
         if self.cut_on_block:
             key = key.copy()
             key[1::2] = key[0::2]  # runs start at a packet: even columns open a block (or block pair)
