@@ -15,18 +15,18 @@ from pathlib import Path
 #: comparison -> (ratio of each paired round of the latest run, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((2.40, 2.36, 2.82), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((3.61, 3.40, 3.39), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.13, 2.91, 3.13), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((2.69, 2.81, 2.97), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.33, 2.28, 2.36), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.20, 1.31, 1.40), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.71, 1.97, 1.93), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.26, 1.30, 1.27), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.44, 1.06, 1.25), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.28, 1.34, 1.10), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.13, 2.93, 2.99), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((3.71, 3.76, 3.17), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((2.90, 3.12, 3.18), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((2.91, 2.85, 3.13), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.28, 2.25, 2.49), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.19, 1.02, 1.27), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.65, 1.76, 1.86), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.48, 1.36, 1.58), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.25, 1.07, 1.09), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.47, 1.46, 1.59), 1.5),
 }
-RUN_DATE = "2026-11-27, load average 1-2"
+RUN_DATE = "2026-11-27 12:28 UTC, load average 0.4-1.4"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
