@@ -58,11 +58,15 @@ def _layout_says_vlp16(raw) -> bool:
     return bool(np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6)
 
 
+_IS_BANK_FLAG = np.zeros(1 << 16, bool)  # flag word -> is it one of BANK_FLAGS: one lookup, where np.isin sorts
+_IS_BANK_FLAG[list(BANK_FLAGS)] = True
+
+
 def _velodyne_shaped(raw) -> np.ndarray:
     """``bool[N]``: block 0 flagged 0xEEFF, blocks 0–7 flagged with a bank (0xEEFF … 0xBBFF; the VLS-128's
     dual packets leave blocks 8–11 unused), block 0's azimuth below 360°: a Velodyne data packet of some model."""
     flags = np.asarray(raw.flag)
-    return (flags[:, 0] == BANK_FLAGS[0]) & np.all(np.isin(flags[:, :8], BANK_FLAGS), axis=1) & (
+    return (flags[:, 0] == BANK_FLAGS[0]) & np.all(_IS_BANK_FLAG[flags[:, :8]], axis=1) & (
         np.asarray(raw.azimuth_cdeg)[:, 0] <= 36000)
 
 
