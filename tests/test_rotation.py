@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarpkt.core.rotation import _median, modulo_turn
+from lidarpkt.core.rotation import modulo_turn
 
 RNG = np.random.default_rng(7)
 
@@ -31,10 +31,3 @@ def test_modulo_turn_leaves_its_argument():
     values = np.array([-5.0, 10.0])
     modulo_turn(values)
     assert values.tolist() == [-5.0, 10.0]
-
-
-@pytest.mark.parametrize("n", [1, 2, 3, 4, 1800, 1801])
-def test_median_is_numpy_median(n):
-    for dtype in (np.float64, np.int64, np.uint16):
-        values = RNG.integers(0, 36000, n).astype(dtype)
-        assert _median(values) == float(np.median(values))

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .median import median
+
 HALF_TURN_CDEG = 18_000
 TURN_CDEG = 36_000.0
 
@@ -34,17 +36,6 @@ def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndar
 GAP_STEPS = 1.6
 
 
-def _median(values: np.ndarray) -> float:
-    """``np.median`` of a non-empty 1-D array (the mean of the two middle values of an even count), by one
-    partition: a frame asks this once, and ``np.median``'s generality costs more than the work."""
-    n = values.size
-    k = n // 2
-    if n % 2:
-        return float(np.partition(values, k)[k])
-    part = np.partition(values, (k - 1, k))
-    return (float(part[k - 1]) + float(part[k])) / 2
-
-
 def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start: bool, check_end: bool,
                       by_block: bool = False, fallback_step_cdeg: float | None = None,
                       lost_columns: bool = False) -> bool:
@@ -63,7 +54,7 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
     if lost_columns:
         return False
     key = modulo_turn(np.asarray(azimuth_cdeg, np.float64) - cut_cdeg)
-    step = _median(modulo_turn(np.diff(azimuth_cdeg))) if len(key) >= 2 else 0.0
+    step = median(modulo_turn(np.diff(azimuth_cdeg))) if len(key) >= 2 else 0.0
     if step > 0 and len(key) >= 2:
         advance = np.diff(key)
         if float(advance.max()) > GAP_STEPS * (2 * step if by_block else step):

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidarpkt.core.median import median
 from lidarpkt.core.readahead import warn
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
@@ -248,7 +249,7 @@ class HesaiDecoder:
         packet, ``int64[N]``."""
         dt = np.diff(raw.timestamp_ns).astype(np.float64)
         if dt.size:
-            med = float(np.median(dt))
+            med = median(dt)
             self._period_ns = med if med > 0 else self._period_ns
         if raw.udp_sequence is not None:
             seq = raw.udp_sequence.astype(np.int64)

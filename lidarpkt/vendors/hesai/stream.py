@@ -14,6 +14,7 @@ import numpy as np
 from lidarpkt.core.continuity import INTERRUPTION_S
 from lidarpkt.core.decoder import StreamCounts
 from lidarpkt.errors import PacketFormatError
+from lidarpkt.core.median import median
 from lidarpkt.core.rotation import wrapped
 from .decode import decode_packets
 from .detect import detect_model
@@ -60,7 +61,7 @@ class PacketCounter:
         else:
             positive = dt[(dt > 0) & ~jump]
             if positive.size:
-                self._period_ns = float(np.median(positive))
+                self._period_ns = median(positive)
             period = self._period_ns or 1.0
             step = np.rint(dt / period).astype(np.int64)
             if self._last_ts is None:

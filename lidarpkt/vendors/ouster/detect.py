@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from lidarpkt.core.median import median
 from lidarpkt.core.packet import PacketBatch
 from .crc import footer_crc_ok
 from .decode import decode_packets
@@ -105,7 +106,7 @@ def _imu_plausible(payload: np.ndarray) -> bool:
     a = np.stack([samples[k].astype(np.float64) for k in ("accel_x_g", "accel_y_g", "accel_z_g")])
     with np.errstate(all="ignore"):  # junk bytes read as NaN/huge floats: simply not plausible
         accel = np.sqrt((a**2).sum(axis=0))
-    return bool(0.5 < np.median(accel) < 2.0)
+    return bool(0.5 < median(accel) < 2.0)
 
 
 def _legacy_plausible(payload: np.ndarray, profile: Profile, h: int) -> bool:

@@ -40,6 +40,7 @@ import itertools
 import numpy as np
 
 from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.median import median
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn
@@ -325,7 +326,7 @@ class RobosenseDecoder:
         steps = steps[(steps > 0) & (steps <= 100)] if steps.size else steps
         if steps.size == 0:
             return 10
-        hz = float(np.median(steps)) / (36000 * p.period_ns * 1e-9)
+        hz = median(steps) / (36000 * p.period_ns * 1e-9)
         return min((r // 60 for r in ROTATION_RPM), key=lambda rate: abs(rate - hz))
 
     def _columns(self, raw: RobosensePackets, index: np.ndarray, n_returns: int) -> Columns:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidarpkt.errors import UnknownSensorError
+from lidarpkt.core.median import median
 from lidarpkt.core.packet import PacketBatch
 from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
@@ -37,7 +38,7 @@ def _forward_steps_us(timestamp_us: np.ndarray) -> np.ndarray:
 
 def _median_period_us(timestamp_us: np.ndarray) -> float | None:
     d = _forward_steps_us(timestamp_us)
-    return float(np.median(d)) if d.size else None
+    return median(d) if d.size else None
 
 
 def _layout_says_vlp16(raw) -> bool:
@@ -53,7 +54,7 @@ def _layout_says_vlp16(raw) -> bool:
     if np.count_nonzero(both) < 16:
         steps = np.diff(raw.azimuth_cdeg.astype(np.int32), axis=1) % 36000
         steps = steps[steps > 0]  # dual-mode pairs repeat their azimuth
-        return bool(steps.size) and float(np.median(steps)) >= 27
+        return bool(steps.size) and median(steps) >= 27
     close = np.abs(a - b) <= np.maximum(25, (a + b) // 40)  # within 50 mm or 5 %
     return bool(np.count_nonzero(close & both) / np.count_nonzero(both) > 0.6)
 
@@ -208,7 +209,7 @@ def hdl64e_model(raw) -> VelodyneModel:
     d = _forward_steps_us(raw.timestamp_us)
     if d.size:
         dual = np.count_nonzero(raw.azimuth_cdeg[:, 0] == raw.azimuth_cdeg[:, 2]) * 2 > len(raw)
-        period = float(np.median(d))
+        period = median(d)
         best = min((HDL64E_S2, HDL64E_S3),
                    key=lambda m: abs(period - m.packet_period_us("dual" if dual else "strongest")))
         return best
@@ -280,7 +281,7 @@ def vls128_sequence_ns(raw, model: VelodyneModel) -> float | None:
     if not d.size:
         return None
     dual = np.count_nonzero(raw.return_mode == 0x39) * 2 > len(raw)
-    period = float(np.median(d)) * (3 if dual else 1)
+    period = median(d) * (3 if dual else 1)
     if 153 < period < 180:
         return 20 * (8000.0 / 3.0 if period < 167 else 2890.0)
     return None
@@ -289,7 +290,7 @@ def vls128_sequence_ns(raw, model: VelodyneModel) -> float | None:
 def _timing_or_layout_says_vlp16(raw) -> bool:
     ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
     raw = raw.select(ok) if np.any(ok) else raw
-    dual = bool(np.median(raw.return_mode) == 0x39) if len(raw) else False
+    dual = median(raw.return_mode) == 0x39 if len(raw) else False
     expected = VLP16.packet_period_us("dual" if dual else "strongest")
     hdl = HDL32E_PACKET_PERIOD_US / 2 if dual else HDL32E_PACKET_PERIOD_US
     period = _median_period_us(raw.timestamp_us)

@@ -62,6 +62,7 @@ import numpy as np
 
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
+from lidarpkt.core.median import median
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.frame import Frame, FrameCounters
 from lidarpkt.core.sensor import SensorInfo
@@ -326,7 +327,7 @@ class VelodyneDecoder(PacketAccounting):
         if self._frequency_hz is None:
             self._frequency_hz = rotation_frequency_hz(raw.azimuth_cdeg, raw.return_mode == DUAL, self.model)
             if self._frequency_hz is None and self.model.dual_layout == "banks" and len(raw) > 1:
-                rate = np.median(interpacket_rate_cdeg_s(raw.azimuth_cdeg[:, 0], raw.timestamp_us,
+                rate = median(interpacket_rate_cdeg_s(raw.azimuth_cdeg[:, 0], raw.timestamp_us,
                                                          packet_layout(self.model, mode),
                                                          self.model.packet_period_us(mode), None, None)[0])
                 self._frequency_hz = round(float(rate) / 36000.0, 2) or None

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lidarpkt.core.median import median
 from .models import VLP16, VelodyneModel
 from .packet import BLOCKS_PER_PACKET, CHANNELS_PER_BLOCK
 
@@ -133,7 +134,7 @@ def rotation_frequency_hz(azimuth_cdeg: np.ndarray, dual: np.ndarray, model: Vel
         span_ns = np.where(dual, float(packet_layout(model, "dual").rate_span_s32),
                            float(packet_layout(model, "strongest").rate_span_s32)) * 1e9
         rate = diff / span_ns
-    hz = float(np.median(rate)) * 1e9 / 36000.0 if rate.size else 0.0
+    hz = median(rate) * 1e9 / 36000.0 if rate.size else 0.0
     return round(hz, 2) if hz > 0 else None
 
 
