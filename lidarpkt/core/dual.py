@@ -40,6 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 __all__ = ["second_strongest_mark", "signal_order_undecided"]
 
 
@@ -71,10 +73,24 @@ def second_strongest_mark(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.
     exact for every VLP-16 range (< 131.1 m) and reflectivity byte.
     Raises ValueError when the shapes are not ``[2, ...]`` and equal.
     """
+    native = kernels.native
+    if native is not None and _native_ready(range_mm, reflectivity):
+        shape = range_mm.shape
+        as3 = (2, 1, -1) if range_mm.ndim != 3 else shape  # the kernel's [2, H, W]
+        out = np.empty(as3[1:] if range_mm.ndim == 3 else (1, int(np.prod(shape[1:]))), bool)
+        if native.dual_mark(range_mm.reshape(as3), reflectivity.reshape(as3), out):  # False: a range of 2^22 mm or more
+            return out.reshape(shape[1:])
     both, idx, (r0, r1, f0, f1) = _pairs(range_mm, reflectivity)
     out = np.zeros(both.size, bool)
     out[idx] = f0 * r1 * r1 > f1 * r0 * r0
     return out.reshape(np.shape(range_mm)[1:])
+
+
+def _native_ready(range_mm, reflectivity) -> bool:
+    """Arrays the compiled twin takes: ``uint32`` / ``uint8`` of one ``[2, ...]`` shape."""
+    return (isinstance(range_mm, np.ndarray) and isinstance(reflectivity, np.ndarray)
+            and range_mm.dtype == np.uint32 and reflectivity.dtype == np.uint8
+            and range_mm.shape == reflectivity.shape and range_mm.ndim >= 1 and range_mm.shape[0] == 2)
 
 
 def signal_order_undecided(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.ndarray:

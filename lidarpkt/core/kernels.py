@@ -11,7 +11,9 @@ These loops do not vectorise well in NumPy, and run in C when they can
 - Ouster XYZ, ``range · direction + offset`` in one pass instead of thirteen NumPy passes;
 - VLP-16 packets into range-image columns (``velodyne.decode.column_pixels``): one pass in chunks
   of 64 packets, row by row, where NumPy makes two;
-- VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass.
+- VLP-16 XYZ, the table lookups and products of ``VelodyneGeometry._points`` fused in one pass;
+- the VLP-16 dual-return mark (``core.dual.second_strongest_mark``): one pass over a frame's two slots in
+  exact double products, where NumPy gathers the differing pairs and widens them to int64.
 - Ouster frame assembly (``ouster_scatter``, ``native/ouster.c``): each packet's pixels straight
   into the frame's ``[H, W]`` field arrays at their (row, column) place, in blocks of 16 rows copied
   to an L1 scratch and then extracted field by field with SSE2; no word planes, no transposing copy

@@ -1,7 +1,7 @@
 /* Shared helpers of the compiled kernels (see lidarpkt/core/kernels.py), one file per concern:
  *   walk.c      pcap / pcapng record walks and row gathers (packet walk)
  *   xyz.c       Ouster XYZ (range * direction + offset)
- *   velodyne.c  VLP-16 columns and XYZ
+ *   velodyne.c  VLP-16 columns, XYZ and the dual-return mark
  *   ouster.c    Ouster packets scattered into frame field arrays
  *   module.c    the method table of the one extension module `_lidarpkt_native`
  *
@@ -77,5 +77,6 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args);
 PyObject *lp_velodyne_columns(PyObject *self, PyObject *args);
 PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args);
 PyObject *lp_ouster_scatter(PyObject *self, PyObject *args);
+PyObject *lp_dual_mark(PyObject *self, PyObject *args);
 
 #endif

@@ -10,6 +10,7 @@ static PyMethodDef methods[] = {
     {"velodyne_layout_columns", lp_velodyne_layout_columns, METH_VARARGS,
      "Any Velodyne model's packets into range-image columns by its layout table; see native/velodyne.c."},
     {"velodyne_xyz", lp_velodyne_xyz, METH_VARARGS, "VLP-16 XYZ from ranges and per-firing azimuths; see native/velodyne.c."},
+    {"dual_mark", lp_dual_mark, METH_VARARGS, "VLP-16 dual return: slot 1 holds the second strongest; see native/velodyne.c."},
     {"ouster_scatter", lp_ouster_scatter, METH_VARARGS, "Ouster packets into a frame's [H, W] field arrays; see native/ouster.c."},
     {NULL, NULL, 0, NULL},
 };

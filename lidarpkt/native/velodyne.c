@@ -385,3 +385,81 @@ PyObject *lp_velodyne_layout_columns(PyObject *self, PyObject *args) {
 done:
     return release_buffers(b, got, result);
 }
+
+/* dual_mark(range, reflectivity, out) -> bool
+ *
+ * The rule of lidarpkt.core.dual.second_strongest_mark (its NumPy twin) in one pass: range uint32 [2, H, W]
+ * (slot 0 the last return, slot 1 the other, mm) and reflectivity uint8 [2, H, W], any strides (a frame's
+ * views of its columns); out bool [H, W], C-contiguous. out = both ranges non-zero and different, and
+ * refl0 * range1^2 > refl1 * range0^2: exact in double for ranges below 2^22 mm (255 * 2^44 < 2^53), which
+ * vectorises where 64-bit integer products do not. Returns False, out unspecified, when a range is 2^22 or
+ * more (the caller then takes the twin), True otherwise.
+ */
+static inline uint8_t dual_mark_one(uint32_t a, uint32_t c, uint8_t f0, uint8_t f1) {
+    double da = (double)(int32_t)(a & 0x3FFFFF), dc = (double)(int32_t)(c & 0x3FFFFF);
+    return (uint8_t)((a != c) & (a != 0) & (c != 0) & ((double)f0 * dc * dc > (double)f1 * da * da));
+}
+
+/* one row; the unit-stride case (a frame's rows) in a loop the compiler vectorises */
+MULTIVERSION
+static uint32_t dual_mark_row(const char *r0, const char *r1, Py_ssize_t rs, const char *f0, const char *f1,
+                              Py_ssize_t fs, uint8_t *restrict out, Py_ssize_t w) {
+    uint32_t large = 0;
+    if (rs == 4 && fs == 1) {
+        const uint32_t *a = (const uint32_t *)r0, *c = (const uint32_t *)r1;
+        const uint8_t *g0 = (const uint8_t *)f0, *g1 = (const uint8_t *)f1;
+        for (Py_ssize_t i = 0; i < w; i++) {
+            large |= a[i] | c[i];
+            out[i] = dual_mark_one(a[i], c[i], g0[i], g1[i]);
+        }
+        return large;
+    }
+    for (Py_ssize_t i = 0; i < w; i++) {
+        uint32_t a, c;
+        memcpy(&a, r0 + i * rs, 4);
+        memcpy(&c, r1 + i * rs, 4);
+        large |= a | c;
+        out[i] = dual_mark_one(a, c, (uint8_t)f0[i * fs], (uint8_t)f1[i * fs]);
+    }
+    return large;
+}
+
+PyObject *lp_dual_mark(PyObject *self, PyObject *args) {
+    PyObject *objs[3];
+    if (!PyArg_ParseTuple(args, "OOO", &objs[0], &objs[1], &objs[2])) return NULL;
+    static const Py_ssize_t sizes[3] = {4, 1, 1};
+    static const char *codes[3] = {"IL", "B", "?"};
+    Py_buffer b[3];
+    int got = 0;
+    PyObject *result = NULL;
+    for (; got < 3; got++) {
+        int flags = got == 2 ? (PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) : (PyBUF_STRIDES | PyBUF_FORMAT);
+        if (get_buffer(objs[got], &b[got], flags, sizes[got], "dual_mark") < 0) goto done;
+        if (!is_native(b[got].format, codes[got])) {
+            PyErr_SetString(PyExc_ValueError, "dual_mark: range uint32, reflectivity uint8, out bool");
+            got++;
+            goto done;
+        }
+    }
+    {
+        if (b[0].ndim != 3 || b[1].ndim != 3 || b[0].shape[0] != 2 || b[1].shape[0] != 2 ||
+            b[0].shape[1] != b[1].shape[1] || b[0].shape[2] != b[1].shape[2] ||
+            b[2].len != b[0].shape[1] * b[0].shape[2]) {
+            PyErr_SetString(PyExc_ValueError, "dual_mark: range and reflectivity must be [2, H, W] for out [H, W]");
+            goto done;
+        }
+        Py_ssize_t h = b[0].shape[1], w = b[0].shape[2];
+        const Py_ssize_t *rs = b[0].strides, *fs = b[1].strides;
+        const char *rb = (const char *)b[0].buf, *fb = (const char *)b[1].buf;
+        uint8_t *out = (uint8_t *)b[2].buf;
+        uint32_t large = 0;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t row = 0; row < h; row++)
+            large |= dual_mark_row(rb + row * rs[1], rb + rs[0] + row * rs[1], rs[2], fb + row * fs[1],
+                                   fb + fs[0] + row * fs[1], fs[2], out + row * w, w);
+        Py_END_ALLOW_THREADS
+        result = PyBool_FromLong((large >> 22) == 0);
+    }
+done:
+    return release_buffers(b, got, result);
+}

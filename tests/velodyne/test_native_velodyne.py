@@ -1,5 +1,6 @@
 """The compiled VLP-16 kernels give the bytes of their NumPy twins: ``velodyne_columns`` (packets into
-range-image columns) and ``velodyne_xyz``.
+range-image columns), ``velodyne_xyz`` and ``dual_mark`` (the dual-return mark of
+:func:`lidarpkt.core.dual.second_strongest_mark`).
 
 Columns: every frame of real strongest, last and dual captures decoded with and without the
 extension, array for array; views and copies of the packet records, any row order, bad shapes.
@@ -160,3 +161,52 @@ def test_native_columns_views_copies_and_row_orders(slots, monkeypatch):
         NATIVE.velodyne_columns(*args[:3], rate[1:].copy(), args[4], np.arange(16), slots, rng, refl, az)
     with pytest.raises(ValueError, match="slots"):
         NATIVE.velodyne_columns(*args, np.arange(16), 3, rng, refl, az)
+
+def _marks(range_mm, reflectivity, monkeypatch):
+    from lidarpkt.core.dual import second_strongest_mark
+
+    got = second_strongest_mark(range_mm, reflectivity)
+    with monkeypatch.context() as m:
+        m.setattr(kernels, "native", None)
+        want = second_strongest_mark(range_mm, reflectivity)
+    return got, want
+
+
+def test_native_dual_mark_equals_numpy(monkeypatch):
+    """Random dual frames (one return twice, empty slots, different returns; ranges up to the kernel's exact
+    bound and beyond it, where the twin serves), as whole arrays, column views, row views and other ranks;
+    the real dual frames are compared in test_native_columns_give_the_frames_of_numpy."""
+    gen = np.random.default_rng(5)
+    for trial in range(40):
+        n = int(gen.integers(1, 2500))
+        top = (131_071, 4_194_303, 4_194_304, 2**32 - 1)[trial % 4]
+        rng = gen.integers(0, top, (2, 16, n), dtype=np.int64, endpoint=True).astype(np.uint32)
+        rng *= gen.integers(0, 2, (2, 16, n)).astype(np.uint32)  # empty slots
+        rng[1] = np.where(gen.random((16, n)) < 0.4, rng[0], rng[1])  # one return sent twice
+        refl = gen.integers(0, 256, (2, 16, n)).astype(np.uint8)
+        lo = int(gen.integers(0, n))
+        for r, f in ((rng, refl), (rng[..., lo:], refl[..., lo:]), (rng[:, ::3], refl[:, ::3]),
+                     (rng[:, 4], refl[:, 4]), (rng.reshape(2, 4, 4, n), refl.reshape(2, 4, 4, n))):
+            got, want = _marks(r, f, monkeypatch)
+            assert got.dtype == want.dtype == bool and got.shape == want.shape == r.shape[1:]
+            assert np.array_equal(got, want), (trial, r.shape)
+    # the exact bound: products one apart near 255 * (2^22 - 1)^2
+    r = np.array([[4_194_303, 4_194_302], [4_194_302, 4_194_303]], np.uint32).reshape(2, 1, 2)
+    f = np.full((2, 1, 2), 255, np.uint8)
+    got, want = _marks(r, f, monkeypatch)
+    assert np.array_equal(got, want) and got.tolist() == [[False, True]]  # the nearer return's slot is stronger
+
+
+def test_native_dual_mark_refuses_bad_input():
+    out = np.empty((16, 10), bool)
+    rng, refl = np.ones((2, 16, 10), np.uint32), np.ones((2, 16, 10), np.uint8)
+    assert NATIVE.dual_mark(rng, refl, out) is True
+    assert NATIVE.dual_mark(rng * np.uint32(1 << 22), refl, out) is False  # beyond its exact products
+    with pytest.raises(ValueError, match="uint32"):
+        NATIVE.dual_mark(rng.astype(np.float32), refl, out)
+    with pytest.raises(ValueError, match="4 bytes"):
+        NATIVE.dual_mark(rng.astype(np.int16), refl, out)
+    with pytest.raises(ValueError, match=r"\[2, H, W\]"):
+        NATIVE.dual_mark(rng, refl, out[:, :9].copy())
+    with pytest.raises(ValueError, match=r"\[2, H, W\]"):
+        NATIVE.dual_mark(rng[:1], refl[:1], out)
