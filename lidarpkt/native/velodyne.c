@@ -8,7 +8,8 @@
  * [T, 36000] with T = 1 (one table) or H (one per row); coef: float64 [5, H] (k_xy, k_z, dc_xy,
  * dc_z, vert_offset per row) or [7, H] (and cos r, sin r of each row's azimuth correction r, with
  * one table: cos(a - r) = cos a cos r - neg_sin a sin r, neg_sin(a - r) = neg_sin a cos r + cos a sin r);
- * out: float64 [R, H, W, 3]; all C-contiguous. The operations and their order are those of
+ * out: float64 [R, H, W, 3]; range and azimuth any row strides with each row contiguous (a frame's views of
+ * its columns), the rest C-contiguous. The operations and their order are those of
  * VelodyneGeometry._points (its NumPy twin), so the bytes are the same:
  *   hit = range > 0; dxy = range * k_xy; dz = range * k_z;
  *   if has_dist: dxy += hit * dc_xy; dz += hit * dc_z
@@ -61,7 +62,8 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
     int got = 0;
     PyObject *result = NULL;
     for (; got < 6; got++) {
-        int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (got == 5 ? PyBUF_WRITABLE : 0);
+        /* range and azimuth may be views of a frame's columns: rows apart, each row contiguous */
+        int flags = (got < 2 ? PyBUF_STRIDES : PyBUF_C_CONTIGUOUS) | PyBUF_FORMAT | (got == 5 ? PyBUF_WRITABLE : 0);
         if (get_buffer(objs[got], &b[got], flags, sizes[got], "velodyne_xyz") < 0) goto done;
         if (!is_native(b[got].format, codes[got])) {
             PyErr_SetString(PyExc_ValueError, "velodyne_xyz: range uint32, azimuth uint16, the rest float64");
@@ -70,25 +72,31 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
         }
     }
     {
-        Py_ssize_t ncoef = b[4].len / 8, h_rows = ncoef % 7 == 0 && ncoef % 5 != 0 ? ncoef / 7 : ncoef / 5;
-        int has_rot = ncoef == 7 * h_rows;
-        Py_ssize_t hw = b[1].len / 2, w = h_rows ? hw / h_rows : 0, table = 36000;
+        if (b[0].ndim != 3 || b[1].ndim != 2 || b[0].strides[2] != 4 || b[1].strides[1] != 2) {
+            PyErr_SetString(PyExc_ValueError, "velodyne_xyz: range [R, H, W] and azimuth [H, W], rows contiguous");
+            goto done;
+        }
+        Py_ssize_t returns = b[0].shape[0], h_rows = b[0].shape[1], w = b[0].shape[2];
+        Py_ssize_t ncoef = b[4].len / 8, table = 36000;
+        int has_rot = h_rows > 0 && ncoef == 7 * h_rows;
         Py_ssize_t rows_t = b[2].len / 8 / table;
-        if (h_rows == 0 || hw % h_rows || hw == 0 || (b[0].len / 4) % hw || b[5].len != (b[0].len / 4) * 24 ||
-            b[2].len != b[3].len || (rows_t != 1 && rows_t != h_rows) || (has_rot && rows_t != 1) ||
-            b[2].len != rows_t * table * 8) {
+        if (h_rows == 0 || w == 0 || b[1].shape[0] != h_rows || b[1].shape[1] != w ||
+            (ncoef != 5 * h_rows && !has_rot) || b[5].len != returns * h_rows * w * 24 || b[2].len != b[3].len ||
+            (rows_t != 1 && rows_t != h_rows) || (has_rot && rows_t != 1) || b[2].len != rows_t * table * 8) {
             PyErr_SetString(PyExc_ValueError, "velodyne_xyz: arrays of disagreeing sizes");
             goto done;
         }
-        const uint16_t *az = (const uint16_t *)b[1].buf;
-        if (max_u16(az, hw) >= table) {
-            Py_ssize_t i = 0;
-            while (az[i] < table) i++;
-            PyErr_Format(PyExc_IndexError, "velodyne_xyz: azimuth %d (0.01 degree) is 360 degrees or more", az[i]);
-            goto done;
+        const char *az_rows = (const char *)b[1].buf, *rng_rows = (const char *)b[0].buf;
+        Py_ssize_t az_stride = b[1].strides[0], r_stride = b[0].strides[0], h_stride = b[0].strides[1];
+        for (Py_ssize_t h = 0; h < h_rows; h++) {
+            const uint16_t *az = (const uint16_t *)(az_rows + h * az_stride);
+            if (max_u16(az, w) >= table) {
+                Py_ssize_t i = 0;
+                while (az[i] < table) i++;
+                PyErr_Format(PyExc_IndexError, "velodyne_xyz: azimuth %d (0.01 degree) is 360 degrees or more", az[i]);
+                goto done;
+            }
         }
-        Py_ssize_t returns = (b[0].len / 4) / hw;
-        const uint32_t *rng = (const uint32_t *)b[0].buf;
         const double *cos_t = (const double *)b[2].buf, *nsin_t = (const double *)b[3].buf;
         const double *coef = (const double *)b[4].buf;
         double *out = (double *)b[5].buf;
@@ -96,7 +104,8 @@ PyObject *lp_velodyne_xyz(PyObject *self, PyObject *args) {
         for (Py_ssize_t r = 0; r < returns; r++) {
             for (Py_ssize_t h = 0; h < h_rows; h++) {
                 Py_ssize_t t = rows_t == h_rows && rows_t > 1 ? h * table : 0;
-                velodyne_xyz_rows(rng + (r * h_rows + h) * w, az + h * w, cos_t + t, nsin_t + t, coef[h],
+                velodyne_xyz_rows((const uint32_t *)(rng_rows + r * r_stride + h * h_stride),
+                                  (const uint16_t *)(az_rows + h * az_stride), cos_t + t, nsin_t + t, coef[h],
                                   coef[h_rows + h], coef[2 * h_rows + h], coef[3 * h_rows + h], coef[4 * h_rows + h],
                                   has_dist, has_voff, has_rot, has_rot ? coef[5 * h_rows + h] : 1.0,
                                   has_rot ? coef[6 * h_rows + h] : 0.0, out + (r * h_rows + h) * w * 3, w);

@@ -85,6 +85,13 @@ def test_native_xyz_every_azimuth_and_range_edge(monkeypatch):
     for geometry in (VelodyneGeometry(), _corrected(7)):
         native, twin = _both(geometry, frame, monkeypatch)
         assert native.tobytes() == twin.tobytes()
+    # views as frames hold them (rows apart, each contiguous: taken as they are), rows reversed, and a
+    # last axis that is not contiguous (copied first)
+    for r, a in ((rng[..., 5:-3], az[:, 5:-3]), (rng[:, ::-1], az[::-1]), (rng[..., ::2], az[:, ::2]),
+                 (rng.astype(np.int64)[..., 1:], az.astype(np.int32)[:, 1:])):
+        frame.range_mm, frame.extra = r, {"azimuth_cdeg": a}
+        native, twin = _both(_corrected(8), frame, monkeypatch)
+        assert native.shape == r.shape + (3,) and native.tobytes() == twin.tobytes()
 
 
 def test_native_xyz_refuses_bad_input():
@@ -104,6 +111,8 @@ def test_native_xyz_refuses_bad_input():
         NATIVE.velodyne_xyz(rng, az, g._cos, g._neg_sin, g._coef, False, False, np.empty((1, 16, 5, 3)))
     with pytest.raises(ValueError):
         NATIVE.velodyne_xyz(rng, az[:, :2], *args[2:])
+    with pytest.raises(ValueError, match="rows contiguous"):
+        NATIVE.velodyne_xyz(np.ones((1, 16, 8), np.uint32)[..., ::2], *args[1:])
 
 
 FRAME_ARRAYS = ("range_mm", "reflectivity", "column_valid", "column_timestamp_ns", "azimuth_deg",

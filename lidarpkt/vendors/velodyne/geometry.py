@@ -121,7 +121,7 @@ class VelodyneGeometry:
             coef = self._coef
             if self._per_row and self._cos.ndim == 1:  # one table, each row's correction combined per pixel
                 coef = self._coef_rot
-            native.velodyne_xyz(np.ascontiguousarray(rng, np.uint32), np.ascontiguousarray(az_cdeg, np.uint16),
+            native.velodyne_xyz(_rows_contiguous(rng, np.uint32), _rows_contiguous(az_cdeg, np.uint16),
                                 self._cos, self._neg_sin, coef, self._has_dist, self._has_voff, out)
             return out
         idx = np.asarray(az_cdeg, dtype=np.intp)
@@ -190,3 +190,12 @@ class VelodyneGeometry:
         out[..., 0] = ((d + cy) * cos_w * cos_a + h * sin_a) * hit
         out[..., 1] = (-(d + cx) * cos_w * sin_a + h * cos_a) * hit
         out[..., 2] = ((d + cz) * sin_w + self._vert_offset) * hit
+
+
+def _rows_contiguous(a: np.ndarray, dtype: type) -> np.ndarray:
+    """``a`` as ``dtype`` with contiguous rows (its last axis), as the compiled kernel takes it: a frame's
+    views of its columns as they are, anything else copied."""
+    a = np.asarray(a)
+    if a.dtype == dtype and a.strides[-1] == a.itemsize:
+        return a
+    return np.ascontiguousarray(a, dtype)
