@@ -1,10 +1,11 @@
 """The MCAP file lidarpkt writes: ROS 2 profile, zstd chunks sized by time, rotation.
 
 A :class:`McapWriter` takes encoded messages for the topics of :mod:`lidarpkt.writers.mcap.schemas` and
-writes them with the ``mcap`` library: profile ``ros2``, schemas in ``ros2msg``, messages in
-``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag play`` accepts the
-file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk and
-message indexes.
+writes them as the ``mcap`` library's writer does (with :class:`~lidarpkt.writers.mcap.chunks.ChunkWriter`,
+which holds messages by reference until their chunk is written): profile ``ros2``, schemas in
+``ros2msg``, messages in ``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag
+play`` accepts the file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk
+and message indexes.
 
 Chunks are closed by *time* (``chunk_seconds`` of wall clock, default 0.5 s) as well as by
 size, and each closed chunk is handed to the operating system at once: if the process is
@@ -25,7 +26,7 @@ import os
 import time
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO, Callable
+from typing import BinaryIO, Callable
 
 from lidarpkt.errors import DiskFullError, OutputError
 
@@ -34,8 +35,7 @@ from lidarpkt.containers import rosmsgs
 from . import schemas
 from lidarpkt.core.ros import Topic
 
-if TYPE_CHECKING:
-    from mcap.writer import Writer
+from .chunks import ChunkWriter
 
 LIBRARY = "lidarpkt recorder"
 
@@ -67,7 +67,7 @@ class McapWriter:
         OutputError: the file cannot be created (with the reason).
     """
 
-    _writer: Writer  # the mcap writer of the current file (from the first _open_next on)
+    _writer: ChunkWriter  # the records of the current file (from the first _open_next on)
 
     def __init__(
         self,
@@ -81,13 +81,10 @@ class McapWriter:
         clock: Callable[[], float] = time.monotonic,
         sync: bool = True,
     ) -> None:
-        from mcap.writer import CompressionType
-
         self.path = Path(path)
         self.chunk_seconds = chunk_seconds
         self.chunk_bytes = chunk_bytes
-        self._compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                             "none": CompressionType.NONE}[compression]
+        self._compression = {"zstd": "zstd", "lz4": "lz4", "none": ""}[compression]
         self.rotate_bytes = rotate_bytes
         self.rotate_seconds = rotate_seconds
         self._clock = clock
@@ -109,17 +106,13 @@ class McapWriter:
         return self.path.with_name(f"{stem}_{len(self.files):04d}.mcap")
 
     def _open_next(self) -> None:
-        from mcap.writer import IndexType, Writer
-
         path = self._next_path()
         try:
-            self._file = open(path, "wb")
+            self._file = open(path, "wb", buffering=0)  # unbuffered: the chunk writer gathers its writes
         except OSError as exc:
             raise OutputError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
         self.files.append(path)
-        self._writer = Writer(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
-                              index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
-                              use_summary_offsets=True, enable_crcs=True)
+        self._writer = ChunkWriter(self._file, chunk_size=self.chunk_bytes, compression=self._compression)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._opened_at = self._clock()
