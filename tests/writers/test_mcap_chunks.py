@@ -52,3 +52,18 @@ def test_chunk_writer_writes_the_mcap_librarys_bytes(tmp_path, compression):
         reader = mcap_reader.make_reader(fh, validate_crcs=True)
         got = [m.data for _, _, m in reader.iter_messages(log_time_order=False)]
     assert got == messages
+
+
+def test_pointcloud_cdr_pieces_are_the_encoded_message():
+    from lidarpkt.containers import rosmsgs
+    from lidarpkt.writers.mcap import schemas
+    from lidarpkt.writers.mcap.pointcloud import point_fields, pointcloud_cdr
+
+    pc2 = rosmsgs.typestore().types[schemas.POINTCLOUD2]
+    for n, dense in ((0, True), (28 * 7, False), (28 * 7 * 3, True)):
+        data = np.arange(n, dtype=np.uint8)
+        msg = pc2(header=rosmsgs.header(1_700_000_000_123_456_789, "velodyne"), height=n // (28 * 7), width=7,
+                  fields=point_fields(), is_bigendian=False, point_step=28, row_step=28 * 7, data=data, is_dense=dense)
+        head, points, tail = pointcloud_cdr(msg)
+        assert points is data
+        assert head + points.tobytes() + tail == rosmsgs.encode(schemas.POINTCLOUD2, msg)

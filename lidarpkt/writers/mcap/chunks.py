@@ -19,6 +19,8 @@ import struct
 import zlib
 from typing import Any, BinaryIO, Sequence, Union
 
+import numpy as np
+
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, MessageIndex, Metadata, MetadataIndex, Schema,
@@ -26,8 +28,8 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, MessageI
 
 MAGIC = b"\x89MCAP0\r\n"
 
-Buffer = Union[bytes, bytearray, memoryview]
-#: A message's data: its bytes, or its pieces in order (any objects with the buffer protocol).
+Buffer = Union[bytes, bytearray, memoryview, np.ndarray]
+#: A message's data: its bytes, or its pieces in order (C-contiguous buffers: their bytes as they lie in memory).
 Data = Union[Buffer, Sequence[Buffer]]
 
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
@@ -35,12 +37,17 @@ _CHUNK = struct.Struct("<BQQQQI")  # opcode, record length, start, end, uncompre
 _IOV_MAX = 512  # buffers per writev call (Linux allows 1024)
 
 
+def _view(p: Buffer) -> memoryview:
+    """The bytes of ``p`` (C-contiguous) as a flat view."""
+    return (p.data if isinstance(p, np.ndarray) else memoryview(p)).cast("B")
+
+
 def _pieces(data: Data) -> tuple[list[memoryview], int]:
     """``data`` as flat byte views and their total length (bytes)."""
-    if isinstance(data, (bytes, bytearray, memoryview)):
-        parts = [memoryview(data).cast("B")]
+    if isinstance(data, (bytes, bytearray, memoryview, np.ndarray)):
+        parts = [_view(data)]
     else:
-        parts = [memoryview(p).cast("B") for p in data]
+        parts = [_view(p) for p in data]
     return parts, sum(p.nbytes for p in parts)
 
 
@@ -85,7 +92,7 @@ class ChunkWriter:
         self._new_chunk()
 
     # ------------------------------------------------------------------ output
-    def _write(self, parts: Sequence[Buffer]) -> None:
+    def _write(self, parts: Sequence[bytes | memoryview]) -> None:
         """Write ``parts`` in order, all of them (gathered, short writes resumed)."""
         views = [v for v in (memoryview(p).cast("B") for p in parts) if v.nbytes]
         while views:
@@ -103,7 +110,7 @@ class ChunkWriter:
 
     # ------------------------------------------------------------------ chunk
     def _new_chunk(self) -> None:
-        self._parts: list[Buffer] = []
+        self._parts: list[bytes | memoryview] = []
         self._size = 0  # uncompressed bytes of the chunk's records
         self._first = self._last = 0  # log times of its first and last message
         self._chunk_messages = 0
@@ -125,7 +132,7 @@ class ChunkWriter:
             if self.compression == "zstd":
                 import zstandard
 
-                body: list[Buffer] = [zstandard.compress(data)]
+                body: list[bytes | memoryview] = [zstandard.compress(data)]
             else:
                 import lz4.frame  # type: ignore[import-untyped]
 

@@ -35,7 +35,7 @@ from lidarpkt.containers import rosmsgs
 from . import schemas
 from lidarpkt.core.ros import Topic
 
-from .chunks import ChunkWriter
+from .chunks import ChunkWriter, Data
 
 LIBRARY = "lidarpkt recorder"
 
@@ -166,7 +166,7 @@ class McapWriter:
             self._channels[topic.name] = cid
         return cid
 
-    def _add(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+    def _add(self, topic: Topic, data: Data, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         cid = self._channel(topic)
         self._writer.add_message(cid, log_time=int(log_time_ns), data=data,
                                  publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns))
@@ -174,15 +174,22 @@ class McapWriter:
         if self._chunk_started is None:
             self._chunk_started = self._clock()
 
-    def write(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
-        """Write one CDR message on ``topic``; log time = host receive time (ns since the epoch)."""
+    def write(self, topic: Topic, data: Data, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        """Write one CDR message on ``topic`` (its bytes, or its pieces in order, held until its chunk is
+        written); log time = host receive time (ns since the epoch)."""
         if self._closed:
             raise OutputError(f"{self.path} is closed")
         self._guard(lambda: self._add(topic, data, log_time_ns, publish_time_ns))
         self.tick()
 
     def write_message(self, topic: Topic, message: object, log_time_ns: int) -> None:
-        """Encode a rosbags message object of ``topic.msgtype`` and write it."""
+        """Encode a rosbags message object of ``topic.msgtype`` and write it. A ``PointCloud2``'s points are
+        written from its ``data`` array (held until its chunk is written: the caller must not change it)."""
+        if topic.msgtype == schemas.POINTCLOUD2:
+            from .pointcloud import pointcloud_cdr
+
+            self.write(topic, pointcloud_cdr(message), log_time_ns)
+            return
         self.write(topic, rosmsgs.encode(topic.msgtype, message), log_time_ns)
 
     def write_latched(self, topic: Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
