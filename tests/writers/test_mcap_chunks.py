@@ -67,3 +67,29 @@ def test_pointcloud_cdr_pieces_are_the_encoded_message():
         head, points, tail = pointcloud_cdr(msg)
         assert points is data
         assert head + points.tobytes() + tail == rosmsgs.encode(schemas.POINTCLOUD2, msg)
+
+
+def _chunk_crcs(path) -> list[int]:
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as fh:
+        return [r.uncompressed_crc for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, Chunk)]
+
+
+def test_decoded_frames_chunks_carry_no_crc_and_packets_alone_do(tmp_path):
+    """A decode's file of frames: chunk CRCs 0 ("not computed"), which the official reader accepts while
+    checking; of packets alone: every chunk's CRC, checked."""
+    from conftest import external
+    from lidarpkt.cli import main
+
+    cap = external("rust-lidar-utils/velodyne_vlp16.pcap")
+    for topics, computed in (("packets,points", False), ("packets", True)):
+        out = tmp_path / f"{topics.replace(',', '_')}.mcap"
+        assert main(["decode", str(cap), "-o", str(out), "--topics", topics, "-q"]) == 0
+        crcs = _chunk_crcs(out)
+        assert crcs and all(crcs) if computed else set(crcs) == {0}
+        with open(out, "rb") as fh:
+            reader = mcap_reader.make_reader(fh, validate_crcs=True)
+            count = reader.get_summary().statistics.message_count
+            assert count > 0 and sum(1 for _ in reader.iter_messages()) == count

@@ -2,7 +2,7 @@
 :class:`~lidarpkt.writers.mcap.writer.McapWriter` writes with.
 
 :class:`ChunkWriter` writes the file the ``mcap`` library's ``Writer`` writes (chunked, every index,
-statistics, summary offsets; record for record the same bytes when ``crcs`` is true), but a message is
+statistics, summary offsets; record for record the same bytes when ``chunk_crcs`` is true), but a message is
 held by reference until its chunk closes: an uncompressed chunk goes to the file in one gathered write
 (``os.writev``) of the record headers and the messages' own buffers, with no copy of its messages in
 memory, and a message may be given in pieces (a point cloud's CDR header and its points, see
@@ -35,6 +35,7 @@ Data = Union[Buffer, Sequence[Buffer]]
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
 _CHUNK = struct.Struct("<BQQQQI")  # opcode, record length, start, end, uncompressed size, uncompressed crc
 _IOV_MAX = 512  # buffers per writev call (Linux allows 1024)
+_WRITEV = hasattr(os, "writev")  # POSIX; elsewhere one write per buffer
 
 
 def _view(p: Buffer) -> memoryview:
@@ -66,14 +67,16 @@ class ChunkWriter:
             anything else writes to it. Gathered writes go to its descriptor.
         chunk_size: a chunk closes once its uncompressed records exceed this many bytes.
         compression: ``""`` (none), ``"zstd"`` or ``"lz4"``.
-        crcs: compute each chunk's and the summary's CRC-32 (the library's ``enable_crcs``); ``False`` writes
-            0, which the MCAP specification reads as "not computed".
+        chunk_crcs: compute each chunk's CRC-32 of its uncompressed records (as the library's ``enable_crcs``);
+            ``False`` writes 0, which the MCAP specification reads as "not computed" (readers check no CRC
+            of that chunk). The summary's CRC is always computed.
 
     Raises:
         OSError: from the file's writes (each method that writes).
     """
 
-    def __init__(self, out: BinaryIO, *, chunk_size: int = 1 << 20, compression: str = "", crcs: bool = True) -> None:
+    def __init__(self, out: BinaryIO, *, chunk_size: int = 1 << 20, compression: str = "",
+                 chunk_crcs: bool = True) -> None:
         if compression not in ("", "zstd", "lz4"):
             raise ValueError(f"compression={compression!r}: none (''), 'zstd' or 'lz4'")
         self._out = out
@@ -81,7 +84,7 @@ class ChunkWriter:
         self._pos = out.tell()
         self.chunk_size = chunk_size
         self.compression = compression
-        self.crcs = crcs
+        self.chunk_crcs = chunk_crcs
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
         self._chunk_indexes: list[ChunkIndex] = []
@@ -96,7 +99,7 @@ class ChunkWriter:
         """Write ``parts`` in order, all of them (gathered, short writes resumed)."""
         views = [v for v in (memoryview(p).cast("B") for p in parts) if v.nbytes]
         while views:
-            n = os.writev(self._fd, views[:_IOV_MAX])
+            n = os.writev(self._fd, views[:_IOV_MAX]) if _WRITEV else os.write(self._fd, views[0])
             self._pos += n
             while views and n >= views[0].nbytes:
                 n -= views[0].nbytes
@@ -128,7 +131,7 @@ class ChunkWriter:
         size = self._size
         if self.compression:
             data = b"".join(self._parts)
-            crc = zlib.crc32(data) if self.crcs else 0
+            crc = zlib.crc32(data) if self.chunk_crcs else 0
             if self.compression == "zstd":
                 import zstandard
 
@@ -140,7 +143,7 @@ class ChunkWriter:
         else:
             body = self._parts
             crc = 0
-            if self.crcs:
+            if self.chunk_crcs:
                 for p in body:
                     crc = zlib.crc32(p, crc)
         compressed = sum(len(p) for p in body)
@@ -243,9 +246,7 @@ class ChunkWriter:
         for o in offsets:
             o.write(builder)
         summary = builder.end()
-        crc = 0
-        if self.crcs:
-            crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), zlib.crc32(summary))
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, offset_start), zlib.crc32(summary))
         footer = _record(Footer(summary_start=summary_start, summary_offset_start=offset_start, summary_crc=crc))
         self._write([summary, footer, MAGIC])
 

@@ -62,6 +62,9 @@ class McapWriter:
         sync: flush each finished file to the disk (``fsync``) before going on: a recording's closed files
             survive a power loss. ``False`` for an output that can be made again (``lidarpkt decode``), as the
             other writers leave it to the system.
+        chunk_crcs: give each chunk the CRC-32 of its records, with which readers check it. ``False``: 0,
+            "not computed" in the MCAP specification (readers check nothing), for an output that can be made
+            again whose uncompressed chunks are mostly point clouds (the CRC would read every byte once more).
 
     Raises:
         OutputError: the file cannot be created (with the reason).
@@ -80,6 +83,7 @@ class McapWriter:
         rotate_seconds: float | None = None,
         clock: Callable[[], float] = time.monotonic,
         sync: bool = True,
+        chunk_crcs: bool = True,
     ) -> None:
         self.path = Path(path)
         self.chunk_seconds = chunk_seconds
@@ -89,6 +93,7 @@ class McapWriter:
         self.rotate_seconds = rotate_seconds
         self._clock = clock
         self._sync = bool(sync)
+        self._chunk_crcs = bool(chunk_crcs)
         self.files: list[Path] = []
         self.messages_written = 0
         self._bytes_closed_files = 0
@@ -112,7 +117,8 @@ class McapWriter:
         except OSError as exc:
             raise OutputError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
         self.files.append(path)
-        self._writer = ChunkWriter(self._file, chunk_size=self.chunk_bytes, compression=self._compression)
+        self._writer = ChunkWriter(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
+                                   chunk_crcs=self._chunk_crcs)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._opened_at = self._clock()
