@@ -45,6 +45,7 @@ from lidarpkt.errors import OutputError
 from .base import WRITE_ERRORS, failure_text
 from .mcap import schemas
 from .mcap.frames import McapFrameWriter, Mount
+from .mcap.chunks import Data
 from .mcap.writer import McapWriter
 
 STORAGES = ("sqlite3", "mcap")
@@ -195,7 +196,7 @@ class Rosbag2McapMessages(McapWriter):
         self.custom_data: dict[str, str] = {}
         super().__init__(folder / f"{name}_0.mcap", chunk_seconds=float("inf"), chunk_bytes=chunk_bytes)
 
-    def _add(self, topic: schemas.Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+    def _add(self, topic: schemas.Topic, data: Data, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         super()._add(topic, data, log_time_ns, publish_time_ns)
         _, n = self.counts.get(topic.name, (topic, 0))
         self.counts[topic.name] = (topic, n + 1)

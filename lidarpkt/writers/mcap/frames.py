@@ -301,11 +301,11 @@ class McapFrameWriter(BaseWriter):
         writers (:mod:`lidarpkt.writers.rosbag`) give their bag files with the same methods instead."""
         from .writer import FRAMES_COMPRESSION, McapWriter
 
-        # frames: chunks as FRAMES_COMPRESSION says (speed); no fsync (an output decoding makes again, as the
-        # other writers' files)
+        # frames: chunks as FRAMES_COMPRESSION says and without CRCs (speed); no fsync (an output decoding
+        # makes again, as the other writers' files)
         compression = FRAMES_COMPRESSION if self.wants_frames else "zstd"
         return McapWriter(tmp, chunk_seconds=float("inf"), chunk_bytes=chunk_bytes, compression=compression,
-                          sync=False)
+                          sync=False, chunk_crcs=not self.wants_frames)
 
     def _add_calibration_record(self, calibration: str) -> None:
         try:

@@ -27,6 +27,9 @@ range              uint32     millimetres (0 = no return)
 
 from __future__ import annotations
 
+import dataclasses
+import struct
+
 import numpy as np
 
 from lidarpkt.core.ros import Topic
@@ -143,6 +146,23 @@ def pointcloud_messages(frame, points: np.ndarray | None = None, *,
                   point_step=POINT_DTYPE.itemsize, row_step=POINT_DTYPE.itemsize * w, data=data, is_dense=dense)
         out.append((schemas.points_topic(frame.sensor.vendor, slot), msg))
     return out
+
+
+def pointcloud_cdr(msg) -> tuple[bytes, np.ndarray, bytes]:
+    """The CDR of a ``sensor_msgs/PointCloud2`` message (the bytes :func:`lidarpkt.containers.rosmsgs.encode`
+    gives, encapsulation included) in three pieces: what comes before the points (header, fields, steps, the
+    data's length), ``msg.data`` itself (``uint8[N]``, not copied) and what follows it (``is_dense``).
+
+    Raises ValueError when ``msg.data`` is not a contiguous ``uint8`` array."""
+    data = msg.data
+    if not (isinstance(data, np.ndarray) and data.dtype == np.uint8 and data.ndim == 1 and data.flags.c_contiguous):
+        raise ValueError("PointCloud2 data must be a contiguous uint8[N] array")
+    cdr = rosmsgs.encode(schemas.POINTCLOUD2, dataclasses.replace(msg, data=_NO_POINTS))
+    # uint8[] data: its uint32 length (here 0, 4-aligned), no bytes; then the bool is_dense, the last field
+    return cdr[:-5] + struct.pack("<I", data.size), data, cdr[-1:]
+
+
+_NO_POINTS = np.zeros(0, np.uint8)
 
 
 def image_messages(frame, *, frame_id: str | None = None) -> list[tuple[Topic, object]]:

@@ -1,10 +1,11 @@
 """The MCAP file lidarpkt writes: ROS 2 profile, zstd chunks sized by time, rotation.
 
 A :class:`McapWriter` takes encoded messages for the topics of :mod:`lidarpkt.writers.mcap.schemas` and
-writes them with the ``mcap`` library: profile ``ros2``, schemas in ``ros2msg``, messages in
-``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag play`` accepts the
-file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk and
-message indexes.
+writes them as the ``mcap`` library's writer does (with :class:`~lidarpkt.writers.mcap.chunks.ChunkWriter`,
+which holds messages by reference until their chunk is written): profile ``ros2``, schemas in
+``ros2msg``, messages in ``cdr``, each channel carrying ``offered_qos_profiles`` (so that ``ros2 bag
+play`` accepts the file), zstd-compressed chunks, and at :meth:`close` a summary with statistics, chunk
+and message indexes.
 
 Chunks are closed by *time* (``chunk_seconds`` of wall clock, default 0.5 s) as well as by
 size, and each closed chunk is handed to the operating system at once: if the process is
@@ -25,7 +26,7 @@ import os
 import time
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO, Callable
+from typing import BinaryIO, Callable
 
 from lidarpkt.errors import DiskFullError, OutputError
 
@@ -34,8 +35,7 @@ from lidarpkt.containers import rosmsgs
 from . import schemas
 from lidarpkt.core.ros import Topic
 
-if TYPE_CHECKING:
-    from mcap.writer import Writer
+from .chunks import ChunkWriter, Data
 
 LIBRARY = "lidarpkt recorder"
 
@@ -62,12 +62,15 @@ class McapWriter:
         sync: flush each finished file to the disk (``fsync``) before going on: a recording's closed files
             survive a power loss. ``False`` for an output that can be made again (``lidarpkt decode``), as the
             other writers leave it to the system.
+        chunk_crcs: give each chunk the CRC-32 of its records, with which readers check it. ``False``: 0,
+            "not computed" in the MCAP specification (readers check nothing), for an output that can be made
+            again whose uncompressed chunks are mostly point clouds (the CRC would read every byte once more).
 
     Raises:
         OutputError: the file cannot be created (with the reason).
     """
 
-    _writer: Writer  # the mcap writer of the current file (from the first _open_next on)
+    _writer: ChunkWriter  # the records of the current file (from the first _open_next on)
 
     def __init__(
         self,
@@ -80,18 +83,17 @@ class McapWriter:
         rotate_seconds: float | None = None,
         clock: Callable[[], float] = time.monotonic,
         sync: bool = True,
+        chunk_crcs: bool = True,
     ) -> None:
-        from mcap.writer import CompressionType
-
         self.path = Path(path)
         self.chunk_seconds = chunk_seconds
         self.chunk_bytes = chunk_bytes
-        self._compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                             "none": CompressionType.NONE}[compression]
+        self._compression = {"zstd": "zstd", "lz4": "lz4", "none": ""}[compression]
         self.rotate_bytes = rotate_bytes
         self.rotate_seconds = rotate_seconds
         self._clock = clock
         self._sync = bool(sync)
+        self._chunk_crcs = bool(chunk_crcs)
         self.files: list[Path] = []
         self.messages_written = 0
         self._bytes_closed_files = 0
@@ -109,17 +111,14 @@ class McapWriter:
         return self.path.with_name(f"{stem}_{len(self.files):04d}.mcap")
 
     def _open_next(self) -> None:
-        from mcap.writer import IndexType, Writer
-
         path = self._next_path()
         try:
-            self._file = open(path, "wb")
+            self._file = open(path, "wb", buffering=0)  # unbuffered: the chunk writer gathers its writes
         except OSError as exc:
             raise OutputError(f"cannot create the MCAP output {path}: {exc.strerror or exc}") from exc
         self.files.append(path)
-        self._writer = Writer(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
-                              index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
-                              use_summary_offsets=True, enable_crcs=True)
+        self._writer = ChunkWriter(self._file, chunk_size=self.chunk_bytes, compression=self._compression,
+                                   chunk_crcs=self._chunk_crcs)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._opened_at = self._clock()
@@ -173,7 +172,7 @@ class McapWriter:
             self._channels[topic.name] = cid
         return cid
 
-    def _add(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+    def _add(self, topic: Topic, data: Data, log_time_ns: int, publish_time_ns: int | None = None) -> None:
         cid = self._channel(topic)
         self._writer.add_message(cid, log_time=int(log_time_ns), data=data,
                                  publish_time=int(log_time_ns if publish_time_ns is None else publish_time_ns))
@@ -181,15 +180,22 @@ class McapWriter:
         if self._chunk_started is None:
             self._chunk_started = self._clock()
 
-    def write(self, topic: Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None = None) -> None:
-        """Write one CDR message on ``topic``; log time = host receive time (ns since the epoch)."""
+    def write(self, topic: Topic, data: Data, log_time_ns: int, publish_time_ns: int | None = None) -> None:
+        """Write one CDR message on ``topic`` (its bytes, or its pieces in order, held until its chunk is
+        written); log time = host receive time (ns since the epoch)."""
         if self._closed:
             raise OutputError(f"{self.path} is closed")
         self._guard(lambda: self._add(topic, data, log_time_ns, publish_time_ns))
         self.tick()
 
     def write_message(self, topic: Topic, message: object, log_time_ns: int) -> None:
-        """Encode a rosbags message object of ``topic.msgtype`` and write it."""
+        """Encode a rosbags message object of ``topic.msgtype`` and write it. A ``PointCloud2``'s points are
+        written from its ``data`` array (held until its chunk is written: the caller must not change it)."""
+        if topic.msgtype == schemas.POINTCLOUD2:
+            from .pointcloud import pointcloud_cdr
+
+            self.write(topic, pointcloud_cdr(message), log_time_ns)
+            return
         self.write(topic, rosmsgs.encode(topic.msgtype, message), log_time_ns)
 
     def write_latched(self, topic: Topic, data: bytes, log_time_ns: int, *, key: str = "") -> None:
