@@ -25,9 +25,13 @@
 
 from __future__ import annotations
 
+from lidarpkt.core.lazy import lazy_names
 from .magic import container_kind
 from .protocol import PacketSource, open_packet_source
-from .segments import DEFAULT_SEGMENT_BYTES, Segment, plan_segments
 
 __all__ = ["PacketSource", "open_packet_source", "container_kind", "Segment", "plan_segments",
            "DEFAULT_SEGMENT_BYTES"]
+
+# the segments' names on first use (lidarpkt/core/lazy.py): reading a capture whole does not need them
+__getattr__, __dir__ = lazy_names(__name__, {"Segment": "segments", "plan_segments": "segments",
+                                             "DEFAULT_SEGMENT_BYTES": "segments"}, __all__)

@@ -9,7 +9,6 @@ size) and copies each group's payloads out in one pass.
 
 from __future__ import annotations
 
-import socket
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -151,6 +150,8 @@ class ChunkDecoder(RecordParser):
         if self.payload_sizes is not None:
             keep &= np.isin(vec["plen"], np.fromiter(self.payload_sizes, np.int64))
         if self.src_addresses is not None:
+            import socket  # only for an address filter: importing it costs every command ms
+
             v4 = [int.from_bytes(socket.inet_aton(a), "big") for a in self.src_addresses if is_ipv4_text(a)]
             keep &= np.isin(vec["src"], np.asarray(v4, np.int64))
         self.stats.udp_packets += n_vec

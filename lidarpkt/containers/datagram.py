@@ -14,7 +14,6 @@ and, when the sender wrote one, its UDP checksum.
 
 from __future__ import annotations
 
-import socket
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -241,6 +240,8 @@ class RecordParser:
         if nh != IPPROTO_UDP:
             self.stats.non_udp += 1
             return None
+        import socket  # here, not at the top: importing it costs every command ms, and IPv6 records are rare
+
         s, d = socket.inet_ntop(socket.AF_INET6, src), socket.inet_ntop(socket.AF_INET6, dst)
         end = min(n, off + IPV6_HEADER.itemsize + plen) if plen else n
         if frag is not None:
@@ -286,6 +287,8 @@ class RecordParser:
 
 def canonical_address(text: str) -> str:
     """The address as Endpoint.address spells it (IPv6 compressed, lower case); other text unchanged."""
+    import socket
+
     text = str(text).strip()
     for family in (socket.AF_INET, socket.AF_INET6):
         try:
@@ -296,6 +299,8 @@ def canonical_address(text: str) -> str:
 
 
 def is_ipv4_text(text: str) -> bool:
+    import socket
+
     try:
         socket.inet_aton(text)
     except OSError:
@@ -305,5 +310,5 @@ def is_ipv4_text(text: str) -> bool:
 
 
 def ipv4_text(values: np.ndarray) -> list[str]:
-    """Dotted-quad text of IPv4 addresses given as integers."""
-    return [socket.inet_ntoa(v.to_bytes(4, "big")) for v in values.tolist()]
+    """Dotted-quad text of IPv4 addresses given as integers (``socket.inet_ntoa``'s)."""
+    return [f"{v >> 24}.{(v >> 16) & 255}.{(v >> 8) & 255}.{v & 255}" for v in values.tolist()]

@@ -22,7 +22,6 @@ import numpy as np
 from lidarpkt.containers.rosmsgs import CDR_LE, header_cdr, pad4, stamp_ns
 from lidarpkt.core.ros import Topic
 from lidarpkt.core.vendor import FrameTopics, PacketTopic, RosMessages
-from .detect import is_difop
 
 SCAN_TYPE = "robosense_msgs/msg/RobosenseScan"
 PACKET_TYPE = "robosense_msgs/msg/RobosensePacket"
@@ -80,6 +79,8 @@ def encode_scan(payload: np.ndarray, host_ns: np.ndarray, stamp: int | None = No
     payload's own (by its identifier).
 
     Raises ``ValueError`` for payloads longer than the 1500-byte buffer."""
+    from .detect import is_difop  # here: the registry imports this module, and most captures hold no RoboSense
+
     payload = np.asarray(payload, np.uint8)
     if payload.ndim != 2 or payload.shape[1] > BUFFER_SIZE:
         raise ValueError(f"payloads of shape {payload.shape} do not fit a RobosensePacket's {BUFFER_SIZE}-byte buffer")
