@@ -53,10 +53,17 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
     block's second column takes its first's place."""
     if lost_columns:
         return False
-    key = modulo_turn(np.asarray(azimuth_cdeg, np.float64) - cut_cdeg)
-    step = median(modulo_turn(np.diff(azimuth_cdeg))) if len(key) >= 2 else 0.0
-    if step > 0 and len(key) >= 2:
-        advance = np.diff(key)
+    az = np.asarray(azimuth_cdeg)
+    if az.dtype == np.float64 and not cut_cdeg and az.size >= 2 and 0.0 <= az.min() and az.max() < TURN_CDEG:
+        # azimuths within a turn and no cut angle: the key is the azimuth itself and its advances are the
+        # differences, so the steps are those below 0 moved on by a turn (what modulo_turn gives; half the passes)
+        key, advance = az, np.diff(az)
+        step = median(np.where(advance < 0, advance + TURN_CDEG, advance))
+    else:
+        key = modulo_turn(np.asarray(az, np.float64) - cut_cdeg)
+        step = median(modulo_turn(np.diff(az))) if len(key) >= 2 else 0.0
+        advance = np.diff(key) if step > 0 and len(key) >= 2 else None
+    if step > 0 and advance is not None:
         if float(advance.max()) > GAP_STEPS * (2 * step if by_block else step):
             return False  # columns of this rotation never arrived between two that did
     if not (check_start or check_end):
@@ -66,6 +73,7 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
             return False
         step = fallback_step_cdeg
     if by_block:
+        key = key.copy()
         key[1::2] = key[0::2]
         step *= 2
     if check_start and not key[0] < step:

@@ -422,9 +422,9 @@ class VelodyneDecoder(PacketAccounting):
         if not parts:
             return []
         cols = Columns.concat(parts)
-        counters.lost_packets += int(cols.lost.sum())
-        partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut",
-                                                          bool(cols.lost.any()))
+        lost = int(cols.lost.sum())  # counts, none negative: any lost when the sum is
+        counters.lost_packets += lost
+        partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut", lost > 0)
         frame = self._make_frame(cols, partial, counters)
         return [frame]
 
