@@ -137,8 +137,9 @@ class _Tables:
 
     @cached_property
     def planes32(self) -> tuple[np.ndarray, np.ndarray]:
-        """:attr:`planes` rounded to float32: the table of ouster-sdk's ``XYZLutFloat``."""
-        return _read_only(tuple(t.astype(np.float32) for t in self.planes))
+        """:attr:`planes` rounded to float32: the table of ouster-sdk's ``XYZLutFloat`` (rounded from the table
+        itself, so that asking only for float32 points makes no float64 planes)."""
+        return _read_only(tuple(t.transpose(2, 0, 1).astype(np.float32, order="C") for t in self.lut))
 
 
 def _read_only(tables: tuple) -> tuple:
