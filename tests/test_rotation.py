@@ -86,7 +86,9 @@ def test_rotation_is_whole_fast_path_gives_the_rule():
             gap[width // 2:] = (gap[width // 2:] + 5 * step) % 36000
         cases += [whole, shifted, gap, whole[: max(1, width // 2)], whole[width // 3:], np.round(whole)]
     cases += [np.array([1.0, np.nan, 3.0]), np.array([-5.0, 100.0, 200.0]), np.array([35990.0, 36010.0, 50.0]),
-              np.array([35990, 10, 30], np.uint16), np.array([100.0, 100.0, 100.0])]
+              np.array([35990, 10, 30], np.uint16), np.array([100.0, 100.0, 100.0]),
+              np.cumsum([50.0, 10, 10, 10, 17, 10, 10]), np.cumsum([50.0, 10, 10, 10, 16, 10, 10]),  # 1.6 steps apart
+              np.cumsum([50.0, 10, 10, 10, 17, 17, 17, 17])]  # the largest within GAP_STEPS of the median, not the least
     for az in cases:
         before = np.array(az, copy=True)
         for cut in (0.0, 9000.0):

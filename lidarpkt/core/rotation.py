@@ -58,7 +58,12 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
         # azimuths within a turn and no cut angle: the key is the azimuth itself and its advances are the
         # differences, so the steps are those below 0 moved on by a turn (what modulo_turn gives; half the passes)
         key, advance = az, np.diff(az)
-        step = median(np.where(advance < 0, advance + TURN_CDEG, advance))
+        steps = np.where(advance < 0, advance + TURN_CDEG, advance)
+        smallest = float(steps.min())
+        if not (check_start or check_end) and smallest > 0 and float(advance.max()) <= GAP_STEPS * (
+                2 * smallest if by_block else smallest):
+            return True  # no advance beyond GAP_STEPS of the smallest step, so none beyond the median's: no gap
+        step = median(steps)
     else:
         key = modulo_turn(np.asarray(az, np.float64) - cut_cdeg)
         step = median(modulo_turn(np.diff(az))) if len(key) >= 2 else 0.0
