@@ -76,10 +76,11 @@ def second_strongest_mark(range_mm: np.ndarray, reflectivity: np.ndarray) -> np.
     native = kernels.native
     if native is not None and _native_ready(range_mm, reflectivity):
         shape = range_mm.shape
-        as3 = (2, 1, -1) if range_mm.ndim != 3 else shape  # the kernel's [2, H, W]
-        out = np.empty(as3[1:] if range_mm.ndim == 3 else (1, int(np.prod(shape[1:]))), bool)
-        if native.dual_mark(range_mm.reshape(as3), reflectivity.reshape(as3), out):  # False: a range of 2^22 mm or more
-            return out.reshape(shape[1:])
+        three = range_mm.ndim == 3  # the kernel's [2, H, W], views taken as they are; other ranks as [2, 1, N]
+        as3 = shape if three else (2, 1, -1)
+        marks = np.empty((shape[1], shape[2]) if three else (1, int(np.prod(shape[1:]))), bool)
+        if native.dual_mark(range_mm.reshape(as3), reflectivity.reshape(as3), marks):  # False: a range of 2^22 mm or more
+            return marks.reshape(shape[1:])
     both, idx, (r0, r1, f0, f1) = _pairs(range_mm, reflectivity)
     out = np.zeros(both.size, bool)
     out[idx] = f0 * r1 * r1 > f1 * r0 * r0

@@ -54,6 +54,7 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
     if lost_columns:
         return False
     az = np.asarray(azimuth_cdeg)
+    advance: np.ndarray | None
     if az.dtype == np.float64 and not cut_cdeg and az.size >= 2 and 0.0 <= az.min() and az.max() < TURN_CDEG:
         # azimuths within a turn and no cut angle: the key is the azimuth itself and its advances are the
         # differences, so the steps are those below 0 moved on by a turn (what modulo_turn gives; half the passes)
