@@ -15,18 +15,18 @@ from pathlib import Path
 #: comparison -> (ratio of each paired round of the latest run, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.13, 2.93, 2.99), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((3.71, 3.76, 3.17), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((2.90, 3.12, 3.18), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((2.91, 2.85, 3.13), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.28, 2.25, 2.49), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.19, 1.02, 1.27), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.65, 1.76, 1.86), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.48, 1.36, 1.58), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.25, 1.07, 1.09), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.47, 1.46, 1.59), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.34, 3.35, 3.45), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.39, 3.99, 3.99), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.54, 3.69, 3.89), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.66, 3.42, 3.58), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.73, 2.66, 2.56), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.24, 1.51, 1.42), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.80, 1.61, 1.69), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.43, 1.47, 1.55), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.63, 1.55, 1.36), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.49, 1.50, 1.43), 1.5),
 }
-RUN_DATE = "2026-11-27 12:28 UTC, load average 0.4-1.4"
+RUN_DATE = "2026-11-27 13:43 UTC, load average 0.5-1.4"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
