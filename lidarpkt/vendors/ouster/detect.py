@@ -8,7 +8,6 @@ first, then the init_id and serial in the packet header (non-legacy profiles).
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -19,12 +18,11 @@ from .crc import footer_crc_ok
 from .decode import decode_packets
 from .imu import decode_imu, imu_samples
 from .metadata import OusterMetadata
-from .profiles import HEADER_BYTES, HEADER_TYPES, PROFILES, Profile
+from .profiles import GUESS_ROWS, HEADER_BYTES, HEADER_TYPES, PROFILES, Profile, guessable_packet_sizes
 from .auxiliary import IMU_PACKET_SIZE
 from .bitfield import read_bits
 from .zone import decode_zone_packets
 
-_GUESS_ROWS = (16, 32, 64, 128)
 
 
 #: ``packet_type`` of the non-legacy packet header: lidar, IMU (ACCEL32_GYRO32_NMEA), zone monitoring.
@@ -132,7 +130,7 @@ def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
     size = payload.shape[1]
     ranked = []
     for order, profile in enumerate(PROFILES.values()):
-        for h in _GUESS_ROWS:
+        for h in GUESS_ROWS:
             if profile.packet_size(h, 16) != size:
                 continue
             cols = payload[:1].view(profile.packet_dtype(h, 16))[:, 0]["columns"]
@@ -156,11 +154,6 @@ def _guesses(payload: np.ndarray) -> list[tuple[Profile, int]]:
     return [(p, h) for _, _, p, h in ranked]
 
 
-@lru_cache(maxsize=1)
-def _guess_sizes() -> frozenset[int]:
-    return frozenset(p.packet_size(h, 16) for p in PROFILES.values() for h in _GUESS_ROWS)
-
-
 def guess(batch: PacketBatch) -> str | None:
     """What a stream no metadata fits looks like, as :func:`describe_stream` guesses it: ``"lidar"`` (the size
     and column headers of some profile), ``"imu"`` (48-byte packets that read as an IMU's) or ``None``."""
@@ -169,7 +162,7 @@ def guess(batch: PacketBatch) -> str | None:
         return None
     if size == IMU_PACKET_SIZE:
         return "imu" if _imu_plausible(batch.payload) else None
-    if size not in _guess_sizes():
+    if size not in guessable_packet_sizes():
         return None
     return "lidar" if _guesses(batch.payload) else None
 

@@ -366,6 +366,17 @@ def with_header(profile: Profile, header_type: str) -> Profile:
     return profile if header is profile.header_fields else replace(profile, header_fields=header)
 
 
+#: pixels per column of the layouts a stream without metadata is compared with (``lidarpkt info``'s guess)
+GUESS_ROWS = (16, 32, 64, 128)
+
+
+@cache
+def guessable_packet_sizes() -> frozenset[int]:
+    """Sizes (bytes) of a lidar packet of every profile with :data:`GUESS_ROWS` pixels and 16 columns: the
+    only sizes a stream without metadata can be guessed to be Ouster lidar packets at."""
+    return frozenset(p.packet_size(h, 16) for p in PROFILES.values() for h in GUESS_ROWS)
+
+
 def get_profile(name: str) -> Profile:
     """The :class:`Profile` called ``name``; :class:`MetadataError` for profiles not supported."""
     try:

@@ -36,9 +36,15 @@ _METADATA_KEYS = frozenset({"beam_intrinsics", "beam_altitude_angles", "lidar_da
 def classify(batch: PacketBatch, setup: DecodeSetup) -> Match | None:
     """Lidar, IMU or zone-monitoring packets of a sensor whose metadata was given (:func:`.detect.classify`);
     else lidar or IMU packets by their size and headers, not decodable (:func:`.detect.guess`)."""
+    mds = setup.files(NAME)
+    if not mds:
+        from .auxiliary import IMU_PACKET_SIZE
+        from .profiles import guessable_packet_sizes
+
+        if batch.payload_size != IMU_PACKET_SIZE and batch.payload_size not in guessable_packet_sizes():
+            return None  # a size no Ouster stream has: another vendor's, without importing the detection
     from .detect import classify as of_sensor, guess
 
-    mds = setup.files(NAME)
     found = of_sensor(batch, mds) if mds else None
     if found is None:
         kind = guess(batch)
