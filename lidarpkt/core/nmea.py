@@ -8,7 +8,6 @@ the decoders and the recorder's GPS reader cannot disagree about which day a fix
 
 from __future__ import annotations
 
-import calendar
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +41,8 @@ class NMEAFix:
         """UTC time as ns since the Unix epoch when both date and time are known, else ``None``."""
         if self.date is None or self.time_of_day_s is None:
             return None
+        import calendar  # here: only fixes with a date ask, and every Velodyne read imports this module
+
         y, m, d = self.date
         midnight = calendar.timegm((y, m, d, 0, 0, 0, 0, 0, 0))
         return midnight * 1_000_000_000 + round(self.time_of_day_s * 1e9)

@@ -14,7 +14,6 @@ plane), so that stock XYZ agrees with velodyne_decoder's default.
 from __future__ import annotations
 
 import os
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -206,6 +205,8 @@ def _from_ros_yaml(text: str, source: str, model: VelodyneModel) -> VelodyneCali
 
 
 def _from_veloview_xml(text: str, source: str, model: VelodyneModel) -> VelodyneCalibration:
+    import xml.etree.ElementTree as ET  # here: only VeloView's files are XML, and every read imports this module
+
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
