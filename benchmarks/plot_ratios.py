@@ -1,10 +1,11 @@
 """The plot of the documentation's Performance page: lidarpkt's speed over the reference decoders'.
 
-The figures are those of the latest published run (``docs/performance.md`` gives the command, the date
+The figures are those of the latest published runs (``docs/performance.md`` gives the command, the date
 and the machine; ``docs/performance-history.md`` every earlier run): per comparison, the ratio of each
-paired round of one ``benchmarks/run_all.py`` run (whole processes), their median and the target. After a
-new run, update ``RUNS`` and the page, then ``python benchmarks/plot_ratios.py`` (needs matplotlib, the
-``plot`` extra) rewrites ``docs/figures/benchmark-ratios.png``.
+``benchmarks/run_all.py`` run (whole processes; each run's ratio is itself over the medians of its paired
+rounds), their median and the target. After new runs, update ``RUNS`` and the page, then
+``python benchmarks/plot_ratios.py`` (needs matplotlib, the ``plot`` extra) rewrites
+``docs/figures/benchmark-ratios.png``.
 """
 
 from __future__ import annotations
@@ -12,21 +13,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-#: comparison -> (ratio of each paired round of the latest run, target): lidarpkt's speed / the reference's
+#: comparison -> (ratio of each of the latest runs, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.34, 3.35, 3.45), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.39, 3.99, 3.99), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.54, 3.69, 3.89), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.66, 3.42, 3.58), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.73, 2.66, 2.56), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.24, 1.51, 1.42), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.80, 1.61, 1.69), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.43, 1.47, 1.55), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.63, 1.55, 1.36), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.49, 1.50, 1.43), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.16, 3.63, 3.53), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.16, 4.63, 4.67), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.76, 3.64, 3.73), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.61, 3.43, 3.34), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.71, 2.56, 2.58), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.45, 1.39, 1.43), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.76, 1.72, 1.71), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.45, 1.37, 1.38), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.40, 1.55, 1.26), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.39, 1.46, 1.46), 1.5),
 }
-RUN_DATE = "2026-11-27 13:43 UTC, load average 0.5-1.4"
+RUN_DATE = "2026-11-27 13:51-13:57 UTC, three runs, load average 1.1-1.5"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
@@ -41,8 +42,8 @@ def plot(out: Path = OUT) -> Path:
     fig, ax = plt.subplots(figsize=(9, 5.6), dpi=110)
     for i, name in enumerate(names):
         ratios, target = RUNS[name]
-        ax.barh(i, sorted(ratios)[1], color="#4c72b0", height=0.6, label="median of 3 paired rounds" if i == 0 else None)
-        ax.plot(ratios, [i] * len(ratios), "o", color="#222222", markersize=4, label="each paired round" if i == 0 else None)
+        ax.barh(i, sorted(ratios)[1], color="#4c72b0", height=0.6, label="median of the runs" if i == 0 else None)
+        ax.plot(ratios, [i] * len(ratios), "o", color="#222222", markersize=4, label="each run" if i == 0 else None)
         ax.plot([target, target], [i - 0.38, i + 0.38], color="#c44e52", lw=2, label="target" if i == 0 else None)
     ax.axvline(1.0, color="#888888", lw=1, ls="--")
     ax.set_yticks(range(len(names)), names, fontsize=8)
