@@ -27,7 +27,7 @@ RUNS: dict[str, tuple[tuple[float, ...], float]] = {
     "OS-1-64 legacy\nframes vs ouster-sdk": ((1.40, 1.55, 1.26), 1.5),
     "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.39, 1.46, 1.46), 1.5),
 }
-RUN_DATE = "2026-11-27 13:51-13:57 UTC, three runs, load average 1.1-1.5"
+RUN_DATE = "2026-11-27 13:51-13:57 UTC, 3 runs, load 1.1-1.5"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
