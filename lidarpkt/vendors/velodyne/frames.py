@@ -85,7 +85,9 @@ from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, p
                      rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
-PIECE_PACKETS = 1024  # packets turned into columns at a time (see _push_run)
+#: columns made from packets at a time (see _push_run): 1024 VLP-16 packets; a model of fewer columns a packet
+#: takes more packets, so that its frames, too, seldom straddle two pieces (which copies the frame's columns)
+PIECE_COLUMNS = 24_576
 #: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
 MAX_HELD_PACKETS = 16_384
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
@@ -354,8 +356,9 @@ class VelodyneDecoder(PacketAccounting):
                 miss = missing[a:b]
             self.stats.lost_packets += int(miss.sum())
             # a piece at a time: a frame holds views of its piece's arrays, so memory follows the piece, not the batch
-            for lo in range(a, b, PIECE_PACKETS):
-                hi = min(b, lo + PIECE_PACKETS)
+            piece = max(1, PIECE_COLUMNS // self.model.columns_per_packet(mode))
+            for lo in range(a, b, piece):
+                hi = min(b, lo + piece)
                 cols = self._columns(raw.select(slice(lo, hi)), abs_ns[lo:hi], index[lo:hi], miss[lo - a:hi - a], mode)
                 frames += self._append(cols)
         self._last_abs_ns = int(abs_ns[-1])
