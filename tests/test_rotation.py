@@ -88,7 +88,10 @@ def test_rotation_is_whole_fast_path_gives_the_rule():
     cases += [np.array([1.0, np.nan, 3.0]), np.array([-5.0, 100.0, 200.0]), np.array([35990.0, 36010.0, 50.0]),
               np.array([35990, 10, 30], np.uint16), np.array([100.0, 100.0, 100.0]),
               np.cumsum([50.0, 10, 10, 10, 17, 10, 10]), np.cumsum([50.0, 10, 10, 10, 16, 10, 10]),  # 1.6 steps apart
-              np.cumsum([50.0, 10, 10, 10, 17, 17, 17, 17])]  # the largest within GAP_STEPS of the median, not the least
+              np.cumsum([50.0, 10, 10, 10, 17, 17, 17, 17]),  # the largest within GAP_STEPS of the median, not the least
+              np.cumsum([100.0] + [20.0] * 907 + [17920.0]) % 36000,  # half a rotation missing (nebula's VLP-32C)
+              np.cumsum([100.0, 10, 10, 10, 33, 33, 33]),  # a gap by the median, not beyond twice the mean
+              np.cumsum([100.0, 10, 10, 32.0, 10]), np.cumsum([100.0, 10, 10, 32.000001, 10])]  # at GAP_STEPS exactly
     for az in cases:
         before = np.array(az, copy=True)
         for cut in (0.0, 9000.0):

@@ -61,9 +61,12 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
         key, advance = az, np.diff(az)
         steps = np.where(advance < 0, advance + TURN_CDEG, advance)
         smallest = float(steps.min())
-        if not (check_start or check_end) and smallest > 0 and float(advance.max()) <= GAP_STEPS * (
-                2 * smallest if by_block else smallest):
-            return True  # no advance beyond GAP_STEPS of the smallest step, so none beyond the median's: no gap
+        if smallest > 0:  # then the median is positive too, and bounded by the smallest step and twice the mean
+            top, per = float(advance.max()), 2 if by_block else 1
+            if not (check_start or check_end) and top <= GAP_STEPS * per * smallest:
+                return True  # no advance beyond GAP_STEPS of the smallest step, so none beyond the median's: no gap
+            if top > GAP_STEPS * per * 2.0 * float(steps.mean()) * (1 + 1e-9):
+                return False  # beyond GAP_STEPS of twice the mean step (steps are >= 0: the median is at most that)
         step = median(steps)
     else:
         key = modulo_turn(np.asarray(az, np.float64) - cut_cdeg)
