@@ -16,18 +16,18 @@ from pathlib import Path
 #: comparison -> (ratio of each of the latest runs, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.16, 3.63, 3.53), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.16, 4.63, 4.67), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.76, 3.64, 3.73), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.61, 3.43, 3.34), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.71, 2.56, 2.58), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.45, 1.39, 1.43), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.76, 1.72, 1.71), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.45, 1.37, 1.38), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.40, 1.55, 1.26), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.39, 1.46, 1.46), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.46, 3.50, 3.51), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.72, 4.68, 4.65), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.99, 3.62, 3.96), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.73, 3.69, 3.77), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.56, 2.75, 2.84), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.48, 1.47, 1.48), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.54, 1.71, 1.81), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.30, 1.48, 1.43), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.52, 1.58, 1.68), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.46, 1.40, 1.44), 1.5),
 }
-RUN_DATE = "2026-11-27 13:51-13:57 UTC, 3 runs, load 1.1-1.5"
+RUN_DATE = "2026-11-27 14:27-14:33 UTC, 3 runs, load 1.5-1.6"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
