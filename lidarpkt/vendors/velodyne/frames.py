@@ -57,7 +57,6 @@ interpolation): ``azimuth_deg`` per column reproduces its points within 1e-4 m.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from lidarpkt.core.continuity import StreamContinuity
@@ -85,11 +84,9 @@ from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, p
                      rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
-#: columns made from packets at a time (see _push_run): 1024 VLP-16 packets; a model of fewer columns a packet
-#: takes more packets, so that its frames, too, seldom straddle two pieces (which copies the frame's columns)
+#: columns made at a time (_push_run): 1024 VLP-16 packets; more where a packet has fewer, so frames seldom straddle
 PIECE_COLUMNS = 24_576
-#: HDL-64E packets held while its status cycle brings the calibration (about 4 cycles; ~12 MB).
-MAX_HELD_PACKETS = 16_384
+MAX_HELD_PACKETS = 16_384  #: HDL-64E packets held while its status cycle brings the calibration (~4 cycles, ~12 MB)
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
 
@@ -330,8 +327,8 @@ class VelodyneDecoder(PacketAccounting):
             self._frequency_hz = rotation_frequency_hz(raw.azimuth_cdeg, raw.return_mode == DUAL, self.model)
             if self._frequency_hz is None and self.model.dual_layout == "banks" and len(raw) > 1:
                 rate = median(interpacket_rate_cdeg_s(raw.azimuth_cdeg[:, 0], raw.timestamp_us,
-                                                         packet_layout(self.model, mode),
-                                                         self.model.packet_period_us(mode), None, None)[0])
+                                                      packet_layout(self.model, mode),
+                                                      self.model.packet_period_us(mode), None, None)[0])
                 self._frequency_hz = round(float(rate) / 36000.0, 2) or None
         ordered = self._in_order(raw, abs_ns, index, host_ns)
         if ordered is None:
