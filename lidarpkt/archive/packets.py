@@ -37,9 +37,9 @@ from lidarpkt.errors import CaptureFormatError, OutputError, UnsupportedContaine
 from lidarpkt.core.packet import Endpoint, PacketBatch
 
 if TYPE_CHECKING:
-    from lidarpkt.core.vendor import DecodeSetup, Match
+    from lidarpkt.core.vendor import Match
 
-__all__ = ["PacketExport", "addressed", "default_endpoints", "time_ordered", "write_packets_pcap"]
+__all__ = ["PacketExport", "addressed", "time_ordered", "write_packets_pcap"]
 
 # the common lidar default (the factory address and port of most sensors), to broadcast
 DEFAULT_SOURCE = Endpoint("192.168.1.201", 2368)
@@ -55,17 +55,6 @@ class PacketExport:
 
     packets: int = 0
     defaulted: dict[int, str] = field(default_factory=dict)
-
-
-def default_endpoints(batch: PacketBatch, setup: DecodeSetup | None = None) -> tuple[Endpoint, Endpoint]:
-    """(source, destination) for a batch whose container kept no addresses: its vendor's factory defaults
-    (by the sensor files of ``setup`` where given), the common lidar default for a stream of no vendor."""
-    from lidarpkt.vendors import registry
-
-    match = registry.classify(batch, setup)
-    if match is None:
-        return DEFAULT_SOURCE, DEFAULT_DESTINATION
-    return registry.vendor(match.vendor).endpoints(match)
 
 
 def addressed(batch: PacketBatch, match: Match | None) -> list[PacketBatch]:
