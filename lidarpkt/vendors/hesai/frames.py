@@ -47,6 +47,7 @@ from lidarpkt.core.readahead import warn
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
 from lidarpkt.core.frame import Frame, FrameCounters
+from lidarpkt.core.lost_columns import interpolated_azimuth, received_places, spread
 from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.rotation import modulo_turn, rotation_is_whole, wrapped
@@ -408,33 +409,17 @@ class HesaiDecoder:
 def _with_lost_columns(cols: dict[str, np.ndarray], lost: np.ndarray, groups: int,
                        before: float | None) -> dict[str, np.ndarray]:
     """``cols`` (the columns of N packets, ``groups`` each) with the columns of the packets lost before each
-    (``lost``, ``int64[N]``) put in as invalid columns: no returns, zero time, the azimuth (0.01°)
-    interpolated between the received columns around them (``before``: the azimuth of the last column
-    before these, for a loss before the first packet; without it that loss is counted, not put in)."""
+    (``lost``, ``int64[N]``) put in as invalid columns (:mod:`lidarpkt.core.lost_columns`): no returns, zero
+    time, the azimuth (0.01°) interpolated between the received columns around them, the rotation rate of
+    the packet after them (``before``: the azimuth of the last column before these, for a loss before the
+    first packet; without it that loss is counted, not put in)."""
     lost = lost.copy()
     if before is None:
         lost[0] = 0
     if not lost.any():
         return cols
-    az = cols["azimuth_cdeg"]
-    added = lost * groups  # invalid columns before each packet
-    shift = np.cumsum(added)  # columns added up to and including each packet's gap
-    width = az.shape[0] + int(shift[-1])
-    kept = np.arange(az.shape[0]) + np.repeat(shift, groups)  # where the received columns go
-    out = {}
-    for k, v in cols.items():
-        fill = -1 if k == "packet_index" else 0
-        arr = np.full(v.shape[:-1] + (width,), fill, v.dtype)
-        arr[..., kept] = v
-        out[k] = arr
-    # each added column's azimuth: between the column before its gap and the one after it
-    gap_packets = np.flatnonzero(added)
-    first_col = gap_packets * groups  # index in cols of the packet's first column
-    prev_az = np.where(gap_packets > 0, az[np.maximum(first_col - 1, 0)], 0.0 if before is None else before)
-    counts = added[gap_packets]
-    step_az = ((az[first_col] - prev_az) % 36000.0) / (counts + 1)
-    j = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts) + 1  # 1..m within each gap
-    slots = np.flatnonzero(~np.isin(np.arange(width), kept))
-    out["azimuth_cdeg"][slots] = (np.repeat(prev_az, counts) + j * np.repeat(step_az, counts)) % 36000.0
-    out["rpm"][slots] = np.repeat(cols["rpm"][first_col], counts)
+    places, width = received_places(lost, groups)
+    out = {k: spread(v, places, width, -1 if k == "packet_index" else 0) for k, v in cols.items()}
+    out["azimuth_cdeg"] = interpolated_azimuth(cols["azimuth_cdeg"], places, width, before)
+    out["rpm"] = cols["rpm"][np.searchsorted(places, np.arange(width))]  # each lost column: the next packet's
     return out
