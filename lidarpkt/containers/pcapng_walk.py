@@ -98,11 +98,14 @@ class PcapngWalk(Walk):
         while off < blocks.size:
             rel = off - base
             end = buf.shape[0]
+            # fewer bytes left in the block than a block header and a section header's byte-order magic
+            # (16), with more in the file: read on from here
+            read_on = rel + 16 > end and base + end < blocks.size
             if got.pending and ((split is not None and chunk_start < split <= off)  # no chunk spans a segment's end
-                                or (rel + 12 > end and base + end < blocks.size)):
+                                or read_on):
                 yield self._flush(got, buf, chunk_start, off)
                 chunk_start = off
-            if rel + 12 > end and base + end < blocks.size and off != base:  # read on from here
+            if read_on and (off != base or blocks.short):
                 base = chunk_start = off
                 buf = blocks.read(off)
                 mv = buf.data
@@ -132,7 +135,7 @@ class PcapngWalk(Walk):
             if whole and rel + blen > end and base + end < blocks.size:
                 if got.pending:
                     yield self._flush(got, buf, chunk_start, off)
-                if off != base:  # read on from here (a block larger than a read block is damage, below)
+                if off != base or blocks.short:  # read on (a block larger than a whole read block is damage, below)
                     base = chunk_start = off
                     buf = blocks.read(off)
                     mv = buf.data

@@ -602,6 +602,28 @@ def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_pac
                 ref_reader.stats.records, ref_reader.stats.reassembled, ref_reader.stats.bytes_read), (name, block)
 
 
+def test_short_first_read_gives_the_same_packets(tmp_path, monkeypatch, real_packets):
+    """The first read of a pass is cut at FIRST_BLOCK_BYTES: where the first record or pcapng block does not
+    fit it, the walk reads again in full from there (no truncation), and every packet and count is the same."""
+    from lidarpkt.containers import pcap_walk
+
+    write_pcap(tmp_path / "a.pcap", real_packets, nanosecond=True)
+    (tmp_path / "b.pcapng").write_bytes(pcapng_bytes([(0, p.timestamp_ns, f) for p in real_packets
+                                                      for f in frames_for(p)]))
+    for name in ("a.pcap", "b.pcapng"):
+        whole = PcapReader(tmp_path / name)
+        expected = list(whole.packets())
+        for first in (8, 24, 100, 1000, 1601, 5000):
+            monkeypatch.setattr(pcap_walk, "FIRST_BLOCK_BYTES", first)
+            reader = PcapReader(tmp_path / name, batch_packets=5)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                got = list(reader.packets())
+            assert _as_tuples(got) == _as_tuples(expected), (name, first)
+            assert (reader.stats.records, reader.stats.bytes_read, reader.stats.truncated) == (
+                whole.stats.records, whole.stats.bytes_read, False), (name, first)
+
+
 def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
     """A capture truncated by another process while it is read: no crash (no mmap SIGBUS), the records
     read so far, then a TruncatedCaptureWarning."""
