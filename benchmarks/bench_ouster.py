@@ -37,29 +37,30 @@ CAPTURES = {
 
 
 def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, int]:
-    """Write ``frames`` copies of the frames of the capture's first batch of lidar packets (each copy's frame ids
-    and times moved on by the frames it holds, so that the result reads as one stream); returns (packets,
-    payload bytes)."""
+    """Write ``frames`` copies of the frames of the capture's lidar packets (each copy's frame ids and times
+    moved on by the frames it holds, so that the result reads as one stream); returns (packets, payload bytes)."""
     from lidarpkt.vendors.ouster import decode_packets, encode_packets, load_metadata
     from lidarpkt.core.packet import Endpoint, Packet
     from lidarpkt.containers.pcap_reader import read_batches
     from lidarpkt.writers.pcap import write_pcap
 
     md = load_metadata(meta)
-    batch = next(b for b in read_batches(pcap) if b.payload_size == md.packet_size)
-    fields = decode_packets(batch.payload, md)
+    lidar = [b for b in read_batches(pcap) if b.payload_size == md.packet_size]
+    payloads = np.concatenate([b.payload for b in lidar])
+    capture_ns = np.concatenate([b.timestamp_ns for b in lidar])
+    fields = decode_packets(payloads, md)
     period_ns = int(1e9 / (md.frequency_hz or 10))
     ids = (fields.column_frame_id[:, 0] if md.profile.legacy else fields.frame_id).astype(np.int64)
     first_id = int(ids[0])
-    rel = (ids - first_id) % 65536  # each packet's frame among the batch's
+    rel = (ids - first_id) % 65536  # each packet's frame among the capture's
     per_copy = int(rel.max()) + 1
-    host_t0 = int(batch.timestamp_ns[0])
-    dt_host = batch.timestamp_ns - host_t0
+    host_t0 = int(capture_ns[0])
+    dt_host = capture_ns - host_t0
     src, dst = Endpoint("127.0.0.1", 7502), Endpoint("127.0.0.1", md.lidar_port)
 
     def packets():
         for k in range(frames):
-            f = decode_packets(batch.payload, md)
+            f = decode_packets(payloads, md)
             fid = (first_id + k * per_copy + rel) % 65536
             if md.profile.legacy:
                 f.column_frame_id[:] = fid[:, None]
@@ -72,7 +73,7 @@ def build_capture(pcap: Path, meta: Path, frames: int, out: Path) -> tuple[int, 
                 yield Packet(host_t0 + shift + int(dt_host[i]), src, dst, payload[i].tobytes())
 
     write_pcap(out, packets(), mtu=None)
-    return frames * len(batch), frames * batch.payload.size
+    return frames * len(payloads), frames * payloads.size
 
 
 def bench_reader(path: Path) -> float:

@@ -81,7 +81,7 @@ def test_velodyne_dual_recorder_and_decoder_agree(tmp_path):
 def test_ouster_recorder_and_decoder_agree(tmp_path):
     pcap = fixtures.canned("os1-64-dual")
     md = load_metadata(fixtures.metadata_path(pcap))
-    (batch,) = [b for b in read_batches(pcap) if b.payload_size == md.packet_size]
+    batch = PacketBatch.concatenate([b for b in read_batches(pcap) if b.payload_size == md.packet_size])
     per_frame = md.columns_per_frame // md.columns_per_packet
     drop = [3, 4, per_frame + 10]  # inside the frames: lost packets for both
     keep = np.setdiff1d(np.arange(len(batch)), drop)

@@ -433,8 +433,8 @@ def test_a_restricted_field_of_view_is_not_lost_packets(ext):
 def _vlp16_batches(ext):
     from lidarpkt.containers.pcap_reader import PcapReader
 
-    reader = PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap"), batch_packets=8192)  # one chunk: all of it
-    return [b for b in reader.batches() if b.payload_size == 1206]
+    reader = PcapReader(ext("veloview/vlp-16-test-90deg-1-50-frames.pcap"), batch_packets=8192)
+    return [PacketBatch.concatenate([b for b in reader.batches() if b.payload_size == 1206])]  # all of it, one batch
 
 
 def _decode(batches):

@@ -75,7 +75,7 @@ def test_cut_angle_moves_the_ends(fifty):
 def _ouster_batches(name: str):
     pcap = fixtures.canned(name)
     md = load_metadata(fixtures.metadata_path(pcap))
-    (batch,) = [b for b in read_batches(pcap) if b.payload_size == md.packet_size]
+    batch = PacketBatch.concatenate([b for b in read_batches(pcap) if b.payload_size == md.packet_size])
     return md, batch
 
 

@@ -41,22 +41,24 @@ def _repeated_ouster_capture(out: Path, frames: int) -> dict:
     from lidarpkt.writers.pcap import write_pcap
 
     md = load_metadata(external(OS2[1]))
-    batch = next(b for b in read_batches(external(OS2[0])) if b.payload_size == md.packet_size)
-    fields = decode_packets(batch.payload, md)
+    lidar = [b for b in read_batches(external(OS2[0])) if b.payload_size == md.packet_size]  # the one frame
+    payload = np.concatenate([b.payload for b in lidar])
+    capture_ns = np.concatenate([b.timestamp_ns for b in lidar])
+    fields = decode_packets(payload, md)
     period_ns = int(1e9 / (md.frequency_hz or 10))
     first_id = int(fields.frame_id[0])
     src, dst = Endpoint("127.0.0.1", 7502), Endpoint("127.0.0.1", md.lidar_port)
-    hosts = [batch.timestamp_ns + k * period_ns for k in range(frames)]
+    hosts = [capture_ns + k * period_ns for k in range(frames)]
     payloads = []
     for k in range(frames):
-        f = decode_packets(batch.payload, md)
+        f = decode_packets(payload, md)
         f.header["frame_id"][:] = (first_id + k) % 65536
         f.timestamp_ns[:] = fields.timestamp_ns + np.uint64(k * period_ns)
         payloads.append(encode_packets(f, md))
     write_pcap(out, (Packet(int(hosts[k][i]), src, dst, payloads[k][i].tobytes())
-                     for k in range(frames) for i in range(len(batch))), mtu=None)
+                     for k in range(frames) for i in range(len(payload))), mtu=None)
     return {"hosts": np.concatenate(hosts), "payloads": np.concatenate(payloads), "period_ns": period_ns,
-            "column_ns": fields.timestamp_ns.astype(np.int64), "packets_per_frame": len(batch)}
+            "column_ns": fields.timestamp_ns.astype(np.int64), "packets_per_frame": len(payload)}
 
 
 def _messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
