@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterator, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, runtime_checkable
 
 from lidarpkt.core.packet import Packet, PacketBatch
 from .filters import BAG_OPTIONS, PCAP_OPTIONS, check_filters
@@ -36,7 +36,8 @@ class PacketSource(Protocol):
     def recorded_sensor_file(self) -> str | None: ...
 
 
-def open_packet_source(path: str | os.PathLike[str], *, messages: BagMessages | None = None,
+def open_packet_source(path: str | os.PathLike[str], *,
+                       messages: BagMessages | Callable[[], BagMessages] | None = None,
                        **options: Any) -> PacketSource:
     """The packet reader of a capture, chosen by its first bytes (never its name).
 
@@ -45,8 +46,8 @@ def open_packet_source(path: str | os.PathLike[str], *, messages: BagMessages | 
             ``udp://[ADDRESS]:PORT[,PORT...]`` to receive live (:class:`~lidarpkt.containers.udp.UdpSource`,
             whose options are then ``multicast``, ``interface``, ``rcvbuf_bytes``, ``queue_bytes``).
         messages: what a bag or MCAP file is read for (:class:`~lidarpkt.containers.rosmsgs.BagMessages`:
-            the vendor registry's, :func:`lidarpkt.vendors.registry.bag_messages`); by default only the
-            packet type no vendor owns.
+            the vendor registry's, :func:`lidarpkt.vendors.registry.bag_messages`), or the function giving
+            them (called for a bag or MCAP file only); by default only the packet type no vendor owns.
         **options: filters and reader options: pcap/pcapng take ``ports`` (destination ports),
             ``src_addresses``, ``payload_sizes``, ``batch_packets``, the reassembly bounds and
             ``segment``; bags and MCAP take ``topics`` and ``payload_sizes``.
@@ -76,7 +77,7 @@ def open_packet_source(path: str | os.PathLike[str], *, messages: BagMessages | 
         return PcapReader(path, **options)
     from .bags import BagReader
 
-    return BagReader(path, messages=messages, **options)
+    return BagReader(path, messages=messages() if callable(messages) else messages, **options)
 
 
 def recorded_sensor_file(path: str | os.PathLike[str], messages: BagMessages, look_ahead: int = 64) -> str | None:

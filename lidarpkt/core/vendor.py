@@ -227,7 +227,8 @@ class Vendor:
             two streams together) parted by kind: each kind's :class:`Match` and the ``bool[N]`` mask of its
             rows, the masks covering every row once (a kind it does not hold: an empty mask); ``None`` for a
             vendor whose batches hold one kind each (the batch's :class:`Match` is every packet's).
-        ros: its ROS messages.
+        ros_messages: its ROS messages (:class:`RosMessages`), made when first asked: the vendor's ROS module is
+            imported only by what reads or writes ROS messages. Read as :attr:`ros`.
         sensor_files: its sensor description files, ``None`` when it has none.
         frame_files: files of decoded frames it records, by container kind (:func:`~lidarpkt.containers.magic.container_kind`).
         frame_ids_counted: its frame ids count rotations from the stream's start (renumbered across the
@@ -258,7 +259,7 @@ class Vendor:
     sensor_time_ns: Callable[[PacketBatch, Match], int | None]
     drops: Callable[[Any], DropCounts]
     endpoints: Callable[[Match], tuple[Endpoint, Endpoint]]
-    ros: RosMessages
+    ros_messages: Callable[[], RosMessages]
     sensor_files: SensorFiles | None = None
     frame_files: Mapping[str, FrameFiles] = field(default_factory=dict)
     frame_ids_counted: bool = False
@@ -268,6 +269,11 @@ class Vendor:
     geometry: Callable[[Any, Mapping[str, Any] | None], Any] | None = None
     sensor_file_in_packets: Callable[[PacketBatch, Match], Any] | None = None
     split: Callable[[PacketBatch, Match], Sequence[tuple[Match, np.ndarray]]] | None = None
+
+    @property
+    def ros(self) -> RosMessages:
+        """Its ROS messages (:attr:`ros_messages`)."""
+        return self.ros_messages()
 
     def stream(self, name: str) -> StreamKind:
         """Its stream kind called ``name``.

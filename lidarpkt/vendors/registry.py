@@ -7,20 +7,19 @@ beside the others, exporting its record as ``VENDOR``, and its place in :data:`V
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 from lidarpkt.containers.protocol import PacketSource, open_packet_source
-from lidarpkt.containers.rosmsgs import BagMessages, SensorFileTopic
-from lidarpkt.containers.rosmsgs import DEFINITIONS as GENERIC_DEFINITIONS
-from lidarpkt.containers.rosmsgs import STAMPED_PACKET, stamped_packet
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.vendor import DecodeSetup, FrameFiles, Match, Vendor
 from lidarpkt.errors import MetadataError
 from . import hesai, ouster, robosense, velodyne
+
+if TYPE_CHECKING:  # the ROS messages are read only where a bag or MCAP file is
+    from lidarpkt.containers.rosmsgs import BagMessages
 
 #: The vendors, in the order their classifiers are asked (Ouster first: with its metadata given, a stream
 #: that fits the metadata is the sensor's, whatever its size says otherwise).
@@ -246,6 +245,8 @@ def _what_it_is(text: str) -> str:
     if not start:
         return "it is empty"
     if start in "{[":
+        import json
+
         try:
             doc = json.loads(text)
         except (ValueError, RecursionError):
@@ -262,13 +263,16 @@ def _what_it_is(text: str) -> str:
 def open_packets(path: str | os.PathLike[str], **filters: Any) -> PacketSource:
     """The packet reader of any capture (:func:`lidarpkt.containers.open_packet_source`), a bag or MCAP file read
     for every vendor's packet messages and recorded sensor files (:func:`bag_messages`)."""
-    return open_packet_source(path, messages=bag_messages(), **filters)
+    return open_packet_source(path, messages=bag_messages, **filters)
 
 
 # --------------------------------------------------------------------------- ROS messages
 def bag_messages() -> BagMessages:
     """What the bag and MCAP readers read: every vendor's packet message types and their definitions, and the
     topics where a driver records its sensor file."""
+    from lidarpkt.containers.rosmsgs import DEFINITIONS as GENERIC_DEFINITIONS
+    from lidarpkt.containers.rosmsgs import STAMPED_PACKET, BagMessages, SensorFileTopic, stamped_packet
+
     definitions = dict(GENERIC_DEFINITIONS)
     packets: dict = {STAMPED_PACKET: stamped_packet}
     topics = []

@@ -8,8 +8,7 @@ from typing import Any
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
 from lidarpkt.core.streams import StreamKind
-from lidarpkt.core.vendor import DecodeSetup, Match, SensorFiles, Vendor
-from .ros import ROS
+from lidarpkt.core.vendor import DecodeSetup, Match, RosMessages, SensorFiles, Vendor
 
 NAME = "hesai"
 DATA = StreamKind(NAME, "data", lidar=True)
@@ -110,6 +109,12 @@ def _load(obj: Any) -> Any:
     return load_calibration(obj)
 
 
+def ros_messages() -> RosMessages:
+    from .ros import ROS
+
+    return ROS
+
+
 VENDOR = Vendor(
     name=NAME,
     title="Hesai",
@@ -121,7 +126,7 @@ VENDOR = Vendor(
     sensor_time_ns=sensor_time_ns,
     drops=drops,
     endpoints=endpoints,
-    ros=ROS,
+    ros_messages=ros_messages,
     sensor_files=SensorFiles("Hesai angle-correction CSV", _recognise, _is_loaded, _load, needed_for="xyz"),
     frame_ids_counted=True,
 )

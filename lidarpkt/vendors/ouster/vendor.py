@@ -8,15 +8,13 @@ recognised by their size and headers (a guess, as ``lidarpkt info`` makes it), n
 
 from __future__ import annotations
 
-import json
 import os
 from typing import Any, Mapping, Sequence
 
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
 from lidarpkt.core.streams import StreamKind
-from lidarpkt.core.vendor import DecodeSetup, FrameFiles, Match, SensorFiles, Vendor
-from .ros import ROS
+from lidarpkt.core.vendor import DecodeSetup, FrameFiles, Match, RosMessages, SensorFiles, Vendor
 
 NAME = "ouster"
 LIDAR = StreamKind(NAME, "lidar", lidar=True)
@@ -149,6 +147,8 @@ def _recognise(text: str) -> bool:
     """A JSON object with the fields of the metadata (either layout)."""
     if not text.lstrip().startswith("{"):
         return False
+    import json
+
     try:
         return _is_metadata_document(json.loads(text))
     except (ValueError, RecursionError):  # not JSON, or cut at 64 KiB: the opening of a metadata document
@@ -261,6 +261,12 @@ def geometry(sensor: Any, calibration: Mapping[str, Any] | None) -> Any:
     return load_metadata(sensor.metadata).sensor_info().geometry
 
 
+def ros_messages() -> RosMessages:
+    from .ros import ROS
+
+    return ROS
+
+
 VENDOR = Vendor(
     name=NAME,
     title="Ouster",
@@ -272,7 +278,7 @@ VENDOR = Vendor(
     sensor_time_ns=sensor_time_ns,
     drops=drops,
     endpoints=endpoints,
-    ros=ROS,
+    ros_messages=ros_messages,
     sensor_files=SensorFiles("Ouster metadata JSON", _recognise, _is_loaded, _load, needed_for="decoding",
                              ports=lambda md: (md.lidar_port, md.imu_port)),
     frame_files={"osf": FrameFiles("OSF file", _open_osf, _describe_osf, _format_osf, _receive_span)},

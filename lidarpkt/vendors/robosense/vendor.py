@@ -14,8 +14,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
 from lidarpkt.core.streams import StreamKind
-from lidarpkt.core.vendor import DecodeSetup, Match, SensorFiles, Vendor
-from .ros import ROS
+from lidarpkt.core.vendor import DecodeSetup, Match, RosMessages, SensorFiles, Vendor
 
 if TYPE_CHECKING:
     import numpy as np
@@ -206,6 +205,12 @@ def geometry(sensor: Any, calibration: Mapping[str, Any] | None) -> Any:
     return RobosenseGeometry(angles, np.arange(angles.lasers), unit_um, model.lens_rx_m, model.lens_rz_m)
 
 
+def ros_messages() -> RosMessages:
+    from .ros import ROS
+
+    return ROS
+
+
 VENDOR = Vendor(
     name=NAME,
     title="RoboSense",
@@ -217,7 +222,7 @@ VENDOR = Vendor(
     sensor_time_ns=sensor_time_ns,
     drops=drops,
     endpoints=endpoints,
-    ros=ROS,
+    ros_messages=ros_messages,
     sensor_files=SensorFiles("RoboSense angle CSV", _recognise, _is_loaded, _load, needed_for="xyz"),
     frame_ids_counted=True,
     models=models,

@@ -8,8 +8,7 @@ from typing import Any, Mapping
 from lidarpkt.core.dropped import DropCounts
 from lidarpkt.core.packet import Endpoint, PacketBatch
 from lidarpkt.core.streams import StreamKind
-from lidarpkt.core.vendor import DecodeSetup, Match, SensorFiles, Vendor
-from .ros import ROS
+from lidarpkt.core.vendor import DecodeSetup, Match, RosMessages, SensorFiles, Vendor
 
 NAME = "velodyne"
 DATA = StreamKind(NAME, "data", lidar=True)
@@ -140,6 +139,12 @@ def geometry(sensor: Any, calibration: Mapping[str, Any] | None) -> Any:
     return VelodyneGeometry(None if calibration is None else VelodyneCalibration(**calibration))
 
 
+def ros_messages() -> RosMessages:
+    from .ros import ROS
+
+    return ROS
+
+
 VENDOR = Vendor(
     name=NAME,
     title="Velodyne",
@@ -151,7 +156,7 @@ VENDOR = Vendor(
     sensor_time_ns=sensor_time_ns,
     drops=drops,
     endpoints=endpoints,
-    ros=ROS,
+    ros_messages=ros_messages,
     sensor_files=SensorFiles("Velodyne calibration (ROS YAML or VeloView XML)", _recognise, _is_loaded, _load),
     frame_ids_counted=True,
     live_auxiliary=False,
