@@ -24,7 +24,6 @@ from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
 from .models import (AMBIGUOUS_PRODUCTS, BANK_FLAGS, HDL32E, HDL32E_PACKET_PERIOD_US, HDL64E_S2, HDL64E_S3, MODELS,
                      PRODUCT_NAMES, VLP16, VelodyneModel, model_for_product)
-from lidarpkt.core.nmea import parse_nmea
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
 from .stream import stream_kind
 from .timing import rotation_frequency_hz
@@ -176,6 +175,8 @@ def describe_stream(batch: PacketBatch) -> dict | None:
         fix_valid: bool | str | None = None  # str: why the sentence is unreadable
         gps_time = None
         if first:
+            from lidarpkt.core.nmea import parse_nmea
+
             try:
                 fix = parse_nmea(first)
                 fix_valid = fix.valid

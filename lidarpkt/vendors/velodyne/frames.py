@@ -74,8 +74,6 @@ from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_n
 from .layout import packet_layout
 from lidarpkt.core.dual import second_strongest_mark
 from .geometry import VelodyneGeometry
-from .hdl64e import StatusCycle
-from lidarpkt.core.nmea import fix_time_ns, parse_sentence_rows
 from .calibration import VelodyneCalibration, load_calibration
 from .models import VLP16, VelodyneModel, model_named
 from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, RETURN_MODE_CODES, RETURN_MODES
@@ -170,6 +168,7 @@ class VelodyneDecoder(PacketAccounting):
         """Take ``model`` and its calibration (the one given, else the packets' own for the HDL-64E, else stock)."""
         self.model = model
         if not model.default_calibration and self._calibration_arg is None:
+            from .hdl64e import StatusCycle  # the HDL-64E's alone
             self.geometry = None  # read from the packets' status cycle (lidarpkt.vendors.velodyne.hdl64e)
             self.calibration = None
             self._row_laser = np.arange(model.lasers)
@@ -252,6 +251,7 @@ class VelodyneDecoder(PacketAccounting):
         has = np.flatnonzero(pos.nmea[:, 0] != 0)
         if has.size == 0:
             return
+        from lidarpkt.core.nmea import fix_time_ns, parse_sentence_rows  # imported when position packets come
         fixes, inverse = parse_sentence_rows(pos.nmea[has])
         ok = np.array([f is not None for f in fixes])[inverse]
         valid = np.array([f is not None and f.valid for f in fixes])[inverse]
