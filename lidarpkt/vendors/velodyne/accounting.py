@@ -24,7 +24,7 @@ from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.errors import SkippedPacketWarning
 from .decode import DataPackets, flags_ok
-from .packet import RETURN_MODES
+from .packet import known_return_mode
 from .stream import packets_lost
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ class PacketAccounting:
         nor corrupted (``restart``: ``bool[N]``, the stream restarts at the packet), counted; ``None`` when
         none is left."""
         ok = raw.flag_ok if self.model.blocks_per_column == 1 else flags_ok(raw, self.model)
-        known = np.isin(raw.return_mode, list(RETURN_MODES))
+        known = known_return_mode(raw.return_mode)
         bad_flag = int(np.count_nonzero(~ok))
         bad_mode = int(np.count_nonzero(ok & ~known))
         if bad_flag or bad_mode:

@@ -47,7 +47,7 @@ class DataPackets:
 
         36000 (= 0°) does occur in real early-firmware packets (the VeloView capture), so it is accepted.
         """
-        return np.all((self.flag == BLOCK_FLAG) & (self.azimuth_cdeg <= 36000), axis=1)
+        return blocks_ok(self.flag, self.azimuth_cdeg, [BLOCK_FLAG] * self.flag.shape[1])
 
     @property
     def range_mm(self) -> np.ndarray:
@@ -221,6 +221,19 @@ def column_pixels(raw: DataPackets, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, r
     return rng, refl, az_px
 
 
+def blocks_ok(flag: np.ndarray, azimuth_cdeg: np.ndarray, expected) -> np.ndarray:
+    """``bool[N]``: each block ``b`` whose expected flag ``expected[b]`` is not 0 carries that flag and an azimuth
+    ≤ 36000 (0: a block the layout leaves unused, not checked); ``flag``, ``azimuth_cdeg``: ``[N, blocks]``.
+    Block by block: reducing an ``[N, 12]`` view of the packets along its short axis took several times as
+    long as twelve passes down its columns."""
+    ok = np.ones(flag.shape[0], bool)
+    for b, want in enumerate(np.asarray(expected).tolist()):
+        if want:
+            ok &= flag[:, b] == want
+            ok &= azimuth_cdeg[:, b] <= 36000
+    return ok
+
+
 def flags_ok(raw: DataPackets, model) -> np.ndarray:
     """``bool[N]``: each block carries its bank's flag (``model``'s single-mode layout: 0xEEFF, 0xDDFF, ...;
     in the VLS-128's dual mode blocks 8–11 are unused and not checked) and an azimuth ≤ 36000."""
@@ -228,10 +241,13 @@ def flags_ok(raw: DataPackets, model) -> np.ndarray:
 
     single = packet_layout(model, "strongest").flag
     dual = packet_layout(model, "dual").flag
-    is_dual = (raw.return_mode == 0x39)[:, None]
-    expected = np.where(is_dual, dual[None, :], single[None, :])
-    good = ((raw.flag == expected) | (expected == 0)) & ((raw.azimuth_cdeg <= 36000) | (expected == 0))
-    return np.all(good, axis=1)
+    is_dual = raw.return_mode == 0x39
+    if not is_dual.any() or is_dual.all():
+        return blocks_ok(raw.flag, raw.azimuth_cdeg, dual if is_dual.any() else single)
+    ok = np.empty(len(is_dual), bool)
+    for rows, expected in ((is_dual, dual), (~is_dual, single)):
+        ok[rows] = blocks_ok(raw.flag[rows], raw.azimuth_cdeg[rows], expected)
+    return ok
 
 
 def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: np.ndarray,

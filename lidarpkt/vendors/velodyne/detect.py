@@ -24,7 +24,8 @@ from .clock import hour_steps_us
 from .decode import decode_packets, decode_position_packets
 from .models import (AMBIGUOUS_PRODUCTS, BANK_FLAGS, HDL32E, HDL32E_PACKET_PERIOD_US, HDL64E_S2, HDL64E_S3, MODELS,
                      PRODUCT_NAMES, VLP16, VelodyneModel, model_for_product)
-from .packet import DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES
+from .packet import (DATA_PACKET_SIZE, POSITION_PACKET_SIZE, PPS_STATUS, PRODUCT_HDL32E, PRODUCT_VLP16, RETURN_MODES,
+                     known_return_mode)
 from .stream import stream_kind
 from .timing import rotation_frequency_hz
 
@@ -66,8 +67,10 @@ def _velodyne_shaped(raw) -> np.ndarray:
     """``bool[N]``: block 0 flagged 0xEEFF, blocks 0–7 flagged with a bank (0xEEFF … 0xBBFF; the VLS-128's
     dual packets leave blocks 8–11 unused), block 0's azimuth below 360°: a Velodyne data packet of some model."""
     flags = np.asarray(raw.flag)
-    return (flags[:, 0] == BANK_FLAGS[0]) & np.all(_IS_BANK_FLAG[flags[:, :8]], axis=1) & (
-        np.asarray(raw.azimuth_cdeg)[:, 0] <= 36000)
+    ok = (flags[:, 0] == BANK_FLAGS[0]) & (np.asarray(raw.azimuth_cdeg)[:, 0] <= 36000)
+    for b in range(1, min(8, flags.shape[1])):  # block by block (see decode.blocks_ok)
+        ok &= _IS_BANK_FLAG[flags[:, b]]
+    return ok
 
 
 def data_kind(batch: PacketBatch) -> str | None:
@@ -79,7 +82,7 @@ def data_kind(batch: PacketBatch) -> str | None:
     raw = decode_packets(batch.payload, copy=False)
     shaped = _velodyne_shaped(raw)
     hdl64 = _is_hdl64e(raw)
-    ok = shaped & (np.isin(raw.return_mode, list(RETURN_MODES)) | hdl64)
+    ok = shaped & (known_return_mode(raw.return_mode) | hdl64)
     if np.count_nonzero(ok) * 2 <= len(raw):  # mostly not Velodyne layout
         return None
     if np.count_nonzero(hdl64 & ok) * 2 > np.count_nonzero(ok):
@@ -132,7 +135,7 @@ def describe_stream(batch: PacketBatch) -> dict | None:
             return None
         raw = decode_packets(batch.payload)
         hdl64 = _is_hdl64e(raw)
-        ok = _velodyne_shaped(raw) & (np.isin(raw.return_mode, list(RETURN_MODES)) | hdl64)
+        ok = _velodyne_shaped(raw) & (known_return_mode(raw.return_mode) | hdl64)
         good = raw.select(ok)
         if np.count_nonzero(hdl64) * 2 > len(raw):
             good = hdl64e_modes(good)
@@ -200,8 +203,13 @@ def describe_stream(batch: PacketBatch) -> dict | None:
 
 def _is_hdl64e(raw) -> np.ndarray:
     """``bool[N]``: packets whose blocks alternate upper (0xEEFF) and lower (0xDDFF) banks: an HDL-64E's."""
-    expected = np.array([BANK_FLAGS[i % 2] for i in range(raw.flag.shape[1])])
-    return np.all(raw.flag == expected, axis=1)
+    flags = np.asarray(raw.flag)
+    ok = np.ones(flags.shape[0], bool)
+    for b in range(flags.shape[1]):  # block by block, done once no packet is left (any other model's: block 1)
+        ok &= flags[:, b] == BANK_FLAGS[b % 2]
+        if not ok.any():
+            break
+    return ok
 
 
 def hdl64e_model(raw) -> VelodyneModel:
@@ -289,7 +297,7 @@ def vls128_sequence_ns(raw, model: VelodyneModel) -> float | None:
 
 
 def _timing_or_layout_says_vlp16(raw) -> bool:
-    ok = raw.flag_ok & np.isin(raw.return_mode, list(RETURN_MODES))
+    ok = raw.flag_ok & known_return_mode(raw.return_mode)
     raw = raw.select(ok) if np.any(ok) else raw
     dual = median(raw.return_mode) == 0x39 if len(raw) else False
     expected = VLP16.packet_period_us("dual" if dual else "strongest")

@@ -35,6 +35,16 @@ CHANNELS_PER_BLOCK = 32
 BLOCK_FLAG = 0xEEFF  # bytes FF EE read as u16 little-endian
 
 RETURN_MODE_CODES = {name: code for code, name in RETURN_MODES.items()}
+
+
+def known_return_mode(return_mode: np.ndarray) -> np.ndarray:
+    """``bool[N]``: which of the packets' return-mode bytes (``uint8[N]``) is one of :data:`RETURN_MODES` (a table
+    lookup, where ``np.isin`` sorts)."""
+    return _KNOWN_RETURN_MODE[return_mode]
+
+
+_KNOWN_RETURN_MODE = np.zeros(256, bool)
+_KNOWN_RETURN_MODE[list(RETURN_MODES)] = True
 PRODUCT_VLP16 = VLP16.product_ids[0]
 PRODUCT_HDL32E = 0x21  # also written by early (2014) VLP-16 firmware
 
