@@ -91,7 +91,9 @@ def test_rotation_is_whole_fast_path_gives_the_rule():
               np.cumsum([50.0, 10, 10, 10, 17, 17, 17, 17]),  # the largest within GAP_STEPS of the median, not the least
               np.cumsum([100.0] + [20.0] * 907 + [17920.0]) % 36000,  # half a rotation missing (nebula's VLP-32C)
               np.cumsum([100.0, 10, 10, 10, 33, 33, 33]),  # a gap by the median, not beyond twice the mean
-              np.cumsum([100.0, 10, 10, 32.0, 10]), np.cumsum([100.0, 10, 10, 32.000001, 10])]  # at GAP_STEPS exactly
+              np.cumsum([100.0, 10, 10, 32.0, 10]), np.cumsum([100.0, 10, 10, 32.000001, 10]),  # at GAP_STEPS exactly
+              np.array([35000.0, 35500.0, 36500.0]), np.array([-10.0, 5.0, 20.0]),  # rising, past either end of the turn
+              np.array([0.0, 18000.0, 35999.0])]  # rising across the whole turn
     for az in cases:
         before = np.array(az, copy=True)
         for cut in (0.0, 9000.0):

@@ -54,13 +54,22 @@ def rotation_is_whole(azimuth_cdeg: np.ndarray, cut_cdeg: float, *, check_start:
     if lost_columns:
         return False
     az = np.asarray(azimuth_cdeg)
-    advance: np.ndarray | None
-    if az.dtype == np.float64 and not cut_cdeg and az.size >= 2 and 0.0 <= az.min() and az.max() < TURN_CDEG:
+    advance: np.ndarray | None = None
+    steps: np.ndarray | None = None
+    if az.dtype == np.float64 and not cut_cdeg and az.size >= 2:
         # azimuths within a turn and no cut angle: the key is the azimuth itself and its advances are the
-        # differences, so the steps are those below 0 moved on by a turn (what modulo_turn gives; half the passes)
-        key, advance = az, np.diff(az)
-        steps = np.where(advance < 0, advance + TURN_CDEG, advance)
-        smallest = float(steps.min())
+        # differences, so the steps are those below 0 moved on by a turn (what modulo_turn gives; half the
+        # passes); azimuths rising from the first to the last (a frame between two wraps) are within the turn
+        # where those two are, and their steps are the advances themselves (a third of the passes)
+        advance = np.diff(az)
+        smallest = float(advance.min())
+        if smallest > 0 and 0.0 <= az[0] and az[-1] < TURN_CDEG:
+            steps = advance
+        elif 0.0 <= az.min() and az.max() < TURN_CDEG:
+            steps = np.where(advance < 0, advance + TURN_CDEG, advance)
+            smallest = float(steps.min())
+    if steps is not None and advance is not None:
+        key = az
         if smallest > 0:  # then the median is positive too, and bounded by the smallest step and twice the mean
             top, per = float(advance.max()), 2 if by_block else 1
             if not (check_start or check_end) and top <= GAP_STEPS * per * smallest:
