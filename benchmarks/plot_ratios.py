@@ -11,23 +11,24 @@ rounds), their median and the target. After new runs, update ``RUNS`` and the pa
 from __future__ import annotations
 
 import argparse
+import statistics
 from pathlib import Path
 
 #: comparison -> (ratio of each of the latest runs, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.46, 3.50, 3.51), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.72, 4.68, 4.65), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.99, 3.62, 3.96), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.73, 3.69, 3.77), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.56, 2.75, 2.84), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.48, 1.47, 1.48), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.54, 1.71, 1.81), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.30, 1.48, 1.43), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.52, 1.58, 1.68), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.46, 1.40, 1.44), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.29, 3.43, 3.36, 2.75, 3.49, 2.85), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.13, 4.66, 4.51, 4.92, 4.09, 4.14), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.44, 3.49, 3.84, 3.90, 3.89, 3.16), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.23, 3.67, 3.82, 3.91, 3.41, 4.04), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.79, 2.40, 2.60, 2.75, 2.52, 2.49), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.13, 1.42, 1.41, 1.55, 1.32, 1.20), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.57, 1.39, 1.63, 1.55, 1.76, 1.71), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.30, 1.40, 1.47, 1.54, 1.28, 1.13), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.37, 1.36, 1.32, 1.32, 1.73, 1.17), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.29, 1.35, 1.42, 1.45, 1.16, 1.25), 1.5),
 }
-RUN_DATE = "2026-11-27 14:27-14:33 UTC, 3 runs, load 1.5-1.6"
+RUN_DATE = "2026-11-27 15:55-16:22 UTC, 6 runs, load 1.2-1.9"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
@@ -42,7 +43,7 @@ def plot(out: Path = OUT) -> Path:
     fig, ax = plt.subplots(figsize=(9, 5.6), dpi=110)
     for i, name in enumerate(names):
         ratios, target = RUNS[name]
-        ax.barh(i, sorted(ratios)[1], color="#4c72b0", height=0.6, label="median of the runs" if i == 0 else None)
+        ax.barh(i, statistics.median(ratios), color="#4c72b0", height=0.6, label="median of the runs" if i == 0 else None)
         ax.plot(ratios, [i] * len(ratios), "o", color="#222222", markersize=4, label="each run" if i == 0 else None)
         ax.plot([target, target], [i - 0.38, i + 0.38], color="#c44e52", lw=2, label="target" if i == 0 else None)
     ax.axvline(1.0, color="#888888", lw=1, ls="--")
@@ -53,7 +54,7 @@ def plot(out: Path = OUT) -> Path:
     ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xticks([0.25, 0.5, 1, 2, 4, 8], ["0.25×", "0.5×", "1×", "2×", "4×", "8×"])
     ax.set_xlabel("lidarpkt's speed over the reference decoder's (wall time ratio; > 1: lidarpkt is faster)")
-    ax.set_title(f"Decoding speed against the reference decoders, 2 vCPUs, {RUN_DATE}", fontsize=10)
+    ax.set_title(f"Decoding speed against the reference decoders\n2 vCPUs, {RUN_DATE}", fontsize=10)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(out)
