@@ -576,9 +576,11 @@ def test_pipes_are_refused_clearly(tmp_path):
 
 
 def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_packets):
-    """Records and pcapng blocks that straddle the read blocks (incl. a big-endian section header)
-    give exactly what one whole-file read gives."""
+    """Records and pcapng blocks that straddle the read blocks (incl. a big-endian section header), and a
+    first read (cut at FIRST_BLOCK_BYTES) that the first record or pcapng block does not fit, which the walk
+    reads again in full from there: exactly what one whole-file read gives, nothing truncated."""
     import lidarpkt.containers.pcap_reader as pcap_module
+    from lidarpkt.containers import pcap_walk
 
     mixed = real_packets + _v6(real_packets[:6])
     files = {"a.pcap": None, "b.pcapng": None}
@@ -590,38 +592,20 @@ def test_small_read_blocks_give_the_same_packets(tmp_path, monkeypatch, real_pac
     for name in files:
         files[name] = (list(read_packets(tmp_path / name)), PcapReader(tmp_path / name))
         list(files[name][1].packets())
-    for block in (1600, 1601, 2048, 3001, 4999, 10_007):
-        monkeypatch.setattr(pcap_module, "READ_BLOCK_BYTES", block)
-        for name, (expected, ref_reader) in files.items():
-            reader = PcapReader(tmp_path / name, batch_packets=5)
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")
-                got = list(reader.packets())
-            assert _as_tuples(got) == _as_tuples(expected), (name, block)
-            assert (reader.stats.records, reader.stats.reassembled, reader.stats.bytes_read) == (
-                ref_reader.stats.records, ref_reader.stats.reassembled, ref_reader.stats.bytes_read), (name, block)
-
-
-def test_short_first_read_gives_the_same_packets(tmp_path, monkeypatch, real_packets):
-    """The first read of a pass is cut at FIRST_BLOCK_BYTES: where the first record or pcapng block does not
-    fit it, the walk reads again in full from there (no truncation), and every packet and count is the same."""
-    from lidarpkt.containers import pcap_walk
-
-    write_pcap(tmp_path / "a.pcap", real_packets, nanosecond=True)
-    (tmp_path / "b.pcapng").write_bytes(pcapng_bytes([(0, p.timestamp_ns, f) for p in real_packets
-                                                      for f in frames_for(p)]))
-    for name in ("a.pcap", "b.pcapng"):
-        whole = PcapReader(tmp_path / name)
-        expected = list(whole.packets())
-        for first in (8, 24, 100, 1000, 1601, 5000):
-            monkeypatch.setattr(pcap_walk, "FIRST_BLOCK_BYTES", first)
-            reader = PcapReader(tmp_path / name, batch_packets=5)
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")
-                got = list(reader.packets())
-            assert _as_tuples(got) == _as_tuples(expected), (name, first)
-            assert (reader.stats.records, reader.stats.bytes_read, reader.stats.truncated) == (
-                whole.stats.records, whole.stats.bytes_read, False), (name, first)
+    settings = [(pcap_module, "READ_BLOCK_BYTES", block) for block in (1600, 1601, 2048, 3001, 4999, 10_007)]
+    settings += [(pcap_walk, "FIRST_BLOCK_BYTES", first_read) for first_read in (8, 24, 100, 1000, 1601, 5000)]
+    for module, setting, value in settings:
+        with monkeypatch.context() as patched:
+            patched.setattr(module, setting, value)
+            for name, (expected, ref_reader) in files.items():
+                reader = PcapReader(tmp_path / name, batch_packets=5)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error")
+                    got = list(reader.packets())
+                assert _as_tuples(got) == _as_tuples(expected), (name, setting, value)
+                st, ref = reader.stats, ref_reader.stats
+                assert (st.records, st.reassembled, st.bytes_read, st.truncated) == (
+                    ref.records, ref.reassembled, ref.bytes_read, False), (name, setting, value)
 
 
 def test_file_shrinking_while_read(tmp_path, monkeypatch, real_packets):
