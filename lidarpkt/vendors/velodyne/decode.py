@@ -221,7 +221,7 @@ def column_pixels(raw: DataPackets, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, r
     return rng, refl, az_px
 
 
-def blocks_ok(flag: np.ndarray, azimuth_cdeg: np.ndarray, expected) -> np.ndarray:
+def blocks_ok(flag: np.ndarray, azimuth_cdeg: np.ndarray, expected: np.ndarray | list[int]) -> np.ndarray:
     """``bool[N]``: each block ``b`` whose expected flag ``expected[b]`` is not 0 carries that flag and an azimuth
     ≤ 36000 (0: a block the layout leaves unused, not checked); ``flag``, ``azimuth_cdeg``: ``[N, blocks]``.
     Block by block: reducing an ``[N, 12]`` view of the packets along its short axis took several times as
