@@ -41,7 +41,7 @@ class NMEAFix:
         """UTC time as ns since the Unix epoch when both date and time are known, else ``None``."""
         if self.date is None or self.time_of_day_s is None:
             return None
-        import calendar  # here: only fixes with a date ask, and every Velodyne read imports this module
+        import calendar  # here: only fixes with a date ask
 
         y, m, d = self.date
         midnight = calendar.timegm((y, m, d, 0, 0, 0, 0, 0, 0))
