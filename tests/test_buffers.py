@@ -8,7 +8,7 @@ import gc
 import numpy as np
 import pytest
 
-from lidarpkt.core.buffers import BufferPool
+from lidarpkt.core.buffers import BufferPool, size_class
 
 
 def address(a: np.ndarray) -> int:
@@ -31,7 +31,7 @@ def test_a_buffer_serves_again_once_nothing_refers_to_it():
     a = pool.empty((4, 1000), np.uint32)
     first = address(a)
     del a
-    b = pool.empty((1000,), np.int64)  # another shape and dtype, no larger
+    b = pool.empty((2000,), np.int64)  # another shape and dtype, as many bytes
     assert address(b) == first
     assert (pool.made, pool.reused) == (1, 1)
 
@@ -72,6 +72,14 @@ def test_held_arrays_keep_their_numbers_while_the_pool_goes_on():
             assert (view == value).all()
     assert pool.reused > 0
     assert pool.nbytes <= pool.max_bytes
+
+
+@pytest.mark.parametrize("nbytes", [1, 63, 64, 65, 1000, 4096, 100_000, 1_500_000, (1 << 20) + 1])
+def test_size_classes_round_up_by_a_quarter_or_a_cache_line(nbytes):
+    capacity = size_class(nbytes)
+    assert nbytes <= capacity and capacity % 64 == 0
+    assert capacity <= max(nbytes * 1.25, nbytes + 63)
+    assert size_class(capacity) == capacity
 
 
 def test_memory_kept_is_bounded():

@@ -12,13 +12,19 @@ One pool belongs to one decoder, which takes from it in one thread at a time.
 
 from __future__ import annotations
 
+import math
 import sys
 
 import numpy as np
 
 __all__ = ["BufferPool"]
 
-_ALIGN = 64  # bytes: requests are rounded up to whole cache lines, so slightly different sizes share buffers
+
+def size_class(nbytes: int) -> int:
+    """The capacity of the buffer made for ``nbytes``: rounded up to a multiple of a quarter of the power of
+    two below it (at most 25 % more) and to whole cache lines, so that nearly equal requests share buffers."""
+    step = max(64, 1 << max(0, nbytes.bit_length() - 3))
+    return -(-max(nbytes, 1) // step) * step
 
 
 class BufferPool:
@@ -33,7 +39,7 @@ class BufferPool:
         self.max_bytes = int(max_bytes)
         self.reused = 0
         self.made = 0
-        self._buffers: list[np.ndarray] = []  # uint8[capacity], each the base of the arrays made from it
+        self._classes: dict[int, list[np.ndarray]] = {}  # capacity → uint8 buffers, each the base of its arrays
         self._bytes = 0
 
     @property
@@ -45,36 +51,31 @@ class BufferPool:
         """An array of ``shape`` and ``dtype`` (uninitialised, C order, writeable, aligned as ``numpy.empty``'s)."""
         dt = np.dtype(dtype)
         shape = (shape,) if isinstance(shape, int) else tuple(shape)
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
-        buf = self._free(nbytes)
-        if buf is None:
-            buf = np.empty(-(-max(nbytes, 1) // _ALIGN) * _ALIGN, np.uint8)
-            self._keep(buf)
-            self.made += 1
-        else:
-            self.reused += 1
-        return buf[:nbytes].view(dt).reshape(shape)
-
-    def _free(self, nbytes: int) -> np.ndarray | None:
-        best = None
-        for buf in self._buffers:
+        capacity = size_class(math.prod(shape) * dt.itemsize)
+        kept = self._classes.setdefault(capacity, [])
+        for buf in kept:
             # 3 references: the list's, the loop variable's and getrefcount's argument; any array made from
-            # the buffer adds one (NumPy views refer to the array that owns the memory)
-            if buf.shape[0] >= nbytes and sys.getrefcount(buf) == 3 and (best is None or buf.shape[0] < best.shape[0]):
-                best = buf
-        return best
+            # the buffer adds one (it is their base, and NumPy views refer to the array that owns the memory)
+            if sys.getrefcount(buf) == 3:
+                self.reused += 1
+                return np.ndarray(shape, dt, buffer=buf)
+        buf = np.empty(capacity, np.uint8)
+        self.made += 1
+        if self._bytes + capacity > self.max_bytes:
+            self._drop_free(self._bytes + capacity - self.max_bytes)
+        if self._bytes + capacity <= self.max_bytes:
+            kept.append(buf)
+            self._bytes += capacity
+        return np.ndarray(shape, dt, buffer=buf)
 
-    def _keep(self, buf: np.ndarray) -> None:
-        size = buf.shape[0]
-        if self._bytes + size > self.max_bytes:
-            # make room by dropping free buffers (too small for this request, or it would have been taken)
-            kept = []
-            for old in self._buffers:
-                if self._bytes + size > self.max_bytes and sys.getrefcount(old) == 3:
-                    self._bytes -= old.shape[0]
+    def _drop_free(self, nbytes: int) -> None:
+        """Forget free buffers (of other sizes: none of this one was free) until ``nbytes`` are dropped."""
+        for capacity, kept in self._classes.items():
+            keep = []
+            for buf in kept:
+                if nbytes > 0 and sys.getrefcount(buf) == 3:
+                    nbytes -= capacity
+                    self._bytes -= capacity
                 else:
-                    kept.append(old)
-            self._buffers = kept
-        if self._bytes + size <= self.max_bytes:
-            self._buffers.append(buf)
-            self._bytes += size
+                    keep.append(buf)
+            kept[:] = keep
