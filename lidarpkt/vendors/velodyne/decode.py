@@ -8,17 +8,12 @@ Frame assembly (:mod:`lidarpkt.vendors.velodyne.frames`) and the encoder work fr
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
 from lidarpkt.core import kernels
 
 from .packet import BLOCK_FLAG, as_data_packets, as_position_packets
-
-
-#: makes an uninitialised array of a shape and dtype, as ``numpy.empty``
-Empty = Callable[..., np.ndarray]
 
 
 @dataclass(eq=False)
@@ -181,14 +176,13 @@ def decode_position_packets(payload: np.ndarray) -> PositionPackets:
 
 
 def column_pixels(raw: DataPackets, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, row_laser: np.ndarray, slots: int,
-                  sequences: int = 2, empty: Empty = np.empty) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  sequences: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The pixels of a batch as range-image columns: ``range_mm`` ``uint32[slots, 16, W]`` (2 × the
     wire's distance), ``reflectivity`` ``uint8[slots, 16, W]`` and per-firing ``azimuth`` ``uint16[16, W]``,
     W = N · (12 / slots) · 2; row r is laser ``row_laser[r]``; dual packets (``slots`` 2) put block b in
     slot b % 2. The azimuth of a firing is :func:`~lidarpkt.vendors.velodyne.timing.firing_azimuths` of its
     block's azimuth (block 2k of a dual pair), the packet's rate (``rate_cdeg_s``, ``float32[N]``) and its
-    delay (``dt_s``, ``float32[12 / slots, 32]``). ``empty`` makes the three output arrays (``numpy.empty``,
-    or a decoder's :meth:`~lidarpkt.core.buffers.BufferPool.empty`).
+    delay (``dt_s``, ``float32[12 / slots, 32]``).
 
     Compiled (``lidarpkt._native.velodyne_columns``, one pass in chunks of 64 packets, each packet's firing
     azimuths computed in an L1 tile) when it is built; the NumPy twin computes every firing azimuth, copies
@@ -198,9 +192,9 @@ def column_pixels(raw: DataPackets, rate_cdeg_s: np.ndarray, dt_s: np.ndarray, r
     n, blocks, channels = raw.distance_2mm.shape
     lasers = channels // sequences
     w0 = n * (blocks // slots) * sequences
-    rng = empty((slots, lasers, w0), np.uint32)
-    refl = empty((slots, lasers, w0), np.uint8)
-    az_px = empty((lasers, w0), np.uint16)
+    rng = np.empty((slots, lasers, w0), np.uint32)
+    refl = np.empty((slots, lasers, w0), np.uint8)
+    az_px = np.empty((lasers, w0), np.uint16)
     native = kernels.native
     if native is not None and (lasers, blocks, sequences) == (16, 12, 2):
         native.velodyne_columns(raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg,
@@ -257,15 +251,13 @@ def flags_ok(raw: DataPackets, model) -> np.ndarray:
 
 
 def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: np.ndarray,
-                  unit_mm: int, empty: Empty = np.empty) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  unit_mm: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The pixels of a batch as range-image columns, for any model's :class:`~.layout.PacketLayout`:
     ``range_mm`` ``uint32[slots, L, W]`` (the wire's distance × ``unit_mm``), ``reflectivity``
     ``uint8[slots, L, W]`` and per-firing ``azimuth`` ``uint16[L, W]``, W = N · columns per packet; row r
     is laser ``row_laser[r]``. ``rate_cdeg_s``: ``float32[N]`` rotation rate of each packet (0.01°/s).
 
     The azimuth of a firing is velodyne_decoder's: lround(block azimuth + rate · dt) mod 36000 in float32.
-    ``empty`` makes the compiled kernel's output arrays (``numpy.empty``, or a decoder's
-    :meth:`~lidarpkt.core.buffers.BufferPool.empty`).
     """
     from .timing import round_azimuth_cdeg
 
@@ -277,9 +269,9 @@ def layout_pixels(raw: DataPackets, layout, rate_cdeg_s: np.ndarray, row_laser: 
     dt = layout.dt_s32.reshape(-1)[src0]
     native = kernels.native
     if native is not None and hasattr(native, "velodyne_layout_columns"):
-        rng = empty((s, lasers, n * c), np.uint32)
-        f = empty((s, lasers, n * c), np.uint8)
-        az_px = empty((lasers, n * c), np.uint16)
+        rng = np.empty((s, lasers, n * c), np.uint32)
+        f = np.empty((s, lasers, n * c), np.uint8)
+        az_px = np.empty((lasers, n * c), np.uint16)
         native.velodyne_layout_columns(raw.distance_2mm, raw.reflectivity, raw.azimuth_cdeg,
                                        np.ascontiguousarray(src, np.int64), np.ascontiguousarray(block, np.int64),
                                        np.ascontiguousarray(dt, np.float32),

@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarpkt.core.buffers import BufferPool
 from lidarpkt.core.continuity import StreamContinuity
 from lidarpkt.errors import CalibrationError, SkippedPacketWarning
 from lidarpkt.core.median import median
@@ -69,7 +68,7 @@ from lidarpkt.core.sensor import SensorInfo
 from lidarpkt.core.packet import PacketBatch
 from .clock import HOUR_US, SensorClock
 from .accounting import DecoderStats, PacketAccounting
-from .columns import PIECE_COLUMNS, POOL_BYTES, Columns, finish_columns
+from .columns import Columns, finish_columns
 from .decode import DataPackets, column_pixels, decode_packets, decode_position_packets, layout_pixels
 from .detect import check_product, detect_model, hdl64e_modes, vls128_sequence_ns
 from .layout import packet_layout
@@ -83,6 +82,8 @@ from .timing import (firing_dt_s, interpacket_rate_cdeg_s, packet_rate_cdeg_s, p
                      rotation_frequency_hz, row_offsets_ns)
 
 DUAL = RETURN_MODE_CODES["dual"]
+#: columns made at a time (_push_run): 1024 VLP-16 packets; more where a packet has fewer, so frames seldom straddle
+PIECE_COLUMNS = 24_576
 MAX_HELD_PACKETS = 16_384  #: HDL-64E packets held while its status cycle brings the calibration (~4 cycles, ~12 MB)
 LABELS = {"strongest": ("strongest",), "last": ("last",), "dual": ("last", "strongest")}
 
@@ -145,7 +146,6 @@ class VelodyneDecoder(PacketAccounting):
         self._pending_columns = 0
         self.stats = DecoderStats()
         self._pending: list[Columns] = []
-        self._pool = BufferPool(POOL_BYTES)  # a piece's buffers serve again once no frame refers to them
         self._start_unknown = True  # the pending frame does not begin at a wrap (the first of a stream)
         self._pending_counters = FrameCounters()
         self._mode: str | None = None
@@ -167,7 +167,6 @@ class VelodyneDecoder(PacketAccounting):
     def _set_model(self, model: VelodyneModel) -> None:
         """Take ``model`` and its calibration (the one given, else the packets' own for the HDL-64E, else stock)."""
         self.model = model
-        self._sensors = {}
         if not model.default_calibration and self._calibration_arg is None:
             from .hdl64e import StatusCycle  # the HDL-64E's alone
             self.geometry = None  # read from the packets' status cycle (lidarpkt.vendors.velodyne.hdl64e)
@@ -176,11 +175,13 @@ class VelodyneDecoder(PacketAccounting):
             self._status = StatusCycle()
             self._held = []
             self._held_packets = 0
+            self._sensors = {}
             return
         cal = load_calibration(self._calibration_arg, model)
         self.geometry = VelodyneGeometry(cal, model)
         self.calibration = self.geometry.calibration
         self._row_laser = self.geometry.row_laser
+        self._sensors = {}
 
     def _await_calibration(self, batch: PacketBatch, raw: DataPackets) -> list[Frame]:
         """Hold the packets of an HDL-64E until its status cycle brought its calibration, then decode them.
@@ -363,18 +364,17 @@ class VelodyneDecoder(PacketAccounting):
         return frames
 
     def _columns(self, raw: DataPackets, abs_ns: np.ndarray, index: np.ndarray, miss: np.ndarray, mode: str) -> Columns:
-        empty = self._pool.empty  # the piece's arrays
         if self.model.sequences_per_block != 2:  # not a 16-laser Puck: the table-driven path
             rng, refl, az_px = layout_pixels(raw, packet_layout(self.model, mode), self._packet_rates(raw, mode),
-                                             self._row_laser, round(self.model.distance_resolution_m * 1000), empty)
+                                             self._row_laser, round(self.model.distance_resolution_m * 1000))
         else:
             dual = mode == "dual"
             slots = 2 if dual else 1
             dt = firing_dt_s(dual)[::slots]  # dual: one block of each pair (the pair shares its firings)
             rng, refl, az_px = column_pixels(raw, packet_rate_cdeg_s_vlp16(raw.azimuth_cdeg, dual), dt,
-                                             self._row_laser, slots, self.model.sequences_per_block, empty)
+                                             self._row_laser, slots, self.model.sequences_per_block)
         return finish_columns(rng, refl, az_px, abs_ns, index, miss, self.model.columns_per_packet(mode), self.model,
-                              self._row_laser, self._last_az_cdeg, empty)
+                              self._row_laser, self._last_az_cdeg)
 
     def _packet_rates(self, raw: DataPackets, mode: str) -> np.ndarray:
         """``float32[N]`` rotation rate of each packet, 0.01° per second, as velodyne_decoder measures it."""
@@ -421,7 +421,7 @@ class VelodyneDecoder(PacketAccounting):
         self._start_unknown = end != "wrap"  # the next frame begins at a wrap only after one
         if not parts:
             return []
-        cols = Columns.concat(parts, self._pool.empty)
+        cols = Columns.concat(parts)
         lost = int(cols.lost.sum())  # counts, none negative: any lost when the sum is
         counters.lost_packets += lost
         partial = end == "overlong" or not self._is_whole(cols.azimuth_cdeg, start_unknown, end == "cut", lost > 0)
