@@ -111,9 +111,24 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
+#: set in the ``lidarpkt`` command's own process (and so in the processes it starts) unless already set:
+#: lidarpkt does no large matrix algebra, and OpenBLAS (NumPy's BLAS) otherwise starts a thread per CPU at
+#: ``import numpy`` that spins ~0.1 s of CPU before it sleeps (``lidarpkt info``: 0.27 → 0.16 s of CPU)
+COMMAND_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1"}
+
+
+def command() -> int:
+    """The ``lidarpkt`` console script (and ``python -m lidarpkt``): :func:`main` in a process of its own,
+    with :data:`COMMAND_ENVIRONMENT` set before NumPy is imported."""
+    for name, value in COMMAND_ENVIRONMENT.items():
+        os.environ.setdefault(name, value)
+    return main()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``lidarpkt`` console script. Returns the exit status: 0 done, 1 done with
-    losses (``record``), 2 error (one line on stderr, no output left behind), 130 interrupted."""
+    """The ``lidarpkt`` command line, run in this process (``argv`` by default ``sys.argv[1:]``). Returns the
+    exit status: 0 done, 1 done with losses (``record``), 2 error (one line on stderr, no output left behind),
+    130 interrupted."""
     from . import args as cliargs
 
     argv = cliargs.preparse_json(cliargs.preparse_pixel(list(sys.argv[1:] if argv is None else argv)))
