@@ -113,7 +113,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 #: set in the ``lidarpkt`` command's own process (and so in the processes it starts) unless already set:
 #: lidarpkt does no large matrix algebra, and OpenBLAS (NumPy's BLAS) otherwise starts a thread per CPU at
-#: ``import numpy`` that spins ~0.1 s of CPU before it sleeps (``lidarpkt info``: 0.27 → 0.16 s of CPU)
+#: ``import numpy`` that spins before it sleeps, on the cores the decoding needs (docs: performance)
 COMMAND_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1"}
 
 
