@@ -27,8 +27,12 @@ def wrapped(key_cdeg: np.ndarray, previous_cdeg: float | None = None) -> np.ndar
     """``bool[N]``: True where an azimuth (minus the cut angle, 0.01°) dropped by more than half a
     turn from the one before it (``previous_cdeg`` for the first; ``None``: the first did not wrap)."""
     key = np.asarray(key_cdeg)
-    prev = np.concatenate([[key[0] if previous_cdeg is None else previous_cdeg], key[:-1]]) if key.size else key
-    return key < prev - HALF_TURN_CDEG
+    out = np.empty(key.shape, bool)
+    if key.size:
+        out[0] = previous_cdeg is not None and bool(key[0] < previous_cdeg - HALF_TURN_CDEG)
+        # written in place, with one temporary: a shifted copy as well made two arrays of 200 kB per piece
+        np.less(key[1:], key[:-1] - HALF_TURN_CDEG, out=out[1:])
+    return out
 
 
 #: a step between two columns of a frame larger than this many typical steps means columns are missing

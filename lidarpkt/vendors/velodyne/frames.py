@@ -402,7 +402,7 @@ class VelodyneDecoder(PacketAccounting):
                 self._pending.append(piece)
             frames += self._flush(end="wrap")
         self._pending.append(pieces[-1])
-        self._pending_columns = sum(len(p) for p in self._pending)
+        self._pending_columns = len(pieces[-1]) if len(pieces) > 1 else self._pending_columns + len(cols)
         if self._pending_columns > self.max_frame_columns:
             # the azimuth never wrapped (sensor not rotating, or a broken encoder): bound the memory
             self.stats.overlong_frames += 1
@@ -416,7 +416,7 @@ class VelodyneDecoder(PacketAccounting):
         parts = [p for p in self._pending if len(p)]
         counters = self._pending_counters
         start_unknown = self._start_unknown
-        self._pending = []
+        self._pending, self._pending_columns = [], 0
         self._pending_counters = FrameCounters()
         self._start_unknown = end != "wrap"  # the next frame begins at a wrap only after one
         if not parts:
