@@ -56,6 +56,7 @@ def _corrected(seed: int) -> VelodyneGeometry:
     g._cos, g._neg_sin = _trig_tables(tuple(rng.uniform(-0.05, 0.05, 16).tolist()))
     g._coef = np.ascontiguousarray(np.stack([g._k_xy[:, 0], g._k_z[:, 0], g._dc_xy[:, 0], g._dc_z[:, 0],
                                              g._vert_offset[:, 0]]))
+    g._kernel_coef = g._coef  # a table per row: the kernel takes the five coefficients
     g._has_dist = g._has_voff = True
     return g
 

@@ -34,7 +34,7 @@ class Columns:
 
     def split(self, at: list[int]) -> list["Columns"]:
         """The runs of columns between the cuts ``at`` (ascending column indices): views, as ``np.split``'s."""
-        arrays = [getattr(self, k) for k in self.__dataclass_fields__]
+        arrays = [getattr(self, k) for k in _FIELDS]
         bounds = [0, *at, len(self)]
         return [Columns(*(a[..., lo:hi] for a in arrays)) for lo, hi in zip(bounds[:-1], bounds[1:])]
 
@@ -42,7 +42,10 @@ class Columns:
     def concat(parts: list["Columns"]) -> "Columns":
         if len(parts) == 1:
             return parts[0]
-        return Columns(**{k: np.concatenate([getattr(p, k) for p in parts], axis=-1) for k in Columns.__dataclass_fields__})
+        return Columns(**{k: np.concatenate([getattr(p, k) for p in parts], axis=-1) for k in _FIELDS})
+
+
+_FIELDS = tuple(Columns.__dataclass_fields__)
 
 
 def finish_columns(rng: np.ndarray, refl: np.ndarray, az_px: np.ndarray, abs_ns: np.ndarray, index: np.ndarray,

@@ -91,6 +91,9 @@ class VelodyneGeometry:
         self._coef_rot = np.ascontiguousarray(np.concatenate([self._coef, np.cos(self._rot).T, np.sin(self._rot).T]))
         self._has_dist = bool(np.any(self._dist_correction))
         self._has_voff = bool(np.any(self._vert_offset))
+        # the kernel has no horizontal-offset or two-point term: a calibration with one takes the NumPy path
+        self._kernel_coef = (None if np.any(self._horiz_offset) or self._two_point
+                             else self._coef_rot if self._per_row and self._cos.ndim == 1 else self._coef)
 
     def distance_m(self, frame) -> np.ndarray:
         """``float64[R, L, W]`` corrected distance, metres (0 stays 0)."""
@@ -113,14 +116,11 @@ class VelodyneGeometry:
             raise CalibrationError("VLP-16 frame without per-firing azimuths (extra['azimuth_cdeg'])") from None
         rng = frame.range_mm
         native = kernels.native
-        # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]; the
-        # kernel has no horizontal-offset term, so a calibration with one takes the NumPy path
-        if (native is not None and rng.ndim == 3 and rng.shape[1] == len(self.row_laser)
-                and np.shape(az_cdeg) == rng.shape[1:] and not np.any(self._horiz_offset) and not self._two_point):
+        coef = self._kernel_coef  # with one table, each row's correction is combined per pixel (_coef_rot)
+        # one fused pass (the same operations as _points, in C): 2-3x fewer passes over [R, 16, W]
+        if (native is not None and coef is not None and rng.ndim == 3 and rng.shape[1] == len(self.row_laser)
+                and np.shape(az_cdeg) == rng.shape[1:]):
             out = np.empty(rng.shape + (3,), dtype=np.float64)
-            coef = self._coef
-            if self._per_row and self._cos.ndim == 1:  # one table, each row's correction combined per pixel
-                coef = self._coef_rot
             native.velodyne_xyz(_rows_contiguous(rng, np.uint32), _rows_contiguous(az_cdeg, np.uint16),
                                 self._cos, self._neg_sin, coef, self._has_dist, self._has_voff, out)
             return out

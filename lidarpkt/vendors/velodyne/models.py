@@ -19,6 +19,7 @@ published vertical offsets; ``packet_decoder.cpp``: timing tables).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 from lidarpkt.errors import PacketFormatError, UnknownSensorError
@@ -117,7 +118,7 @@ class VelodyneModel:
         """Firing sequences (columns) of a single-return packet (24 on the VLP-16, 12 on 32-laser models)."""
         return self.blocks_per_packet // self.blocks_per_column * self.sequences_per_block
 
-    @property
+    @functools.cached_property  # asked for every frame (its pixels' time offsets)
     def laser_offsets_ns(self) -> tuple[float, ...]:
         """Firing time of each laser id after its column's first firing, ns."""
         if self.laser_firing_ns is not None:
