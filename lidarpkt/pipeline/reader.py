@@ -23,6 +23,7 @@ from lidarpkt.containers.protocol import PacketSource
 from lidarpkt.core.decoder import Decoder
 from lidarpkt.core.dropped import DropCounts, format_dropped
 from lidarpkt.core.frame import Frame
+from lidarpkt.core.heap import keep_freed_arrays
 from lidarpkt.core.packet import PacketBatch
 from lidarpkt.core.readahead import warn  # warnings.warn, or handed to the caller's thread when decoding ahead
 from lidarpkt.core.sequence import FrameIterator
@@ -77,6 +78,7 @@ class FrameReader(FrameIterator):
         opts = OpenOptions.from_keywords("FrameReader", options)
         if opts.workers not in (None, 1):
             raise ValueError("FrameReader decodes in one thread; lidarpkt.open(path, workers=N) decodes in N")
+        keep_freed_arrays()  # the arrays of each batch and frame, made again and again
         self.path = Path(path)
         self.segment = segment = opts.segment
         self._ownership = None
@@ -296,10 +298,7 @@ class Driver:
 
     def finish(self) -> list[Frame]:
         """The frames still being assembled in every decoder (the last, partial ones)."""
-        out: list[Frame] = []
-        for decoder in self.decoders.values():
-            out += decoder.finish()
-        return out
+        return [frame for decoder in self.decoders.values() for frame in decoder.finish()]
 
     def unused_files(self) -> list:
         """The sensor files given that no decoder was given (they fit no stream routed so far)."""
@@ -411,6 +410,7 @@ def open_frames(path: str | os.PathLike[str], **options: Unpack[OpenKeywords]
         UsageError: ``workers`` is not a whole number >= 1.
     """
     opts = OpenOptions.from_keywords("lidarpkt.open", dict(options))
+    keep_freed_arrays()
     frame_files = registry.frame_files(path)
     if frame_files is not None:  # files of decoded frames, not packets
         return _open_frame_file(path, opts, frame_files)
