@@ -17,18 +17,18 @@ from pathlib import Path
 #: comparison -> (ratio of each of the latest runs, target): lidarpkt's speed / the reference's
 #: (higher is faster), whole processes
 RUNS: dict[str, tuple[tuple[float, ...], float]] = {
-    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.29, 3.43, 3.36, 2.75, 3.49, 2.85), 4.0),
-    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.13, 4.66, 4.51, 4.92, 4.09, 4.14), 4.0),
-    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((3.44, 3.49, 3.84, 3.90, 3.89, 3.16), 4.0),
-    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.23, 3.67, 3.82, 3.91, 3.41, 4.04), 4.0),
-    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((2.79, 2.40, 2.60, 2.75, 2.52, 2.49), 4.0),
-    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.13, 1.42, 1.41, 1.55, 1.32, 1.20), 1.5),
-    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.57, 1.39, 1.63, 1.55, 1.76, 1.71), 1.5),
-    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.30, 1.40, 1.47, 1.54, 1.28, 1.13), 1.5),
-    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.37, 1.36, 1.32, 1.32, 1.73, 1.17), 1.5),
-    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.29, 1.35, 1.42, 1.45, 1.16, 1.25), 1.5),
+    "VLP-16 strongest 60 s\nframes+XYZ vs velodyne_decoder": ((3.45, 3.32, 3.50), 4.0),
+    "VLP-16 dual 60 s\nframes+XYZ vs velodyne_decoder": ((4.82, 5.11, 4.86), 4.0),
+    "VLP-32C × 150\nframes+XYZ vs velodyne_decoder": ((4.15, 3.91, 3.52), 4.0),
+    "VLS-128 × 25\nframes+XYZ vs velodyne_decoder": ((3.87, 4.04, 3.82), 4.0),
+    "HDL-32E × 300\nframes+XYZ vs velodyne_decoder": ((3.00, 2.94, 2.91), 4.0),
+    "OS-2-128 single (RNG19)\nframes vs ouster-sdk": ((1.41, 1.32, 1.32), 1.5),
+    "OS-0-32 dual (RNG19)\nframes vs ouster-sdk": ((1.77, 1.68, 1.44), 1.5),
+    "OS-0-128 (RNG15)\nframes vs ouster-sdk": ((1.47, 1.49, 1.13), 1.5),
+    "OS-1-64 legacy\nframes vs ouster-sdk": ((1.49, 1.36, 1.13), 1.5),
+    "OS-1-128 (RNG15)\nframes vs ouster-sdk": ((1.50, 1.50, 1.06), 1.5),
 }
-RUN_DATE = "2026-11-27 15:55-16:22 UTC, 6 runs, load 1.2-1.9"
+RUN_DATE = "2026-11-27 19:41-19:48 UTC, 3 runs, load 1.5-2.1"
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "benchmark-ratios.png"
 
 
